@@ -1,0 +1,24 @@
+"""The ``quadnav`` command."""
+
+from __future__ import annotations
+
+import typer
+
+from quadnav.cli.planar import planar_command
+from quadnav.cli.run import run_command
+
+__all__ = ["app", "main"]
+
+app = typer.Typer(
+    name="quadnav",
+    help="GPS-denied quadrotor navigation: simulate, estimate with delayed measurements, evaluate.",
+    no_args_is_help=True,
+    pretty_exceptions_enable=False,
+    add_completion=False,
+)
+app.command("run")(run_command)
+app.command("planar")(planar_command)
+
+
+def main() -> None:
+    app()

@@ -1,0 +1,60 @@
+"""The exception hierarchy: one root, one subclass per package.
+
+The command line maps every :class:`QuadnavError` to exit code 2 and a one-line message;
+anything else escaping to the user is a bug.
+"""
+
+from __future__ import annotations
+
+__all__ = [
+    "ConfigError",
+    "ControlError",
+    "EstimationError",
+    "EvalError",
+    "ExperimentError",
+    "GeometryError",
+    "IoError",
+    "QuadnavError",
+    "SampleError",
+    "SimError",
+]
+
+
+class QuadnavError(Exception):
+    """Root of every error quadnav raises on purpose."""
+
+
+class GeometryError(QuadnavError):
+    """Bad rotation, pose or frame input."""
+
+
+class SampleError(QuadnavError):
+    """A sample with a wrong shape, a non-finite value or a bad timestamp."""
+
+
+class SimError(QuadnavError):
+    """The simulator was given an impossible setting or reached an invalid state."""
+
+
+class EstimationError(QuadnavError):
+    """An estimator was misconfigured or fed something it cannot use."""
+
+
+class ControlError(QuadnavError):
+    """A controller was misconfigured."""
+
+
+class ExperimentError(QuadnavError):
+    """A scenario or experiment could not be assembled."""
+
+
+class IoError(QuadnavError):
+    """A file, folder or link could not be read or written."""
+
+
+class ConfigError(IoError):
+    """A configuration file or override is malformed or holds an impossible value."""
+
+
+class EvalError(QuadnavError):
+    """Evaluation inputs do not fit together."""

@@ -1,0 +1,384 @@
+"""The delayed-horizon core: IMU ring buffer, per-sensor observation buffers, output predictor.
+
+This is the estimator structure of PX4 EKF2 that thesis 000 (chapter 2) explains, written
+once and shared by every filter in quadnav:
+
+* The filter (any :class:`DelayedFilter`) runs ``max_delay`` behind the newest IMU sample,
+  at the *delayed horizon*. The IMU ring buffer is as long as the largest configured sensor
+  delay needs (PX4's rule, ``delay / imu_period + 1``, rounded up so a delay between two
+  IMU ticks still fits).
+* Observations wait in a buffer per source, ordered by their time of validity, and are fused
+  when the delayed horizon reaches that time, whatever order they arrived in. One that
+  arrives after the horizon has passed it is rejected and counted.
+* The *output predictor* integrates every new IMU sample at the current horizon and is pulled
+  towards the filter: a proportional-integral correction of velocity and position applied to
+  the whole output buffer with gains ``dt / tau``, and an attitude correction fed through the
+  delta angle with gain ``0.5 * dt / delay`` (PX4 ``applyCorrectionToOutputBuffer`` and
+  ``calculateOutputStates``). One addition, on by default and measured in the planar
+  experiment: a velocity correction also shifts each buffered position by the correction
+  times that entry's age, so the buffer stays kinematically consistent.
+
+What is model-specific (the strapdown integration and the attitude error) comes in through a
+:class:`Kinematics`; the filter's own equations through a :class:`DelayedFilter`.
+"""
+
+from __future__ import annotations
+
+import heapq
+import math
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import numpy as np
+from numpy.typing import NDArray
+
+from quadnav.errors import EstimationError
+from quadnav.messages import ImuSample, Sample, StateEstimate, check_t_ns
+
+__all__ = [
+    "DelayedFilter",
+    "DelayedHorizonEstimator",
+    "FusionRecord",
+    "FusionResult",
+    "HorizonConfig",
+    "Kinematics",
+    "NavState",
+    "SourceStats",
+    "imu_buffer_length",
+]
+
+FloatArray = NDArray[np.float64]
+
+
+def imu_buffer_length(*, max_delay_ns: int, imu_period_ns: int) -> int:
+    """IMU buffer length for a largest sensor delay (PX4: ``delay / period + 1``, rounded up)."""
+    if imu_period_ns <= 0:
+        raise EstimationError(f"the IMU period must be > 0 ns, got {imu_period_ns}")
+    if max_delay_ns < 0:
+        raise EstimationError(f"the largest sensor delay must be >= 0 ns, got {max_delay_ns}")
+    return -(-max_delay_ns // imu_period_ns) + 1
+
+
+@dataclass(slots=True)
+class NavState:
+    """Position, velocity and attitude at one time (model-specific array shapes)."""
+
+    t_ns: int
+    pos: FloatArray
+    vel: FloatArray
+    att: FloatArray
+
+    def copy(self) -> NavState:
+        return NavState(self.t_ns, self.pos.copy(), self.vel.copy(), self.att.copy())
+
+
+class Kinematics(Protocol):
+    """Strapdown integration shared by a filter's mean, the output predictor and diagnostics.
+
+    Arrays may carry leading batch axes: ``pos`` (..., P), ``vel`` (..., P), ``att`` (..., A),
+    ``gyro``/``accel`` (..., 3) in the body frame, ``dt_s`` broadcastable to the batch,
+    ``dtheta_corr`` a delta-angle correction (..., 3) added to ``gyro * dt``.
+    """
+
+    def integrate(
+        self,
+        pos: FloatArray,
+        vel: FloatArray,
+        att: FloatArray,
+        gyro: FloatArray,
+        accel: FloatArray,
+        dt_s: FloatArray | float,
+        dtheta_corr: FloatArray | None = None,
+    ) -> tuple[FloatArray, FloatArray, FloatArray]: ...
+
+    def attitude_error(self, att_target: FloatArray, att: FloatArray) -> FloatArray:
+        """The delta angle (3,) that rotates ``att`` onto ``att_target``."""
+        ...
+
+    def to_estimate(
+        self, nav: NavState, x: FloatArray, names: tuple[str, ...], P: FloatArray | None
+    ) -> StateEstimate:
+        """Package a navigation state in the common 3-D form."""
+        ...
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class FusionResult:
+    """What a filter did with one observation."""
+
+    accepted: bool
+    innovation: FloatArray
+    nis: float
+    test_ratio: float
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class FusionRecord:
+    """A log line for one observation that reached the fusion horizon."""
+
+    t_obs_ns: int
+    t_fused_ns: int
+    source: str
+    result: FusionResult
+
+
+class DelayedFilter(Protocol):
+    """A filter that runs at the delayed horizon (predict with IMU, fuse observations)."""
+
+    kinematics: Kinematics
+    names: tuple[str, ...]
+
+    def predict(self, imu: ImuSample, dt_s: float) -> None: ...
+
+    def fuse(self, obs: Sample) -> FusionResult: ...
+
+    def nav(self, t_ns: int) -> NavState: ...
+
+    @property
+    def x(self) -> FloatArray: ...
+
+    @property
+    def P(self) -> FloatArray: ...
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class HorizonConfig:
+    """Timing and output-predictor settings of the delayed-horizon core.
+
+    ``max_delay_ns`` is the largest delay of any configured sensor; it fixes the IMU buffer.
+    ``tau_vel_s`` and ``tau_pos_s`` are the output predictor's velocity and position
+    time constants (PX4 ``EKF2_TAU_VEL``/``EKF2_TAU_POS``). With
+    ``propagate_velocity_correction`` (our addition to PX4's scheme) a velocity correction
+    also moves each buffered position by the correction times the entry's age, as the
+    kinematics imply; ``False`` is PX4's constant correction.
+    """
+
+    imu_period_ns: int
+    max_delay_ns: int
+    tau_vel_s: float = 0.25
+    tau_pos_s: float = 0.25
+    output_correction: bool = True
+    propagate_velocity_correction: bool = True
+    max_observations_per_source: int = 1024
+
+    def __post_init__(self) -> None:
+        imu_buffer_length(max_delay_ns=self.max_delay_ns, imu_period_ns=self.imu_period_ns)
+        for name in ("tau_vel_s", "tau_pos_s"):
+            value = getattr(self, name)
+            if not math.isfinite(value) or value <= 0.0:
+                raise EstimationError(f"HorizonConfig.{name} must be finite and > 0, got {value}")
+        if self.max_observations_per_source < 1:
+            raise EstimationError("HorizonConfig.max_observations_per_source must be >= 1")
+
+
+@dataclass(slots=True)
+class SourceStats:
+    """Counters for one observation source."""
+
+    received: int = 0
+    fused: int = 0
+    rejected_gate: int = 0
+    rejected_too_old: int = 0
+    dropped_overflow: int = 0
+
+
+@dataclass(slots=True)
+class _Counters:
+    imu_received: int = 0
+    imu_rejected_out_of_order: int = 0
+    sources: dict[str, SourceStats] = field(default_factory=dict)
+
+
+class DelayedHorizonEstimator:
+    """A filter at the delayed horizon plus PX4's output predictor at the current horizon.
+
+    Implements the ``Estimator`` protocol: :meth:`push` any sample in arrival order,
+    :meth:`output` for the current horizon, :meth:`delayed` for the fusion horizon.
+    """
+
+    def __init__(self, filt: DelayedFilter, config: HorizonConfig, *, t0_ns: int) -> None:
+        self.filter = filt
+        self.kin = filt.kinematics
+        self.config = config
+        self.buffer_length = imu_buffer_length(
+            max_delay_ns=config.max_delay_ns, imu_period_ns=config.imu_period_ns
+        )
+        self._dt_nominal_s = config.imu_period_ns * 1e-9
+        self._imu_buffer: deque[tuple[ImuSample, float]] = deque()
+        self._obs: dict[str, list[tuple[int, int, Sample]]] = {}
+        self._seq = 0
+        self._t_last_imu_ns = check_t_ns(t0_ns, "t0")
+        self._t_delayed_ns = self._t_last_imu_ns
+        self._fusion_started = False
+        nav0 = filt.nav(self._t_last_imu_ns)
+        # The output buffer is a ring of arrays so corrections apply to all of it at once.
+        L = self.buffer_length
+        self._ob_t = np.full(L, self._t_last_imu_ns, dtype=np.int64)
+        self._ob_pos = np.tile(nav0.pos, (L, 1))
+        self._ob_vel = np.tile(nav0.vel, (L, 1))
+        self._ob_att = np.tile(nav0.att, (L, 1))
+        self._ob_head = 0
+        self._ob_count = 1
+        self._vel_err_integ = np.zeros_like(nav0.vel)
+        self._pos_err_integ = np.zeros_like(nav0.pos)
+        self._dtheta_corr = np.zeros(3)
+        self._counters = _Counters()
+        self.fusion_log: list[FusionRecord] = []
+
+    # -- time horizons -------------------------------------------------------------------
+    @property
+    def t_now_ns(self) -> int:
+        """Time of the newest IMU sample (the current horizon)."""
+        return self._t_last_imu_ns
+
+    @property
+    def t_delayed_ns(self) -> int:
+        """Time the filter has reached (the delayed horizon)."""
+        return self._t_delayed_ns
+
+    def delayed_nav(self) -> NavState:
+        return self.filter.nav(self._t_delayed_ns)
+
+    def output_nav(self) -> NavState:
+        """The output predictor's state (with no delay, the filter's own)."""
+        if self.buffer_length == 1:
+            return self.filter.nav(self._t_delayed_ns)
+        h = self._ob_head
+        return NavState(
+            int(self._ob_t[h]), self._ob_pos[h].copy(), self._ob_vel[h].copy(), self._ob_att[h].copy()
+        )
+
+    def delayed(self) -> StateEstimate:
+        nav = self.delayed_nav()
+        return self.kin.to_estimate(nav, self.filter.x.copy(), self.filter.names, self.filter.P.copy())
+
+    def output(self) -> StateEstimate:
+        nav = self.output_nav()
+        x = np.concatenate([nav.pos, nav.vel, nav.att])
+        return self.kin.to_estimate(nav, x, self.filter.names, None)
+
+    # -- statistics ------------------------------------------------------------------------
+    @property
+    def imu_rejected_out_of_order(self) -> int:
+        return self._counters.imu_rejected_out_of_order
+
+    def stats(self, source: str) -> SourceStats:
+        """Counters of one observation source (zeros if it never sent anything)."""
+        return self._counters.sources.get(source, SourceStats())
+
+    @property
+    def sources(self) -> tuple[str, ...]:
+        return tuple(self._counters.sources)
+
+    # -- input ---------------------------------------------------------------------------
+    def push(self, sample: Sample) -> None:
+        """Take one sample in arrival order. IMU samples advance time; others are buffered."""
+        if isinstance(sample, ImuSample):
+            self._push_imu(sample)
+        else:
+            self._push_observation(sample)
+
+    def _push_observation(self, obs: Sample) -> None:
+        source = getattr(obs, "source", type(obs).__name__)
+        stats = self._counters.sources.setdefault(source, SourceStats())
+        stats.received += 1
+        half_period = self.config.imu_period_ns // 2
+        if self._fusion_started and obs.t_ns < self._t_delayed_ns - half_period:
+            # The fusion horizon has passed this measurement's time of validity: its delay is
+            # larger than the buffer allows (or it arrived out of order by more than that).
+            stats.rejected_too_old += 1
+            return
+        queue = self._obs.setdefault(source, [])
+        heapq.heappush(queue, (obs.t_ns, self._seq, obs))
+        self._seq += 1
+        if len(queue) > self.config.max_observations_per_source:
+            # Keep the newest ones: drop the oldest time of validity.
+            heapq.heappop(queue)
+            stats.dropped_overflow += 1
+
+    def _push_imu(self, imu: ImuSample) -> None:
+        self._counters.imu_received += 1
+        if imu.t_ns <= self._t_last_imu_ns:
+            self._counters.imu_rejected_out_of_order += 1
+            return
+        dt_s = (imu.t_ns - self._t_last_imu_ns) * 1e-9
+        self._t_last_imu_ns = imu.t_ns
+        self._imu_buffer.append((imu, dt_s))
+        if self.buffer_length > 1:
+            self._integrate_output(imu, dt_s)
+        if len(self._imu_buffer) >= self.buffer_length:
+            imu_d, dt_d = self._imu_buffer.popleft()
+            self._step_delayed(imu_d, dt_d)
+            if self.buffer_length > 1 and self.config.output_correction:
+                self._correct_output()
+
+    # -- delayed horizon -----------------------------------------------------------------
+    def _step_delayed(self, imu: ImuSample, dt_s: float) -> None:
+        self.filter.predict(imu, dt_s)
+        self._t_delayed_ns = imu.t_ns
+        self._fusion_started = True
+        limit = self._t_delayed_ns + self.config.imu_period_ns // 2
+        due: list[tuple[int, int, Sample]] = []
+        for queue in self._obs.values():
+            while queue and queue[0][0] <= limit:
+                due.append(heapq.heappop(queue))
+        due.sort()
+        for t_obs, _, obs in due:
+            result = self.filter.fuse(obs)
+            source = getattr(obs, "source", type(obs).__name__)
+            stats = self._counters.sources[source]
+            if result.accepted:
+                stats.fused += 1
+            else:
+                stats.rejected_gate += 1
+            self.fusion_log.append(
+                FusionRecord(t_obs_ns=t_obs, t_fused_ns=self._t_delayed_ns, source=source, result=result)
+            )
+
+    # -- output predictor ----------------------------------------------------------------
+    def _integrate_output(self, imu: ImuSample, dt_s: float) -> None:
+        h = self._ob_head
+        pos, vel, att = self.kin.integrate(
+            self._ob_pos[h], self._ob_vel[h], self._ob_att[h],
+            imu.gyro_rad_s, imu.accel_m_s2, dt_s, self._dtheta_corr,
+        )
+        h = (h + 1) % self.buffer_length
+        self._ob_head = h
+        self._ob_count = min(self._ob_count + 1, self.buffer_length)
+        self._ob_t[h] = imu.t_ns
+        self._ob_pos[h] = pos
+        self._ob_vel[h] = vel
+        self._ob_att[h] = att
+
+    def _correct_output(self) -> None:
+        L = self.buffer_length
+        oldest = (self._ob_head + 1) % L if self._ob_count == L else 0
+        if self._ob_t[oldest] != self._t_delayed_ns:
+            # The buffers are aligned by construction; a mismatch is a bug, not bad input.
+            raise EstimationError(
+                f"output buffer at {self._ob_t[oldest]} ns but delayed horizon at "
+                f"{self._t_delayed_ns} ns"
+            )
+        nav = self.filter.nav(self._t_delayed_ns)
+        dt = self._dt_nominal_s
+        # Attitude: a delta-angle correction with PX4's gain 0.5 * dt / delay.
+        time_delay_s = max((self._t_last_imu_ns - self._t_delayed_ns) * 1e-9, dt)
+        att_gain = 0.5 * dt / time_delay_s
+        self._dtheta_corr = self.kin.attitude_error(nav.att, self._ob_att[oldest]) * att_gain
+        # Velocity and position: proportional-integral, applied to the whole buffer.
+        vel_gain = dt / min(max(self.config.tau_vel_s, dt), 10.0)
+        pos_gain = dt / min(max(self.config.tau_pos_s, dt), 10.0)
+        vel_err = nav.vel - self._ob_vel[oldest]
+        pos_err = nav.pos - self._ob_pos[oldest]
+        self._vel_err_integ += vel_err
+        self._pos_err_integ += pos_err
+        vel_corr = vel_err * vel_gain + self._vel_err_integ * (vel_gain**2 * 0.1)
+        pos_corr = pos_err * pos_gain + self._pos_err_integ * (pos_gain**2 * 0.1)
+        self._ob_vel += vel_corr
+        self._ob_pos += pos_corr
+        if self.config.propagate_velocity_correction:
+            # A velocity change at the delayed horizon moves every later state by that
+            # change times its age; PX4 leaves this to later integration.
+            age_s = (self._ob_t - self._ob_t[oldest]) * 1e-9
+            self._ob_pos += age_s[:, None] * vel_corr

@@ -1,0 +1,293 @@
+"""Metrics, plots and the run folder of the planar experiment (thesis 000, figures 2.3-2.5)."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
+import numpy as np
+from numpy.typing import NDArray
+
+from quadnav.eval.metrics import nees, position_rmse
+from quadnav.experiments.planar import ExperimentName, PlanarConfig, PlanarRun, run_planar
+from quadnav.io.config import dump_config
+from quadnav.io.run_folder import create_run_folder, write_csv, write_json, write_text, write_tum
+
+__all__ = [
+    "PlanarStudy",
+    "planar_metrics",
+    "plot_monte_carlo",
+    "plot_planar_run",
+    "run_planar_study",
+    "summarize_seeds",
+]
+
+FloatArray = NDArray[np.float64]
+Progress = Callable[[int, int, str], None]
+
+#: Per-seed metrics that the summary reports as a median over seeds.
+SUMMARY_KEYS = (
+    "rmse_delayed_m",
+    "rmse_output_m",
+    "rmse_floor_m",
+    "output_over_floor",
+    "nees_mean",
+)
+
+
+def _wrap(a: FloatArray) -> FloatArray:
+    return np.asarray((a + np.pi) % (2.0 * np.pi) - np.pi, dtype=np.float64)
+
+
+def _delayed_errors(run: PlanarRun, rows: NDArray[np.int64]) -> FloatArray:
+    di = run.delayed_index[rows]
+    ref = np.column_stack([run.truth_p[di], run.truth_v[di], run.truth_theta[di]])
+    err = run.delayed_x[rows] - ref
+    err[:, 4] = _wrap(err[:, 4])
+    return err
+
+
+def planar_metrics(run: PlanarRun) -> dict[str, Any]:
+    """Position RMSE of each estimate against the truth at its own horizon, the floor, NEES.
+
+    * delayed: the filter's estimate against the truth at the delayed horizon, over the steps
+      after the horizon started moving;
+    * output and floor: against the truth now, over every step after the start;
+    * NEES of the 5-state delayed estimate, averaged over the steps after the first fused fix.
+    """
+    rows = np.arange(1, len(run.t_ns))
+    rows_d = rows[run.t_delayed_ns[rows] > run.t_ns[0]]
+    rmse_d = position_rmse(run.delayed_x[rows_d, 0:2], run.truth_p[run.delayed_index[rows_d]])
+    rmse_o = position_rmse(run.output_p[rows], run.truth_p[rows])
+    rmse_f = position_rmse(run.floor_p[rows], run.truth_p[rows])
+    fused = run.fusion_t_obs_ns[run.fusion_accepted]
+    nees_mean = math.nan
+    nees_steps = 0
+    if len(fused):
+        m = rows[run.t_delayed_ns[rows] >= fused.min()]
+        if len(m):
+            values = nees(_delayed_errors(run, m), run.delayed_P[m])
+            nees_mean = float(values.mean())
+            nees_steps = len(m)
+    return {
+        "seed": run.seed,
+        "rmse_delayed_m": rmse_d,
+        "rmse_output_m": rmse_o,
+        "rmse_floor_m": rmse_f,
+        "output_over_floor": rmse_o / rmse_f if rmse_f > 0 else math.nan,
+        "nees_mean": nees_mean,
+        "nees_steps": nees_steps,
+        "gps_received": run.gps_received,
+        "gps_fused": run.gps_fused,
+        "gps_rejected_gate": run.gps_rejected_gate,
+        "gps_rejected_too_old": run.gps_rejected_too_old,
+        "imu_buffer_length": run.buffer_length,
+    }
+
+
+def summarize_seeds(per_seed: list[dict[str, Any]]) -> dict[str, Any]:
+    """Median, mean, 10th and 90th percentile over seeds of each summary metric."""
+    out: dict[str, Any] = {"seeds": len(per_seed)}
+    for key in SUMMARY_KEYS:
+        values = np.array([m[key] for m in per_seed], dtype=np.float64)
+        finite = values[np.isfinite(values)]
+        if len(finite) == 0:
+            out[key] = {"median": math.nan, "mean": math.nan, "p10": math.nan, "p90": math.nan}
+            continue
+        out[key] = {
+            "median": float(np.median(finite)),
+            "mean": float(np.mean(finite)),
+            "p10": float(np.percentile(finite, 10)),
+            "p90": float(np.percentile(finite, 90)),
+        }
+    for key in ("gps_received", "gps_fused", "gps_rejected_gate", "gps_rejected_too_old"):
+        out[f"{key}_total"] = int(sum(m[key] for m in per_seed))
+    return out
+
+
+_TITLES = {
+    "no_update": "No measurement update (IMU only)",
+    "naive": "Delayed GPS fused as if current",
+    "handled": "Delays handled: delayed horizon + output predictor",
+}
+
+
+def plot_planar_run(run: PlanarRun, path: Path) -> None:
+    """One figure per experiment: x(t), z(t), the trajectory, theta(t), errors with +-1 sigma."""
+    t = run.t_ns * 1e-9
+    td = run.t_delayed_ns * 1e-9
+    started = run.t_delayed_ns > run.t_ns[0]
+    handled = run.buffer_length > 1
+    fig, axes = plt.subplots(2, 3, figsize=(16, 9), constrained_layout=True)
+    fig.suptitle(f"{_TITLES[run.experiment]} (seed {run.seed})")
+    for k, (ax, label) in enumerate(zip(axes[0, :2], ("x", "z"), strict=True)):
+        ax.plot(t, run.truth_p[:, k], "--", color="tab:blue", label="truth")
+        ax.plot(td[started], run.delayed_x[started, k], color="tab:orange", label="EKF (delayed horizon)")
+        if handled:
+            ax.plot(t, run.output_p[:, k], color="tab:green", label="output predictor")
+        if len(run.gps_t_valid_ns):
+            ax.plot(run.gps_t_valid_ns * 1e-9, run.gps_p[:, k], "x", color="tab:red", ms=4,
+                    label="GPS (time of validity)")
+        ax.set_xlabel("t (s)")
+        ax.set_ylabel(f"{label} (m)")
+        ax.set_title(f"Position {label}")
+        ax.legend(fontsize=8)
+    ax = axes[0, 2]
+    ax.plot(run.truth_p[:, 0], run.truth_p[:, 1], "--", color="tab:blue", label="truth")
+    ax.plot(run.delayed_x[started, 0], run.delayed_x[started, 1], color="tab:orange", label="EKF")
+    if handled:
+        ax.plot(run.output_p[:, 0], run.output_p[:, 1], color="tab:green", label="output predictor")
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("z (m)")
+    ax.set_title("Trajectory")
+    ax.legend(fontsize=8)
+    ax = axes[1, 0]
+    ax.plot(t, np.degrees(run.truth_theta), "--", color="tab:blue", label="truth")
+    ax.plot(td[started], np.degrees(run.delayed_x[started, 4]), color="tab:orange", label="EKF")
+    if handled:
+        ax.plot(t, np.degrees(run.output_theta), color="tab:green", label="output predictor")
+    ax.set_xlabel("t (s)")
+    ax.set_ylabel("theta (deg)")
+    ax.set_title("Pitch")
+    ax.legend(fontsize=8)
+    rows = np.flatnonzero(started)
+    err = _delayed_errors(run, rows) if len(rows) else np.zeros((0, 5))
+    for k, (ax, label) in enumerate(zip(axes[1, 1:], ("x", "z"), strict=True)):
+        sigma = np.sqrt(run.delayed_P[rows, k, k])
+        ax.fill_between(td[rows], -sigma, sigma, color="tab:orange", alpha=0.25, label="EKF +-1 sigma")
+        ax.plot(td[rows], err[:, k], color="tab:orange", label="EKF - delayed truth")
+        if handled:
+            ax.plot(t, run.output_p[:, k] - run.truth_p[:, k], color="tab:green", lw=0.8,
+                    label="output - truth")
+            ax.plot(t, run.floor_p[:, k] - run.truth_p[:, k], color="black", lw=0.8, ls=":",
+                    label="floor - truth")
+        ax.set_xlabel("t (s)")
+        ax.set_ylabel("error (m)")
+        ax.set_title(f"Position error {label}")
+        ax.legend(fontsize=8)
+        if handled and len(rows):
+            lim = 4.0 * max(float(np.max(sigma)), float(np.max(np.abs(err[:, k]))), 1e-3)
+            lim = max(lim, 1.2 * float(np.max(np.abs(run.output_p[:, k] - run.truth_p[:, k]))))
+            ax.set_ylim(-lim, lim)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def plot_monte_carlo(per_experiment: dict[str, list[dict[str, Any]]], path: Path) -> None:
+    """Distribution over seeds of each estimate's position RMSE, per experiment (log scale)."""
+    fig, ax = plt.subplots(figsize=(10, 5), constrained_layout=True)
+    labels, data = [], []
+    for exp, per_seed in per_experiment.items():
+        for key, name in (("rmse_delayed_m", "delayed"), ("rmse_output_m", "output"),
+                          ("rmse_floor_m", "floor")):
+            if exp != "handled" and name != "delayed":
+                continue
+            labels.append(f"{exp}\n{name}")
+            data.append([m[key] for m in per_seed])
+    ax.boxplot(data, tick_labels=labels)
+    ax.set_yscale("log")
+    ax.set_ylabel("position RMSE (m)")
+    ax.set_title(f"Monte Carlo over {len(next(iter(per_experiment.values())))} seeds")
+    ax.grid(True, which="both", alpha=0.3)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def _write_run_series(run: PlanarRun, folder: Path) -> None:
+    t = run.t_ns
+    write_csv(folder / "truth.csv", {
+        "t_ns": t, "x_m": run.truth_p[:, 0], "z_m": run.truth_p[:, 1],
+        "vx_m_s": run.truth_v[:, 0], "vz_m_s": run.truth_v[:, 1], "theta_rad": run.truth_theta,
+    })
+    cols: dict[str, NDArray[Any]] = {"t_ns": run.t_delayed_ns, "t_now_ns": t}
+    for k, name in enumerate(("x_m", "z_m", "vx_m_s", "vz_m_s", "theta_rad")):
+        cols[name] = run.delayed_x[:, k]
+    for k, name in enumerate(("x", "z", "vx", "vz", "theta")):
+        cols[f"var_{name}"] = run.delayed_P[:, k, k]
+    write_csv(folder / "delayed.csv", cols)
+    write_csv(folder / "output.csv", {
+        "t_ns": t, "x_m": run.output_p[:, 0], "z_m": run.output_p[:, 1],
+        "vx_m_s": run.output_v[:, 0], "vz_m_s": run.output_v[:, 1], "theta_rad": run.output_theta,
+    })
+    write_csv(folder / "floor.csv", {
+        "t_ns": t, "x_m": run.floor_p[:, 0], "z_m": run.floor_p[:, 1],
+        "vx_m_s": run.floor_v[:, 0], "vz_m_s": run.floor_v[:, 1], "theta_rad": run.floor_theta,
+    })
+    write_csv(folder / "gps.csv", {
+        "t_ns": run.gps_t_valid_ns, "t_arrival_ns": run.gps_t_arrival_ns,
+        "x_m": run.gps_p[:, 0], "z_m": run.gps_p[:, 1],
+    })
+    write_csv(folder / "innovations.csv", {
+        "t_ns": run.fusion_t_obs_ns, "t_fused_ns": run.fusion_t_fused_ns,
+        "innov_x_m": run.fusion_innovation[:, 0], "innov_z_m": run.fusion_innovation[:, 1],
+        "nis": run.fusion_nis, "test_ratio": run.fusion_test_ratio, "accepted": run.fusion_accepted,
+    })
+
+    def q_of(theta: FloatArray) -> FloatArray:
+        zeros = np.zeros(len(theta))
+        return np.column_stack([zeros, np.sin(theta / 2), zeros, np.cos(theta / 2)])
+
+    def p3(p: FloatArray) -> FloatArray:
+        return np.column_stack([p[:, 0], np.zeros(len(p)), p[:, 1]])
+
+    write_tum(folder / "truth.tum", t, p3(run.truth_p), q_of(run.truth_theta))
+    write_tum(folder / "output.tum", t, p3(run.output_p), q_of(run.output_theta))
+    started = run.t_delayed_ns > t[0]
+    xd = run.delayed_x[started]
+    write_tum(folder / "delayed.tum", run.t_delayed_ns[started], p3(xd[:, 0:2]), q_of(xd[:, 4]))
+
+
+@dataclass(frozen=True, slots=True)
+class PlanarStudy:
+    """Where a study was written and what it measured (``summary[experiment][metric]``)."""
+
+    run_dir: Path
+    summary: dict[str, dict[str, Any]]
+    per_seed: dict[str, list[dict[str, Any]]]
+
+
+def run_planar_study(
+    config: PlanarConfig, *, runs_root: Path, progress: Progress | None = None
+) -> PlanarStudy:
+    """Run every configured experiment over ``config.seeds`` seeds and write a run folder.
+
+    Time series and the figure of each experiment come from its first seed; ``metrics.json``
+    has every seed's metrics and their summary.
+    """
+    run_dir = create_run_folder(runs_root, config.name)
+    write_text(run_dir / "config.yaml", dump_config(config))
+    total = len(config.experiments) * config.seeds
+    done = 0
+    per_seed: dict[str, list[dict[str, Any]]] = {}
+    for exp in config.experiments:
+        name: ExperimentName = exp
+        per_seed[name] = []
+        for k in range(config.seeds):
+            seed = config.seed + k
+            run = run_planar(config, name, seed)
+            per_seed[name].append(planar_metrics(run))
+            if k == 0:
+                _write_run_series(run, run_dir / name)
+                plot_planar_run(run, run_dir / "plots" / f"{name}.png")
+            done += 1
+            if progress is not None:
+                progress(done, total, f"{name} seed {seed}")
+    summary = {exp: summarize_seeds(v) for exp, v in per_seed.items()}
+    if config.seeds > 1:
+        plot_monte_carlo(per_seed, run_dir / "plots" / "monte_carlo.png")
+    write_json(run_dir / "metrics.json", {
+        "description": "position RMSE of each estimate against the truth at its own horizon; "
+        "floor = delayed estimate re-integrated through the buffered IMU samples; "
+        "NEES of the 5-state delayed estimate after the first fused fix",
+        "summary": summary,
+        "per_seed": per_seed,
+    })
+    return PlanarStudy(run_dir=run_dir, summary=summary, per_seed=per_seed)

@@ -1,0 +1,21 @@
+"""Closed-loop experiments: a simulator, its controllers and an estimator wired together."""
+
+from quadnav.errors import ExperimentError
+from quadnav.experiments.planar import (
+    EXPERIMENTS,
+    ExperimentName,
+    PlanarConfig,
+    PlanarRun,
+    run_planar,
+    s_to_ns,
+)
+
+__all__ = [
+    "EXPERIMENTS",
+    "ExperimentError",
+    "ExperimentName",
+    "PlanarConfig",
+    "PlanarRun",
+    "run_planar",
+    "s_to_ns",
+]

@@ -1,0 +1,132 @@
+"""Rotations and rigid poses with the ``T_A_B`` convention.
+
+``T_A_B`` is the pose of frame B in frame A: ``p_A = T_A_B @ p_B`` and
+``T_A_C = T_A_B @ T_B_C``. Rotation maths is SciPy's; this module only names things and
+validates input.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import overload
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.spatial.transform import Rotation
+
+from quadnav.errors import GeometryError
+
+__all__ = [
+    "Pose",
+    "geodesic_angle_rad",
+    "quat_wxyz_to_xyzw",
+    "quat_xyzw_to_wxyz",
+    "rot_y",
+]
+
+FloatArray = NDArray[np.float64]
+
+
+def _vec3(value: ArrayLike, name: str) -> FloatArray:
+    arr = np.asarray(value, dtype=np.float64)
+    if arr.shape != (3,):
+        raise GeometryError(f"{name} must have shape (3,), got {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise GeometryError(f"{name} must be finite, got {arr.tolist()}")
+    return arr
+
+
+def quat_xyzw_to_wxyz(q_xyzw: ArrayLike) -> FloatArray:
+    """Reorder quaternions (..., 4) from scalar-last to scalar-first."""
+    q = np.asarray(q_xyzw, dtype=np.float64)
+    return np.concatenate([q[..., 3:4], q[..., 0:3]], axis=-1)
+
+
+def quat_wxyz_to_xyzw(q_wxyz: ArrayLike) -> FloatArray:
+    """Reorder quaternions (..., 4) from scalar-first to scalar-last."""
+    q = np.asarray(q_wxyz, dtype=np.float64)
+    return np.concatenate([q[..., 1:4], q[..., 0:1]], axis=-1)
+
+
+def rot_y(angle_rad: ArrayLike) -> FloatArray:
+    """Rotation matrices about +y, shape (..., 3, 3): the pitch of an FLU body in ENU.
+
+    A positive angle turns the body's +x (forward) towards -z and its +z (thrust)
+    towards +x.
+    """
+    a = np.asarray(angle_rad, dtype=np.float64)
+    c, s = np.cos(a), np.sin(a)
+    out = np.zeros((*a.shape, 3, 3))
+    out[..., 0, 0] = c
+    out[..., 0, 2] = s
+    out[..., 1, 1] = 1.0
+    out[..., 2, 0] = -s
+    out[..., 2, 2] = c
+    return out
+
+
+def geodesic_angle_rad(R_a: Rotation, R_b: Rotation) -> FloatArray:
+    """Angle of the rotation taking ``R_a`` to ``R_b`` (radians, in [0, pi])."""
+    return np.asarray((R_a.inv() * R_b).magnitude(), dtype=np.float64)
+
+
+@dataclass(frozen=True, slots=True)
+class Pose:
+    """A rigid transform ``T_A_B``: rotation ``R_A_B`` and translation ``p_A_B``."""
+
+    R_A_B: Rotation
+    p_A_B: FloatArray
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.R_A_B, Rotation) or not self.R_A_B.single:
+            raise GeometryError("Pose rotation must be a single scipy Rotation")
+        object.__setattr__(self, "p_A_B", _vec3(self.p_A_B, "p_A_B"))
+
+    @classmethod
+    def identity(cls) -> Pose:
+        return cls(Rotation.identity(), np.zeros(3))
+
+    @classmethod
+    def from_matrix(cls, T: ArrayLike) -> Pose:
+        """From a 4x4 homogeneous matrix whose rotation block is orthonormal."""
+        M = np.asarray(T, dtype=np.float64)
+        if M.shape != (4, 4) or not np.all(np.isfinite(M)):
+            raise GeometryError(f"a pose matrix must be a finite 4x4 array, got shape {M.shape}")
+        if not np.allclose(M[3], [0.0, 0.0, 0.0, 1.0], atol=1e-9):
+            raise GeometryError("the last row of a pose matrix must be [0, 0, 0, 1]")
+        R = M[:3, :3]
+        if not np.allclose(R @ R.T, np.eye(3), atol=1e-6) or np.linalg.det(R) <= 0:
+            raise GeometryError("the rotation block of a pose matrix is not a rotation")
+        return cls(Rotation.from_matrix(R), M[:3, 3])
+
+    @classmethod
+    def from_quat_xyzw(cls, q_xyzw: ArrayLike, p_A_B: ArrayLike) -> Pose:
+        q = np.asarray(q_xyzw, dtype=np.float64)
+        if q.shape != (4,) or not np.all(np.isfinite(q)) or np.linalg.norm(q) < 1e-12:
+            raise GeometryError(f"quaternion must be 4 finite numbers, not zero: {q.tolist()}")
+        return cls(Rotation.from_quat(q), np.asarray(p_A_B, dtype=np.float64))
+
+    def matrix(self) -> FloatArray:
+        T = np.eye(4)
+        T[:3, :3] = self.R_A_B.as_matrix()
+        T[:3, 3] = self.p_A_B
+        return T
+
+    def inverse(self) -> Pose:
+        """``T_B_A`` from ``T_A_B``."""
+        R_B_A = self.R_A_B.inv()
+        return Pose(R_B_A, -R_B_A.apply(self.p_A_B))
+
+    @overload
+    def __matmul__(self, other: Pose) -> Pose: ...
+    @overload
+    def __matmul__(self, other: FloatArray) -> FloatArray: ...
+
+    def __matmul__(self, other: Pose | FloatArray) -> Pose | FloatArray:
+        """Compose (``T_A_B @ T_B_C``) or map points (``T_A_B @ p_B``, shape (3,) or (N, 3))."""
+        if isinstance(other, Pose):
+            return Pose(self.R_A_B * other.R_A_B, self.R_A_B.apply(other.p_A_B) + self.p_A_B)
+        pts = np.asarray(other, dtype=np.float64)
+        if pts.shape[-1] != 3 or pts.ndim > 2:
+            raise GeometryError(f"points must have shape (3,) or (N, 3), got {pts.shape}")
+        return np.asarray(self.R_A_B.apply(pts) + self.p_A_B, dtype=np.float64)

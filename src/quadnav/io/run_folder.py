@@ -1,0 +1,100 @@
+"""Run folders: ``runs/<YYYY-mm-dd_HH-MM-SS>_<name>/`` with config, CSV, metrics and plots."""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import math
+import re
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from quadnav.errors import IoError
+
+__all__ = ["create_run_folder", "write_csv", "write_json", "write_text", "write_tum"]
+
+
+def create_run_folder(root: Path, name: str, *, now: _dt.datetime | None = None) -> Path:
+    """Create a fresh run folder under ``root``; a clash gets a ``-2``, ``-3``... suffix."""
+    safe = re.sub(r"[^A-Za-z0-9_.-]+", "-", name).strip("-") or "run"
+    stamp = (now or _dt.datetime.now()).strftime("%Y-%m-%d_%H-%M-%S")
+    base = Path(root) / f"{stamp}_{safe}"
+    try:
+        Path(root).mkdir(parents=True, exist_ok=True)
+        for k in range(1, 1000):
+            candidate = base if k == 1 else base.with_name(f"{base.name}-{k}")
+            try:
+                candidate.mkdir()
+            except FileExistsError:
+                continue
+            (candidate / "plots").mkdir()
+            return candidate
+    except OSError as exc:
+        raise IoError(f"cannot create a run folder under {root}: {exc.strerror}") from None
+    raise IoError(f"too many run folders named {base.name} under {root}")
+
+
+def write_text(path: Path, text: str) -> None:
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(text, encoding="utf-8")
+    except OSError as exc:
+        raise IoError(f"cannot write {path}: {exc.strerror}") from None
+
+
+def _jsonable(value: Any) -> Any:
+    if isinstance(value, Mapping):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return _jsonable(value.tolist())
+    if isinstance(value, np.generic):
+        return _jsonable(value.item())
+    if isinstance(value, float) and not math.isfinite(value):
+        return None  # JSON has no NaN; null says "not defined" (e.g. NEES with no fix)
+    return value
+
+
+def write_json(path: Path, data: Mapping[str, Any]) -> None:
+    write_text(path, json.dumps(_jsonable(data), indent=2) + "\n")
+
+
+def write_csv(path: Path, columns: Mapping[str, NDArray[Any]]) -> None:
+    """Write equal-length columns with a header line; the first column must be ``t_ns``."""
+    names = list(columns)
+    if not names or names[0] != "t_ns":
+        raise IoError(f"{path.name}: the first CSV column must be t_ns, got {names[:1]}")
+    arrays = [np.asarray(columns[n]) for n in names]
+    n_rows = len(arrays[0])
+    if any(a.ndim != 1 or len(a) != n_rows for a in arrays):
+        raise IoError(f"{path.name}: CSV columns must be 1-D and of equal length")
+    if not np.issubdtype(arrays[0].dtype, np.integer):
+        raise IoError(f"{path.name}: t_ns must be integer nanoseconds")
+    fmts = ["%d" if np.issubdtype(a.dtype, np.integer) or a.dtype == bool else "%.9g" for a in arrays]
+    table = np.empty((n_rows, len(names)), dtype=object)
+    for j, a in enumerate(arrays):
+        table[:, j] = a.astype(np.int64) if a.dtype == bool else a
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        np.savetxt(path, table, fmt=fmts, delimiter=",", header=",".join(names), comments="")
+    except OSError as exc:
+        raise IoError(f"cannot write {path}: {exc.strerror}") from None
+
+
+def write_tum(path: Path, t_ns: NDArray[np.int64], p_W_B: NDArray[np.float64], q_W_B_xyzw: NDArray[np.float64]) -> None:
+    """A trajectory in TUM format (``t x y z qx qy qz qw``, time in seconds), as evo reads it."""
+    t = np.asarray(t_ns, dtype=np.int64)
+    p = np.asarray(p_W_B, dtype=np.float64)
+    q = np.asarray(q_W_B_xyzw, dtype=np.float64)
+    if p.shape != (len(t), 3) or q.shape != (len(t), 4):
+        raise IoError(f"{path.name}: TUM needs p (N, 3) and q (N, 4) for N = {len(t)} stamps")
+    # Seconds with nanosecond digits, from the integer stamp (no float rounding of t_ns).
+    secs = [f"{ti // 1_000_000_000}.{ti % 1_000_000_000:09d}" for ti in t.tolist()]
+    body = np.column_stack([p, q])
+    lines = [s + " " + " ".join(f"{v:.9g}" for v in row) for s, row in zip(secs, body, strict=True)]
+    write_text(path, "\n".join(lines) + "\n")

@@ -1,0 +1,132 @@
+"""The sample types that flow through quadnav.
+
+Every sample is immutable and carries ``t_ns``, the time of validity of what it measures
+(integer nanoseconds). A source may deliver it later than ``t_ns``; estimators handle that.
+Shapes and finiteness are validated here, where data enters the library, so a NaN from a
+sensor is a :class:`~quadnav.errors.SampleError` at the boundary, not a corrupted filter.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from quadnav.errors import SampleError
+
+__all__ = [
+    "ImuSample",
+    "PositionSample",
+    "Sample",
+    "StateEstimate",
+    "VehicleState",
+    "check_t_ns",
+]
+
+FloatArray = NDArray[np.float64]
+
+
+def check_t_ns(t_ns: Any, what: str) -> int:
+    """Validate a timestamp: a plain integer number of nanoseconds (bool is refused)."""
+    if isinstance(t_ns, bool) or not isinstance(t_ns, int | np.integer):
+        raise SampleError(f"{what}.t_ns must be an integer number of nanoseconds, got {t_ns!r}")
+    return int(t_ns)
+
+
+def _array(value: Any, shape: tuple[int, ...], what: str) -> FloatArray:
+    try:
+        arr = np.array(value, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise SampleError(f"{what} is not numeric: {exc}") from None
+    if arr.shape != shape:
+        raise SampleError(f"{what} must have shape {shape}, got {arr.shape}")
+    if not np.isfinite(arr).all():
+        raise SampleError(f"{what} holds a non-finite value: {arr.ravel().tolist()}")
+    arr.flags.writeable = False
+    return arr
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class ImuSample:
+    """One IMU reading: body rate and specific force, both in the body frame (FLU)."""
+
+    t_ns: int
+    gyro_rad_s: FloatArray
+    accel_m_s2: FloatArray
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "t_ns", check_t_ns(self.t_ns, "ImuSample"))
+        object.__setattr__(self, "gyro_rad_s", _array(self.gyro_rad_s, (3,), "ImuSample.gyro_rad_s"))
+        object.__setattr__(
+            self, "accel_m_s2", _array(self.accel_m_s2, (3,), "ImuSample.accel_m_s2")
+        )
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class PositionSample:
+    """A position fix of the body origin in the world frame, ``p_W_B`` (ENU, metres).
+
+    ``sigma_m`` is the standard deviation per axis the source claims; ``source`` names the
+    sensor (``"gps"``, ``"vision"``...) so an estimator can keep a buffer per source.
+    """
+
+    t_ns: int
+    p_W_B: FloatArray
+    sigma_m: float
+    source: str = "gps"
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "t_ns", check_t_ns(self.t_ns, "PositionSample"))
+        object.__setattr__(self, "p_W_B", _array(self.p_W_B, (3,), "PositionSample.p_W_B"))
+        sigma = float(self.sigma_m)
+        if not np.isfinite(sigma) or sigma <= 0.0:
+            raise SampleError(f"PositionSample.sigma_m must be finite and > 0, got {self.sigma_m}")
+        object.__setattr__(self, "sigma_m", sigma)
+
+
+Sample = ImuSample | PositionSample
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class VehicleState:
+    """The true state of a simulated vehicle (what sensors sample from).
+
+    ``a_W_B`` is the kinematic acceleration of the body origin in the world frame;
+    ``w_B`` the angular velocity of the body, expressed in the body frame.
+    """
+
+    t_ns: int
+    p_W_B: FloatArray
+    v_W_B: FloatArray
+    a_W_B: FloatArray
+    q_W_B_xyzw: FloatArray
+    w_B: FloatArray
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "t_ns", check_t_ns(self.t_ns, "VehicleState"))
+        for name in ("p_W_B", "v_W_B", "a_W_B", "w_B"):
+            object.__setattr__(self, name, _array(getattr(self, name), (3,), f"VehicleState.{name}"))
+        q = _array(self.q_W_B_xyzw, (4,), "VehicleState.q_W_B_xyzw")
+        if abs(float(np.linalg.norm(q)) - 1.0) > 1e-6:
+            raise SampleError(f"VehicleState.q_W_B_xyzw must be a unit quaternion, got {q.tolist()}")
+        object.__setattr__(self, "q_W_B_xyzw", q)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class StateEstimate:
+    """An estimator's state at one time horizon.
+
+    ``x`` is the estimator's own state vector with ``names`` naming its entries, and ``P``
+    its covariance (``None`` where the horizon carries none, as the output predictor).
+    ``p_W_B``, ``v_W_B`` and ``q_W_B_xyzw`` give the same state in the common 3-D form.
+    """
+
+    t_ns: int
+    p_W_B: FloatArray
+    v_W_B: FloatArray
+    q_W_B_xyzw: FloatArray
+    x: FloatArray
+    names: tuple[str, ...]
+    P: FloatArray | None = field(default=None)

@@ -1,0 +1,15 @@
+"""Vehicle dynamics and sensor models."""
+
+from quadnav.errors import SimError
+from quadnav.sim.planar import PlanarParams, PlanarQuadrotor, PlanarState
+from quadnav.sim.sensors import DelayLine, ImuSensor, PositionSensor
+
+__all__ = [
+    "DelayLine",
+    "ImuSensor",
+    "PlanarParams",
+    "PlanarQuadrotor",
+    "PlanarState",
+    "PositionSensor",
+    "SimError",
+]

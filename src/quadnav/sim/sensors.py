@@ -1,0 +1,132 @@
+"""Sensor models: an IMU and a position fix, with noise, period and delay.
+
+Each sensor's :meth:`sample` reads the true state at ``t_ns`` and returns a sample whose
+``t_ns`` is that time of validity. Delay is not the sensor's business: a :class:`DelayLine`
+holds samples until their arrival time, which is what a consumer sees.
+"""
+
+from __future__ import annotations
+
+import heapq
+import math
+from dataclasses import dataclass
+from typing import Generic, Literal, TypeVar
+
+import numpy as np
+from numpy.random import Generator
+from scipy.spatial.transform import Rotation
+
+from quadnav.errors import SimError
+from quadnav.messages import ImuSample, PositionSample, VehicleState
+
+__all__ = ["DelayLine", "ImuSensor", "PositionSensor"]
+
+S = TypeVar("S", ImuSample, PositionSample)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class ImuSensor:
+    """Gyroscope and accelerometer with white noise of a given standard deviation per sample.
+
+    ``accel_model="specific_force"`` is a real accelerometer: it measures
+    ``R_W_B^T (a_W - g_W)``, so it reads +g upwards at rest. ``"kinematic"`` measures
+    ``R_W_B^T a_W`` as the thesis 000 simulator did (offered to reproduce the thesis).
+    """
+
+    accel_sigma_m_s2: float
+    gyro_sigma_rad_s: float
+    gravity_m_s2: float = 9.8
+    accel_model: Literal["specific_force", "kinematic"] = "specific_force"
+
+    def __post_init__(self) -> None:
+        for name in ("accel_sigma_m_s2", "gyro_sigma_rad_s"):
+            value = getattr(self, name)
+            if not math.isfinite(value) or value < 0.0:
+                raise SimError(f"ImuSensor.{name} must be finite and >= 0, got {value}")
+
+    def sample(self, truth: VehicleState, t_ns: int, rng: Generator) -> ImuSample:
+        R_W_B = Rotation.from_quat(truth.q_W_B_xyzw)
+        a_W = truth.a_W_B.copy()
+        if self.accel_model == "specific_force":
+            a_W[2] += self.gravity_m_s2
+        f_B = R_W_B.inv().apply(a_W)
+        noise = rng.standard_normal(6)
+        return ImuSample(
+            t_ns=t_ns,
+            gyro_rad_s=truth.w_B + self.gyro_sigma_rad_s * noise[0:3],
+            accel_m_s2=f_B + self.accel_sigma_m_s2 * noise[3:6],
+        )
+
+
+class PositionSensor:
+    """A position fix (GPS-like) every ``period_ns``, with Gaussian noise of ``sigma_m`` per axis.
+
+    The first fix is taken at ``t0_ns + phase_ns``; when the period is not a whole number of
+    simulation steps, a fix is taken at the first step at or after each due time.
+    """
+
+    def __init__(
+        self,
+        *,
+        sigma_m: float,
+        period_ns: int,
+        source: str = "gps",
+        t0_ns: int = 0,
+        phase_ns: int = 0,
+    ) -> None:
+        if not math.isfinite(sigma_m) or sigma_m <= 0.0:
+            raise SimError(f"PositionSensor.sigma_m must be finite and > 0, got {sigma_m}")
+        if period_ns <= 0:
+            raise SimError(f"PositionSensor.period_ns must be > 0, got {period_ns}")
+        self.sigma_m = float(sigma_m)
+        self.period_ns = int(period_ns)
+        self.source = source
+        self._next_due_ns = int(t0_ns) + int(phase_ns)
+
+    def sample(self, truth: VehicleState, t_ns: int, rng: Generator) -> PositionSample | None:
+        if t_ns < self._next_due_ns:
+            return None
+        while self._next_due_ns <= t_ns:
+            self._next_due_ns += self.period_ns
+        return PositionSample(
+            t_ns=t_ns,
+            p_W_B=truth.p_W_B + self.sigma_m * rng.standard_normal(3),
+            sigma_m=self.sigma_m,
+            source=self.source,
+        )
+
+
+class DelayLine(Generic[S]):
+    """Holds samples until ``t_ns + delay`` (plus optional uniform jitter) has passed.
+
+    With jitter, samples can come out in a different order from their times of validity,
+    as measurements from a real link do.
+    """
+
+    def __init__(self, *, delay_ns: int, jitter_ns: int = 0) -> None:
+        if delay_ns < 0 or jitter_ns < 0:
+            raise SimError(f"delay and jitter must be >= 0 ns, got {delay_ns}, {jitter_ns}")
+        self.delay_ns = int(delay_ns)
+        self.jitter_ns = int(jitter_ns)
+        self._heap: list[tuple[int, int, S]] = []
+        self._seq = 0
+
+    def push(self, sample: S, rng: Generator | None = None) -> int:
+        """Queue a sample; returns its arrival time."""
+        extra = 0
+        if self.jitter_ns:
+            if rng is None:
+                raise SimError("a DelayLine with jitter needs an rng")
+            extra = int(rng.integers(0, self.jitter_ns + 1))
+        arrival = sample.t_ns + self.delay_ns + extra
+        heapq.heappush(self._heap, (arrival, self._seq, sample))
+        self._seq += 1
+        return arrival
+
+    def pop_arrived(self, now_ns: int) -> list[tuple[int, S]]:
+        """Samples whose arrival time is <= ``now_ns``, as (arrival_ns, sample), in arrival order."""
+        out: list[tuple[int, S]] = []
+        while self._heap and self._heap[0][0] <= now_ns:
+            arrival, _, sample = heapq.heappop(self._heap)
+            out.append((arrival, sample))
+        return out
