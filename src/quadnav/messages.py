@@ -58,7 +58,9 @@ class ImuSample:
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "t_ns", check_t_ns(self.t_ns, "ImuSample"))
-        object.__setattr__(self, "gyro_rad_s", _array(self.gyro_rad_s, (3,), "ImuSample.gyro_rad_s"))
+        object.__setattr__(
+            self, "gyro_rad_s", _array(self.gyro_rad_s, (3,), "ImuSample.gyro_rad_s")
+        )
         object.__setattr__(
             self, "accel_m_s2", _array(self.accel_m_s2, (3,), "ImuSample.accel_m_s2")
         )
@@ -107,10 +109,14 @@ class VehicleState:
     def __post_init__(self) -> None:
         object.__setattr__(self, "t_ns", check_t_ns(self.t_ns, "VehicleState"))
         for name in ("p_W_B", "v_W_B", "a_W_B", "w_B"):
-            object.__setattr__(self, name, _array(getattr(self, name), (3,), f"VehicleState.{name}"))
+            object.__setattr__(
+                self, name, _array(getattr(self, name), (3,), f"VehicleState.{name}")
+            )
         q = _array(self.q_W_B_xyzw, (4,), "VehicleState.q_W_B_xyzw")
         if abs(float(np.linalg.norm(q)) - 1.0) > 1e-6:
-            raise SampleError(f"VehicleState.q_W_B_xyzw must be a unit quaternion, got {q.tolist()}")
+            raise SampleError(
+                f"VehicleState.q_W_B_xyzw must be a unit quaternion, got {q.tolist()}"
+            )
         object.__setattr__(self, "q_W_B_xyzw", q)
 
 

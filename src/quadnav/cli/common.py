@@ -16,7 +16,8 @@ from quadnav.errors import QuadnavError
 
 __all__ = ["console", "err_console", "handle_errors", "progress_bar"]
 
-console = Console()
+# Piped output (CI logs, files) gets a width that fits the summary tables, not rich's 80.
+console = Console() if sys.stdout.isatty() else Console(width=120)
 err_console = Console(stderr=True)
 
 P = ParamSpec("P")

@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from quadnav.cli.common import handle_errors
-from quadnav.cli.planar import ConfigArg, OutOpt, SeedsOpt, SetOpt, run_planar_from_cli
+from quadnav.cli.planar import ConfigArg, JobsOpt, OutOpt, SeedsOpt, SetOpt, run_planar_from_cli
 
 __all__ = ["run_command"]
 
@@ -16,6 +16,7 @@ def run_command(
     set_: SetOpt = None,
     seeds: SeedsOpt = None,
     out: OutOpt = Path("runs"),
+    jobs: JobsOpt = None,
 ) -> None:
     """Run the main job. With no arguments: the planar delayed-measurement experiment.
 
@@ -28,4 +29,4 @@ def run_command(
 
       quadnav run --seeds 20 --out /tmp/runs
     """
-    run_planar_from_cli(scenario, set_, seeds, out)
+    run_planar_from_cli(scenario, set_, seeds, out, jobs)

@@ -40,7 +40,9 @@ def reintegration_floor(
     start = np.asarray(start_idx, dtype=np.int64)
     end = np.asarray(end_idx, dtype=np.int64)
     if np.any(end < start) or (len(end) and (start.min() < 0 or end.max() >= len(dt_s))):
-        raise EstimationError("floor indices must satisfy 0 <= start <= end < number of IMU samples")
+        raise EstimationError(
+            "floor indices must satisfy 0 <= start <= end < number of IMU samples"
+        )
     pos, vel, att = pos_d.copy(), vel_d.copy(), att_d.copy()
     steps = end - start
     for m in range(1, int(steps.max(initial=0)) + 1):

@@ -126,8 +126,11 @@ class FusionRecord:
 class DelayedFilter(Protocol):
     """A filter that runs at the delayed horizon (predict with IMU, fuse observations)."""
 
-    kinematics: Kinematics
-    names: tuple[str, ...]
+    @property
+    def kinematics(self) -> Kinematics: ...
+
+    @property
+    def names(self) -> tuple[str, ...]: ...
 
     def predict(self, imu: ImuSample, dt_s: float) -> None: ...
 
@@ -246,12 +249,17 @@ class DelayedHorizonEstimator:
             return self.filter.nav(self._t_delayed_ns)
         h = self._ob_head
         return NavState(
-            int(self._ob_t[h]), self._ob_pos[h].copy(), self._ob_vel[h].copy(), self._ob_att[h].copy()
+            int(self._ob_t[h]),
+            self._ob_pos[h].copy(),
+            self._ob_vel[h].copy(),
+            self._ob_att[h].copy(),
         )
 
     def delayed(self) -> StateEstimate:
         nav = self.delayed_nav()
-        return self.kin.to_estimate(nav, self.filter.x.copy(), self.filter.names, self.filter.P.copy())
+        return self.kin.to_estimate(
+            nav, self.filter.x.copy(), self.filter.names, self.filter.P.copy()
+        )
 
     def output(self) -> StateEstimate:
         nav = self.output_nav()
@@ -315,9 +323,16 @@ class DelayedHorizonEstimator:
 
     # -- delayed horizon -----------------------------------------------------------------
     def _step_delayed(self, imu: ImuSample, dt_s: float) -> None:
+        # Observations nearest the horizon's current time that arrived while the horizon sat
+        # there (at start-up, or just in time) are fused before it moves on.
+        self._fuse_due()
         self.filter.predict(imu, dt_s)
         self._t_delayed_ns = imu.t_ns
         self._fusion_started = True
+        self._fuse_due()
+
+    def _fuse_due(self) -> None:
+        """Fuse, in time order, every buffered observation nearest the delayed horizon's time."""
         limit = self._t_delayed_ns + self.config.imu_period_ns // 2
         due: list[tuple[int, int, Sample]] = []
         for queue in self._obs.values():
@@ -333,15 +348,22 @@ class DelayedHorizonEstimator:
             else:
                 stats.rejected_gate += 1
             self.fusion_log.append(
-                FusionRecord(t_obs_ns=t_obs, t_fused_ns=self._t_delayed_ns, source=source, result=result)
+                FusionRecord(
+                    t_obs_ns=t_obs, t_fused_ns=self._t_delayed_ns, source=source, result=result
+                )
             )
 
     # -- output predictor ----------------------------------------------------------------
     def _integrate_output(self, imu: ImuSample, dt_s: float) -> None:
         h = self._ob_head
         pos, vel, att = self.kin.integrate(
-            self._ob_pos[h], self._ob_vel[h], self._ob_att[h],
-            imu.gyro_rad_s, imu.accel_m_s2, dt_s, self._dtheta_corr,
+            self._ob_pos[h],
+            self._ob_vel[h],
+            self._ob_att[h],
+            imu.gyro_rad_s,
+            imu.accel_m_s2,
+            dt_s,
+            self._dtheta_corr,
         )
         h = (h + 1) % self.buffer_length
         self._ob_head = h

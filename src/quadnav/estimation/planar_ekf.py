@@ -150,17 +150,21 @@ class PlanarEkfConfig:
 class PlanarEkf:
     """The 5-state planar EKF; a :class:`~quadnav.estimation.horizon.DelayedFilter`."""
 
-    names = STATE_NAMES
+    names: tuple[str, ...] = STATE_NAMES
 
     def __init__(self, config: PlanarEkfConfig, *, x0: FloatArray, P0: FloatArray) -> None:
         x0 = np.asarray(x0, dtype=np.float64)
         P0 = np.asarray(P0, dtype=np.float64)
         if x0.shape != (5,) or P0.shape != (5, 5):
-            raise EstimationError(f"planar EKF needs x0 (5,) and P0 (5, 5), got {x0.shape}, {P0.shape}")
+            raise EstimationError(
+                f"planar EKF needs x0 (5,) and P0 (5, 5), got {x0.shape}, {P0.shape}"
+            )
         if not (np.all(np.isfinite(x0)) and np.all(np.isfinite(P0))):
             raise EstimationError("planar EKF initial state and covariance must be finite")
         if not np.allclose(P0, P0.T) or np.min(np.linalg.eigvalsh(P0)) < 0.0:
-            raise EstimationError("planar EKF initial covariance must be symmetric positive semi-definite")
+            raise EstimationError(
+                "planar EKF initial covariance must be symmetric positive semi-definite"
+            )
         self.config = config
         self.kinematics = PlanarKinematics(config.gravity_m_s2, config.accel_model)
         self._x = x0.copy()
@@ -188,7 +192,9 @@ class PlanarEkf:
 
     def predict(self, imu: ImuSample, dt_s: float) -> None:
         x = self._x
-        F, G = planar_jacobians(x, float(imu.gyro_rad_s[1]), imu.accel_m_s2[[0, 2]], dt_s, kin=self.kinematics)
+        F, G = planar_jacobians(
+            x, float(imu.gyro_rad_s[1]), imu.accel_m_s2[[0, 2]], dt_s, kin=self.kinematics
+        )
         pos, vel, att = self.kinematics.integrate(
             x[0:2], x[2:4], x[4:5], imu.gyro_rad_s, imu.accel_m_s2, dt_s
         )
@@ -198,7 +204,9 @@ class PlanarEkf:
 
     def fuse(self, obs: Sample) -> FusionResult:
         if not isinstance(obs, PositionSample):
-            raise EstimationError(f"the planar EKF fuses PositionSample only, got {type(obs).__name__}")
+            raise EstimationError(
+                f"the planar EKF fuses PositionSample only, got {type(obs).__name__}"
+            )
         H = self._H
         z = obs.p_W_B[[0, 2]]
         R = np.eye(2) * obs.sigma_m**2

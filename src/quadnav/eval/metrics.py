@@ -17,7 +17,9 @@ def position_rmse(p_est: FloatArray, p_ref: FloatArray) -> float:
     a = np.asarray(p_est, dtype=np.float64)
     b = np.asarray(p_ref, dtype=np.float64)
     if a.shape != b.shape or a.ndim != 2 or len(a) == 0:
-        raise EvalError(f"position arrays must be (N, D) of equal shape, got {a.shape} and {b.shape}")
+        raise EvalError(
+            f"position arrays must be (N, D) of equal shape, got {a.shape} and {b.shape}"
+        )
     return float(np.sqrt(np.mean(np.sum((a - b) ** 2, axis=1))))
 
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -15,6 +16,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 from numpy.typing import NDArray
 
+from quadnav.errors import EvalError
 from quadnav.eval.metrics import nees, position_rmse
 from quadnav.experiments.planar import ExperimentName, PlanarConfig, PlanarRun, run_planar
 from quadnav.io.config import dump_config
@@ -60,7 +62,8 @@ def planar_metrics(run: PlanarRun) -> dict[str, Any]:
     * delayed: the filter's estimate against the truth at the delayed horizon, over the steps
       after the horizon started moving;
     * output and floor: against the truth now, over every step after the start;
-    * NEES of the 5-state delayed estimate, averaged over the steps after the first fused fix.
+    * NEES of the 5-state delayed estimate, averaged over the steps after the first fused fix
+      (over every step when nothing was fused).
     """
     rows = np.arange(1, len(run.t_ns))
     rows_d = rows[run.t_delayed_ns[rows] > run.t_ns[0]]
@@ -68,14 +71,13 @@ def planar_metrics(run: PlanarRun) -> dict[str, Any]:
     rmse_o = position_rmse(run.output_p[rows], run.truth_p[rows])
     rmse_f = position_rmse(run.floor_p[rows], run.truth_p[rows])
     fused = run.fusion_t_obs_ns[run.fusion_accepted]
+    # After the first fused fix; with no fix at all (IMU only), over every step, which tests
+    # the consistency of the covariance propagation alone.
+    m = rows_d[run.t_delayed_ns[rows_d] >= fused.min()] if len(fused) else rows_d
     nees_mean = math.nan
-    nees_steps = 0
-    if len(fused):
-        m = rows[run.t_delayed_ns[rows] >= fused.min()]
-        if len(m):
-            values = nees(_delayed_errors(run, m), run.delayed_P[m])
-            nees_mean = float(values.mean())
-            nees_steps = len(m)
+    if len(m):
+        nees_mean = float(nees(_delayed_errors(run, m), run.delayed_P[m]).mean())
+    nees_steps = len(m)
     return {
         "seed": run.seed,
         "rmse_delayed_m": rmse_d,
@@ -129,12 +131,23 @@ def plot_planar_run(run: PlanarRun, path: Path) -> None:
     fig.suptitle(f"{_TITLES[run.experiment]} (seed {run.seed})")
     for k, (ax, label) in enumerate(zip(axes[0, :2], ("x", "z"), strict=True)):
         ax.plot(t, run.truth_p[:, k], "--", color="tab:blue", label="truth")
-        ax.plot(td[started], run.delayed_x[started, k], color="tab:orange", label="EKF (delayed horizon)")
+        ax.plot(
+            td[started],
+            run.delayed_x[started, k],
+            color="tab:orange",
+            label="EKF (delayed horizon)",
+        )
         if handled:
             ax.plot(t, run.output_p[:, k], color="tab:green", label="output predictor")
         if len(run.gps_t_valid_ns):
-            ax.plot(run.gps_t_valid_ns * 1e-9, run.gps_p[:, k], "x", color="tab:red", ms=4,
-                    label="GPS (time of validity)")
+            ax.plot(
+                run.gps_t_valid_ns * 1e-9,
+                run.gps_p[:, k],
+                "x",
+                color="tab:red",
+                ms=4,
+                label="GPS (time of validity)",
+            )
         ax.set_xlabel("t (s)")
         ax.set_ylabel(f"{label} (m)")
         ax.set_title(f"Position {label}")
@@ -162,13 +175,26 @@ def plot_planar_run(run: PlanarRun, path: Path) -> None:
     err = _delayed_errors(run, rows) if len(rows) else np.zeros((0, 5))
     for k, (ax, label) in enumerate(zip(axes[1, 1:], ("x", "z"), strict=True)):
         sigma = np.sqrt(run.delayed_P[rows, k, k])
-        ax.fill_between(td[rows], -sigma, sigma, color="tab:orange", alpha=0.25, label="EKF +-1 sigma")
+        ax.fill_between(
+            td[rows], -sigma, sigma, color="tab:orange", alpha=0.25, label="EKF +-1 sigma"
+        )
         ax.plot(td[rows], err[:, k], color="tab:orange", label="EKF - delayed truth")
         if handled:
-            ax.plot(t, run.output_p[:, k] - run.truth_p[:, k], color="tab:green", lw=0.8,
-                    label="output - truth")
-            ax.plot(t, run.floor_p[:, k] - run.truth_p[:, k], color="black", lw=0.8, ls=":",
-                    label="floor - truth")
+            ax.plot(
+                t,
+                run.output_p[:, k] - run.truth_p[:, k],
+                color="tab:green",
+                lw=0.8,
+                label="output - truth",
+            )
+            ax.plot(
+                t,
+                run.floor_p[:, k] - run.truth_p[:, k],
+                color="black",
+                lw=0.8,
+                ls=":",
+                label="floor - truth",
+            )
         ax.set_xlabel("t (s)")
         ax.set_ylabel("error (m)")
         ax.set_title(f"Position error {label}")
@@ -186,8 +212,11 @@ def plot_monte_carlo(per_experiment: dict[str, list[dict[str, Any]]], path: Path
     fig, ax = plt.subplots(figsize=(10, 5), constrained_layout=True)
     labels, data = [], []
     for exp, per_seed in per_experiment.items():
-        for key, name in (("rmse_delayed_m", "delayed"), ("rmse_output_m", "output"),
-                          ("rmse_floor_m", "floor")):
+        for key, name in (
+            ("rmse_delayed_m", "delayed"),
+            ("rmse_output_m", "output"),
+            ("rmse_floor_m", "floor"),
+        ):
             if exp != "handled" and name != "delayed":
                 continue
             labels.append(f"{exp}\n{name}")
@@ -203,33 +232,66 @@ def plot_monte_carlo(per_experiment: dict[str, list[dict[str, Any]]], path: Path
 
 def _write_run_series(run: PlanarRun, folder: Path) -> None:
     t = run.t_ns
-    write_csv(folder / "truth.csv", {
-        "t_ns": t, "x_m": run.truth_p[:, 0], "z_m": run.truth_p[:, 1],
-        "vx_m_s": run.truth_v[:, 0], "vz_m_s": run.truth_v[:, 1], "theta_rad": run.truth_theta,
-    })
+    write_csv(
+        folder / "truth.csv",
+        {
+            "t_ns": t,
+            "x_m": run.truth_p[:, 0],
+            "z_m": run.truth_p[:, 1],
+            "vx_m_s": run.truth_v[:, 0],
+            "vz_m_s": run.truth_v[:, 1],
+            "theta_rad": run.truth_theta,
+        },
+    )
     cols: dict[str, NDArray[Any]] = {"t_ns": run.t_delayed_ns, "t_now_ns": t}
     for k, name in enumerate(("x_m", "z_m", "vx_m_s", "vz_m_s", "theta_rad")):
         cols[name] = run.delayed_x[:, k]
     for k, name in enumerate(("x", "z", "vx", "vz", "theta")):
         cols[f"var_{name}"] = run.delayed_P[:, k, k]
     write_csv(folder / "delayed.csv", cols)
-    write_csv(folder / "output.csv", {
-        "t_ns": t, "x_m": run.output_p[:, 0], "z_m": run.output_p[:, 1],
-        "vx_m_s": run.output_v[:, 0], "vz_m_s": run.output_v[:, 1], "theta_rad": run.output_theta,
-    })
-    write_csv(folder / "floor.csv", {
-        "t_ns": t, "x_m": run.floor_p[:, 0], "z_m": run.floor_p[:, 1],
-        "vx_m_s": run.floor_v[:, 0], "vz_m_s": run.floor_v[:, 1], "theta_rad": run.floor_theta,
-    })
-    write_csv(folder / "gps.csv", {
-        "t_ns": run.gps_t_valid_ns, "t_arrival_ns": run.gps_t_arrival_ns,
-        "x_m": run.gps_p[:, 0], "z_m": run.gps_p[:, 1],
-    })
-    write_csv(folder / "innovations.csv", {
-        "t_ns": run.fusion_t_obs_ns, "t_fused_ns": run.fusion_t_fused_ns,
-        "innov_x_m": run.fusion_innovation[:, 0], "innov_z_m": run.fusion_innovation[:, 1],
-        "nis": run.fusion_nis, "test_ratio": run.fusion_test_ratio, "accepted": run.fusion_accepted,
-    })
+    write_csv(
+        folder / "output.csv",
+        {
+            "t_ns": t,
+            "x_m": run.output_p[:, 0],
+            "z_m": run.output_p[:, 1],
+            "vx_m_s": run.output_v[:, 0],
+            "vz_m_s": run.output_v[:, 1],
+            "theta_rad": run.output_theta,
+        },
+    )
+    write_csv(
+        folder / "floor.csv",
+        {
+            "t_ns": t,
+            "x_m": run.floor_p[:, 0],
+            "z_m": run.floor_p[:, 1],
+            "vx_m_s": run.floor_v[:, 0],
+            "vz_m_s": run.floor_v[:, 1],
+            "theta_rad": run.floor_theta,
+        },
+    )
+    write_csv(
+        folder / "gps.csv",
+        {
+            "t_ns": run.gps_t_valid_ns,
+            "t_arrival_ns": run.gps_t_arrival_ns,
+            "x_m": run.gps_p[:, 0],
+            "z_m": run.gps_p[:, 1],
+        },
+    )
+    write_csv(
+        folder / "innovations.csv",
+        {
+            "t_ns": run.fusion_t_obs_ns,
+            "t_fused_ns": run.fusion_t_fused_ns,
+            "innov_x_m": run.fusion_innovation[:, 0],
+            "innov_z_m": run.fusion_innovation[:, 1],
+            "nis": run.fusion_nis,
+            "test_ratio": run.fusion_test_ratio,
+            "accepted": run.fusion_accepted,
+        },
+    )
 
     def q_of(theta: FloatArray) -> FloatArray:
         zeros = np.zeros(len(theta))
@@ -254,40 +316,68 @@ class PlanarStudy:
     per_seed: dict[str, list[dict[str, Any]]]
 
 
+def _run_one(
+    config: PlanarConfig, exp: ExperimentName, k: int
+) -> tuple[dict[str, Any], PlanarRun | None]:
+    run = run_planar(config, exp, config.seed + k)
+    return planar_metrics(run), (run if k == 0 else None)
+
+
 def run_planar_study(
-    config: PlanarConfig, *, runs_root: Path, progress: Progress | None = None
+    config: PlanarConfig, *, runs_root: Path, progress: Progress | None = None, jobs: int = 1
 ) -> PlanarStudy:
     """Run every configured experiment over ``config.seeds`` seeds and write a run folder.
 
     Time series and the figure of each experiment come from its first seed; ``metrics.json``
-    has every seed's metrics and their summary.
+    has every seed's metrics and their summary. ``jobs`` > 1 runs seeds in that many processes
+    (results do not depend on it: every run has its own seeded generators).
     """
+    if jobs < 1:
+        raise EvalError(f"jobs must be >= 1, got {jobs}")
     run_dir = create_run_folder(runs_root, config.name)
     write_text(run_dir / "config.yaml", dump_config(config))
-    total = len(config.experiments) * config.seeds
+    tasks = [(exp, k) for exp in config.experiments for k in range(config.seeds)]
+    per_seed: dict[str, list[dict[str, Any]]] = {
+        exp: [{}] * config.seeds for exp in config.experiments
+    }
+    first_runs: dict[str, PlanarRun] = {}
     done = 0
-    per_seed: dict[str, list[dict[str, Any]]] = {}
+
+    def collect(
+        exp: ExperimentName, k: int, result: tuple[dict[str, Any], PlanarRun | None]
+    ) -> None:
+        nonlocal done
+        metrics, run = result
+        per_seed[exp][k] = metrics
+        if run is not None:
+            first_runs[exp] = run
+        done += 1
+        if progress is not None:
+            progress(done, len(tasks), f"{exp} seed {config.seed + k}")
+
+    if jobs == 1 or len(tasks) == 1:
+        for exp, k in tasks:
+            collect(exp, k, _run_one(config, exp, k))
+    else:
+        with ProcessPoolExecutor(max_workers=min(jobs, len(tasks))) as pool:
+            futures = {pool.submit(_run_one, config, exp, k): (exp, k) for exp, k in tasks}
+            for fut in as_completed(futures):
+                exp, k = futures[fut]
+                collect(exp, k, fut.result())
     for exp in config.experiments:
-        name: ExperimentName = exp
-        per_seed[name] = []
-        for k in range(config.seeds):
-            seed = config.seed + k
-            run = run_planar(config, name, seed)
-            per_seed[name].append(planar_metrics(run))
-            if k == 0:
-                _write_run_series(run, run_dir / name)
-                plot_planar_run(run, run_dir / "plots" / f"{name}.png")
-            done += 1
-            if progress is not None:
-                progress(done, total, f"{name} seed {seed}")
+        _write_run_series(first_runs[exp], run_dir / exp)
+        plot_planar_run(first_runs[exp], run_dir / "plots" / f"{exp}.png")
     summary = {exp: summarize_seeds(v) for exp, v in per_seed.items()}
     if config.seeds > 1:
         plot_monte_carlo(per_seed, run_dir / "plots" / "monte_carlo.png")
-    write_json(run_dir / "metrics.json", {
-        "description": "position RMSE of each estimate against the truth at its own horizon; "
-        "floor = delayed estimate re-integrated through the buffered IMU samples; "
-        "NEES of the 5-state delayed estimate after the first fused fix",
-        "summary": summary,
-        "per_seed": per_seed,
-    })
+    write_json(
+        run_dir / "metrics.json",
+        {
+            "description": "position RMSE of each estimate against the truth at its own horizon; "
+            "floor = delayed estimate re-integrated through the buffered IMU samples; "
+            "NEES of the 5-state delayed estimate after the first fused fix",
+            "summary": summary,
+            "per_seed": per_seed,
+        },
+    )
     return PlanarStudy(run_dir=run_dir, summary=summary, per_seed=per_seed)

@@ -75,7 +75,9 @@ class ControllerSection(_Section):
     @model_validator(mode="after")
     def _order(self) -> Self:
         if self.tilt_switch_s < self.tilt_start_s:
-            raise ValueError("controller.tilt_switch_s must not come before controller.tilt_start_s")
+            raise ValueError(
+                "controller.tilt_switch_s must not come before controller.tilt_start_s"
+            )
         return self
 
 
@@ -111,7 +113,9 @@ class PlanarConfig(_Section):
     """Everything the planar experiment needs; the defaults are thesis 000's parameters."""
 
     name: str = "planar"
-    experiments: list[ExperimentName] = Field(default_factory=lambda: list(EXPERIMENTS), min_length=1)
+    experiments: list[ExperimentName] = Field(
+        default_factory=lambda: list(EXPERIMENTS), min_length=1
+    )
     duration_s: float = Field(10.0, gt=0)
     dt_s: float = Field(0.01, gt=0, description="simulation and IMU step")
     seed: int = Field(0, ge=0, description="first seed; Monte Carlo runs use seed, seed+1, ...")
@@ -182,15 +186,17 @@ class PlanarRun:
     def delayed_index(self) -> IntArray:
         """Row of the truth arrays at each step's delayed horizon."""
         dt_ns = int(self.t_ns[1] - self.t_ns[0])
-        return (self.t_delayed_ns - self.t_ns[0]) // dt_ns
+        return np.asarray((self.t_delayed_ns - self.t_ns[0]) // dt_ns, dtype=np.int64)
 
 
 def run_planar(config: PlanarConfig, experiment: ExperimentName, seed: int) -> PlanarRun:
     """Simulate, estimate and record one experiment with one seed."""
     if experiment not in EXPERIMENTS:
-        raise ExperimentError(f"unknown planar experiment {experiment!r}; choose from {EXPERIMENTS}")
+        raise ExperimentError(
+            f"unknown planar experiment {experiment!r}; choose from {EXPERIMENTS}"
+        )
     dt_ns = s_to_ns(config.dt_s)
-    n_steps = int(round(config.duration_s / config.dt_s))
+    n_steps = round(config.duration_s / config.dt_s)
     t0_ns = 0
     # Independent streams: the same seed gives the same sensor noise in every experiment.
     ss_imu, ss_gps, ss_init = np.random.SeedSequence(seed).spawn(3)
@@ -224,7 +230,9 @@ def run_planar(config: PlanarConfig, experiment: ExperimentName, seed: int) -> P
         gravity_m_s2=v.gravity_m_s2,
         accel_model=config.imu.accel_model,
     )
-    gps_sensor = PositionSensor(sigma_m=config.gps.sigma_m, period_ns=s_to_ns(config.gps.period_s), t0_ns=t0_ns)
+    gps_sensor = PositionSensor(
+        sigma_m=config.gps.sigma_m, period_ns=s_to_ns(config.gps.period_s), t0_ns=t0_ns
+    )
     gps_line: DelayLine[PositionSample] = DelayLine(
         delay_ns=s_to_ns(config.gps.delay_s), jitter_ns=s_to_ns(config.gps.jitter_s)
     )
@@ -287,9 +295,9 @@ def run_planar(config: PlanarConfig, experiment: ExperimentName, seed: int) -> P
         P_d[i] = ekf.P
 
     record(0)
+    truth = sim.state.to_vehicle_state()
     for i in range(1, N):
-        truth_prev = sim.state.to_vehicle_state()
-        thrust, torque = controller(int(t_ns[i]), truth_prev)
+        thrust, torque = controller(int(t_ns[i]), truth)
         truth = sim.step(thrust, torque).to_vehicle_state()
         imu = imu_sensor.sample(truth, int(t_ns[i]), rng_imu)
         gyro[i], accel[i] = imu.gyro_rad_s, imu.accel_m_s2

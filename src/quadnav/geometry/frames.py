@@ -18,9 +18,9 @@ from quadnav.geometry.rotations import Pose
 __all__ = [
     "R_FLU_FRD",
     "R_NED_ENU",
+    "enu_to_ned",
     "flu_to_frd",
     "frd_to_flu",
-    "enu_to_ned",
     "ned_to_enu",
     "pose_enu_flu_to_ned_frd",
     "pose_ned_frd_to_enu_flu",

@@ -75,7 +75,9 @@ def write_csv(path: Path, columns: Mapping[str, NDArray[Any]]) -> None:
         raise IoError(f"{path.name}: CSV columns must be 1-D and of equal length")
     if not np.issubdtype(arrays[0].dtype, np.integer):
         raise IoError(f"{path.name}: t_ns must be integer nanoseconds")
-    fmts = ["%d" if np.issubdtype(a.dtype, np.integer) or a.dtype == bool else "%.9g" for a in arrays]
+    fmts = [
+        "%d" if np.issubdtype(a.dtype, np.integer) or a.dtype == bool else "%.9g" for a in arrays
+    ]
     table = np.empty((n_rows, len(names)), dtype=object)
     for j, a in enumerate(arrays):
         table[:, j] = a.astype(np.int64) if a.dtype == bool else a
@@ -86,7 +88,9 @@ def write_csv(path: Path, columns: Mapping[str, NDArray[Any]]) -> None:
         raise IoError(f"cannot write {path}: {exc.strerror}") from None
 
 
-def write_tum(path: Path, t_ns: NDArray[np.int64], p_W_B: NDArray[np.float64], q_W_B_xyzw: NDArray[np.float64]) -> None:
+def write_tum(
+    path: Path, t_ns: NDArray[np.int64], p_W_B: NDArray[np.float64], q_W_B_xyzw: NDArray[np.float64]
+) -> None:
     """A trajectory in TUM format (``t x y z qx qy qz qw``, time in seconds), as evo reads it."""
     t = np.asarray(t_ns, dtype=np.int64)
     p = np.asarray(p_W_B, dtype=np.float64)

@@ -28,6 +28,7 @@ __all__ = ["PlanarParams", "PlanarQuadrotor", "PlanarState"]
 
 FloatArray = NDArray[np.float64]
 
+
 @dataclass(frozen=True, slots=True, kw_only=True)
 class PlanarParams:
     """Physical parameters; the defaults are the thesis's (1 kg, a 0.45 m rod's inertia)."""
@@ -59,11 +60,11 @@ class PlanarState:
         half = 0.5 * self.theta_rad
         return VehicleState(
             t_ns=self.t_ns,
-            p_W_B=[self.p_xz[0], 0.0, self.p_xz[1]],
-            v_W_B=[self.v_xz[0], 0.0, self.v_xz[1]],
-            a_W_B=[self.a_xz[0], 0.0, self.a_xz[1]],
-            q_W_B_xyzw=[0.0, np.sin(half), 0.0, np.cos(half)],
-            w_B=[0.0, self.theta_rate_rad_s, 0.0],
+            p_W_B=np.array([self.p_xz[0], 0.0, self.p_xz[1]]),
+            v_W_B=np.array([self.v_xz[0], 0.0, self.v_xz[1]]),
+            a_W_B=np.array([self.a_xz[0], 0.0, self.a_xz[1]]),
+            q_W_B_xyzw=np.array([0.0, np.sin(half), 0.0, np.cos(half)]),
+            w_B=np.array([0.0, self.theta_rate_rad_s, 0.0]),
         )
 
 
@@ -95,7 +96,10 @@ class PlanarQuadrotor:
         theta = s.theta_rad + dt * theta_rate
         # Thrust along body +z, rotated into the world x-z plane by theta about +y.
         a = np.array(
-            [thrust_n * np.sin(theta) / p.mass_kg, thrust_n * np.cos(theta) / p.mass_kg - p.gravity_m_s2]
+            [
+                thrust_n * np.sin(theta) / p.mass_kg,
+                thrust_n * np.cos(theta) / p.mass_kg - p.gravity_m_s2,
+            ]
         )
         v = s.v_xz + dt * a
         pos = s.p_xz + dt * v

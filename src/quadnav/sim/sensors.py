@@ -12,7 +12,6 @@ import math
 from dataclasses import dataclass
 from typing import Generic, Literal, TypeVar
 
-import numpy as np
 from numpy.random import Generator
 from scipy.spatial.transform import Rotation
 
@@ -45,11 +44,10 @@ class ImuSensor:
                 raise SimError(f"ImuSensor.{name} must be finite and >= 0, got {value}")
 
     def sample(self, truth: VehicleState, t_ns: int, rng: Generator) -> ImuSample:
-        R_W_B = Rotation.from_quat(truth.q_W_B_xyzw)
         a_W = truth.a_W_B.copy()
         if self.accel_model == "specific_force":
             a_W[2] += self.gravity_m_s2
-        f_B = R_W_B.inv().apply(a_W)
+        f_B = Rotation.from_quat(truth.q_W_B_xyzw).apply(a_W, inverse=True)
         noise = rng.standard_normal(6)
         return ImuSample(
             t_ns=t_ns,

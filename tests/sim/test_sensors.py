@@ -1,0 +1,105 @@
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from quadnav.errors import SimError
+from quadnav.messages import PositionSample, VehicleState
+from quadnav.sim import DelayLine, ImuSensor, PositionSensor
+
+
+def state(
+    *, theta: float = 0.0, a=(0.0, 0.0, 0.0), w=(0.0, 0.0, 0.0), p=(0.0, 0.0, 0.0)
+) -> VehicleState:
+    return VehicleState(
+        t_ns=0,
+        p_W_B=np.array(p),
+        v_W_B=np.zeros(3),
+        a_W_B=np.array(a),
+        q_W_B_xyzw=Rotation.from_euler("y", theta).as_quat(),
+        w_B=np.array(w),
+    )
+
+
+def test_specific_force_reads_plus_g_at_rest_and_kinematic_reads_zero() -> None:
+    rng = np.random.default_rng(0)
+    real = ImuSensor(accel_sigma_m_s2=0.0, gyro_sigma_rad_s=0.0, gravity_m_s2=9.81)
+    kin = ImuSensor(accel_sigma_m_s2=0.0, gyro_sigma_rad_s=0.0, accel_model="kinematic")
+    np.testing.assert_allclose(real.sample(state(), 0, rng).accel_m_s2, [0, 0, 9.81], atol=1e-12)
+    np.testing.assert_allclose(kin.sample(state(), 0, rng).accel_m_s2, [0, 0, 0], atol=1e-12)
+
+
+def test_tilted_accelerometer_sees_gravity_in_body_axes() -> None:
+    """Pitched by +theta about +y at rest: f_B = R^T (0, 0, g) = (-g sin, 0, g cos)."""
+    imu = ImuSensor(accel_sigma_m_s2=0.0, gyro_sigma_rad_s=0.0, gravity_m_s2=9.8)
+    f = imu.sample(state(theta=0.4, w=(0.0, 0.2, 0.0)), 0, np.random.default_rng(0))
+    np.testing.assert_allclose(
+        f.accel_m_s2, [-9.8 * np.sin(0.4), 0.0, 9.8 * np.cos(0.4)], atol=1e-12
+    )
+    np.testing.assert_allclose(f.gyro_rad_s, [0.0, 0.2, 0.0], atol=1e-12)
+
+
+def test_imu_noise_has_the_configured_spread() -> None:
+    imu = ImuSensor(accel_sigma_m_s2=0.25, gyro_sigma_rad_s=0.03)
+    rng = np.random.default_rng(1)
+    s = [imu.sample(state(), 0, rng) for _ in range(4000)]
+    acc = np.array([x.accel_m_s2 for x in s])
+    gyr = np.array([x.gyro_rad_s for x in s])
+    # 4000 samples: the sample std is within ~3% of sigma with overwhelming probability.
+    np.testing.assert_allclose(acc.std(axis=0), 0.25, rtol=0.06)
+    np.testing.assert_allclose(gyr.std(axis=0), 0.03, rtol=0.06)
+    np.testing.assert_allclose(acc.mean(axis=0), [0, 0, 9.8], atol=0.02)
+
+
+def test_same_seed_same_noise() -> None:
+    imu = ImuSensor(accel_sigma_m_s2=0.25, gyro_sigma_rad_s=0.03)
+    a = imu.sample(state(), 0, np.random.default_rng(5)).accel_m_s2
+    b = imu.sample(state(), 0, np.random.default_rng(5)).accel_m_s2
+    np.testing.assert_array_equal(a, b)
+
+
+def test_position_sensor_period_not_a_multiple_of_the_step() -> None:
+    gps = PositionSensor(sigma_m=0.01, period_ns=25_000_000)  # 25 ms on a 10 ms step
+    rng = np.random.default_rng(0)
+    times = [
+        t for t in range(0, 200_000_001, 10_000_000) if gps.sample(state(), t, rng) is not None
+    ]
+    # Due at 0, 25, 50, 75... ms: taken at the first step at or after each due time.
+    assert times[:5] == [0, 30_000_000, 50_000_000, 80_000_000, 100_000_000]
+    assert len(times) == 9
+
+
+def test_delay_line_releases_in_arrival_order_with_jitter() -> None:
+    line: DelayLine[PositionSample] = DelayLine(delay_ns=1_000, jitter_ns=5_000)
+    rng = np.random.default_rng(3)
+    arrivals = []
+    for t in range(0, 100_000, 1_000):
+        arrivals.append(line.push(PositionSample(t_ns=t, p_W_B=[0, 0, 0], sigma_m=1.0), rng))
+    out = line.pop_arrived(10**9)
+    got = [a for a, _ in out]
+    assert got == sorted(arrivals)
+    valid = [s.t_ns for _, s in out]
+    assert valid != sorted(valid), "jitter this large must reorder some samples"
+    assert all(a - s.t_ns >= 1_000 for a, s in out)
+    assert line.pop_arrived(10**9) == []
+
+
+def test_delay_line_holds_until_due() -> None:
+    line: DelayLine[PositionSample] = DelayLine(delay_ns=255)
+    line.push(PositionSample(t_ns=100, p_W_B=[0, 0, 0], sigma_m=1.0))
+    assert line.pop_arrived(354) == []
+    assert [a for a, _ in line.pop_arrived(355)] == [355]
+
+
+def test_bad_sensor_settings() -> None:
+    with pytest.raises(SimError):
+        DelayLine(delay_ns=-1)
+    with pytest.raises(SimError):
+        PositionSensor(sigma_m=0.0, period_ns=1)
+    with pytest.raises(SimError):
+        ImuSensor(accel_sigma_m_s2=-1.0, gyro_sigma_rad_s=0.0)
+    with pytest.raises(SimError, match="rng"):
+        DelayLine(delay_ns=0, jitter_ns=10).push(
+            PositionSample(t_ns=0, p_W_B=[0, 0, 0], sigma_m=1.0)
+        )

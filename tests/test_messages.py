@@ -1,0 +1,59 @@
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from quadnav.errors import SampleError
+from quadnav.messages import ImuSample, PositionSample, VehicleState
+
+
+def test_imu_sample_is_validated_and_immutable() -> None:
+    s = ImuSample(t_ns=10, gyro_rad_s=[0.0, 0.1, 0.0], accel_m_s2=[0.0, 0.0, 9.8])
+    assert s.gyro_rad_s.dtype == np.float64
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        s.t_ns = 11  # type: ignore[misc]
+    with pytest.raises(ValueError, match="read-only"):
+        s.accel_m_s2[0] = 1.0
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"t_ns": 1.5}, "integer"),
+        ({"t_ns": True}, "integer"),
+        ({"t_ns": "5"}, "integer"),
+        ({"gyro_rad_s": [0.0, np.nan, 0.0]}, "non-finite"),
+        ({"accel_m_s2": [0.0, 0.0]}, "shape"),
+        ({"accel_m_s2": ["a", 0, 0]}, "numeric"),
+    ],
+)
+def test_bad_imu_samples_are_refused(kwargs: dict[str, object], message: str) -> None:
+    args: dict[str, object] = {"t_ns": 0, "gyro_rad_s": [0, 0, 0], "accel_m_s2": [0, 0, 0]}
+    args.update(kwargs)
+    with pytest.raises(SampleError, match=message):
+        ImuSample(**args)  # type: ignore[arg-type]
+
+
+def test_numpy_integer_timestamps_become_int() -> None:
+    s = PositionSample(t_ns=np.int64(7), p_W_B=[1, 2, 3], sigma_m=0.1)
+    assert type(s.t_ns) is int and s.t_ns == 7
+
+
+@pytest.mark.parametrize("sigma", [0.0, -1.0, float("nan"), float("inf")])
+def test_position_sample_needs_a_positive_sigma(sigma: float) -> None:
+    with pytest.raises(SampleError, match="sigma_m"):
+        PositionSample(t_ns=0, p_W_B=[0, 0, 0], sigma_m=sigma)
+
+
+def test_vehicle_state_needs_a_unit_quaternion() -> None:
+    with pytest.raises(SampleError, match="unit quaternion"):
+        VehicleState(
+            t_ns=0,
+            p_W_B=[0, 0, 0],
+            v_W_B=[0, 0, 0],
+            a_W_B=[0, 0, 0],
+            q_W_B_xyzw=[0, 0, 0, 2],
+            w_B=[0, 0, 0],
+        )
