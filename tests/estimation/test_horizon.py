@@ -216,6 +216,7 @@ def test_floor_of_exact_states_is_the_truth(clean_flight: Flight) -> None:
         dt_s=np.full(n, 0.01),
     )
     np.testing.assert_allclose(pos, x[:, 0:2], atol=1e-9)
+    np.testing.assert_allclose(vel, x[:, 2:4], atol=1e-9)
     np.testing.assert_allclose(att[:, 0], x[:, 4], atol=1e-12)
     with pytest.raises(EstimationError):
         reintegration_floor(

@@ -275,6 +275,10 @@ class DelayedHorizonEstimator:
         """Counters of one observation source (zeros if it never sent anything)."""
         return self._counters.sources.get(source, SourceStats())
 
+    def pending(self, source: str) -> int:
+        """Observations of ``source`` buffered and not yet reached by the delayed horizon."""
+        return len(self._obs.get(source, ()))
+
     @property
     def sources(self) -> tuple[str, ...]:
         return tuple(self._counters.sources)

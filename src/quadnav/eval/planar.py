@@ -90,6 +90,7 @@ def planar_metrics(run: PlanarRun) -> dict[str, Any]:
         "gps_fused": run.gps_fused,
         "gps_rejected_gate": run.gps_rejected_gate,
         "gps_rejected_too_old": run.gps_rejected_too_old,
+        "gps_pending_at_end": run.gps_pending,
         "imu_buffer_length": run.buffer_length,
     }
 

@@ -180,6 +180,7 @@ class PlanarRun:
     gps_fused: int
     gps_rejected_gate: int
     gps_rejected_too_old: int
+    gps_pending: int
     buffer_length: int
 
     @property
@@ -363,5 +364,6 @@ def run_planar(config: PlanarConfig, experiment: ExperimentName, seed: int) -> P
         gps_fused=stats.fused,
         gps_rejected_gate=stats.rejected_gate,
         gps_rejected_too_old=stats.rejected_too_old,
+        gps_pending=est.pending("gps"),
         buffer_length=est.buffer_length,
     )

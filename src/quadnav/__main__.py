@@ -1,0 +1,5 @@
+"""``python -m quadnav``."""
+
+from quadnav.cli.main import main
+
+main()

@@ -1,0 +1,115 @@
+"""The planar experiment's claims, judged over 20 seeded Monte Carlo runs (thesis parameters)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from quadnav.eval.planar import PlanarStudy, planar_metrics, run_planar_study
+from quadnav.experiments import PlanarConfig, run_planar
+
+SEEDS = 20
+
+
+@pytest.fixture(scope="module")
+def study(tmp_path_factory: pytest.TempPathFactory) -> PlanarStudy:
+    config = PlanarConfig(seeds=SEEDS)
+    return run_planar_study(config, runs_root=tmp_path_factory.mktemp("runs"), jobs=2)
+
+
+@pytest.fixture(scope="module")
+def kinematic_study(tmp_path_factory: pytest.TempPathFactory) -> PlanarStudy:
+    config = PlanarConfig.model_validate(
+        {"seeds": SEEDS, "experiments": ["handled"], "imu": {"accel_model": "kinematic"}}
+    )
+    return run_planar_study(config, runs_root=tmp_path_factory.mktemp("runs"), jobs=2)
+
+
+def median(study: PlanarStudy, exp: str, key: str) -> float:
+    return float(study.summary[exp][key]["median"])
+
+
+def test_delayed_gps_fused_as_current_degrades_the_estimate(study: PlanarStudy) -> None:
+    assert median(study, "naive", "rmse_delayed_m") >= 1.0
+    # ... worse even than no GPS at all, as thesis figure 2.4 shows.
+    assert median(study, "naive", "rmse_delayed_m") > median(study, "no_update", "rmse_delayed_m")
+
+
+def test_handled_delays_give_centimetre_accuracy_at_the_delayed_horizon(study: PlanarStudy) -> None:
+    assert median(study, "handled", "rmse_delayed_m") <= 0.02
+    assert study.summary["handled"]["gps_rejected_gate_total"] == 0
+    assert study.summary["handled"]["gps_rejected_too_old_total"] == 0
+
+
+def test_output_predictor_is_within_15_percent_of_its_floor(study: PlanarStudy) -> None:
+    out = median(study, "handled", "rmse_output_m")
+    floor = median(study, "handled", "rmse_floor_m")
+    assert out <= 1.15 * floor
+    assert median(study, "handled", "output_over_floor") <= 1.15
+
+
+def test_delayed_filter_is_consistent(study: PlanarStudy) -> None:
+    values = [m["nees_mean"] for m in study.per_seed["handled"]]
+    assert 2.5 <= float(np.mean(values)) <= 10.0
+
+
+def test_kinematic_accelerometer_beats_the_thesis_simulator(kinematic_study: PlanarStudy) -> None:
+    """The thesis's own output filter reaches 0.057 m on this scenario."""
+    out = median(kinematic_study, "handled", "rmse_output_m")
+    assert out < 0.057
+    assert out <= 1.15 * median(kinematic_study, "handled", "rmse_floor_m")
+
+
+def test_run_folder_has_what_the_design_promises(study: PlanarStudy) -> None:
+    d: Path = study.run_dir
+    assert (d / "config.yaml").is_file() and (d / "metrics.json").is_file()
+    for exp in ("no_update", "naive", "handled"):
+        assert (d / "plots" / f"{exp}.png").stat().st_size > 10_000
+        for name in ("truth", "delayed", "output", "floor", "gps", "innovations"):
+            header = (d / exp / f"{name}.csv").read_text().splitlines()[0]
+            assert header.split(",")[0] == "t_ns"
+    assert (d / "plots" / "monte_carlo.png").is_file()
+    rows = (d / "handled" / "delayed.csv").read_text().splitlines()
+    assert "var_x" in rows[0] and len(rows) == 1002  # header + t0 + 1000 steps
+
+
+def test_results_do_not_depend_on_the_number_of_processes(study: PlanarStudy) -> None:
+    config = PlanarConfig(seeds=2, experiments=["handled"])
+    again = [planar_metrics(run_planar(config, "handled", s)) for s in (0, 1)]
+    for a, b in zip(again, study.per_seed["handled"][:2], strict=True):
+        assert a == b
+
+
+@pytest.mark.parametrize(
+    "overrides",
+    [
+        {"gps": {"delay_s": 0.255}},  # not a whole number of IMU periods
+        {"gps": {"delay_s": 0.5, "jitter_s": 0.45}},  # later fixes overtake earlier ones
+    ],
+)
+def test_awkward_delays_are_handled(overrides: dict[str, object]) -> None:
+    config = PlanarConfig.model_validate({"experiments": ["handled"], **overrides})
+    for seed in range(3):
+        run = run_planar(config, "handled", seed)
+        m = planar_metrics(run)
+        assert m["gps_received"] > 20
+        assert m["gps_fused"] + m["gps_pending_at_end"] == m["gps_received"]
+        assert m["gps_pending_at_end"] <= 2  # arrived but still ahead of the delayed horizon
+        assert m["rmse_delayed_m"] <= 0.02
+        # Every fix was fused at the tick nearest its time of validity.
+        assert np.all(np.abs(run.fusion_t_fused_ns - run.fusion_t_obs_ns) <= 5_000_000)
+    if "jitter_s" in overrides["gps"]:  # type: ignore[operator]
+        assert np.any(np.diff(run.gps_t_valid_ns) < 0), "jitter should reorder arrivals"
+
+
+def test_a_buffer_shorter_than_the_delay_rejects_every_fix() -> None:
+    config = PlanarConfig.model_validate(
+        {"experiments": ["handled"], "estimator": {"max_delay_s": 0.5}}
+    )
+    m = planar_metrics(run_planar(config, "handled", 0))
+    assert m["gps_received"] > 20
+    assert m["gps_rejected_too_old"] == m["gps_received"]
+    assert m["gps_fused"] == 0
+    assert m["imu_buffer_length"] == 51

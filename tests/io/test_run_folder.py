@@ -1,0 +1,65 @@
+from __future__ import annotations
+
+import datetime as dt
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from quadnav.errors import IoError
+from quadnav.io import create_run_folder, write_csv, write_json, write_tum
+
+
+def test_run_folder_name_and_clash(tmp_path: Path) -> None:
+    now = dt.datetime(2026, 1, 2, 3, 4, 5)
+    a = create_run_folder(tmp_path, "planar test", now=now)
+    b = create_run_folder(tmp_path, "planar test", now=now)
+    assert a.name == "2026-01-02_03-04-05_planar-test"
+    assert b.name == "2026-01-02_03-04-05_planar-test-2"
+    assert (a / "plots").is_dir()
+
+
+def test_csv_has_a_header_and_exact_integer_times(tmp_path: Path) -> None:
+    t = np.array([1_700_000_000_123_456_789, 1_700_000_000_133_456_789], dtype=np.int64)
+    write_csv(
+        tmp_path / "a.csv", {"t_ns": t, "x_m": np.array([0.5, 1e-9]), "ok": np.array([True, False])}
+    )
+    lines = (tmp_path / "a.csv").read_text().splitlines()
+    assert lines[0] == "t_ns,x_m,ok"
+    assert lines[1] == "1700000000123456789,0.5,1"
+    data = np.loadtxt(tmp_path / "a.csv", delimiter=",", skiprows=1, dtype=np.int64, usecols=0)
+    np.testing.assert_array_equal(data, t)
+
+
+def test_csv_refuses_bad_tables(tmp_path: Path) -> None:
+    with pytest.raises(IoError, match="t_ns"):
+        write_csv(tmp_path / "a.csv", {"x": np.zeros(2)})
+    with pytest.raises(IoError, match="integer"):
+        write_csv(tmp_path / "a.csv", {"t_ns": np.zeros(2)})
+    with pytest.raises(IoError, match="equal length"):
+        write_csv(tmp_path / "a.csv", {"t_ns": np.zeros(2, dtype=int), "x": np.zeros(3)})
+
+
+def test_tum_lines(tmp_path: Path) -> None:
+    write_tum(
+        tmp_path / "t.tum",
+        np.array([1_500_000_001, 2_000_000_000]),
+        np.ones((2, 3)),
+        np.tile([0, 0, 0, 1.0], (2, 1)),
+    )
+    lines = (tmp_path / "t.tum").read_text().splitlines()
+    assert lines[0] == "1.500000001 1 1 1 0 0 0 1"
+    assert len(lines[1].split()) == 8
+
+
+def test_json_turns_nan_into_null(tmp_path: Path) -> None:
+    write_json(tmp_path / "m.json", {"a": float("nan"), "b": np.float64(2.0), "c": np.arange(2)})
+    assert json.loads((tmp_path / "m.json").read_text()) == {"a": None, "b": 2.0, "c": [0, 1]}
+
+
+def test_unwritable_root_is_an_io_error(tmp_path: Path) -> None:
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    with pytest.raises(IoError):
+        create_run_folder(blocker / "runs", "x")
