@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from quadnav.errors import EstimationError
-from quadnav.estimation import HorizonConfig, imu_buffer_length, reintegration_floor
+from quadnav.estimation import HorizonConfig, PlanarEkf, imu_buffer_length, reintegration_floor
 from quadnav.messages import ImuSample, PositionSample
 
 from .conftest import DT_NS, Flight, fly, make_estimator
@@ -239,3 +239,19 @@ def test_no_delay_means_one_horizon(clean_flight: Flight) -> None:
         assert est.t_delayed_ns == est.t_now_ns == imu.t_ns
     np.testing.assert_array_equal(est.output().p_W_B, est.delayed().p_W_B)
     assert est.output().P is None and est.delayed().P is not None
+
+
+def test_samples_the_filter_cannot_use_are_counted_not_fatal(clean_flight: Flight) -> None:
+    class GpsOnly(PlanarEkf):
+        def can_fuse(self, obs: object) -> bool:
+            return isinstance(obs, PositionSample) and obs.source == "gps"
+
+    est = make_estimator(clean_flight, max_delay_ns=100_000_000)
+    est.filter.__class__ = GpsOnly
+    est.push(PositionSample(t_ns=0, p_W_B=[0, 0, 0], sigma_m=0.01, source="vision"))
+    run_with_fixes(est, clean_flight, {5: [clean_flight.fix(0)]})
+    assert est.stats("vision").rejected_unsupported == 1
+    assert est.stats("vision").fused == 0
+    assert est.stats("gps").fused == 1
+    with pytest.raises(EstimationError, match="takes samples"):
+        est.push({"t_ns": 0})  # type: ignore[arg-type]

@@ -5,6 +5,7 @@ from quadnav.estimation.floor import reintegration_floor
 from quadnav.estimation.horizon import (
     DelayedFilter,
     DelayedHorizonEstimator,
+    Estimator,
     FusionRecord,
     FusionResult,
     HorizonConfig,
@@ -26,6 +27,7 @@ __all__ = [
     "DelayedFilter",
     "DelayedHorizonEstimator",
     "EstimationError",
+    "Estimator",
     "FusionRecord",
     "FusionResult",
     "HorizonConfig",

@@ -34,11 +34,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from quadnav.errors import EstimationError
-from quadnav.messages import ImuSample, Sample, StateEstimate, check_t_ns
+from quadnav.messages import ImuSample, PositionSample, Sample, StateEstimate, check_t_ns
 
 __all__ = [
     "DelayedFilter",
     "DelayedHorizonEstimator",
+    "Estimator",
     "FusionRecord",
     "FusionResult",
     "HorizonConfig",
@@ -103,6 +104,22 @@ class Kinematics(Protocol):
         ...
 
 
+class Estimator(Protocol):
+    """What every quadnav estimator offers (DESIGN.md, Interfaces)."""
+
+    def push(self, sample: Sample) -> None:
+        """Any sample, in arrival order; ``sample.t_ns`` may lie in the past."""
+        ...
+
+    def output(self) -> StateEstimate:
+        """The current time horizon (output predictor)."""
+        ...
+
+    def delayed(self) -> StateEstimate:
+        """The fusion horizon, with covariance."""
+        ...
+
+
 @dataclass(frozen=True, slots=True, kw_only=True)
 class FusionResult:
     """What a filter did with one observation."""
@@ -133,6 +150,10 @@ class DelayedFilter(Protocol):
     def names(self) -> tuple[str, ...]: ...
 
     def predict(self, imu: ImuSample, dt_s: float) -> None: ...
+
+    def can_fuse(self, obs: Sample) -> bool:
+        """Whether this filter has a measurement model for ``obs`` (others are counted, not fused)."""
+        ...
 
     def fuse(self, obs: Sample) -> FusionResult: ...
 
@@ -183,6 +204,7 @@ class SourceStats:
     fused: int = 0
     rejected_gate: int = 0
     rejected_too_old: int = 0
+    rejected_unsupported: int = 0
     dropped_overflow: int = 0
 
 
@@ -285,7 +307,13 @@ class DelayedHorizonEstimator:
 
     # -- input ---------------------------------------------------------------------------
     def push(self, sample: Sample) -> None:
-        """Take one sample in arrival order. IMU samples advance time; others are buffered."""
+        """Take one sample in arrival order. IMU samples advance time; others are buffered.
+
+        Nothing a sample carries makes this raise: a late, out-of-order or unusable sample is
+        rejected and counted (see :meth:`stats`). Only a non-sample is a programming error.
+        """
+        if not isinstance(sample, ImuSample | PositionSample):
+            raise EstimationError(f"push() takes samples, got {type(sample).__name__}")
         if isinstance(sample, ImuSample):
             self._push_imu(sample)
         else:
@@ -295,6 +323,9 @@ class DelayedHorizonEstimator:
         source = getattr(obs, "source", type(obs).__name__)
         stats = self._counters.sources.setdefault(source, SourceStats())
         stats.received += 1
+        if not self.filter.can_fuse(obs):
+            stats.rejected_unsupported += 1
+            return
         half_period = self.config.imu_period_ns // 2
         if self._fusion_started and obs.t_ns < self._t_delayed_ns - half_period:
             # The fusion horizon has passed this measurement's time of validity: its delay is

@@ -202,6 +202,9 @@ class PlanarEkf:
         P = F @ self._P @ F.T + G @ self._Qu @ G.T
         self._P = 0.5 * (P + P.T)
 
+    def can_fuse(self, obs: Sample) -> bool:
+        return isinstance(obs, PositionSample)
+
     def fuse(self, obs: Sample) -> FusionResult:
         if not isinstance(obs, PositionSample):
             raise EstimationError(

@@ -231,47 +231,32 @@ def plot_monte_carlo(per_experiment: dict[str, list[dict[str, Any]]], path: Path
     plt.close(fig)
 
 
+def _state_columns(
+    t_ns: NDArray[np.int64], p: FloatArray, v: FloatArray, theta: FloatArray
+) -> dict[str, NDArray[Any]]:
+    return {
+        "t_ns": t_ns,
+        "x_m": p[:, 0],
+        "z_m": p[:, 1],
+        "vx_m_s": v[:, 0],
+        "vz_m_s": v[:, 1],
+        "theta_rad": theta,
+    }
+
+
 def _write_run_series(run: PlanarRun, folder: Path) -> None:
     t = run.t_ns
+    write_csv(folder / "truth.csv", _state_columns(t, run.truth_p, run.truth_v, run.truth_theta))
     write_csv(
-        folder / "truth.csv",
-        {
-            "t_ns": t,
-            "x_m": run.truth_p[:, 0],
-            "z_m": run.truth_p[:, 1],
-            "vx_m_s": run.truth_v[:, 0],
-            "vz_m_s": run.truth_v[:, 1],
-            "theta_rad": run.truth_theta,
-        },
+        folder / "output.csv", _state_columns(t, run.output_p, run.output_v, run.output_theta)
     )
+    write_csv(folder / "floor.csv", _state_columns(t, run.floor_p, run.floor_v, run.floor_theta))
     cols: dict[str, NDArray[Any]] = {"t_ns": run.t_delayed_ns, "t_now_ns": t}
     for k, name in enumerate(("x_m", "z_m", "vx_m_s", "vz_m_s", "theta_rad")):
         cols[name] = run.delayed_x[:, k]
     for k, name in enumerate(("x", "z", "vx", "vz", "theta")):
         cols[f"var_{name}"] = run.delayed_P[:, k, k]
     write_csv(folder / "delayed.csv", cols)
-    write_csv(
-        folder / "output.csv",
-        {
-            "t_ns": t,
-            "x_m": run.output_p[:, 0],
-            "z_m": run.output_p[:, 1],
-            "vx_m_s": run.output_v[:, 0],
-            "vz_m_s": run.output_v[:, 1],
-            "theta_rad": run.output_theta,
-        },
-    )
-    write_csv(
-        folder / "floor.csv",
-        {
-            "t_ns": t,
-            "x_m": run.floor_p[:, 0],
-            "z_m": run.floor_p[:, 1],
-            "vx_m_s": run.floor_v[:, 0],
-            "vz_m_s": run.floor_v[:, 1],
-            "theta_rad": run.floor_theta,
-        },
-    )
     write_csv(
         folder / "gps.csv",
         {

@@ -2,7 +2,7 @@
 
 from quadnav.errors import SimError
 from quadnav.sim.planar import PlanarParams, PlanarQuadrotor, PlanarState
-from quadnav.sim.sensors import DelayLine, ImuSensor, PositionSensor
+from quadnav.sim.sensors import DelayLine, ImuSensor, PositionSensor, Sensor
 
 __all__ = [
     "DelayLine",
@@ -11,5 +11,6 @@ __all__ = [
     "PlanarQuadrotor",
     "PlanarState",
     "PositionSensor",
+    "Sensor",
     "SimError",
 ]

@@ -10,7 +10,7 @@ from __future__ import annotations
 import heapq
 import math
 from dataclasses import dataclass
-from typing import Generic, Literal, TypeVar
+from typing import Generic, Literal, Protocol, TypeVar
 
 from numpy.random import Generator
 from scipy.spatial.transform import Rotation
@@ -18,9 +18,16 @@ from scipy.spatial.transform import Rotation
 from quadnav.errors import SimError
 from quadnav.messages import ImuSample, PositionSample, VehicleState
 
-__all__ = ["DelayLine", "ImuSensor", "PositionSensor"]
+__all__ = ["DelayLine", "ImuSensor", "PositionSensor", "Sensor"]
 
 S = TypeVar("S", ImuSample, PositionSample)
+S_co = TypeVar("S_co", ImuSample, PositionSample, covariant=True)
+
+
+class Sensor(Protocol[S_co]):
+    """A sensor model: reads the truth at ``t_ns``; ``None`` when it has nothing to report."""
+
+    def sample(self, truth: VehicleState, t_ns: int, rng: Generator) -> S_co | None: ...
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
