@@ -132,12 +132,8 @@ def plot_planar_run(run: PlanarRun, path: Path) -> None:
     fig.suptitle(f"{_TITLES[run.experiment]} (seed {run.seed})")
     for k, (ax, label) in enumerate(zip(axes[0, :2], ("x", "z"), strict=True)):
         ax.plot(t, run.truth_p[:, k], "--", color="tab:blue", label="truth")
-        ax.plot(
-            td[started],
-            run.delayed_x[started, k],
-            color="tab:orange",
-            label="EKF (delayed horizon)",
-        )
+        ekf_label = "EKF (delayed horizon)" if handled else "EKF"
+        ax.plot(td[started], run.delayed_x[started, k], color="tab:orange", label=ekf_label)
         if handled:
             ax.plot(t, run.output_p[:, k], color="tab:green", label="output predictor")
         if len(run.gps_t_valid_ns):
