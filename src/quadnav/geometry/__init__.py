@@ -20,12 +20,14 @@ from quadnav.geometry.rotations import (
     quat_xyzw_to_wxyz,
     rot_y,
 )
+from quadnav.geometry.trajectory import Trajectory
 
 __all__ = [
     "R_FLU_FRD",
     "R_NED_ENU",
     "GeometryError",
     "Pose",
+    "Trajectory",
     "enu_to_ned",
     "flu_to_frd",
     "frd_to_flu",
