@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import typer
 
+from quadnav.cli.eval import eval_command
 from quadnav.cli.planar import planar_command
 from quadnav.cli.run import run_command
 
@@ -18,6 +19,7 @@ app = typer.Typer(
 )
 app.command("run")(run_command)
 app.command("planar")(planar_command)
+app.command("eval")(eval_command)
 
 
 def main() -> None:

@@ -23,7 +23,6 @@ __all__ = [
     "nees",
     "nis",
     "position_nees",
-    "position_rmse",
     "rpe",
     "rpe_pairs",
 ]
@@ -32,17 +31,6 @@ FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 PoseRelation = Literal["trans", "rot", "full"]
 RpeUnit = Literal["frames", "seconds", "metres"]
-
-
-def position_rmse(p_est: FloatArray, p_ref: FloatArray) -> float:
-    """Root mean square of the position error norm, ``sqrt(mean(|p_est - p_ref|^2))``."""
-    a = np.asarray(p_est, dtype=np.float64)
-    b = np.asarray(p_ref, dtype=np.float64)
-    if a.shape != b.shape or a.ndim != 2 or len(a) == 0:
-        raise EvalError(
-            f"position arrays must be (N, D) of equal shape, got {a.shape} and {b.shape}"
-        )
-    return float(np.sqrt(np.mean(np.sum((a - b) ** 2, axis=1))))
 
 
 def error_stats(errors: FloatArray) -> dict[str, float]:

@@ -17,14 +17,18 @@ import numpy as np
 from numpy.typing import NDArray
 
 from quadnav.errors import EvalError
-from quadnav.eval.metrics import nees, position_rmse
+from quadnav.eval.metrics import ape, error_stats, nees
+from quadnav.eval.report import ReportSection, ReportTable, write_report
 from quadnav.experiments.planar import ExperimentName, PlanarConfig, PlanarRun, run_planar
+from quadnav.geometry.trajectory import Trajectory
 from quadnav.io.config import dump_config
-from quadnav.io.run_folder import create_run_folder, write_csv, write_json, write_text, write_tum
+from quadnav.io.run_folder import create_run_folder, write_csv, write_json, write_text
+from quadnav.io.trajectory_io import write_tum
 
 __all__ = [
     "PlanarStudy",
     "planar_metrics",
+    "planar_trajectory",
     "plot_monte_carlo",
     "plot_planar_run",
     "run_planar_study",
@@ -42,6 +46,20 @@ SUMMARY_KEYS = (
     "output_over_floor",
     "nees_mean",
 )
+
+
+def planar_trajectory(
+    t_ns: NDArray[np.int64], p_xz: FloatArray, theta: FloatArray, name: str = ""
+) -> Trajectory:
+    """A planar state history as a 3-D trajectory (y = 0, pitch about +y)."""
+    n = len(t_ns)
+    zeros = np.zeros(n)
+    return Trajectory(
+        t_ns=t_ns,
+        p_W_B=np.column_stack([p_xz[:, 0], zeros, p_xz[:, 1]]),
+        q_W_B_xyzw=np.column_stack([zeros, np.sin(theta / 2), zeros, np.cos(theta / 2)]),
+        name=name,
+    )
 
 
 def _wrap(a: FloatArray) -> FloatArray:
@@ -67,9 +85,23 @@ def planar_metrics(run: PlanarRun) -> dict[str, Any]:
     """
     rows = np.arange(1, len(run.t_ns))
     rows_d = rows[run.t_delayed_ns[rows] > run.t_ns[0]]
-    rmse_d = position_rmse(run.delayed_x[rows_d, 0:2], run.truth_p[run.delayed_index[rows_d]])
-    rmse_o = position_rmse(run.output_p[rows], run.truth_p[rows])
-    rmse_f = position_rmse(run.floor_p[rows], run.truth_p[rows])
+    di = run.delayed_index[rows_d]
+    t_d = run.t_delayed_ns[rows_d]
+
+    def rmse(ref: Trajectory, est: Trajectory) -> float:
+        return error_stats(ape(ref, est, "trans"))["rmse"]
+
+    truth_now = planar_trajectory(run.t_ns[rows], run.truth_p[rows], run.truth_theta[rows])
+    rmse_d = rmse(
+        planar_trajectory(t_d, run.truth_p[di], run.truth_theta[di]),
+        planar_trajectory(t_d, run.delayed_x[rows_d, 0:2], run.delayed_x[rows_d, 4]),
+    )
+    rmse_o = rmse(
+        truth_now, planar_trajectory(run.t_ns[rows], run.output_p[rows], run.output_theta[rows])
+    )
+    rmse_f = rmse(
+        truth_now, planar_trajectory(run.t_ns[rows], run.floor_p[rows], run.floor_theta[rows])
+    )
     fused = run.fusion_t_obs_ns[run.fusion_accepted]
     # After the first fused fix; with no fix at all (IMU only), over every step, which tests
     # the consistency of the covariance propagation alone.
@@ -275,18 +307,14 @@ def _write_run_series(run: PlanarRun, folder: Path) -> None:
         },
     )
 
-    def q_of(theta: FloatArray) -> FloatArray:
-        zeros = np.zeros(len(theta))
-        return np.column_stack([zeros, np.sin(theta / 2), zeros, np.cos(theta / 2)])
-
-    def p3(p: FloatArray) -> FloatArray:
-        return np.column_stack([p[:, 0], np.zeros(len(p)), p[:, 1]])
-
-    write_tum(folder / "truth.tum", t, p3(run.truth_p), q_of(run.truth_theta))
-    write_tum(folder / "output.tum", t, p3(run.output_p), q_of(run.output_theta))
+    write_tum(folder / "truth.tum", planar_trajectory(t, run.truth_p, run.truth_theta, "truth"))
+    write_tum(folder / "output.tum", planar_trajectory(t, run.output_p, run.output_theta, "output"))
     started = run.t_delayed_ns > t[0]
     xd = run.delayed_x[started]
-    write_tum(folder / "delayed.tum", run.t_delayed_ns[started], p3(xd[:, 0:2]), q_of(xd[:, 4]))
+    write_tum(
+        folder / "delayed.tum",
+        planar_trajectory(run.t_delayed_ns[started], xd[:, 0:2], xd[:, 4], "delayed"),
+    )
 
 
 @dataclass(frozen=True, slots=True)
@@ -352,14 +380,54 @@ def run_planar_study(
     summary = {exp: summarize_seeds(v) for exp, v in per_seed.items()}
     if config.seeds > 1:
         plot_monte_carlo(per_seed, run_dir / "plots" / "monte_carlo.png")
+    table = [
+        {
+            "experiment": exp,
+            "seeds": s["seeds"],
+            "RMSE delayed (m)": s["rmse_delayed_m"]["median"],
+            "RMSE output (m)": s["rmse_output_m"]["median"],
+            "floor (m)": s["rmse_floor_m"]["median"],
+            "output/floor": s["output_over_floor"]["median"],
+            "NEES mean": s["nees_mean"]["mean"],
+            "GPS fused": s["gps_fused_total"],
+            "GPS gated": s["gps_rejected_gate_total"],
+            "GPS too old": s["gps_rejected_too_old_total"],
+        }
+        for exp, s in summary.items()
+    ]
     write_json(
         run_dir / "metrics.json",
         {
+            "kind": "planar",
             "description": "position RMSE of each estimate against the truth at its own horizon; "
             "floor = delayed estimate re-integrated through the buffered IMU samples; "
             "NEES of the 5-state delayed estimate after the first fused fix",
             "summary": summary,
             "per_seed": per_seed,
+            "table": table,
         },
+    )
+    headers = list(table[0])
+    images = [run_dir / "plots" / f"{exp}.png" for exp in config.experiments]
+    if config.seeds > 1:
+        images.append(run_dir / "plots" / "monte_carlo.png")
+    write_report(
+        run_dir / "report.html",
+        title=f"Planar delayed-measurement experiments ({config.seeds} seed(s))",
+        sections=[
+            ReportSection(
+                heading="Metrics",
+                text="Position RMSE, median over seeds: the delayed estimate against the truth at the "
+                "delayed horizon, the output predictor and its floor against the truth now. The floor is "
+                "the delayed estimate re-integrated through the buffered IMU samples at every step.",
+                tables=[
+                    ReportTable(
+                        "median over seeds", headers, [[row[h] for h in headers] for row in table]
+                    )
+                ],
+            ),
+            ReportSection(heading="Plots (first seed of each experiment)", images=images),
+            ReportSection(heading="Configuration", code=dump_config(config)),
+        ],
     )
     return PlanarStudy(run_dir=run_dir, summary=summary, per_seed=per_seed)

@@ -15,7 +15,7 @@ from numpy.typing import NDArray
 
 from quadnav.errors import IoError
 
-__all__ = ["create_run_folder", "write_csv", "write_json", "write_text", "write_tum"]
+__all__ = ["create_run_folder", "write_csv", "write_json", "write_text"]
 
 
 def create_run_folder(root: Path, name: str, *, now: _dt.datetime | None = None) -> Path:
@@ -86,19 +86,3 @@ def write_csv(path: Path, columns: Mapping[str, NDArray[Any]]) -> None:
         np.savetxt(path, table, fmt=fmts, delimiter=",", header=",".join(names), comments="")
     except OSError as exc:
         raise IoError(f"cannot write {path}: {exc.strerror}") from None
-
-
-def write_tum(
-    path: Path, t_ns: NDArray[np.int64], p_W_B: NDArray[np.float64], q_W_B_xyzw: NDArray[np.float64]
-) -> None:
-    """A trajectory in TUM format (``t x y z qx qy qz qw``, time in seconds), as evo reads it."""
-    t = np.asarray(t_ns, dtype=np.int64)
-    p = np.asarray(p_W_B, dtype=np.float64)
-    q = np.asarray(q_W_B_xyzw, dtype=np.float64)
-    if p.shape != (len(t), 3) or q.shape != (len(t), 4):
-        raise IoError(f"{path.name}: TUM needs p (N, 3) and q (N, 4) for N = {len(t)} stamps")
-    # Seconds with nanosecond digits, from the integer stamp (no float rounding of t_ns).
-    secs = [f"{ti // 1_000_000_000}.{ti % 1_000_000_000:09d}" for ti in t.tolist()]
-    body = np.column_stack([p, q])
-    lines = [s + " " + " ".join(f"{v:.9g}" for v in row) for s, row in zip(secs, body, strict=True)]
-    write_text(path, "\n".join(lines) + "\n")

@@ -1,0 +1,286 @@
+"""``quadnav eval``: compare estimates with a reference and write a run folder with a report."""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+from quadnav.errors import EvalError, IoError
+from quadnav.eval.align import Alignment, AlignMethod, align
+from quadnav.eval.associate import associate
+from quadnav.eval.metrics import RpeUnit, ape, error_stats, position_nees, rpe
+from quadnav.eval.plots import plot_errors, plot_trajectories, plot_xyz
+from quadnav.eval.report import ReportSection, ReportTable, write_report
+from quadnav.geometry.trajectory import Trajectory
+from quadnav.io.config import dump_config
+from quadnav.io.run_folder import create_run_folder, write_json, write_text
+from quadnav.io.trajectory_io import read_trajectory, write_tum
+
+__all__ = [
+    "EstimateResult",
+    "EvalOptions",
+    "EvalRun",
+    "compare_runs",
+    "evaluate_pair",
+    "format_table",
+    "run_eval",
+]
+
+Progress = Callable[[int, int, str], None]
+
+
+class EvalOptions(BaseModel):
+    """How estimates are compared with the reference (saved as the run's config.yaml)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    ref_format: str | None = Field(None, description="reference format; guessed when None")
+    est_format: str | None = Field(None, description="estimate format; guessed when None")
+    topic: str | None = Field(None, description="ROS bag topic, when a bag holds several")
+    t_max_diff_s: float = Field(0.01, ge=0)
+    t_offset_s: float = Field(0.0, description="added to the estimate's timestamps")
+    interpolate: bool = Field(False, description="interpolate the reference at estimate times")
+    align: AlignMethod = "none"
+    align_first_n: int | None = Field(
+        None, ge=1, description="estimate the alignment on the first N poses"
+    )
+    rpe_delta: float = Field(1.0, gt=0)
+    rpe_unit: RpeUnit = "frames"
+    rpe_all_pairs: bool = False
+    rpe_pairs_from: Literal["estimate", "reference"] = "estimate"
+    plots: bool = True
+
+
+@dataclass(frozen=True, slots=True)
+class EstimateResult:
+    """Everything measured for one estimate against the reference."""
+
+    name: str
+    n_matched: int
+    alignment: Alignment
+    metrics: dict[str, dict[str, float]]
+    ref: Trajectory
+    est_aligned: Trajectory
+    ape_trans: np.ndarray
+
+    def row(self) -> dict[str, Any]:
+        """A flat summary row (for tables)."""
+        m = self.metrics
+        row: dict[str, Any] = {
+            "estimate": self.name,
+            "matched": self.n_matched,
+            "align": self.alignment.method,
+            "APE rmse (m)": m["ape_trans_m"]["rmse"],
+            "APE mean (m)": m["ape_trans_m"]["mean"],
+            "APE max (m)": m["ape_trans_m"]["max"],
+            "APE rot rmse (deg)": m["ape_rot_deg"]["rmse"],
+            "RPE rmse (m)": m["rpe_trans_m"]["rmse"],
+            "RPE rot rmse (deg)": m["rpe_rot_deg"]["rmse"],
+        }
+        if "nees_pos" in m:
+            row["NEES mean"] = m["nees_pos"]["mean"]
+        return row
+
+
+def evaluate_pair(ref: Trajectory, est: Trajectory, opts: EvalOptions) -> EstimateResult:
+    """Associate, align and measure one estimate."""
+    r, e = associate(
+        ref,
+        est,
+        t_max_diff_s=opts.t_max_diff_s,
+        t_offset_s=opts.t_offset_s,
+        interpolate=opts.interpolate,
+    )
+    e_al, alignment = align(r, e, opts.align, first_n=opts.align_first_n)
+    ape_t = ape(r, e_al, "trans")
+    metrics: dict[str, dict[str, float]] = {
+        "ape_trans_m": error_stats(ape_t),
+        "ape_rot_deg": error_stats(np.degrees(ape(r, e_al, "rot"))),
+        "ape_full": error_stats(ape(r, e_al, "full")),
+    }
+    rpe_kwargs: dict[str, Any] = {
+        "delta": opts.rpe_delta,
+        "unit": opts.rpe_unit,
+        "all_pairs": opts.rpe_all_pairs,
+        "pairs_from": opts.rpe_pairs_from,
+    }
+    # RPE is invariant to a rigid alignment, so it is computed on the unaligned estimate (as evo).
+    rpe_t, _ = rpe(r, e, relation="trans", **rpe_kwargs)
+    rpe_r, _ = rpe(r, e, relation="rot", **rpe_kwargs)
+    metrics["rpe_trans_m"] = error_stats(rpe_t)
+    metrics["rpe_rot_deg"] = error_stats(np.degrees(rpe_r))
+    if e_al.cov_p is not None:
+        metrics["nees_pos"] = error_stats(position_nees(r, e_al))
+    return EstimateResult(
+        name=est.name or "estimate",
+        n_matched=len(e),
+        alignment=alignment,
+        metrics=metrics,
+        ref=r,
+        est_aligned=e_al,
+        ape_trans=ape_t,
+    )
+
+
+@dataclass(frozen=True, slots=True)
+class EvalRun:
+    run_dir: Path
+    results: list[EstimateResult]
+
+
+def _unique_names(trajs: list[Trajectory]) -> list[Trajectory]:
+    seen: dict[str, int] = {}
+    out = []
+    for t in trajs:
+        base = t.name or "estimate"
+        seen[base] = seen.get(base, 0) + 1
+        name = base if seen[base] == 1 else f"{base}-{seen[base]}"
+        out.append(
+            Trajectory(
+                t_ns=t.t_ns,
+                p_W_B=t.p_W_B,
+                q_W_B_xyzw=t.q_W_B_xyzw,
+                cov_p=t.cov_p,
+                timed=t.timed,
+                name=name,
+            )
+        )
+    return out
+
+
+def run_eval(
+    ref_path: Path,
+    est_paths: list[Path],
+    opts: EvalOptions,
+    *,
+    runs_root: Path,
+    progress: Progress | None = None,
+) -> EvalRun:
+    """Read, evaluate every estimate, and write a run folder with metrics, plots and a report."""
+    if not est_paths:
+        raise EvalError("give at least one estimate to evaluate")
+    ref = read_trajectory(ref_path, opts.ref_format, topic=opts.topic)
+    ests = _unique_names([read_trajectory(p, opts.est_format, topic=opts.topic) for p in est_paths])
+    if ref.name in {e.name for e in ests}:
+        ref = Trajectory(
+            t_ns=ref.t_ns,
+            p_W_B=ref.p_W_B,
+            q_W_B_xyzw=ref.q_W_B_xyzw,
+            timed=ref.timed,
+            name=f"{ref.name} (reference)",
+        )
+    results = []
+    for k, est in enumerate(ests):
+        results.append(evaluate_pair(ref, est, opts))
+        if progress is not None:
+            progress(k + 1, len(ests), est.name)
+    run_dir = create_run_folder(runs_root, "eval")
+    write_text(
+        run_dir / "config.yaml",
+        dump_config(opts) + f"reference: {ref_path}\nestimates: {[str(p) for p in est_paths]}\n",
+    )
+    images: list[Path] = []
+    if opts.plots:
+        plot_xyz(ref, [r.est_aligned for r in results], run_dir / "plots" / "xyz.png")
+        plot_trajectories(
+            ref, [r.est_aligned for r in results], run_dir / "plots" / "trajectories.png"
+        )
+        images += [run_dir / "plots" / "xyz.png", run_dir / "plots" / "trajectories.png"]
+        for res in results:
+            p = run_dir / "plots" / f"ape_{res.name}.png"
+            plot_errors(res.ref, res.est_aligned, res.ape_trans, p, what="APE translation (m)")
+            images.append(p)
+    for res in results:
+        write_tum(run_dir / "aligned" / f"{res.name}.tum", res.est_aligned)
+    table = [res.row() for res in results]
+    write_json(
+        run_dir / "metrics.json",
+        {
+            "kind": "eval",
+            "reference": str(ref_path),
+            "estimates": {
+                res.name: {
+                    "matched": res.n_matched,
+                    "alignment": {
+                        "method": res.alignment.method,
+                        "R": res.alignment.R.as_matrix(),
+                        "t": res.alignment.t,
+                        "s": res.alignment.s,
+                        "n_used": res.alignment.n_used,
+                    },
+                    **res.metrics,
+                }
+                for res in results
+            },
+            "table": table,
+        },
+    )
+    write_report(
+        run_dir / "report.html",
+        title=f"Trajectory evaluation against {Path(ref_path).name}",
+        sections=[
+            ReportSection(
+                heading="Metrics",
+                text=f"{len(results)} estimate(s); alignment {opts.align}; RPE delta {opts.rpe_delta} {opts.rpe_unit}.",
+                tables=[_report_table(table)],
+            ),
+            ReportSection(heading="Plots", images=images),
+            ReportSection(heading="Configuration", code=(run_dir / "config.yaml").read_text()),
+        ],
+    )
+    return EvalRun(run_dir=run_dir, results=results)
+
+
+def _report_table(rows: list[dict[str, Any]], caption: str = "") -> ReportTable:
+    headers = list(dict.fromkeys(k for row in rows for k in row))
+    return ReportTable(caption, headers, [[row.get(h, "") for h in headers] for row in rows])
+
+
+def compare_runs(run_dirs: list[Path]) -> list[dict[str, Any]]:
+    """The summary rows of several run folders in one table (each run's ``metrics.json``)."""
+    rows: list[dict[str, Any]] = []
+    for d in run_dirs:
+        f = Path(d) / "metrics.json"
+        if not f.is_file():
+            raise IoError(f"{d}: not a quadnav run folder (no metrics.json)")
+        try:
+            data = json.loads(f.read_text(encoding="utf-8"))
+        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+            raise IoError(f"{f}: not valid JSON: {exc}") from None
+        table = data.get("table") if isinstance(data, dict) else None
+        if not isinstance(table, list):
+            raise IoError(f"{f}: has no summary table")
+        for row in table:
+            rows.append({"run": Path(d).name, **row})
+    return rows
+
+
+def format_table(rows: list[dict[str, Any]], fmt: Literal["markdown", "csv"] = "markdown") -> str:
+    """Rows as a markdown or CSV table (columns in order of first appearance)."""
+    headers = list(dict.fromkeys(k for row in rows for k in row))
+
+    def cell(v: Any) -> str:
+        if isinstance(v, float):
+            return "nan" if math.isnan(v) else f"{v:.6g}"
+        return "" if v is None else str(v)
+
+    if fmt == "csv":
+        import csv
+        import io
+
+        buf = io.StringIO()
+        w = csv.writer(buf, lineterminator="\n")
+        w.writerow(headers)
+        for row in rows:
+            w.writerow([cell(row.get(h)) for h in headers])
+        return buf.getvalue()
+    lines = ["| " + " | ".join(headers) + " |", "|" + "|".join("---" for _ in headers) + "|"]
+    lines += ["| " + " | ".join(cell(row.get(h)) for h in headers) + " |" for row in rows]
+    return "\n".join(lines) + "\n"
