@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from quadnav.errors import IoError
-from quadnav.io import create_run_folder, write_csv, write_json, write_tum
+from quadnav.io import create_run_folder, write_csv, write_json
 
 
 def test_run_folder_name_and_clash(tmp_path: Path) -> None:
@@ -39,18 +39,6 @@ def test_csv_refuses_bad_tables(tmp_path: Path) -> None:
         write_csv(tmp_path / "a.csv", {"t_ns": np.zeros(2)})
     with pytest.raises(IoError, match="equal length"):
         write_csv(tmp_path / "a.csv", {"t_ns": np.zeros(2, dtype=int), "x": np.zeros(3)})
-
-
-def test_tum_lines(tmp_path: Path) -> None:
-    write_tum(
-        tmp_path / "t.tum",
-        np.array([1_500_000_001, 2_000_000_000]),
-        np.ones((2, 3)),
-        np.tile([0, 0, 0, 1.0], (2, 1)),
-    )
-    lines = (tmp_path / "t.tum").read_text().splitlines()
-    assert lines[0] == "1.500000001 1 1 1 0 0 0 1"
-    assert len(lines[1].split()) == 8
 
 
 def test_json_turns_nan_into_null(tmp_path: Path) -> None:

@@ -24,7 +24,7 @@ def associate(
 ) -> tuple[Trajectory, Trajectory]:
     """Matched (reference, estimate) of equal length, in the estimate's time order.
 
-    The estimate's times are shifted by ``t_offset_s`` first. Nearest neighbour: each estimate
+    The estimate's times are shifted by ``t_offset_s`` first (and stay shifted in the result). Nearest neighbour: each estimate
     pose takes the closest reference pose within ``t_max_diff_s``, each reference pose used
     once (the closest claim wins). Interpolation: the reference is interpolated (linear
     position, slerp attitude) at each estimate time inside its span whose nearest reference
@@ -64,7 +64,7 @@ def associate(
         idx_e = np.flatnonzero(ok)
         if len(idx_e) == 0:
             raise _no_overlap(ref, est, t_max_diff_s)
-        return ref.interpolate(t_e[idx_e]), est.select(idx_e)
+        return ref.interpolate(t_e[idx_e]), shifted.select(idx_e)
     idx_e = np.flatnonzero(ok)
     if len(idx_e) == 0:
         raise _no_overlap(ref, est, t_max_diff_s)
@@ -73,7 +73,7 @@ def associate(
     order = np.lexsort((d[idx_e], idx_r))
     first = np.concatenate([[True], np.diff(idx_r[order]) != 0])
     keep = np.sort(order[first])
-    return ref.select(idx_r[keep]), est.select(idx_e[keep])
+    return ref.select(idx_r[keep]), shifted.select(idx_e[keep])
 
 
 def _no_overlap(ref: Trajectory, est: Trajectory, t_max_diff_s: float) -> EvalError:

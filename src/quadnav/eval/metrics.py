@@ -105,13 +105,16 @@ def rpe_pairs(
             return i, i + step
         ids = np.arange(0, n, step)
         return ids[:-1], ids[1:]
+    dist: NDArray[np.float64] | NDArray[np.int64]
     if unit == "metres":
         steps = np.linalg.norm(np.diff(traj.p_W_B, axis=0), axis=1) if n > 1 else np.zeros(0)
         dist = np.concatenate([[0.0], np.cumsum(steps)])
     elif unit == "seconds":
         if not traj.timed:
             raise EvalError("an RPE delta in seconds needs timestamps")
-        dist = (traj.t_ns - traj.t_ns[0]) * 1e-9
+        # Integer nanoseconds, so 0.3 s steps are not lost to float round-off.
+        dist = traj.t_ns - traj.t_ns[0]
+        delta = round(delta * 1e9)
     else:
         raise EvalError(f"unknown RPE unit {unit!r}; choose frames, seconds or metres")
     if all_pairs:
@@ -126,7 +129,7 @@ def rpe_pairs(
         ok = (pick > i) & (np.abs(dist[pick] - dist - delta) <= tol)
         return i[ok], pick[ok]
     chain: list[int] = []
-    start = float(dist[0])
+    start = dist[0]
     k = 0
     # Consecutive: the first index whose distance from the previous id (or the start) reaches delta.
     while True:
@@ -136,7 +139,7 @@ def rpe_pairs(
         if k >= n:
             break
         chain.append(k)
-        start = float(dist[k])
+        start = dist[k]
     arr = np.array(chain, dtype=np.int64)
     return arr[:-1], arr[1:]
 
