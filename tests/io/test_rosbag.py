@@ -109,5 +109,5 @@ def test_bag_with_several_pose_topics_needs_a_topic(tmp_path: Path) -> None:
 def test_corrupt_bag_is_an_io_error(tmp_path: Path) -> None:
     bag = tmp_path / "broken.bag"
     bag.write_bytes(b"#ROSBAG V2.0\n" + bytes(100))
-    with pytest.raises(IoError, match="broken.bag"):
+    with pytest.raises(IoError, match=r"broken\.bag"):
         read_trajectory(bag)

@@ -39,5 +39,5 @@ def test_takeoff_is_up_in_enu() -> None:
 def test_truncated_log_is_an_io_error(tmp_path: Path) -> None:
     cut = tmp_path / "cut.ulg"
     cut.write_bytes(EVENTS.read_bytes()[:3000])
-    with pytest.raises(IoError, match="cut.ulg"):
+    with pytest.raises(IoError, match=r"cut\.ulg"):
         read_trajectory(cut)
