@@ -138,3 +138,13 @@ def test_tum_lines_carry_exact_seconds(tmp_path: Path) -> None:
     lines = (tmp_path / "t.tum").read_text().splitlines()
     assert lines[0] == "1.500000001 1 1 1 0 0 0 1"
     assert len(lines[1].split()) == 8
+
+
+@given(st.integers(0, 10**11), st.text(alphabet="0123456789", max_size=14))
+def test_timestamp_parsing_is_exact_decimal_rounding(whole: int, frac: str) -> None:
+    from decimal import Decimal
+
+    from quadnav.io.trajectory_io import _seconds_to_ns
+
+    token = f"{whole}.{frac}" if frac else str(whole)
+    assert _seconds_to_ns(token, "t") == int((Decimal(token) * 1_000_000_000).to_integral_value())

@@ -53,8 +53,18 @@ def _read_lines(path: Path) -> list[str]:
         raise IoError(f"cannot read {path}: {exc.strerror}") from None
 
 
+_PLAIN_SECONDS = re.compile(r"([0-9]+)(?:\.([0-9]*))?")
+
+
 def _seconds_to_ns(token: str, where: str) -> int:
     """Exact decimal seconds to integer nanoseconds (no float rounding of long stamps)."""
+    m = _PLAIN_SECONDS.fullmatch(token)
+    if m is not None:  # the common case, without Decimal: "1403636579.763555527"
+        frac = (m.group(2) or "").ljust(10, "0")
+        ns = int(m.group(1)) * 1_000_000_000 + int(frac[:9])
+        if frac[9] >= "5" and (frac[9] > "5" or frac[10:].strip("0") or int(frac[8]) % 2):
+            ns += 1  # round half to even, as Decimal does
+        return ns
     try:
         value = Decimal(token)
     except InvalidOperation:
