@@ -65,6 +65,9 @@ def test_kinematic_accelerometer_beats_the_thesis_simulator(kinematic_study: Pla
 def test_run_folder_has_what_the_design_promises(study: PlanarStudy) -> None:
     d: Path = study.run_dir
     assert (d / "config.yaml").is_file() and (d / "metrics.json").is_file()
+    html = (d / "report.html").read_text()
+    assert html.count("data:image/png;base64,") == 4  # three experiments and the Monte Carlo plot
+    assert "RMSE output (m)" in html
     for exp in ("no_update", "naive", "handled"):
         assert (d / "plots" / f"{exp}.png").stat().st_size > 10_000
         for name in ("truth", "delayed", "output", "floor", "gps", "innovations"):
