@@ -279,11 +279,13 @@ def _write_run_series(run: PlanarRun, folder: Path) -> None:
         folder / "output.csv", _state_columns(t, run.output_p, run.output_v, run.output_theta)
     )
     write_csv(folder / "floor.csv", _state_columns(t, run.floor_p, run.floor_v, run.floor_theta))
-    cols: dict[str, NDArray[Any]] = {"t_ns": run.t_delayed_ns, "t_now_ns": t}
+    # One row per delayed-horizon time (it waits at t0 until the IMU buffer fills).
+    moved = np.flatnonzero(np.diff(run.t_delayed_ns, prepend=run.t_delayed_ns[0] - 1) != 0)
+    cols: dict[str, NDArray[Any]] = {"t_ns": run.t_delayed_ns[moved], "t_now_ns": t[moved]}
     for k, name in enumerate(("x_m", "z_m", "vx_m_s", "vz_m_s", "theta_rad")):
-        cols[name] = run.delayed_x[:, k]
+        cols[name] = run.delayed_x[moved, k]
     for k, name in enumerate(("x", "z", "vx", "vz", "theta")):
-        cols[f"var_{name}"] = run.delayed_P[:, k, k]
+        cols[f"var_{name}"] = run.delayed_P[moved, k, k]
     write_csv(folder / "delayed.csv", cols)
     write_csv(
         folder / "gps.csv",
