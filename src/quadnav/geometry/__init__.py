@@ -15,10 +15,12 @@ from quadnav.geometry.frames import (
 )
 from quadnav.geometry.rotations import (
     Pose,
+    cross3,
     geodesic_angle_rad,
     quat_wxyz_to_xyzw,
     quat_xyzw_to_wxyz,
     rot_y,
+    rotation_matrix_xyzw,
 )
 from quadnav.geometry.trajectory import Trajectory
 
@@ -28,6 +30,7 @@ __all__ = [
     "GeometryError",
     "Pose",
     "Trajectory",
+    "cross3",
     "enu_to_ned",
     "flu_to_frd",
     "frd_to_flu",
@@ -39,5 +42,6 @@ __all__ = [
     "quat_xyzw_to_wxyz",
     "rot_y",
     "rotation_enu_flu_to_ned_frd",
+    "rotation_matrix_xyzw",
     "rotation_ned_frd_to_enu_flu",
 ]

@@ -18,10 +18,12 @@ from quadnav.errors import GeometryError
 
 __all__ = [
     "Pose",
+    "cross3",
     "geodesic_angle_rad",
     "quat_wxyz_to_xyzw",
     "quat_xyzw_to_wxyz",
     "rot_y",
+    "rotation_matrix_xyzw",
 ]
 
 FloatArray = NDArray[np.float64]
@@ -63,6 +65,31 @@ def rot_y(angle_rad: ArrayLike) -> FloatArray:
     out[..., 2, 0] = -s
     out[..., 2, 2] = c
     return out
+
+
+def rotation_matrix_xyzw(q: FloatArray) -> FloatArray:
+    """The rotation matrix of a unit scalar-last quaternion (3, 3).
+
+    The textbook formula, for simulator inner loops where constructing a SciPy ``Rotation``
+    per call costs more than the rest of the step; tested against SciPy.
+    """
+    x, y, z, w = float(q[0]), float(q[1]), float(q[2]), float(q[3])
+    xx, yy, zz = x * x, y * y, z * z
+    xy, xz, yz, wx, wy, wz = x * y, x * z, y * z, w * x, w * y, w * z
+    return np.array(
+        [
+            [1 - 2 * (yy + zz), 2 * (xy - wz), 2 * (xz + wy)],
+            [2 * (xy + wz), 1 - 2 * (xx + zz), 2 * (yz - wx)],
+            [2 * (xz - wy), 2 * (yz + wx), 1 - 2 * (xx + yy)],
+        ]
+    )
+
+
+def cross3(a: FloatArray, b: FloatArray) -> FloatArray:
+    """Cross product of two 3-vectors (``np.cross`` costs microseconds of overhead per call)."""
+    return np.array(
+        [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+    )
 
 
 def geodesic_angle_rad(R_a: Rotation, R_b: Rotation) -> FloatArray:

@@ -1,0 +1,202 @@
+"""A full rigid-body quadrotor: quaternion attitude, four rotors with lag and limits, drag, wind.
+
+State (17): position ``p_W_B`` and velocity ``v_W_B`` in the world (ENU), attitude
+``q_W_B_xyzw`` (FLU body), body rates ``w_B``, and the four rotor speeds (rad/s). Rotor i
+makes thrust ``k_thrust w_i^2`` along body +z at ``(x_i, y_i)`` and a reaction torque
+``-spin_i k_torque w_i^2`` about body z (``spin = +1`` for a rotor turning counter-clockwise
+seen from above). Rotor speeds follow their commands through a first-order lag and are
+limited to ``[omega_min, omega_max]``: a rotor cannot push down. Drag is linear in the
+airspeed, expressed in the body frame. Integration is RK4 at a fixed step (1 kHz by
+default); wind is held over a step. The ground plane z = 0 stops the vehicle: it can rest,
+take off and land.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numpy.random import Generator
+from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
+
+from quadnav.errors import SimError
+from quadnav.messages import VehicleState
+from quadnav.sim.integrate import rk4_step
+from quadnav.vehicle import RigidBodyParams
+
+__all__ = ["RigidBodyQuadrotor", "Wind"]
+
+FloatArray = NDArray[np.float64]
+
+
+class Wind:
+    """Mean wind plus gusts: a first-order Gauss-Markov process per axis, seeded.
+
+    ``gust_sigma_m_s`` is the gusts' standard deviation and ``gust_tau_s`` their correlation
+    time (Dryden-like low-pass turbulence).
+    """
+
+    def __init__(
+        self,
+        *,
+        mean_m_s: tuple[float, float, float] = (0.0, 0.0, 0.0),
+        gust_sigma_m_s: float = 0.0,
+        gust_tau_s: float = 2.0,
+        rng: Generator | None = None,
+    ) -> None:
+        if gust_sigma_m_s < 0 or not gust_tau_s > 0:
+            raise SimError("wind needs gust_sigma_m_s >= 0 and gust_tau_s > 0")
+        if gust_sigma_m_s > 0 and rng is None:
+            raise SimError("gusting wind needs an rng")
+        self.mean = np.asarray(mean_m_s, dtype=np.float64)
+        self.sigma = float(gust_sigma_m_s)
+        self.tau = float(gust_tau_s)
+        self.rng = rng
+        self.gust = (
+            self.sigma * rng.standard_normal(3)
+            if rng is not None and self.sigma > 0
+            else np.zeros(3)
+        )
+
+    def step(self, dt_s: float) -> FloatArray:
+        """Advance the gusts by ``dt_s`` and return the wind velocity (world frame, m/s)."""
+        if self.sigma > 0 and self.rng is not None:
+            a = math.exp(-dt_s / self.tau)
+            self.gust = a * self.gust + self.sigma * math.sqrt(
+                1 - a * a
+            ) * self.rng.standard_normal(3)
+        return np.asarray(self.mean + self.gust, dtype=np.float64)
+
+
+class RigidBodyQuadrotor:
+    """Steps the rigid-body model with RK4; ``step(omega_cmd)`` takes rotor speed commands."""
+
+    def __init__(
+        self,
+        params: RigidBodyParams,
+        *,
+        dt_s: float = 0.001,
+        p0: tuple[float, float, float] = (0.0, 0.0, 0.0),
+        yaw0_rad: float = 0.0,
+        hovering: bool = False,
+        wind: Wind | None = None,
+        t0_ns: int = 0,
+    ) -> None:
+        if not dt_s > 0:
+            raise SimError(f"the step must be > 0 s, got {dt_s}")
+        self.params = params
+        self.dt_s = float(dt_s)
+        self.dt_ns = round(dt_s * 1e9)
+        self.t_ns = int(t0_ns)
+        self.wind = wind or Wind()
+        self._wind_now = self.wind.mean.copy()
+        self._I = np.asarray(params.inertia_kg_m2, dtype=np.float64)
+        x, y, spin = params.rotor_geometry()
+        self._rx, self._ry, self._spin = x, y, spin
+        self._drag_t = tuple(float(d) for d in params.drag_n_s_m)
+        self._I_t = tuple(float(i) for i in params.inertia_kg_m2)
+        s = np.zeros(17)
+        s[0:3] = p0
+        s[6:10] = Rotation.from_euler("z", yaw0_rad).as_quat()
+        if hovering:
+            s[13:17] = params.hover_omega_rad_s
+        self.s = s
+        self.last_accel_W = np.zeros(3)
+
+    # -- the model ---------------------------------------------------------------------
+    def derivative(self, s: FloatArray, omega_cmd: FloatArray, wind_W: FloatArray) -> FloatArray:
+        """``s'`` for rotor commands and wind; written in scalars, as this runs 4000 times a second."""
+        p = self.params
+        vx, vy, vz = float(s[3]), float(s[4]), float(s[5])
+        qx, qy, qz, qw = float(s[6]), float(s[7]), float(s[8]), float(s[9])
+        wx, wy, wz = float(s[10]), float(s[11]), float(s[12])
+        om = s[13:17]
+        f = p.k_thrust_n_s2 * om * om
+        thrust = float(f.sum())
+        tau_x = float(self._ry @ f)
+        tau_y = -float(self._rx @ f)
+        tau_z = -float(self._spin @ (p.k_torque_nm_s2 * om * om))
+        # R_W_B from the quaternion (columns: body axes in the world)
+        xx, yy, zz = qx * qx, qy * qy, qz * qz
+        xy, xz, yz, wx_, wy_, wz_ = qx * qy, qx * qz, qy * qz, qw * qx, qw * qy, qw * qz
+        r00, r01, r02 = 1 - 2 * (yy + zz), 2 * (xy - wz_), 2 * (xz + wy_)
+        r10, r11, r12 = 2 * (xy + wz_), 1 - 2 * (xx + zz), 2 * (yz - wx_)
+        r20, r21, r22 = 2 * (xz - wy_), 2 * (yz + wx_), 1 - 2 * (xx + yy)
+        ax, ay, az = vx - wind_W[0], vy - wind_W[1], vz - wind_W[2]
+        # Body-frame force: thrust along z minus linear drag on the body-frame airspeed.
+        dx, dy, dz = self._drag_t
+        fbx = -dx * (r00 * ax + r10 * ay + r20 * az)
+        fby = -dy * (r01 * ax + r11 * ay + r21 * az)
+        fbz = thrust - dz * (r02 * ax + r12 * ay + r22 * az)
+        m = p.mass_kg
+        Ix, Iy, Iz = self._I_t
+        out = np.empty(17)
+        out[0], out[1], out[2] = vx, vy, vz
+        out[3] = (r00 * fbx + r01 * fby + r02 * fbz) / m
+        out[4] = (r10 * fbx + r11 * fby + r12 * fbz) / m
+        out[5] = (r20 * fbx + r21 * fby + r22 * fbz) / m - p.gravity_m_s2
+        # q' = 1/2 q (x) (w, 0)
+        out[6] = 0.5 * (qw * wx + qy * wz - qz * wy)
+        out[7] = 0.5 * (qw * wy + qz * wx - qx * wz)
+        out[8] = 0.5 * (qw * wz + qx * wy - qy * wx)
+        out[9] = -0.5 * (qx * wx + qy * wy + qz * wz)
+        # Euler's equations: I w' = tau - w x I w
+        out[10] = (tau_x - (wy * Iz * wz - wz * Iy * wy)) / Ix
+        out[11] = (tau_y - (wz * Ix * wx - wx * Iz * wz)) / Iy
+        out[12] = (tau_z - (wx * Iy * wy - wy * Ix * wx)) / Iz
+        out[13:17] = (omega_cmd - om) / p.motor_tau_s
+        return out
+
+    def step(self, omega_cmd: FloatArray) -> FloatArray:
+        """Advance one step with rotor speed commands (clipped to the rotor limits)."""
+        p = self.params
+        cmd = np.asarray(omega_cmd, dtype=np.float64)
+        if cmd.shape != (4,) or not np.isfinite(cmd).all():
+            raise SimError(f"rotor commands must be 4 finite speeds, got {cmd}")
+        cmd = np.clip(cmd, p.omega_min_rad_s, p.omega_max_rad_s)
+        wind = self.wind.step(self.dt_s)
+        self._wind_now = wind
+        v_before = self.s[3:6].copy()
+        s = rk4_step(lambda x: self.derivative(x, cmd, wind), self.s, self.dt_s)
+        s[6:10] /= np.linalg.norm(s[6:10])
+        s[13:17] = np.clip(s[13:17], p.omega_min_rad_s, p.omega_max_rad_s)
+        if s[2] <= 0.0:
+            s = self._on_ground(s)
+        if not np.isfinite(s).all():
+            raise SimError(f"the rigid-body simulation diverged at t = {self.t_ns} ns")
+        self.last_accel_W = (s[3:6] - v_before) / self.dt_s
+        self.s = s
+        self.t_ns += self.dt_ns
+        return s
+
+    def _on_ground(self, s: FloatArray) -> FloatArray:
+        """The ground plane: no sinking; resting on it levels the vehicle and stops it."""
+        s[2] = 0.0
+        if s[5] < 0.0:
+            # Landed (or resting): kill the motion, keep the heading, level roll and pitch.
+            yaw = Rotation.from_quat(s[6:10]).as_euler("ZYX")[0]
+            s[3:6] = 0.0
+            s[6:10] = Rotation.from_euler("z", yaw).as_quat()
+            s[10:13] = 0.0
+        return s
+
+    # -- views -----------------------------------------------------------------------------
+    @property
+    def wind_W(self) -> FloatArray:
+        return self._wind_now
+
+    def state(self) -> VehicleState:
+        s = self.s
+        return VehicleState(
+            t_ns=self.t_ns,
+            p_W_B=s[0:3].copy(),
+            v_W_B=s[3:6].copy(),
+            a_W_B=self.last_accel_W.copy(),
+            q_W_B_xyzw=s[6:10].copy(),
+            w_B=s[10:13].copy(),
+        )
+
+    def energy_rot_j(self) -> float:
+        w = self.s[10:13]
+        return float(0.5 * np.sum(self._I * w * w))
