@@ -19,6 +19,7 @@ from quadnav.errors import SampleError
 __all__ = [
     "ImuSample",
     "PositionSample",
+    "RangeScan",
     "Sample",
     "StateEstimate",
     "VehicleState",
@@ -86,6 +87,37 @@ class PositionSample:
         if not np.isfinite(sigma) or sigma <= 0.0:
             raise SampleError(f"PositionSample.sigma_m must be finite and > 0, got {self.sigma_m}")
         object.__setattr__(self, "sigma_m", sigma)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class RangeScan:
+    """A planar laser scan in the body frame: ray ``i`` points at ``angle_min_rad + i *
+    angle_increment_rad`` from body +x (counter-clockwise, about body +z); ``ranges_m`` holds
+    ``inf`` where nothing was hit within ``range_max_m`` (as sensor_msgs/LaserScan).
+    """
+
+    t_ns: int
+    angle_min_rad: float
+    angle_increment_rad: float
+    range_max_m: float
+    ranges_m: FloatArray
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "t_ns", check_t_ns(self.t_ns, "RangeScan"))
+        r = np.array(self.ranges_m, dtype=np.float64)
+        if r.ndim != 1 or len(r) == 0 or np.isnan(r).any() or (r < 0).any():
+            raise SampleError(
+                "RangeScan.ranges_m must be a non-empty 1-D array of ranges >= 0 (inf: no hit)"
+            )
+        r.flags.writeable = False
+        object.__setattr__(self, "ranges_m", r)
+
+    @property
+    def angles_rad(self) -> FloatArray:
+        return np.asarray(
+            self.angle_min_rad + self.angle_increment_rad * np.arange(len(self.ranges_m)),
+            dtype=np.float64,
+        )
 
 
 Sample = ImuSample | PositionSample

@@ -7,6 +7,7 @@ import typer
 from quadnav.cli.eval import eval_command
 from quadnav.cli.planar import planar_command
 from quadnav.cli.run import run_command
+from quadnav.cli.sim import sim_command
 
 __all__ = ["app", "main"]
 
@@ -20,6 +21,7 @@ app = typer.Typer(
 app.command("run")(run_command)
 app.command("planar")(planar_command)
 app.command("eval")(eval_command)
+app.command("sim")(sim_command)
 
 
 def main() -> None:

@@ -42,9 +42,9 @@ class Setpoint:
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class CascadedPidGains:
-    kp_pos: tuple[float, float, float] = (1.2, 1.2, 1.5)
-    kp_vel: tuple[float, float, float] = (4.0, 4.0, 6.0)
-    ki_vel: tuple[float, float, float] = (1.5, 1.5, 2.0)
+    kp_pos: tuple[float, float, float] = (2.0, 2.0, 2.0)
+    kp_vel: tuple[float, float, float] = (6.0, 6.0, 8.0)
+    ki_vel: tuple[float, float, float] = (4.0, 4.0, 4.0)
     kd_vel: tuple[float, float, float] = (0.05, 0.05, 0.0)
     kp_att: tuple[float, float, float] = (8.0, 8.0, 3.0)
     kp_rate: tuple[float, float, float] = (25.0, 25.0, 10.0)

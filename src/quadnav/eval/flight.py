@@ -1,0 +1,217 @@
+"""Metrics, plots and run folders of closed-loop flights (``quadnav sim``)."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
+import numpy as np
+from matplotlib.patches import Rectangle
+from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
+
+from quadnav.eval.report import ReportSection, ReportTable, write_report
+from quadnav.experiments.flight import FlightRun
+from quadnav.geometry.trajectory import Trajectory
+from quadnav.io.config import dump_config
+from quadnav.io.run_folder import create_run_folder, write_csv, write_json, write_text
+from quadnav.io.trajectory_io import write_tum
+
+__all__ = ["flight_metrics", "plot_flight", "write_flight_run"]
+
+FloatArray = NDArray[np.float64]
+
+
+def settling_time_s(t: FloatArray, err: FloatArray, band: float) -> float:
+    """First time after which ``err`` stays below ``band`` (NaN if it never settles)."""
+    outside = np.flatnonzero(~(err < band))
+    if len(outside) == 0:
+        return float(t[0])
+    last = outside[-1]
+    return float(t[last + 1]) if last + 1 < len(t) else math.nan
+
+
+def flight_metrics(run: FlightRun) -> dict[str, Any]:
+    """Settling time, overshoot, tracking RMSE, peak control effort, saturation time, clearance."""
+    cfg = run.config
+    t = run.t_s
+    dt_log = float(t[1] - t[0]) if len(t) > 1 else cfg.dt_s
+    out: dict[str, Any] = {"scenario": cfg.name, "duration_s": cfg.duration_s}
+    has_ref = bool(np.isfinite(run.ref_p).all())
+    if has_ref:
+        e = run.p - run.ref_p
+        err = np.linalg.norm(e, axis=1)
+        win = t >= cfg.tracking_start_s
+        out["settling_time_s"] = settling_time_s(t, err, cfg.settle_band_m)
+        out["tracking_rmse_m"] = float(np.sqrt(np.mean(err[win] ** 2)))
+        out["tracking_rmse_whole_run_m"] = float(np.sqrt(np.mean(err**2)))
+        out["final_error_m"] = float(err[-1])
+        e0 = e[0]
+        over = {}
+        for k, axis in enumerate("xyz"):
+            if abs(e0[k]) > 0.1:  # a step on this axis: how far past the reference it went
+                over[axis] = float(max(0.0, np.max(-e[:, k] * np.sign(e0[k]))) / abs(e0[k]) * 100.0)
+        out["overshoot_pct"] = over
+    out["peak_thrust_n"] = float(np.nanmax(np.abs(run.thrust_n)))
+    out["peak_torque"] = float(np.nanmax(np.abs(run.torque)))
+    out["torque_unit"] = "rad/s^2 (tau~ of eq. A.8)" if cfg.vehicle == "euler_lagrange" else "N m"
+    out["saturation_time_s"] = float(run.saturated.sum() * dt_log)
+    if np.isfinite(run.rotor_rad_s).any():
+        out["rotor_speed_range_rad_s"] = [
+            float(np.nanmin(run.rotor_rad_s)),
+            float(np.nanmax(run.rotor_rad_s)),
+        ]
+    clearance = float(np.min(run.obstacle_distance_m))
+    out["min_obstacle_distance_m"] = clearance if math.isfinite(clearance) else None
+    out["max_tilt_deg"] = float(np.degrees(np.max(np.abs(run.euler_rpy[:, 0:2]))))
+    out["sim_seconds_per_wall_second"] = (
+        cfg.duration_s / run.wall_time_s if run.wall_time_s > 0 else math.inf
+    )
+    out["events"] = run.events
+    return out
+
+
+def plot_flight(run: FlightRun, folder: Path) -> list[Path]:
+    """Positions, Euler angles and control signals against time (thesis figures 5.1-5.13),
+    and a top view with the obstacles."""
+    t = run.t_s
+    paths = []
+    fig, axes = plt.subplots(3, 1, figsize=(11, 8), sharex=True, constrained_layout=True)
+    for k, ax in enumerate(axes):
+        ax.plot(t, run.p[:, k], label="vehicle")
+        if np.isfinite(run.ref_p).all():
+            ax.plot(t, run.ref_p[:, k], "--", label="reference")
+        ax.set_ylabel(f"{'xyz'[k]} (m)")
+        ax.grid(True, alpha=0.3)
+    axes[0].legend(fontsize=8)
+    axes[-1].set_xlabel("t (s)")
+    fig.suptitle(f"{run.config.name}: position")
+    paths.append(folder / "positions.png")
+    fig.savefig(paths[-1], dpi=100)
+    plt.close(fig)
+
+    fig, axes = plt.subplots(3, 1, figsize=(11, 8), sharex=True, constrained_layout=True)
+    for k, (ax, name) in enumerate(zip(axes, ("roll phi", "pitch theta", "yaw psi"), strict=True)):
+        ax.plot(t, np.degrees(run.euler_rpy[:, k]))
+        ax.set_ylabel(f"{name} (deg)")
+        ax.grid(True, alpha=0.3)
+    axes[-1].set_xlabel("t (s)")
+    fig.suptitle(f"{run.config.name}: Euler angles")
+    paths.append(folder / "euler.png")
+    fig.savefig(paths[-1], dpi=100)
+    plt.close(fig)
+
+    fig, axes = plt.subplots(4, 1, figsize=(11, 9), sharex=True, constrained_layout=True)
+    unit = "rad/s^2" if run.config.vehicle == "euler_lagrange" else "N m"
+    axes[0].plot(t, run.thrust_n)
+    axes[0].set_ylabel("u (N)")
+    for k, name in enumerate(("tau_phi", "tau_theta", "tau_psi")):
+        axes[k + 1].plot(t, run.torque[:, k])
+        axes[k + 1].set_ylabel(f"{name} ({unit})")
+    for ax in axes:
+        ax.grid(True, alpha=0.3)
+        if run.saturated.any():
+            ax.fill_between(
+                t,
+                0,
+                1,
+                where=run.saturated,
+                transform=ax.get_xaxis_transform(),
+                color="tab:red",
+                alpha=0.12,
+            )
+    axes[-1].set_xlabel("t (s)")
+    fig.suptitle(f"{run.config.name}: control signals (red: saturated)")
+    paths.append(folder / "controls.png")
+    fig.savefig(paths[-1], dpi=100)
+    plt.close(fig)
+
+    fig, ax = plt.subplots(figsize=(8, 7), constrained_layout=True)
+    ax.plot(run.p[:, 0], run.p[:, 1], label="vehicle")
+    if np.isfinite(run.ref_p).all():
+        ax.plot(run.ref_p[:, 0], run.ref_p[:, 1], "--", label="reference")
+    for b in run.config.world:
+        ax.add_patch(
+            Rectangle(
+                (b.min_m[0], b.min_m[1]),
+                b.max_m[0] - b.min_m[0],
+                b.max_m[1] - b.min_m[1],
+                color="0.6",
+                alpha=0.6,
+                label=b.name,
+            )
+        )
+    if run.config.controller == "waypoint_follower":
+        pts = np.asarray(run.config.trajectory.points_m)
+        ax.plot(pts[:, 0], pts[:, 1], "k^", label="waypoints")
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=8)
+    ax.set_title(f"{run.config.name}: top view")
+    paths.append(folder / "top_view.png")
+    fig.savefig(paths[-1], dpi=100)
+    plt.close(fig)
+    return paths
+
+
+def write_flight_run(run: FlightRun, *, runs_root: Path) -> tuple[Path, dict[str, Any]]:
+    """A run folder: config, states and controls CSV, TUM trajectory, metrics, plots, report."""
+    cfg = run.config
+    run_dir = create_run_folder(runs_root, cfg.name)
+    write_text(run_dir / "config.yaml", dump_config(cfg))
+    t_ns = np.round(run.t_s * 1e9).astype(np.int64)
+    cols: dict[str, NDArray[Any]] = {"t_ns": t_ns}
+    for k, a in enumerate("xyz"):
+        cols[f"{a}_m"] = run.p[:, k]
+    for k, a in enumerate("xyz"):
+        cols[f"v{a}_m_s"] = run.v[:, k]
+    for k, a in enumerate(("roll", "pitch", "yaw")):
+        cols[f"{a}_rad"] = run.euler_rpy[:, k]
+    for k, a in enumerate("xyz"):
+        cols[f"ref_{a}_m"] = run.ref_p[:, k]
+    write_csv(run_dir / "states.csv", cols)
+    ctrl: dict[str, NDArray[Any]] = {"t_ns": t_ns, "thrust_n": run.thrust_n}
+    for k, a in enumerate(("tau_phi", "tau_theta", "tau_psi")):
+        ctrl[a] = run.torque[:, k]
+    for k in range(4):
+        ctrl[f"rotor{k + 1}_rad_s"] = run.rotor_rad_s[:, k]
+    ctrl["saturated"] = run.saturated
+    write_csv(run_dir / "controls.csv", ctrl)
+    q = Rotation.from_euler("ZYX", run.euler_rpy[:, ::-1]).as_quat()
+    write_tum(
+        run_dir / "trajectory.tum", Trajectory(t_ns=t_ns, p_W_B=run.p, q_W_B_xyzw=q, name=cfg.name)
+    )
+    metrics = flight_metrics(run)
+    images = plot_flight(run, run_dir / "plots")
+    row = {
+        "scenario": cfg.name,
+        "tracking RMSE (m)": metrics.get("tracking_rmse_m", math.nan),
+        "settling (s)": metrics.get("settling_time_s", math.nan),
+        "peak thrust (N)": metrics["peak_thrust_n"],
+        "saturated (s)": metrics["saturation_time_s"],
+        "min clearance (m)": metrics["min_obstacle_distance_m"]
+        if metrics["min_obstacle_distance_m"] is not None
+        else math.nan,
+    }
+    write_json(run_dir / "metrics.json", {"kind": "sim", **metrics, "table": [row]})
+    write_report(
+        run_dir / "report.html",
+        title=f"Flight: {cfg.name}",
+        sections=[
+            ReportSection(
+                heading="Metrics",
+                tables=[ReportTable("", list(row), [list(row.values())])],
+                text=f"events: {run.events}" if run.events else "",
+            ),
+            ReportSection(heading="Plots", images=images),
+            ReportSection(heading="Configuration", code=dump_config(cfg)),
+        ],
+    )
+    return run_dir, metrics
