@@ -97,8 +97,8 @@ class CascadedPid:
         self._I = np.asarray(params.inertia_kg_m2)
         self._vel_int = np.zeros(3)
         self._rate_int = np.zeros(3)
-        self._prev_vel_err = np.zeros(3)
-        self._prev_rate_err = np.zeros(3)
+        self._prev_vel_err: FloatArray | None = None  # no derivative kick on the first call
+        self._prev_rate_err: FloatArray | None = None
         self.saturated = False
         self.last_thrust_n = 0.0
         self.last_torque_nm = np.zeros(3)
@@ -118,7 +118,7 @@ class CascadedPid:
             v_sp *= g.max_vel_m_s / speed
         # Velocity -> acceleration (PID, anti-windup)
         err = v_sp - state.v_W_B
-        d_err = (err - self._prev_vel_err) / dt
+        d_err = np.zeros(3) if self._prev_vel_err is None else (err - self._prev_vel_err) / dt
         self._prev_vel_err = err
         a_sp = kp_vel * err + self._vel_int + kd_vel * d_err
         if sp.a is not None:
@@ -160,7 +160,7 @@ class CascadedPid:
         # Rates -> torques (PID plus the gyroscopic term)
         w = state.w_B
         rerr = w_sp - w
-        d_rerr = (rerr - self._prev_rate_err) / dt
+        d_rerr = np.zeros(3) if self._prev_rate_err is None else (rerr - self._prev_rate_err) / dt
         self._prev_rate_err = rerr
         self._rate_int = np.clip(
             self._rate_int + np.asarray(g.ki_rate) * rerr * dt,
