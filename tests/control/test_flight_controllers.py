@@ -39,11 +39,13 @@ def test_nested_saturations_track_the_sigmoid_better_than_pd() -> None:
 
 
 @pytest.mark.parametrize(
-    ("gusts", "limit_m"),
-    [(0.0, 0.05), (2.0, 0.05)],
+    ("gusts", "frame", "limit_m"),
+    [(0.0, "x", 0.05), (2.0, "x", 0.05), (0.0, "+", 0.05)],
 )
-def test_cascaded_pid_tracks_the_circle(gusts: float, limit_m: float) -> None:
-    m = fly("circle", duration_s=20.0, wind={"gust_sigma_m_s": gusts, "gust_tau_s": 2.0})
+def test_cascaded_pid_tracks_the_circle(gusts: float, frame: str, limit_m: float) -> None:
+    m = fly(
+        "circle", duration_s=20.0, frame=frame, wind={"gust_sigma_m_s": gusts, "gust_tau_s": 2.0}
+    )
     assert m["tracking_rmse_m"] <= limit_m  # type: ignore[operator]
     # Motor limits respected: the rotors stay inside their range, and once the start-up
     # transient is over (the vehicle starts at rest on a moving reference) nothing saturates.

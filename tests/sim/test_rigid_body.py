@@ -104,3 +104,14 @@ def test_bad_parameters() -> None:
         RigidBodyParams(mass_kg=-1.0)
     with pytest.raises(SimError, match="4 finite"):
         RigidBodyQuadrotor(P).step(np.array([1.0, np.nan, 0.0, 0.0]))
+
+
+def test_plus_frame_front_rotor_pitches_without_rolling() -> None:
+    plus = RigidBodyParams(config="+")
+    sim = RigidBodyQuadrotor(plus, p0=(0.0, 0.0, 5.0), hovering=True)
+    cmd = np.full(4, plus.hover_omega_rad_s)
+    cmd[0] *= 1.05  # the front rotor
+    for _ in range(100):
+        s = sim.step(cmd)
+    # Only the gyroscopic coupling of the pitch and yaw rates leaks into roll.
+    assert s[11] < 0.0 and abs(s[10]) < 0.01 * abs(s[11])

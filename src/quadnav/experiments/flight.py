@@ -95,6 +95,7 @@ class FlightConfig(_Section):
     settle_band_m: float = Field(0.05, gt=0, description="settling: error stays inside this")
     tracking_start_s: float = Field(0.0, ge=0, description="tracking RMSE window start")
     mass_kg: float = Field(1.5, gt=0)
+    frame: Literal["x", "+"] = Field("x", description="rigid body: rotor layout")
     el_pd: dict[str, Any] = Field(default_factory=dict, description="PdController overrides")
     el_nested: dict[str, Any] = Field(
         default_factory=dict, description="NestedSaturationController overrides"
@@ -270,7 +271,7 @@ def run_flight(config: FlightConfig) -> FlightRun:
                 if i < n:
                     el.step(u, tau)
         else:
-            params = RigidBodyParams(mass_kg=config.mass_kg)
+            params = RigidBodyParams(mass_kg=config.mass_kg, config=config.frame)
             wind = Wind(
                 mean_m_s=config.wind.mean_m_s,
                 gust_sigma_m_s=config.wind.gust_sigma_m_s,
