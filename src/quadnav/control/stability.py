@@ -25,11 +25,13 @@ def routh_hurwitz_stable(coeffs: Sequence[float]) -> bool:
     rows = np.zeros((n, cols))
     rows[0, : len(c[0::2])] = c[0::2]
     rows[1, : len(c[1::2])] = c[1::2]
-    for i in range(2, n):
-        a = rows[i - 1, 0]
-        if a == 0:
-            return False
-        for j in range(cols - 1):
-            rows[i, j] = (a * rows[i - 2, j + 1] - rows[i - 2, 0] * rows[i - 1, j + 1]) / a
+    tiny = 1e-12 * float(np.max(np.abs(c)))
+    with np.errstate(all="ignore"):
+        for i in range(2, n):
+            a = rows[i - 1, 0]
+            if abs(a) <= tiny:  # a zero in the first column: marginal at best
+                return False
+            for j in range(cols - 1):
+                rows[i, j] = (a * rows[i - 2, j + 1] - rows[i - 2, 0] * rows[i - 1, j + 1]) / a
     first = rows[:, 0]
-    return bool(np.all(first > 0))
+    return bool(np.isfinite(first).all() and np.all(first > tiny))
