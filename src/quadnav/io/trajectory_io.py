@@ -18,6 +18,7 @@ from scipy.spatial.transform import Rotation
 
 from quadnav.errors import GeometryError, IoError
 from quadnav.geometry.trajectory import Trajectory
+from quadnav.io.run_folder import write_text
 
 __all__ = [
     "TrajectoryFormat",
@@ -270,14 +271,6 @@ def read_trajectory(path: Path, fmt: str | None = None, *, topic: str | None = N
     return read_ulog_trajectory(path)
 
 
-def _write(path: Path, text: str) -> None:
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(text, encoding="utf-8")
-    except OSError as exc:
-        raise IoError(f"cannot write {path}: {exc.strerror}") from None
-
-
 def _ns_to_seconds(t_ns: NDArray[np.int64]) -> list[str]:
     out = []
     for t in t_ns.tolist():
@@ -296,7 +289,7 @@ def _table(prefix: list[str], values: FloatArray, sep: str) -> str:
 
 def write_tum(path: Path, traj: Trajectory) -> None:
     """TUM: ``t x y z qx qy qz qw``, time in seconds written exactly from ``t_ns``."""
-    _write(
+    write_text(
         Path(path),
         _table(_ns_to_seconds(traj.t_ns), np.column_stack([traj.p_W_B, traj.q_W_B_xyzw]), " "),
     )
@@ -305,7 +298,7 @@ def write_tum(path: Path, traj: Trajectory) -> None:
 def write_euroc(path: Path, traj: Trajectory) -> None:
     header = "#timestamp [ns],p_RS_R_x [m],p_RS_R_y [m],p_RS_R_z [m],q_RS_w [],q_RS_x [],q_RS_y [],q_RS_z []\n"
     q = traj.q_W_B_xyzw[:, [3, 0, 1, 2]]
-    _write(
+    write_text(
         Path(path),
         header
         + _table([str(t) for t in traj.t_ns.tolist()], np.column_stack([traj.p_W_B, q]), ","),
@@ -315,7 +308,7 @@ def write_euroc(path: Path, traj: Trajectory) -> None:
 def write_kitti(path: Path, traj: Trajectory) -> None:
     rows = traj.matrices()[:, :3, :].reshape(len(traj), 12)
     lines = [" ".join(f"{x:.9e}" for x in row) for row in rows]
-    _write(Path(path), "\n".join(lines) + ("\n" if lines else ""))
+    write_text(Path(path), "\n".join(lines) + ("\n" if lines else ""))
 
 
 def write_trajectory(path: Path, traj: Trajectory, fmt: Literal["tum", "euroc", "kitti"]) -> None:
