@@ -17,7 +17,9 @@ from numpy.typing import NDArray
 from quadnav.errors import SampleError
 
 __all__ = [
+    "HeightSample",
     "ImuSample",
+    "PoseSample",
     "PositionSample",
     "RangeScan",
     "Sample",
@@ -90,6 +92,55 @@ class PositionSample:
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
+class PoseSample:
+    """An external pose of the body (vision: markers, VIO): ``p_W_B`` and ``q_W_B_xyzw`` with
+    standard deviations for position (m, per axis) and heading (rad). ``reset_counter`` changes
+    when the source re-initialises (a jump that must not be read as motion)."""
+
+    t_ns: int
+    p_W_B: FloatArray
+    q_W_B_xyzw: FloatArray
+    sigma_pos_m: float
+    sigma_yaw_rad: float
+    reset_counter: int = 0
+    source: str = "vision"
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "t_ns", check_t_ns(self.t_ns, "PoseSample"))
+        object.__setattr__(self, "p_W_B", _array(self.p_W_B, (3,), "PoseSample.p_W_B"))
+        q = _array(self.q_W_B_xyzw, (4,), "PoseSample.q_W_B_xyzw")
+        n = float(np.linalg.norm(q))
+        if abs(n - 1.0) > 1e-3:
+            raise SampleError(f"PoseSample.q_W_B_xyzw must be a unit quaternion, got norm {n}")
+        object.__setattr__(self, "q_W_B_xyzw", q)
+        for name in ("sigma_pos_m", "sigma_yaw_rad"):
+            v = float(getattr(self, name))
+            if not np.isfinite(v) or v <= 0.0:
+                raise SampleError(f"PoseSample.{name} must be finite and > 0, got {v}")
+            object.__setattr__(self, name, v)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class HeightSample:
+    """A height of the body above the world origin (barometer, range finder), in metres."""
+
+    t_ns: int
+    z_m: float
+    sigma_m: float
+    source: str = "baro"
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "t_ns", check_t_ns(self.t_ns, "HeightSample"))
+        for name in ("z_m", "sigma_m"):
+            v = float(getattr(self, name))
+            if not np.isfinite(v):
+                raise SampleError(f"HeightSample.{name} must be finite, got {v}")
+            object.__setattr__(self, name, v)
+        if self.sigma_m <= 0:
+            raise SampleError(f"HeightSample.sigma_m must be > 0, got {self.sigma_m}")
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
 class RangeScan:
     """A planar laser scan in the body frame: ray ``i`` points at ``angle_min_rad + i *
     angle_increment_rad`` from body +x (counter-clockwise, about body +z); ``ranges_m`` holds
@@ -120,7 +171,7 @@ class RangeScan:
         )
 
 
-Sample = ImuSample | PositionSample
+Sample = ImuSample | PositionSample | PoseSample | HeightSample
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

@@ -34,7 +34,15 @@ import numpy as np
 from numpy.typing import NDArray
 
 from quadnav.errors import EstimationError
-from quadnav.messages import ImuSample, PositionSample, Sample, StateEstimate, check_t_ns
+from quadnav.messages import (
+    HeightSample,
+    ImuSample,
+    PoseSample,
+    PositionSample,
+    Sample,
+    StateEstimate,
+    check_t_ns,
+)
 
 __all__ = [
     "DelayedFilter",
@@ -312,7 +320,7 @@ class DelayedHorizonEstimator:
         Nothing a sample carries makes this raise: a late, out-of-order or unusable sample is
         rejected and counted (see :meth:`stats`). Only a non-sample is a programming error.
         """
-        if not isinstance(sample, ImuSample | PositionSample):
+        if not isinstance(sample, ImuSample | PositionSample | PoseSample | HeightSample):
             raise EstimationError(f"push() takes samples, got {type(sample).__name__}")
         if isinstance(sample, ImuSample):
             self._push_imu(sample)

@@ -12,16 +12,17 @@ import math
 from dataclasses import dataclass
 from typing import Generic, Literal, Protocol, TypeVar
 
+import numpy as np
 from numpy.random import Generator
 from scipy.spatial.transform import Rotation
 
 from quadnav.errors import SimError
-from quadnav.messages import ImuSample, PositionSample, VehicleState
+from quadnav.messages import HeightSample, ImuSample, PoseSample, PositionSample, VehicleState
 
-__all__ = ["DelayLine", "ImuSensor", "PositionSensor", "Sensor"]
+__all__ = ["DelayLine", "ImuSensor", "IntegratingImu", "PositionSensor", "Sensor"]
 
-S = TypeVar("S", ImuSample, PositionSample)
-S_co = TypeVar("S_co", ImuSample, PositionSample, covariant=True)
+S = TypeVar("S", ImuSample, PositionSample, PoseSample, HeightSample)
+S_co = TypeVar("S_co", ImuSample, PositionSample, PoseSample, HeightSample, covariant=True)
 
 
 class Sensor(Protocol[S_co]):
@@ -135,3 +136,64 @@ class DelayLine(Generic[S]):
             arrival, _, sample = heapq.heappop(self._heap)
             out.append((arrival, sample))
         return out
+
+
+class IntegratingImu:
+    """A 3-D IMU that averages the simulator's fine steps over its own period, as a real IMU's
+    delta angle and delta velocity do, with white noise per sample and random-walk biases.
+
+    Call :meth:`accumulate` after every simulator step; it returns a sample when one is due.
+    """
+
+    def __init__(
+        self,
+        *,
+        period_ns: int,
+        gyro_sigma_rad_s: float,
+        accel_sigma_m_s2: float,
+        gyro_bias_rw_rad_s_sqrt_s: float = 0.0,
+        accel_bias_rw_m_s2_sqrt_s: float = 0.0,
+        gyro_bias0_rad_s: tuple[float, float, float] = (0.0, 0.0, 0.0),
+        accel_bias0_m_s2: tuple[float, float, float] = (0.0, 0.0, 0.0),
+        gravity_m_s2: float = 9.81,
+        t0_ns: int = 0,
+    ) -> None:
+        if period_ns <= 0:
+            raise SimError(f"IMU period must be > 0 ns, got {period_ns}")
+        for name, v in (("gyro_sigma_rad_s", gyro_sigma_rad_s), ("accel_sigma_m_s2", accel_sigma_m_s2),
+                        ("gyro_bias_rw_rad_s_sqrt_s", gyro_bias_rw_rad_s_sqrt_s), ("accel_bias_rw_m_s2_sqrt_s", accel_bias_rw_m_s2_sqrt_s)):  # fmt: skip
+            if not (math.isfinite(v) and v >= 0):
+                raise SimError(f"IntegratingImu.{name} must be finite and >= 0, got {v}")
+        self.period_ns = int(period_ns)
+        self.sg, self.sa = float(gyro_sigma_rad_s), float(accel_sigma_m_s2)
+        self.rw_g, self.rw_a = float(gyro_bias_rw_rad_s_sqrt_s), float(accel_bias_rw_m_s2_sqrt_s)
+        self.bias_g = np.asarray(gyro_bias0_rad_s, dtype=np.float64).copy()
+        self.bias_a = np.asarray(accel_bias0_m_s2, dtype=np.float64).copy()
+        self.g = float(gravity_m_s2)
+        self._t_last = int(t0_ns)
+        self._sum_w = np.zeros(3)
+        self._sum_f = np.zeros(3)
+        self._sum_dt = 0.0
+
+    def accumulate(self, truth: VehicleState, dt_s: float, rng: Generator) -> ImuSample | None:
+        R = Rotation.from_quat(truth.q_W_B_xyzw)
+        a = truth.a_W_B.copy()
+        a[2] += self.g
+        self._sum_f += R.apply(a, inverse=True) * dt_s
+        self._sum_w += truth.w_B * dt_s
+        self._sum_dt += dt_s
+        if truth.t_ns - self._t_last < self.period_ns:
+            return None
+        T = self._sum_dt
+        sample = ImuSample(
+            t_ns=truth.t_ns,
+            gyro_rad_s=self._sum_w / T + self.bias_g + self.sg * rng.standard_normal(3),
+            accel_m_s2=self._sum_f / T + self.bias_a + self.sa * rng.standard_normal(3),
+        )
+        self.bias_g += self.rw_g * math.sqrt(T) * rng.standard_normal(3)
+        self.bias_a += self.rw_a * math.sqrt(T) * rng.standard_normal(3)
+        self._t_last = truth.t_ns
+        self._sum_w[:] = 0.0
+        self._sum_f[:] = 0.0
+        self._sum_dt = 0.0
+        return sample

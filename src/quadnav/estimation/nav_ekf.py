@@ -1,0 +1,287 @@
+"""The 3-D navigation EKF (PX4 EKF2-class) on the delayed-horizon core.
+
+Error-state (multiplicative) filter. Nominal state: position ``p`` and velocity ``v`` in the
+world (ENU), attitude ``R_W_B`` (FLU body), gyro bias ``b_g`` and accelerometer bias ``b_a``.
+Error state (15): ``dtheta`` (body-frame attitude error, ``R_true = R Exp(dtheta)``), ``dv``,
+``dp``, ``db_g``, ``db_a``.
+
+Prediction with one IMU sample (rate ``w`` and specific force ``f``, biases removed), the
+same semi-implicit step as the planar filter::
+
+    R' = R Exp(w dt);  v' = v + dt (R' f + g_W);  p' = p + dt v'
+
+Observations: world position, external pose (position and yaw), height. Each update is gated
+with a chi-square test on its innovation, applied in Joseph form and injected into the nominal
+state with the covariance reset ``P <- G P G^T``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
+from scipy.stats import chi2
+
+from quadnav.errors import EstimationError
+from quadnav.estimation.horizon import FusionResult, NavState
+from quadnav.messages import (
+    HeightSample,
+    ImuSample,
+    PoseSample,
+    PositionSample,
+    Sample,
+    StateEstimate,
+)
+
+__all__ = ["NavEkf", "NavEkfConfig", "NavKinematics", "nav_jacobians", "skew", "yaw_jacobian"]
+
+FloatArray = NDArray[np.float64]
+STATE_NAMES = (
+    "dtheta_x", "dtheta_y", "dtheta_z", "vx", "vy", "vz", "x", "y", "z",
+    "bgx", "bgy", "bgz", "bax", "bay", "baz",
+)  # fmt: skip
+# Error-state blocks
+I_TH, I_V, I_P, I_BG, I_BA = slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12), slice(12, 15)
+
+
+def skew(a: FloatArray) -> FloatArray:
+    return np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
+
+
+@dataclass(frozen=True, slots=True)
+class NavKinematics:
+    """3-D strapdown integration (batched over leading axes); attitude as scalar-last quaternions."""
+
+    gravity_m_s2: float = 9.81
+
+    def integrate(
+        self,
+        pos: FloatArray,
+        vel: FloatArray,
+        att: FloatArray,
+        gyro: FloatArray,
+        accel: FloatArray,
+        dt_s: FloatArray | float,
+        dtheta_corr: FloatArray | None = None,
+    ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        dt = np.asarray(dt_s, dtype=np.float64)
+        dtv = dt[..., None] if dt.ndim else dt
+        dtheta = np.array(gyro, dtype=np.float64) * dtv
+        if dtheta_corr is not None:
+            dtheta = dtheta + dtheta_corr
+        R_new = Rotation.from_quat(att) * Rotation.from_rotvec(dtheta)
+        a_W = R_new.apply(
+            np.array(accel, dtype=np.float64)
+        )  # samples are read-only; SciPy wants writable
+        a_W[..., 2] -= self.gravity_m_s2
+        vel_new = vel + dtv * a_W
+        pos_new = pos + dtv * vel_new
+        return pos_new, vel_new, np.asarray(R_new.as_quat(), dtype=np.float64)
+
+    def attitude_error(self, att_target: FloatArray, att: FloatArray) -> FloatArray:
+        """Body-frame rotation vector taking ``att`` onto ``att_target``."""
+        return np.asarray(
+            (Rotation.from_quat(att).inv() * Rotation.from_quat(att_target)).as_rotvec(),
+            dtype=np.float64,
+        )
+
+    def to_estimate(
+        self, nav: NavState, x: FloatArray, names: tuple[str, ...], P: FloatArray | None
+    ) -> StateEstimate:
+        return StateEstimate(
+            t_ns=nav.t_ns,
+            p_W_B=nav.pos.copy(),
+            v_W_B=nav.vel.copy(),
+            q_W_B_xyzw=nav.att.copy(),
+            x=x,
+            names=names,
+            P=P,
+        )
+
+
+def nav_jacobians(
+    R_new: FloatArray, f: FloatArray, w: FloatArray, dt: float
+) -> tuple[FloatArray, FloatArray]:
+    """Error-state transition ``F`` (15x15) and noise input ``G`` (15x12, inputs n_g, n_a, n_bg,
+    n_ba) of one prediction step, for ``R' = R Exp(w dt)``, ``v' = v + dt (R' f + g)``."""
+    A = Rotation.from_rotvec(w * dt).as_matrix().T  # Exp(-w dt)
+    Rf = R_new @ skew(f)
+    F = np.eye(15)
+    F[I_TH, I_TH] = A
+    F[I_TH, I_BG] = -dt * np.eye(3)
+    F[I_V, I_TH] = -dt * Rf @ A
+    F[I_V, I_BG] = dt * dt * Rf
+    F[I_V, I_BA] = -dt * R_new
+    F[I_P, I_TH] = dt * F[I_V, I_TH]
+    F[I_P, I_V] = dt * np.eye(3)
+    F[I_P, I_BG] = dt * F[I_V, I_BG]
+    F[I_P, I_BA] = dt * F[I_V, I_BA]
+    G = np.zeros((15, 12))
+    G[I_TH, 0:3] = -dt * np.eye(3)
+    G[I_V, 0:3] = dt * dt * Rf
+    G[I_V, 3:6] = -dt * R_new
+    G[I_P, 0:3] = dt * G[I_V, 0:3]
+    G[I_P, 3:6] = dt * G[I_V, 3:6]
+    G[I_BG, 6:9] = np.eye(3)
+    G[I_BA, 9:12] = np.eye(3)
+    return F, G
+
+
+def yaw_of(R: FloatArray) -> float:
+    return math.atan2(R[1, 0], R[0, 0])
+
+
+def yaw_jacobian(R: FloatArray) -> FloatArray:
+    """d yaw / d dtheta (3,) for ``R_true = R Exp(dtheta)``, yaw = atan2(R10, R00)."""
+    den = R[0, 0] ** 2 + R[1, 0] ** 2
+    return np.array(
+        [
+            0.0,
+            (R[1, 0] * R[0, 2] - R[0, 0] * R[1, 2]) / den,
+            (R[0, 0] * R[1, 1] - R[1, 0] * R[0, 1]) / den,
+        ]
+    )
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class NavEkfConfig:
+    """IMU noise per sample (``*_sigma``) and bias random walk per sqrt(second)."""
+
+    gyro_sigma_rad_s: float = 0.005
+    accel_sigma_m_s2: float = 0.05
+    gyro_bias_rw_rad_s_sqrt_s: float = 1e-4
+    accel_bias_rw_m_s2_sqrt_s: float = 1e-3
+    gravity_m_s2: float = 9.81
+    gate_probability: float = 0.9999
+
+    def __post_init__(self) -> None:
+        for name in (
+            "gyro_sigma_rad_s",
+            "accel_sigma_m_s2",
+            "gyro_bias_rw_rad_s_sqrt_s",
+            "accel_bias_rw_m_s2_sqrt_s",
+            "gravity_m_s2",
+        ):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v > 0):
+                raise EstimationError(f"NavEkfConfig.{name} must be finite and > 0, got {v}")
+        if not 0 < self.gate_probability < 1:
+            raise EstimationError("NavEkfConfig.gate_probability must lie in (0, 1)")
+
+
+class NavEkf:
+    """The error-state navigation EKF; a :class:`~quadnav.estimation.horizon.DelayedFilter`."""
+
+    names: tuple[str, ...] = STATE_NAMES
+
+    def __init__(
+        self,
+        config: NavEkfConfig,
+        *,
+        p0: FloatArray,
+        v0: FloatArray,
+        q0_xyzw: FloatArray,
+        P0: FloatArray,
+        bg0: FloatArray | None = None,
+        ba0: FloatArray | None = None,
+    ) -> None:
+        P0 = np.asarray(P0, dtype=np.float64)
+        if (
+            P0.shape != (15, 15)
+            or not np.isfinite(P0).all()
+            or np.min(np.linalg.eigvalsh(0.5 * (P0 + P0.T))) < 0
+        ):
+            raise EstimationError("NavEkf: P0 must be a finite positive semi-definite 15x15 matrix")
+        self.config = config
+        self.kinematics = NavKinematics(config.gravity_m_s2)
+        self.p = np.asarray(p0, dtype=np.float64).copy()
+        self.v = np.asarray(v0, dtype=np.float64).copy()
+        self.R = Rotation.from_quat(q0_xyzw).as_matrix()
+        self.bg = np.zeros(3) if bg0 is None else np.asarray(bg0, dtype=np.float64).copy()
+        self.ba = np.zeros(3) if ba0 is None else np.asarray(ba0, dtype=np.float64).copy()
+        self._P = 0.5 * (P0 + P0.T)
+        self._gates = {k: float(chi2.ppf(config.gate_probability, k)) for k in (1, 3, 4)}
+
+    # -- the DelayedFilter protocol --------------------------------------------------------
+    @property
+    def x(self) -> FloatArray:
+        rv = Rotation.from_matrix(self.R).as_rotvec()
+        return np.concatenate([rv, self.v, self.p, self.bg, self.ba])
+
+    @property
+    def P(self) -> FloatArray:
+        return self._P
+
+    @property
+    def q_xyzw(self) -> FloatArray:
+        return np.asarray(Rotation.from_matrix(self.R).as_quat(), dtype=np.float64)
+
+    def nav(self, t_ns: int) -> NavState:
+        return NavState(t_ns, self.p.copy(), self.v.copy(), self.q_xyzw)
+
+    def can_fuse(self, obs: Sample) -> bool:
+        return isinstance(obs, PositionSample | PoseSample | HeightSample)
+
+    def predict(self, imu: ImuSample, dt_s: float) -> None:
+        c = self.config
+        w = imu.gyro_rad_s - self.bg
+        f = imu.accel_m_s2 - self.ba
+        R_new = self.R @ Rotation.from_rotvec(w * dt_s).as_matrix()
+        F, G = nav_jacobians(R_new, f, w, dt_s)
+        self.v = self.v + dt_s * (R_new @ f + np.array([0.0, 0.0, -c.gravity_m_s2]))
+        self.p = self.p + dt_s * self.v
+        self.R = R_new
+        Q = np.diag(
+            [c.gyro_sigma_rad_s**2] * 3
+            + [c.accel_sigma_m_s2**2] * 3
+            + [c.gyro_bias_rw_rad_s_sqrt_s**2 * dt_s] * 3
+            + [c.accel_bias_rw_m_s2_sqrt_s**2 * dt_s] * 3
+        )
+        P = F @ self._P @ F.T + G @ Q @ G.T
+        self._P = 0.5 * (P + P.T)
+
+    def fuse(self, obs: Sample) -> FusionResult:
+        if isinstance(obs, PositionSample):
+            H = np.zeros((3, 15))
+            H[:, I_P] = np.eye(3)
+            return self._update(obs.p_W_B - self.p, H, np.eye(3) * obs.sigma_m**2)
+        if isinstance(obs, PoseSample):
+            H = np.zeros((4, 15))
+            H[0:3, I_P] = np.eye(3)
+            H[3, I_TH] = yaw_jacobian(self.R)
+            R_meas = Rotation.from_quat(obs.q_W_B_xyzw).as_matrix()
+            r_yaw = math.remainder(yaw_of(R_meas) - yaw_of(self.R), 2 * math.pi)
+            r = np.concatenate([obs.p_W_B - self.p, [r_yaw]])
+            Rn = np.diag([obs.sigma_pos_m**2] * 3 + [obs.sigma_yaw_rad**2])
+            return self._update(r, H, Rn)
+        if isinstance(obs, HeightSample):
+            H = np.zeros((1, 15))
+            H[0, 8] = 1.0
+            return self._update(np.array([obs.z_m - self.p[2]]), H, np.array([[obs.sigma_m**2]]))
+        raise EstimationError(f"the navigation EKF cannot fuse {type(obs).__name__}")
+
+    def _update(self, r: FloatArray, H: FloatArray, Rn: FloatArray) -> FusionResult:
+        S = H @ self._P @ H.T + Rn
+        S_inv = np.linalg.inv(S)
+        nis = float(r @ S_inv @ r)
+        ratio = nis / self._gates[len(r)]
+        if ratio > 1.0:
+            return FusionResult(accepted=False, innovation=r, nis=nis, test_ratio=ratio)
+        K = self._P @ H.T @ S_inv
+        dx = K @ r
+        I_KH = np.eye(15) - K @ H
+        P = I_KH @ self._P @ I_KH.T + K @ Rn @ K.T
+        # Inject the error into the nominal state and reset the attitude error's covariance.
+        self.R = self.R @ Rotation.from_rotvec(dx[I_TH]).as_matrix()
+        self.v = self.v + dx[I_V]
+        self.p = self.p + dx[I_P]
+        self.bg = self.bg + dx[I_BG]
+        self.ba = self.ba + dx[I_BA]
+        Gr = np.eye(15)
+        Gr[I_TH, I_TH] = np.eye(3) - 0.5 * skew(dx[I_TH])
+        P = Gr @ P @ Gr.T
+        self._P = 0.5 * (P + P.T)
+        return FusionResult(accepted=True, innovation=r, nis=nis, test_ratio=ratio)

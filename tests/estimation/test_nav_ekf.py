@@ -1,0 +1,106 @@
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from quadnav.errors import EstimationError
+from quadnav.estimation.nav_ekf import NavEkf, NavEkfConfig, nav_jacobians, yaw_jacobian, yaw_of
+from quadnav.eval.metrics import nees
+from quadnav.experiments.nav import NavRunConfig, run_nav
+
+G = 9.81
+
+
+def step(R, v, p, bg, ba, w_m, f_m, dt, n=None):
+    """The filter's nominal prediction, with optional IMU noise n = (n_g, n_a)."""
+    n = np.zeros(6) if n is None else n
+    w = w_m - bg - n[0:3]
+    f = f_m - ba - n[3:6]
+    R2 = R @ Rotation.from_rotvec(w * dt).as_matrix()
+    v2 = v + dt * (R2 @ f + [0, 0, -G])
+    return R2, v2, p + dt * v2
+
+
+def boxminus(a, b):
+    """Error-state difference a - b (attitude as Log(R_b^T R_a))."""
+    Ra, va, pa, bga, baa = a
+    Rb, vb, pb, bgb, bab = b
+    return np.concatenate(
+        [Rotation.from_matrix(Rb.T @ Ra).as_rotvec(), va - vb, pa - pb, bga - bgb, baa - bab]
+    )
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_transition_jacobians_match_finite_differences(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    R = Rotation.random(random_state=seed).as_matrix()
+    v, p = rng.normal(size=3), rng.normal(size=3)
+    bg, ba = 0.01 * rng.normal(size=3), 0.1 * rng.normal(size=3)
+    w_m, f_m = rng.normal(0, 1.0, 3), rng.normal([0, 0, G], 2.0)
+    dt = 0.004
+    R2, v2, p2 = step(R, v, p, bg, ba, w_m, f_m, dt)
+    nominal_after = (R2, v2, p2, bg, ba)
+    F, Gm = nav_jacobians(R2, f_m - ba, w_m - bg, dt)
+    eps = 1e-6
+    F_num = np.zeros((15, 15))
+    for k in range(15):
+        cols = []
+        for sgn in (1.0, -1.0):
+            d = np.zeros(15)
+            d[k] = sgn * eps
+            Rt = R @ Rotation.from_rotvec(d[0:3]).as_matrix()
+            st = step(Rt, v + d[3:6], p + d[6:9], bg + d[9:12], ba + d[12:15], w_m, f_m, dt)
+            cols.append(boxminus((*st, bg + d[9:12], ba + d[12:15]), nominal_after))
+        F_num[:, k] = (cols[0] - cols[1]) / (2 * eps)
+    # First-order model of the step (right Jacobian of Exp taken as I): error O(|w| dt) relative.
+    np.testing.assert_allclose(F, F_num, atol=2e-5)
+    G_num = np.zeros((15, 6))
+    for k in range(6):
+        cols = []
+        for sgn in (1.0, -1.0):
+            n = np.zeros(6)
+            n[k] = sgn * eps
+            st = step(R, v, p, bg, ba, w_m, f_m, dt, n)
+            cols.append(boxminus((*st, bg, ba), nominal_after))
+        G_num[:, k] = (cols[0] - cols[1]) / (2 * eps)
+    np.testing.assert_allclose(Gm[:, 0:6], G_num, atol=2e-5)
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_yaw_jacobian_matches_finite_differences(seed: int) -> None:
+    R = Rotation.from_euler(
+        "ZYX", np.random.default_rng(seed).uniform([-3, -0.6, -0.6], [3, 0.6, 0.6])
+    ).as_matrix()
+    eps = 1e-7
+    num = [
+        (
+            yaw_of(R @ Rotation.from_rotvec(d).as_matrix())
+            - yaw_of(R @ Rotation.from_rotvec(-d).as_matrix())
+        )
+        / (2 * eps)
+        for d in np.eye(3) * eps
+    ]
+    np.testing.assert_allclose(yaw_jacobian(R), num, atol=1e-6)
+
+
+def test_config_and_covariance_are_validated() -> None:
+    with pytest.raises(EstimationError):
+        NavEkfConfig(gyro_sigma_rad_s=0.0)
+    with pytest.raises(EstimationError, match="P0"):
+        NavEkf(NavEkfConfig(), p0=np.zeros(3), v0=np.zeros(3), q0_xyzw=[0, 0, 0, 1], P0=-np.eye(15))
+
+
+def test_delayed_vision_flight_monte_carlo() -> None:
+    """5 seeded 12 s circles: vision 30 Hz delayed 250 ms (1 cm), baro, biased IMU at 250 Hz."""
+    rmse_out, nees_mean = [], []
+    for seed in range(5):
+        r = run_nav(NavRunConfig(duration_s=12.0), seed)
+        after = r.t_ns > 2_000_000_000
+        rmse_out.append(np.sqrt(np.mean(np.sum((r.output_p - r.truth_p)[after] ** 2, axis=1))))
+        ok = np.isfinite(r.delayed_err).all(axis=1) & (r.t_delayed_ns > 2_000_000_000)
+        nees_mean.append(nees(r.delayed_err[ok], r.delayed_P[ok]).mean())
+        assert r.vision_rejected == 0
+    assert float(np.median(rmse_out)) <= 0.02
+    # Consistency: within a factor of 2 of the 15-state dimension.
+    assert 7.5 <= float(np.mean(nees_mean)) <= 30.0
