@@ -163,6 +163,10 @@ class DelayedFilter(Protocol):
         """Whether this filter has a measurement model for ``obs`` (others are counted, not fused)."""
         ...
 
+    def imu_biases(self) -> tuple[FloatArray, FloatArray]:
+        """The gyro and accelerometer biases the output predictor must remove (zeros if none)."""
+        ...
+
     def fuse(self, obs: Sample) -> FusionResult: ...
 
     def nav(self, t_ns: int) -> NavState: ...
@@ -399,12 +403,13 @@ class DelayedHorizonEstimator:
     # -- output predictor ----------------------------------------------------------------
     def _integrate_output(self, imu: ImuSample, dt_s: float) -> None:
         h = self._ob_head
+        b_g, b_a = self.filter.imu_biases()  # the filter's latest bias estimates, as PX4 does
         pos, vel, att = self.kin.integrate(
             self._ob_pos[h],
             self._ob_vel[h],
             self._ob_att[h],
-            imu.gyro_rad_s,
-            imu.accel_m_s2,
+            imu.gyro_rad_s - b_g,
+            imu.accel_m_s2 - b_a,
             dt_s,
             self._dtheta_corr,
         )

@@ -225,6 +225,9 @@ class NavEkf:
     def can_fuse(self, obs: Sample) -> bool:
         return isinstance(obs, PositionSample | PoseSample | HeightSample)
 
+    def imu_biases(self) -> tuple[FloatArray, FloatArray]:
+        return self.bg, self.ba
+
     def predict(self, imu: ImuSample, dt_s: float) -> None:
         c = self.config
         w = imu.gyro_rad_s - self.bg

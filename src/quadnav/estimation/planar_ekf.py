@@ -42,6 +42,7 @@ __all__ = [
 FloatArray = NDArray[np.float64]
 AccelModel = Literal["specific_force", "kinematic"]
 STATE_NAMES = ("x", "z", "vx", "vz", "theta")
+_ZERO3 = np.zeros(3)
 
 
 def _rot(theta: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -204,6 +205,9 @@ class PlanarEkf:
 
     def can_fuse(self, obs: Sample) -> bool:
         return isinstance(obs, PositionSample)
+
+    def imu_biases(self) -> tuple[FloatArray, FloatArray]:
+        return _ZERO3, _ZERO3  # the planar filter estimates no biases
 
     def fuse(self, obs: Sample) -> FusionResult:
         if not isinstance(obs, PositionSample):

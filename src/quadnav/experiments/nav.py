@@ -1,191 +1,384 @@
-"""A 3-D navigation run: the rigid body flies a trajectory (controller on the true state),
-an integrating IMU, a delayed external pose (vision) and a barometer measure it, and the
-navigation EKF on the delayed-horizon core estimates it. Returns arrays for evaluation.
+"""The main job's flight: the rigid body flown by the cascaded PID on the navigation EKF's
+output predictor (or on the truth), with a delayed external pose (vision), a barometer and a
+biased IMU, ground alignment before take-off, and vision dropouts.
 
-This is the estimation half of the main job; closing the loop on the output predictor and
-the scenario file come with the rest of issue 5.
+:class:`NavScenario` is the YAML scenario (every field has a default: the indoor flight of
+thesis 000 — take off to 1.5 m, hold, a 2 m square, hold, land, two 2 s vision dropouts).
+:func:`run_nav` returns arrays; files and plots belong to ``io`` and ``eval``.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
+from typing import Self
 
 import numpy as np
 from numpy.typing import NDArray
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 from scipy.spatial.transform import Rotation
 
 from quadnav.control.cascaded_pid import CascadedPid, Setpoint
-from quadnav.control.trajectories import Circle
+from quadnav.control.trajectories import Waypoints
+from quadnav.errors import ExperimentError, SimError
 from quadnav.estimation.horizon import DelayedHorizonEstimator, HorizonConfig
 from quadnav.estimation.nav_ekf import NavEkf, NavEkfConfig
-from quadnav.messages import HeightSample, PoseSample
+from quadnav.messages import HeightSample, ImuSample, PoseSample, VehicleState
 from quadnav.sim.rigid_body import RigidBodyQuadrotor
 from quadnav.sim.sensors import DelayLine, IntegratingImu
 from quadnav.vehicle import RigidBodyParams
 
-__all__ = ["NavRunConfig", "NavRunResult", "run_nav"]
+__all__ = ["NavRunResult", "NavScenario", "ground_alignment", "run_nav"]
 
 FloatArray = NDArray[np.float64]
+Vec3 = tuple[float, float, float]
 
 
-@dataclass(frozen=True, slots=True, kw_only=True)
-class NavRunConfig:
-    duration_s: float = 20.0
-    sim_dt_s: float = 0.002
-    imu_rate_hz: float = 250.0
-    gyro_sigma_rad_s: float = 0.005
-    accel_sigma_m_s2: float = 0.05
-    gyro_bias_rw: float = 1e-4
-    accel_bias_rw: float = 1e-3
-    gyro_bias0_sigma_rad_s: float = 0.01
-    accel_bias0_sigma_m_s2: float = 0.05
-    vision_rate_hz: float = 30.0
-    vision_delay_s: float = 0.25
-    vision_sigma_m: float = 0.01
-    vision_yaw_sigma_rad: float = 0.01
-    baro_rate_hz: float = 50.0
-    baro_sigma_m: float = 0.1
-    baro_delay_s: float = 0.02
+class _Section(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class ImuSection(_Section):
+    rate_hz: float = Field(250.0, gt=0)
+    gyro_sigma_rad_s: float = Field(0.005, gt=0, description="white noise per sample")
+    accel_sigma_m_s2: float = Field(0.05, gt=0, description="white noise per sample")
+    gyro_bias_rw_rad_s_sqrt_s: float = Field(1e-4, gt=0)
+    accel_bias_rw_m_s2_sqrt_s: float = Field(1e-3, gt=0)
+    gyro_bias0_sigma_rad_s: float = Field(0.01, ge=0, description="turn-on bias spread")
+    accel_bias0_sigma_m_s2: float = Field(0.05, ge=0, description="turn-on bias spread")
+
+
+class VisionSection(_Section):
+    enabled: bool = True
+    rate_hz: float = Field(30.0, gt=0)
+    delay_s: float = Field(0.25, ge=0)
+    sigma_m: float = Field(0.01, gt=0)
+    yaw_sigma_rad: float = Field(0.01, gt=0)
+    dropouts_s: list[tuple[float, float]] = Field(
+        default_factory=lambda: [(9.0, 11.0), (15.0, 17.0)],
+        description="[start, end) windows with no vision",
+    )
+
+
+class BaroSection(_Section):
+    enabled: bool = True
+    rate_hz: float = Field(50.0, gt=0)
+    delay_s: float = Field(0.02, ge=0)
+    sigma_m: float = Field(0.1, gt=0)
+
+
+class PlanSection(_Section):
+    height_m: float = Field(1.5, gt=0)
+    square_m: float = Field(2.0, gt=0)
+    speed_m_s: float = Field(1.0, gt=0)
+    hold_s: float = Field(2.0, ge=0)
+
+
+class EstimatorSection(_Section):
+    tau_vel_s: float = Field(0.1, gt=0)
+    tau_pos_s: float = Field(0.1, gt=0)
+    gate_probability: float = Field(0.9999, gt=0, lt=1)
+    align_s: float = Field(0.5, gt=0, description="time on the ground to level the filter")
+
+
+class NavScenario(_Section):
+    """A navigation flight; the defaults are the indoor vision flight of thesis 000."""
+
+    name: str = "indoor_vision"
+    closed_loop: bool = Field(True, description="fly on the output predictor (False: on the truth)")
+    sim_dt_s: float = Field(0.002, gt=0, le=0.01)
+    seed: int = Field(0, ge=0)
+    seeds: int = Field(1, ge=1, le=1000)
+    imu: ImuSection = ImuSection()
+    vision: VisionSection = VisionSection()
+    baro: BaroSection = BaroSection()
+    plan: PlanSection = PlanSection()
+    estimator: EstimatorSection = EstimatorSection()
+
+    @model_validator(mode="after")
+    def _check(self) -> Self:
+        if self.imu.rate_hz > 1.0 / self.sim_dt_s:
+            raise ValueError("imu.rate_hz is faster than the simulation step")
+        if not self.vision.enabled and not self.baro.enabled:
+            raise ValueError("vision and baro are both disabled: nothing bounds the position")
+        for a, b in self.vision.dropouts_s:
+            if not b > a:
+                raise ValueError(
+                    f"vision.dropouts_s: a window must end after it starts, got ({a}, {b})"
+                )
+        return self
+
+    def waypoints(self) -> Waypoints:
+        h, s = self.plan.height_m, self.plan.square_m
+        pts: list[Vec3] = [
+            (0, 0, 0),
+            (0, 0, h),
+            (s, 0, h),
+            (s, s, h),
+            (0, s, h),
+            (0, 0, h),
+            (0, 0, 0),
+        ]
+        return Waypoints(points_m=pts, speed_m_s=self.plan.speed_m_s, hold_s=self.plan.hold_s)
+
+    @property
+    def flight_s(self) -> float:
+        w = self.waypoints()
+        legs = sum(math.dist(a, b) for a, b in zip(w.points_m[:-1], w.points_m[1:], strict=True))
+        return self.estimator.align_s + legs / w.speed_m_s + w.hold_s * len(w.points_m) + 1.0
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class NavRunResult:
-    t_ns: NDArray[np.int64]  # IMU steps (current horizon)
+    """Per IMU step after alignment (current horizon ``t_ns``), plus fusion records."""
+
+    scenario: NavScenario
+    seed: int
+    t_ns: NDArray[np.int64]
     truth_p: FloatArray
+    truth_v: FloatArray
+    truth_q: FloatArray
+    ref_p: FloatArray
     output_p: FloatArray
+    output_v: FloatArray
+    output_q: FloatArray
     t_delayed_ns: NDArray[np.int64]
-    delayed_err: (
-        FloatArray  # (N, 15) true - estimate at the delayed horizon (attitude as a rotation vector)
-    )
+    delayed_x: FloatArray  # p (3), v (3), q (4), bg (3), ba (3)
+    delayed_err: FloatArray  # (N, 15) true minus estimate (attitude as a body rotation vector)
     delayed_P: FloatArray
-    vision_fused: int
-    vision_rejected: int
+    vision_t_ns: NDArray[np.int64]
+    fusion: dict[str, dict[str, NDArray[np.float64]]]
+    counts: dict[str, dict[str, int]]
+    t_align_ns: int
 
 
-def run_nav(cfg: NavRunConfig, seed: int) -> NavRunResult:
+def ground_alignment(imu: list[ImuSample], pose: PoseSample | None) -> tuple[Rotation, FloatArray]:
+    """Initial attitude and position on the ground: roll and pitch from the mean specific
+    force (gravity), heading and position from the external pose (or zero without one)."""
+    if not imu:
+        raise ExperimentError("alignment needs IMU samples on the ground")
+    f = np.mean([s.accel_m_s2 for s in imu], axis=0)
+    roll = math.atan2(f[1], f[2])
+    pitch = math.atan2(-f[0], math.hypot(f[1], f[2]))
+    yaw = 0.0 if pose is None else float(Rotation.from_quat(pose.q_W_B_xyzw).as_euler("ZYX")[0])
+    p0 = np.zeros(3) if pose is None else pose.p_W_B.copy()
+    return Rotation.from_euler("ZYX", [yaw, pitch, roll]), p0
+
+
+def run_nav(sc: NavScenario, seed: int) -> NavRunResult:
+    """Align on the ground, fly the plan, and log truth, estimates and fusions."""
     rng = np.random.default_rng(seed)
+    rng_sens, rng_bias = (np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(2))
+    del rng
     params = RigidBodyParams()
-    circ = Circle(center_m=(-2.0, 0.0, 1.5), radius_m=2.0, speed_m_s=1.0)
-    sim = RigidBodyQuadrotor(params, dt_s=cfg.sim_dt_s, p0=(0.0, 0.0, 1.5), hovering=True)
-    ctrl = CascadedPid(params, dt_s=cfg.sim_dt_s)
-    imu_period_ns = round(1e9 / cfg.imu_rate_hz)
-    bg0 = cfg.gyro_bias0_sigma_rad_s * rng.standard_normal(3)
-    ba0 = cfg.accel_bias0_sigma_m_s2 * rng.standard_normal(3)
+    dt = sc.sim_dt_s
+    sim = RigidBodyQuadrotor(params, dt_s=dt)
+    ctrl = CascadedPid(params, dt_s=dt)
+    ic = sc.imu
+    imu_period_ns = round(1e9 / ic.rate_hz)
     imu = IntegratingImu(
         period_ns=imu_period_ns,
-        gyro_sigma_rad_s=cfg.gyro_sigma_rad_s,
-        accel_sigma_m_s2=cfg.accel_sigma_m_s2,
-        gyro_bias_rw_rad_s_sqrt_s=cfg.gyro_bias_rw,
-        accel_bias_rw_m_s2_sqrt_s=cfg.accel_bias_rw,
-        gyro_bias0_rad_s=tuple(bg0),
-        accel_bias0_m_s2=tuple(ba0),
+        gyro_sigma_rad_s=ic.gyro_sigma_rad_s,
+        accel_sigma_m_s2=ic.accel_sigma_m_s2,
+        gyro_bias_rw_rad_s_sqrt_s=ic.gyro_bias_rw_rad_s_sqrt_s,
+        accel_bias_rw_m_s2_sqrt_s=ic.accel_bias_rw_m_s2_sqrt_s,
+        gyro_bias0_rad_s=tuple(ic.gyro_bias0_sigma_rad_s * rng_bias.standard_normal(3)),
+        accel_bias0_m_s2=tuple(ic.accel_bias0_sigma_m_s2 * rng_bias.standard_normal(3)),
         gravity_m_s2=params.gravity_m_s2,
     )
-    vision_line: DelayLine[PoseSample] = DelayLine(delay_ns=round(cfg.vision_delay_s * 1e9))
-    baro_line: DelayLine[HeightSample] = DelayLine(delay_ns=round(cfg.baro_delay_s * 1e9))
-    vision_period_ns = round(1e9 / cfg.vision_rate_hz)
-    baro_period_ns = round(1e9 / cfg.baro_rate_hz)
-    next_vision, next_baro = 0, 0
+    vision_line: DelayLine[PoseSample] = DelayLine(delay_ns=round(sc.vision.delay_s * 1e9))
+    baro_line: DelayLine[HeightSample] = DelayLine(delay_ns=round(sc.baro.delay_s * 1e9))
+    dropouts_ns = [(round(a * 1e9), round(b * 1e9)) for a, b in sc.vision.dropouts_s]
+    next_vision = next_baro = 0
+    plan = sc.waypoints()
+    align_ns = round(sc.estimator.align_s * 1e9)
+    n_steps = round(sc.flight_s / dt)
+    ref_all = plan.reference(np.arange(n_steps + 1) * dt - sc.estimator.align_s)
 
-    # Initial estimate: the truth perturbed by a draw from the initial covariance.
-    sig0 = np.array(
-        [0.02] * 3
-        + [0.05] * 3
-        + [0.02] * 3
-        + [cfg.gyro_bias0_sigma_rad_s] * 3
-        + [cfg.accel_bias0_sigma_m_s2] * 3
-    )
-    d0 = sig0 * rng.standard_normal(15)
-    s0 = sim.state()
-    q0 = (Rotation.from_quat(s0.q_W_B_xyzw) * Rotation.from_rotvec(-d0[0:3])).as_quat()
-    ekf = NavEkf(
-        NavEkfConfig(
-            gyro_sigma_rad_s=cfg.gyro_sigma_rad_s,
-            accel_sigma_m_s2=cfg.accel_sigma_m_s2,
-            gyro_bias_rw_rad_s_sqrt_s=cfg.gyro_bias_rw,
-            accel_bias_rw_m_s2_sqrt_s=cfg.accel_bias_rw,
-            gravity_m_s2=params.gravity_m_s2,
-        ),
-        p0=s0.p_W_B - d0[6:9],
-        v0=s0.v_W_B - d0[3:6],
-        q0_xyzw=q0,
-        P0=np.diag(sig0**2),
-        bg0=bg0 - d0[9:12],
-        ba0=ba0 - d0[12:15],
-    )
-    est = DelayedHorizonEstimator(
-        ekf,
-        HorizonConfig(
-            imu_period_ns=imu_period_ns,
-            max_delay_ns=round(max(cfg.vision_delay_s, cfg.baro_delay_s) * 1e9),
-        ),
-        t0_ns=s0.t_ns,
-    )
-    n = round(cfg.duration_s / cfg.sim_dt_s)
-    t_ref = np.arange(n + 1) * cfg.sim_dt_s
-    ref = circ.reference(t_ref)
+    est: DelayedHorizonEstimator | None = None
+    ekf: NavEkf | None = None
+    align_imu: list[ImuSample] = []
+    last_pose: PoseSample | None = None
+    last_gyro = np.zeros(3)
     truth_hist: dict[int, tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]] = {}
-    rows_t, rows_truth, rows_out, rows_td, rows_err, rows_P = [], [], [], [], [], []
-    for i in range(n):
-        state = sim.state()
-        cmd = ctrl(state, Setpoint(p=ref.p[i], v=ref.v[i], a=ref.a[i], yaw_rad=0.0))
-        sim.step(cmd)
-        truth = sim.state()
-        t = truth.t_ns
-        if t >= next_vision:
-            next_vision += vision_period_ns
-            qn = (
-                Rotation.from_quat(truth.q_W_B_xyzw)
-                * Rotation.from_rotvec([0.0, 0.0, cfg.vision_yaw_sigma_rad * rng.standard_normal()])
-            ).as_quat()
-            vision_line.push(PoseSample(t_ns=t, p_W_B=truth.p_W_B + cfg.vision_sigma_m * rng.standard_normal(3), q_W_B_xyzw=qn,
-                                        sigma_pos_m=cfg.vision_sigma_m, sigma_yaw_rad=cfg.vision_yaw_sigma_rad))  # fmt: skip
-        if t >= next_baro:
-            next_baro += baro_period_ns
-            baro_line.push(
-                HeightSample(
-                    t_ns=t,
-                    z_m=float(truth.p_W_B[2] + cfg.baro_sigma_m * rng.standard_normal()),
-                    sigma_m=cfg.baro_sigma_m,
+    rows: dict[str, list[object]] = {
+        k: [] for k in ("t", "tp", "tv", "tq", "ref", "op", "ov", "oq", "td", "xd", "err", "P")
+    }
+    vision_times: list[int] = []
+    landed = False
+    try:
+        for i in range(n_steps):
+            truth = sim.state()
+            t = truth.t_ns
+            # -- sensors ---------------------------------------------------------------------
+            if sc.vision.enabled and t >= next_vision:
+                next_vision += round(1e9 / sc.vision.rate_hz)
+                if not any(a <= t < b for a, b in dropouts_ns):
+                    q = (
+                        Rotation.from_quat(truth.q_W_B_xyzw)
+                        * Rotation.from_rotvec(
+                            [0.0, 0.0, sc.vision.yaw_sigma_rad * rng_sens.standard_normal()]
+                        )
+                    ).as_quat()
+                    pose = PoseSample(t_ns=t, p_W_B=truth.p_W_B + sc.vision.sigma_m * rng_sens.standard_normal(3), q_W_B_xyzw=q,
+                                      sigma_pos_m=sc.vision.sigma_m, sigma_yaw_rad=sc.vision.yaw_sigma_rad)  # fmt: skip
+                    vision_line.push(pose)
+                    vision_times.append(t)
+            if sc.baro.enabled and t >= next_baro:
+                next_baro += round(1e9 / sc.baro.rate_hz)
+                z = float(truth.p_W_B[2] + sc.baro.sigma_m * rng_sens.standard_normal())
+                baro_line.push(HeightSample(t_ns=t, z_m=z, sigma_m=sc.baro.sigma_m))
+            # -- estimator -------------------------------------------------------------------
+            sample = imu.accumulate(truth, dt, rng_sens) if i > 0 else None
+            arrived_pose = vision_line.pop_arrived(t)
+            arrived_baro = baro_line.pop_arrived(t)
+            if est is None:
+                if sample is not None:
+                    align_imu.append(sample)
+                for _, pz in arrived_pose:
+                    last_pose = pz
+                if t >= align_ns and align_imu:
+                    R0, p0 = ground_alignment(align_imu, last_pose)
+                    sig = np.array([0.02, 0.02, sc.vision.yaw_sigma_rad * 3 if last_pose else 1.0] + [0.05] * 3
+                                   + [sc.vision.sigma_m * 3 if last_pose else 0.1] * 3
+                                   + [max(ic.gyro_bias0_sigma_rad_s, 1e-4)] * 3 + [max(ic.accel_bias0_sigma_m_s2, 1e-3)] * 3)  # fmt: skip
+                    ekf = NavEkf(
+                        NavEkfConfig(
+                            gyro_sigma_rad_s=ic.gyro_sigma_rad_s,
+                            accel_sigma_m_s2=ic.accel_sigma_m_s2,
+                            gyro_bias_rw_rad_s_sqrt_s=ic.gyro_bias_rw_rad_s_sqrt_s,
+                            accel_bias_rw_m_s2_sqrt_s=ic.accel_bias_rw_m_s2_sqrt_s,
+                            gravity_m_s2=params.gravity_m_s2,
+                            gate_probability=sc.estimator.gate_probability,
+                        ),
+                        p0=p0, v0=np.zeros(3), q0_xyzw=R0.as_quat(), P0=np.diag(sig**2),
+                    )  # fmt: skip
+                    max_delay = max(
+                        sc.vision.delay_s if sc.vision.enabled else 0.0,
+                        sc.baro.delay_s if sc.baro.enabled else 0.0,
+                    )
+                    est = DelayedHorizonEstimator(
+                        ekf,
+                        HorizonConfig(
+                            imu_period_ns=imu_period_ns,
+                            max_delay_ns=round(max_delay * 1e9),
+                            tau_vel_s=sc.estimator.tau_vel_s,
+                            tau_pos_s=sc.estimator.tau_pos_s,
+                        ),
+                        t0_ns=t,
+                    )
+            else:
+                for _, obs in arrived_pose:
+                    est.push(obs)
+                for _, obs_h in arrived_baro:
+                    est.push(obs_h)
+                if sample is not None:
+                    est.push(sample)
+            if sample is not None:
+                last_gyro = sample.gyro_rad_s
+            # -- logging at IMU steps after alignment ----------------------------------------
+            if sample is not None and est is not None and ekf is not None and t > est.t_delayed_ns:
+                truth_hist[t] = (
+                    truth.p_W_B,
+                    truth.v_W_B,
+                    truth.q_W_B_xyzw,
+                    imu.bias_g.copy(),
+                    imu.bias_a.copy(),
                 )
-            )
-        sample = imu.accumulate(truth, cfg.sim_dt_s, rng)
-        if sample is None:
-            continue
-        truth_hist[t] = (
-            truth.p_W_B,
-            truth.v_W_B,
-            truth.q_W_B_xyzw,
-            imu.bias_g.copy(),
-            imu.bias_a.copy(),
+                out = est.output_nav()
+                rows["t"].append(t)
+                rows["tp"].append(truth.p_W_B)
+                rows["tv"].append(truth.v_W_B)
+                rows["tq"].append(truth.q_W_B_xyzw)
+                rows["ref"].append(ref_all.p[i])
+                rows["op"].append(out.pos)
+                rows["ov"].append(out.vel)
+                rows["oq"].append(out.att)
+                td = est.t_delayed_ns
+                rows["td"].append(td)
+                rows["xd"].append(np.concatenate([ekf.p, ekf.v, ekf.q_xyzw, ekf.bg, ekf.ba]))
+                if td in truth_hist:
+                    p_t, v_t, q_t, bg_t, ba_t = truth_hist[td]
+                    dth = (
+                        Rotation.from_quat(ekf.q_xyzw).inv() * Rotation.from_quat(q_t)
+                    ).as_rotvec()
+                    rows["err"].append(
+                        np.concatenate(
+                            [dth, v_t - ekf.v, p_t - ekf.p, bg_t - ekf.bg, ba_t - ekf.ba]
+                        )
+                    )
+                else:
+                    rows["err"].append(np.full(15, np.nan))
+                rows["P"].append(ekf.P.copy())
+            # -- control ---------------------------------------------------------------------
+            ref_i = ref_all.p[i]
+            # Motors stay off on the ground until the plan starts to climb (and after touch-down).
+            if t < align_ns or landed or (ref_i[2] <= 0.0 and i < n_steps // 2):
+                cmd = np.zeros(4)
+            else:
+                if sc.closed_loop and est is not None and ekf is not None:
+                    o = est.output_nav()
+                    state = VehicleState(
+                        t_ns=t,
+                        p_W_B=o.pos,
+                        v_W_B=o.vel,
+                        a_W_B=np.zeros(3),
+                        q_W_B_xyzw=o.att,
+                        w_B=last_gyro - ekf.bg,
+                    )
+                else:
+                    state = truth
+                cmd = ctrl(state, Setpoint(p=ref_i, v=ref_all.v[i], a=ref_all.a[i], yaw_rad=0.0))
+                # Touch-down: the plan has come down and the vehicle sits low: cut the motors.
+                if i > n_steps // 2 and ref_i[2] <= 0.0 and state.p_W_B[2] < 0.05:
+                    landed = True
+                    cmd = np.zeros(4)
+            sim.step(cmd)
+    except SimError as exc:
+        raise ExperimentError(f"scenario {sc.name!r} seed {seed}: {exc}") from None
+    if est is None or ekf is None:
+        raise ExperimentError(
+            f"scenario {sc.name!r}: the flight ended before the filter was aligned"
         )
-        for _, obs in vision_line.pop_arrived(t):
-            est.push(obs)
-        for _, obs_h in baro_line.pop_arrived(t):
-            est.push(obs_h)
-        est.push(sample)
-        rows_t.append(t)
-        rows_truth.append(truth.p_W_B)
-        rows_out.append(est.output_nav().pos)
-        td = est.t_delayed_ns
-        rows_td.append(td)
-        if td in truth_hist:
-            p_t, v_t, q_t, bg_t, ba_t = truth_hist[td]
-            dth = (Rotation.from_quat(ekf.q_xyzw).inv() * Rotation.from_quat(q_t)).as_rotvec()
-            rows_err.append(
-                np.concatenate([dth, v_t - ekf.v, p_t - ekf.p, bg_t - ekf.bg, ba_t - ekf.ba])
-            )
-        else:
-            rows_err.append(np.full(15, np.nan))
-        rows_P.append(ekf.P.copy())
-    vs = est.stats("vision")
+    fusion: dict[str, dict[str, NDArray[np.float64]]] = {}
+    for src in est.sources:
+        recs = [r for r in est.fusion_log if r.source == src]
+        fusion[src] = {
+            "t_obs_ns": np.array([r.t_obs_ns for r in recs], dtype=np.float64),
+            "nis": np.array([r.result.nis for r in recs]),
+            "test_ratio": np.array([r.result.test_ratio for r in recs]),
+            "accepted": np.array([r.result.accepted for r in recs], dtype=np.float64),
+            "dof": np.array([len(r.result.innovation) for r in recs], dtype=np.float64),
+        }
+    counts = {
+        src: {
+            "received": s.received,
+            "fused": s.fused,
+            "rejected_gate": s.rejected_gate,
+            "rejected_too_old": s.rejected_too_old,
+            "rejected_unsupported": s.rejected_unsupported,
+        }
+        for src in est.sources
+        for s in [est.stats(src)]
+    }
+    counts["imu"] = {"rejected_out_of_order": est.imu_rejected_out_of_order}
     return NavRunResult(
-        t_ns=np.array(rows_t, dtype=np.int64),
-        truth_p=np.array(rows_truth),
-        output_p=np.array(rows_out),
-        t_delayed_ns=np.array(rows_td, dtype=np.int64),
-        delayed_err=np.array(rows_err),
-        delayed_P=np.array(rows_P),
-        vision_fused=vs.fused,
-        vision_rejected=vs.rejected_gate + vs.rejected_too_old,
+        scenario=sc,
+        seed=seed,
+        t_ns=np.array(rows["t"], dtype=np.int64),
+        truth_p=np.array(rows["tp"]),
+        truth_v=np.array(rows["tv"]),
+        truth_q=np.array(rows["tq"]),
+        ref_p=np.array(rows["ref"]),
+        output_p=np.array(rows["op"]),
+        output_v=np.array(rows["ov"]),
+        output_q=np.array(rows["oq"]),
+        t_delayed_ns=np.array(rows["td"], dtype=np.int64),
+        delayed_x=np.array(rows["xd"]),
+        delayed_err=np.array(rows["err"]),
+        delayed_P=np.array(rows["P"]),
+        vision_t_ns=np.array(vision_times, dtype=np.int64),
+        fusion=fusion,
+        counts=counts,
+        t_align_ns=align_ns,
     )
