@@ -7,6 +7,7 @@ All are vectorised over time: ``reference(t_s)`` takes an array of seconds and r
 from __future__ import annotations
 
 import itertools
+import math
 from dataclasses import dataclass, field
 from typing import Protocol
 
@@ -127,37 +128,77 @@ class Circle:
         )
 
 
+def _trapezoid(
+    t: FloatArray, d: float, v_max: float, a_max: float
+) -> tuple[FloatArray, FloatArray, FloatArray, float]:
+    """Distance, speed and acceleration along a straight leg of length ``d`` that starts and
+    ends at rest, limited to ``v_max`` and ``a_max`` (triangular when too short to cruise)."""
+    if d <= 0:
+        z = np.zeros_like(t)
+        return z, z.copy(), z.copy(), 0.0
+    v = min(v_max, math.sqrt(d * a_max))
+    ta = v / a_max
+    tc = (d - v * ta) / v
+    T = 2 * ta + tc
+    tt = np.clip(t, 0.0, T)
+    acc_phase, dec_phase = tt < ta, tt > ta + tc
+    s = np.where(
+        acc_phase,
+        0.5 * a_max * tt**2,
+        np.where(dec_phase, d - 0.5 * a_max * (T - tt) ** 2, 0.5 * a_max * ta**2 + v * (tt - ta)),
+    )
+    sd = np.where(acc_phase, a_max * tt, np.where(dec_phase, a_max * (T - tt), v))
+    sdd = np.where(acc_phase, a_max, np.where(dec_phase, -a_max, 0.0))
+    inside = (t >= 0) & (t < T)
+    return s, np.where(inside, sd, 0.0), np.where(inside, sdd, 0.0), T
+
+
 @dataclass(frozen=True, slots=True, kw_only=True)
 class Waypoints:
-    """Straight legs between waypoints at a cruise speed, holding each point for ``hold_s``."""
+    """Straight legs between waypoints, each starting and ending at rest with a trapezoidal
+    speed profile (``speed_m_s``, ``accel_m_s2``), holding each point for ``hold_s``."""
 
     points_m: list[tuple[float, float, float]] = field(default_factory=lambda: [(0.0, 0.0, 1.0)])
     speed_m_s: float = 0.5
+    accel_m_s2: float = 1.0
     hold_s: float = 2.0
 
     def __post_init__(self) -> None:
-        if len(self.points_m) < 1 or not self.speed_m_s > 0 or self.hold_s < 0:
-            raise ControlError("waypoints need >= 1 point, speed_m_s > 0 and hold_s >= 0")
+        if (
+            len(self.points_m) < 1
+            or not self.speed_m_s > 0
+            or not self.accel_m_s2 > 0
+            or self.hold_s < 0
+        ):
+            raise ControlError(
+                "waypoints need >= 1 point, speed_m_s > 0, accel_m_s2 > 0 and hold_s >= 0"
+            )
 
-    def _knots(self) -> tuple[FloatArray, FloatArray]:
-        pts = np.asarray(self.points_m, dtype=np.float64)
-        times, pos = [0.0], [pts[0]]
-        for a, b in itertools.pairwise(pts):
-            times.append(times[-1] + self.hold_s)
-            pos.append(a)
-            times.append(times[-1] + float(np.linalg.norm(b - a)) / self.speed_m_s)
-            pos.append(b)
-        times.append(times[-1] + self.hold_s)
-        pos.append(pts[-1])
-        return np.array(times), np.array(pos)
+    def leg_times(self) -> list[float]:
+        return [
+            _trapezoid(np.zeros(1), math.dist(a, b), self.speed_m_s, self.accel_m_s2)[3]
+            for a, b in itertools.pairwise(self.points_m)
+        ]
+
+    @property
+    def duration_s(self) -> float:
+        return sum(self.leg_times()) + self.hold_s * len(self.points_m)
 
     def reference(self, t_s: ArrayLike) -> Reference:
         t = _t(t_s)
-        times, pos = self._knots()
-        p = np.column_stack([np.interp(t, times, pos[:, k]) for k in range(3)])
-        k = np.clip(np.searchsorted(times, t, side="right") - 1, 0, len(times) - 2)
-        dt = times[k + 1] - times[k]
-        v = (pos[k + 1] - pos[k]) / np.where(dt > 0, dt, 1.0)[:, None]
-        v[(t < times[0]) | (t >= times[-1])] = 0.0
-        z = np.zeros_like(p)
-        return Reference(p=p, v=v, a=z, j=z.copy(), yaw=np.zeros(len(t)))
+        pts = np.asarray(self.points_m, dtype=np.float64)
+        p = np.tile(pts[0], (len(t), 1))
+        v = np.zeros_like(p)
+        a = np.zeros_like(p)
+        t0 = self.hold_s
+        for k, T in enumerate(self.leg_times()):
+            d = pts[k + 1] - pts[k]
+            L = float(np.linalg.norm(d))
+            u = d / L if L > 0 else np.zeros(3)
+            s, sd, sdd, _ = _trapezoid(t - t0, L, self.speed_m_s, self.accel_m_s2)
+            on = t >= t0
+            p[on] = pts[k] + np.outer(s[on], u)
+            v[on] = np.outer(sd[on], u)
+            a[on] = np.outer(sdd[on], u)
+            t0 += T + self.hold_s
+        return Reference(p=p, v=v, a=a, j=np.zeros_like(p), yaw=np.zeros(len(t)))

@@ -71,6 +71,7 @@ class PlanSection(_Section):
     height_m: float = Field(1.5, gt=0)
     square_m: float = Field(2.0, gt=0)
     speed_m_s: float = Field(1.0, gt=0)
+    accel_m_s2: float = Field(1.0, gt=0)
     hold_s: float = Field(2.0, ge=0)
 
 
@@ -79,6 +80,12 @@ class EstimatorSection(_Section):
     tau_pos_s: float = Field(0.1, gt=0)
     gate_probability: float = Field(0.9999, gt=0, lt=1)
     align_s: float = Field(0.5, gt=0, description="time on the ground to level the filter")
+    imu_noise_inflation: float = Field(1.0, ge=1.0, description="filter's IMU noise / the sensor's")
+    bias_rw_inflation: float = Field(
+        3.0,
+        ge=1.0,
+        description="filter's bias random walk / the sensor's (covers unmodelled IMU effects)",
+    )
 
 
 class NavScenario(_Section):
@@ -119,13 +126,16 @@ class NavScenario(_Section):
             (0, 0, h),
             (0, 0, 0),
         ]
-        return Waypoints(points_m=pts, speed_m_s=self.plan.speed_m_s, hold_s=self.plan.hold_s)
+        return Waypoints(
+            points_m=pts,
+            speed_m_s=self.plan.speed_m_s,
+            accel_m_s2=self.plan.accel_m_s2,
+            hold_s=self.plan.hold_s,
+        )
 
     @property
     def flight_s(self) -> float:
-        w = self.waypoints()
-        legs = sum(math.dist(a, b) for a, b in zip(w.points_m[:-1], w.points_m[1:], strict=True))
-        return self.estimator.align_s + legs / w.speed_m_s + w.hold_s * len(w.points_m) + 1.0
+        return self.estimator.align_s + self.waypoints().duration_s + 1.0
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -244,10 +254,10 @@ def run_nav(sc: NavScenario, seed: int) -> NavRunResult:
                                    + [max(ic.gyro_bias0_sigma_rad_s, 1e-4)] * 3 + [max(ic.accel_bias0_sigma_m_s2, 1e-3)] * 3)  # fmt: skip
                     ekf = NavEkf(
                         NavEkfConfig(
-                            gyro_sigma_rad_s=ic.gyro_sigma_rad_s,
-                            accel_sigma_m_s2=ic.accel_sigma_m_s2,
-                            gyro_bias_rw_rad_s_sqrt_s=ic.gyro_bias_rw_rad_s_sqrt_s,
-                            accel_bias_rw_m_s2_sqrt_s=ic.accel_bias_rw_m_s2_sqrt_s,
+                            gyro_sigma_rad_s=ic.gyro_sigma_rad_s * sc.estimator.imu_noise_inflation,
+                            accel_sigma_m_s2=ic.accel_sigma_m_s2 * sc.estimator.imu_noise_inflation,
+                            gyro_bias_rw_rad_s_sqrt_s=ic.gyro_bias_rw_rad_s_sqrt_s * sc.estimator.bias_rw_inflation,
+                            accel_bias_rw_m_s2_sqrt_s=ic.accel_bias_rw_m_s2_sqrt_s * sc.estimator.bias_rw_inflation,
                             gravity_m_s2=params.gravity_m_s2,
                             gate_probability=sc.estimator.gate_probability,
                         ),

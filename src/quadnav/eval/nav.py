@@ -1,0 +1,285 @@
+"""Metrics, plots and run folders of the main job's navigation flights (``quadnav run``)."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
+from scipy.stats import chi2
+
+from quadnav.eval.metrics import nees
+from quadnav.eval.report import ReportSection, ReportTable, write_report
+from quadnav.experiments.nav import NavRunResult, NavScenario, run_nav
+from quadnav.geometry.trajectory import Trajectory
+from quadnav.io.config import dump_config
+from quadnav.io.run_folder import create_run_folder, write_csv, write_json, write_text
+from quadnav.io.trajectory_io import write_tum
+
+__all__ = ["NavStudy", "nav_metrics", "plot_nav_run", "run_nav_study"]
+
+FloatArray = NDArray[np.float64]
+Progress = Callable[[int, int, str], None]
+
+
+def _t_s(r: NavRunResult) -> FloatArray:
+    return np.asarray(r.t_ns * 1e-9, dtype=np.float64)
+
+
+def nav_metrics(r: NavRunResult) -> dict[str, Any]:
+    """The issue-5 numbers of one flight."""
+    sc = r.scenario
+    t = _t_s(r)
+    err = np.linalg.norm(r.output_p - r.truth_p, axis=1)
+    with_vision = np.ones(len(t), dtype=bool)
+    dropout_end, recovery = [], []
+    for a, b in sc.vision.dropouts_s if sc.vision.enabled else []:
+        with_vision &= ~((t >= a) & (t < b + 1.0))
+        k = int(np.argmin(np.abs(t - b)))
+        dropout_end.append(float(err[k]))
+        back = np.flatnonzero((t > b) & (err < 0.03))
+        recovery.append(float(t[back[0]] - b) if len(back) else math.nan)
+    # Holds at altitude: reference still at the flight height, after its first second.
+    still = np.concatenate([[False], np.all(np.diff(r.ref_p, axis=0) == 0, axis=1)]) & (
+        r.ref_p[:, 2] >= sc.plan.height_m - 1e-9
+    )
+    hold = np.zeros(len(t), dtype=bool)
+    start = None
+    for i, s in enumerate(still):
+        if s and start is None:
+            start = t[i]
+        if not s:
+            start = None
+        hold[i] = s and start is not None and t[i] - start >= 1.0
+    horiz = np.abs(r.truth_p[hold, 0:2] - r.ref_p[hold, 0:2])
+    # NEES in the air: ground contact (touch-down) is an external force the filter does not model.
+    airborne = np.interp(r.t_delayed_ns, r.t_ns, r.truth_p[:, 2]) > 0.05
+    ok = np.isfinite(r.delayed_err).all(axis=1) & airborne
+    att_err = (Rotation.from_quat(r.output_q).inv() * Rotation.from_quat(r.truth_q)).magnitude()
+    ratios = {}
+    for src, f in r.fusion.items():
+        if len(f["nis"]):
+            gate95 = chi2.ppf(0.95, f["dof"])
+            ratios[src] = float(np.mean(f["nis"] > gate95))
+    return {
+        "seed": r.seed,
+        "output_rmse_with_vision_m": float(np.sqrt(np.mean(err[with_vision] ** 2))),
+        "output_rmse_m": float(np.sqrt(np.mean(err**2))),
+        "dropout_end_error_m": dropout_end,
+        "dropout_recovery_s": recovery,
+        "hold_max_horizontal_error_m": float(horiz.max()) if len(horiz) else math.nan,
+        "delayed_rmse_m": float(np.sqrt(np.mean(np.sum(r.delayed_err[ok, 6:9] ** 2, axis=1)))),
+        "attitude_rmse_deg": float(np.degrees(np.sqrt(np.mean(att_err**2)))),
+        "nees_mean": float(nees(r.delayed_err[ok], r.delayed_P[ok]).mean()),
+        "nis_above_95pct_gate": ratios,
+        "counts": r.counts,
+        "landed_at_m": r.truth_p[-1].tolist(),
+    }
+
+
+def plot_nav_run(r: NavRunResult, folder: Path) -> list[Path]:
+    t = _t_s(r)
+    sc = r.scenario
+    paths = []
+
+    def shade(ax: Any) -> None:
+        for a, b in sc.vision.dropouts_s if sc.vision.enabled else []:
+            ax.axvspan(a, b, color="tab:red", alpha=0.12)
+
+    fig, axes = plt.subplots(3, 1, figsize=(11, 8), sharex=True, constrained_layout=True)
+    for k, ax in enumerate(axes):
+        ax.plot(t, r.truth_p[:, k], "--", label="truth")
+        ax.plot(t, r.output_p[:, k], label="output predictor")
+        ax.plot(t, r.ref_p[:, k], ":", color="0.4", label="setpoint")
+        shade(ax)
+        ax.set_ylabel(f"{'xyz'[k]} (m)")
+        ax.grid(True, alpha=0.3)
+    axes[0].legend(fontsize=8)
+    axes[-1].set_xlabel("t (s)")
+    fig.suptitle(f"{sc.name} seed {r.seed}: position (red: vision dropouts)")
+    paths.append(folder / "position.png")
+    fig.savefig(paths[-1], dpi=100)
+    plt.close(fig)
+
+    fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(11, 7), sharex=True, constrained_layout=True)
+    ax1.plot(t, np.linalg.norm(r.output_p - r.truth_p, axis=1), label="output predictor - truth")
+    ok = np.isfinite(r.delayed_err).all(axis=1)
+    td = r.t_delayed_ns * 1e-9
+    ax1.plot(
+        td[ok], np.linalg.norm(r.delayed_err[ok, 6:9], axis=1), label="delayed EKF - delayed truth"
+    )
+    ax1.plot(
+        td[ok],
+        np.sqrt(np.trace(r.delayed_P[ok][:, 6:9, 6:9], axis1=1, axis2=2)),
+        ":",
+        label="EKF 1 sigma",
+    )
+    shade(ax1)
+    ax1.set_yscale("log")
+    ax1.set_ylabel("position error (m)")
+    ax1.legend(fontsize=8)
+    ax1.grid(True, which="both", alpha=0.3)
+    att = (Rotation.from_quat(r.output_q).inv() * Rotation.from_quat(r.truth_q)).magnitude()
+    ax2.plot(t, np.degrees(att))
+    shade(ax2)
+    ax2.set_ylabel("attitude error (deg)")
+    ax2.set_xlabel("t (s)")
+    ax2.grid(True, alpha=0.3)
+    paths.append(folder / "errors.png")
+    fig.savefig(paths[-1], dpi=100)
+    plt.close(fig)
+
+    fig, ax = plt.subplots(figsize=(7, 7), constrained_layout=True)
+    ax.plot(r.truth_p[:, 0], r.truth_p[:, 1], "--", label="truth")
+    ax.plot(r.output_p[:, 0], r.output_p[:, 1], label="output predictor")
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=8)
+    paths.append(folder / "top_view.png")
+    fig.savefig(paths[-1], dpi=100)
+    plt.close(fig)
+    return paths
+
+
+def _write_series(r: NavRunResult, folder: Path) -> None:
+    cols: dict[str, NDArray[Any]] = {"t_ns": r.t_ns}
+    for name, arr in (("truth", r.truth_p), ("output", r.output_p), ("ref", r.ref_p)):
+        for k, a in enumerate("xyz"):
+            cols[f"{name}_{a}_m"] = arr[:, k]
+    write_csv(folder / "positions.csv", cols)
+    d: dict[str, NDArray[Any]] = {"t_ns": r.t_delayed_ns, "t_now_ns": r.t_ns}
+    names = [
+        "x_m",
+        "y_m",
+        "z_m",
+        "vx_m_s",
+        "vy_m_s",
+        "vz_m_s",
+        "qx",
+        "qy",
+        "qz",
+        "qw",
+        "bgx",
+        "bgy",
+        "bgz",
+        "bax",
+        "bay",
+        "baz",
+    ]
+    xd = r.delayed_x
+    for k, n in enumerate(names):
+        d[n] = xd[:, k]
+    for k, n in zip(range(6, 9), ("x", "y", "z"), strict=True):
+        d[f"var_{n}"] = r.delayed_P[:, k, k]
+    # The delayed horizon waits at alignment time for the buffer to fill: keep one row per time.
+    moved = np.flatnonzero(np.diff(r.t_delayed_ns, prepend=r.t_delayed_ns[0] - 1) != 0)
+    write_csv(folder / "delayed.csv", {k: v[moved] for k, v in d.items()})
+    for src, f in r.fusion.items():
+        write_csv(folder / f"innovations_{src}.csv", {
+            "t_ns": f["t_obs_ns"].astype(np.int64), "nis": f["nis"], "test_ratio": f["test_ratio"], "accepted": f["accepted"].astype(bool),
+        })  # fmt: skip
+    write_tum(folder / "truth.tum", Trajectory(t_ns=r.t_ns, p_W_B=r.truth_p, q_W_B_xyzw=r.truth_q))
+    write_tum(
+        folder / "output.tum", Trajectory(t_ns=r.t_ns, p_W_B=r.output_p, q_W_B_xyzw=r.output_q)
+    )
+
+
+@dataclass(frozen=True, slots=True)
+class NavStudy:
+    run_dir: Path
+    per_seed: list[dict[str, Any]]
+    summary: dict[str, Any]
+
+
+def _one(sc: NavScenario, seed: int) -> NavRunResult:
+    return run_nav(sc, seed)
+
+
+def run_nav_study(
+    sc: NavScenario, *, runs_root: Path, progress: Progress | None = None, jobs: int = 1
+) -> NavStudy:
+    """Fly ``sc.seeds`` seeds; write the first seed's series and plots, every seed's metrics."""
+    run_dir = create_run_folder(runs_root, sc.name)
+    write_text(run_dir / "config.yaml", dump_config(sc))
+    seeds = [sc.seed + k for k in range(sc.seeds)]
+    results: dict[int, dict[str, Any]] = {}
+    first: NavRunResult | None = None
+    if jobs > 1 and len(seeds) > 1:
+        with ProcessPoolExecutor(max_workers=min(jobs, len(seeds))) as pool:
+            for k, res in enumerate(pool.map(_one, [sc] * len(seeds), seeds)):
+                results[res.seed] = nav_metrics(res)
+                first = first or res
+                if progress:
+                    progress(k + 1, len(seeds), f"seed {res.seed}")
+    else:
+        for k, seed in enumerate(seeds):
+            res = run_nav(sc, seed)
+            results[seed] = nav_metrics(res)
+            first = first or res
+            if progress:
+                progress(k + 1, len(seeds), f"seed {seed}")
+    assert first is not None
+    _write_series(first, run_dir)
+    images = plot_nav_run(first, run_dir / "plots")
+    per_seed = [results[s] for s in seeds]
+
+    def med(key: str) -> float:
+        return float(np.median([m[key] for m in per_seed]))
+
+    ends = [x for m in per_seed for x in m["dropout_end_error_m"]]
+    recs = [x for m in per_seed for x in m["dropout_recovery_s"]]
+    summary = {
+        "seeds": len(seeds),
+        "output_rmse_with_vision_m": med("output_rmse_with_vision_m"),
+        "dropout_end_error_max_m": max(ends) if ends else math.nan,
+        "dropout_recovery_max_s": max(recs) if recs else math.nan,
+        "hold_max_horizontal_error_m": max(m["hold_max_horizontal_error_m"] for m in per_seed),
+        "delayed_rmse_m": med("delayed_rmse_m"),
+        "attitude_rmse_deg": med("attitude_rmse_deg"),
+        "nees_mean": float(np.mean([m["nees_mean"] for m in per_seed])),
+        "nees_state_dim": 15,
+    }
+    table = [{
+        "scenario": sc.name, "seeds": len(seeds),
+        "output RMSE w/ vision (m)": summary["output_rmse_with_vision_m"],
+        "dropout end max (m)": summary["dropout_end_error_max_m"],
+        "recovery max (s)": summary["dropout_recovery_max_s"],
+        "hold max horiz (m)": summary["hold_max_horizontal_error_m"],
+        "attitude RMSE (deg)": summary["attitude_rmse_deg"],
+        "NEES (15)": summary["nees_mean"],
+    }]  # fmt: skip
+    write_json(
+        run_dir / "metrics.json",
+        {"kind": "nav", "summary": summary, "per_seed": per_seed, "table": table},
+    )
+    write_report(
+        run_dir / "report.html",
+        title=f"{sc.name}: navigation flight ({len(seeds)} seed(s))",
+        sections=[
+            ReportSection(
+                heading="Metrics",
+                tables=[
+                    ReportTable(
+                        "median over seeds (max for the worst-case rows)",
+                        list(table[0]),
+                        [list(table[0].values())],
+                    )
+                ],
+            ),
+            ReportSection(heading="Plots (first seed)", images=images),
+            ReportSection(heading="Configuration", code=dump_config(sc)),
+        ],
+    )
+    return NavStudy(run_dir=run_dir, per_seed=per_seed, summary=summary)
