@@ -14,8 +14,8 @@ runner = CliRunner()
 SHORT = ["--set", "duration_s=2", "--set", "gps.delay_s=0.3"]
 
 
-def test_run_writes_a_run_folder_and_prints_its_path_last(tmp_path: Path) -> None:
-    result = runner.invoke(app, ["run", "--out", str(tmp_path), "--jobs", "1", *SHORT])
+def test_planar_writes_a_run_folder_and_prints_its_path_last(tmp_path: Path) -> None:
+    result = runner.invoke(app, ["run", "planar", "--out", str(tmp_path), "--jobs", "1", *SHORT])
     assert result.exit_code == 0, result.output
     last = result.stdout.strip().splitlines()[-1]
     run_dir = Path(last)

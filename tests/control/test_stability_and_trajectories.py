@@ -45,7 +45,9 @@ def test_circle_speed_and_waypoints_visit_every_point() -> None:
     # 2 m at 0.5 m/s with 1 m/s^2: 0.5 s to speed up, 3.5 s cruising, 0.5 s to stop.
     w = Waypoints(points_m=[(0, 0, 1), (2, 0, 1)], speed_m_s=0.5, accel_m_s2=1.0, hold_s=1.0)
     r = w.reference(np.array([0.5, 1.25, 3.0, 5.5, 6.0, 100.0]))
-    np.testing.assert_allclose(r.p[:, 0], [0.0, 0.03125, 0.875, 2.0, 2.0, 2.0])  # 0.125 + 1.5 s x 0.5
+    np.testing.assert_allclose(
+        r.p[:, 0], [0.0, 0.03125, 0.875, 2.0, 2.0, 2.0]
+    )  # 0.125 + 1.5 s x 0.5
     np.testing.assert_allclose(r.v[:, 0], [0.0, 0.25, 0.5, 0.0, 0.0, 0.0])
     np.testing.assert_allclose(r.a[:, 0], [0.0, 1.0, 0.0, 0.0, 0.0, 0.0])
     assert w.duration_s == pytest.approx(1.0 + 4.5 + 1.0)

@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
+from typing import Annotated
 
+import typer
 from rich.table import Table
 
 from quadnav.cli.common import console, handle_errors, progress_bar
@@ -25,7 +27,12 @@ BUILTIN_RUNS: dict[str, list[str]] = {
 
 @handle_errors
 def run_command(
-    scenario: str | None = None,
+    scenario: Annotated[
+        str | None,
+        typer.Argument(
+            help="built-in scenario (indoor_vision, indoor_vision_truth_control, planar) or YAML"
+        ),
+    ] = None,
     set_: SetOpt = None,
     seeds: SeedsOpt = None,
     out: OutOpt = Path("runs"),
