@@ -91,3 +91,16 @@ def test_bad_translation_is_refused() -> None:
         Pose(Rotation.identity(), np.array([0.0, np.inf, 0.0]))
     with pytest.raises(GeometryError, match="shape"):
         Pose(Rotation.identity(), np.zeros(2))
+
+
+@given(vec3.map(lambda v: v / 40.0))  # rotation vectors up to |v| ~ 4.3 rad
+def test_so3_exp_log_and_quaternion_helpers_match_scipy(rv: np.ndarray) -> None:
+    from quadnav.geometry import quat_xyzw_from_matrix, so3_exp, so3_log
+
+    R = Rotation.from_rotvec(rv)
+    np.testing.assert_allclose(so3_exp(rv), R.as_matrix(), atol=1e-12)
+    np.testing.assert_allclose(so3_exp(rv[None, :])[0], R.as_matrix(), atol=1e-12)  # batched path
+    if np.linalg.norm(rv) < np.pi - 1e-3:
+        np.testing.assert_allclose(so3_log(R.as_matrix()), rv, atol=1e-9)
+    q = quat_xyzw_from_matrix(R.as_matrix())
+    assert geodesic_angle_rad(Rotation.from_quat(q), R) < 1e-9

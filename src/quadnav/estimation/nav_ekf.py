@@ -27,6 +27,7 @@ from scipy.stats import chi2
 
 from quadnav.errors import EstimationError
 from quadnav.estimation.horizon import FusionResult, NavState
+from quadnav.geometry.rotations import quat_xyzw_from_matrix, so3_exp, so3_log
 from quadnav.messages import (
     HeightSample,
     ImuSample,
@@ -47,13 +48,18 @@ STATE_NAMES = (
 I_TH, I_V, I_P, I_BG, I_BA = slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12), slice(12, 15)
 
 
+_I3 = np.eye(3)
+
+
 def skew(a: FloatArray) -> FloatArray:
     return np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
 
 
 @dataclass(frozen=True, slots=True)
 class NavKinematics:
-    """3-D strapdown integration (batched over leading axes); attitude as scalar-last quaternions."""
+    """3-D strapdown integration (batched over leading axes). The attitude travels as a
+    flattened rotation matrix ``R_W_B`` (9,) so the output predictor's hot loop needs no
+    quaternion conversions."""
 
     gravity_m_s2: float = 9.81
 
@@ -69,24 +75,20 @@ class NavKinematics:
     ) -> tuple[FloatArray, FloatArray, FloatArray]:
         dt = np.asarray(dt_s, dtype=np.float64)
         dtv = dt[..., None] if dt.ndim else dt
-        dtheta = np.array(gyro, dtype=np.float64) * dtv
+        dtheta = np.asarray(gyro, dtype=np.float64) * dtv
         if dtheta_corr is not None:
             dtheta = dtheta + dtheta_corr
-        R_new = Rotation.from_quat(att) * Rotation.from_rotvec(dtheta)
-        a_W = R_new.apply(
-            np.array(accel, dtype=np.float64)
-        )  # samples are read-only; SciPy wants writable
+        R = np.asarray(att, dtype=np.float64).reshape(*np.shape(att)[:-1], 3, 3)
+        R_new = R @ so3_exp(dtheta)
+        a_W = np.einsum("...ij,...j->...i", R_new, np.asarray(accel, dtype=np.float64))
         a_W[..., 2] -= self.gravity_m_s2
         vel_new = vel + dtv * a_W
         pos_new = pos + dtv * vel_new
-        return pos_new, vel_new, np.asarray(R_new.as_quat(), dtype=np.float64)
+        return pos_new, vel_new, R_new.reshape(*R_new.shape[:-2], 9)
 
     def attitude_error(self, att_target: FloatArray, att: FloatArray) -> FloatArray:
         """Body-frame rotation vector taking ``att`` onto ``att_target``."""
-        return np.asarray(
-            (Rotation.from_quat(att).inv() * Rotation.from_quat(att_target)).as_rotvec(),
-            dtype=np.float64,
-        )
+        return so3_log(att.reshape(3, 3).T @ att_target.reshape(3, 3))
 
     def to_estimate(
         self, nav: NavState, x: FloatArray, names: tuple[str, ...], P: FloatArray | None
@@ -95,7 +97,7 @@ class NavKinematics:
             t_ns=nav.t_ns,
             p_W_B=nav.pos.copy(),
             v_W_B=nav.vel.copy(),
-            q_W_B_xyzw=nav.att.copy(),
+            q_W_B_xyzw=quat_xyzw_from_matrix(nav.att.reshape(3, 3)),
             x=x,
             names=names,
             P=P,
@@ -107,26 +109,26 @@ def nav_jacobians(
 ) -> tuple[FloatArray, FloatArray]:
     """Error-state transition ``F`` (15x15) and noise input ``G`` (15x12, inputs n_g, n_a, n_bg,
     n_ba) of one prediction step, for ``R' = R Exp(w dt)``, ``v' = v + dt (R' f + g)``."""
-    A = Rotation.from_rotvec(w * dt).as_matrix().T  # Exp(-w dt)
+    A = so3_exp(w * dt).T  # Exp(-w dt)
     Rf = R_new @ skew(f)
     F = np.eye(15)
     F[I_TH, I_TH] = A
-    F[I_TH, I_BG] = -dt * np.eye(3)
+    F[I_TH, I_BG] = -dt * _I3
     F[I_V, I_TH] = -dt * Rf @ A
     F[I_V, I_BG] = dt * dt * Rf
     F[I_V, I_BA] = -dt * R_new
     F[I_P, I_TH] = dt * F[I_V, I_TH]
-    F[I_P, I_V] = dt * np.eye(3)
+    F[I_P, I_V] = dt * _I3
     F[I_P, I_BG] = dt * F[I_V, I_BG]
     F[I_P, I_BA] = dt * F[I_V, I_BA]
     G = np.zeros((15, 12))
-    G[I_TH, 0:3] = -dt * np.eye(3)
+    G[I_TH, 0:3] = -dt * _I3
     G[I_V, 0:3] = dt * dt * Rf
     G[I_V, 3:6] = -dt * R_new
     G[I_P, 0:3] = dt * G[I_V, 0:3]
     G[I_P, 3:6] = dt * G[I_V, 3:6]
-    G[I_BG, 6:9] = np.eye(3)
-    G[I_BA, 9:12] = np.eye(3)
+    G[I_BG, 6:9] = _I3
+    G[I_BA, 9:12] = _I3
     return F, G
 
 
@@ -208,7 +210,7 @@ class NavEkf:
     # -- the DelayedFilter protocol --------------------------------------------------------
     @property
     def x(self) -> FloatArray:
-        rv = Rotation.from_matrix(self.R).as_rotvec()
+        rv = so3_log(self.R)
         return np.concatenate([rv, self.v, self.p, self.bg, self.ba])
 
     @property
@@ -217,10 +219,10 @@ class NavEkf:
 
     @property
     def q_xyzw(self) -> FloatArray:
-        return np.asarray(Rotation.from_matrix(self.R).as_quat(), dtype=np.float64)
+        return quat_xyzw_from_matrix(self.R)
 
     def nav(self, t_ns: int) -> NavState:
-        return NavState(t_ns, self.p.copy(), self.v.copy(), self.q_xyzw)
+        return NavState(t_ns, self.p.copy(), self.v.copy(), self.R.ravel().copy())
 
     def can_fuse(self, obs: Sample) -> bool:
         return isinstance(obs, PositionSample | PoseSample | HeightSample)
@@ -232,7 +234,7 @@ class NavEkf:
         c = self.config
         w = imu.gyro_rad_s - self.bg
         f = imu.accel_m_s2 - self.ba
-        R_new = self.R @ Rotation.from_rotvec(w * dt_s).as_matrix()
+        R_new = self.R @ so3_exp(w * dt_s)
         F, G = nav_jacobians(R_new, f, w, dt_s)
         self.v = self.v + dt_s * (R_new @ f + np.array([0.0, 0.0, -c.gravity_m_s2]))
         self.p = self.p + dt_s * self.v
@@ -278,7 +280,7 @@ class NavEkf:
         I_KH = np.eye(15) - K @ H
         P = I_KH @ self._P @ I_KH.T + K @ Rn @ K.T
         # Inject the error into the nominal state and reset the attitude error's covariance.
-        self.R = self.R @ Rotation.from_rotvec(dx[I_TH]).as_matrix()
+        self.R = self.R @ so3_exp(dx[I_TH])
         self.v = self.v + dx[I_V]
         self.p = self.p + dx[I_P]
         self.bg = self.bg + dx[I_BG]

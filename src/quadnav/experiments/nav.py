@@ -23,7 +23,8 @@ from quadnav.control.trajectories import Waypoints
 from quadnav.errors import ExperimentError, SimError
 from quadnav.estimation.horizon import DelayedHorizonEstimator, HorizonConfig
 from quadnav.estimation.nav_ekf import NavEkf, NavEkfConfig
-from quadnav.messages import HeightSample, ImuSample, PoseSample, VehicleState
+from quadnav.geometry.rotations import quat_xyzw_from_matrix
+from quadnav.messages import HeightSample, ImuSample, PoseSample, Sample, VehicleState
 from quadnav.sim.rigid_body import RigidBodyQuadrotor
 from quadnav.sim.sensors import DelayLine, IntegratingImu
 from quadnav.vehicle import RigidBodyParams
@@ -160,6 +161,9 @@ class NavRunResult:
     fusion: dict[str, dict[str, NDArray[np.float64]]]
     counts: dict[str, dict[str, int]]
     t_align_ns: int
+    stream: list[Sample] | None = (
+        None  # every sample the estimator got, in arrival order (if recorded)
+    )
 
 
 def ground_alignment(imu: list[ImuSample], pose: PoseSample | None) -> tuple[Rotation, FloatArray]:
@@ -175,7 +179,7 @@ def ground_alignment(imu: list[ImuSample], pose: PoseSample | None) -> tuple[Rot
     return Rotation.from_euler("ZYX", [yaw, pitch, roll]), p0
 
 
-def run_nav(sc: NavScenario, seed: int) -> NavRunResult:
+def run_nav(sc: NavScenario, seed: int, *, record_stream: bool = False) -> NavRunResult:
     """Align on the ground, fly the plan, and log truth, estimates and fusions."""
     rng = np.random.default_rng(seed)
     rng_sens, rng_bias = (np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(2))
@@ -216,6 +220,7 @@ def run_nav(sc: NavScenario, seed: int) -> NavRunResult:
     }
     vision_times: list[int] = []
     landed = False
+    stream: list[Sample] | None = [] if record_stream else None
     try:
         for i in range(n_steps):
             truth = sim.state()
@@ -278,12 +283,14 @@ def run_nav(sc: NavScenario, seed: int) -> NavRunResult:
                         t0_ns=t,
                     )
             else:
-                for _, obs in arrived_pose:
-                    est.push(obs)
-                for _, obs_h in arrived_baro:
-                    est.push(obs_h)
+                batch: list[Sample] = [o for _, o in arrived_pose]
+                batch.extend(o for _, o in arrived_baro)
                 if sample is not None:
-                    est.push(sample)
+                    batch.append(sample)
+                for item in batch:
+                    est.push(item)
+                if stream is not None:
+                    stream.extend(batch)
             if sample is not None:
                 last_gyro = sample.gyro_rad_s
             # -- logging at IMU steps after alignment ----------------------------------------
@@ -303,7 +310,7 @@ def run_nav(sc: NavScenario, seed: int) -> NavRunResult:
                 rows["ref"].append(ref_all.p[i])
                 rows["op"].append(out.pos)
                 rows["ov"].append(out.vel)
-                rows["oq"].append(out.att)
+                rows["oq"].append(quat_xyzw_from_matrix(out.att.reshape(3, 3)))
                 td = est.t_delayed_ns
                 rows["td"].append(td)
                 rows["xd"].append(np.concatenate([ekf.p, ekf.v, ekf.q_xyzw, ekf.bg, ekf.ba]))
@@ -333,7 +340,7 @@ def run_nav(sc: NavScenario, seed: int) -> NavRunResult:
                         p_W_B=o.pos,
                         v_W_B=o.vel,
                         a_W_B=np.zeros(3),
-                        q_W_B_xyzw=o.att,
+                        q_W_B_xyzw=quat_xyzw_from_matrix(o.att.reshape(3, 3)),
                         w_B=last_gyro - ekf.bg,
                     )
                 else:
@@ -391,4 +398,5 @@ def run_nav(sc: NavScenario, seed: int) -> NavRunResult:
         fusion=fusion,
         counts=counts,
         t_align_ns=align_ns,
+        stream=stream,
     )

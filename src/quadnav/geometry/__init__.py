@@ -18,9 +18,12 @@ from quadnav.geometry.rotations import (
     cross3,
     geodesic_angle_rad,
     quat_wxyz_to_xyzw,
+    quat_xyzw_from_matrix,
     quat_xyzw_to_wxyz,
     rot_y,
     rotation_matrix_xyzw,
+    so3_exp,
+    so3_log,
 )
 from quadnav.geometry.trajectory import Trajectory
 
@@ -39,9 +42,12 @@ __all__ = [
     "pose_enu_flu_to_ned_frd",
     "pose_ned_frd_to_enu_flu",
     "quat_wxyz_to_xyzw",
+    "quat_xyzw_from_matrix",
     "quat_xyzw_to_wxyz",
     "rot_y",
     "rotation_enu_flu_to_ned_frd",
     "rotation_matrix_xyzw",
     "rotation_ned_frd_to_enu_flu",
+    "so3_exp",
+    "so3_log",
 ]

@@ -7,6 +7,7 @@ validates input.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import overload
 
@@ -83,6 +84,77 @@ def rotation_matrix_xyzw(q: FloatArray) -> FloatArray:
             [2 * (xz - wy), 2 * (yz + wx), 1 - 2 * (xx + yy)],
         ]
     )
+
+
+def so3_exp(rotvec: FloatArray) -> FloatArray:
+    """Rotation matrices (..., 3, 3) of rotation vectors (..., 3) (Rodrigues' formula).
+
+    For filter inner loops; SciPy's ``Rotation.from_rotvec`` gives the same (tested) at a
+    much higher cost per call.
+    """
+    r = np.asarray(rotvec, dtype=np.float64)
+    if r.shape == (3,):  # the common single-vector case, in scalars
+        x, y, z = float(r[0]), float(r[1]), float(r[2])
+        t2 = x * x + y * y + z * z
+        if t2 < 1e-12:
+            a1, b1 = 1.0 - t2 / 6.0, 0.5 - t2 / 24.0
+        else:
+            t = math.sqrt(t2)
+            a1, b1 = math.sin(t) / t, (1.0 - math.cos(t)) / t2
+        return np.array(
+            [
+                [1.0 - b1 * (y * y + z * z), -a1 * z + b1 * x * y, a1 * y + b1 * x * z],
+                [a1 * z + b1 * x * y, 1.0 - b1 * (x * x + z * z), -a1 * x + b1 * y * z],
+                [-a1 * y + b1 * x * z, a1 * x + b1 * y * z, 1.0 - b1 * (x * x + y * y)],
+            ]
+        )
+    th2 = np.sum(r * r, axis=-1)[..., None, None]
+    th = np.sqrt(th2)
+    small = th2 < 1e-12
+    safe = np.where(small, 1.0, th)
+    a = np.where(small, 1.0 - th2 / 6.0, np.sin(safe) / safe)
+    b = np.where(small, 0.5 - th2 / 24.0, (1.0 - np.cos(safe)) / np.where(small, 1.0, th2))
+    K = np.zeros((*r.shape[:-1], 3, 3))
+    K[..., 0, 1], K[..., 0, 2], K[..., 1, 2] = -r[..., 2], r[..., 1], -r[..., 0]
+    K[..., 1, 0], K[..., 2, 0], K[..., 2, 1] = r[..., 2], -r[..., 1], r[..., 0]
+    return np.asarray(np.eye(3) + a * K + b * (K @ K), dtype=np.float64)
+
+
+def so3_log(R: FloatArray) -> FloatArray:
+    """The rotation vector (3,) of a rotation matrix (angles below pi)."""
+    c = min(max((R[0, 0] + R[1, 1] + R[2, 2] - 1.0) / 2.0, -1.0), 1.0)
+    th = math.acos(c)
+    v = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
+    if th < 1e-6:
+        return 0.5 * v
+    return (th / (2.0 * math.sin(th))) * v
+
+
+def quat_xyzw_from_matrix(R: FloatArray) -> FloatArray:
+    """A unit scalar-last quaternion (w >= 0) of a rotation matrix (Shepperd's method)."""
+    t = R[0, 0] + R[1, 1] + R[2, 2]
+    if t > 0:
+        s = 2.0 * math.sqrt(1.0 + t)
+        q = np.array(
+            [(R[2, 1] - R[1, 2]) / s, (R[0, 2] - R[2, 0]) / s, (R[1, 0] - R[0, 1]) / s, 0.25 * s]
+        )
+    elif R[0, 0] > R[1, 1] and R[0, 0] > R[2, 2]:
+        s = 2.0 * math.sqrt(1.0 + R[0, 0] - R[1, 1] - R[2, 2])
+        q = np.array(
+            [0.25 * s, (R[0, 1] + R[1, 0]) / s, (R[0, 2] + R[2, 0]) / s, (R[2, 1] - R[1, 2]) / s]
+        )
+    elif R[1, 1] > R[2, 2]:
+        s = 2.0 * math.sqrt(1.0 + R[1, 1] - R[0, 0] - R[2, 2])
+        q = np.array(
+            [(R[0, 1] + R[1, 0]) / s, 0.25 * s, (R[1, 2] + R[2, 1]) / s, (R[0, 2] - R[2, 0]) / s]
+        )
+    else:
+        s = 2.0 * math.sqrt(1.0 + R[2, 2] - R[0, 0] - R[1, 1])
+        q = np.array(
+            [(R[0, 2] + R[2, 0]) / s, (R[1, 2] + R[2, 1]) / s, 0.25 * s, (R[1, 0] - R[0, 1]) / s]
+        )
+    q /= np.linalg.norm(q)
+    return q if q[3] >= 0 else -q
 
 
 def cross3(a: FloatArray, b: FloatArray) -> FloatArray:
