@@ -87,3 +87,64 @@ def test_config_and_covariance_are_validated() -> None:
         NavEkfConfig(gyro_sigma_rad_s=0.0)
     with pytest.raises(EstimationError, match="P0"):
         NavEkf(NavEkfConfig(), p0=np.zeros(3), v0=np.zeros(3), q0_xyzw=[0, 0, 0, 1], P0=-np.eye(15))
+
+
+def hover_stream(jump_at_s: float, *, with_reset: bool, seconds: float = 6.0):
+    """A vehicle hovering still at the origin: IMU (250 Hz) and vision poses (30 Hz). From
+    ``jump_at_s`` the vision frame moves by (1, 0.5, 0) m and 0.3 rad of yaw."""
+    from quadnav.messages import ImuSample, PoseSample
+
+    rng = np.random.default_rng(0)
+    out = []
+    t, next_v = 0, 0
+    while t < seconds * 1e9:
+        t += 4_000_000
+        if t >= next_v:
+            next_v += 33_333_333
+            jumped = t >= jump_at_s * 1e9
+            p = np.array([1.0, 0.5, 0.0]) if jumped else np.zeros(3)
+            q = Rotation.from_euler("z", 0.3 if jumped else 0.0).as_quat()
+            out.append(PoseSample(t_ns=t, p_W_B=p + rng.normal(0, 0.005, 3), q_W_B_xyzw=q, sigma_pos_m=0.01, sigma_yaw_rad=0.01,
+                                  reset_counter=1 if (jumped and with_reset) else 0))  # fmt: skip
+        out.append(
+            ImuSample(
+                t_ns=t,
+                gyro_rad_s=rng.normal(0, 0.002, 3),
+                accel_m_s2=[0.0, 0.0, G] + rng.normal(0, 0.02, 3),
+            )
+        )
+    return out
+
+
+def hover_estimator():
+    from quadnav.estimation import DelayedHorizonEstimator, HorizonConfig
+
+    ekf = NavEkf(
+        NavEkfConfig(), p0=np.zeros(3), v0=np.zeros(3), q0_xyzw=[0, 0, 0, 1.0], P0=np.eye(15) * 1e-4
+    )
+    return ekf, DelayedHorizonEstimator(
+        ekf, HorizonConfig(imu_period_ns=4_000_000, max_delay_ns=100_000_000), t0_ns=0
+    )
+
+
+def test_a_vision_frame_jump_with_a_reset_counter_is_not_motion() -> None:
+    ekf, est = hover_estimator()
+    worst = 0.0
+    for s in hover_stream(2.0, with_reset=True):
+        est.push(s)
+        worst = max(worst, float(np.linalg.norm(est.output_nav().pos)))
+    assert worst < 0.03  # no jump in the output
+    assert est.stats("vision").rejected_gate == 0
+    assert any("re-anchored" in e for _, e in ekf.events)
+
+
+def test_a_persistently_rejected_source_resets_the_state_and_says_so() -> None:
+    ekf, est = hover_estimator()
+    for s in hover_stream(2.0, with_reset=False):
+        est.push(s)
+    stats = est.stats("vision")
+    assert stats.rejected_gate >= 50  # about 2 s of 30 Hz poses were gated out first
+    assert any("position and heading reset" in e for _, e in ekf.events)
+    np.testing.assert_allclose(
+        ekf.p[0:2], [1.0, 0.5], atol=0.05
+    )  # then it follows the sensor again

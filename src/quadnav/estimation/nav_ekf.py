@@ -158,6 +158,7 @@ class NavEkfConfig:
     accel_bias_rw_m_s2_sqrt_s: float = 1e-3
     gravity_m_s2: float = 9.81
     gate_probability: float = 0.9999
+    reset_after_s: float = 2.0  # a source rejected this long resets the states it observes
 
     def __post_init__(self) -> None:
         for name in (
@@ -206,6 +207,13 @@ class NavEkf:
         self.ba = np.zeros(3) if ba0 is None else np.asarray(ba0, dtype=np.float64).copy()
         self._P = 0.5 * (P0 + P0.T)
         self._gates = {k: float(chi2.ppf(config.gate_probability, k)) for k in (1, 3, 4)}
+        # External-pose frames: per source, the last reset counter and the transform
+        # (yaw, offset) that maps its frame onto the filter's, re-anchored on each reset.
+        self._ev_counter: dict[str, int] = {}
+        self._ev_yaw: dict[str, float] = {}
+        self._ev_offset: dict[str, FloatArray] = {}
+        self._last_accepted_ns: dict[str, int] = {}
+        self.events: list[tuple[int, str]] = []
 
     # -- the DelayedFilter protocol --------------------------------------------------------
     @property
@@ -252,21 +260,82 @@ class NavEkf:
         if isinstance(obs, PositionSample):
             H = np.zeros((3, 15))
             H[:, I_P] = np.eye(3)
-            return self._update(obs.p_W_B - self.p, H, np.eye(3) * obs.sigma_m**2)
+            return self._gated(obs, obs.p_W_B - self.p, H, np.eye(3) * obs.sigma_m**2, obs.p_W_B)
         if isinstance(obs, PoseSample):
-            H = np.zeros((4, 15))
-            H[0:3, I_P] = np.eye(3)
-            H[3, I_TH] = yaw_jacobian(self.R)
-            R_meas = Rotation.from_quat(obs.q_W_B_xyzw).as_matrix()
-            r_yaw = math.remainder(yaw_of(R_meas) - yaw_of(self.R), 2 * math.pi)
-            r = np.concatenate([obs.p_W_B - self.p, [r_yaw]])
-            Rn = np.diag([obs.sigma_pos_m**2] * 3 + [obs.sigma_yaw_rad**2])
-            return self._update(r, H, Rn)
+            return self._fuse_pose(obs)
         if isinstance(obs, HeightSample):
             H = np.zeros((1, 15))
             H[0, 8] = 1.0
-            return self._update(np.array([obs.z_m - self.p[2]]), H, np.array([[obs.sigma_m**2]]))
+            return self._gated(
+                obs, np.array([obs.z_m - self.p[2]]), H, np.array([[obs.sigma_m**2]]), None
+            )
         raise EstimationError(f"the navigation EKF cannot fuse {type(obs).__name__}")
+
+    def _fuse_pose(self, obs: PoseSample) -> FusionResult:
+        src = obs.source
+        R_meas = Rotation.from_quat(obs.q_W_B_xyzw).as_matrix()
+        if src in self._ev_counter and obs.reset_counter != self._ev_counter[src]:
+            # The source re-initialised (new frame): re-anchor its frame on the current estimate
+            # instead of reading the jump as motion.
+            yaw_off = math.remainder(yaw_of(self.R) - yaw_of(R_meas), 2 * math.pi)
+            Rz = so3_exp(np.array([0.0, 0.0, yaw_off]))
+            self._ev_yaw[src] = yaw_off
+            self._ev_offset[src] = self.p - Rz @ obs.p_W_B
+            self.events.append(
+                (obs.t_ns, f"{src}: reset counter {obs.reset_counter}, frame re-anchored")
+            )
+        self._ev_counter[src] = obs.reset_counter
+        yaw_off = self._ev_yaw.get(src, 0.0)
+        Rz = so3_exp(np.array([0.0, 0.0, yaw_off]))
+        p_W = Rz @ obs.p_W_B + self._ev_offset.get(src, np.zeros(3))
+        H = np.zeros((4, 15))
+        H[0:3, I_P] = np.eye(3)
+        H[3, I_TH] = yaw_jacobian(self.R)
+        r_yaw = math.remainder(yaw_of(R_meas) + yaw_off - yaw_of(self.R), 2 * math.pi)
+        r = np.concatenate([p_W - self.p, [r_yaw]])
+        Rn = np.diag([obs.sigma_pos_m**2] * 3 + [obs.sigma_yaw_rad**2])
+        return self._gated(obs, r, H, Rn, p_W)
+
+    def _gated(
+        self, obs: Sample, r: FloatArray, H: FloatArray, Rn: FloatArray, p_meas: FloatArray | None
+    ) -> FusionResult:
+        """Update, and reset the observed position if the source has been rejected too long."""
+        src = getattr(obs, "source", type(obs).__name__)
+        res = self._update(r, H, Rn)
+        if res.accepted:
+            self._last_accepted_ns[src] = obs.t_ns
+            return res
+        since = self._last_accepted_ns.setdefault(src, obs.t_ns)
+        if (obs.t_ns - since) * 1e-9 >= self.config.reset_after_s:
+            # Persistently rejected: trust the sensor again. Reset what it observes to the
+            # measurement, with the measurement's uncertainty, and say so.
+            if p_meas is not None:
+                self.p = p_meas.copy()
+                idx = np.arange(6, 9)
+                self._P[idx, :] = 0.0
+                self._P[:, idx] = 0.0
+                self._P[idx, idx] = np.diag(Rn)[0:3]
+                what = "position"
+                if len(r) == 4:  # a pose: its heading too, turning the attitude about world z
+                    self.R = so3_exp(np.array([0.0, 0.0, float(r[3])])) @ self.R
+                    self._P[2, :] = 0.0
+                    self._P[:, 2] = 0.0
+                    self._P[2, 2] = float(Rn[3, 3])
+                    what = "position and heading"
+            else:
+                self.p[2] += float(r[0])
+                self._P[8, :] = 0.0
+                self._P[:, 8] = 0.0
+                self._P[8, 8] = float(Rn[0, 0])
+                what = "height"
+            self._last_accepted_ns[src] = obs.t_ns
+            self.events.append(
+                (
+                    obs.t_ns,
+                    f"{src}: rejected for {self.config.reset_after_s:g} s, {what} reset to it",
+                )
+            )
+        return res
 
     def _update(self, r: FloatArray, H: FloatArray, Rn: FloatArray) -> FusionResult:
         S = H @ self._P @ H.T + Rn

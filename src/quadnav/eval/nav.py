@@ -83,6 +83,7 @@ def nav_metrics(r: NavRunResult) -> dict[str, Any]:
         "nees_mean": float(nees(r.delayed_err[ok], r.delayed_P[ok]).mean()),
         "nis_above_95pct_gate": ratios,
         "counts": r.counts,
+        "filter_events": [f"{t * 1e-9:.3f} s: {msg}" for t, msg in (r.events or [])],
         "landed_at_m": r.truth_p[-1].tolist(),
     }
 

@@ -398,5 +398,6 @@ def run_nav(sc: NavScenario, seed: int, *, record_stream: bool = False) -> NavRu
         fusion=fusion,
         counts=counts,
         t_align_ns=align_ns,
+        events=list(ekf.events),
         stream=stream,
     )
