@@ -161,8 +161,9 @@ class NavRunResult:
     fusion: dict[str, dict[str, NDArray[np.float64]]]
     counts: dict[str, dict[str, int]]
     t_align_ns: int
+    events: list[tuple[int, str]] | None = None  # the filter's own log (re-anchors, resets)
     stream: list[Sample] | None = (
-        None  # every sample the estimator got, in arrival order (if recorded)
+        None  # every sample the estimator got, in arrival order, if recorded
     )
 
 
