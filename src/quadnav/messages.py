@@ -17,8 +17,10 @@ from numpy.typing import NDArray
 from quadnav.errors import SampleError
 
 __all__ = [
+    "GpsSample",
     "HeightSample",
     "ImuSample",
+    "MagSample",
     "PoseSample",
     "PositionSample",
     "RangeScan",
@@ -141,6 +143,58 @@ class HeightSample:
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
+class GpsSample:
+    """A GNSS fix: geodetic latitude/longitude (degrees, WGS84), ellipsoidal altitude (m) and
+    the velocity in the local ENU frame, with standard deviations."""
+
+    t_ns: int
+    lat_deg: float
+    lon_deg: float
+    alt_m: float
+    v_enu_m_s: FloatArray
+    sigma_h_m: float
+    sigma_v_m: float
+    sigma_vel_m_s: float
+    source: str = "gps"
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "t_ns", check_t_ns(self.t_ns, "GpsSample"))
+        object.__setattr__(self, "v_enu_m_s", _array(self.v_enu_m_s, (3,), "GpsSample.v_enu_m_s"))
+        for name in ("lat_deg", "lon_deg", "alt_m", "sigma_h_m", "sigma_v_m", "sigma_vel_m_s"):
+            v = float(getattr(self, name))
+            if not np.isfinite(v):
+                raise SampleError(f"GpsSample.{name} must be finite, got {v}")
+            object.__setattr__(self, name, v)
+        if not (-90.0 <= self.lat_deg <= 90.0 and -180.0 <= self.lon_deg <= 180.0):
+            raise SampleError(
+                f"GpsSample: latitude/longitude out of range: {self.lat_deg}, {self.lon_deg}"
+            )
+        if min(self.sigma_h_m, self.sigma_v_m, self.sigma_vel_m_s) <= 0:
+            raise SampleError("GpsSample standard deviations must be > 0")
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class MagSample:
+    """A magnetometer reading: the magnetic field in the body frame (FLU), any unit."""
+
+    t_ns: int
+    field_B: FloatArray
+    sigma_heading_rad: float
+    source: str = "mag"
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "t_ns", check_t_ns(self.t_ns, "MagSample"))
+        f = _array(self.field_B, (3,), "MagSample.field_B")
+        if float(np.linalg.norm(f)) == 0.0:
+            raise SampleError("MagSample.field_B is zero")
+        object.__setattr__(self, "field_B", f)
+        v = float(self.sigma_heading_rad)
+        if not np.isfinite(v) or v <= 0:
+            raise SampleError(f"MagSample.sigma_heading_rad must be finite and > 0, got {v}")
+        object.__setattr__(self, "sigma_heading_rad", v)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
 class RangeScan:
     """A planar laser scan in the body frame: ray ``i`` points at ``angle_min_rad + i *
     angle_increment_rad`` from body +x (counter-clockwise, about body +z); ``ranges_m`` holds
@@ -171,7 +225,7 @@ class RangeScan:
         )
 
 
-Sample = ImuSample | PositionSample | PoseSample | HeightSample
+Sample = ImuSample | PositionSample | PoseSample | HeightSample | GpsSample | MagSample
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

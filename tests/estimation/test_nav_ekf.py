@@ -1,5 +1,7 @@
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -148,3 +150,58 @@ def test_a_persistently_rejected_source_resets_the_state_and_says_so() -> None:
     np.testing.assert_allclose(
         ekf.p[0:2], [1.0, 0.5], atol=0.05
     )  # then it follows the sensor again
+
+
+def test_gps_and_magnetometer_pull_position_and_heading_onto_the_truth() -> None:
+    """A still vehicle at (3, -2, 1) m facing 0.4 rad; the filter starts at the origin facing
+    0.2 rad and must find both from GNSS fixes and the magnetometer."""
+    import pymap3d
+
+    from quadnav.estimation import DelayedHorizonEstimator, HorizonConfig
+    from quadnav.messages import GpsSample, ImuSample
+    from quadnav.sim.sensors import MagSensor
+
+    datum = (47.397742, 8.545594, 488.0)
+    p_true, yaw_true = np.array([3.0, -2.0, 1.0]), 0.4
+    R_true = Rotation.from_euler("z", yaw_true)
+    ekf = NavEkf(
+        NavEkfConfig(datum_lla=datum, mag_declination_rad=0.05),
+        p0=np.zeros(3), v0=np.zeros(3), q0_xyzw=Rotation.from_euler("z", 0.2).as_quat(),
+        P0=np.diag([1e-4, 1e-4, 0.3**2] + [0.1**2] * 3 + [5.0**2] * 3 + [1e-4] * 3 + [1e-3] * 3),
+    )  # fmt: skip
+    est = DelayedHorizonEstimator(
+        ekf, HorizonConfig(imu_period_ns=4_000_000, max_delay_ns=200_000_000), t0_ns=0
+    )
+    mag = MagSensor(period_ns=20_000_000, declination_rad=0.05, noise_sigma=0.002)
+    rng = np.random.default_rng(1)
+    from quadnav.messages import VehicleState
+
+    truth = VehicleState(
+        t_ns=0,
+        p_W_B=p_true,
+        v_W_B=np.zeros(3),
+        a_W_B=np.zeros(3),
+        q_W_B_xyzw=R_true.as_quat(),
+        w_B=np.zeros(3),
+    )
+    f_B = R_true.apply([0.0, 0.0, G], inverse=True)
+    for k in range(1, 2500):  # 10 s
+        t = k * 4_000_000
+        if k % 50 == 0:
+            lat, lon, alt = pymap3d.enu2geodetic(*(p_true + rng.normal(0, 0.3, 3)), *datum)
+            est.push(GpsSample(t_ns=t, lat_deg=lat, lon_deg=lon, alt_m=alt, v_enu_m_s=rng.normal(0, 0.05, 3),
+                               sigma_h_m=0.3, sigma_v_m=0.3, sigma_vel_m_s=0.05))  # fmt: skip
+        m = mag.sample(truth, t, rng)
+        if m is not None:
+            est.push(m)
+        est.push(
+            ImuSample(
+                t_ns=t, gyro_rad_s=rng.normal(0, 0.001, 3), accel_m_s2=f_B + rng.normal(0, 0.01, 3)
+            )
+        )
+    np.testing.assert_allclose(ekf.p, p_true, atol=0.25)
+    assert (
+        abs(math.remainder(Rotation.from_matrix(ekf.R).as_euler("ZYX")[0] - yaw_true, 2 * math.pi))
+        < 0.02
+    )
+    assert est.stats("gps").fused >= 45 and est.stats("mag").fused >= 450

@@ -90,3 +90,33 @@ def test_scenario_validation() -> None:
         NavScenario.model_validate({"vision": {"enabled": False}, "baro": {"enabled": False}})
     with pytest.raises(ValueError, match="end after"):
         NavScenario.model_validate({"vision": {"dropouts_s": [[3.0, 2.0]]}})
+
+
+def test_ground_alignment_heading_from_the_magnetometer() -> None:
+    from quadnav.messages import VehicleState
+    from quadnav.sim.sensors import MagSensor
+
+    R_true = Rotation.from_euler("ZYX", [-1.2, 0.03, 0.02])
+    truth = VehicleState(
+        t_ns=0,
+        p_W_B=np.zeros(3),
+        v_W_B=np.zeros(3),
+        a_W_B=np.zeros(3),
+        q_W_B_xyzw=R_true.as_quat(),
+        w_B=np.zeros(3),
+    )
+    mag = MagSensor(period_ns=1, declination_rad=0.1, noise_sigma=0.0)
+    samples = [mag.sample(truth, k, np.random.default_rng(0)) for k in range(0, 10, 2)]
+    imu = [
+        ImuSample(t_ns=k, gyro_rad_s=[0, 0, 0], accel_m_s2=R_true.apply([0, 0, 9.81], inverse=True))
+        for k in range(1, 5)
+    ]
+    R0, p0 = ground_alignment(
+        imu,
+        None,
+        mag=[s for s in samples if s is not None],
+        declination_rad=0.1,
+        gps_enu_m=np.array([5.0, 6.0, 0.0]),
+    )
+    assert (R0.inv() * R_true).magnitude() < 1e-6
+    np.testing.assert_allclose(p0, [5.0, 6.0, 0.0])

@@ -22,6 +22,16 @@ __all__ = ["BUILTIN_RUNS", "run_command"]
 BUILTIN_RUNS: dict[str, list[str]] = {
     "indoor_vision": [],
     "indoor_vision_truth_control": ["closed_loop=false"],
+    "outdoor_gps": [
+        "vision.enabled=false",
+        "gps.enabled=true",
+        "mag.enabled=true",
+        "plan.height_m=5",
+        "plan.square_m=20",
+        "plan.speed_m_s=3",
+        "plan.accel_m_s2=2",
+        "plan.hold_s=3",
+    ],
 }
 
 
@@ -30,7 +40,7 @@ def run_command(
     scenario: Annotated[
         str | None,
         typer.Argument(
-            help="built-in scenario (indoor_vision, indoor_vision_truth_control, planar) or YAML"
+            help="built-in scenario (indoor_vision, indoor_vision_truth_control, outdoor_gps, planar) or YAML"
         ),
     ] = None,
     set_: SetOpt = None,
@@ -43,7 +53,7 @@ def run_command(
     A quadrotor aligns on the ground, takes off to 1.5 m, holds, flies a 2 m square, holds and
     lands, flown by a cascaded PID on the navigation EKF's output predictor; a delayed
     external pose (30 Hz, 250 ms, 1 cm) drops out twice for 2 s. SCENARIO is a built-in name
-    (indoor_vision, indoor_vision_truth_control, planar) or a YAML file.
+    (indoor_vision, indoor_vision_truth_control, outdoor_gps, planar) or a YAML file.
 
     Examples:
 

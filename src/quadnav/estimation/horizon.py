@@ -35,8 +35,10 @@ from numpy.typing import NDArray
 
 from quadnav.errors import EstimationError
 from quadnav.messages import (
+    GpsSample,
     HeightSample,
     ImuSample,
+    MagSample,
     PoseSample,
     PositionSample,
     Sample,
@@ -324,7 +326,9 @@ class DelayedHorizonEstimator:
         Nothing a sample carries makes this raise: a late, out-of-order or unusable sample is
         rejected and counted (see :meth:`stats`). Only a non-sample is a programming error.
         """
-        if not isinstance(sample, ImuSample | PositionSample | PoseSample | HeightSample):
+        if not isinstance(
+            sample, ImuSample | PositionSample | PoseSample | HeightSample | GpsSample | MagSample
+        ):
             raise EstimationError(f"push() takes samples, got {type(sample).__name__}")
         if isinstance(sample, ImuSample):
             self._push_imu(sample)

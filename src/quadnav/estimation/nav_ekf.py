@@ -29,8 +29,10 @@ from quadnav.errors import EstimationError
 from quadnav.estimation.horizon import FusionResult, NavState
 from quadnav.geometry.rotations import quat_xyzw_from_matrix, so3_exp, so3_log
 from quadnav.messages import (
+    GpsSample,
     HeightSample,
     ImuSample,
+    MagSample,
     PoseSample,
     PositionSample,
     Sample,
@@ -159,6 +161,10 @@ class NavEkfConfig:
     gravity_m_s2: float = 9.81
     gate_probability: float = 0.9999
     reset_after_s: float = 2.0  # a source rejected this long resets the states it observes
+    datum_lla: tuple[float, float, float] | None = (
+        None  # GNSS origin of the world frame; None: first fix
+    )
+    mag_declination_rad: float = 0.0  # east of true north
 
     def __post_init__(self) -> None:
         for name in (
@@ -206,7 +212,9 @@ class NavEkf:
         self.bg = np.zeros(3) if bg0 is None else np.asarray(bg0, dtype=np.float64).copy()
         self.ba = np.zeros(3) if ba0 is None else np.asarray(ba0, dtype=np.float64).copy()
         self._P = 0.5 * (P0 + P0.T)
-        self._gates = {k: float(chi2.ppf(config.gate_probability, k)) for k in (1, 3, 4)}
+        self._gates = {k: float(chi2.ppf(config.gate_probability, k)) for k in (1, 3, 4, 6)}
+        self._datum = config.datum_lla
+        self._datum_offset = np.zeros(3)
         # External-pose frames: per source, the last reset counter and the transform
         # (yaw, offset) that maps its frame onto the filter's, re-anchored on each reset.
         self._ev_counter: dict[str, int] = {}
@@ -233,7 +241,7 @@ class NavEkf:
         return NavState(t_ns, self.p.copy(), self.v.copy(), self.R.ravel().copy())
 
     def can_fuse(self, obs: Sample) -> bool:
-        return isinstance(obs, PositionSample | PoseSample | HeightSample)
+        return isinstance(obs, PositionSample | PoseSample | HeightSample | GpsSample | MagSample)
 
     def imu_biases(self) -> tuple[FloatArray, FloatArray]:
         return self.bg, self.ba
@@ -269,7 +277,41 @@ class NavEkf:
             return self._gated(
                 obs, np.array([obs.z_m - self.p[2]]), H, np.array([[obs.sigma_m**2]]), None
             )
+        if isinstance(obs, GpsSample):
+            return self._fuse_gps(obs)
+        if isinstance(obs, MagSample):
+            return self._fuse_mag(obs)
         raise EstimationError(f"the navigation EKF cannot fuse {type(obs).__name__}")
+
+    def gps_to_enu(self, obs: GpsSample) -> FloatArray:
+        """A fix in the world frame: ENU about the datum (the first fix when none was given)."""
+        import pymap3d
+
+        if self._datum is None:
+            self._datum = (obs.lat_deg, obs.lon_deg, obs.alt_m)
+            self._datum_offset = self.p.copy()
+        e, n, u = pymap3d.geodetic2enu(obs.lat_deg, obs.lon_deg, obs.alt_m, *self._datum)
+        return np.array([float(e), float(n), float(u)]) + self._datum_offset
+
+    def _fuse_gps(self, obs: GpsSample) -> FusionResult:
+        p_W = self.gps_to_enu(obs)
+        H = np.zeros((6, 15))
+        H[0:3, I_P] = np.eye(3)
+        H[3:6, I_V] = np.eye(3)
+        r = np.concatenate([p_W - self.p, obs.v_enu_m_s - self.v])
+        Rn = np.diag([obs.sigma_h_m**2] * 2 + [obs.sigma_v_m**2] + [obs.sigma_vel_m_s**2] * 3)
+        res = self._gated(obs, r, H, Rn, p_W)
+        return res
+
+    def _fuse_mag(self, obs: MagSample) -> FusionResult:
+        """Heading from the magnetometer: the field rotated into the world by the estimated
+        attitude should point at magnetic north (declination east of true north)."""
+        m_W = self.R @ obs.field_B
+        expected = math.pi / 2 - self.config.mag_declination_rad
+        r = math.remainder(expected - math.atan2(m_W[1], m_W[0]), 2 * math.pi)
+        H = np.zeros((1, 15))
+        H[0, I_TH] = yaw_jacobian(self.R)
+        return self._gated(obs, np.array([r]), H, np.array([[obs.sigma_heading_rad**2]]), None)
 
     def _fuse_pose(self, obs: PoseSample) -> FusionResult:
         src = obs.source
@@ -322,6 +364,12 @@ class NavEkf:
                     self._P[:, 2] = 0.0
                     self._P[2, 2] = float(Rn[3, 3])
                     what = "position and heading"
+            elif isinstance(obs, MagSample):
+                self.R = so3_exp(np.array([0.0, 0.0, float(r[0])])) @ self.R
+                self._P[2, :] = 0.0
+                self._P[:, 2] = 0.0
+                self._P[2, 2] = float(Rn[0, 0])
+                what = "heading"
             else:
                 self.p[2] += float(r[0])
                 self._P[8, :] = 0.0

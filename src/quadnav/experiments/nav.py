@@ -24,9 +24,17 @@ from quadnav.errors import ExperimentError, SimError
 from quadnav.estimation.horizon import DelayedHorizonEstimator, HorizonConfig
 from quadnav.estimation.nav_ekf import NavEkf, NavEkfConfig
 from quadnav.geometry.rotations import quat_xyzw_from_matrix
-from quadnav.messages import HeightSample, ImuSample, PoseSample, Sample, VehicleState
+from quadnav.messages import (
+    GpsSample,
+    HeightSample,
+    ImuSample,
+    MagSample,
+    PoseSample,
+    Sample,
+    VehicleState,
+)
 from quadnav.sim.rigid_body import RigidBodyQuadrotor
-from quadnav.sim.sensors import DelayLine, IntegratingImu
+from quadnav.sim.sensors import DelayLine, GpsSensor, IntegratingImu, MagSensor
 from quadnav.vehicle import RigidBodyParams
 
 __all__ = ["NavRunResult", "NavScenario", "ground_alignment", "run_nav"]
@@ -68,6 +76,29 @@ class BaroSection(_Section):
     sigma_m: float = Field(0.1, gt=0)
 
 
+class GpsSection(_Section):
+    enabled: bool = False
+    rate_hz: float = Field(5.0, gt=0)
+    delay_s: float = Field(0.2, ge=0)
+    sigma_h_m: float = Field(0.5, gt=0)
+    sigma_v_m: float = Field(0.8, gt=0)
+    sigma_vel_m_s: float = Field(0.1, gt=0)
+    datum_lla: tuple[float, float, float] = Field(
+        (47.397742, 8.545594, 488.0), description="lat deg, lon deg, alt m"
+    )
+    outages_s: list[tuple[float, float]] = Field(
+        default_factory=list, description="[start, end) without a fix"
+    )
+
+
+class MagSection(_Section):
+    enabled: bool = False
+    rate_hz: float = Field(50.0, gt=0)
+    declination_rad: float = 0.05
+    noise_sigma: float = Field(0.005, ge=0, description="per axis, in the field's unit (gauss)")
+    sigma_heading_rad: float = Field(0.03, gt=0, description="heading noise the filter assumes")
+
+
 class PlanSection(_Section):
     height_m: float = Field(1.5, gt=0)
     square_m: float = Field(2.0, gt=0)
@@ -100,6 +131,8 @@ class NavScenario(_Section):
     imu: ImuSection = ImuSection()
     vision: VisionSection = VisionSection()
     baro: BaroSection = BaroSection()
+    gps: GpsSection = GpsSection()
+    mag: MagSection = MagSection()
     plan: PlanSection = PlanSection()
     estimator: EstimatorSection = EstimatorSection()
 
@@ -107,8 +140,10 @@ class NavScenario(_Section):
     def _check(self) -> Self:
         if self.imu.rate_hz > 1.0 / self.sim_dt_s:
             raise ValueError("imu.rate_hz is faster than the simulation step")
-        if not self.vision.enabled and not self.baro.enabled:
-            raise ValueError("vision and baro are both disabled: nothing bounds the position")
+        if not (self.vision.enabled or self.gps.enabled):
+            raise ValueError(
+                "vision and gps are both disabled: nothing bounds the horizontal position"
+            )
         for a, b in self.vision.dropouts_s:
             if not b > a:
                 raise ValueError(
@@ -167,16 +202,36 @@ class NavRunResult:
     )
 
 
-def ground_alignment(imu: list[ImuSample], pose: PoseSample | None) -> tuple[Rotation, FloatArray]:
+def ground_alignment(
+    imu: list[ImuSample],
+    pose: PoseSample | None,
+    *,
+    mag: list[MagSample] | None = None,
+    declination_rad: float = 0.0,
+    gps_enu_m: FloatArray | None = None,
+) -> tuple[Rotation, FloatArray]:
     """Initial attitude and position on the ground: roll and pitch from the mean specific
-    force (gravity), heading and position from the external pose (or zero without one)."""
+    force (gravity); heading from the external pose, else from the magnetometer; position from
+    the external pose, else from a GNSS fix (already in ENU), else the origin."""
     if not imu:
         raise ExperimentError("alignment needs IMU samples on the ground")
     f = np.mean([s.accel_m_s2 for s in imu], axis=0)
     roll = math.atan2(f[1], f[2])
     pitch = math.atan2(-f[0], math.hypot(f[1], f[2]))
-    yaw = 0.0 if pose is None else float(Rotation.from_quat(pose.q_W_B_xyzw).as_euler("ZYX")[0])
-    p0 = np.zeros(3) if pose is None else pose.p_W_B.copy()
+    yaw = 0.0
+    if pose is not None:
+        yaw = float(Rotation.from_quat(pose.q_W_B_xyzw).as_euler("ZYX")[0])
+    elif mag:
+        m = Rotation.from_euler("ZYX", [0.0, pitch, roll]).apply(
+            np.mean([s.field_B for s in mag], axis=0)
+        )
+        yaw = math.remainder(math.pi / 2 - declination_rad - math.atan2(m[1], m[0]), 2 * math.pi)
+    if pose is not None:
+        p0 = pose.p_W_B.copy()
+    elif gps_enu_m is not None:
+        p0 = np.asarray(gps_enu_m, dtype=np.float64).copy()
+    else:
+        p0 = np.zeros(3)
     return Rotation.from_euler("ZYX", [yaw, pitch, roll]), p0
 
 
@@ -204,6 +259,16 @@ def run_nav(sc: NavScenario, seed: int, *, record_stream: bool = False) -> NavRu
     vision_line: DelayLine[PoseSample] = DelayLine(delay_ns=round(sc.vision.delay_s * 1e9))
     baro_line: DelayLine[HeightSample] = DelayLine(delay_ns=round(sc.baro.delay_s * 1e9))
     dropouts_ns = [(round(a * 1e9), round(b * 1e9)) for a, b in sc.vision.dropouts_s]
+    gps = GpsSensor(
+        datum_lla=sc.gps.datum_lla, period_ns=round(1e9 / sc.gps.rate_hz), sigma_h_m=sc.gps.sigma_h_m,
+        sigma_v_m=sc.gps.sigma_v_m, sigma_vel_m_s=sc.gps.sigma_vel_m_s,
+        outages_ns=[(round(a * 1e9), round(b * 1e9)) for a, b in sc.gps.outages_s],
+    ) if sc.gps.enabled else None  # fmt: skip
+    gps_line: DelayLine[GpsSample] = DelayLine(delay_ns=round(sc.gps.delay_s * 1e9))
+    mag = MagSensor(period_ns=round(1e9 / sc.mag.rate_hz), declination_rad=sc.mag.declination_rad,
+                    noise_sigma=sc.mag.noise_sigma, sigma_heading_rad=sc.mag.sigma_heading_rad) if sc.mag.enabled else None  # fmt: skip
+    align_mag: list[MagSample] = []
+    first_fix: GpsSample | None = None
     next_vision = next_baro = 0
     plan = sc.waypoints()
     align_ns = round(sc.estimator.align_s * 1e9)
@@ -240,6 +305,11 @@ def run_nav(sc: NavScenario, seed: int, *, record_stream: bool = False) -> NavRu
                                       sigma_pos_m=sc.vision.sigma_m, sigma_yaw_rad=sc.vision.yaw_sigma_rad)  # fmt: skip
                     vision_line.push(pose)
                     vision_times.append(t)
+            if gps is not None:
+                fix = gps.sample(truth, t, rng_sens)
+                if fix is not None:
+                    gps_line.push(fix)
+            mag_now = mag.sample(truth, t, rng_sens) if mag is not None else None
             if sc.baro.enabled and t >= next_baro:
                 next_baro += round(1e9 / sc.baro.rate_hz)
                 z = float(truth.p_W_B[2] + sc.baro.sigma_m * rng_sens.standard_normal())
@@ -248,15 +318,45 @@ def run_nav(sc: NavScenario, seed: int, *, record_stream: bool = False) -> NavRu
             sample = imu.accumulate(truth, dt, rng_sens) if i > 0 else None
             arrived_pose = vision_line.pop_arrived(t)
             arrived_baro = baro_line.pop_arrived(t)
+            arrived_gps = gps_line.pop_arrived(t)
             if est is None:
                 if sample is not None:
                     align_imu.append(sample)
                 for _, pz in arrived_pose:
                     last_pose = pz
+                for _, fx in arrived_gps:
+                    first_fix = first_fix or fx
+                if mag_now is not None:
+                    align_mag.append(mag_now)
                 if t >= align_ns and align_imu:
-                    R0, p0 = ground_alignment(align_imu, last_pose)
-                    sig = np.array([0.02, 0.02, sc.vision.yaw_sigma_rad * 3 if last_pose else 1.0] + [0.05] * 3
-                                   + [sc.vision.sigma_m * 3 if last_pose else 0.1] * 3
+                    gps_enu = None
+                    if first_fix is not None:
+                        import pymap3d
+
+                        gps_enu = np.array(
+                            pymap3d.geodetic2enu(
+                                first_fix.lat_deg,
+                                first_fix.lon_deg,
+                                first_fix.alt_m,
+                                *sc.gps.datum_lla,
+                            )
+                        )
+                    R0, p0 = ground_alignment(
+                        align_imu,
+                        last_pose,
+                        mag=align_mag,
+                        declination_rad=sc.mag.declination_rad,
+                        gps_enu_m=gps_enu,
+                    )
+                    yaw_sig = (
+                        sc.vision.yaw_sigma_rad * 3 if last_pose else (0.1 if align_mag else 1.0)
+                    )
+                    pos_sig = (
+                        sc.vision.sigma_m * 3
+                        if last_pose
+                        else (sc.gps.sigma_h_m * 2 if first_fix else 0.1)
+                    )
+                    sig = np.array([0.02, 0.02, yaw_sig] + [0.05] * 3 + [pos_sig] * 3
                                    + [max(ic.gyro_bias0_sigma_rad_s, 1e-4)] * 3 + [max(ic.accel_bias0_sigma_m_s2, 1e-3)] * 3)  # fmt: skip
                     ekf = NavEkf(
                         NavEkfConfig(
@@ -266,12 +366,15 @@ def run_nav(sc: NavScenario, seed: int, *, record_stream: bool = False) -> NavRu
                             accel_bias_rw_m_s2_sqrt_s=ic.accel_bias_rw_m_s2_sqrt_s * sc.estimator.bias_rw_inflation,
                             gravity_m_s2=params.gravity_m_s2,
                             gate_probability=sc.estimator.gate_probability,
+                            datum_lla=sc.gps.datum_lla,
+                            mag_declination_rad=sc.mag.declination_rad,
                         ),
                         p0=p0, v0=np.zeros(3), q0_xyzw=R0.as_quat(), P0=np.diag(sig**2),
                     )  # fmt: skip
                     max_delay = max(
                         sc.vision.delay_s if sc.vision.enabled else 0.0,
                         sc.baro.delay_s if sc.baro.enabled else 0.0,
+                        sc.gps.delay_s if sc.gps.enabled else 0.0,
                     )
                     est = DelayedHorizonEstimator(
                         ekf,
@@ -286,6 +389,9 @@ def run_nav(sc: NavScenario, seed: int, *, record_stream: bool = False) -> NavRu
             else:
                 batch: list[Sample] = [o for _, o in arrived_pose]
                 batch.extend(o for _, o in arrived_baro)
+                batch.extend(o for _, o in arrived_gps)
+                if mag_now is not None:
+                    batch.append(mag_now)
                 if sample is not None:
                     batch.append(sample)
                 for item in batch:

@@ -17,12 +17,37 @@ from numpy.random import Generator
 from scipy.spatial.transform import Rotation
 
 from quadnav.errors import SimError
-from quadnav.messages import HeightSample, ImuSample, PoseSample, PositionSample, VehicleState
+from quadnav.messages import (
+    GpsSample,
+    HeightSample,
+    ImuSample,
+    MagSample,
+    PoseSample,
+    PositionSample,
+    VehicleState,
+)
 
-__all__ = ["DelayLine", "ImuSensor", "IntegratingImu", "PositionSensor", "Sensor"]
+__all__ = [
+    "DelayLine",
+    "GpsSensor",
+    "ImuSensor",
+    "IntegratingImu",
+    "MagSensor",
+    "PositionSensor",
+    "Sensor",
+]
 
-S = TypeVar("S", ImuSample, PositionSample, PoseSample, HeightSample)
-S_co = TypeVar("S_co", ImuSample, PositionSample, PoseSample, HeightSample, covariant=True)
+S = TypeVar("S", ImuSample, PositionSample, PoseSample, HeightSample, GpsSample, MagSample)
+S_co = TypeVar(
+    "S_co",
+    ImuSample,
+    PositionSample,
+    PoseSample,
+    HeightSample,
+    GpsSample,
+    MagSample,
+    covariant=True,
+)
 
 
 class Sensor(Protocol[S_co]):
@@ -197,3 +222,87 @@ class IntegratingImu:
         self._sum_f[:] = 0.0
         self._sum_dt = 0.0
         return sample
+
+
+class GpsSensor:
+    """A GNSS receiver: geodetic fixes (via pymap3d from the local ENU truth about a datum) and
+    ENU velocity, with Gaussian noise, a fixed rate and optional windows without a fix."""
+
+    def __init__(
+        self,
+        *,
+        datum_lla: tuple[float, float, float],
+        period_ns: int,
+        sigma_h_m: float,
+        sigma_v_m: float,
+        sigma_vel_m_s: float,
+        outages_ns: list[tuple[int, int]] | None = None,
+    ) -> None:
+        if period_ns <= 0 or min(sigma_h_m, sigma_v_m, sigma_vel_m_s) <= 0:
+            raise SimError("GpsSensor needs period_ns > 0 and positive standard deviations")
+        self.datum = datum_lla
+        self.period_ns = int(period_ns)
+        self.sh, self.sv, self.svel = float(sigma_h_m), float(sigma_v_m), float(sigma_vel_m_s)
+        self.outages = outages_ns or []
+        self._next = 0
+
+    def sample(self, truth: VehicleState, t_ns: int, rng: Generator) -> GpsSample | None:
+        import pymap3d
+
+        if t_ns < self._next:
+            return None
+        self._next = t_ns + self.period_ns
+        if any(a <= t_ns < b for a, b in self.outages):
+            return None
+        e, n, u = truth.p_W_B + rng.standard_normal(3) * np.array([self.sh, self.sh, self.sv])
+        lat, lon, alt = pymap3d.enu2geodetic(e, n, u, *self.datum)
+        return GpsSample(
+            t_ns=t_ns, lat_deg=float(lat), lon_deg=float(lon), alt_m=float(alt),
+            v_enu_m_s=truth.v_W_B + self.svel * rng.standard_normal(3),
+            sigma_h_m=self.sh, sigma_v_m=self.sv, sigma_vel_m_s=self.svel,
+        )  # fmt: skip
+
+
+class MagSensor:
+    """A magnetometer: the earth field (pointing to magnetic north, declination east of true
+    north, dipping down) in the body frame, plus white noise and a hard-iron offset."""
+
+    def __init__(
+        self,
+        *,
+        period_ns: int,
+        declination_rad: float = 0.0,
+        inclination_rad: float = 1.1,
+        strength: float = 0.5,
+        noise_sigma: float = 0.005,
+        hard_iron: tuple[float, float, float] = (0.0, 0.0, 0.0),
+        sigma_heading_rad: float = 0.03,
+    ) -> None:
+        if period_ns <= 0 or strength <= 0 or noise_sigma < 0 or sigma_heading_rad <= 0:
+            raise SimError(
+                "MagSensor needs period_ns > 0, strength > 0, noise_sigma >= 0, sigma_heading_rad > 0"
+            )
+        h = strength * math.cos(inclination_rad)
+        self.field_W = np.array(
+            [
+                h * math.sin(declination_rad),
+                h * math.cos(declination_rad),
+                -strength * math.sin(inclination_rad),
+            ]
+        )
+        self.period_ns = int(period_ns)
+        self.noise = float(noise_sigma)
+        self.hard_iron = np.asarray(hard_iron, dtype=np.float64)
+        self.sigma_heading = float(sigma_heading_rad)
+        self._next = 0
+
+    def sample(self, truth: VehicleState, t_ns: int, rng: Generator) -> MagSample | None:
+        if t_ns < self._next:
+            return None
+        self._next = t_ns + self.period_ns
+        m_B = Rotation.from_quat(truth.q_W_B_xyzw).apply(self.field_W, inverse=True)
+        return MagSample(
+            t_ns=t_ns,
+            field_B=m_B + self.hard_iron + self.noise * rng.standard_normal(3),
+            sigma_heading_rad=self.sigma_heading,
+        )
