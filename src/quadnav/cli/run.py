@@ -90,6 +90,7 @@ def run_command(
     table.add_column("metric")
     table.add_column("value", justify="right")
     rows = [
+        ("output position RMSE in the air (m)", s["output_rmse_m"]),
         ("output position RMSE with vision (m)", s["output_rmse_with_vision_m"]),
         ("error at the end of a dropout, worst (m)", s["dropout_end_error_max_m"]),
         ("back under 3 cm after a dropout, worst (s)", s["dropout_recovery_max_s"]),
@@ -97,6 +98,8 @@ def run_command(
         ("delayed estimate RMSE (m)", s["delayed_rmse_m"]),
         ("attitude RMSE (deg)", s["attitude_rmse_deg"]),
         ("NEES, mean (15 states)", s["nees_mean"]),
+        ("gyro bias error / true bias at the end", s["gyro_bias_error_fraction_median"]),
+        ("accel bias error / true bias at the end", s["accel_bias_error_fraction_median"]),
     ]
     for k, v in rows:
         table.add_row(k, f"{v:.4g}")
