@@ -214,6 +214,11 @@ class NavEkf:
         self._P = 0.5 * (P0 + P0.T)
         self._gates = {k: float(chi2.ppf(config.gate_probability, k)) for k in (1, 3, 4, 6)}
         self._datum = config.datum_lla
+        self._g_W = np.array([0.0, 0.0, -config.gravity_m_s2])
+        self._jac_dt = math.nan
+        self._F = np.eye(15)
+        self._G = np.zeros((15, 12))
+        self._q = np.zeros(12)
         self._datum_offset = np.zeros(3)
         # External-pose frames: per source, the last reset counter and the transform
         # (yaw, offset) that maps its frame onto the filter's, re-anchored on each reset.
@@ -246,22 +251,48 @@ class NavEkf:
     def imu_biases(self) -> tuple[FloatArray, FloatArray]:
         return self.bg, self.ba
 
+    def _jacobians_into(
+        self, R_new: FloatArray, f: FloatArray, w: FloatArray, dt: float
+    ) -> tuple[FloatArray, FloatArray]:
+        """:func:`nav_jacobians` filled into preallocated arrays: the constant blocks are set
+        once per step size, only the state-dependent ones every step (the hot path)."""
+        if dt != self._jac_dt:
+            F, G = nav_jacobians(R_new, f, w, dt)
+            self._F, self._G, self._jac_dt = F, G, dt
+            c = self.config
+            self._q = np.array(
+                [c.gyro_sigma_rad_s**2] * 3
+                + [c.accel_sigma_m_s2**2] * 3
+                + [c.gyro_bias_rw_rad_s_sqrt_s**2 * dt] * 3
+                + [c.accel_bias_rw_m_s2_sqrt_s**2 * dt] * 3
+            )
+            return F, G
+        F, G = self._F, self._G
+        A = so3_exp(w * dt).T
+        Rf = R_new @ skew(f)
+        FvTH = -dt * Rf @ A
+        F[I_TH, I_TH] = A
+        F[I_V, I_TH] = FvTH
+        F[I_V, I_BG] = dt * dt * Rf
+        F[I_V, I_BA] = -dt * R_new
+        F[I_P, I_TH] = dt * FvTH
+        F[I_P, I_BG] = dt**3 * Rf
+        F[I_P, I_BA] = -dt * dt * R_new
+        G[I_V, 0:3] = dt * dt * Rf
+        G[I_V, 3:6] = -dt * R_new
+        G[I_P, 0:3] = dt**3 * Rf
+        G[I_P, 3:6] = -dt * dt * R_new
+        return F, G
+
     def predict(self, imu: ImuSample, dt_s: float) -> None:
-        c = self.config
         w = imu.gyro_rad_s - self.bg
         f = imu.accel_m_s2 - self.ba
         R_new = self.R @ so3_exp(w * dt_s)
-        F, G = nav_jacobians(R_new, f, w, dt_s)
-        self.v = self.v + dt_s * (R_new @ f + np.array([0.0, 0.0, -c.gravity_m_s2]))
+        F, G = self._jacobians_into(R_new, f, w, dt_s)
+        self.v = self.v + dt_s * (R_new @ f + self._g_W)
         self.p = self.p + dt_s * self.v
         self.R = R_new
-        Q = np.diag(
-            [c.gyro_sigma_rad_s**2] * 3
-            + [c.accel_sigma_m_s2**2] * 3
-            + [c.gyro_bias_rw_rad_s_sqrt_s**2 * dt_s] * 3
-            + [c.accel_bias_rw_m_s2_sqrt_s**2 * dt_s] * 3
-        )
-        P = F @ self._P @ F.T + G @ Q @ G.T
+        P = F @ self._P @ F.T + (G * self._q) @ G.T
         self._P = 0.5 * (P + P.T)
 
     def fuse(self, obs: Sample) -> FusionResult:
