@@ -51,9 +51,13 @@ def nav_metrics(r: NavRunResult) -> dict[str, Any]:
         dropout_end.append(float(err[k]))
         back = np.flatnonzero((t > b) & (err < 0.03))
         recovery.append(float(t[back[0]] - b) if len(back) else math.nan)
-    # Holds at altitude: reference still at the flight height, after its first second.
-    still = np.concatenate([[False], np.all(np.diff(r.ref_p, axis=0) == 0, axis=1)]) & (
-        r.ref_p[:, 2] >= sc.plan.height_m - 1e-9
+    # Hover: the holds at flight height above the take-off point (after the climb and before
+    # the descent), from their first second on. The corner stops of the square are not hovers.
+    above_start = np.all(np.abs(r.ref_p[:, 0:2] - r.ref_p[0, 0:2]) < 1e-9, axis=1)
+    still = (
+        np.concatenate([[False], np.all(np.diff(r.ref_p, axis=0) == 0, axis=1)])
+        & (r.ref_p[:, 2] >= sc.plan.height_m - 1e-9)
+        & above_start
     )
     hold = np.zeros(len(t), dtype=bool)
     start = None
