@@ -17,6 +17,7 @@ __all__ = [
     "QuadnavError",
     "SampleError",
     "SimError",
+    "VisionError",
 ]
 
 
@@ -58,3 +59,7 @@ class ConfigError(IoError):
 
 class EvalError(QuadnavError):
     """Evaluation inputs do not fit together."""
+
+
+class VisionError(QuadnavError):
+    """A camera model, dictionary, marker map or image the vision code cannot use."""

@@ -23,6 +23,7 @@ __all__ = [
     "MagSample",
     "PoseSample",
     "PositionSample",
+    "RangeSample",
     "RangeScan",
     "Sample",
     "StateEstimate",
@@ -195,6 +196,36 @@ class MagSample:
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
+class RangeSample:
+    """A downward range finder: the distance along the body's -z axis to the ground (m).
+
+    ``min_m``/``max_m`` is the sensor's valid span; a reading outside it is not a sample.
+    """
+
+    t_ns: int
+    range_m: float
+    sigma_m: float
+    min_m: float = 0.05
+    max_m: float = 10.0
+    source: str = "range"
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "t_ns", check_t_ns(self.t_ns, "RangeSample"))
+        for name in ("range_m", "sigma_m", "min_m", "max_m"):
+            v = float(getattr(self, name))
+            if not np.isfinite(v):
+                raise SampleError(f"RangeSample.{name} must be finite, got {v}")
+            object.__setattr__(self, name, v)
+        if self.sigma_m <= 0:
+            raise SampleError(f"RangeSample.sigma_m must be > 0, got {self.sigma_m}")
+        if not self.min_m <= self.range_m <= self.max_m:
+            raise SampleError(
+                f"RangeSample.range_m {self.range_m} outside the valid span "
+                f"[{self.min_m}, {self.max_m}]"
+            )
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
 class RangeScan:
     """A planar laser scan in the body frame: ray ``i`` points at ``angle_min_rad + i *
     angle_increment_rad`` from body +x (counter-clockwise, about body +z); ``ranges_m`` holds
@@ -225,7 +256,9 @@ class RangeScan:
         )
 
 
-Sample = ImuSample | PositionSample | PoseSample | HeightSample | GpsSample | MagSample
+Sample = (
+    ImuSample | PositionSample | PoseSample | HeightSample | GpsSample | MagSample | RangeSample
+)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

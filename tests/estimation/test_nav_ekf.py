@@ -8,6 +8,7 @@ from scipy.spatial.transform import Rotation
 
 from quadnav.errors import EstimationError
 from quadnav.estimation.nav_ekf import NavEkf, NavEkfConfig, nav_jacobians, yaw_jacobian, yaw_of
+from quadnav.geometry.rotations import so3_exp
 
 G = 9.81
 
@@ -28,6 +29,20 @@ def boxminus(a, b):
     Rb, vb, pb, bgb, bab = b
     return np.concatenate(
         [Rotation.from_matrix(Rb.T @ Ra).as_rotvec(), va - vb, pa - pb, bga - bgb, baa - bab]
+    )
+
+
+def attitude_derivative(fun, R, eps: float = 1e-7):
+    """Central differences of a scalar ``fun(R Exp(dtheta))`` with respect to dtheta (3,)."""
+    return np.array(
+        [
+            (
+                fun(R @ Rotation.from_rotvec(d).as_matrix())
+                - fun(R @ Rotation.from_rotvec(-d).as_matrix())
+            )
+            / (2 * eps)
+            for d in np.eye(3) * eps
+        ]
     )
 
 
@@ -72,16 +87,7 @@ def test_yaw_jacobian_matches_finite_differences(seed: int) -> None:
     R = Rotation.from_euler(
         "ZYX", np.random.default_rng(seed).uniform([-3, -0.6, -0.6], [3, 0.6, 0.6])
     ).as_matrix()
-    eps = 1e-7
-    num = [
-        (
-            yaw_of(R @ Rotation.from_rotvec(d).as_matrix())
-            - yaw_of(R @ Rotation.from_rotvec(-d).as_matrix())
-        )
-        / (2 * eps)
-        for d in np.eye(3) * eps
-    ]
-    np.testing.assert_allclose(yaw_jacobian(R), num, atol=1e-6)
+    np.testing.assert_allclose(yaw_jacobian(R), attitude_derivative(yaw_of, R), atol=1e-6)
 
 
 def test_config_and_covariance_are_validated() -> None:
@@ -215,7 +221,135 @@ def test_in_place_jacobians_match_the_reference() -> None:
     for _ in range(3):  # the first call sets the constant blocks, the others take the fast path
         R = Rotation.random(random_state=int(rng.integers(100))).as_matrix()
         f, w = rng.normal(size=3), rng.normal(size=3)
-        F, G = ekf._jacobians_into(R, f, w, 0.004)
+        F, G = ekf._jacobians_into(R, f, w, 0.004, so3_exp(w * 0.004))
         F_ref, G_ref = nav_jacobians(R, f, w, 0.004)
         np.testing.assert_allclose(F, F_ref, atol=1e-15)
         np.testing.assert_allclose(G, G_ref, atol=1e-15)
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_range_jacobian_matches_finite_differences(seed: int) -> None:
+    from quadnav.estimation.nav_ekf import range_jacobian
+
+    rng = np.random.default_rng(seed)
+    R = Rotation.from_euler("ZYX", rng.uniform([-3, -0.5, -0.5], [3, 0.5, 0.5])).as_matrix()
+    h = float(rng.uniform(0.3, 5.0))
+    pred, J = range_jacobian(R, h)
+    # the range is the distance along body -z to the plane h below
+    assert pred == pytest.approx(h / (R @ [0, 0, 1])[2])
+    num = attitude_derivative(lambda Rp: range_jacobian(Rp, h)[0], R)
+    np.testing.assert_allclose(J, num, atol=1e-6)
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_range_finder_corrects_height_of_a_tilted_vehicle(seed: int) -> None:
+    """A still vehicle 2 m above the ground, rolled 0.3 rad; the filter starts 0.5 m too low
+    and must find the height from the tilted range readings alone."""
+    from quadnav.estimation import DelayedHorizonEstimator, HorizonConfig
+    from quadnav.messages import ImuSample, RangeSample
+
+    rng = np.random.default_rng(seed)
+    R_true = Rotation.from_euler("x", 0.3)
+    f_B = R_true.apply([0, 0, G], inverse=True)
+    P0 = np.diag([1e-4] * 3 + [1e-4] * 3 + [1e-2, 1e-2, 0.5**2] + [1e-8] * 6)
+    ekf = NavEkf(
+        NavEkfConfig(),
+        p0=np.array([0.0, 0.0, 1.5]),
+        v0=np.zeros(3),
+        q0_xyzw=R_true.as_quat(),
+        P0=P0,
+    )
+    est = DelayedHorizonEstimator(
+        ekf, HorizonConfig(imu_period_ns=4_000_000, max_delay_ns=40_000_000), t0_ns=0
+    )
+    true_range = 2.0 / math.cos(0.3)
+    for k in range(1, 1500):
+        t = k * 4_000_000
+        if k % 5 == 0:
+            est.push(RangeSample(t_ns=t, range_m=true_range + rng.normal(0, 0.02), sigma_m=0.02))
+        est.push(
+            ImuSample(
+                t_ns=t, gyro_rad_s=rng.normal(0, 0.002, 3), accel_m_s2=f_B + rng.normal(0, 0.02, 3)
+            )
+        )
+    assert ekf.p[2] == pytest.approx(2.0, abs=0.03)
+    assert est.stats("range").fused > 250
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_rotated_vision_frame_is_estimated_as_px4_does(seed: int) -> None:
+    """Thesis 000 eqs 3.7-3.8: the vision frame is turned 0.8 rad and offset from the world;
+    heading comes from the magnetometer. The filter finds the frame's yaw and puts the
+    vehicle, which starts at the world origin and moves, where it is."""
+    from quadnav.estimation import DelayedHorizonEstimator, HorizonConfig
+    from quadnav.messages import ImuSample, MagSample, PoseSample
+
+    rng = np.random.default_rng(seed)
+    yaw_V = 0.8
+    R_W_V = Rotation.from_euler("z", yaw_V)
+    p_W_V = np.array([3.0, -1.0, 0.2])
+    heading = 0.5  # the vehicle's true yaw in the world
+    R_W_B = Rotation.from_euler("z", heading)
+    field_W = np.array([0.0, 0.2, -0.4])  # north and down
+    ekf = NavEkf(
+        NavEkfConfig(vision_frame="rotate"),
+        p0=np.zeros(3),
+        v0=np.zeros(3),
+        q0_xyzw=Rotation.from_euler("z", heading + 0.1).as_quat(),
+        P0=np.diag([1e-4, 1e-4, 0.1**2] + [1e-3] * 3 + [1e-4] * 3 + [1e-8] * 6),
+    )
+    est = DelayedHorizonEstimator(
+        ekf, HorizonConfig(imu_period_ns=4_000_000, max_delay_ns=100_000_000), t0_ns=0
+    )
+    # A slow, constant-velocity drift east (0.1 m/s) from the world origin.
+    vel = np.array([0.1, 0.0, 0.0])
+    for k in range(1, 5000):
+        t = k * 4_000_000
+        p_W = vel * t * 1e-9
+        if k % 8 == 0:
+            p_V = R_W_V.apply(p_W - p_W_V, inverse=True)
+            q_V = (R_W_V.inv() * R_W_B).as_quat()
+            est.push(PoseSample(t_ns=t, p_W_B=p_V + rng.normal(0, 0.01, 3), q_W_B_xyzw=q_V,
+                                sigma_pos_m=0.01, sigma_yaw_rad=0.01))  # fmt: skip
+        if k % 5 == 0:
+            m = R_W_B.apply(field_W, inverse=True) + rng.normal(0, 0.003, 3)
+            est.push(MagSample(t_ns=t, field_B=m, sigma_heading_rad=0.03))
+        est.push(ImuSample(t_ns=t, gyro_rad_s=rng.normal(0, 0.002, 3),
+                           accel_m_s2=R_W_B.apply([0, 0, G], inverse=True) + rng.normal(0, 0.02, 3)))  # fmt: skip
+    yaw = ekf.vision_frame_yaw()
+    assert yaw is not None
+    assert abs(math.remainder(yaw - yaw_V, 2 * math.pi)) < 0.03
+    assert abs(math.remainder(yaw_of(ekf.R) - heading, 2 * math.pi)) < 0.03
+    # The position is the world's (the origin where it started), not the vision frame's.
+    p_true = vel * est.t_delayed_ns * 1e-9
+    assert np.linalg.norm(ekf.p - p_true) < 0.1
+
+
+def test_raw_readings_with_nan_are_rejected_and_counted() -> None:
+    from quadnav.messages import HeightSample, ImuSample
+
+    ekf, est = hover_estimator()
+    good = est.push_raw(ImuSample, t_ns=4_000_000, gyro_rad_s=np.zeros(3), accel_m_s2=[0, 0, G])
+    bad = est.push_raw(
+        ImuSample, t_ns=8_000_000, gyro_rad_s=[0.0, math.nan, 0.0], accel_m_s2=[0, 0, G]
+    )
+    also_bad = est.push_raw(HeightSample, t_ns=8_000_000, z_m=math.inf, sigma_m=0.1)
+    assert (good, bad, also_bad) == (True, False, False)
+    assert est.rejected_invalid == {"ImuSample": 1, "HeightSample": 1}
+    assert est.t_now_ns == 4_000_000  # the bad sample did not move time
+    assert np.isfinite(ekf.P).all()
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_magnetometer_heading_jacobian_matches_finite_differences(seed: int) -> None:
+    from quadnav.estimation.nav_ekf import mag_heading_jacobian
+
+    rng = np.random.default_rng(seed)
+    R = Rotation.from_euler("ZYX", rng.uniform([-3, -0.5, -0.5], [3, 0.5, 0.5])).as_matrix()
+    m_B = R.T @ np.array([0.0, 0.2, -0.45])  # a field dipping 66 degrees, as at mid latitudes
+    h, J = mag_heading_jacobian(R, m_B)
+    assert h == pytest.approx(np.pi / 2)
+    num = attitude_derivative(lambda Rp: mag_heading_jacobian(Rp, m_B)[0], R)
+    np.testing.assert_allclose(J, num, atol=1e-6)
+    # tilt matters: with the field dipping, a roll or pitch error moves the heading
+    assert np.abs(J[0:2]).max() > 0.1

@@ -103,3 +103,77 @@ def test_bad_sensor_settings() -> None:
         DelayLine(delay_ns=0, jitter_ns=10).push(
             PositionSample(t_ns=0, p_W_B=[0, 0, 0], sigma_m=1.0)
         )
+
+
+def _state(t_ns: int, p, yaw: float = 0.0, roll: float = 0.0, w=(0.0, 0.0, 0.0)) -> VehicleState:
+    return VehicleState(
+        t_ns=t_ns,
+        p_W_B=np.asarray(p, dtype=float),
+        v_W_B=np.zeros(3),
+        a_W_B=np.zeros(3),
+        q_W_B_xyzw=Rotation.from_euler("ZYX", [yaw, 0.0, roll]).as_quat(),
+        w_B=np.asarray(w, dtype=float),
+    )
+
+
+def test_vision_pose_is_expressed_in_its_rotated_offset_frame_and_jumps_bump_the_counter() -> None:
+    from quadnav.sim.sensors import VisionFrameJump, VisionPoseSensor
+
+    sensor = VisionPoseSensor(
+        period_ns=10, sigma_m=1e-9, yaw_sigma_rad=1e-9, frame_yaw_rad=np.pi / 2,
+        frame_offset_m=(1.0, 2.0, 0.0), dropouts_ns=[(100, 200)],
+        jumps=[VisionFrameJump(t_ns=300, yaw_rad=0.0, offset_m=(0.5, 0.0, 0.0))],
+    )  # fmt: skip
+    rng = np.random.default_rng(0)
+    s = sensor.sample(_state(0, [1.0, 3.0, 1.0], yaw=np.pi / 2), 0, rng)
+    assert s is not None
+    # world (1,3,1) is (0,1,1) from the frame origin; the frame's x points world north
+    np.testing.assert_allclose(s.p_W_B, [1.0, 0.0, 1.0], atol=1e-6)
+    assert abs(Rotation.from_quat(s.q_W_B_xyzw).as_euler("ZYX")[0]) < 1e-6
+    assert s.reset_counter == 0
+    assert sensor.sample(_state(150, [0, 0, 0]), 150, rng) is None  # dropout
+    s2 = sensor.sample(_state(300, [1.0, 3.0, 1.0], yaw=np.pi / 2), 300, rng)
+    assert s2 is not None and s2.reset_counter == 1
+    np.testing.assert_allclose(s2.p_W_B, [0.5, 0.0, 1.0], atol=1e-6)
+
+
+def test_range_finder_reads_along_the_tilted_body_axis_and_respects_its_span() -> None:
+    from quadnav.sim.sensors import RangeFinder
+
+    rf = RangeFinder(period_ns=1, sigma_m=1e-9, max_m=4.0, max_tilt_rad=0.5)
+    rng = np.random.default_rng(0)
+    s = rf.sample(_state(0, [0, 0, 2.0], roll=0.3), 0, rng)
+    assert s is not None
+    assert s.range_m == pytest.approx(2.0 / np.cos(0.3), abs=1e-6)
+    assert rf.sample(_state(10, [0, 0, 5.0]), 10, rng) is None  # beyond max_m
+    assert rf.sample(_state(20, [0, 0, 1.0], roll=0.6), 20, rng) is None  # too tilted
+
+
+def test_barometer_drift_grows_like_a_random_walk() -> None:
+    from quadnav.sim.sensors import BaroSensor
+
+    finals = []
+    for seed in range(200):
+        b = BaroSensor(period_ns=10_000_000, sigma_m=1e-6, drift_m_sqrt_s=0.01)
+        rng = np.random.default_rng(seed)
+        for k in range(400):  # 4 s
+            s = b.sample(_state(k * 10_000_000, [0, 0, 1.0]), k * 10_000_000, rng)
+        assert s is not None
+        finals.append(s.z_m - 1.0)
+    # after 4 s the offset's spread is 0.01 * sqrt(4) = 0.02 m
+    assert np.std(finals) == pytest.approx(0.02, rel=0.15)
+
+
+def test_imu_lever_arm_adds_the_centripetal_acceleration() -> None:
+    from quadnav.sim.sensors import IntegratingImu
+
+    imu = IntegratingImu(
+        period_ns=4_000_000, gyro_sigma_rad_s=0.0, accel_sigma_m_s2=0.0, lever_arm_m=(0.1, 0.0, 0.0)
+    )
+    rng = np.random.default_rng(0)
+    out = None
+    for k in range(1, 5):  # spinning at a constant 2 rad/s about z
+        out = imu.accumulate(_state(k * 1_000_000, [0, 0, 0], w=(0, 0, 2.0)), 1e-3, rng) or out
+    assert out is not None
+    # w x (w x r) = -|w|^2 r: 0.4 m/s^2 towards the centre, on top of gravity
+    np.testing.assert_allclose(out.accel_m_s2, [-0.4, 0.0, 9.81], atol=1e-9)

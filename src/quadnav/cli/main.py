@@ -5,6 +5,7 @@ from __future__ import annotations
 import typer
 
 from quadnav.cli.eval import eval_command
+from quadnav.cli.markers import markers_command
 from quadnav.cli.planar import planar_command
 from quadnav.cli.run import run_command
 from quadnav.cli.sim import sim_command
@@ -22,6 +23,7 @@ app.command("run")(run_command)
 app.command("planar")(planar_command)
 app.command("eval")(eval_command)
 app.command("sim")(sim_command)
+app.command("markers")(markers_command)
 
 
 def main() -> None:

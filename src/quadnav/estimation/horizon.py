@@ -27,13 +27,14 @@ from __future__ import annotations
 import heapq
 import math
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
 
-from quadnav.errors import EstimationError
+from quadnav.errors import EstimationError, SampleError
 from quadnav.messages import (
     GpsSample,
     HeightSample,
@@ -41,6 +42,7 @@ from quadnav.messages import (
     MagSample,
     PoseSample,
     PositionSample,
+    RangeSample,
     Sample,
     StateEstimate,
     check_t_ns,
@@ -227,6 +229,7 @@ class _Counters:
     imu_received: int = 0
     imu_rejected_out_of_order: int = 0
     sources: dict[str, SourceStats] = field(default_factory=dict)
+    invalid: dict[str, int] = field(default_factory=dict)
 
 
 class DelayedHorizonEstimator:
@@ -307,6 +310,11 @@ class DelayedHorizonEstimator:
     def imu_rejected_out_of_order(self) -> int:
         return self._counters.imu_rejected_out_of_order
 
+    @property
+    def rejected_invalid(self) -> dict[str, int]:
+        """Raw readings refused at the boundary by :meth:`push_raw`, per sample type."""
+        return dict(self._counters.invalid)
+
     def stats(self, source: str) -> SourceStats:
         """Counters of one observation source (zeros if it never sent anything)."""
         return self._counters.sources.get(source, SourceStats())
@@ -327,13 +335,36 @@ class DelayedHorizonEstimator:
         rejected and counted (see :meth:`stats`). Only a non-sample is a programming error.
         """
         if not isinstance(
-            sample, ImuSample | PositionSample | PoseSample | HeightSample | GpsSample | MagSample
+            sample,
+            ImuSample
+            | PositionSample
+            | PoseSample
+            | HeightSample
+            | GpsSample
+            | MagSample
+            | RangeSample,
         ):
             raise EstimationError(f"push() takes samples, got {type(sample).__name__}")
         if isinstance(sample, ImuSample):
             self._push_imu(sample)
         else:
             self._push_observation(sample)
+
+    def push_raw(self, kind: Callable[..., Sample], /, **fields: Any) -> bool:
+        """Build a sample of type ``kind`` from a driver's raw fields and push it.
+
+        A reading the sample type refuses (a NaN, a wrong shape, a bad timestamp) is counted
+        under :attr:`rejected_invalid` and dropped; the loop goes on. Returns whether it was
+        taken.
+        """
+        try:
+            sample = kind(**fields)
+        except SampleError:
+            name = getattr(kind, "__name__", str(kind))
+            self._counters.invalid[name] = self._counters.invalid.get(name, 0) + 1
+            return False
+        self.push(sample)
+        return True
 
     def _push_observation(self, obs: Sample) -> None:
         source = getattr(obs, "source", type(obs).__name__)
@@ -450,9 +481,10 @@ class DelayedHorizonEstimator:
         vel_corr = vel_err * vel_gain + self._vel_err_integ * (vel_gain**2 * 0.1)
         pos_corr = pos_err * pos_gain + self._pos_err_integ * (pos_gain**2 * 0.1)
         self._ob_vel += vel_corr
-        self._ob_pos += pos_corr
         if self.config.propagate_velocity_correction:
             # A velocity change at the delayed horizon moves every later state by that
             # change times its age; PX4 leaves this to later integration.
             age_s = (self._ob_t - self._ob_t[oldest]) * 1e-9
-            self._ob_pos += age_s[:, None] * vel_corr
+            self._ob_pos += pos_corr + age_s[:, None] * vel_corr
+        else:
+            self._ob_pos += pos_corr

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Self
+from typing import Literal, Self
 
 import numpy as np
 from numpy.typing import NDArray
@@ -23,18 +23,28 @@ from quadnav.control.trajectories import Waypoints
 from quadnav.errors import ExperimentError, SimError
 from quadnav.estimation.horizon import DelayedHorizonEstimator, HorizonConfig
 from quadnav.estimation.nav_ekf import NavEkf, NavEkfConfig
-from quadnav.geometry.rotations import quat_xyzw_from_matrix
+from quadnav.geometry.rotations import quat_xyzw_from_matrix, rotation_matrix_xyzw, so3_log
 from quadnav.messages import (
     GpsSample,
     HeightSample,
     ImuSample,
     MagSample,
     PoseSample,
+    RangeSample,
     Sample,
     VehicleState,
 )
 from quadnav.sim.rigid_body import RigidBodyQuadrotor
-from quadnav.sim.sensors import DelayLine, GpsSensor, IntegratingImu, MagSensor
+from quadnav.sim.sensors import (
+    BaroSensor,
+    DelayLine,
+    GpsSensor,
+    IntegratingImu,
+    MagSensor,
+    RangeFinder,
+    VisionFrameJump,
+    VisionPoseSensor,
+)
 from quadnav.vehicle import RigidBodyParams
 
 __all__ = ["NavRunResult", "NavScenario", "ground_alignment", "run_nav"]
@@ -55,6 +65,9 @@ class ImuSection(_Section):
     accel_bias_rw_m_s2_sqrt_s: float = Field(1e-3, gt=0)
     gyro_bias0_sigma_rad_s: float = Field(0.01, ge=0, description="turn-on bias spread")
     accel_bias0_sigma_m_s2: float = Field(0.05, ge=0, description="turn-on bias spread")
+    lever_arm_m: Vec3 = Field(
+        (0.0, 0.0, 0.0), description="IMU mount offset from the centre of mass (body FLU)"
+    )
 
 
 class VisionSection(_Section):
@@ -67,6 +80,12 @@ class VisionSection(_Section):
         default_factory=lambda: [(9.0, 11.0), (15.0, 17.0)],
         description="[start, end) windows with no vision",
     )
+    frame_yaw_deg: float = Field(0.0, description="yaw of the vision frame in the world")
+    frame_offset_m: Vec3 = Field((0.0, 0.0, 0.0), description="vision frame origin in the world")
+    jumps: list[tuple[float, float, float, float, float]] = Field(
+        default_factory=list,
+        description="[t_s, yaw_deg, dx_m, dy_m, dz_m]: the vision frame re-initialises (reset counter + 1)",
+    )
 
 
 class BaroSection(_Section):
@@ -74,6 +93,33 @@ class BaroSection(_Section):
     rate_hz: float = Field(50.0, gt=0)
     delay_s: float = Field(0.02, ge=0)
     sigma_m: float = Field(0.1, gt=0)
+    drift_m_sqrt_s: float = Field(0.002, ge=0, description="random-walk drift of the offset")
+
+
+class RangeSection(_Section):
+    enabled: bool = False
+    rate_hz: float = Field(20.0, gt=0)
+    delay_s: float = Field(0.01, ge=0)
+    sigma_m: float = Field(0.02, gt=0)
+    max_m: float = Field(8.0, gt=0)
+
+
+class FaultsSection(_Section):
+    """Faults injected into the sensor streams (times in seconds of flight time)."""
+
+    gps_glitch: list[tuple[float, float, float, float]] = Field(
+        default_factory=list, description="[start_s, end_s, east_m, north_m]: fixes jump by this"
+    )
+    imu_nan_s: list[float] = Field(
+        default_factory=list, description="an IMU sample carrying NaN at these times"
+    )
+    imu_repeat_s: list[float] = Field(
+        default_factory=list, description="an IMU sample delivered twice (the copy is out of order)"
+    )
+    vision_late_s: list[tuple[float, float]] = Field(
+        default_factory=list,
+        description="[t_s, extra_delay_s]: the vision sample of t_s arrives this much later",
+    )
 
 
 class GpsSection(_Section):
@@ -96,7 +142,7 @@ class MagSection(_Section):
     rate_hz: float = Field(50.0, gt=0)
     declination_rad: float = 0.05
     noise_sigma: float = Field(0.005, ge=0, description="per axis, in the field's unit (gauss)")
-    sigma_heading_rad: float = Field(0.03, gt=0, description="heading noise the filter assumes")
+    sigma_heading_rad: float = Field(0.023, gt=0, description="heading noise the filter assumes")
 
 
 class PlanSection(_Section):
@@ -105,6 +151,10 @@ class PlanSection(_Section):
     speed_m_s: float = Field(1.0, gt=0)
     accel_m_s2: float = Field(1.0, gt=0)
     hold_s: float = Field(2.0, ge=0)
+    yaw: Literal["fixed", "along_track"] = Field(
+        "fixed", description="fixed: face +x throughout; along_track: face the direction of travel"
+    )
+    yaw_rate_deg_s: float = Field(45.0, gt=0, description="turn rate of the along-track heading")
 
 
 class EstimatorSection(_Section):
@@ -113,6 +163,12 @@ class EstimatorSection(_Section):
     gate_probability: float = Field(0.9999, gt=0, lt=1)
     align_s: float = Field(0.5, gt=0, description="time on the ground to level the filter")
     imu_noise_inflation: float = Field(1.0, ge=1.0, description="filter's IMU noise / the sensor's")
+    vision_frame: Literal["world", "rotate"] = Field(
+        "world",
+        description="world: the vision frame is the navigation frame (its yaw fused); rotate: "
+        "PX4's rotated external vision, heading from the magnetometer (thesis 000 eqs 3.7-3.8)",
+    )
+    reset_after_s: float = Field(2.0, gt=0, description="a source rejected this long resets")
     bias_rw_inflation: float = Field(
         3.0,
         ge=1.0,
@@ -133,6 +189,8 @@ class NavScenario(_Section):
     baro: BaroSection = BaroSection()
     gps: GpsSection = GpsSection()
     mag: MagSection = MagSection()
+    range: RangeSection = RangeSection()
+    faults: FaultsSection = FaultsSection()
     plan: PlanSection = PlanSection()
     estimator: EstimatorSection = EstimatorSection()
 
@@ -143,6 +201,17 @@ class NavScenario(_Section):
         if not (self.vision.enabled or self.gps.enabled):
             raise ValueError(
                 "vision and gps are both disabled: nothing bounds the horizontal position"
+            )
+        frame_moved = self.vision.frame_yaw_deg != 0 or any(self.vision.frame_offset_m)
+        if self.estimator.vision_frame == "world" and frame_moved:
+            raise ValueError(
+                "vision.frame_yaw_deg/frame_offset_m need estimator.vision_frame=rotate: with "
+                "vision_frame=world the vision frame is the navigation frame"
+            )
+        if self.estimator.vision_frame == "rotate" and not self.mag.enabled:
+            raise ValueError(
+                "estimator.vision_frame=rotate takes the heading from the magnetometer: "
+                "set mag.enabled=true"
             )
         for a, b in self.vision.dropouts_s:
             if not b > a:
@@ -202,6 +271,33 @@ class NavRunResult:
     )
 
 
+def heading_reference(
+    v: FloatArray, dt_s: float, mode: str, max_rate_rad_s: float, min_speed_m_s: float = 0.2
+) -> FloatArray:
+    """Yaw setpoints per step: 0, or the direction of horizontal travel (held while slow),
+    turned towards at no more than ``max_rate_rad_s``."""
+    n = len(v)
+    out = np.zeros(n)
+    if mode == "fixed":
+        return out
+    target, yaw, step = 0.0, 0.0, max_rate_rad_s * dt_s
+    for k in range(n):
+        if math.hypot(v[k, 0], v[k, 1]) > min_speed_m_s:
+            target = math.atan2(v[k, 1], v[k, 0])
+        yaw += min(max(math.remainder(target - yaw, 2 * math.pi), -step), step)
+        out[k] = yaw
+    return out
+
+
+def _stack_padded(rows: list[FloatArray]) -> FloatArray:
+    """Innovations of one source as rows (a source's size may vary: padded with NaN)."""
+    width = max((len(r) for r in rows), default=0)
+    out = np.full((len(rows), width), np.nan)
+    for k, r in enumerate(rows):
+        out[k, : len(r)] = r
+    return out
+
+
 def ground_alignment(
     imu: list[ImuSample],
     pose: PoseSample | None,
@@ -255,25 +351,42 @@ def run_nav(sc: NavScenario, seed: int, *, record_stream: bool = False) -> NavRu
         gyro_bias0_rad_s=tuple(ic.gyro_bias0_sigma_rad_s * rng_bias.standard_normal(3)),
         accel_bias0_m_s2=tuple(ic.accel_bias0_sigma_m_s2 * rng_bias.standard_normal(3)),
         gravity_m_s2=params.gravity_m_s2,
+        lever_arm_m=ic.lever_arm_m,
     )
-    vision_line: DelayLine[PoseSample] = DelayLine(delay_ns=round(sc.vision.delay_s * 1e9))
+    vs = sc.vision
+    vision = VisionPoseSensor(
+        period_ns=round(1e9 / vs.rate_hz), sigma_m=vs.sigma_m, yaw_sigma_rad=vs.yaw_sigma_rad,
+        frame_yaw_rad=math.radians(vs.frame_yaw_deg), frame_offset_m=vs.frame_offset_m,
+        dropouts_ns=[(round(a * 1e9), round(b * 1e9)) for a, b in vs.dropouts_s],
+        jumps=[VisionFrameJump(round(t * 1e9), math.radians(y), (dx, dy, dz)) for t, y, dx, dy, dz in vs.jumps],
+    ) if vs.enabled else None  # fmt: skip
+    vision_line: DelayLine[PoseSample] = DelayLine(delay_ns=round(vs.delay_s * 1e9))
+    late_vision = sorted((round(t * 1e9), round(d * 1e9)) for t, d in sc.faults.vision_late_s)
+    baro = BaroSensor(period_ns=round(1e9 / sc.baro.rate_hz), sigma_m=sc.baro.sigma_m,
+                      drift_m_sqrt_s=sc.baro.drift_m_sqrt_s) if sc.baro.enabled else None  # fmt: skip
     baro_line: DelayLine[HeightSample] = DelayLine(delay_ns=round(sc.baro.delay_s * 1e9))
-    dropouts_ns = [(round(a * 1e9), round(b * 1e9)) for a, b in sc.vision.dropouts_s]
+    rangefinder = RangeFinder(period_ns=round(1e9 / sc.range.rate_hz), sigma_m=sc.range.sigma_m,
+                              max_m=sc.range.max_m) if sc.range.enabled else None  # fmt: skip
+    range_line: DelayLine[RangeSample] = DelayLine(delay_ns=round(sc.range.delay_s * 1e9))
     gps = GpsSensor(
         datum_lla=sc.gps.datum_lla, period_ns=round(1e9 / sc.gps.rate_hz), sigma_h_m=sc.gps.sigma_h_m,
         sigma_v_m=sc.gps.sigma_v_m, sigma_vel_m_s=sc.gps.sigma_vel_m_s,
         outages_ns=[(round(a * 1e9), round(b * 1e9)) for a, b in sc.gps.outages_s],
+        glitches=[(round(a * 1e9), round(b * 1e9), (e, n, 0.0)) for a, b, e, n in sc.faults.gps_glitch],
     ) if sc.gps.enabled else None  # fmt: skip
     gps_line: DelayLine[GpsSample] = DelayLine(delay_ns=round(sc.gps.delay_s * 1e9))
     mag = MagSensor(period_ns=round(1e9 / sc.mag.rate_hz), declination_rad=sc.mag.declination_rad,
                     noise_sigma=sc.mag.noise_sigma, sigma_heading_rad=sc.mag.sigma_heading_rad) if sc.mag.enabled else None  # fmt: skip
+    imu_nan = sorted(round(t * 1e9) for t in sc.faults.imu_nan_s)
+    imu_repeat = sorted(round(t * 1e9) for t in sc.faults.imu_repeat_s)
+    rotate = sc.estimator.vision_frame == "rotate"
     align_mag: list[MagSample] = []
     first_fix: GpsSample | None = None
-    next_vision = next_baro = 0
     plan = sc.waypoints()
     align_ns = round(sc.estimator.align_s * 1e9)
     n_steps = round(sc.flight_s / dt)
     ref_all = plan.reference(np.arange(n_steps + 1) * dt - sc.estimator.align_s)
+    yaw_ref = heading_reference(ref_all.v, dt, sc.plan.yaw, math.radians(sc.plan.yaw_rate_deg_s))
 
     est: DelayedHorizonEstimator | None = None
     ekf: NavEkf | None = None
@@ -292,33 +405,33 @@ def run_nav(sc: NavScenario, seed: int, *, record_stream: bool = False) -> NavRu
             truth = sim.state()
             t = truth.t_ns
             # -- sensors ---------------------------------------------------------------------
-            if sc.vision.enabled and t >= next_vision:
-                next_vision += round(1e9 / sc.vision.rate_hz)
-                if not any(a <= t < b for a, b in dropouts_ns):
-                    q = (
-                        Rotation.from_quat(truth.q_W_B_xyzw)
-                        * Rotation.from_rotvec(
-                            [0.0, 0.0, sc.vision.yaw_sigma_rad * rng_sens.standard_normal()]
-                        )
-                    ).as_quat()
-                    pose = PoseSample(t_ns=t, p_W_B=truth.p_W_B + sc.vision.sigma_m * rng_sens.standard_normal(3), q_W_B_xyzw=q,
-                                      sigma_pos_m=sc.vision.sigma_m, sigma_yaw_rad=sc.vision.yaw_sigma_rad)  # fmt: skip
-                    vision_line.push(pose)
+            if vision is not None:
+                pose = vision.sample(truth, t, rng_sens)
+                if pose is not None:
+                    late = 0
+                    if late_vision and t >= late_vision[0][0]:
+                        late = late_vision.pop(0)[1]
+                    vision_line.push(pose, extra_delay_ns=late)
                     vision_times.append(t)
             if gps is not None:
                 fix = gps.sample(truth, t, rng_sens)
                 if fix is not None:
                     gps_line.push(fix)
             mag_now = mag.sample(truth, t, rng_sens) if mag is not None else None
-            if sc.baro.enabled and t >= next_baro:
-                next_baro += round(1e9 / sc.baro.rate_hz)
-                z = float(truth.p_W_B[2] + sc.baro.sigma_m * rng_sens.standard_normal())
-                baro_line.push(HeightSample(t_ns=t, z_m=z, sigma_m=sc.baro.sigma_m))
+            if baro is not None:
+                h = baro.sample(truth, t, rng_sens)
+                if h is not None:
+                    baro_line.push(h)
+            if rangefinder is not None:
+                rs = rangefinder.sample(truth, t, rng_sens)
+                if rs is not None:
+                    range_line.push(rs)
             # -- estimator -------------------------------------------------------------------
             sample = imu.accumulate(truth, dt, rng_sens) if i > 0 else None
             arrived_pose = vision_line.pop_arrived(t)
             arrived_baro = baro_line.pop_arrived(t)
             arrived_gps = gps_line.pop_arrived(t)
+            arrived_range = range_line.pop_arrived(t)
             if est is None:
                 if sample is not None:
                     align_imu.append(sample)
@@ -341,19 +454,21 @@ def run_nav(sc: NavScenario, seed: int, *, record_stream: bool = False) -> NavRu
                                 *sc.gps.datum_lla,
                             )
                         )
+                    # Rotated vision: the heading is the magnetometer's, the origin where it stands.
+                    align_pose = None if rotate else last_pose
                     R0, p0 = ground_alignment(
                         align_imu,
-                        last_pose,
+                        align_pose,
                         mag=align_mag,
                         declination_rad=sc.mag.declination_rad,
                         gps_enu_m=gps_enu,
                     )
                     yaw_sig = (
-                        sc.vision.yaw_sigma_rad * 3 if last_pose else (0.1 if align_mag else 1.0)
+                        sc.vision.yaw_sigma_rad * 3 if align_pose else (0.1 if align_mag else 1.0)
                     )
                     pos_sig = (
                         sc.vision.sigma_m * 3
-                        if last_pose
+                        if align_pose
                         else (sc.gps.sigma_h_m * 2 if first_fix else 0.1)
                     )
                     sig = np.array([0.02, 0.02, yaw_sig] + [0.05] * 3 + [pos_sig] * 3
@@ -368,6 +483,8 @@ def run_nav(sc: NavScenario, seed: int, *, record_stream: bool = False) -> NavRu
                             gate_probability=sc.estimator.gate_probability,
                             datum_lla=sc.gps.datum_lla,
                             mag_declination_rad=sc.mag.declination_rad,
+                            vision_frame=sc.estimator.vision_frame,
+                            reset_after_s=sc.estimator.reset_after_s,
                         ),
                         p0=p0, v0=np.zeros(3), q0_xyzw=R0.as_quat(), P0=np.diag(sig**2),
                     )  # fmt: skip
@@ -375,6 +492,7 @@ def run_nav(sc: NavScenario, seed: int, *, record_stream: bool = False) -> NavRu
                         sc.vision.delay_s if sc.vision.enabled else 0.0,
                         sc.baro.delay_s if sc.baro.enabled else 0.0,
                         sc.gps.delay_s if sc.gps.enabled else 0.0,
+                        sc.range.delay_s if sc.range.enabled else 0.0,
                     )
                     est = DelayedHorizonEstimator(
                         ekf,
@@ -390,10 +508,20 @@ def run_nav(sc: NavScenario, seed: int, *, record_stream: bool = False) -> NavRu
                 batch: list[Sample] = [o for _, o in arrived_pose]
                 batch.extend(o for _, o in arrived_baro)
                 batch.extend(o for _, o in arrived_gps)
+                batch.extend(o for _, o in arrived_range)
                 if mag_now is not None:
                     batch.append(mag_now)
-                if sample is not None:
+                if sample is not None and imu_nan and t >= imu_nan[0]:
+                    # A corrupted reading from the driver: refused at the boundary and counted.
+                    imu_nan.pop(0)
+                    gyro = sample.gyro_rad_s.copy()
+                    gyro[1] = math.nan
+                    est.push_raw(ImuSample, t_ns=t, gyro_rad_s=gyro, accel_m_s2=sample.accel_m_s2)
+                elif sample is not None:
                     batch.append(sample)
+                    if imu_repeat and t >= imu_repeat[0]:
+                        imu_repeat.pop(0)
+                        batch.append(sample)  # delivered twice: the copy is out of order
                 for item in batch:
                     est.push(item)
                 if stream is not None:
@@ -423,9 +551,7 @@ def run_nav(sc: NavScenario, seed: int, *, record_stream: bool = False) -> NavRu
                 rows["xd"].append(np.concatenate([ekf.p, ekf.v, ekf.q_xyzw, ekf.bg, ekf.ba]))
                 if td in truth_hist:
                     p_t, v_t, q_t, bg_t, ba_t = truth_hist[td]
-                    dth = (
-                        Rotation.from_quat(ekf.q_xyzw).inv() * Rotation.from_quat(q_t)
-                    ).as_rotvec()
+                    dth = so3_log(ekf.R.T @ rotation_matrix_xyzw(q_t))
                     rows["err"].append(
                         np.concatenate(
                             [dth, v_t - ekf.v, p_t - ekf.p, bg_t - ekf.bg, ba_t - ekf.ba]
@@ -452,7 +578,10 @@ def run_nav(sc: NavScenario, seed: int, *, record_stream: bool = False) -> NavRu
                     )
                 else:
                     state = truth
-                cmd = ctrl(state, Setpoint(p=ref_i, v=ref_all.v[i], a=ref_all.a[i], yaw_rad=0.0))
+                cmd = ctrl(
+                    state,
+                    Setpoint(p=ref_i, v=ref_all.v[i], a=ref_all.a[i], yaw_rad=float(yaw_ref[i])),
+                )
                 # Touch-down: the plan has come down and the vehicle sits low: cut the motors.
                 if i > n_steps // 2 and ref_i[2] <= 0.0 and state.p_W_B[2] < 0.05:
                     landed = True
@@ -473,6 +602,7 @@ def run_nav(sc: NavScenario, seed: int, *, record_stream: bool = False) -> NavRu
             "test_ratio": np.array([r.result.test_ratio for r in recs]),
             "accepted": np.array([r.result.accepted for r in recs], dtype=np.float64),
             "dof": np.array([len(r.result.innovation) for r in recs], dtype=np.float64),
+            "innovation": _stack_padded([r.result.innovation for r in recs]),
         }
     counts = {
         src: {
@@ -485,7 +615,10 @@ def run_nav(sc: NavScenario, seed: int, *, record_stream: bool = False) -> NavRu
         for src in est.sources
         for s in [est.stats(src)]
     }
-    counts["imu"] = {"rejected_out_of_order": est.imu_rejected_out_of_order}
+    counts["imu"] = {
+        "rejected_out_of_order": est.imu_rejected_out_of_order,
+        "rejected_invalid": est.rejected_invalid.get("ImuSample", 0),
+    }
     return NavRunResult(
         scenario=sc,
         seed=seed,

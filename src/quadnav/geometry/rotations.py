@@ -94,20 +94,21 @@ def so3_exp(rotvec: FloatArray) -> FloatArray:
     """
     r = np.asarray(rotvec, dtype=np.float64)
     if r.shape == (3,):  # the common single-vector case, in scalars
-        x, y, z = float(r[0]), float(r[1]), float(r[2])
+        x, y, z = r.tolist()
         t2 = x * x + y * y + z * z
         if t2 < 1e-12:
             a1, b1 = 1.0 - t2 / 6.0, 0.5 - t2 / 24.0
         else:
             t = math.sqrt(t2)
             a1, b1 = math.sin(t) / t, (1.0 - math.cos(t)) / t2
+        bx, by, bz = b1 * x, b1 * y, b1 * z
         return np.array(
             [
-                [1.0 - b1 * (y * y + z * z), -a1 * z + b1 * x * y, a1 * y + b1 * x * z],
-                [a1 * z + b1 * x * y, 1.0 - b1 * (x * x + z * z), -a1 * x + b1 * y * z],
-                [-a1 * y + b1 * x * z, a1 * x + b1 * y * z, 1.0 - b1 * (x * x + y * y)],
+                1.0 - by * y - bz * z, -a1 * z + bx * y, a1 * y + bx * z,
+                a1 * z + bx * y, 1.0 - bx * x - bz * z, -a1 * x + by * z,
+                -a1 * y + bx * z, a1 * x + by * z, 1.0 - bx * x - by * y,
             ]
-        )
+        ).reshape(3, 3)  # fmt: skip
     th2 = np.sum(r * r, axis=-1)[..., None, None]
     th = np.sqrt(th2)
     small = th2 < 1e-12

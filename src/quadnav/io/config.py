@@ -78,9 +78,16 @@ def _format_validation_error(exc: ValidationError) -> str:
     return "; ".join(parts)
 
 
-def load_config(model: type[M], path: Path | None = None, overrides: Iterable[str] = ()) -> M:
-    """Read ``path`` (or start from the defaults), apply overrides, validate into ``model``."""
-    data: dict[str, Any] = _read_yaml(Path(path)) if path is not None else {}
+def load_config(
+    model: type[M],
+    path: Path | None = None,
+    overrides: Iterable[str] = (),
+    *,
+    base: dict[str, Any] | None = None,
+) -> M:
+    """Read ``path`` (or start from ``base``, else the defaults), apply overrides, validate
+    into ``model``."""
+    data: dict[str, Any] = _read_yaml(Path(path)) if path is not None else dict(base or {})
     for override in overrides:
         apply_override(data, override)
     try:

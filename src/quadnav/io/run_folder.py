@@ -76,7 +76,12 @@ def write_csv(path: Path, columns: Mapping[str, NDArray[Any]]) -> None:
     if not np.issubdtype(arrays[0].dtype, np.integer):
         raise IoError(f"{path.name}: t_ns must be integer nanoseconds")
     fmts = [
-        "%d" if np.issubdtype(a.dtype, np.integer) or a.dtype == bool else "%.9g" for a in arrays
+        "%s"
+        if a.dtype.kind in "UO"
+        else "%d"
+        if np.issubdtype(a.dtype, np.integer) or a.dtype == bool
+        else "%.9g"
+        for a in arrays
     ]
     table = np.empty((n_rows, len(names)), dtype=object)
     for j, a in enumerate(arrays):

@@ -171,13 +171,14 @@ class RigidBodyQuadrotor:
         return s
 
     def _on_ground(self, s: FloatArray) -> FloatArray:
-        """The ground plane: no sinking; resting on it levels the vehicle and stops it."""
+        """The ground plane: no sinking; touching it stops the vehicle where it stands.
+
+        The attitude is kept (legs hold it), so nothing turns without the gyro seeing it; the
+        stop itself shows in the accelerometer as the landing shock.
+        """
         s[2] = 0.0
         if s[5] < 0.0:
-            # Landed (or resting): kill the motion, keep the heading, level roll and pitch.
-            yaw = Rotation.from_quat(s[6:10]).as_euler("ZYX")[0]
             s[3:6] = 0.0
-            s[6:10] = Rotation.from_euler("z", yaw).as_quat()
             s[10:13] = 0.0
         return s
 

@@ -1,4 +1,5 @@
-"""Sensor models: an IMU and a position fix, with noise, period and delay.
+"""Sensor models: IMU, position fix, GNSS, magnetometer, barometer, external vision pose and
+range finder, with noise, period, bias or drift where physical, dropouts and faults.
 
 Each sensor's :meth:`sample` reads the true state at ``t_ns`` and returns a sample whose
 ``t_ns`` is that time of validity. Delay is not the sensor's business: a :class:`DelayLine`
@@ -17,6 +18,7 @@ from numpy.random import Generator
 from scipy.spatial.transform import Rotation
 
 from quadnav.errors import SimError
+from quadnav.geometry.rotations import rotation_matrix_xyzw
 from quadnav.messages import (
     GpsSample,
     HeightSample,
@@ -24,20 +26,27 @@ from quadnav.messages import (
     MagSample,
     PoseSample,
     PositionSample,
+    RangeSample,
     VehicleState,
 )
 
 __all__ = [
+    "BaroSensor",
     "DelayLine",
     "GpsSensor",
     "ImuSensor",
     "IntegratingImu",
     "MagSensor",
     "PositionSensor",
+    "RangeFinder",
     "Sensor",
+    "VisionFrameJump",
+    "VisionPoseSensor",
 ]
 
-S = TypeVar("S", ImuSample, PositionSample, PoseSample, HeightSample, GpsSample, MagSample)
+S = TypeVar(
+    "S", ImuSample, PositionSample, PoseSample, HeightSample, GpsSample, MagSample, RangeSample
+)
 S_co = TypeVar(
     "S_co",
     ImuSample,
@@ -46,6 +55,7 @@ S_co = TypeVar(
     HeightSample,
     GpsSample,
     MagSample,
+    RangeSample,
     covariant=True,
 )
 
@@ -142,13 +152,13 @@ class DelayLine(Generic[S]):
         self._heap: list[tuple[int, int, S]] = []
         self._seq = 0
 
-    def push(self, sample: S, rng: Generator | None = None) -> int:
-        """Queue a sample; returns its arrival time."""
-        extra = 0
+    def push(self, sample: S, rng: Generator | None = None, *, extra_delay_ns: int = 0) -> int:
+        """Queue a sample (``extra_delay_ns``: this one is late); returns its arrival time."""
+        extra = int(extra_delay_ns)
         if self.jitter_ns:
             if rng is None:
                 raise SimError("a DelayLine with jitter needs an rng")
-            extra = int(rng.integers(0, self.jitter_ns + 1))
+            extra += int(rng.integers(0, self.jitter_ns + 1))
         arrival = sample.t_ns + self.delay_ns + extra
         heapq.heappush(self._heap, (arrival, self._seq, sample))
         self._seq += 1
@@ -182,9 +192,18 @@ class IntegratingImu:
         accel_bias0_m_s2: tuple[float, float, float] = (0.0, 0.0, 0.0),
         gravity_m_s2: float = 9.81,
         t0_ns: int = 0,
+        lever_arm_m: tuple[float, float, float] = (0.0, 0.0, 0.0),
     ) -> None:
         if period_ns <= 0:
             raise SimError(f"IMU period must be > 0 ns, got {period_ns}")
+        # The IMU's mount offset from the centre of mass in the body frame: it adds the
+        # rotational terms dw/dt x r + w x (w x r) to the specific force it measures.
+        self.lever_arm = np.asarray(lever_arm_m, dtype=np.float64)
+        if self.lever_arm.shape != (3,) or not np.isfinite(self.lever_arm).all():
+            raise SimError(
+                f"IntegratingImu.lever_arm_m must be 3 finite numbers, got {lever_arm_m}"
+            )
+        self._w_prev: np.ndarray | None = None
         for name, v in (("gyro_sigma_rad_s", gyro_sigma_rad_s), ("accel_sigma_m_s2", accel_sigma_m_s2),
                         ("gyro_bias_rw_rad_s_sqrt_s", gyro_bias_rw_rad_s_sqrt_s), ("accel_bias_rw_m_s2_sqrt_s", accel_bias_rw_m_s2_sqrt_s)):  # fmt: skip
             if not (math.isfinite(v) and v >= 0):
@@ -201,10 +220,16 @@ class IntegratingImu:
         self._sum_dt = 0.0
 
     def accumulate(self, truth: VehicleState, dt_s: float, rng: Generator) -> ImuSample | None:
-        R = Rotation.from_quat(truth.q_W_B_xyzw)
         a = truth.a_W_B.copy()
         a[2] += self.g
-        self._sum_f += R.apply(a, inverse=True) * dt_s
+        f_B = rotation_matrix_xyzw(truth.q_W_B_xyzw).T @ a
+        if self.lever_arm.any():
+            w = truth.w_B
+            dw = (w - self._w_prev) / dt_s if self._w_prev is not None else np.zeros(3)
+            r = self.lever_arm
+            f_B = f_B + np.cross(dw, r) + np.cross(w, np.cross(w, r))
+        self._w_prev = truth.w_B.copy()
+        self._sum_f += f_B * dt_s
         self._sum_w += truth.w_B * dt_s
         self._sum_dt += dt_s
         if truth.t_ns - self._t_last < self.period_ns:
@@ -226,7 +251,8 @@ class IntegratingImu:
 
 class GpsSensor:
     """A GNSS receiver: geodetic fixes (via pymap3d from the local ENU truth about a datum) and
-    ENU velocity, with Gaussian noise, a fixed rate and optional windows without a fix."""
+    ENU velocity, with Gaussian noise, a fixed rate, optional windows without a fix and
+    glitch windows ``(start_ns, end_ns, ENU offset)`` during which the fixes jump."""
 
     def __init__(
         self,
@@ -237,6 +263,7 @@ class GpsSensor:
         sigma_v_m: float,
         sigma_vel_m_s: float,
         outages_ns: list[tuple[int, int]] | None = None,
+        glitches: list[tuple[int, int, tuple[float, float, float]]] | None = None,
     ) -> None:
         if period_ns <= 0 or min(sigma_h_m, sigma_v_m, sigma_vel_m_s) <= 0:
             raise SimError("GpsSensor needs period_ns > 0 and positive standard deviations")
@@ -244,6 +271,7 @@ class GpsSensor:
         self.period_ns = int(period_ns)
         self.sh, self.sv, self.svel = float(sigma_h_m), float(sigma_v_m), float(sigma_vel_m_s)
         self.outages = outages_ns or []
+        self.glitches = [(a, b, np.asarray(off, dtype=np.float64)) for a, b, off in glitches or []]
         self._next = 0
 
     def sample(self, truth: VehicleState, t_ns: int, rng: Generator) -> GpsSample | None:
@@ -254,7 +282,11 @@ class GpsSensor:
         self._next = t_ns + self.period_ns
         if any(a <= t_ns < b for a, b in self.outages):
             return None
-        e, n, u = truth.p_W_B + rng.standard_normal(3) * np.array([self.sh, self.sh, self.sv])
+        p = truth.p_W_B + rng.standard_normal(3) * np.array([self.sh, self.sh, self.sv])
+        for a, b, off in self.glitches:  # a multipath jump: the fix is off by metres
+            if a <= t_ns < b:
+                p = p + off
+        e, n, u = p
         lat, lon, alt = pymap3d.enu2geodetic(e, n, u, *self.datum)
         return GpsSample(
             t_ns=t_ns, lat_deg=float(lat), lon_deg=float(lon), alt_m=float(alt),
@@ -305,4 +337,131 @@ class MagSensor:
             t_ns=t_ns,
             field_B=m_B + self.hard_iron + self.noise * rng.standard_normal(3),
             sigma_heading_rad=self.sigma_heading,
+        )
+
+
+class BaroSensor:
+    """A barometric altimeter: height above the world origin plus white noise and a slowly
+    drifting offset (a random walk, as weather and temperature move a real one)."""
+
+    def __init__(
+        self, *, period_ns: int, sigma_m: float, drift_m_sqrt_s: float = 0.0, offset_m: float = 0.0
+    ) -> None:
+        if period_ns <= 0 or not sigma_m > 0 or not drift_m_sqrt_s >= 0:
+            raise SimError("BaroSensor needs period_ns > 0, sigma_m > 0 and drift_m_sqrt_s >= 0")
+        self.period_ns = int(period_ns)
+        self.sigma = float(sigma_m)
+        self.drift = float(drift_m_sqrt_s)
+        self.offset = float(offset_m)
+        self._next = 0
+
+    def sample(self, truth: VehicleState, t_ns: int, rng: Generator) -> HeightSample | None:
+        if t_ns < self._next:
+            return None
+        self._next = t_ns + self.period_ns
+        self.offset += self.drift * math.sqrt(self.period_ns * 1e-9) * rng.standard_normal()
+        z = float(truth.p_W_B[2]) + self.offset + self.sigma * rng.standard_normal()
+        return HeightSample(t_ns=t_ns, z_m=z, sigma_m=self.sigma)
+
+
+class RangeFinder:
+    """A downward range finder over flat ground at ``ground_z_m``: the distance along the
+    body's -z axis, with noise; nothing outside its span or beyond ``max_tilt_rad``."""
+
+    def __init__(
+        self,
+        *,
+        period_ns: int,
+        sigma_m: float,
+        min_m: float = 0.05,
+        max_m: float = 10.0,
+        ground_z_m: float = 0.0,
+        max_tilt_rad: float = 0.7,
+    ) -> None:
+        if period_ns <= 0 or not sigma_m > 0 or not 0 <= min_m < max_m:
+            raise SimError("RangeFinder needs period_ns > 0, sigma_m > 0 and 0 <= min_m < max_m")
+        self.period_ns = int(period_ns)
+        self.sigma, self.min_m, self.max_m = float(sigma_m), float(min_m), float(max_m)
+        self.ground_z = float(ground_z_m)
+        self.cos_max_tilt = math.cos(max_tilt_rad)
+        self._next = 0
+
+    def sample(self, truth: VehicleState, t_ns: int, rng: Generator) -> RangeSample | None:
+        if t_ns < self._next:
+            return None
+        self._next = t_ns + self.period_ns
+        c = float(Rotation.from_quat(truth.q_W_B_xyzw).as_matrix()[2, 2])
+        if c < self.cos_max_tilt:
+            return None
+        rng_m = (float(truth.p_W_B[2]) - self.ground_z) / c + self.sigma * rng.standard_normal()
+        if not self.min_m <= rng_m <= self.max_m:
+            return None
+        return RangeSample(
+            t_ns=t_ns, range_m=rng_m, sigma_m=self.sigma, min_m=self.min_m, max_m=self.max_m
+        )
+
+
+@dataclass(frozen=True, slots=True)
+class VisionFrameJump:
+    """At ``t_ns`` the vision system re-initialises: its frame turns by ``yaw_rad`` and moves
+    by ``offset_m`` (in the old vision frame), and it bumps its reset counter."""
+
+    t_ns: int
+    yaw_rad: float
+    offset_m: tuple[float, float, float]
+
+
+class VisionPoseSensor:
+    """An external pose (marker or VIO system): the body's position and attitude in a vision
+    frame ``V`` that is turned by ``frame_yaw_rad`` about the vertical and offset by
+    ``frame_offset_m`` from the world (``T_W_V``), with position and yaw noise, dropout windows
+    and frame jumps flagged by the reset counter."""
+
+    def __init__(
+        self,
+        *,
+        period_ns: int,
+        sigma_m: float,
+        yaw_sigma_rad: float,
+        frame_yaw_rad: float = 0.0,
+        frame_offset_m: tuple[float, float, float] = (0.0, 0.0, 0.0),
+        dropouts_ns: list[tuple[int, int]] | None = None,
+        jumps: list[VisionFrameJump] | None = None,
+    ) -> None:
+        if period_ns <= 0 or not sigma_m > 0 or not yaw_sigma_rad > 0:
+            raise SimError("VisionPoseSensor needs period_ns > 0 and positive standard deviations")
+        self.period_ns = int(period_ns)
+        self.sigma, self.yaw_sigma = float(sigma_m), float(yaw_sigma_rad)
+        self.R_W_V = Rotation.from_euler("z", frame_yaw_rad)
+        self.p_W_V = np.asarray(frame_offset_m, dtype=np.float64)
+        self.dropouts = dropouts_ns or []
+        self.jumps = sorted(jumps or [], key=lambda j: j.t_ns)
+        self.reset_counter = 0
+        self._next = 0
+
+    def sample(self, truth: VehicleState, t_ns: int, rng: Generator) -> PoseSample | None:
+        if t_ns < self._next:
+            return None
+        self._next = t_ns + self.period_ns
+        while self.jumps and self.jumps[0].t_ns <= t_ns:
+            j = self.jumps.pop(0)
+            # T_W_V' = T_W_V T_V_V' with T_V_V' = (Rz(yaw), offset).
+            self.p_W_V = self.p_W_V + self.R_W_V.apply(j.offset_m)
+            self.R_W_V = self.R_W_V * Rotation.from_euler("z", j.yaw_rad)
+            self.reset_counter += 1
+        if any(a <= t_ns < b for a, b in self.dropouts):
+            return None
+        p_V = self.R_W_V.apply(truth.p_W_B - self.p_W_V, inverse=True)
+        R_V_B = (
+            self.R_W_V.inv()
+            * Rotation.from_quat(truth.q_W_B_xyzw)
+            * Rotation.from_rotvec([0.0, 0.0, self.yaw_sigma * rng.standard_normal()])
+        )
+        return PoseSample(
+            t_ns=t_ns,
+            p_W_B=p_V + self.sigma * rng.standard_normal(3),
+            q_W_B_xyzw=R_V_B.as_quat(),
+            sigma_pos_m=self.sigma,
+            sigma_yaw_rad=self.yaw_sigma,
+            reset_counter=self.reset_counter,
         )

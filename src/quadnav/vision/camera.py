@@ -1,0 +1,72 @@
+"""A pinhole camera with OpenCV's distortion model (``k1 k2 p1 p2 [k3 [k4 k5 k6 ...]]``).
+
+Pure maths on arrays; reading and writing OpenCV YAML files is in :mod:`quadnav.io.camera_yaml`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from quadnav.errors import VisionError
+
+__all__ = ["PinholeCamera"]
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True, slots=True)
+class PinholeCamera:
+    """Intrinsics ``K`` (3x3), distortion coefficients (OpenCV order) and image size (px)."""
+
+    K: FloatArray
+    dist: FloatArray
+    width: int
+    height: int
+
+    def __post_init__(self) -> None:
+        K = np.asarray(self.K, dtype=np.float64)
+        d = np.asarray(self.dist, dtype=np.float64).ravel()
+        if K.shape != (3, 3) or not np.isfinite(K).all() or K[0, 0] <= 0 or K[1, 1] <= 0:
+            raise VisionError(
+                f"camera matrix must be 3x3 with positive focal lengths, got {K.tolist()}"
+            )
+        if d.size not in (0, 4, 5, 8, 12, 14) or not np.isfinite(d).all():
+            raise VisionError(
+                f"distortion must have 0, 4, 5, 8, 12 or 14 finite coefficients, got {d.size}"
+            )
+        if self.width <= 0 or self.height <= 0:
+            raise VisionError(f"image size must be positive, got {self.width}x{self.height}")
+        object.__setattr__(self, "K", K)
+        object.__setattr__(self, "dist", d)
+
+    @property
+    def fx(self) -> float:
+        return float(self.K[0, 0])
+
+    @property
+    def fy(self) -> float:
+        return float(self.K[1, 1])
+
+    def project(self, p_C: FloatArray) -> FloatArray:
+        """Pixels (N, 2) of points (N, 3) in the camera frame (z forward, x right, y down)."""
+        p = np.asarray(p_C, dtype=np.float64).reshape(-1, 1, 3)
+        px, _ = cv2.projectPoints(p, np.zeros(3), np.zeros(3), self.K, self.dist)
+        return np.asarray(px.reshape(-1, 2), dtype=np.float64)
+
+    def undistort_pixels(self, px: FloatArray) -> FloatArray:
+        """Ideal (distortion-free) pixels of distorted ones, in the same camera matrix."""
+        p = np.asarray(px, dtype=np.float64).reshape(-1, 1, 2)
+        out = cv2.undistortPoints(p, self.K, self.dist, P=self.K)
+        return np.asarray(out.reshape(-1, 2), dtype=np.float64)
+
+    def scaled(self, width: int, height: int) -> PinholeCamera:
+        """The same lens at another resolution (focal lengths and centre scale with it)."""
+        sx, sy = width / self.width, height / self.height
+        K = self.K.copy()
+        K[0] *= sx
+        K[1] *= sy
+        return PinholeCamera(K, self.dist.copy(), width, height)

@@ -1,0 +1,158 @@
+"""The marker pipeline's settings (``quadnav markers``, vision in the loop), and the mapping
+from thesis 000's ``vision_params.yml`` onto them."""
+
+from __future__ import annotations
+
+from typing import Any, Literal, Self
+
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+from scipy.spatial.transform import Rotation
+
+from quadnav.geometry.rotations import Pose
+from quadnav.vision.markers import CharucoSpec
+from quadnav.vision.pipeline import MapBoard, MapMarker, MarkerMap
+from quadnav.vision.pose import mount_pose
+
+__all__ = ["MarkersConfig", "from_thesis_vision_params"]
+
+Vec3 = tuple[float, float, float]
+
+
+class _Section(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class CharucoSection(_Section):
+    squares_x: int = Field(12, ge=2)
+    squares_y: int = Field(17, ge=2)
+    square_m: float = Field(0.066, gt=0)
+    marker_m: float = Field(0.0397, gt=0)
+    legacy_pattern: bool = False
+    min_markers: int = Field(
+        2, ge=1, le=2, description="markers next to a corner to interpolate it (OpenCV: 2)"
+    )
+    marker_fallback: bool = Field(
+        True, description="with < 4 chessboard corners, the pose from the board's marker corners"
+    )
+
+
+class MapMarkerEntry(_Section):
+    id: int = Field(ge=0)
+    length_m: float = Field(gt=0)
+    position_m: Vec3 = (0.0, 0.0, 0.0)
+    rpy_deg: Vec3 = (0.0, 0.0, 0.0)
+
+
+class MapBoardEntry(_Section):
+    charuco: CharucoSection
+    position_m: Vec3 = (0.0, 0.0, 0.0)
+    rpy_deg: Vec3 = (0.0, 0.0, 0.0)
+
+
+def _pose(position_m: Vec3, rpy_deg: Vec3) -> Pose:
+    r, p, y = rpy_deg
+    return Pose(Rotation.from_euler("ZYX", [y, p, r], degrees=True), list(position_m))  # type: ignore[arg-type]
+
+
+class MarkersConfig(_Section):
+    """What the camera looks at and how the pipeline runs (defaults: thesis 000's rig)."""
+
+    dictionary: str | int = "DICT_4X4_250"
+    target: Literal["marker", "charuco", "map"] = Field(
+        "marker",
+        description="marker: one marker is the world; charuco: a board is; map: markers/boards placed in the world",
+    )
+    marker_id: int | None = Field(
+        None, description="the world's marker (None: the lowest id in view)"
+    )
+    marker_length_m: float = Field(0.2335, gt=0)
+    charuco: CharucoSection = CharucoSection()
+    map_markers: list[MapMarkerEntry] = Field(default_factory=list)
+    map_boards: list[MapBoardEntry] = Field(default_factory=list)
+    camera_file: str | None = Field(
+        None, description="OpenCV YAML calibration (camera_matrix, distortion_coefficients)"
+    )
+    detector_file: str | None = Field(None, description="OpenCV YAML detector parameters")
+    detector: dict[str, float] = Field(
+        default_factory=lambda: {"cornerRefinementMethod": 1.0},
+        description="detector parameters (override the file's); default: sub-pixel corners",
+    )
+    mount_rpy_deg: Vec3 = Field(
+        (180.0, 0.0, 180.0), description="camera in the body (thesis: down, turned 180 deg)"
+    )
+    mount_xyz_m: Vec3 = (0.0, 0.0, 0.0)
+    fps: float = Field(30.0, gt=0, description="frame rate of an image folder")
+    max_rms_px: float = Field(
+        3.0, gt=0, description="poses with a larger reprojection error are refused"
+    )
+    prior_sigma_px: float = Field(
+        0.25, gt=0, description="corner noise prior of the pose covariance"
+    )
+    video: bool = Field(True, description="write the overlay video")
+    max_frames: int | None = Field(None, ge=1)
+
+    @model_validator(mode="after")
+    def _check(self) -> Self:
+        if self.target == "map" and not (self.map_markers or self.map_boards):
+            raise ValueError("target=map needs map_markers or map_boards")
+        if self.charuco.marker_m >= self.charuco.square_m:
+            raise ValueError("charuco.marker_m must be smaller than charuco.square_m")
+        return self
+
+    def T_B_C(self) -> Pose:
+        return mount_pose(self.mount_rpy_deg, self.mount_xyz_m)
+
+    def marker_map(self, seen_id: int | None = None) -> MarkerMap:
+        """The scene; for ``target=marker`` with no ``marker_id``, ``seen_id`` is the world."""
+        if self.target == "marker":
+            mid = (
+                self.marker_id
+                if self.marker_id is not None
+                else (seen_id if seen_id is not None else 0)
+            )
+            return MarkerMap.single_marker(mid, self.marker_length_m, self.dictionary)
+        if self.target == "charuco":
+            return MarkerMap(
+                self.dictionary, boards=[MapBoard(self.charuco_spec(self.charuco), Pose.identity())]
+            )
+        return MarkerMap(
+            self.dictionary,
+            {
+                m.id: MapMarker(m.id, m.length_m, _pose(m.position_m, m.rpy_deg))
+                for m in self.map_markers
+            },
+            [
+                MapBoard(self.charuco_spec(b.charuco), _pose(b.position_m, b.rpy_deg))
+                for b in self.map_boards
+            ],
+        )
+
+    def charuco_spec(self, c: CharucoSection) -> CharucoSpec:
+        return CharucoSpec(
+            c.squares_x, c.squares_y, c.square_m, c.marker_m, self.dictionary, c.legacy_pattern
+        )
+
+
+def from_thesis_vision_params(values: dict[str, Any]) -> tuple[dict[str, Any], list[str]]:
+    """Thesis 000's ``vision_params.yml`` (dict_type, marker_length, charuco, squaresX...)
+    as :class:`MarkersConfig` keys; returns them and the keys left out."""
+    out: dict[str, Any] = {}
+    used = {"charuco", "squaresX", "squaresY", "squareLength", "markerLength"}
+    for theirs, ours, cast in (
+        ("dict_type", "dictionary", int),
+        ("marker_length", "marker_length_m", float),
+        ("fps", "fps", float),
+        ("camera_parameters", "camera_file", str),
+    ):
+        if theirs in values:
+            out[ours] = cast(values[theirs])
+            used.add(theirs)
+    if values.get("charuco"):
+        out["target"] = "charuco"
+        out["charuco"] = {
+            "squares_x": int(values.get("squaresX", 12)),
+            "squares_y": int(values.get("squaresY", 17)),
+            "square_m": float(values.get("squareLength", 0.066)),
+            "marker_m": float(values.get("markerLength", 0.0397)),
+        }
+    return out, sorted(set(values) - used)

@@ -1,0 +1,175 @@
+"""Pose from markers: PnP with a covariance, and the frame chain of thesis 000 (eqs 3.1-3.6).
+
+Frames: ``C`` camera (x right, y down, z along the optical axis), ``O`` a planar object (a
+marker: origin at its centre, x right, y up, z out of the printed face; a board: OpenCV's
+board frame), ``W`` the world, ``B`` the body (FLU). PnP gives ``T_C_O``; the camera mount is
+``T_B_C``; the vehicle is ``T_W_B = T_W_O T_C_O^-1 T_B_C^-1``.
+
+The covariance of a PnP pose is ``s^2 (J^T J)^-1`` with ``J`` the Jacobian of the reprojected
+pixels with respect to the pose (from ``cv2.projectPoints``) and ``s^2`` the pixel noise: the
+residuals' variance pooled with a prior (``prior_sigma_px``, worth ``prior_dof`` residuals),
+because a single marker leaves only 2 degrees of freedom to estimate it from. A far, grazing
+marker gets a large covariance, a close, frontal one a small one.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
+
+from quadnav.errors import VisionError
+from quadnav.geometry.rotations import Pose
+from quadnav.vision.camera import PinholeCamera
+
+__all__ = [
+    "PnpResult",
+    "VehiclePose",
+    "marker_corners_3d",
+    "mount_pose",
+    "solve_pnp",
+    "vehicle_pose",
+]
+
+FloatArray = NDArray[np.float64]
+
+
+def marker_corners_3d(length_m: float) -> FloatArray:
+    """A square marker's corners (4, 3) in its own frame, in OpenCV's detection order
+    (top-left, top-right, bottom-right, bottom-left), as ``SOLVEPNP_IPPE_SQUARE`` wants."""
+    h = 0.5 * length_m
+    return np.array([[-h, h, 0.0], [h, h, 0.0], [h, -h, 0.0], [-h, -h, 0.0]])
+
+
+def mount_pose(rpy_deg: tuple[float, float, float], xyz_m: tuple[float, float, float]) -> Pose:
+    """``T_B_C`` of a camera: its roll/pitch/yaw (deg, extrinsic x-y-z... as ``ZYX`` yaw, pitch,
+    roll) from the body, and its position in the body (m).
+
+    The thesis's downward camera, turned 180 degrees about the vertical from the body (its eq. 3.4
+    in FRD), is roll 180, pitch 0, yaw 180 in FLU: optical axis down, image x towards the tail.
+    """
+    r, p, y = rpy_deg
+    return Pose(Rotation.from_euler("ZYX", [y, p, r], degrees=True), np.asarray(xyz_m, float))
+
+
+@dataclass(frozen=True, slots=True)
+class PnpResult:
+    """``T_C_O`` with the covariance (6x6) of its rotation vector and translation (OpenCV's
+    ``rvec``, ``tvec``), the RMS reprojection error (px) and the pixel noise used."""
+
+    T_C_O: Pose
+    rvec: FloatArray
+    tvec: FloatArray
+    cov_rt: FloatArray
+    rms_px: float
+    sigma_px: float
+    n_points: int
+
+
+def _is_planar(obj: FloatArray) -> bool:
+    c = obj - obj.mean(axis=0)
+    s = np.linalg.svd(c, compute_uv=False)
+    return bool(s[-1] <= 1e-6 * max(s[0], 1e-12))
+
+
+def solve_pnp(
+    obj_pts: FloatArray,
+    img_pts: FloatArray,
+    camera: PinholeCamera,
+    *,
+    square: bool = False,
+    prior_sigma_px: float = 0.5,
+    prior_dof: float = 4.0,
+    refine: bool = True,
+) -> PnpResult:
+    """Pose of the object points in the camera from their pixels (N >= 4).
+
+    ``square``: the 4 points are a marker's corners from :func:`marker_corners_3d`
+    (``SOLVEPNP_IPPE_SQUARE``); otherwise IPPE for planar points, SQPnP for others. The result
+    is refined with Levenberg-Marquardt.
+    """
+    obj = np.asarray(obj_pts, dtype=np.float64).reshape(-1, 3)
+    img = np.asarray(img_pts, dtype=np.float64).reshape(-1, 2)
+    n = len(obj)
+    if n < 4 or len(img) != n:
+        raise VisionError(f"PnP needs at least 4 point pairs, got {n} and {len(img)}")
+    if not (np.isfinite(obj).all() and np.isfinite(img).all()):
+        raise VisionError("PnP input holds a non-finite value")
+    if square:
+        flag = cv2.SOLVEPNP_IPPE_SQUARE
+    elif _is_planar(obj):
+        flag = cv2.SOLVEPNP_IPPE
+    else:
+        flag = cv2.SOLVEPNP_SQPNP
+    ok, rvec, tvec = cv2.solvePnP(obj, img, camera.K, camera.dist, flags=flag)
+    if not ok:
+        raise VisionError("PnP found no pose")
+    if refine:
+        rvec, tvec = cv2.solvePnPRefineLM(obj, img, camera.K, camera.dist, rvec, tvec)
+    rvec = np.asarray(rvec, dtype=np.float64).ravel()
+    tvec = np.asarray(tvec, dtype=np.float64).ravel()
+    proj, jac = cv2.projectPoints(obj, rvec, tvec, camera.K, camera.dist)
+    res = (proj.reshape(-1, 2) - img).ravel()
+    J = jac[:, 0:6]
+    dof = 2 * n - 6
+    s2 = (float(res @ res) + prior_dof * prior_sigma_px**2) / max(dof + prior_dof, 1e-9)
+    JtJ = J.T @ J
+    try:
+        cov = s2 * np.linalg.inv(JtJ)
+    except np.linalg.LinAlgError:
+        raise VisionError("PnP pose is degenerate (singular Jacobian)") from None
+    T = Pose(Rotation.from_rotvec(rvec), tvec)
+    rms = float(math.sqrt(float(res @ res) / n))
+    return PnpResult(T, rvec, tvec, 0.5 * (cov + cov.T), rms, math.sqrt(s2), n)
+
+
+@dataclass(frozen=True, slots=True)
+class VehiclePose:
+    """``T_W_B`` with the covariance (6x6) of its position and its attitude error (a small
+    rotation in the world frame: ``R_true = Exp(dtheta) R``), in that order."""
+
+    T_W_B: Pose
+    cov: FloatArray
+
+    @property
+    def cov_position(self) -> FloatArray:
+        return self.cov[0:3, 0:3]
+
+    @property
+    def sigma_yaw_rad(self) -> float:
+        return float(math.sqrt(max(self.cov[5, 5], 0.0)))
+
+
+def _chain(rt: FloatArray, T_W_O: FloatArray, T_C_B: FloatArray) -> FloatArray:
+    R_C_O, _ = cv2.Rodrigues(rt[0:3])
+    T_C_O = np.eye(4)
+    T_C_O[:3, :3] = R_C_O
+    T_C_O[:3, 3] = rt[3:6]
+    T_O_C = np.linalg.inv(T_C_O)
+    return np.asarray(T_W_O @ T_O_C @ T_C_B, dtype=np.float64)
+
+
+def vehicle_pose(pnp: PnpResult, T_W_O: Pose, T_B_C: Pose) -> VehiclePose:
+    """The body in the world from a PnP pose of an object at ``T_W_O`` seen by a camera mounted
+    at ``T_B_C``, with the PnP covariance carried through the chain (numerical Jacobian)."""
+    TWO = T_W_O.matrix()
+    TCB = T_B_C.inverse().matrix()
+    rt = np.concatenate([pnp.rvec, pnp.tvec])
+    T0 = _chain(rt, TWO, TCB)
+    R0 = T0[:3, :3]
+    J = np.zeros((6, 6))
+    for k in range(6):
+        step = 1e-6
+        d = np.zeros(6)
+        d[k] = step
+        Tp, Tm = _chain(rt + d, TWO, TCB), _chain(rt - d, TWO, TCB)
+        J[0:3, k] = (Tp[:3, 3] - Tm[:3, 3]) / (2 * step)
+        dRp, _ = cv2.Rodrigues(Tp[:3, :3] @ R0.T)
+        dRm, _ = cv2.Rodrigues(Tm[:3, :3] @ R0.T)
+        J[3:6, k] = (dRp.ravel() - dRm.ravel()) / (2 * step)
+    cov = J @ pnp.cov_rt @ J.T
+    return VehiclePose(Pose.from_matrix(T0), 0.5 * (cov + cov.T))
