@@ -21,6 +21,7 @@ __all__ = [
     "HeightSample",
     "ImuSample",
     "MagSample",
+    "Observation",
     "PoseSample",
     "PositionSample",
     "RangeSample",
@@ -28,6 +29,7 @@ __all__ = [
     "Sample",
     "StateEstimate",
     "VehicleState",
+    "VelocitySample",
     "check_t_ns",
 ]
 
@@ -98,7 +100,8 @@ class PositionSample:
 class PoseSample:
     """An external pose of the body (vision: markers, VIO): ``p_W_B`` and ``q_W_B_xyzw`` with
     standard deviations for position (m, per axis) and heading (rad). ``reset_counter`` changes
-    when the source re-initialises (a jump that must not be read as motion)."""
+    when the source re-initialises (a jump that must not be read as motion). ``cov_p_m2``, when
+    given, is the full position covariance (3x3, m^2) and takes the place of ``sigma_pos_m``."""
 
     t_ns: int
     p_W_B: FloatArray
@@ -107,6 +110,7 @@ class PoseSample:
     sigma_yaw_rad: float
     reset_counter: int = 0
     source: str = "vision"
+    cov_p_m2: FloatArray | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "t_ns", check_t_ns(self.t_ns, "PoseSample"))
@@ -121,6 +125,30 @@ class PoseSample:
             if not np.isfinite(v) or v <= 0.0:
                 raise SampleError(f"PoseSample.{name} must be finite and > 0, got {v}")
             object.__setattr__(self, name, v)
+        if self.cov_p_m2 is not None:
+            c = _array(self.cov_p_m2, (3, 3), "PoseSample.cov_p_m2")
+            if not np.allclose(c, c.T, atol=1e-12) or np.min(np.linalg.eigvalsh(c)) <= 0:
+                raise SampleError("PoseSample.cov_p_m2 must be symmetric positive definite")
+            object.__setattr__(self, "cov_p_m2", c)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class VelocitySample:
+    """A velocity of the body in the world (m/s) with its standard deviation per axis: a
+    zero-velocity update while the vehicle is known to stand still (``source="landed"``)."""
+
+    t_ns: int
+    v_W_B: FloatArray
+    sigma_m_s: float
+    source: str = "landed"
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "t_ns", check_t_ns(self.t_ns, "VelocitySample"))
+        object.__setattr__(self, "v_W_B", _array(self.v_W_B, (3,), "VelocitySample.v_W_B"))
+        v = float(self.sigma_m_s)
+        if not np.isfinite(v) or v <= 0:
+            raise SampleError(f"VelocitySample.sigma_m_s must be finite and > 0, got {v}")
+        object.__setattr__(self, "sigma_m_s", v)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -256,9 +284,16 @@ class RangeScan:
         )
 
 
-Sample = (
-    ImuSample | PositionSample | PoseSample | HeightSample | GpsSample | MagSample | RangeSample
+Observation = (
+    PositionSample
+    | PoseSample
+    | HeightSample
+    | GpsSample
+    | MagSample
+    | RangeSample
+    | VelocitySample
 )
+Sample = ImuSample | Observation
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

@@ -36,13 +36,7 @@ from numpy.typing import NDArray
 
 from quadnav.errors import EstimationError, SampleError
 from quadnav.messages import (
-    GpsSample,
-    HeightSample,
     ImuSample,
-    MagSample,
-    PoseSample,
-    PositionSample,
-    RangeSample,
     Sample,
     StateEstimate,
     check_t_ns,
@@ -334,16 +328,7 @@ class DelayedHorizonEstimator:
         Nothing a sample carries makes this raise: a late, out-of-order or unusable sample is
         rejected and counted (see :meth:`stats`). Only a non-sample is a programming error.
         """
-        if not isinstance(
-            sample,
-            ImuSample
-            | PositionSample
-            | PoseSample
-            | HeightSample
-            | GpsSample
-            | MagSample
-            | RangeSample,
-        ):
+        if not isinstance(sample, Sample):
             raise EstimationError(f"push() takes samples, got {type(sample).__name__}")
         if isinstance(sample, ImuSample):
             self._push_imu(sample)

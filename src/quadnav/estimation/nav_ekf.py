@@ -38,11 +38,13 @@ from quadnav.messages import (
     HeightSample,
     ImuSample,
     MagSample,
+    Observation,
     PoseSample,
     PositionSample,
     RangeSample,
     Sample,
     StateEstimate,
+    VelocitySample,
 )
 
 __all__ = [
@@ -316,9 +318,7 @@ class NavEkf:
         return NavState(t_ns, self.p.copy(), self.v.copy(), self.R.ravel().copy())
 
     def can_fuse(self, obs: Sample) -> bool:
-        return isinstance(
-            obs, PositionSample | PoseSample | HeightSample | GpsSample | MagSample | RangeSample
-        )
+        return isinstance(obs, Observation)  # every kind there is
 
     def imu_biases(self) -> tuple[FloatArray, FloatArray]:
         return self.bg, self.ba
@@ -387,6 +387,11 @@ class NavEkf:
             return self._fuse_mag(obs)
         if isinstance(obs, RangeSample):
             return self._fuse_range(obs)
+        if isinstance(obs, VelocitySample):
+            H = np.zeros((3, 15))
+            H[:, I_V] = np.eye(3)
+            Rn = np.eye(3) * obs.sigma_m_s**2
+            return self._update(obs.v_W_B - self.v, H, Rn)
         raise EstimationError(f"the navigation EKF cannot fuse {type(obs).__name__}")
 
     def gps_to_enu(self, obs: GpsSample) -> FloatArray:
@@ -491,7 +496,9 @@ class NavEkf:
             # error turns the displacement from the anchor, which the noise must cover.
             J = np.array([-d_W[1], d_W[0], 0.0])
             var_yaw = float(self._P[2, 2]) + obs.sigma_yaw_rad**2
-            Rn = np.eye(3) * obs.sigma_pos_m**2 + var_yaw * np.outer(J, J)
+            Rz = so3_exp(np.array([0.0, 0.0, anchor.yaw]))
+            C = np.eye(3) * obs.sigma_pos_m**2 if obs.cov_p_m2 is None else obs.cov_p_m2
+            Rn = Rz @ C @ Rz.T + var_yaw * np.outer(J, J)
             return self._gated(obs, p_W - self.p, H, Rn, p_W)
         H = np.zeros((4, 15))
         H[0:3, I_P] = np.eye(3)
@@ -499,6 +506,9 @@ class NavEkf:
         r_yaw = math.remainder(yaw_of(R_meas) + anchor.yaw - yaw_of(self.R), 2 * math.pi)
         r = np.concatenate([p_W - self.p, [r_yaw]])
         Rn = np.diag([obs.sigma_pos_m**2] * 3 + [obs.sigma_yaw_rad**2])
+        if obs.cov_p_m2 is not None:  # a full covariance (a marker pose's), into the world
+            Rz = so3_exp(np.array([0.0, 0.0, anchor.yaw]))
+            Rn[0:3, 0:3] = Rz @ obs.cov_p_m2 @ Rz.T
         return self._gated(obs, r, H, Rn, p_W)
 
     def _gated(

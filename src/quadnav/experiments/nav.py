@@ -23,6 +23,7 @@ from quadnav.control.trajectories import Waypoints
 from quadnav.errors import ExperimentError, SimError
 from quadnav.estimation.horizon import DelayedHorizonEstimator, HorizonConfig
 from quadnav.estimation.nav_ekf import NavEkf, NavEkfConfig
+from quadnav.experiments.marker_camera import MarkerCameraSensor, marker_field, thesis_mount
 from quadnav.geometry.rotations import quat_xyzw_from_matrix, rotation_matrix_xyzw, so3_log
 from quadnav.messages import (
     GpsSample,
@@ -33,6 +34,7 @@ from quadnav.messages import (
     RangeSample,
     Sample,
     VehicleState,
+    VelocitySample,
 )
 from quadnav.sim.rigid_body import RigidBodyQuadrotor
 from quadnav.sim.sensors import (
@@ -72,6 +74,16 @@ class ImuSection(_Section):
 
 class VisionSection(_Section):
     enabled: bool = True
+    source: Literal["camera", "pose"] = Field(
+        "camera",
+        description="camera: rendered images of a marker field, detected and posed (thesis 000); "
+        "pose: the true pose plus noise (the fast shortcut)",
+    )
+    marker_grid: int = Field(6, ge=1, le=15, description="camera: n x n markers on the floor")
+    marker_spacing_m: float = Field(0.6, gt=0, description="camera: distance between markers")
+    marker_length_m: float = Field(0.2335, gt=0, description="camera: printed marker side")
+    marker_origin_m: tuple[float, float] = Field((-0.6, -0.6), description="camera: first marker")
+    image_noise: float = Field(2.0, ge=0, description="camera: grey-level noise of the images")
     rate_hz: float = Field(30.0, gt=0)
     delay_s: float = Field(0.25, ge=0)
     sigma_m: float = Field(0.01, gt=0)
@@ -169,6 +181,10 @@ class EstimatorSection(_Section):
         "PX4's rotated external vision, heading from the magnetometer (thesis 000 eqs 3.7-3.8)",
     )
     reset_after_s: float = Field(2.0, gt=0, description="a source rejected this long resets")
+    zero_velocity_on_ground: bool = Field(
+        True,
+        description="fuse zero velocity while the motors are off on the ground (as PX4 at rest)",
+    )
     bias_rw_inflation: float = Field(
         3.0,
         ge=1.0,
@@ -207,6 +223,11 @@ class NavScenario(_Section):
             raise ValueError(
                 "vision.frame_yaw_deg/frame_offset_m need estimator.vision_frame=rotate: with "
                 "vision_frame=world the vision frame is the navigation frame"
+            )
+        if self.vision.source == "camera" and (self.vision.jumps or frame_moved):
+            raise ValueError(
+                "vision.jumps/frame_yaw_deg/frame_offset_m describe the pose shortcut: "
+                "set vision.source=pose"
             )
         if self.estimator.vision_frame == "rotate" and not self.mag.enabled:
             raise ValueError(
@@ -354,12 +375,21 @@ def run_nav(sc: NavScenario, seed: int, *, record_stream: bool = False) -> NavRu
         lever_arm_m=ic.lever_arm_m,
     )
     vs = sc.vision
-    vision = VisionPoseSensor(
+    vision: VisionPoseSensor | MarkerCameraSensor | None
+    if vs.enabled and vs.source == "camera":
+        vision = MarkerCameraSensor(
+            period_ns=round(1e9 / vs.rate_hz),
+            markers=marker_field(vs.marker_grid, vs.marker_spacing_m, vs.marker_length_m, vs.marker_origin_m),
+            T_B_C=thesis_mount(), dropouts_ns=[(round(a * 1e9), round(b * 1e9)) for a, b in vs.dropouts_s],
+            noise_sigma=vs.image_noise, seed=seed,
+        )  # fmt: skip
+    else:
+        vision = VisionPoseSensor(
         period_ns=round(1e9 / vs.rate_hz), sigma_m=vs.sigma_m, yaw_sigma_rad=vs.yaw_sigma_rad,
         frame_yaw_rad=math.radians(vs.frame_yaw_deg), frame_offset_m=vs.frame_offset_m,
         dropouts_ns=[(round(a * 1e9), round(b * 1e9)) for a, b in vs.dropouts_s],
         jumps=[VisionFrameJump(round(t * 1e9), math.radians(y), (dx, dy, dz)) for t, y, dx, dy, dz in vs.jumps],
-    ) if vs.enabled else None  # fmt: skip
+        ) if vs.enabled else None  # fmt: skip
     vision_line: DelayLine[PoseSample] = DelayLine(delay_ns=round(vs.delay_s * 1e9))
     late_vision = sorted((round(t * 1e9), round(d * 1e9)) for t, d in sc.faults.vision_late_s)
     baro = BaroSensor(period_ns=round(1e9 / sc.baro.rate_hz), sigma_m=sc.baro.sigma_m,
@@ -399,6 +429,7 @@ def run_nav(sc: NavScenario, seed: int, *, record_stream: bool = False) -> NavRu
     }
     vision_times: list[int] = []
     landed = False
+    n_imu_ground = 0
     stream: list[Sample] | None = [] if record_stream else None
     try:
         for i in range(n_steps):
@@ -511,6 +542,11 @@ def run_nav(sc: NavScenario, seed: int, *, record_stream: bool = False) -> NavRu
                 batch.extend(o for _, o in arrived_range)
                 if mag_now is not None:
                     batch.append(mag_now)
+                on_ground = landed or (ref_all.p[i][2] <= 0.0 and i < n_steps // 2)
+                if sample is not None and on_ground and sc.estimator.zero_velocity_on_ground:
+                    n_imu_ground += 1
+                    if n_imu_ground % 10 == 0:  # 25 Hz of "standing still"
+                        batch.append(VelocitySample(t_ns=t, v_W_B=np.zeros(3), sigma_m_s=0.02))
                 if sample is not None and imu_nan and t >= imu_nan[0]:
                     # A corrupted reading from the driver: refused at the boundary and counted.
                     imu_nan.pop(0)

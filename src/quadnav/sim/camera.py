@@ -122,6 +122,25 @@ class SyntheticCamera:
         )
         self._background = np.clip(bg, 0, 255).astype(np.uint8)
         cv2.setRNGSeed(self.settings.seed + 1)
+        self._pyramids: list[list[U8]] = []
+        self._R_WO = np.array([o.T_W_O.R_A_B.as_matrix() for o in self.objects]).reshape(-1, 3, 3)
+        self._p_WO = np.array([o.T_W_O.p_A_B for o in self.objects]).reshape(-1, 3)
+        self._corners_W = np.array([o.T_W_O @ o.corners_O() for o in self.objects]).reshape(
+            -1, 4, 3
+        )
+        for obj in self.objects:
+            levels = [obj.texture]
+            while min(levels[-1].shape) >= 16:
+                t = levels[-1]
+                levels.append(
+                    np.asarray(
+                        cv2.resize(
+                            t, (t.shape[1] // 2, t.shape[0] // 2), interpolation=cv2.INTER_AREA
+                        ),
+                        np.uint8,
+                    )
+                )
+            self._pyramids.append(levels)
 
     def render(self, T_W_C: Pose, *, velocity_px_s: tuple[float, float] = (0.0, 0.0)) -> U8:
         """A grey image (h, w) of the scene from ``T_W_C`` (camera frame: x right, y down, z
@@ -130,15 +149,46 @@ class SyntheticCamera:
         ideal = self._background.copy()
         T_C_W = T_W_C.inverse()
         K = self.camera.K
-        for obj in self.objects:
-            T_C_O = T_C_W @ obj.T_W_O
-            corners_C = T_C_O @ obj.corners_O()
-            if np.any(corners_C[:, 2] < 0.05):
-                continue  # (partly) behind the camera
-            R = T_C_O.R_A_B.as_matrix()
-            H = K @ np.column_stack([R[:, 0], R[:, 1], T_C_O.p_A_B]) @ obj.A
-            cv2.warpPerspective(obj.texture, H, (w, h), dst=ideal, flags=cv2.INTER_LINEAR,
+        R_CW = T_C_W.R_A_B.as_matrix()
+        p_CW = T_C_W.p_A_B
+        # All objects' outlines in the camera at once: (n, 4, 3), then their pixels.
+        corners_C = self._corners_W @ R_CW.T + p_CW
+        depth_ok = np.all(corners_C[:, :, 2] > 0.05, axis=1)
+        uvw = corners_C @ K.T
+        uv = uvw[:, :, :2] / np.where(depth_ok[:, None, None], uvw[:, :, 2:3], 1.0)
+        lo = np.floor(uv.min(axis=1)).astype(int) - 1
+        hi = np.ceil(uv.max(axis=1)).astype(int) + 2
+        visible = depth_ok & (hi[:, 0] > 0) & (hi[:, 1] > 0) & (lo[:, 0] < w) & (lo[:, 1] < h)
+        for k in np.flatnonzero(visible):
+            obj = self.objects[k]
+            R = R_CW @ self._R_WO[k]
+            t = R_CW @ self._p_WO[k] + p_CW
+            H = K @ np.column_stack([R[:, 0], R[:, 1], t]) @ obj.A
+            # A camera pixel integrates over its footprint: warp from the pyramid level whose
+            # texels are about one image pixel (no aliasing when the object is far).
+            q = uv[k]
+            area = 0.5 * abs(
+                (q[0, 0] - q[2, 0]) * (q[1, 1] - q[3, 1])
+                - (q[1, 0] - q[3, 0]) * (q[0, 1] - q[2, 1])
+            )
+            texels_per_px = math.sqrt(obj.texture.size / max(area, 1.0))
+            level = min(
+                max(math.floor(math.log2(max(texels_per_px, 1.0))), 0), len(self._pyramids[k]) - 1
+            )
+            tex = self._pyramids[k][level]
+            scale = obj.texture.shape[1] / tex.shape[1]
+            # texel centres of the coarser level: u = scale (u' + 0.5) - 0.5; and the warp
+            # writes only into the object's bounding box (a field of markers stays cheap)
+            x0, y0 = max(int(lo[k, 0]), 0), max(int(lo[k, 1]), 0)
+            x1, y1 = min(int(hi[k, 0]), w), min(int(hi[k, 1]), h)
+            S = np.array(
+                [[scale, 0.0, 0.5 * scale - 0.5], [0.0, scale, 0.5 * scale - 0.5], [0.0, 0.0, 1.0]]
+            )
+            shift = np.array([[1.0, 0.0, -x0], [0.0, 1.0, -y0], [0.0, 0.0, 1.0]])
+            roi = np.ascontiguousarray(ideal[y0:y1, x0:x1])
+            cv2.warpPerspective(tex, shift @ H @ S, (x1 - x0, y1 - y0), dst=roi, flags=cv2.INTER_LINEAR,
                                 borderMode=cv2.BORDER_TRANSPARENT)  # fmt: skip
+            ideal[y0:y1, x0:x1] = roi
         img: NDArray[np.uint8] = ideal
         if self._distorted:
             img = np.asarray(

@@ -13,7 +13,7 @@ from numpy.typing import NDArray
 
 from quadnav.errors import VisionError
 
-__all__ = ["PinholeCamera"]
+__all__ = ["PinholeCamera", "thesis_camera"]
 
 FloatArray = NDArray[np.float64]
 
@@ -70,3 +70,15 @@ class PinholeCamera:
         K[0] *= sx
         K[1] *= sy
         return PinholeCamera(K, self.dist.copy(), width, height)
+
+
+def thesis_camera() -> PinholeCamera:
+    """Thesis 000's Raspberry Pi Camera v2 at 640x480 (its ``cal.yml``)."""
+    return PinholeCamera(
+        np.array(
+            [[498.57027128, 0.0, 317.13790849], [0.0, 499.04454028, 253.31937807], [0.0, 0.0, 1.0]]
+        ),
+        np.array([0.16052725, -0.25643743, 0.00342303, 0.00516838, -0.15214634]),
+        640,
+        480,
+    )

@@ -23,7 +23,7 @@ from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
 from quadnav.errors import VisionError
-from quadnav.geometry.rotations import Pose
+from quadnav.geometry.rotations import Pose, so3_log
 from quadnav.vision.camera import PinholeCamera
 
 __all__ = [
@@ -59,7 +59,8 @@ def mount_pose(rpy_deg: tuple[float, float, float], xyz_m: tuple[float, float, f
 @dataclass(frozen=True, slots=True)
 class PnpResult:
     """``T_C_O`` with the covariance (6x6) of its rotation vector and translation (OpenCV's
-    ``rvec``, ``tvec``), the RMS reprojection error (px) and the pixel noise used."""
+    ``rvec``, ``tvec``), the RMS reprojection error (px), the pixel noise used and, for an
+    ambiguous planar pose, the other solution."""
 
     T_C_O: Pose
     rvec: FloatArray
@@ -68,6 +69,7 @@ class PnpResult:
     rms_px: float
     sigma_px: float
     n_points: int
+    alternative: FloatArray | None = None  # (rvec, tvec) of a second pose that fits almost as well
 
 
 def _is_planar(obj: FloatArray) -> bool:
@@ -85,6 +87,7 @@ def solve_pnp(
     prior_sigma_px: float = 0.5,
     prior_dof: float = 4.0,
     refine: bool = True,
+    ambiguity_ratio: float = 3.0,
 ) -> PnpResult:
     """Pose of the object points in the camera from their pixels (N >= 4).
 
@@ -105,9 +108,18 @@ def solve_pnp(
         flag = cv2.SOLVEPNP_IPPE
     else:
         flag = cv2.SOLVEPNP_SQPNP
-    ok, rvec, tvec = cv2.solvePnP(obj, img, camera.K, camera.dist, flags=flag)
-    if not ok:
+    n_sol, rvecs, tvecs, errs = cv2.solvePnPGeneric(obj, img, camera.K, camera.dist, flags=flag)
+    if not n_sol:
         raise VisionError("PnP found no pose")
+    order = np.argsort(np.asarray(errs).ravel()) if errs is not None else np.arange(n_sol)
+    rvec, tvec = rvecs[order[0]], tvecs[order[0]]
+    # A planar target seen small or nearly head-on has two poses that fit almost equally well
+    # (IPPE returns both): when the second is close, it is kept so the covariance can say so.
+    alternative = None
+    if n_sol > 1 and errs is not None:
+        e = np.asarray(errs).ravel()
+        if e[order[1]] < ambiguity_ratio * max(e[order[0]], 0.05):
+            alternative = np.concatenate([np.ravel(rvecs[order[1]]), np.ravel(tvecs[order[1]])])
     if refine:
         rvec, tvec = cv2.solvePnPRefineLM(obj, img, camera.K, camera.dist, rvec, tvec)
     rvec = np.asarray(rvec, dtype=np.float64).ravel()
@@ -117,6 +129,9 @@ def solve_pnp(
     J = jac[:, 0:6]
     dof = 2 * n - 6
     s2 = (float(res @ res) + prior_dof * prior_sigma_px**2) / max(dof + prior_dof, 1e-9)
+    # Corner errors are partly systematic (blur, the refinement window, the print): they do
+    # not average away over many corners, so the prior is also a floor.
+    s2 = max(s2, prior_sigma_px**2)
     JtJ = J.T @ J
     try:
         cov = s2 * np.linalg.inv(JtJ)
@@ -124,7 +139,7 @@ def solve_pnp(
         raise VisionError("PnP pose is degenerate (singular Jacobian)") from None
     T = Pose(Rotation.from_rotvec(rvec), tvec)
     rms = float(math.sqrt(float(res @ res) / n))
-    return PnpResult(T, rvec, tvec, 0.5 * (cov + cov.T), rms, math.sqrt(s2), n)
+    return PnpResult(T, rvec, tvec, 0.5 * (cov + cov.T), rms, math.sqrt(s2), n, alternative)
 
 
 @dataclass(frozen=True, slots=True)
@@ -168,8 +183,13 @@ def vehicle_pose(pnp: PnpResult, T_W_O: Pose, T_B_C: Pose) -> VehiclePose:
         d[k] = step
         Tp, Tm = _chain(rt + d, TWO, TCB), _chain(rt - d, TWO, TCB)
         J[0:3, k] = (Tp[:3, 3] - Tm[:3, 3]) / (2 * step)
-        dRp, _ = cv2.Rodrigues(Tp[:3, :3] @ R0.T)
-        dRm, _ = cv2.Rodrigues(Tm[:3, :3] @ R0.T)
-        J[3:6, k] = (dRp.ravel() - dRm.ravel()) / (2 * step)
+        # (cv2.Rodrigues rounds rotations this small to zero; so3_log does not)
+        J[3:6, k] = (so3_log(Tp[:3, :3] @ R0.T) - so3_log(Tm[:3, :3] @ R0.T)) / (2 * step)
     cov = J @ pnp.cov_rt @ J.T
+    if pnp.alternative is not None:
+        # Either pose may be the true one: the covariance of the two-point mixture (equal
+        # weights) adds a quarter of the outer product of their difference.
+        T1 = _chain(pnp.alternative, TWO, TCB)
+        delta = np.concatenate([T1[:3, 3] - T0[:3, 3], so3_log(T1[:3, :3] @ R0.T)])
+        cov = cov + 0.25 * np.outer(delta, delta)
     return VehiclePose(Pose.from_matrix(T0), 0.5 * (cov + cov.T))
