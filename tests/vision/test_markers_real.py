@@ -114,3 +114,18 @@ def test_camera_yaml_errors_are_one_line(tmp_path: Path) -> None:
     garbage.write_bytes(b"\x00\xff{{{not yaml")
     with pytest.raises(IoError):
         read_camera_yaml(garbage)
+
+
+def test_thesis_detector_parameter_file_is_applied() -> None:
+    thesis = DATA.parent / "thesis_rig" / "detector_params.yml"
+    if not thesis.exists():
+        pytest.skip(f"shared test data not found at {thesis}")
+    params, unknown = detector_parameters(read_opencv_yaml(thesis))
+    assert params.cornerRefinementMethod == cv2.aruco.CORNER_REFINE_SUBPIX
+    assert params.adaptiveThreshWinSizeMax == 23 and params.errorCorrectionRate == pytest.approx(
+        0.6
+    )
+    # keys of older ArUco versions are reported, not fatal
+    assert {"nmarkers", "minMarkerDistance", "minCornerDistance"} <= set(unknown)
+    with pytest.raises(VisionError, match="adaptiveThreshWinSizeMax"):
+        detector_parameters({"adaptiveThreshWinSizeMax": "big"})

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import typer
 
+from quadnav.cli.calibrate import calibrate_command
 from quadnav.cli.eval import eval_command
 from quadnav.cli.markers import markers_command
 from quadnav.cli.planar import planar_command
@@ -24,6 +25,7 @@ app.command("planar")(planar_command)
 app.command("eval")(eval_command)
 app.command("sim")(sim_command)
 app.command("markers")(markers_command)
+app.command("calibrate")(calibrate_command)
 
 
 def main() -> None:

@@ -1,0 +1,97 @@
+"""``quadnav calibrate SOURCE``: camera calibration from ChArUco views (an image folder or a
+video), with bad views rejected, written as OpenCV YAML."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.table import Table
+
+from quadnav.cli.common import console, handle_errors, progress_bar
+from quadnav.errors import ConfigError
+from quadnav.io.frames import open_frames
+from quadnav.io.opencv_yaml import write_camera_yaml
+from quadnav.vision.calibration import Calibration, calibrate_charuco
+from quadnav.vision.markers import CharucoDetections, CharucoSpec, CharucoTarget
+
+__all__ = ["calibrate_command", "calibrate_source"]
+
+
+def calibrate_source(
+    source: str, spec: CharucoSpec, *, every: int = 1, max_views: int = 60, progress: object = None
+) -> tuple[Calibration, int, list[str]]:
+    """Detect the board in every ``every``-th frame of ``source`` and calibrate from the views
+    with the most corners (at most ``max_views``). Returns the calibration, the number of
+    frames read and the frames that could not be decoded."""
+    target = CharucoTarget(spec)
+    frames = open_frames(source)
+    views: list[tuple[int, CharucoDetections]] = []
+    size: tuple[int, int] | None = None
+    skipped: list[str] = []
+    n = 0
+    for fr in frames:
+        n += 1
+        if fr.index % every:
+            continue
+        if fr.image is None:
+            skipped.append(f"frame {fr.index}: {fr.error}")
+            continue
+        h, w = fr.image.shape[:2]
+        if size is None:
+            size = (w, h)
+        elif size != (w, h):
+            skipped.append(f"frame {fr.index}: size {w}x{h} differs from {size[0]}x{size[1]}")
+            continue
+        views.append((fr.index, target.detect(fr.image)))
+        if callable(progress):
+            progress(fr.index + 1, frames.total or 0, f"{len(views)} views")
+    if size is None:
+        raise ConfigError(f"{source}: no readable image")
+    views.sort(key=lambda v: -len(v[1].corner_ids))
+    chosen = sorted(views[:max_views])
+    return calibrate_charuco([d for _, d in chosen], target, size), n, skipped
+
+
+@handle_errors
+def calibrate_command(
+    source: Annotated[str, typer.Argument(help="folder of ChArUco images, or a video")],
+    squares: Annotated[
+        tuple[int, int], typer.Option("--squares", help="squares across and down")
+    ] = (5, 7),
+    square_m: Annotated[float, typer.Option("--square-m", help="square side (m)")] = 0.04,
+    marker_m: Annotated[float, typer.Option("--marker-m", help="marker side (m)")] = 0.02,
+    dictionary: Annotated[str, typer.Option("--dictionary")] = "DICT_6X6_250",
+    every: Annotated[
+        int, typer.Option("--every", min=1, help="use every n-th frame of a video")
+    ] = 1,
+    out: Annotated[Path, typer.Option("--out", help="calibration file to write")] = Path(
+        "camera.yml"
+    ),
+) -> None:
+    """Calibrate a camera from views of a ChArUco board; write OpenCV YAML.
+
+    Example (OpenCV's tutorial board, 5x7 squares of 4 cm):
+
+      quadnav calibrate calibration_images/ --out camera.yml
+    """
+    spec = CharucoSpec(squares[0], squares[1], square_m, marker_m, dictionary)
+    with progress_bar("calibrate") as update:
+        cal, n, skipped = calibrate_source(source, spec, every=every, progress=update)
+    write_camera_yaml(
+        out, cal.camera, avg_reprojection_error=cal.rms_px, views=len(cal.per_view_rms_px)
+    )
+    table = Table(title=f"calibration from {source}")
+    table.add_column("measure")
+    table.add_column("value", justify="right")
+    table.add_row("frames read / unreadable", f"{n} / {len(skipped)}")
+    table.add_row("views used / rejected", f"{len(cal.per_view_rms_px)} / {len(cal.rejected)}")
+    table.add_row("RMS reprojection error (px)", f"{cal.rms_px:.3f}")
+    table.add_row("fx, fy (px)", f"{cal.camera.fx:.2f}, {cal.camera.fy:.2f}")
+    table.add_row("cx, cy (px)", f"{cal.camera.K[0, 2]:.2f}, {cal.camera.K[1, 2]:.2f}")
+    table.add_row("distortion", " ".join(f"{d:.4g}" for d in cal.camera.dist))
+    console.print(table)
+    for k, why in sorted(cal.rejected.items()):
+        console.print(f"rejected view {k}: {why}", highlight=False)
+    console.print(str(out), highlight=False)
