@@ -11,11 +11,11 @@ from quadnav.errors import IoError
 from quadnav.eval import ape, associate, error_stats
 from quadnav.io import read_trajectory
 from quadnav.io.ulog import read_ulog_trajectory
+from tests.shared_data import PX4_EVENTS as EVENTS
+from tests.shared_data import PX4_SITL as SITL
+from tests.shared_data import needs
 
-DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "px4"
-SITL = DATA / "sample_logging_tagged_and_default_params.ulg"
-EVENTS = DATA / "sample_px4_events.ulg"
-needs_data = pytest.mark.skipif(not SITL.exists(), reason=f"shared test data not found at {DATA}")
+needs_data = needs(SITL)
 
 
 @needs_data

@@ -8,6 +8,7 @@ from quadnav.cli.calibrate import calibrate_command
 from quadnav.cli.eval import eval_command
 from quadnav.cli.markers import markers_command
 from quadnav.cli.planar import planar_command
+from quadnav.cli.replay import replay_command
 from quadnav.cli.run import run_command
 from quadnav.cli.sim import sim_command
 
@@ -26,6 +27,7 @@ app.command("eval")(eval_command)
 app.command("sim")(sim_command)
 app.command("markers")(markers_command)
 app.command("calibrate")(calibrate_command)
+app.command("replay")(replay_command)
 
 
 def main() -> None:

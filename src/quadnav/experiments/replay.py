@@ -1,0 +1,336 @@
+"""Replay a PX4 flight log through the navigation EKF (thesis 000 section 3.4.2: studying the
+estimator offline on PX4's own log replay).
+
+The sensor streams of :func:`quadnav.io.ulog_sensors.read_ulog_sensors` are merged in arrival
+order, each measurement stamped with its time of validity (the log's sample time minus PX4's
+configured delay for that sensor, as EKF2 does). The filter is aligned on the ground from the
+first second of IMU data and the magnetometer, starts from PX4's EKF2 tuning read from the log,
+and fuses zero velocity while PX4's land detector says landed.
+"""
+
+from __future__ import annotations
+
+import heapq
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import pymap3d
+from numpy.typing import NDArray
+from pydantic import BaseModel, ConfigDict, Field
+from scipy.stats import chi2
+
+from quadnav.errors import ExperimentError
+from quadnav.estimation.horizon import DelayedHorizonEstimator, HorizonConfig
+from quadnav.estimation.nav_ekf import NavEkf, NavEkfConfig
+from quadnav.experiments.nav import ground_alignment
+from quadnav.geometry.rotations import quat_xyzw_from_matrix
+from quadnav.io.ulog_sensors import UlogSensors
+from quadnav.messages import GpsSample, HeightSample, ImuSample, MagSample, Sample, VelocitySample
+
+__all__ = ["ReplayConfig", "ReplayResult", "config_from_px4", "replay"]
+
+FloatArray = NDArray[np.float64]
+
+
+class ReplayConfig(BaseModel):
+    """The filter's settings for a replay; :func:`config_from_px4` fills them from EKF2's."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    gyro_noise_rad_s: float = Field(0.015, gt=0)
+    accel_noise_m_s2: float = Field(0.35, gt=0)
+    gyro_bias_noise_rad_s2: float = Field(0.001, gt=0)
+    accel_bias_noise_m_s3: float = Field(0.003, gt=0)
+    gps_delay_s: float = Field(0.11, ge=0)
+    baro_delay_s: float = Field(0.0, ge=0)
+    mag_delay_s: float = Field(0.0, ge=0)
+    gps_pos_noise_m: float = Field(0.5, gt=0)
+    gps_vel_noise_m_s: float = Field(0.3, gt=0)
+    baro_noise_m: float = Field(3.5, gt=0)
+    heading_noise_rad: float = Field(0.3, gt=0)
+    gate_sigma: float = Field(5.0, gt=0)
+    mag_declination_rad: float | None = Field(None, description="None: from the log")
+    align_s: float = Field(1.0, gt=0)
+    zero_velocity_when_landed: bool = True
+    zero_velocity_sigma_m_s: float = Field(0.05, gt=0, description="standing still, within this")
+    tau_vel_s: float = Field(0.25, gt=0)
+    tau_pos_s: float = Field(0.25, gt=0)
+    min_gps_fix: int = Field(3, ge=2)
+    gps_max_eph_m: float = Field(
+        3.0, gt=0, description="fixes less precise than this are not used (EKF2_REQ_EPH)"
+    )
+    gps_height: bool = Field(
+        True,
+        description="fuse the GNSS altitude (PX4: EKF2_GPS_CTRL bit 1, or EKF2_HGT_MODE=1 before v1.14)",
+    )
+    imu_downsample: int = Field(
+        2, ge=1, le=10,
+        description="average this many IMU samples into one filter step (PX4's EKF2 predicts at 100 Hz, EKF2_PREDICT_US)",
+    )  # fmt: skip
+
+
+def config_from_px4(
+    params: dict[str, float], overrides: dict[str, Any] | None = None
+) -> ReplayConfig:
+    """EKF2 parameters (as logged) onto :class:`ReplayConfig`; ``overrides`` win."""
+    mapping = {
+        "EKF2_GYR_NOISE": ("gyro_noise_rad_s", 1.0), "EKF2_ACC_NOISE": ("accel_noise_m_s2", 1.0),
+        "EKF2_GYR_B_NOISE": ("gyro_bias_noise_rad_s2", 1.0), "EKF2_ACC_B_NOISE": ("accel_bias_noise_m_s3", 1.0),
+        "EKF2_GPS_DELAY": ("gps_delay_s", 1e-3), "EKF2_BARO_DELAY": ("baro_delay_s", 1e-3),
+        "EKF2_MAG_DELAY": ("mag_delay_s", 1e-3), "EKF2_GPS_P_NOISE": ("gps_pos_noise_m", 1.0),
+        "EKF2_GPS_V_NOISE": ("gps_vel_noise_m_s", 1.0), "EKF2_BARO_NOISE": ("baro_noise_m", 1.0),
+        "EKF2_HEAD_NOISE": ("heading_noise_rad", 1.0), "EKF2_GPS_P_GATE": ("gate_sigma", 1.0),
+        "EKF2_TAU_VEL": ("tau_vel_s", 1.0), "EKF2_TAU_POS": ("tau_pos_s", 1.0),
+    }  # fmt: skip
+    values: dict[str, Any] = {}
+    for key, (name, scale) in mapping.items():
+        if key in params and math.isfinite(params[key]) and params[key] > 0:
+            values[name] = params[key] * scale
+    if "EKF2_REQ_EPH" in params:
+        values["gps_max_eph_m"] = params["EKF2_REQ_EPH"]
+    if "EKF2_GPS_CTRL" in params:  # v1.14 and later: bit 1 is the GNSS altitude
+        values["gps_height"] = bool(int(params["EKF2_GPS_CTRL"]) & 2)
+    elif "EKF2_HGT_MODE" in params:  # earlier: the GNSS altitude only as the height reference
+        values["gps_height"] = int(params["EKF2_HGT_MODE"]) == 1
+    values.update(overrides or {})
+    return ReplayConfig.model_validate(values)
+
+
+@dataclass
+class ReplayResult:
+    """Our estimate at the current horizon (``t_ns``, ENU/FLU), the delayed states, fusion
+    statistics and what was skipped."""
+
+    t_ns: NDArray[np.int64]
+    p: FloatArray
+    v: FloatArray
+    q_xyzw: FloatArray
+    datum_lla: tuple[float, float, float]
+    counts: dict[str, dict[str, int]]
+    fusion: dict[str, dict[str, FloatArray]]
+    events: list[tuple[int, str]]
+    notes: list[str] = field(default_factory=list)
+    replay_wall_s: float = 0.0
+
+
+def _stream(
+    s: UlogSensors, cfg: ReplayConfig, datum_lla: tuple[float, float, float], baro_ref_m: float
+) -> list[tuple[int, int, Sample]]:
+    """(arrival ns, order, sample) for every measurement, with times of validity."""
+    out: list[tuple[int, int, Sample]] = []
+    seq = 0
+    g = s.gps
+    if g:
+        d_ns = round(cfg.gps_delay_s * 1e9)
+        usable = (g["fix"] >= cfg.min_gps_fix) & (g["eph"] <= cfg.gps_max_eph_m)
+        for k in np.flatnonzero(usable):
+            t = int(g["t_ns"][k])
+            sh = max(float(g["eph"][k]), cfg.gps_pos_noise_m)
+            # without GNSS height fusion the altitude is given no weight
+            sv = max(float(g["epv"][k]), 1.5 * cfg.gps_pos_noise_m) if cfg.gps_height else 1e4
+            svel = max(float(g["s_var"][k]), cfg.gps_vel_noise_m_s)
+            try:
+                sample = GpsSample(t_ns=t - d_ns, lat_deg=float(g["lat"][k]), lon_deg=float(g["lon"][k]),
+                                   alt_m=float(g["alt"][k]), v_enu_m_s=g["v_enu"][k], sigma_h_m=sh, sigma_v_m=sv,
+                                   sigma_vel_m_s=svel)  # fmt: skip
+            except Exception:  # a corrupt record: left out (counted by the caller as missing)
+                continue
+            out.append((t, seq, sample))
+            seq += 1
+    b = s.baro
+    if b:
+        d_ns = round(cfg.baro_delay_s * 1e9)
+        for t, a in zip(b["t_ns"], b["alt"], strict=True):
+            if math.isfinite(float(a)):
+                # heights relative to the datum's altitude, as PX4's baro offset does
+                out.append(
+                    (
+                        int(t),
+                        seq,
+                        HeightSample(
+                            t_ns=int(t) - d_ns,
+                            z_m=float(a) - baro_ref_m,
+                            sigma_m=cfg.baro_noise_m,
+                        ),
+                    )
+                )
+                seq += 1
+    m = s.mag
+    if m:
+        d_ns = round(cfg.mag_delay_s * 1e9)
+        for t, f in zip(m["t_ns"], m["field_B"], strict=True):
+            if np.isfinite(f).all() and np.linalg.norm(f) > 0:
+                out.append(
+                    (
+                        int(t),
+                        seq,
+                        MagSample(
+                            t_ns=int(t) - d_ns, field_B=f, sigma_heading_rad=cfg.heading_noise_rad
+                        ),
+                    )
+                )
+                seq += 1
+    return out
+
+
+def _downsample(t: NDArray[np.int64], gyro: FloatArray, accel: FloatArray, n: int) -> tuple[NDArray[np.int64], FloatArray, FloatArray]:  # fmt: skip
+    """Average each run of ``n`` IMU samples into one, stamped at its last sample (what PX4's
+    IMU down-sampler hands EKF2). A sample with a non-finite value spoils its group, which the
+    estimator then refuses at its boundary and counts."""
+    if n == 1:
+        return t, gyro, accel
+    m = (len(t) // n) * n
+    tt = t[:m].reshape(-1, n)
+    w = np.diff(np.concatenate([[t[0] - (t[1] - t[0])], t[:m]])).reshape(-1, n).astype(np.float64)
+    w = np.where(w > 0, w, 0.0)
+    w /= np.maximum(w.sum(axis=1, keepdims=True), 1e-12)
+    g = np.einsum("kn,knj->kj", w, gyro[:m].reshape(-1, n, 3))
+    a = np.einsum("kn,knj->kj", w, accel[:m].reshape(-1, n, 3))
+    return tt[:, -1].copy(), g, a
+
+
+def replay(s: UlogSensors, cfg: ReplayConfig, *, progress: Any = None) -> ReplayResult:
+    notes = list(s.notes)
+    n_imu = len(s.imu_t_ns)
+    if n_imu < 10:
+        raise ExperimentError(f"{s.path}: only {n_imu} IMU samples")
+    t_wall0 = time.perf_counter()
+    t_imu, gyro_all, accel_all = _downsample(
+        s.imu_t_ns, s.gyro_rad_s, s.accel_m_s2, cfg.imu_downsample
+    )
+    n_imu = len(t_imu)
+    period_ns = int(np.median(np.diff(t_imu)))
+    jumps = np.flatnonzero(np.diff(t_imu) > 20 * period_ns)
+    for k in jumps.tolist():
+        notes.append(
+            f"IMU gap of {(t_imu[k + 1] - t_imu[k]) * 1e-9:.3f} s at {t_imu[k] * 1e-9:.3f} s: predicted across it"
+        )
+    back = int(np.sum(np.diff(t_imu) <= 0))
+    if back:
+        notes.append(f"{back} IMU timestamps not increasing: rejected and counted")
+    # Datum: PX4's local origin when the log has one (so the frames match), else the first fix.
+    datum = s.local_origin_lla
+    if datum is None and s.gps:
+        ok = np.flatnonzero(s.gps["fix"] >= cfg.min_gps_fix)
+        if len(ok):
+            k = int(ok[0])
+            datum = (float(s.gps["lat"][k]), float(s.gps["lon"][k]), float(s.gps["alt"][k]))
+            notes.append("no PX4 local origin in the log: the first GNSS fix is the datum")
+    if datum is None:
+        datum = (0.0, 0.0, 0.0)
+        notes.append("no GNSS: the world origin is where the log starts")
+    decl = (
+        cfg.mag_declination_rad
+        if cfg.mag_declination_rad is not None
+        else (s.earth_field_declination_rad or 0.0)
+    )
+    # Alignment on the first align_s of IMU and magnetometer data.
+    t0 = int(t_imu[0])
+    t_align = t0 + round(cfg.align_s * 1e9)
+    align_idx = np.flatnonzero(t_imu <= t_align)
+    align_imu = [ImuSample(t_ns=int(t_imu[i]), gyro_rad_s=gyro_all[i], accel_m_s2=accel_all[i]) for i in align_idx.tolist()
+                 if np.isfinite(gyro_all[i]).all() and np.isfinite(accel_all[i]).all()]  # fmt: skip
+    align_mag = []
+    if s.mag:
+        sel = (s.mag["t_ns"] <= t_align) & np.isfinite(s.mag["field_B"]).all(axis=1)
+        align_mag = [MagSample(t_ns=int(t), field_B=f, sigma_heading_rad=cfg.heading_noise_rad)
+                     for t, f in zip(s.mag["t_ns"][sel], s.mag["field_B"][sel], strict=True)]  # fmt: skip
+    gps_enu = None
+    if s.gps:
+        ok = np.flatnonzero(
+            (s.gps["fix"] >= cfg.min_gps_fix) & (s.gps["t_ns"] <= t_align + 2_000_000_000)
+        )
+        if len(ok):
+            k = int(ok[0])
+            gps_enu = np.array(
+                pymap3d.geodetic2enu(s.gps["lat"][k], s.gps["lon"][k], s.gps["alt"][k], *datum)
+            )
+    R0, p0 = ground_alignment(
+        align_imu, None, mag=align_mag, declination_rad=decl, gps_enu_m=gps_enu
+    )
+    dt = period_ns * 1e-9
+    ekf_cfg = NavEkfConfig(
+        gyro_sigma_rad_s=cfg.gyro_noise_rad_s, accel_sigma_m_s2=cfg.accel_noise_m_s2,
+        gyro_bias_rw_rad_s_sqrt_s=cfg.gyro_bias_noise_rad_s2 * math.sqrt(dt),
+        accel_bias_rw_m_s2_sqrt_s=cfg.accel_bias_noise_m_s3 * math.sqrt(dt),
+        gate_probability=float(chi2.cdf(cfg.gate_sigma**2, 1)), datum_lla=datum, mag_declination_rad=decl,
+        reset_after_s=5.0,
+    )  # fmt: skip
+    sig = np.array(
+        [0.05, 0.05, 0.3]
+        + [0.3] * 3
+        + [2.0 if gps_enu is not None else 0.5] * 3
+        + [0.01] * 3
+        + [0.2] * 3
+    )
+    ekf = NavEkf(ekf_cfg, p0=p0, v0=np.zeros(3), q0_xyzw=R0.as_quat(), P0=np.diag(sig**2))
+    max_delay = max(cfg.gps_delay_s if s.gps else 0.0, cfg.baro_delay_s, cfg.mag_delay_s)
+    est = DelayedHorizonEstimator(
+        ekf, HorizonConfig(imu_period_ns=period_ns, max_delay_ns=round(max_delay * 1e9),
+                           tau_vel_s=cfg.tau_vel_s, tau_pos_s=cfg.tau_pos_s), t0_ns=t_align,
+    )  # fmt: skip
+    baro_ref = datum[2]
+    if s.baro:
+        sel = (s.baro["t_ns"] <= t_align) & np.isfinite(s.baro["alt"])
+        if sel.any():
+            baro_ref = float(np.median(s.baro["alt"][sel])) - float(p0[2])
+    obs = [o for o in _stream(s, cfg, datum, baro_ref) if o[0] > t_align]
+    heapq.heapify(obs)
+    # PX4's land detector, held between its messages, at every IMU time
+    landed_t = s.landed.get("t_ns", np.zeros(0, np.int64))
+    landed_v = s.landed.get("landed", np.zeros(0, bool))
+    j_land = np.searchsorted(landed_t, t_imu, side="right") - 1
+    landed_at = (
+        (j_land >= 0) & np.asarray(landed_v, bool)[np.clip(j_land, 0, max(len(landed_v) - 1, 0))]
+        if len(landed_t)
+        else np.zeros(n_imu, bool)
+    )
+    landed_at &= cfg.zero_velocity_when_landed
+    rows_t: list[int] = []
+    rows_p: list[FloatArray] = []
+    rows_v: list[FloatArray] = []
+    rows_q: list[FloatArray] = []
+    start = int(align_idx[-1]) + 1 if len(align_idx) else 0
+    n_zupt = 0
+    for k in range(start, n_imu):
+        t = int(t_imu[k])
+        while obs and obs[0][0] <= t:
+            est.push(heapq.heappop(obs)[2])
+        if landed_at[k]:
+            n_zupt += 1
+            if n_zupt % 10 == 0:
+                est.push(
+                    VelocitySample(t_ns=t, v_W_B=np.zeros(3), sigma_m_s=cfg.zero_velocity_sigma_m_s)
+                )
+        est.push_raw(ImuSample, t_ns=t, gyro_rad_s=gyro_all[k], accel_m_s2=accel_all[k])
+        if k % 5 == 0:
+            o = est.output_nav()
+            rows_t.append(o.t_ns)
+            rows_p.append(o.pos)
+            rows_v.append(o.vel)
+            rows_q.append(quat_xyzw_from_matrix(o.att.reshape(3, 3)))
+        if progress and k % 2000 == 0:
+            progress(k, n_imu, "IMU samples")
+    wall = time.perf_counter() - t_wall0
+    if est.rejected_invalid:
+        notes.append(f"refused at the boundary (non-finite values): {est.rejected_invalid}")
+    fusion: dict[str, dict[str, FloatArray]] = {}
+    for src in est.sources:
+        recs = [r for r in est.fusion_log if r.source == src]
+        fusion[src] = {
+            "t_obs_ns": np.array([r.t_obs_ns for r in recs], dtype=np.float64),
+            "test_ratio": np.array([r.result.test_ratio for r in recs]),
+            "accepted": np.array([r.result.accepted for r in recs], dtype=np.float64),
+            "innovation": np.array([np.pad(r.result.innovation, (0, 6 - len(r.result.innovation)), constant_values=np.nan) for r in recs]).reshape(-1, 6),
+        }  # fmt: skip
+    counts = {src: {"received": st.received, "fused": st.fused, "rejected_gate": st.rejected_gate,
+                    "rejected_too_old": st.rejected_too_old} for src in est.sources for st in [est.stats(src)]}  # fmt: skip
+    counts["imu"] = {"received": n_imu - start, "rejected_out_of_order": est.imu_rejected_out_of_order,
+                     "rejected_invalid": est.rejected_invalid.get("ImuSample", 0), "clipping_flagged": int(np.sum(s.imu_clipping))}  # fmt: skip
+    return ReplayResult(
+        t_ns=np.array(rows_t, dtype=np.int64), p=np.array(rows_p), v=np.array(rows_v), q_xyzw=np.array(rows_q),
+        datum_lla=datum, counts=counts, fusion=fusion, events=list(ekf.events), notes=notes, replay_wall_s=wall,
+    )  # fmt: skip

@@ -1,0 +1,171 @@
+"""PX4 ULog sensor streams and estimator settings, for replaying a flight through our EKF.
+
+Reads what exists across PX4 versions: the IMU (``sensor_combined``, else ``vehicle_imu``
+delta angles/velocities), GNSS (``vehicle_gps_position`` or ``sensor_gps``), barometer
+(``vehicle_air_data``), magnetometer (``vehicle_magnetometer``), external vision
+(``vehicle_visual_odometry``) and distance sensors, PX4's land detector, and the EKF2
+parameters. NED/FRD become ENU/FLU here. What is missing or unusable is reported in
+``notes``, never fatal unless there is no IMU at all.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from quadnav.errors import IoError
+from quadnav.geometry.frames import frd_to_flu, ned_to_enu
+
+__all__ = ["UlogSensors", "read_ulog_sensors"]
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+
+TOPICS = [
+    "sensor_combined", "vehicle_imu", "vehicle_gps_position", "sensor_gps", "vehicle_air_data",
+    "vehicle_magnetometer", "vehicle_visual_odometry", "distance_sensor", "vehicle_land_detected",
+    "vehicle_local_position", "vehicle_attitude", "estimator_states", "estimator_innovations",
+    "vehicle_local_position_groundtruth", "vehicle_attitude_groundtruth",
+]  # fmt: skip
+
+
+@dataclass
+class UlogSensors:
+    """Sensor streams in ENU/FLU with times of validity in nanoseconds since boot."""
+
+    path: Path
+    duration_s: float
+    imu_t_ns: IntArray
+    gyro_rad_s: FloatArray  # (N, 3) FLU
+    accel_m_s2: FloatArray  # (N, 3) FLU
+    imu_clipping: IntArray  # samples where PX4 flagged accelerometer or gyro clipping
+    gps: dict[str, NDArray[Any]] = field(default_factory=dict)
+    baro: dict[str, NDArray[Any]] = field(default_factory=dict)
+    mag: dict[str, NDArray[Any]] = field(default_factory=dict)
+    landed: dict[str, NDArray[Any]] = field(default_factory=dict)
+    px4_innovations: dict[str, NDArray[Any]] = field(default_factory=dict)
+    local_origin_lla: tuple[float, float, float] | None = None
+    earth_field_declination_rad: float | None = None
+    params: dict[str, float] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)
+
+
+def _data(ulog: Any, name: str) -> dict[str, NDArray[Any]] | None:
+    for d in ulog.data_list:
+        if d.name == name and d.multi_id == 0:
+            return {k: np.asarray(v) for k, v in d.data.items()}
+    return None
+
+
+def _t_ns(d: dict[str, NDArray[Any]]) -> IntArray:
+    ts = d.get("timestamp_sample")
+    t = ts if ts is not None and np.all(ts > 0) else d["timestamp"]
+    return np.asarray(t, dtype=np.int64) * 1000
+
+
+def _vec(d: dict[str, NDArray[Any]], fmt: str) -> FloatArray:
+    return np.column_stack([d[fmt.format(k)] for k in range(3)]).astype(np.float64)
+
+
+def read_ulog_sensors(path: Path) -> UlogSensors:
+    from pyulog import ULog  # type: ignore[import-untyped]
+
+    path = Path(path)
+    if not path.is_file():
+        raise IoError(f"ULog file not found: {path}")
+    try:
+        ulog = ULog(str(path), TOPICS)
+    except Exception as exc:  # pyulog raises bare exceptions on corrupt or truncated files
+        raise IoError(f"{path}: cannot parse the ULog: {exc}") from None
+    notes: list[str] = []
+    params = {k: float(v) for k, v in ulog.initial_parameters.items() if k.startswith("EKF2_")}
+    duration = (ulog.last_timestamp - ulog.start_timestamp) * 1e-6
+    sc = _data(ulog, "sensor_combined")
+    if sc is not None:
+        t = np.asarray(sc["timestamp"], dtype=np.int64) * 1000
+        gyro = frd_to_flu(_vec(sc, "gyro_rad[{}]"))
+        accel = frd_to_flu(_vec(sc, "accelerometer_m_s2[{}]"))
+        clip = np.zeros(len(t), dtype=np.int64)
+        for key in ("accelerometer_clipping", "gyro_clipping"):
+            if key in sc:
+                clip |= (np.asarray(sc[key]) != 0).astype(np.int64)
+    else:
+        vi = _data(ulog, "vehicle_imu")
+        if vi is None:
+            raise IoError(f"{path}: no IMU in the log (neither sensor_combined nor vehicle_imu)")
+        notes.append("IMU from vehicle_imu (delta angles / velocities)")
+        t = _t_ns(vi)
+        dt_a = np.asarray(vi["delta_velocity_dt"], dtype=np.float64) * 1e-6
+        dt_g = np.asarray(vi["delta_angle_dt"], dtype=np.float64) * 1e-6
+        with np.errstate(divide="ignore", invalid="ignore"):
+            gyro = frd_to_flu(_vec(vi, "delta_angle[{}]") / dt_g[:, None])
+            accel = frd_to_flu(_vec(vi, "delta_velocity[{}]") / dt_a[:, None])
+        clip = np.asarray(vi.get("delta_velocity_clipping", np.zeros(len(t))), dtype=np.int64)
+    out = UlogSensors(path, duration, t, np.asarray(gyro, float), np.asarray(accel, float), clip,
+                      params=params, notes=notes)  # fmt: skip
+    g = _data(ulog, "vehicle_gps_position") or _data(ulog, "sensor_gps")
+    if g is not None:
+        lat = g["latitude_deg"] if "latitude_deg" in g else g["lat"] * 1e-7
+        lon = g["longitude_deg"] if "longitude_deg" in g else g["lon"] * 1e-7
+        alt = (
+            g["altitude_ellipsoid_m"] if "altitude_ellipsoid_m" in g else g["alt_ellipsoid"] * 1e-3
+        )
+        v_ned = np.column_stack([g["vel_n_m_s"], g["vel_e_m_s"], g["vel_d_m_s"]])
+        out.gps = {"t_ns": _t_ns(g), "lat": np.asarray(lat, float), "lon": np.asarray(lon, float),
+                   "alt": np.asarray(alt, float), "v_enu": ned_to_enu(v_ned), "eph": np.asarray(g["eph"], float),
+                   "epv": np.asarray(g["epv"], float), "s_var": np.asarray(g["s_variance_m_s"], float),
+                   "fix": np.asarray(g["fix_type"], np.int64)}  # fmt: skip
+    else:
+        notes.append("no GNSS topic: replaying without GNSS")
+    b = _data(ulog, "vehicle_air_data")
+    if b is not None:
+        out.baro = {"t_ns": _t_ns(b), "alt": np.asarray(b["baro_alt_meter"], float)}
+    else:
+        notes.append("no vehicle_air_data: replaying without barometer")
+    m = _data(ulog, "vehicle_magnetometer")
+    if m is not None:
+        out.mag = {"t_ns": _t_ns(m), "field_B": frd_to_flu(_vec(m, "magnetometer_ga[{}]"))}
+    else:
+        notes.append("no vehicle_magnetometer: replaying without magnetometer")
+    ld = _data(ulog, "vehicle_land_detected")
+    if ld is not None:
+        out.landed = {
+            "t_ns": np.asarray(ld["timestamp"], np.int64) * 1000,
+            "landed": np.asarray(ld["landed"], bool),
+        }
+    lp = _data(ulog, "vehicle_local_position")
+    if lp is not None and "ref_lat" in lp:
+        ok = (
+            np.flatnonzero(np.asarray(lp["xy_valid"]) > 0)
+            if "xy_valid" in lp
+            else np.arange(len(lp["ref_lat"]))
+        )
+        if len(ok):
+            k = int(ok[-1])
+            out.local_origin_lla = (
+                float(lp["ref_lat"][k]),
+                float(lp["ref_lon"][k]),
+                float(lp["ref_alt"][k]),
+            )
+    es = _data(ulog, "estimator_states")
+    if es is not None and "states[16]" in es:
+        # PX4's earth field states (NED, gauss): the declination its world magnetic model gave
+        n, e = float(np.median(es["states[16]"][-50:])), float(np.median(es["states[17]"][-50:]))
+        if math.hypot(n, e) > 1e-3:
+            out.earth_field_declination_rad = math.atan2(e, n)
+    if out.earth_field_declination_rad is None and "EKF2_MAG_DECL" in params:
+        out.earth_field_declination_rad = math.radians(params["EKF2_MAG_DECL"])
+    inn = _data(ulog, "estimator_innovations")
+    if inn is not None:
+        keep = {
+            k: v
+            for k, v in inn.items()
+            if k.startswith(("gps_hpos", "gps_vpos", "baro_vpos", "heading", "mag_field"))
+        }
+        out.px4_innovations = {"t_ns": np.asarray(inn["timestamp"], np.int64) * 1000, **keep}
+    return out

@@ -1,0 +1,97 @@
+"""Replaying PX4 logs (../shared/data/px4) through the navigation EKF."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from quadnav.cli.main import app
+from quadnav.cli.replay import replay_log
+from quadnav.errors import IoError
+from quadnav.experiments.replay import config_from_px4, replay
+from quadnav.io.ulog_sensors import read_ulog_sensors
+from tests.shared_data import PX4_EVENTS as EVENTS
+from tests.shared_data import PX4_SITL as SITL
+from tests.shared_data import needs
+
+needs_data = needs(SITL)
+
+
+@needs_data
+def test_px4_tuning_is_read_from_the_log() -> None:
+    s = read_ulog_sensors(EVENTS)
+    cfg = config_from_px4(s.params, {"baro_noise_m": 2.0})
+    assert cfg.gps_delay_s == pytest.approx(0.11) and cfg.gps_pos_noise_m == pytest.approx(0.5)
+    assert cfg.gyro_noise_rad_s == pytest.approx(0.015) and cfg.baro_noise_m == 2.0  # override wins
+    assert cfg.gps_height  # EKF2_GPS_CTRL = 7
+    old = config_from_px4(read_ulog_sensors(SITL).params)
+    assert not old.gps_height  # EKF2_HGT_MODE = 0: barometric height, as that PX4 did
+    # frames: at rest the accelerometer reads +g along body up (FLU)
+    assert 9.6 < float(np.median(s.accel_m_s2[:100, 2])) < 10.0
+
+
+@needs_data
+def test_replay_of_a_flight_follows_px4(tmp_path: Path) -> None:
+    m = replay_log(EVENTS, [], tmp_path)
+    d = m["quadnav_vs_px4"]
+    assert d["horizontal_rms_m"] < 0.5 and d["vertical_rms_m"] < 0.3
+    assert d["attitude_rms_deg"] < 2.0
+    assert m["counts"]["gps"]["fused"] > 300 and m["counts"]["baro"]["fused"] > 500
+    run = Path(m["run_dir"])
+    for name in ("quadnav.tum", "px4.tum", "metrics.json", "report.html", "plots/innovations.png"):
+        assert (run / name).is_file(), name
+
+
+@needs_data
+def test_replay_against_sitl_ground_truth(tmp_path: Path) -> None:
+    m = replay_log(SITL, [], tmp_path)
+    ours, px4 = m["quadnav_vs_truth"], m["px4_vs_truth"]
+    assert ours["horizontal_rms_m"] <= 1.2 * px4["horizontal_rms_m"] + 0.002
+    assert ours["attitude_rms_deg"] <= 1.2 * px4["attitude_rms_deg"] + 0.05
+    # vertical: 1.9 cm against PX4's 1.0 cm on this 10 s log on the ground (issue 7's 1.2x is
+    # not met; see the issue note). Guarded so it cannot get worse unnoticed.
+    assert ours["vertical_rms_m"] < 0.03
+
+
+@needs_data
+def test_damaged_logs_replay_what_they_can() -> None:
+    s = read_ulog_sensors(EVENTS)
+    cfg = config_from_px4(s.params)
+    # a timestamp jump, a stamp going backwards, a NaN sample, a barometer that stops
+    t = s.imu_t_ns.copy()
+    t[3000:] += 500_000_000
+    t[4001] = t[3999]
+    gyro = s.gyro_rad_s.copy()
+    gyro[5000, 1] = np.nan
+    half = len(s.baro["t_ns"]) // 2
+    baro = {k: v[:half] for k, v in s.baro.items()}
+    broken = dataclasses.replace(s, imu_t_ns=t, gyro_rad_s=gyro, baro=baro, gps={})
+    r = replay(broken, cfg)
+    assert any("IMU gap of 0.50" in n for n in r.notes)
+    assert any("not increasing" in n for n in r.notes)
+    assert (
+        r.counts["imu"]["rejected_invalid"] == 1 and r.counts["imu"]["rejected_out_of_order"] >= 1
+    )
+    assert "gps" not in r.counts and r.counts["baro"]["received"] <= half
+    assert np.isfinite(r.p).all()
+
+
+@needs_data
+def test_truncated_or_missing_logs_are_one_line_errors(tmp_path: Path) -> None:
+    cut = tmp_path / "cut.ulg"
+    cut.write_bytes(EVENTS.read_bytes()[:400_000])
+    runner = CliRunner()
+    res = runner.invoke(app, ["replay", str(cut), "--out", str(tmp_path)])
+    # a truncated log either replays what it holds or fails with one line, never a traceback
+    assert res.exit_code in (0, 2), res.output
+    assert "Traceback" not in res.output
+    with pytest.raises(IoError, match="not found"):
+        read_ulog_sensors(tmp_path / "none.ulg")
+    junk = tmp_path / "junk.ulg"
+    junk.write_bytes(b"ULog\x01\x12\x35" + bytes(100))
+    res = runner.invoke(app, ["replay", str(junk), "--out", str(tmp_path)])
+    assert res.exit_code == 2 and "error:" in res.output
