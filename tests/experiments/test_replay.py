@@ -95,3 +95,26 @@ def test_truncated_or_missing_logs_are_one_line_errors(tmp_path: Path) -> None:
     junk.write_bytes(b"ULog\x01\x12\x35" + bytes(100))
     res = runner.invoke(app, ["replay", str(junk), "--out", str(tmp_path)])
     assert res.exit_code == 2 and "error:" in res.output
+
+
+@needs_data
+def test_visual_odometry_and_range_topics_are_fused_when_present() -> None:
+    """Neither shared log has them: add PX4's own estimate as if a VIO system had sent it, and
+    a downward range finder reading its height, and check both are fused."""
+    from quadnav.io.ulog import read_ulog_trajectory
+
+    s = read_ulog_sensors(EVENTS)
+    px4 = read_ulog_trajectory(EVENTS)
+    rng = np.random.default_rng(0)
+    vision = {"t_ns": px4.t_ns, "p": px4.p_W_B + rng.normal(0, 0.01, px4.p_W_B.shape), "q_xyzw": px4.q_W_B_xyzw,
+              "var": np.full((len(px4), 3), 0.01**2), "reset": np.zeros(len(px4), np.int64)}  # fmt: skip
+    z = px4.p_W_B[:, 2] - px4.p_W_B[0, 2] + 0.1
+    rng_d = {
+        "t_ns": px4.t_ns,
+        "range_m": z,
+        "min_m": np.full(len(z), 0.05),
+        "max_m": np.full(len(z), 20.0),
+    }
+    r = replay(dataclasses.replace(s, vision=vision, range=rng_d), config_from_px4(s.params))
+    assert r.counts["vision"]["fused"] > 0.8 * r.counts["vision"]["received"] > 200
+    assert r.counts["range"]["received"] > 200

@@ -6,6 +6,7 @@ import typer
 
 from quadnav.cli.calibrate import calibrate_command
 from quadnav.cli.eval import eval_command
+from quadnav.cli.link import link_app
 from quadnav.cli.markers import markers_command
 from quadnav.cli.planar import planar_command
 from quadnav.cli.replay import replay_command
@@ -28,6 +29,7 @@ app.command("sim")(sim_command)
 app.command("markers")(markers_command)
 app.command("calibrate")(calibrate_command)
 app.command("replay")(replay_command)
+app.add_typer(link_app, name="link")
 
 
 def main() -> None:

@@ -28,7 +28,16 @@ from quadnav.estimation.nav_ekf import NavEkf, NavEkfConfig
 from quadnav.experiments.nav import ground_alignment
 from quadnav.geometry.rotations import quat_xyzw_from_matrix
 from quadnav.io.ulog_sensors import UlogSensors
-from quadnav.messages import GpsSample, HeightSample, ImuSample, MagSample, Sample, VelocitySample
+from quadnav.messages import (
+    GpsSample,
+    HeightSample,
+    ImuSample,
+    MagSample,
+    PoseSample,
+    RangeSample,
+    Sample,
+    VelocitySample,
+)
 
 __all__ = ["ReplayConfig", "ReplayResult", "config_from_px4", "replay"]
 
@@ -47,6 +56,11 @@ class ReplayConfig(BaseModel):
     gps_delay_s: float = Field(0.11, ge=0)
     baro_delay_s: float = Field(0.0, ge=0)
     mag_delay_s: float = Field(0.0, ge=0)
+    ev_delay_s: float = Field(0.0, ge=0)
+    range_delay_s: float = Field(0.005, ge=0)
+    ev_pos_noise_m: float = Field(0.1, gt=0)
+    ev_yaw_noise_rad: float = Field(0.1, gt=0)
+    range_noise_m: float = Field(0.1, gt=0)
     gps_pos_noise_m: float = Field(0.5, gt=0)
     gps_vel_noise_m_s: float = Field(0.3, gt=0)
     baro_noise_m: float = Field(3.5, gt=0)
@@ -84,6 +98,9 @@ def config_from_px4(
         "EKF2_GPS_V_NOISE": ("gps_vel_noise_m_s", 1.0), "EKF2_BARO_NOISE": ("baro_noise_m", 1.0),
         "EKF2_HEAD_NOISE": ("heading_noise_rad", 1.0), "EKF2_GPS_P_GATE": ("gate_sigma", 1.0),
         "EKF2_TAU_VEL": ("tau_vel_s", 1.0), "EKF2_TAU_POS": ("tau_pos_s", 1.0),
+        "EKF2_EV_DELAY": ("ev_delay_s", 1e-3), "EKF2_RNG_DELAY": ("range_delay_s", 1e-3),
+        "EKF2_EVP_NOISE": ("ev_pos_noise_m", 1.0), "EKF2_EVA_NOISE": ("ev_yaw_noise_rad", 1.0),
+        "EKF2_RNG_NOISE": ("range_noise_m", 1.0),
     }  # fmt: skip
     values: dict[str, Any] = {}
     for key, (name, scale) in mapping.items():
@@ -126,7 +143,7 @@ def _stream(
     if g:
         d_ns = round(cfg.gps_delay_s * 1e9)
         usable = (g["fix"] >= cfg.min_gps_fix) & (g["eph"] <= cfg.gps_max_eph_m)
-        for k in np.flatnonzero(usable):
+        for k in np.flatnonzero(usable).tolist():
             t = int(g["t_ns"][k])
             sh = max(float(g["eph"][k]), cfg.gps_pos_noise_m)
             # without GNSS height fusion the altitude is given no weight
@@ -173,6 +190,30 @@ def _stream(
                     )
                 )
                 seq += 1
+    v = s.vision
+    if v:
+        d_ns = round(cfg.ev_delay_s * 1e9)
+        for k in range(len(v["t_ns"])):
+            var = v["var"][k]
+            sig = float(np.sqrt(np.nanmax(var))) if np.isfinite(var).any() else cfg.ev_pos_noise_m
+            try:
+                pose = PoseSample(t_ns=int(v["t_ns"][k]) - d_ns, p_W_B=v["p"][k], q_W_B_xyzw=v["q_xyzw"][k],
+                                  sigma_pos_m=max(sig, 1e-3), sigma_yaw_rad=cfg.ev_yaw_noise_rad, reset_counter=int(v["reset"][k]))  # fmt: skip
+            except Exception:
+                continue
+            out.append((int(v["t_ns"][k]), seq, pose))
+            seq += 1
+    r = s.range
+    if r:
+        d_ns = round(cfg.range_delay_s * 1e9)
+        for k in range(len(r["t_ns"])):
+            try:
+                rs = RangeSample(t_ns=int(r["t_ns"][k]) - d_ns, range_m=float(r["range_m"][k]), sigma_m=cfg.range_noise_m,
+                                 min_m=float(r["min_m"][k]), max_m=float(r["max_m"][k]))  # fmt: skip
+            except Exception:  # outside its span, or garbage: not a reading
+                continue
+            out.append((int(r["t_ns"][k]), seq, rs))
+            seq += 1
     return out
 
 
@@ -267,7 +308,13 @@ def replay(s: UlogSensors, cfg: ReplayConfig, *, progress: Any = None) -> Replay
         + [0.2] * 3
     )
     ekf = NavEkf(ekf_cfg, p0=p0, v0=np.zeros(3), q0_xyzw=R0.as_quat(), P0=np.diag(sig**2))
-    max_delay = max(cfg.gps_delay_s if s.gps else 0.0, cfg.baro_delay_s, cfg.mag_delay_s)
+    max_delay = max(
+        cfg.gps_delay_s if s.gps else 0.0,
+        cfg.baro_delay_s,
+        cfg.mag_delay_s,
+        cfg.ev_delay_s,
+        cfg.range_delay_s,
+    )
     est = DelayedHorizonEstimator(
         ekf, HorizonConfig(imu_period_ns=period_ns, max_delay_ns=round(max_delay * 1e9),
                            tau_vel_s=cfg.tau_vel_s, tau_pos_s=cfg.tau_pos_s), t0_ns=t_align,

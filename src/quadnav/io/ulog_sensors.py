@@ -48,6 +48,8 @@ class UlogSensors:
     baro: dict[str, NDArray[Any]] = field(default_factory=dict)
     mag: dict[str, NDArray[Any]] = field(default_factory=dict)
     landed: dict[str, NDArray[Any]] = field(default_factory=dict)
+    vision: dict[str, NDArray[Any]] = field(default_factory=dict)
+    range: dict[str, NDArray[Any]] = field(default_factory=dict)
     px4_innovations: dict[str, NDArray[Any]] = field(default_factory=dict)
     local_origin_lla: tuple[float, float, float] | None = None
     earth_field_declination_rad: float | None = None
@@ -132,6 +134,39 @@ def read_ulog_sensors(path: Path) -> UlogSensors:
         out.mag = {"t_ns": _t_ns(m), "field_B": frd_to_flu(_vec(m, "magnetometer_ga[{}]"))}
     else:
         notes.append("no vehicle_magnetometer: replaying without magnetometer")
+    vo = _data(ulog, "vehicle_visual_odometry")
+    if vo is not None:
+        pos_key = "position[{}]" if "position[0]" in vo else None
+        if pos_key is None and "x" in vo:
+            p_ned = np.column_stack([vo["x"], vo["y"], vo["z"]])
+        elif pos_key is not None:
+            p_ned = _vec(vo, pos_key)
+        else:
+            p_ned = None
+        if p_ned is not None and "q[0]" in vo:
+            from scipy.spatial.transform import Rotation
+
+            from quadnav.geometry.frames import rotation_ned_frd_to_enu_flu
+
+            q_wxyz = np.column_stack([vo[f"q[{k}]"] for k in range(4)]).astype(np.float64)
+            good = (
+                np.isfinite(q_wxyz).all(axis=1)
+                & (np.linalg.norm(q_wxyz, axis=1) > 0.5)
+                & np.isfinite(p_ned).all(axis=1)
+            )
+            R = rotation_ned_frd_to_enu_flu(Rotation.from_quat(q_wxyz[good][:, [1, 2, 3, 0]]))
+            var = (
+                _vec(vo, "position_variance[{}]")[good]
+                if "position_variance[0]" in vo
+                else np.full((int(good.sum()), 3), np.nan)
+            )
+            out.vision = {"t_ns": _t_ns(vo)[good], "p": ned_to_enu(p_ned[good]), "q_xyzw": R.as_quat(),
+                          "var": var, "reset": np.asarray(vo.get("reset_counter", np.zeros(len(good))))[good].astype(np.int64)}  # fmt: skip
+    ds = _data(ulog, "distance_sensor")
+    if ds is not None and "current_distance" in ds:
+        down = np.asarray(ds.get("orientation", np.full(len(ds["current_distance"]), 25))) == 25
+        out.range = {"t_ns": _t_ns(ds)[down], "range_m": np.asarray(ds["current_distance"], float)[down],
+                     "min_m": np.asarray(ds["min_distance"], float)[down], "max_m": np.asarray(ds["max_distance"], float)[down]}  # fmt: skip
     ld = _data(ulog, "vehicle_land_detected")
     if ld is not None:
         out.landed = {

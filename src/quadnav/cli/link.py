@@ -1,0 +1,63 @@
+"""``quadnav link serial PORT``: stream an estimate to a flight controller as thesis 002's
+``X<cm>Y<cm>Z<cm>F`` frames over a serial port (115200 8N1 by default)."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from quadnav.cli.common import console, handle_errors, progress_bar
+from quadnav.errors import IoError
+from quadnav.io.serial_frame import encode
+from quadnav.io.trajectory_io import read_trajectory
+
+__all__ = ["link_app"]
+
+link_app = typer.Typer(help="Links to a flight controller: serial frames.", no_args_is_help=True)
+
+
+def open_serial(port: str, baud: int) -> object:
+    import serial  # type: ignore[import-untyped]
+
+    try:
+        return serial.Serial(port, baudrate=baud, bytesize=8, parity="N", stopbits=1, timeout=0.1)
+    except (serial.SerialException, OSError, ValueError) as exc:
+        raise IoError(f"serial port {port}: {exc}") from None
+
+
+@link_app.command("serial")
+@handle_errors
+def serial_command(
+    port: Annotated[str, typer.Argument(help="serial device, e.g. /dev/ttyTHS1")],
+    source: Annotated[
+        Path,
+        typer.Option(
+            "--from", help="trajectory to stream (TUM, EuRoC, KITTI, quadnav CSV, ULog, bag)"
+        ),
+    ],
+    baud: Annotated[int, typer.Option("--baud")] = 115200,
+    rate_hz: Annotated[
+        float, typer.Option("--rate", help="frames per second (0: as fast as the link takes)")
+    ] = 10.0,
+) -> None:
+    """Send each pose of a trajectory as a serial frame, paced at --rate (the thesis used 10 Hz)."""
+    traj = read_trajectory(source)
+    link = open_serial(port, baud)
+    period = 1.0 / rate_hz if rate_hz > 0 else 0.0
+    sent = 0
+    t_next = time.perf_counter()
+    with progress_bar("link") as update:
+        for k, p in enumerate(traj.p_W_B):
+            link.write(encode(*map(float, p)))  # type: ignore[attr-defined]
+            sent += 1
+            if period:
+                t_next += period
+                time.sleep(max(0.0, t_next - time.perf_counter()))
+            if k % 50 == 0:
+                update(k + 1, len(traj), f"{sent} frames")
+    link.flush()  # type: ignore[attr-defined]
+    link.close()  # type: ignore[attr-defined]
+    console.print(f"{sent} frames sent to {port} at {baud} baud", highlight=False)
