@@ -100,3 +100,40 @@ def test_calibrate_writes_a_calibration_opencv_reads(tmp_path: Path) -> None:
     assert 440 < K[0, 0] < 480 and fs.getNode("avg_reprojection_error").real() < 0.25
     assert "3 / 0" in res.output  # 3 views used, none rejected; the broken file is counted apart
     assert "4 / 1" in res.output
+
+
+def test_markers_as_companion_sends_vision_estimates_and_setpoints(frames, tmp_path: Path) -> None:
+    import os
+    import socket
+
+    os.environ.setdefault("MAVLINK20", "1")
+    from pymavlink import mavutil
+
+    folder, cal, _ = frames
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    autopilot = mavutil.mavlink_connection(
+        f"udpin:127.0.0.1:{port}", source_system=1, dialect="common"
+    )
+    plan = tmp_path / "plan.tum"
+    plan.write_text("0.0 0 0 1.5 0 0 0 1\n0.5 1 0 1.5 0 0 0 1\n")
+    res = runner.invoke(app, ["markers", str(folder), "--camera", str(cal), "--out", str(tmp_path),
+                              "--set", "mount_rpy_deg=[0,0,0]", "--set", "fps=10", "--set", "video=false",
+                              "--mavlink", f"udpout:127.0.0.1:{port}", "--setpoints", str(plan)])  # fmt: skip
+    assert res.exit_code == 0, res.output
+    got: dict[str, list] = {}
+    while (m := autopilot.recv_match(blocking=True, timeout=0.5)) is not None:
+        got.setdefault(m.get_type(), []).append(m)
+    autopilot.close()
+    vis = got["VISION_POSITION_ESTIMATE"]
+    assert len(vis) == 9  # one per frame with a pose (the corrupt frame has none)
+    # NED at the boundary: the camera 1.2-1.6 m above the marker is z = -1.2..-1.6 down
+    assert all(-1.7 < v.z < -1.1 for v in vis) and all(v.covariance[0] > 0 for v in vis)
+    sp = got["SET_POSITION_TARGET_LOCAL_NED"]
+    assert (
+        len(sp) == 9
+        and sp[0].z == pytest.approx(-1.5)
+        and max(p.y for p in sp) == pytest.approx(1.0)
+    )
+    assert "HEARTBEAT" in got

@@ -56,9 +56,18 @@ def _cov_columns(poses: list[FramePose]) -> dict[str, np.ndarray]:
 
 
 def run_markers(
-    cfg: MarkersConfig, source: str, out: Path, *, progress: Any = None
+    cfg: MarkersConfig,
+    source: str,
+    out: Path,
+    *,
+    progress: Any = None,
+    mavlink: str | None = None,
+    setpoints: Path | None = None,
 ) -> dict[str, Any]:
-    """Process every frame of ``source``; write the run folder; return the statistics."""
+    """Process every frame of ``source``; write the run folder; return the statistics. With
+    ``mavlink``, be thesis 000's companion computer: each pose goes to the autopilot as a
+    VISION_POSITION_ESTIMATE with its covariance, with heartbeats and, from ``setpoints``
+    (a trajectory file), SET_POSITION_TARGET_LOCAL_NED at the frame rate."""
     if cfg.camera_file is None:
         raise ConfigError(
             "no camera calibration: give --camera cal.yml (OpenCV YAML) or camera_file in the parameters"
@@ -78,6 +87,18 @@ def run_markers(
                                   charuco_min_markers=cfg.charuco.min_markers,
                                   board_marker_fallback=cfg.charuco.marker_fallback)  # fmt: skip
     detector = MarkerDetector(get_dictionary(cfg.dictionary), det_params)
+    link = None
+    if mavlink is not None:
+        from quadnav.io.mavlink import MavlinkLink
+
+        link = MavlinkLink(mavlink, system=1, component=197)
+    plan = None
+    if setpoints is not None:
+        from quadnav.io.trajectory_io import read_trajectory
+
+        plan = read_trajectory(setpoints)
+    t_first: int | None = None
+    last_hb = -(10**12)
     results: list[FramePose] = []
     frame_idx: list[int] = []
     skipped: list[str] = []
@@ -107,6 +128,18 @@ def run_markers(
                 fp = pipeline.process(fr.image, fr.t_ns)
                 results.append(fp)
                 frame_idx.append(fr.index)
+                if link is not None:
+                    t_first = fr.t_ns if t_first is None else t_first
+                    if fr.t_ns - last_hb >= 1_000_000_000:
+                        link.heartbeat()
+                        last_hb = fr.t_ns
+                    if fp.pose is not None:
+                        link.send_vision_position_estimate(fr.t_ns, fp.pose.T_W_B, fp.pose.cov)
+                    if plan is not None:
+                        t_rel = plan.t_ns[0] + (fr.t_ns - t_first)
+                        k = min(int(np.searchsorted(plan.t_ns, t_rel)), len(plan) - 1)
+                        link.send_position_setpoint(plan.p_W_B[k], 0.0)
+                    link.poll()
                 if video is not None:
                     T_C_W = (fp.pose.T_W_B @ cfg.T_B_C()).inverse() if fp.pose is not None else None
                     text = f"frame {fr.index}  markers {len(fp.detections)}" + (
@@ -183,6 +216,10 @@ def run_markers(
         "unknown_detector_parameters": unknown,
         "run_dir": str(run_dir),
     }  # fmt: skip
+    if link is not None:
+        stats["mavlink"] = {"url": mavlink, "sent": dict(link.stats.sent), "received": dict(link.stats.received),
+                            "bad_packets": link.stats.bad_packets}  # fmt: skip
+        link.close()
     write_json(run_dir / "stats.json", stats)
     images = _plots(run_dir, t, pos, det_ms, pose_ms)
     rows = [
@@ -244,6 +281,18 @@ def markers_command(
     ] = None,
     set_: SetOpt = None,
     out: OutOpt = Path("runs"),
+    mavlink: Annotated[
+        str | None,
+        typer.Option(
+            "--mavlink", help="send the poses to an autopilot, e.g. udpout:127.0.0.1:14540"
+        ),
+    ] = None,
+    setpoints: Annotated[
+        Path | None,
+        typer.Option(
+            "--setpoints", help="with --mavlink: a trajectory to send as position setpoints"
+        ),
+    ] = None,
 ) -> None:
     """Detect markers and estimate the vehicle's pose in every frame of SOURCE.
 
@@ -262,7 +311,7 @@ def markers_command(
     if ignored:
         err_console.print(f"note: parameters not used here: {', '.join(ignored)}", highlight=False)
     with progress_bar("markers") as update:
-        stats = run_markers(cfg, source, out, progress=update)
+        stats = run_markers(cfg, source, out, progress=update, mavlink=mavlink, setpoints=setpoints)
     table = Table(title=f"markers: {stats['source']}")
     table.add_column("measure")
     table.add_column("value", justify="right")
@@ -278,5 +327,8 @@ def markers_command(
     table.add_row("detection, median (ms)", f"{stats['detect_ms_median']:.2f}")
     table.add_row("pose, median (ms)", f"{stats['pose_ms_median']:.2f}")
     table.add_row("reprojection error, median (px)", f"{stats['rms_px_median']:.3f}")
+    if "mavlink" in stats:
+        sent = stats["mavlink"]["sent"]
+        table.add_row("MAVLink messages sent", ", ".join(f"{k} {v}" for k, v in sent.items()))
     console.print(table)
     console.print(stats["run_dir"], soft_wrap=True, highlight=False)

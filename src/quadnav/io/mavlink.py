@@ -1,0 +1,259 @@
+"""MAVLink to the autopilot, on pymavlink (MAVLink 2, the common dialect).
+
+Connection strings as MAVLink tools write them: ``udpin:127.0.0.1:14550``,
+``udpout:127.0.0.1:14540``, ``tcp:127.0.0.1:5760``, ``serial:/dev/ttyUSB0:921600`` (or a bare
+device path). ENU/FLU become NED/FRD here and only here: positions and velocities through
+``enu_to_ned``, attitudes through ``rotation_enu_flu_to_ned_frd``, covariances through the same
+linear maps. Message signing (MAVLink 2) is an option: with a key, outgoing messages are signed
+and unsigned incoming ones are refused unless ``allow_unsigned``.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+os.environ.setdefault("MAVLINK20", "1")
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
+
+from quadnav.errors import IoError
+from quadnav.geometry.frames import (
+    enu_to_ned,
+    ned_to_enu,
+    rotation_enu_flu_to_ned_frd,
+    rotation_ned_frd_to_enu_flu,
+)
+from quadnav.geometry.rotations import Pose
+
+__all__ = ["MavlinkLink", "ReceivedState", "covariance_enu_to_ned", "parse_url", "upper_triangle"]
+
+FloatArray = NDArray[np.float64]
+_M = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])  # ENU <-> NED (its own inverse)
+
+
+def parse_url(url: str) -> str:
+    """pymavlink's connection string for ``url`` (``serial:/dev/x:baud`` -> ``/dev/x,baud``)."""
+    if url.startswith("serial:"):
+        rest = url[len("serial:") :]
+        dev, _, baud = rest.rpartition(":")
+        if not dev or not baud.isdigit():
+            raise IoError(f"MAVLink URL {url!r}: expected serial:/dev/DEVICE:BAUD")
+        return f"{dev},{baud}"
+    if url.startswith(("udpin:", "udpout:", "udp:", "tcp:", "tcpin:")) or url.startswith("/dev/"):
+        return url
+    raise IoError(
+        f"MAVLink URL {url!r}: use udpin:HOST:PORT, udpout:HOST:PORT, tcp:HOST:PORT or serial:DEV:BAUD"
+    )
+
+
+def upper_triangle(C: FloatArray) -> list[float]:
+    """The 21 entries of a 6x6 covariance's upper triangle, row by row (MAVLink's layout)."""
+    iu = np.triu_indices(6)
+    return [float(v) for v in np.asarray(C)[iu]]
+
+
+def from_upper_triangle(v: list[float]) -> FloatArray:
+    C = np.zeros((6, 6))
+    iu = np.triu_indices(6)
+    C[iu] = v
+    return C + np.triu(C, 1).T
+
+
+def covariance_enu_to_ned(C_enu: FloatArray, R_ENU_FLU: Rotation) -> FloatArray:
+    """A pose covariance [position ENU, attitude error] to MAVLink's [x, y, z NED, roll, pitch,
+    yaw]: the position block through ENU->NED, the attitude (a small rotation in the world,
+    ``R_true = Exp(dtheta) R``) through the derivative of the NED/FRD Euler angles."""
+    R0 = rotation_enu_flu_to_ned_frd(R_ENU_FLU)
+    e0 = R0.as_euler("ZYX")[::-1]
+    J = np.zeros((3, 3))
+    for k in range(3):
+        d = np.zeros(3)
+        d[k] = 1e-6
+        ep = rotation_enu_flu_to_ned_frd(Rotation.from_rotvec(d) * R_ENU_FLU).as_euler("ZYX")[::-1]
+        J[:, k] = np.remainder(ep - e0 + np.pi, 2 * np.pi) - np.pi
+    J /= 1e-6
+    T = np.zeros((6, 6))
+    T[0:3, 0:3] = _M
+    T[3:6, 3:6] = J
+    C = T @ np.asarray(C_enu, dtype=np.float64) @ T.T
+    return 0.5 * (C + C.T)
+
+
+@dataclass
+class ReceivedState:
+    """What a vehicle told us, in ENU/FLU."""
+
+    heartbeats: int = 0
+    armed: bool = False
+    custom_mode: int = 0
+    attitude: Rotation | None = None
+    position_enu: FloatArray | None = None
+    velocity_enu: FloatArray | None = None
+    odometry: Pose | None = None
+    t_boot_ms: int = 0
+
+
+@dataclass
+class LinkStats:
+    sent: dict[str, int] = field(default_factory=dict)
+    received: dict[str, int] = field(default_factory=dict)
+    refused_unsigned: int = 0
+    bad_packets: int = 0
+
+
+class MavlinkLink:
+    """One MAVLink endpoint (a companion computer, a ground station, or our simulated vehicle)."""
+
+    def __init__(
+        self,
+        url: str,
+        *,
+        system: int = 1,
+        component: int = 197,  # MAV_COMP_ID_VISUAL_INERTIAL_ODOMETRY
+        signing_key: bytes | None = None,
+        allow_unsigned: bool = False,
+    ) -> None:
+        from pymavlink import mavutil  # type: ignore[import-untyped]
+
+        self._mavutil = mavutil
+        try:
+            self.conn = mavutil.mavlink_connection(
+                parse_url(url), source_system=system, source_component=component, dialect="common"
+            )
+        except Exception as exc:  # pymavlink raises OSError, SerialException...
+            raise IoError(f"MAVLink {url}: {exc}") from None
+        self.url = url
+        self.mav = self.conn.mav
+        self.stats = LinkStats()
+        self.state = ReceivedState()
+        self.t0 = time.monotonic()
+        if signing_key is not None:
+            if len(signing_key) != 32:
+                raise IoError("MAVLink signing key must be 32 bytes")
+
+            def allow(_mav: Any, _msg_id: int) -> bool:
+                if not allow_unsigned:
+                    self.stats.refused_unsigned += 1
+                return allow_unsigned
+
+            self.conn.setup_signing(signing_key, sign_outgoing=True, allow_unsigned_callback=allow)
+
+    def _count(self, name: str) -> None:
+        self.stats.sent[name] = self.stats.sent.get(name, 0) + 1
+
+    def boot_ms(self) -> int:
+        return int((time.monotonic() - self.t0) * 1e3)
+
+    # -- sending -----------------------------------------------------------------------------
+    def heartbeat(
+        self, *, vehicle: bool = False, armed: bool = False, custom_mode: int = 0
+    ) -> None:
+        m = self._mavutil.mavlink
+        if vehicle:
+            base = m.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | (
+                m.MAV_MODE_FLAG_SAFETY_ARMED if armed else 0
+            )
+            self.mav.heartbeat_send(
+                m.MAV_TYPE_QUADROTOR, m.MAV_AUTOPILOT_PX4, base, custom_mode, m.MAV_STATE_ACTIVE
+            )
+        else:
+            self.mav.heartbeat_send(
+                m.MAV_TYPE_ONBOARD_CONTROLLER, m.MAV_AUTOPILOT_INVALID, 0, 0, m.MAV_STATE_ACTIVE
+            )
+        self._count("HEARTBEAT")
+
+    def send_vision_position_estimate(
+        self, t_ns: int, T_ENU_FLU: Pose, cov_enu: FloatArray, reset_counter: int = 0
+    ) -> None:
+        """VISION_POSITION_ESTIMATE: position NED, roll/pitch/yaw of the FRD body, covariance."""
+        p = enu_to_ned(T_ENU_FLU.p_A_B)
+        rpy = rotation_enu_flu_to_ned_frd(T_ENU_FLU.R_A_B).as_euler("ZYX")[::-1]
+        C = covariance_enu_to_ned(cov_enu, T_ENU_FLU.R_A_B)
+        self.mav.vision_position_estimate_send(int(t_ns // 1000), *map(float, p), *map(float, rpy),
+                                               covariance=upper_triangle(C), reset_counter=int(reset_counter) % 256)  # fmt: skip
+        self._count("VISION_POSITION_ESTIMATE")
+
+    def send_odometry(self, t_ns: int, T_ENU_FLU: Pose, cov_enu: FloatArray, v_enu: FloatArray | None = None,
+                      reset_counter: int = 0) -> None:  # fmt: skip
+        """ODOMETRY in MAV_FRAME_LOCAL_FRD with the body in MAV_FRAME_BODY_FRD, quaternion w first."""
+        m = self._mavutil.mavlink
+        R = rotation_enu_flu_to_ned_frd(T_ENU_FLU.R_A_B)
+        x, y, z, w = R.as_quat()
+        p = enu_to_ned(T_ENU_FLU.p_A_B)
+        v_body = (
+            R.apply(enu_to_ned(v_enu), inverse=True) if v_enu is not None else np.full(3, np.nan)
+        )
+        vel_cov = [float("nan")] + [0.0] * 20  # NaN first: unknown
+        self.mav.odometry_send(int(t_ns // 1000), m.MAV_FRAME_LOCAL_FRD, m.MAV_FRAME_BODY_FRD, *map(float, p),
+                               [float(w), float(x), float(y), float(z)], *map(float, v_body), float("nan"), float("nan"), float("nan"),
+                               upper_triangle(covariance_enu_to_ned(cov_enu, T_ENU_FLU.R_A_B)), vel_cov,
+                               int(reset_counter) % 256, m.MAV_ESTIMATOR_TYPE_VISION, 100)  # fmt: skip
+        self._count("ODOMETRY")
+
+    def send_position_setpoint(self, p_enu: FloatArray, yaw_enu_rad: float, target_system: int = 1, target_component: int = 1) -> None:  # fmt: skip
+        """SET_POSITION_TARGET_LOCAL_NED: position and yaw only (PX4 needs them at > 2 Hz)."""
+        m = self._mavutil.mavlink
+        mask = (m.POSITION_TARGET_TYPEMASK_VX_IGNORE | m.POSITION_TARGET_TYPEMASK_VY_IGNORE | m.POSITION_TARGET_TYPEMASK_VZ_IGNORE
+                | m.POSITION_TARGET_TYPEMASK_AX_IGNORE | m.POSITION_TARGET_TYPEMASK_AY_IGNORE | m.POSITION_TARGET_TYPEMASK_AZ_IGNORE
+                | m.POSITION_TARGET_TYPEMASK_YAW_RATE_IGNORE)  # fmt: skip
+        p = enu_to_ned(np.asarray(p_enu, dtype=np.float64))
+        yaw_ned = float(np.pi / 2 - yaw_enu_rad)
+        self.mav.set_position_target_local_ned_send(self.boot_ms(), target_system, target_component, m.MAV_FRAME_LOCAL_NED,
+                                                    mask, *map(float, p), 0, 0, 0, 0, 0, 0, yaw_ned, 0)  # fmt: skip
+        self._count("SET_POSITION_TARGET_LOCAL_NED")
+
+    # -- receiving ---------------------------------------------------------------------------
+    def poll(self, timeout_s: float = 0.0) -> list[Any]:
+        """Read what has arrived (waiting up to ``timeout_s`` for the first message); update
+        :attr:`state`; return the messages."""
+        out: list[Any] = []
+        deadline = time.monotonic() + timeout_s
+        while True:
+            try:
+                blocking = timeout_s > 0 and not out
+                # (pymavlink's recv_match gives up before reading when given timeout=0)
+                wait = max(deadline - time.monotonic(), 0.001) if blocking else None
+                msg = self.conn.recv_match(blocking=blocking, timeout=wait)
+            except Exception:  # a malformed packet: counted, the link goes on
+                self.stats.bad_packets += 1
+                continue
+            if msg is None:
+                break
+            name = msg.get_type()
+            if name == "BAD_DATA":
+                self.stats.bad_packets += 1
+                continue
+            self.stats.received[name] = self.stats.received.get(name, 0) + 1
+            self._update_state(msg)
+            out.append(msg)
+            if time.monotonic() > deadline and timeout_s > 0:
+                break
+        return out
+
+    def _update_state(self, msg: Any) -> None:
+        name = msg.get_type()
+        s = self.state
+        if name == "HEARTBEAT":
+            s.heartbeats += 1
+            s.armed = bool(msg.base_mode & self._mavutil.mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
+            s.custom_mode = int(msg.custom_mode)
+        elif name == "ATTITUDE":
+            s.attitude = rotation_ned_frd_to_enu_flu(
+                Rotation.from_euler("ZYX", [msg.yaw, msg.pitch, msg.roll])
+            )
+            s.t_boot_ms = int(msg.time_boot_ms)
+        elif name == "LOCAL_POSITION_NED":
+            s.position_enu = ned_to_enu(np.array([msg.x, msg.y, msg.z]))
+            s.velocity_enu = ned_to_enu(np.array([msg.vx, msg.vy, msg.vz]))
+        elif name == "ODOMETRY":
+            w, x, y, z = msg.q
+            R = rotation_ned_frd_to_enu_flu(Rotation.from_quat([x, y, z, w]))
+            s.odometry = Pose(R, ned_to_enu(np.array([msg.x, msg.y, msg.z])))
+
+    def close(self) -> None:
+        self.conn.close()

@@ -1,0 +1,121 @@
+"""MAVLink on loopback: vision estimates in NED/FRD with their covariance, setpoints, signing."""
+
+from __future__ import annotations
+
+import itertools
+import socket
+import time
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from quadnav.errors import IoError
+from quadnav.geometry.frames import enu_to_ned, rotation_enu_flu_to_ned_frd
+from quadnav.geometry.rotations import Pose
+from quadnav.io.mavlink import MavlinkLink, covariance_enu_to_ned, from_upper_triangle, parse_url
+
+
+def free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def test_urls() -> None:
+    assert parse_url("serial:/dev/ttyUSB0:921600") == "/dev/ttyUSB0,921600"
+    assert parse_url("udpin:0.0.0.0:14550") == "udpin:0.0.0.0:14550"
+    with pytest.raises(IoError, match="serial:DEV:BAUD"):
+        parse_url("bluetooth:aa")
+
+
+def test_covariance_conversion_keeps_what_it_means() -> None:
+    """Sampling check: poses drawn from the ENU covariance, converted to NED/FRD Euler angles,
+    have the covariance the conversion claims."""
+    rng = np.random.default_rng(0)
+    R = Rotation.from_euler("ZYX", [0.7, 0.1, -0.2])
+    A = rng.normal(size=(6, 6)) * np.array([0.02] * 3 + [0.01] * 3)
+    C = A @ A.T
+    d = rng.multivariate_normal(np.zeros(6), C, 20000)
+    e0 = rotation_enu_flu_to_ned_frd(R).as_euler("ZYX")[::-1]
+    eul = np.array(
+        [
+            rotation_enu_flu_to_ned_frd(Rotation.from_rotvec(x[3:]) * R).as_euler("ZYX")[::-1]
+            for x in d[:4000]
+        ]
+    )
+    samples = np.column_stack([enu_to_ned(d[:4000, :3]), eul - e0])
+    S, C_ned = np.cov(samples.T), covariance_enu_to_ned(C, R)
+    scale = np.sqrt(np.outer(np.diag(C_ned), np.diag(C_ned)))
+    # 4000 samples: each entry within 0.1 of its correlation scale (5 standard errors)
+    assert np.max(np.abs(S - C_ned) / scale) < 0.1
+
+
+def test_1000_vision_estimates_at_50_hz_over_loopback() -> None:
+    port = free_port()
+    rx = MavlinkLink(f"udpin:127.0.0.1:{port}", system=255, component=190)
+    tx = MavlinkLink(f"udpout:127.0.0.1:{port}", system=1, component=197)
+    rng = np.random.default_rng(1)
+    sent = []
+    got = []
+    t0 = time.monotonic()
+    for k in range(1000):
+        T = Pose(
+            Rotation.from_euler("ZYX", rng.uniform([-3, -0.3, -0.3], [3, 0.3, 0.3])),
+            rng.uniform(-5, 5, 3),
+        )
+        A = rng.normal(size=(6, 6)) * 0.01
+        C = A @ A.T + np.eye(6) * 1e-6
+        t_ns = 1_000_000_000 + k * 20_000_000
+        tx.send_vision_position_estimate(t_ns, T, C, reset_counter=k // 400)
+        sent.append((t_ns, T, C, k // 400))
+        got += [m for m in rx.poll() if m.get_type() == "VISION_POSITION_ESTIMATE"]
+        time.sleep(max(0.0, t0 + (k + 1) * 0.02 - time.monotonic()))  # 50 Hz
+    got += [m for m in rx.poll(timeout_s=0.5) if m.get_type() == "VISION_POSITION_ESTIMATE"]
+    assert len(got) == 1000  # none lost on loopback
+    usec = [m.usec for m in got]
+    assert all(b > a for a, b in itertools.pairwise(usec))  # monotonic
+    for m, (t_ns, T, C, rc) in zip(got, sent, strict=True):
+        assert m.usec == t_ns // 1000 and m.reset_counter == rc
+        np.testing.assert_allclose([m.x, m.y, m.z], enu_to_ned(T.p_A_B), atol=1e-5)
+        R_ned = Rotation.from_euler("ZYX", [m.yaw, m.pitch, m.roll])
+        assert (R_ned.inv() * rotation_enu_flu_to_ned_frd(T.R_A_B)).magnitude() < 1e-5
+        np.testing.assert_allclose(
+            from_upper_triangle(list(m.covariance)),
+            covariance_enu_to_ned(C, T.R_A_B),
+            rtol=1e-5,
+            atol=1e-10,
+        )
+    rx.close()
+    tx.close()
+
+
+def test_signing_refuses_unsigned_and_malformed_packets() -> None:
+    port = free_port()
+    key = bytes(range(32))
+    rx = MavlinkLink(f"udpin:127.0.0.1:{port}", system=1, component=1, signing_key=key)
+    signed = MavlinkLink(f"udpout:127.0.0.1:{port}", system=255, component=190, signing_key=key)
+    unsigned = MavlinkLink(f"udpout:127.0.0.1:{port}", system=254, component=190)
+    raw = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    for _ in range(5):
+        unsigned.send_position_setpoint(np.array([9.0, 9.0, 9.0]), 0.0)
+        raw.sendto(b"\xfd\x09\x00\x00\x00\xff\xbe\x54\x00\x00garbage!!", ("127.0.0.1", port))
+        raw.sendto(
+            bytes(np.random.default_rng(0).integers(0, 256, 40, dtype=np.uint8)),
+            ("127.0.0.1", port),
+        )
+    signed.send_position_setpoint(np.array([1.0, 2.0, 3.0]), 0.5)
+    msgs = []
+    deadline = time.monotonic() + 2.0
+    while time.monotonic() < deadline and not msgs:
+        msgs = [
+            m for m in rx.poll(timeout_s=0.2) if m.get_type() == "SET_POSITION_TARGET_LOCAL_NED"
+        ]
+    assert len(msgs) == 1  # only the signed one
+    m = msgs[0]
+    np.testing.assert_allclose([m.x, m.y, m.z], [2.0, 1.0, -3.0], atol=1e-6)
+    assert m.get_srcSystem() == 255
+    assert rx.stats.refused_unsigned >= 5
+    raw.close()
+    for link in (rx, signed, unsigned):
+        link.close()
