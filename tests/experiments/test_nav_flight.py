@@ -85,6 +85,9 @@ def test_run_folder_of_the_main_job(tmp_path: Path) -> None:
         "delayed.csv",
         "innovations_vision.csv",
         "output.tum",
+        "sensors_imu.csv",
+        "sensors_vision.csv",
+        "sensors_baro.csv",
     ):
         assert (d / name).is_file(), name
     assert (d / "plots" / "errors.png").stat().st_size > 10_000

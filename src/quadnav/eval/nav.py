@@ -255,6 +255,39 @@ def _write_series(r: NavRunResult, folder: Path) -> None:
     )
 
 
+def _write_sensor_streams(r: NavRunResult, folder: Path) -> None:
+    """Every sample the estimator was given, one CSV per kind (``sensors_<kind>.csv``), in the
+    world and body frames of the run; ``t_ns`` is each sample's time of validity."""
+    if not r.stream:
+        return
+    kinds: dict[str, list[Any]] = {}
+    for smp in r.stream:
+        kinds.setdefault(type(smp).__name__, []).append(smp)
+    fields = {
+        "ImuSample": ("imu", [("gyro", "gyro_rad_s", "xyz"), ("accel", "accel_m_s2", "xyz")]),
+        "PoseSample": ("vision", [("p", "p_W_B", "xyz"), ("q", "q_W_B_xyzw", "xyzw")]),
+        "HeightSample": ("baro", [("z_m", "z_m", "")]),
+        "GpsSample": ("gps", [("lat_deg", "lat_deg", ""), ("lon_deg", "lon_deg", ""), ("alt_m", "alt_m", ""), ("v", "v_enu_m_s", "xyz")]),
+        "MagSample": ("mag", [("field", "field_B", "xyz")]),
+        "RangeSample": ("range", [("range_m", "range_m", "")]),
+    }  # fmt: skip
+    for kind, samples in kinds.items():
+        if kind not in fields:
+            continue
+        name, spec = fields[kind]
+        cols: dict[str, NDArray[Any]] = {
+            "t_ns": np.array([x.t_ns for x in samples], dtype=np.int64)
+        }
+        for col, attr, axes in spec:
+            vals = np.array([getattr(x, attr) for x in samples], dtype=np.float64)
+            if axes:
+                for k, a in enumerate(axes):
+                    cols[f"{col}_{a}"] = vals[:, k]
+            else:
+                cols[col] = vals
+        write_csv(folder / f"sensors_{name}.csv", cols)
+
+
 @dataclass(frozen=True, slots=True)
 class NavStudy:
     run_dir: Path
@@ -263,7 +296,8 @@ class NavStudy:
 
 
 def _one(sc: NavScenario, seed: int) -> NavRunResult:
-    return run_nav(sc, seed)
+    # the first seed's sensor streams go into the run folder
+    return run_nav(sc, seed, record_stream=seed == sc.seed)
 
 
 def run_nav_study(
@@ -284,13 +318,14 @@ def run_nav_study(
                     progress(k + 1, len(seeds), f"seed {res.seed}")
     else:
         for k, seed in enumerate(seeds):
-            res = run_nav(sc, seed)
+            res = _one(sc, seed)
             results[seed] = nav_metrics(res)
             first = first or res
             if progress:
                 progress(k + 1, len(seeds), f"seed {seed}")
     assert first is not None
     _write_series(first, run_dir)
+    _write_sensor_streams(first, run_dir)
     images = plot_nav_run(first, run_dir / "plots")
     per_seed = [results[s] for s in seeds]
 
