@@ -353,3 +353,20 @@ def test_magnetometer_heading_jacobian_matches_finite_differences(seed: int) -> 
     np.testing.assert_allclose(J, num, atol=1e-6)
     # tilt matters: with the field dipping, a roll or pitch error moves the heading
     assert np.abs(J[0:2]).max() > 0.1
+
+
+def test_a_live_loop_can_bound_the_fusion_log() -> None:
+    from quadnav.estimation import DelayedHorizonEstimator, HorizonConfig
+
+    ekf = NavEkf(
+        NavEkfConfig(), p0=np.zeros(3), v0=np.zeros(3), q0_xyzw=[0, 0, 0, 1.0], P0=np.eye(15) * 1e-4
+    )
+    cfg = HorizonConfig(imu_period_ns=4_000_000, max_delay_ns=100_000_000, max_fusion_log=50)
+    est = DelayedHorizonEstimator(ekf, cfg, t0_ns=0)
+    for s in hover_stream(10.0, with_reset=False, seconds=6.0):
+        est.push(s)
+    assert len(est.fusion_log) == 50  # the newest 50 of about 180 poses
+    assert est.stats("vision").fused > 150
+    assert est.fusion_log[-1].t_obs_ns > est.fusion_log[0].t_obs_ns
+    with pytest.raises(EstimationError, match="max_fusion_log"):
+        HorizonConfig(imu_period_ns=4_000_000, max_delay_ns=0, max_fusion_log=0)

@@ -195,6 +195,7 @@ class HorizonConfig:
     output_correction: bool = True
     propagate_velocity_correction: bool = True
     max_observations_per_source: int = 1024
+    max_fusion_log: int | None = None  # None: keep every fusion record (offline runs)
 
     def __post_init__(self) -> None:
         imu_buffer_length(max_delay_ns=self.max_delay_ns, imu_period_ns=self.imu_period_ns)
@@ -202,6 +203,8 @@ class HorizonConfig:
             value = getattr(self, name)
             if not math.isfinite(value) or value <= 0.0:
                 raise EstimationError(f"HorizonConfig.{name} must be finite and > 0, got {value}")
+        if self.max_fusion_log is not None and self.max_fusion_log < 1:
+            raise EstimationError("HorizonConfig.max_fusion_log must be >= 1 or None")
         if self.max_observations_per_source < 1:
             raise EstimationError("HorizonConfig.max_observations_per_source must be >= 1")
 
@@ -260,7 +263,8 @@ class DelayedHorizonEstimator:
         self._pos_err_integ = np.zeros_like(nav0.pos)
         self._dtheta_corr = np.zeros(3)
         self._counters = _Counters()
-        self.fusion_log: list[FusionRecord] = []
+        # Every fusion with its innovation and test ratio; a live loop bounds it (newest kept).
+        self.fusion_log: deque[FusionRecord] = deque(maxlen=config.max_fusion_log)
 
     # -- time horizons -------------------------------------------------------------------
     @property

@@ -67,7 +67,7 @@ class SitlVehicle:
         self.ekf = NavEkf(NavEkfConfig(), p0=np.zeros(3), v0=np.zeros(3), q0_xyzw=np.array([0, 0, 0, 1.0]),
                           P0=np.diag([1e-4] * 3 + [1e-4] * 3 + [1e-4] * 3 + [1e-6] * 6))  # fmt: skip
         self.est = DelayedHorizonEstimator(self.ekf, HorizonConfig(imu_period_ns=4_000_000, max_delay_ns=100_000_000,
-                                                                   tau_vel_s=0.1, tau_pos_s=0.1), t0_ns=0)  # fmt: skip
+                                                                   tau_vel_s=0.1, tau_pos_s=0.1, max_fusion_log=10_000), t0_ns=0)  # fmt: skip
         self.link = MavlinkLink(self.url, system=1, component=1, signing_key=self.signing_key)
         self.armed = False
         self.offboard = False
