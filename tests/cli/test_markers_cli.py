@@ -137,3 +137,38 @@ def test_markers_as_companion_sends_vision_estimates_and_setpoints(frames, tmp_p
         and max(p.y for p in sp) == pytest.approx(1.0)
     )
     assert "HEARTBEAT" in got
+
+
+def test_marker_map_from_yaml_places_the_vehicle_in_the_world(frames, tmp_path: Path) -> None:
+    """The same frames with marker 5 declared at (1, 2, 0) m, turned 90 degrees, in a YAML
+    marker map: every pose moves and turns with it."""
+    folder, cal, truth = frames
+    params = tmp_path / "map.yaml"
+    params.write_text(
+        "dictionary: DICT_4X4_250\ntarget: map\nmount_rpy_deg: [0, 0, 0]\nfps: 10\nvideo: false\n"
+        "map_markers:\n  - {id: 5, length_m: 0.2335, position_m: [1.0, 2.0, 0.0], rpy_deg: [0, 0, 90]}\n"
+    )
+    res = runner.invoke(
+        app,
+        [
+            "markers",
+            str(folder),
+            "--camera",
+            str(cal),
+            "--params",
+            str(params),
+            "--out",
+            str(tmp_path),
+        ],
+    )
+    assert res.exit_code == 0, res.output
+    run = next(tmp_path.glob("*_markers"))
+    rows = list(csv.DictReader((run / "poses.csv").open()))
+    assert len([r for r in rows if r["x_m"] != "nan"]) == 9
+    from scipy.spatial.transform import Rotation
+
+    T_W_M = Pose(Rotation.from_euler("z", 90, degrees=True), np.array([1.0, 2.0, 0.0]))
+    for r in rows:
+        want = (T_W_M @ truth[int(r["frame"])]).p_A_B
+        got = np.array([float(r["x_m"]), float(r["y_m"]), float(r["z_m"])])
+        assert np.linalg.norm(got - want) < 0.05
