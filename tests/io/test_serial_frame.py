@@ -6,6 +6,7 @@ from __future__ import annotations
 import os
 import re
 import threading
+import time
 from pathlib import Path
 
 import numpy as np
@@ -108,27 +109,26 @@ def test_link_serial_over_a_pseudo_terminal(tmp_path: Path) -> None:
         "".join(f"{k * 0.1:.1f} {x} {y} {z} 0 0 0 1\n" for k, (x, y, z) in enumerate(pts))
     )
     received = bytearray()
-    done = threading.Event()
 
     def reader() -> None:
-        while not done.is_set() or len(received) < 10:
-            try:
-                chunk = os.read(master, 4096)
-            except OSError:
-                break
-            if not chunk:
-                break
-            received.extend(chunk)
-            if received.count(b"F") >= 50:
-                break
+        # read until all 50 frames are in (or 10 s pass), however the writes were split
+        import select
+
+        deadline = time.monotonic() + 10.0
+        while received.count(b"F") < 50 and time.monotonic() < deadline:
+            ready, _, _ = select.select([master], [], [], 0.1)
+            if ready:
+                try:
+                    received.extend(os.read(master, 4096))
+                except OSError:
+                    break
 
     th = threading.Thread(target=reader, daemon=True)
     th.start()
     res = CliRunner().invoke(
         app, ["link", "serial", os.ttyname(slave), "--from", str(traj), "--rate", "0"]
     )
-    done.set()
-    th.join(timeout=5)
+    th.join(timeout=12)
     os.close(slave)
     os.close(master)
     assert res.exit_code == 0, res.output
