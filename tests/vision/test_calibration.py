@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import cv2
 import numpy as np
 import pytest
@@ -13,9 +11,10 @@ from quadnav.io.opencv_yaml import read_camera_yaml
 from quadnav.vision.calibration import calibrate_charuco
 from quadnav.vision.markers import CharucoSpec, CharucoTarget
 from quadnav.vision.pose import solve_pnp
+from tests.shared_data import SHARED, needs
 
-DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "aruco"
-needs_data = pytest.mark.skipif(not DATA.exists(), reason=f"shared test data not found at {DATA}")
+DATA = SHARED / "aruco"
+needs_data = needs(DATA)
 VIEWS = ["img_00.jpg", "img_02.jpg", "img_03.jpg"]
 
 

@@ -21,9 +21,10 @@ from quadnav.vision.markers import (
     detector_parameters,
     get_dictionary,
 )
+from tests.shared_data import SHARED, needs
 
-DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "aruco"
-needs_data = pytest.mark.skipif(not DATA.exists(), reason=f"shared test data not found at {DATA}")
+DATA = SHARED / "aruco"
+needs_data = needs(DATA)
 
 
 def expected() -> dict:

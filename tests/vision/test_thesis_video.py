@@ -5,12 +5,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import pytest
-
 from quadnav.cli.markers import load_markers_config, run_markers
+from tests.shared_data import SHARED, needs
 
-DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "thesis_rig"
-needs_data = pytest.mark.skipif(not DATA.exists(), reason=f"shared test data not found at {DATA}")
+DATA = SHARED / "thesis_rig"
+needs_data = needs(DATA)
 
 
 @needs_data
