@@ -12,7 +12,7 @@ from quadnav.cli.common import console, handle_errors
 from quadnav.errors import ConfigError
 from quadnav.eval.flight import write_flight_run
 from quadnav.experiments.flight import BUILTIN, FlightConfig, builtin_config, run_flight
-from quadnav.io.config import apply_override, load_config
+from quadnav.io.config import load_config
 
 __all__ = ["sim_command"]
 
@@ -68,19 +68,7 @@ def sim_command(
         return
     overrides = list(set_ or [])
     if scenario in BUILTIN:
-        data = builtin_config(scenario)
-        for o in overrides:
-            apply_override(data, o)
-        from pydantic import ValidationError
-
-        try:
-            config = FlightConfig.model_validate(data)
-        except ValidationError as exc:
-            err = exc.errors()[0]
-            loc = ".".join(str(p) for p in err["loc"])
-            raise ConfigError(
-                f"invalid scenario: {loc + ': ' if loc else ''}{err['msg']}"
-            ) from None
+        config = load_config(FlightConfig, None, overrides, base=builtin_config(scenario))
     else:
         path = Path(scenario)
         if not path.exists():

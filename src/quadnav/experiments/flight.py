@@ -8,15 +8,17 @@ holds the built-in scenarios; :func:`run_flight` returns arrays.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from typing import Any, Literal, Self
 
 import numpy as np
 from numpy.typing import NDArray
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import Field, model_validator
 from scipy.spatial.transform import Rotation
 
+from quadnav.config_model import MAX_DURATION_S, MAX_RATE_HZ, ConfigModel, check_finite_mapping
 from quadnav.control.cascaded_pid import CascadedPid, CascadedPidGains, Setpoint
 from quadnav.control.thesis002 import NestedSaturationController, PdController, RefRow
 from quadnav.control.thesis003 import ObstacleAwareWaypointFollower, TakeoffForward
@@ -40,43 +42,39 @@ FloatArray = NDArray[np.float64]
 Vec3 = tuple[float, float, float]
 
 
-class _Section(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-
-class TrajectorySection(_Section):
+class TrajectorySection(ConfigModel):
     """``position_m`` is the hover point, the sigmoid's start, or the circle's first point."""
 
     kind: Literal["hover", "sigmoid", "circle", "waypoints"] = "hover"
     position_m: Vec3 = (0.0, 0.0, 1.5)
     amplitude_m: Vec3 = (20.0, 20.0, 0.0)
     t_mid_s: float = 15.0
-    duration_s: float = Field(10.0, gt=0)
+    duration_s: float = Field(10.0, gt=0, le=MAX_DURATION_S)
     radius_m: float = Field(2.0, gt=0)
     speed_m_s: float = Field(1.0, gt=0)
     points_m: list[Vec3] = Field(default_factory=lambda: [(0.0, 0.0, 1.5)], min_length=1)
-    hold_s: float = Field(2.0, ge=0)
+    hold_s: float = Field(2.0, ge=0, le=MAX_DURATION_S)
 
 
-class InitialSection(_Section):
+class InitialSection(ConfigModel):
     position_m: Vec3 = (0.0, 0.0, 0.0)
     euler_rad: Vec3 = Field((0.0, 0.0, 0.0), description="roll, pitch, yaw")
     hovering: bool = Field(False, description="rigid body: rotors start at hover speed")
 
 
-class WindSection(_Section):
+class WindSection(ConfigModel):
     mean_m_s: Vec3 = (0.0, 0.0, 0.0)
     gust_sigma_m_s: float = Field(0.0, ge=0)
     gust_tau_s: float = Field(2.0, gt=0)
 
 
-class BoxSection(_Section):
+class BoxSection(ConfigModel):
     name: str = "box"
     min_m: Vec3
     max_m: Vec3
 
 
-class FlightConfig(_Section):
+class FlightConfig(ConfigModel):
     """A flight scenario: vehicle, controller, trajectory, world, duration, seed."""
 
     name: str = "circle"
@@ -88,12 +86,14 @@ class FlightConfig(_Section):
     initial: InitialSection = InitialSection(position_m=(0.0, 0.0, 1.5), hovering=True)
     wind: WindSection = WindSection()
     world: list[BoxSection] = Field(default_factory=list)
-    duration_s: float = Field(30.0, gt=0)
+    duration_s: float = Field(30.0, gt=0, le=MAX_DURATION_S)
     dt_s: float = Field(0.001, gt=0, le=0.01)
     seed: int = Field(0, ge=0)
-    log_rate_hz: float = Field(100.0, gt=0)
+    log_rate_hz: float = Field(100.0, gt=0, le=MAX_RATE_HZ)
     settle_band_m: float = Field(0.05, gt=0, description="settling: error stays inside this")
-    tracking_start_s: float = Field(0.0, ge=0, description="tracking RMSE window start")
+    tracking_start_s: float = Field(
+        0.0, ge=0, le=MAX_DURATION_S, description="tracking RMSE window start"
+    )
     mass_kg: float = Field(1.5, gt=0)
     frame: Literal["x", "+"] = Field("x", description="rigid body: rotor layout")
     el_pd: dict[str, Any] = Field(default_factory=dict, description="PdController overrides")
@@ -114,6 +114,13 @@ class FlightConfig(_Section):
             )
         if self.log_rate_hz > 1.0 / self.dt_s:
             raise ValueError("log_rate_hz is faster than the simulation step")
+        for key, target in (
+            ("el_pd", PdController),
+            ("el_nested", NestedSaturationController),
+            ("pid_gains", CascadedPidGains),
+        ):
+            names = [f.name for f in dataclasses.fields(target) if f.name != "mass_kg"]
+            check_finite_mapping(getattr(self, key), key, names)
         return self
 
 

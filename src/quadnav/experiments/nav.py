@@ -15,9 +15,10 @@ from typing import Literal, Self
 
 import numpy as np
 from numpy.typing import NDArray
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import Field, model_validator
 from scipy.spatial.transform import Rotation
 
+from quadnav.config_model import MAX_DELAY_S, MAX_DURATION_S, MAX_RATE_HZ, ConfigModel
 from quadnav.control.cascaded_pid import CascadedPid, Setpoint
 from quadnav.control.trajectories import Waypoints
 from quadnav.errors import ExperimentError, SimError
@@ -55,12 +56,8 @@ FloatArray = NDArray[np.float64]
 Vec3 = tuple[float, float, float]
 
 
-class _Section(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-
-class ImuSection(_Section):
-    rate_hz: float = Field(250.0, gt=0)
+class ImuSection(ConfigModel):
+    rate_hz: float = Field(250.0, gt=0, le=MAX_RATE_HZ)
     gyro_sigma_rad_s: float = Field(0.005, gt=0, description="white noise per sample")
     accel_sigma_m_s2: float = Field(0.05, gt=0, description="white noise per sample")
     gyro_bias_rw_rad_s_sqrt_s: float = Field(1e-4, gt=0)
@@ -72,7 +69,7 @@ class ImuSection(_Section):
     )
 
 
-class VisionSection(_Section):
+class VisionSection(ConfigModel):
     enabled: bool = True
     source: Literal["camera", "pose"] = Field(
         "camera",
@@ -84,8 +81,8 @@ class VisionSection(_Section):
     marker_length_m: float = Field(0.2335, gt=0, description="camera: printed marker side")
     marker_origin_m: tuple[float, float] = Field((-0.6, -0.6), description="camera: first marker")
     image_noise: float = Field(2.0, ge=0, description="camera: grey-level noise of the images")
-    rate_hz: float = Field(30.0, gt=0)
-    delay_s: float = Field(0.25, ge=0)
+    rate_hz: float = Field(30.0, gt=0, le=MAX_RATE_HZ)
+    delay_s: float = Field(0.25, ge=0, le=MAX_DELAY_S)
     sigma_m: float = Field(0.01, gt=0)
     yaw_sigma_rad: float = Field(0.01, gt=0)
     dropouts_s: list[tuple[float, float]] = Field(
@@ -100,23 +97,23 @@ class VisionSection(_Section):
     )
 
 
-class BaroSection(_Section):
+class BaroSection(ConfigModel):
     enabled: bool = True
-    rate_hz: float = Field(50.0, gt=0)
-    delay_s: float = Field(0.02, ge=0)
+    rate_hz: float = Field(50.0, gt=0, le=MAX_RATE_HZ)
+    delay_s: float = Field(0.02, ge=0, le=MAX_DELAY_S)
     sigma_m: float = Field(0.1, gt=0)
     drift_m_sqrt_s: float = Field(0.002, ge=0, description="random-walk drift of the offset")
 
 
-class RangeSection(_Section):
+class RangeSection(ConfigModel):
     enabled: bool = False
-    rate_hz: float = Field(20.0, gt=0)
-    delay_s: float = Field(0.01, ge=0)
+    rate_hz: float = Field(20.0, gt=0, le=MAX_RATE_HZ)
+    delay_s: float = Field(0.01, ge=0, le=MAX_DELAY_S)
     sigma_m: float = Field(0.02, gt=0)
     max_m: float = Field(8.0, gt=0)
 
 
-class FaultsSection(_Section):
+class FaultsSection(ConfigModel):
     """Faults injected into the sensor streams (times in seconds of flight time)."""
 
     gps_glitch: list[tuple[float, float, float, float]] = Field(
@@ -134,53 +131,69 @@ class FaultsSection(_Section):
     )
 
 
-class GpsSection(_Section):
+class GpsSection(ConfigModel):
     enabled: bool = False
-    rate_hz: float = Field(5.0, gt=0)
-    delay_s: float = Field(0.2, ge=0)
+    rate_hz: float = Field(5.0, gt=0, le=MAX_RATE_HZ)
+    delay_s: float = Field(0.2, ge=0, le=MAX_DELAY_S)
     sigma_h_m: float = Field(0.5, gt=0)
     sigma_v_m: float = Field(0.8, gt=0)
     sigma_vel_m_s: float = Field(0.1, gt=0)
     datum_lla: tuple[float, float, float] = Field(
         (47.397742, 8.545594, 488.0), description="lat deg, lon deg, alt m"
     )
+
+    @model_validator(mode="after")
+    def _datum(self) -> Self:
+        lat, lon, alt = self.datum_lla
+        if not -90.0 <= lat <= 90.0:
+            raise ValueError(f"datum_lla[0] (latitude) must be within +-90 degrees, got {lat:g}")
+        if not -180.0 <= lon <= 180.0:
+            raise ValueError(f"datum_lla[1] (longitude) must be within +-180 degrees, got {lon:g}")
+        if not -1000.0 <= alt <= 100_000.0:
+            raise ValueError(f"datum_lla[2] (altitude) must be within -1000..100000 m, got {alt:g}")
+        return self
+
     outages_s: list[tuple[float, float]] = Field(
         default_factory=list, description="[start, end) without a fix"
     )
 
 
-class MagSection(_Section):
+class MagSection(ConfigModel):
     enabled: bool = False
-    rate_hz: float = Field(50.0, gt=0)
+    rate_hz: float = Field(50.0, gt=0, le=MAX_RATE_HZ)
     declination_rad: float = 0.05
     noise_sigma: float = Field(0.005, ge=0, description="per axis, in the field's unit (gauss)")
     sigma_heading_rad: float = Field(0.023, gt=0, description="heading noise the filter assumes")
 
 
-class PlanSection(_Section):
+class PlanSection(ConfigModel):
     height_m: float = Field(1.5, gt=0)
     square_m: float = Field(2.0, gt=0)
     speed_m_s: float = Field(1.0, gt=0)
     accel_m_s2: float = Field(1.0, gt=0)
-    hold_s: float = Field(2.0, ge=0)
+    hold_s: float = Field(2.0, ge=0, le=MAX_DURATION_S)
     yaw: Literal["fixed", "along_track"] = Field(
         "fixed", description="fixed: face +x throughout; along_track: face the direction of travel"
     )
     yaw_rate_deg_s: float = Field(45.0, gt=0, description="turn rate of the along-track heading")
 
 
-class EstimatorSection(_Section):
+class EstimatorSection(ConfigModel):
     tau_vel_s: float = Field(0.1, gt=0)
     tau_pos_s: float = Field(0.1, gt=0)
     gate_probability: float = Field(0.9999, gt=0, lt=1)
-    align_s: float = Field(0.5, gt=0, description="time on the ground to level the filter")
+    align_s: float = Field(
+        0.5, gt=0, le=MAX_DURATION_S, description="time on the ground to level the filter"
+    )
     imu_noise_inflation: float = Field(1.0, ge=1.0, description="filter's IMU noise / the sensor's")
     vision_frame: Literal["world", "rotate"] = Field(
         "world",
         description="world: the vision frame is the navigation frame (its yaw fused); rotate: "
         "PX4's rotated external vision, heading from the magnetometer (thesis 000 eqs 3.7-3.8)",
     )
-    reset_after_s: float = Field(2.0, gt=0, description="a source rejected this long resets")
+    reset_after_s: float = Field(
+        2.0, gt=0, le=MAX_DURATION_S, description="a source rejected this long resets"
+    )
     zero_velocity_on_ground: bool = Field(
         True,
         description="fuse zero velocity while the motors are off on the ground (as PX4 at rest)",
@@ -192,7 +205,7 @@ class EstimatorSection(_Section):
     )
 
 
-class NavScenario(_Section):
+class NavScenario(ConfigModel):
     """A navigation flight; the defaults are the indoor vision flight of thesis 000."""
 
     name: str = "indoor_vision"
@@ -239,6 +252,11 @@ class NavScenario(_Section):
                 raise ValueError(
                     f"vision.dropouts_s: a window must end after it starts, got ({a}, {b})"
                 )
+        if self.flight_s > MAX_DURATION_S:
+            raise ValueError(
+                f"the flight would last {self.flight_s:.4g} s, longer than {MAX_DURATION_S:g} s: "
+                "shorten plan.hold_s or plan.square_m, or raise plan.speed_m_s"
+            )
         return self
 
     def waypoints(self) -> Waypoints:

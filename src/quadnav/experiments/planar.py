@@ -21,8 +21,9 @@ from typing import Literal, Self
 
 import numpy as np
 from numpy.typing import NDArray
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import Field, model_validator
 
+from quadnav.config_model import MAX_DELAY_S, MAX_DURATION_S, ConfigModel
 from quadnav.control.planar import PlanarSetpointProfile, ThesisPlanarController
 from quadnav.errors import ExperimentError
 from quadnav.estimation.floor import reintegration_floor
@@ -52,25 +53,21 @@ def s_to_ns(t_s: float) -> int:
     return round(t_s * 1e9)
 
 
-class _Section(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-
-class VehicleSection(_Section):
+class VehicleSection(ConfigModel):
     mass_kg: float = Field(1.0, gt=0)
     gravity_m_s2: float = Field(9.8, gt=0)
     inertia_kg_m2: float = Field(1.0 * 0.45**2 / 12.0, gt=0)
 
 
-class ControllerSection(_Section):
+class ControllerSection(ConfigModel):
     k_climb: float = Field(2.0, gt=0, description="climb-rate gain (N per m/s)")
     k_tilt: float = Field(0.2, gt=0, description="attitude P gain (N m per rad)")
     kd_tilt: float = Field(0.1, gt=0, description="attitude D gain (N m per rad/s)")
     climb_rate_m_s: float = 2.0
-    climb_end_s: float = Field(2.5, ge=0)
+    climb_end_s: float = Field(2.5, ge=0, le=MAX_DURATION_S)
     tilt_deg: float = Field(30.0, gt=-90, lt=90)
-    tilt_start_s: float = Field(7.0, ge=0)
-    tilt_switch_s: float = Field(8.5, ge=0)
+    tilt_start_s: float = Field(7.0, ge=0, le=MAX_DURATION_S)
+    tilt_switch_s: float = Field(8.5, ge=0, le=MAX_DURATION_S)
 
     @model_validator(mode="after")
     def _order(self) -> Self:
@@ -81,20 +78,22 @@ class ControllerSection(_Section):
         return self
 
 
-class ImuSection(_Section):
+class ImuSection(ConfigModel):
     accel_sigma_m_s2: float = Field(0.25, gt=0, description="accelerometer noise per sample")
     gyro_sigma_rad_s: float = Field(0.03, gt=0, description="gyroscope noise per sample")
     accel_model: Literal["specific_force", "kinematic"] = "specific_force"
 
 
-class GpsSection(_Section):
+class GpsSection(ConfigModel):
     sigma_m: float = Field(0.01, gt=0, description="position noise per axis")
-    period_s: float = Field(0.3, gt=0)
-    delay_s: float = Field(1.0, ge=0, description="time from validity to arrival")
-    jitter_s: float = Field(0.0, ge=0, description="extra uniform arrival delay in [0, jitter_s]")
+    period_s: float = Field(0.3, gt=0, le=MAX_DURATION_S)
+    delay_s: float = Field(1.0, ge=0, le=MAX_DELAY_S, description="time from validity to arrival")
+    jitter_s: float = Field(
+        0.0, ge=0, le=MAX_DELAY_S, description="extra uniform arrival delay in [0, jitter_s]"
+    )
 
 
-class EstimatorSection(_Section):
+class EstimatorSection(ConfigModel):
     gate_probability: float | None = Field(0.9999, gt=0, lt=1)
     init_sigma_pos_m: float = Field(0.01, gt=0)
     init_sigma_vel_m_s: float = Field(0.01, gt=0)
@@ -105,18 +104,21 @@ class EstimatorSection(_Section):
         True, description="shift buffered positions by velocity corrections (False: PX4 exactly)"
     )
     max_delay_s: float | None = Field(
-        None, ge=0, description="delay the buffers are sized for; default: gps delay + jitter"
+        None,
+        ge=0,
+        le=MAX_DELAY_S,
+        description="delay the buffers are sized for; default: gps delay + jitter",
     )
 
 
-class PlanarConfig(_Section):
+class PlanarConfig(ConfigModel):
     """Everything the planar experiment needs; the defaults are thesis 000's parameters."""
 
     name: str = "planar"
     experiments: list[ExperimentName] = Field(
         default_factory=lambda: list(EXPERIMENTS), min_length=1
     )
-    duration_s: float = Field(10.0, gt=0)
+    duration_s: float = Field(10.0, gt=0, le=MAX_DURATION_S)
     dt_s: float = Field(0.01, gt=0, description="simulation and IMU step")
     seed: int = Field(0, ge=0, description="first seed; Monte Carlo runs use seed, seed+1, ...")
     seeds: int = Field(1, ge=1, le=10000, description="number of Monte Carlo runs")

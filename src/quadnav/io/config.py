@@ -5,6 +5,7 @@ Every error is a :class:`~quadnav.errors.ConfigError` with one line naming the k
 
 from __future__ import annotations
 
+import re
 from collections.abc import Iterable
 from pathlib import Path
 from typing import Any, TypeVar
@@ -64,6 +65,18 @@ def apply_override(data: dict[str, Any], override: str) -> None:
     node[parts[-1]] = value
 
 
+_KEY_FIRST = re.compile(r"^[a-z][a-z0-9_]*(\[\d+\])*[ :]")
+
+
+def _section_message(loc: str, msg: str) -> str:
+    """A section's own message, keys named from the top: ``plan.hold_s must ...``."""
+    if msg.startswith(f"{loc}."):
+        return msg
+    if _KEY_FIRST.match(msg):
+        return f"{loc}.{msg}"
+    return f"{loc}: {msg}"
+
+
 def _format_validation_error(exc: ValidationError) -> str:
     parts = []
     for err in exc.errors():
@@ -71,6 +84,8 @@ def _format_validation_error(exc: ValidationError) -> str:
         msg = str(err["msg"]).removeprefix("Value error, ")
         if err["type"] == "extra_forbidden":
             parts.append(f"{loc}: unknown key")
+        elif loc and isinstance(err.get("input"), dict):
+            parts.append(_section_message(loc, msg))  # a whole section's check
         elif loc:
             parts.append(f"{loc}: {msg} (got {err.get('input')!r})")
         else:
