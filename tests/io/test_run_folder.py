@@ -3,12 +3,20 @@ from __future__ import annotations
 import datetime as dt
 import json
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
 
-from quadnav.errors import IoError
+from quadnav.errors import ConfigError, IoError
 from quadnav.io import create_run_folder, write_csv, write_json
+from quadnav.io.run_folder import (
+    finish_run_folder,
+    read_run_status,
+    require_complete,
+    run_guard,
+    write_text,
+)
 
 
 def test_run_folder_name_and_clash(tmp_path: Path) -> None:
@@ -51,3 +59,74 @@ def test_unwritable_root_is_an_io_error(tmp_path: Path) -> None:
     blocker.write_text("")
     with pytest.raises(IoError):
         create_run_folder(blocker / "runs", "x")
+
+
+# --- statuses, atomic files, no folder for nothing (issue 12, item 18) ---------------------
+
+
+def _status(run_dir: Path) -> str:
+    return str(json.loads((run_dir / "status.json").read_text())["status"])
+
+
+def test_a_new_folder_says_running_until_finished(tmp_path: Path) -> None:
+    d = create_run_folder(tmp_path, "x")
+    assert _status(d) == "running"
+    assert read_run_status(d) == "running"
+    with pytest.raises(IoError, match="marked 'running'"):
+        require_complete(d / "a.csv")
+    finish_run_folder(d)
+    assert read_run_status(d) == "complete"
+    require_complete(d / "a.csv")  # no error once complete
+
+
+def test_guard_marks_complete_interrupted_and_failed(tmp_path: Path) -> None:
+    with run_guard():
+        ok = create_run_folder(tmp_path, "ok")
+        write_text(ok / "config.yaml", "a: 1\n")
+        write_text(ok / "result.txt", "done\n")
+    assert read_run_status(ok) == "complete"
+
+    with pytest.raises(KeyboardInterrupt), run_guard() as kept:
+        cut = create_run_folder(tmp_path, "cut")
+        write_text(cut / "seed0.txt", "finished\n")
+        raise KeyboardInterrupt
+    assert kept == [cut] and read_run_status(cut) == "interrupted"
+    assert (cut / "seed0.txt").read_text() == "finished\n"  # what finished is kept
+
+    with pytest.raises(ValueError), run_guard():
+        bad = create_run_folder(tmp_path, "bad")
+        write_text(bad / "partial.txt", "x\n")
+        raise ValueError("the solver diverged")
+    assert read_run_status(bad) == "failed"
+    assert "the solver diverged" in (bad / "status.json").read_text()
+
+
+def test_a_folder_with_only_its_configuration_is_removed_on_error(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError), run_guard():
+        d = create_run_folder(tmp_path, "early")
+        write_text(d / "config.yaml", "a: 1\n")
+        raise ConfigError("vision.delay_s: bad")
+    assert not d.exists()
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_an_interrupted_write_leaves_no_cut_file(tmp_path: Path, monkeypatch: Any) -> None:
+    path = tmp_path / "delayed.csv"
+    write_csv(path, {"t_ns": np.arange(3, dtype=np.int64), "x": np.zeros(3)})
+    before = path.read_text()
+
+    def cut_savetxt(fname: Any, *args: Any, **kwargs: Any) -> None:
+        Path(fname).write_text("t_ns,x\n0,0.0\n1,")  # half a file, then Ctrl-C
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(np, "savetxt", cut_savetxt)
+    with pytest.raises(KeyboardInterrupt):
+        write_csv(path, {"t_ns": np.arange(5, dtype=np.int64), "x": np.ones(5)})
+    assert path.read_text() == before  # the old complete file, never the cut one
+    assert [p.name for p in tmp_path.iterdir()] == ["delayed.csv"]  # no temporary left
+
+
+def test_folders_from_before_statuses_read_as_unknown(tmp_path: Path) -> None:
+    (tmp_path / "old").mkdir()
+    assert read_run_status(tmp_path / "old") is None
+    require_complete(tmp_path / "old" / "truth.csv")  # legacy folders are still readable

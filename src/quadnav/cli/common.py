@@ -6,6 +6,7 @@ import functools
 import sys
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from pathlib import Path
 from typing import ParamSpec, TypeVar
 
 import typer
@@ -13,6 +14,7 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 from quadnav.errors import QuadnavError
+from quadnav.io.run_folder import run_guard
 
 __all__ = ["console", "err_console", "handle_errors", "progress_bar"]
 
@@ -25,15 +27,26 @@ R = TypeVar("R")
 
 
 def handle_errors(fn: Callable[P, R]) -> Callable[P, R]:
-    """Turn a :class:`QuadnavError` into one line on stderr and exit code 2."""
+    """Turn a :class:`QuadnavError` into one line on stderr and exit code 2, Ctrl-C into one
+    line and exit code 130; every run folder the command created is marked complete,
+    interrupted or failed (and removed when it holds nothing but its configuration)."""
 
     @functools.wraps(fn)
     def wrapper(*args: P.args, **kwargs: P.kwargs) -> R:
+        kept: list[Path] = []
         try:
-            return fn(*args, **kwargs)
+            with run_guard() as kept:
+                return fn(*args, **kwargs)
         except QuadnavError as exc:
             print(f"error: {exc}", file=sys.stderr)
+            for run_dir in kept:
+                print(f"partial results (marked failed): {run_dir}", file=sys.stderr)
             raise typer.Exit(code=2) from None
+        except KeyboardInterrupt:
+            print("interrupted", file=sys.stderr)
+            for run_dir in kept:
+                print(f"partial results (marked interrupted): {run_dir}", file=sys.stderr)
+            raise typer.Exit(code=130) from None
 
     return wrapper
 

@@ -19,7 +19,13 @@ from quadnav.eval.report import ReportSection, ReportTable, write_report
 from quadnav.experiments.flight import FlightRun
 from quadnav.geometry.trajectory import Trajectory
 from quadnav.io.config import dump_config
-from quadnav.io.run_folder import create_run_folder, write_csv, write_json, write_text
+from quadnav.io.run_folder import (
+    create_run_folder,
+    finish_run_folder,
+    write_csv,
+    write_json,
+    write_text,
+)
 from quadnav.io.trajectory_io import write_tum
 
 __all__ = ["flight_metrics", "plot_flight", "write_flight_run"]
@@ -214,4 +220,5 @@ def write_flight_run(run: FlightRun, *, runs_root: Path) -> tuple[Path, dict[str
             ReportSection(heading="Configuration", code=dump_config(cfg)),
         ],
     )
+    finish_run_folder(run_dir)
     return run_dir, metrics

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -20,10 +19,18 @@ from scipy.stats import chi2
 
 from quadnav.eval.metrics import nees
 from quadnav.eval.report import ReportSection, ReportTable, write_report
+from quadnav.eval.seeds import run_tasks
 from quadnav.experiments.nav import NavRunResult, NavScenario, run_nav
 from quadnav.geometry.trajectory import Trajectory
 from quadnav.io.config import dump_config
-from quadnav.io.run_folder import create_run_folder, write_csv, write_json, write_text
+from quadnav.io.run_folder import (
+    append_jsonl,
+    create_run_folder,
+    finish_run_folder,
+    write_csv,
+    write_json,
+    write_text,
+)
 from quadnav.io.trajectory_io import write_tum
 
 __all__ = ["NavStudy", "nav_metrics", "plot_nav_run", "run_nav_study"]
@@ -308,21 +315,18 @@ def run_nav_study(
     write_text(run_dir / "config.yaml", dump_config(sc))
     seeds = [sc.seed + k for k in range(sc.seeds)]
     results: dict[int, dict[str, Any]] = {}
-    first: NavRunResult | None = None
-    if jobs > 1 and len(seeds) > 1:
-        with ProcessPoolExecutor(max_workers=min(jobs, len(seeds))) as pool:
-            for k, res in enumerate(pool.map(_one, [sc] * len(seeds), seeds)):
-                results[res.seed] = nav_metrics(res)
-                first = first or res
-                if progress:
-                    progress(k + 1, len(seeds), f"seed {res.seed}")
-    else:
-        for k, seed in enumerate(seeds):
-            res = _one(sc, seed)
-            results[seed] = nav_metrics(res)
-            first = first or res
-            if progress:
-                progress(k + 1, len(seeds), f"seed {seed}")
+    firsts: list[NavRunResult] = []
+
+    def collect(k: int, res: NavRunResult) -> None:
+        results[res.seed] = nav_metrics(res)
+        append_jsonl(run_dir / "seeds.jsonl", {"seed": res.seed, **results[res.seed]})
+        if k == 0:
+            firsts.append(res)
+        if progress:
+            progress(len(results), len(seeds), f"seed {res.seed}")
+
+    run_tasks(_one, [(sc, seed) for seed in seeds], collect, jobs=jobs)
+    first = firsts[0] if firsts else None
     assert first is not None
     _write_series(first, run_dir)
     _write_sensor_streams(first, run_dir)
@@ -388,4 +392,5 @@ def run_nav_study(
             ReportSection(heading="Configuration", code=dump_config(sc)),
         ],
     )
+    finish_run_folder(run_dir)
     return NavStudy(run_dir=run_dir, per_seed=per_seed, summary=summary)

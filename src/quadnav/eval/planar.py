@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -19,10 +18,18 @@ from numpy.typing import NDArray
 from quadnav.errors import EvalError
 from quadnav.eval.metrics import ape, error_stats, nees
 from quadnav.eval.report import ReportSection, ReportTable, write_report
+from quadnav.eval.seeds import run_tasks
 from quadnav.experiments.planar import ExperimentName, PlanarConfig, PlanarRun, run_planar
 from quadnav.geometry.trajectory import Trajectory
 from quadnav.io.config import dump_config
-from quadnav.io.run_folder import create_run_folder, write_csv, write_json, write_text
+from quadnav.io.run_folder import (
+    append_jsonl,
+    create_run_folder,
+    finish_run_folder,
+    write_csv,
+    write_json,
+    write_text,
+)
 from quadnav.io.trajectory_io import write_tum
 
 __all__ = [
@@ -361,21 +368,21 @@ def run_planar_study(
         nonlocal done
         metrics, run = result
         per_seed[exp][k] = metrics
+        append_jsonl(
+            run_dir / "seeds.jsonl", {"experiment": exp, "seed": config.seed + k, **metrics}
+        )
         if run is not None:
             first_runs[exp] = run
         done += 1
         if progress is not None:
             progress(done, len(tasks), f"{exp} seed {config.seed + k}")
 
-    if jobs == 1 or len(tasks) == 1:
-        for exp, k in tasks:
-            collect(exp, k, _run_one(config, exp, k))
-    else:
-        with ProcessPoolExecutor(max_workers=min(jobs, len(tasks))) as pool:
-            futures = {pool.submit(_run_one, config, exp, k): (exp, k) for exp, k in tasks}
-            for fut in as_completed(futures):
-                exp, k = futures[fut]
-                collect(exp, k, fut.result())
+    run_tasks(
+        _run_one,
+        [(config, exp, k) for exp, k in tasks],
+        lambda i, result: collect(*tasks[i], result),
+        jobs=jobs,
+    )
     for exp in config.experiments:
         _write_run_series(first_runs[exp], run_dir / exp)
         plot_planar_run(first_runs[exp], run_dir / "plots" / f"{exp}.png")
@@ -432,4 +439,5 @@ def run_planar_study(
             ReportSection(heading="Configuration", code=dump_config(config)),
         ],
     )
+    finish_run_folder(run_dir)
     return PlanarStudy(run_dir=run_dir, summary=summary, per_seed=per_seed)

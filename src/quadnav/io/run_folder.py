@@ -1,21 +1,49 @@
-"""Run folders: ``runs/<YYYY-mm-dd_HH-MM-SS>_<name>/`` with config, CSV, metrics and plots."""
+"""Run folders: ``runs/<YYYY-mm-dd_HH-MM-SS>_<name>/`` with config, CSV, metrics and plots.
+
+Every folder carries ``status.json``: ``running`` from its creation, then ``complete``,
+``interrupted`` (Ctrl-C: what finished is kept) or ``failed`` (with the error). A process killed
+outright leaves ``running``. Readers check it (:func:`require_complete`). Files are written
+atomically (a temporary file renamed into place), so none is ever cut mid-line. A folder that
+holds nothing but its configuration when the work fails is removed: an input error leaves no
+folder behind.
+"""
 
 from __future__ import annotations
 
 import datetime as _dt
 import json
 import math
+import os
 import re
-from collections.abc import Mapping
+import shutil
+from collections.abc import Iterator, Mapping
+from contextlib import contextmanager
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
 
 from quadnav.errors import IoError
 
-__all__ = ["create_run_folder", "write_csv", "write_json", "write_text"]
+__all__ = [
+    "STATUS_FILE",
+    "RunStatus",
+    "append_jsonl",
+    "create_run_folder",
+    "finish_run_folder",
+    "read_run_status",
+    "require_complete",
+    "run_guard",
+    "write_csv",
+    "write_json",
+    "write_text",
+]
+
+STATUS_FILE = "status.json"
+RunStatus = Literal["running", "complete", "interrupted", "failed"]
+#: Run folders created by this process and not yet finished, oldest first.
+_OPEN: list[Path] = []
 
 
 def create_run_folder(root: Path, name: str, *, now: _dt.datetime | None = None) -> Path:
@@ -32,16 +60,121 @@ def create_run_folder(root: Path, name: str, *, now: _dt.datetime | None = None)
             except FileExistsError:
                 continue
             (candidate / "plots").mkdir()
+            _write_status(candidate, "running")
+            _OPEN.append(candidate)
             return candidate
     except OSError as exc:
         raise IoError(f"cannot create a run folder under {root}: {exc.strerror}") from None
     raise IoError(f"too many run folders named {base.name} under {root}")
 
 
-def write_text(path: Path, text: str) -> None:
+def _now() -> str:
+    return _dt.datetime.now().isoformat(timespec="seconds")
+
+
+def _write_status(run_dir: Path, status: RunStatus, reason: str = "") -> None:
+    record = {"status": status, "updated": _now()}
+    if reason:
+        record["reason"] = reason
+    write_json(run_dir / STATUS_FILE, record)
+
+
+def finish_run_folder(run_dir: Path, status: RunStatus = "complete", reason: str = "") -> None:
+    """Mark a run folder finished (``complete``, ``interrupted`` or ``failed``)."""
+    _write_status(run_dir, status, reason)
+    if run_dir in _OPEN:
+        _OPEN.remove(run_dir)
+
+
+def read_run_status(run_dir: Path) -> RunStatus | None:
+    """The folder's status; ``None`` for a folder written before statuses existed."""
+    path = Path(run_dir) / STATUS_FILE
+    if not path.is_file():
+        return None
+    try:
+        status = json.loads(path.read_text(encoding="utf-8")).get("status")
+    except (OSError, ValueError, AttributeError):
+        return "failed"  # an unreadable status is no evidence of a complete run
+    return status if status in ("running", "complete", "interrupted", "failed") else "failed"
+
+
+def require_complete(path: Path) -> None:
+    """Refuse to read a file of a run folder (or the folder) that is not complete."""
+    path = Path(path)
+    for folder in (path, *path.parents[:2]) if path.is_dir() else path.parents[:3]:
+        status = read_run_status(folder)
+        if status is None:
+            continue
+        if status != "complete":
+            raise IoError(
+                f"{folder} is a run folder marked {status!r} in its {STATUS_FILE}: "
+                "its files may be incomplete"
+            )
+        return
+
+
+def _only_configuration(run_dir: Path) -> bool:
+    """True when nothing but the configuration, the status and empty folders was written."""
+    for p in run_dir.rglob("*"):
+        if p.is_file() and p.name not in ("config.yaml", STATUS_FILE):
+            return False
+    return True
+
+
+def _close_open_folders(first: int, status: RunStatus, reason: str) -> list[Path]:
+    kept = []
+    for run_dir in list(_OPEN[first:]):
+        if status != "complete" and _only_configuration(run_dir):
+            shutil.rmtree(run_dir, ignore_errors=True)  # nothing was computed: no folder
+            _OPEN.remove(run_dir)
+            continue
+        finish_run_folder(run_dir, status, reason)
+        kept.append(run_dir)
+    return kept
+
+
+@contextmanager
+def run_guard() -> Iterator[list[Path]]:
+    """Finish every run folder created inside: ``complete`` on success, ``interrupted`` on
+    Ctrl-C, ``failed`` on an error (folders with nothing but their configuration are removed).
+    Yields the list of the folders kept on an interrupt or a failure, filled on the way out."""
+    first = len(_OPEN)
+    kept: list[Path] = []
+    try:
+        yield kept
+    except KeyboardInterrupt:
+        kept.extend(_close_open_folders(first, "interrupted", "interrupted (Ctrl-C)"))
+        raise
+    except BaseException as exc:
+        kept.extend(_close_open_folders(first, "failed", str(exc) or type(exc).__name__))
+        raise
+    _close_open_folders(first, "complete", "")
+
+
+def _replace_atomically(path: Path, write: Any) -> None:
+    """Write through ``write(tmp_path)`` to a temporary file, then rename it onto ``path``."""
+    tmp = path.with_name(f".{path.name}.partial")
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(text, encoding="utf-8")
+        write(tmp)
+        os.replace(tmp, path)
+    except OSError as exc:
+        tmp.unlink(missing_ok=True)
+        raise IoError(f"cannot write {path}: {exc.strerror}") from None
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
+def write_text(path: Path, text: str) -> None:
+    _replace_atomically(Path(path), lambda tmp: tmp.write_text(text, encoding="utf-8"))
+
+
+def append_jsonl(path: Path, record: Mapping[str, Any]) -> None:
+    """Append one JSON line (one finished seed, say): what is done survives an interrupt."""
+    try:
+        with Path(path).open("a", encoding="utf-8") as f:
+            f.write(json.dumps(_jsonable(record)) + "\n")
     except OSError as exc:
         raise IoError(f"cannot write {path}: {exc.strerror}") from None
 
@@ -86,8 +219,9 @@ def write_csv(path: Path, columns: Mapping[str, NDArray[Any]]) -> None:
     table = np.empty((n_rows, len(names)), dtype=object)
     for j, a in enumerate(arrays):
         table[:, j] = a.astype(np.int64) if a.dtype == bool else a
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        np.savetxt(path, table, fmt=fmts, delimiter=",", header=",".join(names), comments="")
-    except OSError as exc:
-        raise IoError(f"cannot write {path}: {exc.strerror}") from None
+    _replace_atomically(
+        Path(path),
+        lambda tmp: np.savetxt(
+            tmp, table, fmt=fmts, delimiter=",", header=",".join(names), comments=""
+        ),
+    )
