@@ -13,12 +13,7 @@ os.environ.setdefault("MAVLINK20", "1")
 from pymavlink import mavutil
 
 from quadnav.experiments.sitl import PX4_OFFBOARD, SitlVehicle
-
-
-def free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
+from tests.loopback import free_port
 
 
 def setpoint(gcs, x_n: float, y_e: float, z_d: float) -> None:

@@ -5,27 +5,28 @@ from __future__ import annotations
 import itertools
 import socket
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from quadnav.errors import IoError
+from quadnav.errors import ConfigError, IoError
 from quadnav.geometry.frames import enu_to_ned, rotation_enu_flu_to_ned_frd
 from quadnav.geometry.rotations import Pose
 from quadnav.io.mavlink import (
+    SIGNING_KEY_ENV,
     MavlinkLink,
     check_bind,
     covariance_enu_to_ned,
     from_upper_triangle,
     parse_url,
+    read_signing_key,
 )
+from tests.loopback import free_port
+from tests.loopback import no_remote_bind as no_remote_bind_fixture
 
-
-def free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
+no_remote_bind = no_remote_bind_fixture  # the fixture, for the tests below
 
 
 def test_urls() -> None:
@@ -127,23 +128,6 @@ def test_signing_refuses_unsigned_and_malformed_packets() -> None:
         link.close()
 
 
-@pytest.fixture
-def no_remote_bind(monkeypatch: pytest.MonkeyPatch) -> list[object]:
-    """Every bind in the test goes through here; a non-loopback one fails the test before it
-    reaches the kernel (the tests below must refuse 0.0.0.0 without ever binding it)."""
-    binds: list[object] = []
-    real_bind = socket.socket.bind
-
-    def bind(self: socket.socket, address: object) -> None:
-        binds.append(address)
-        host = address[0] if isinstance(address, tuple) else ""
-        assert host in ("127.0.0.1", "localhost"), f"the test tried to bind {address!r}"
-        real_bind(self, address)  # type: ignore[arg-type]
-
-    monkeypatch.setattr(socket.socket, "bind", bind)
-    return binds
-
-
 def test_listening_beyond_loopback_is_refused_without_binding(no_remote_bind: list[object]) -> None:
     """udpin::PORT, udpin:0.0.0.0:PORT, udp:, tcpin: and a LAN address: refused, nothing bound,
     and the message names --allow-remote; loopback forms (127/8, localhost) pass the check."""
@@ -233,3 +217,27 @@ def test_a_listener_replies_only_to_peers_that_sent_a_valid_message(signed: bool
         raw.close()
         for link in (rx, friend, unsigned):
             link.close()
+
+
+def test_signing_key_from_a_file_the_environment_or_the_command_line(tmp_path: Path) -> None:
+    key = bytes(range(40, 72))
+    f = tmp_path / "key"
+    f.write_text(f"  {key.hex().upper()}\n")
+    env = {SIGNING_KEY_ENV: bytes(range(32)).hex()}
+    assert read_signing_key(key_hex=None, key_file=f, environ={}) == key
+    assert read_signing_key(key_hex=None, key_file=None, environ=env) == bytes(range(32))
+    assert read_signing_key(key_hex=None, key_file=f, environ=env) == key  # the option wins
+    assert read_signing_key(key_hex=key.hex(), key_file=None, environ=env) == key
+    assert read_signing_key(key_hex=None, key_file=None, environ={}) is None
+    for kwargs, fragment in (
+        ({"key_hex": key.hex(), "key_file": f, "environ": {}}, "not both"),
+        ({"key_hex": None, "key_file": tmp_path / "absent", "environ": {}}, "--signing-key-file"),
+        ({"key_hex": "abc", "key_file": None, "environ": {}}, "--signing-key: the signing key"),
+        ({"key_hex": None, "key_file": None, "environ": {SIGNING_KEY_ENV: ""}}, SIGNING_KEY_ENV),
+        ({"key_hex": None, "key_file": None, "environ": {SIGNING_KEY_ENV: "zz" * 32}}, "64 hex"),
+    ):
+        with pytest.raises(IoError, match=fragment):
+            read_signing_key(**kwargs)  # type: ignore[arg-type]
+    f.write_text(key.hex()[:-2])  # 31 bytes
+    with pytest.raises(ConfigError, match=r"--signing-key-file .*64 hexadecimal digits"):
+        read_signing_key(key_hex=None, key_file=f, environ={})
