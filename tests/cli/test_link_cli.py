@@ -113,3 +113,14 @@ def test_sim_reads_the_signing_key_from_a_file_or_the_environment(tmp_path: Path
     assert (
         "warning: --signing-key shows the key" in res.stderr and "--signing-key-file" in res.stderr
     )
+
+
+def test_markers_companion_refuses_a_remote_bind_before_reading_anything(
+    no_remote_bind: list[object], tmp_path: Path
+) -> None:
+    """The check comes first: no source, camera or run folder is needed to be refused, none
+    is written, and --allow-remote is named (the markers command has it too)."""
+    res = runner.invoke(app, ["markers", str(tmp_path / "absent.mp4"), "--out", str(tmp_path / "runs"),
+                              "--mavlink", "udpin:0.0.0.0:14540"])  # fmt: skip
+    one_line_error(res, "--allow-remote")
+    assert no_remote_bind == [] and not (tmp_path / "runs").exists()

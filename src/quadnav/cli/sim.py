@@ -86,7 +86,14 @@ def sim_command(
         for name in BUILTIN:
             console.print(name, highlight=False)
         return
-    overrides = list(set_ or [])
+    config = _load_scenario(scenario, list(set_ or []))
+    with console.status(f"flying {config.name} ({config.duration_s:g} s)..."):
+        run = run_flight(config)
+        run_dir, m = write_flight_run(run, runs_root=out)
+    _print_flight(config.name, m, run_dir)
+
+
+def _load_scenario(scenario: str, overrides: list[str]) -> FlightConfig:
     if scenario in BUILTIN:
         data = builtin_config(scenario)
         for o in overrides:
@@ -94,7 +101,7 @@ def sim_command(
         from pydantic import ValidationError
 
         try:
-            config = FlightConfig.model_validate(data)
+            return FlightConfig.model_validate(data)
         except ValidationError as exc:
             err = exc.errors()[0]
             loc = ".".join(str(p) for p in err["loc"])
@@ -107,11 +114,7 @@ def sim_command(
             raise ConfigError(
                 f"{scenario!r} is neither a built-in scenario ({', '.join(BUILTIN)}) nor a file"
             )
-        config = load_config(FlightConfig, path, overrides)
-    with console.status(f"flying {config.name} ({config.duration_s:g} s)..."):
-        run = run_flight(config)
-        run_dir, m = write_flight_run(run, runs_root=out)
-    _print_flight(config.name, m, run_dir)
+        return load_config(FlightConfig, path, overrides)
 
 
 def _print_flight(name: str, m: dict[str, Any], run_dir: Path) -> None:
