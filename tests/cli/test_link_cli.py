@@ -124,3 +124,30 @@ def test_markers_companion_refuses_a_remote_bind_before_reading_anything(
                               "--mavlink", "udpin:0.0.0.0:14540"])  # fmt: skip
     one_line_error(res, "--allow-remote")
     assert no_remote_bind == [] and not (tmp_path / "runs").exists()
+
+
+def test_a_second_sitl_vehicle_on_a_port_in_use_fails_clearly() -> None:
+    from quadnav.io.mavlink import MavlinkLink
+
+    port = free_port()
+    first = MavlinkLink(f"udpin:127.0.0.1:{port}", system=1, component=1)
+    try:
+        res = runner.invoke(app, ["sim", "--mavlink", f"udpin:127.0.0.1:{port}", "--duration", "1"])
+        one_line_error(res, f"port {port} is already in use")
+    finally:
+        first.close()
+
+
+def test_a_bad_signing_key_is_one_line_naming_where_it_came_from(tmp_path: Path) -> None:
+    url = f"udpin:127.0.0.1:{free_port()}"
+    short = tmp_path / "short.key"
+    short.write_text("ab" * 31)
+    for args, env, fragment in (
+        (["--signing-key", "abc"], None, "--signing-key: the signing key must be 64 hexadecimal"),
+        (["--signing-key-file", str(short)], None, f"--signing-key-file {short}: the signing key"),
+        (["--signing-key-file", str(tmp_path / "nope")], None, "cannot read it"),
+        (["--signing-key-file", str(short), "--signing-key", "ab" * 32], None, "not both"),
+        ([], {"QUADNAV_SIGNING_KEY": "not hex"}, "QUADNAV_SIGNING_KEY: the signing key"),
+    ):
+        res = runner.invoke(app, ["sim", "--mavlink", url, "--duration", "1", *args], env=env)
+        one_line_error(res, fragment)  # (no warning line before the error either)

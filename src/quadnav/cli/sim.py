@@ -50,7 +50,10 @@ def sim_command(
     ] = None,
     signing_key_file: Annotated[
         Path | None,
-        typer.Option("--signing-key-file", help="with --mavlink: a file holding the signing key"),
+        typer.Option(
+            "--signing-key-file",
+            help=f"with --mavlink: a file holding the signing key, 64 hex digits (or set {SIGNING_KEY_ENV})",
+        ),
     ] = None,
     allow_remote: Annotated[
         bool,
@@ -157,10 +160,10 @@ def _run_sitl(url: str | None, key_hex: str | None, key_file: Path | None, durat
         )
     if duration is not None:
         check_range(duration, "--duration", 0.0, MAX_SITL_S, "seconds", low_open=True)
+    key = read_signing_key(key_hex=key_hex, key_file=key_file, environ=os.environ)
     if key_hex is not None:
         err_console.print(f"warning: --signing-key shows the key to every user of this machine (ps); use --signing-key-file or {SIGNING_KEY_ENV}",
                           highlight=False, soft_wrap=True)  # fmt: skip
-    key = read_signing_key(key_hex=key_hex, key_file=key_file, environ=os.environ)
     vehicle = SitlVehicle(url=url, signing_key=key, allow_remote=allow_remote)
     console.print(
         f"SITL vehicle on {url}{' (signed)' if key else ''}; Ctrl-C stops it", highlight=False
