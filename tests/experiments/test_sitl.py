@@ -168,3 +168,16 @@ def test_signed_sitl_streams_telemetry_only_to_signed_peers() -> None:
         for c in (intruder, friend):
             c.close()
         raw.close()
+
+
+def test_run_refuses_a_duration_that_would_end_at_once_or_never() -> None:
+    from quadnav.errors import ExperimentError
+
+    sitl = SitlVehicle(url=f"udpin:127.0.0.1:{free_port()}")
+    try:
+        for bad in (-5.0, 0.0, float("nan"), float("inf")):  # -5 first: nan used to never return
+            with pytest.raises(ExperimentError, match="duration_s"):
+                sitl.run(bad)
+        assert sitl.truth_log == []  # not a single step was flown
+    finally:
+        sitl.stop()
