@@ -7,17 +7,13 @@ import socket
 import time
 
 import numpy as np
+import pytest
 
 os.environ.setdefault("MAVLINK20", "1")
 from pymavlink import mavutil
 
 from quadnav.experiments.sitl import PX4_OFFBOARD, SitlVehicle
-
-
-def free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
+from tests.loopback import free_port
 
 
 def setpoint(gcs, x_n: float, y_e: float, z_d: float) -> None:
@@ -129,3 +125,59 @@ def test_signing_enabled_sitl_ignores_unsigned_and_malformed_packets() -> None:
         sitl.stop()
         intruder.close()
         raw.close()
+
+
+def test_signed_sitl_streams_telemetry_only_to_signed_peers() -> None:
+    """One non-MAVLink datagram and an unsigned heartbeat used to register their sockets for the
+    vehicle's 50 Hz telemetry; now only the peer that sent a valid signed message gets it."""
+    port = free_port()
+    key = bytes(range(7, 39))
+    sitl = SitlVehicle(url=f"udpin:127.0.0.1:{port}", signing_key=key)
+    sitl.start()
+    raw = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    raw.bind(("127.0.0.1", 0))
+    intruder = mavutil.mavlink_connection(f"udpout:127.0.0.1:{port}", source_system=200)
+    friend = mavutil.mavlink_connection(f"udpout:127.0.0.1:{port}", source_system=255)
+    friend.setup_signing(key, sign_outgoing=True)
+    try:
+        raw.sendto(b"hello vehicle, where are you?", ("127.0.0.1", port))
+        intruder.mav.heartbeat_send(
+            mavutil.mavlink.MAV_TYPE_GCS, mavutil.mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0
+        )
+        t_end = (
+            time.monotonic() + 5.0
+        )  # the vehicle's loop has read both (a loaded machine runs it late)
+        while (
+            sitl.link.stats.bad_packets < 1 or sitl.link.stats.refused_unsigned < 1
+        ) and time.monotonic() < t_end:
+            time.sleep(0.02)
+        assert sitl.link.stats.bad_packets >= 1 and sitl.link.stats.refused_unsigned >= 1
+        friend.mav.heartbeat_send(
+            mavutil.mavlink.MAV_TYPE_GCS, mavutil.mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0
+        )
+        att = friend.recv_match(type="ATTITUDE", blocking=True, timeout=5)
+        assert att is not None and att.get_srcSystem() == 1  # the key holder hears the vehicle
+        # by now the others would have had ~25 ATTITUDE messages each
+        raw.settimeout(0.5)
+        with pytest.raises(TimeoutError):
+            raw.recv(4096)
+        assert intruder.recv_match(blocking=True, timeout=0.5) is None
+        assert sitl.link.peers() == {("127.0.0.1", friend.port.getsockname()[1])}
+    finally:
+        sitl.stop()
+        for c in (intruder, friend):
+            c.close()
+        raw.close()
+
+
+def test_run_refuses_a_duration_that_would_end_at_once_or_never() -> None:
+    from quadnav.errors import ExperimentError
+
+    sitl = SitlVehicle(url=f"udpin:127.0.0.1:{free_port()}")
+    try:
+        for bad in (-5.0, 0.0, float("nan"), float("inf")):  # -5 first: nan used to never return
+            with pytest.raises(ExperimentError, match="duration_s"):
+                sitl.run(bad)
+        assert sitl.truth_log == []  # not a single step was flown
+    finally:
+        sitl.stop()

@@ -5,21 +5,28 @@ from __future__ import annotations
 import itertools
 import socket
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from quadnav.errors import IoError
+from quadnav.errors import ConfigError, IoError
 from quadnav.geometry.frames import enu_to_ned, rotation_enu_flu_to_ned_frd
 from quadnav.geometry.rotations import Pose
-from quadnav.io.mavlink import MavlinkLink, covariance_enu_to_ned, from_upper_triangle, parse_url
+from quadnav.io.mavlink import (
+    SIGNING_KEY_ENV,
+    MavlinkLink,
+    check_bind,
+    covariance_enu_to_ned,
+    from_upper_triangle,
+    parse_url,
+    read_signing_key,
+)
+from tests.loopback import free_port
+from tests.loopback import no_remote_bind as no_remote_bind_fixture
 
-
-def free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
+no_remote_bind = no_remote_bind_fixture  # the fixture, for the tests below
 
 
 def test_urls() -> None:
@@ -119,3 +126,118 @@ def test_signing_refuses_unsigned_and_malformed_packets() -> None:
     raw.close()
     for link in (rx, signed, unsigned):
         link.close()
+
+
+def test_listening_beyond_loopback_is_refused_without_binding(no_remote_bind: list[object]) -> None:
+    """udpin::PORT, udpin:0.0.0.0:PORT, udp:, tcpin: and a LAN address: refused, nothing bound,
+    and the message names --allow-remote; loopback forms (127/8, localhost) pass the check."""
+    for url in ("udpin::14550", "udpin:0.0.0.0:14550", "udp:0.0.0.0:14550", "tcpin:0.0.0.0:5760",
+                "udpin:192.168.1.20:14550"):  # fmt: skip
+        with pytest.raises(IoError, match="--allow-remote") as info:
+            MavlinkLink(url)
+        assert "not loopback" in str(info.value) and "\n" not in str(info.value)
+    assert no_remote_bind == []
+    assert check_bind("udpin:0.0.0.0:14550", allow_remote=True) == ("0.0.0.0", 14550)
+    assert check_bind("udpin::14550", allow_remote=True) == ("", 14550)
+    for url in ("udpin:127.0.0.1:14550", "udpin:127.3.2.1:14550", "udpin:localhost:14550"):
+        assert check_bind(url, allow_remote=False) is not None
+    assert check_bind("udpout:0.0.0.0:14550", allow_remote=False) is None  # sends, binds nothing
+    for url in ("udpin:127.0.0.1:99999", "udpin:14550", "tcpin:127.0.0.1:port"):
+        with pytest.raises(IoError, match="HOST:PORT"):
+            check_bind(url, allow_remote=False)
+    assert no_remote_bind == []
+
+
+def test_a_second_listener_on_a_port_in_use_is_refused(no_remote_bind: list[object]) -> None:
+    """Two vehicles on one UDP port would each get some of the datagrams (pymavlink sets
+    SO_REUSEADDR): the second fails with a clear error, whichever of the two came first."""
+    from pymavlink import mavutil
+
+    port = free_port()
+    first = MavlinkLink(f"udpin:127.0.0.1:{port}", system=1, component=1)
+    try:
+        with pytest.raises(IoError, match=f"port {port} is already in use"):
+            MavlinkLink(f"udpin:127.0.0.1:{port}", system=2, component=1)
+        with pytest.raises(OSError):  # a plain pymavlink listener cannot share it either
+            mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}")
+    finally:
+        first.close()
+    port2 = free_port()
+    other = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port2}")  # another program, first
+    try:
+        with pytest.raises(IoError, match="already in use"):
+            MavlinkLink(f"udpin:127.0.0.1:{port2}")
+    finally:
+        other.close()
+    MavlinkLink(f"udpin:127.0.0.1:{port}").close()  # freed: a new vehicle may take it
+
+
+def _drain(link: MavlinkLink, n: int = 5) -> None:
+    for _ in range(n):
+        link.poll(timeout_s=0.05)
+
+
+def _heard(sock: socket.socket, wait_s: float) -> bytes:
+    sock.settimeout(wait_s)
+    try:
+        return sock.recv(4096)
+    except TimeoutError:
+        return b""
+
+
+@pytest.mark.parametrize("signed", [False, True])
+def test_a_listener_replies_only_to_peers_that_sent_a_valid_message(signed: bool) -> None:
+    """Garbage from a raw socket (and, with signing, an unsigned MAVLink message) does not make
+    the listener send there; the sender of a valid (signed) message gets its messages."""
+    port = free_port()
+    key = bytes(range(32)) if signed else None
+    rx = MavlinkLink(f"udpin:127.0.0.1:{port}", system=1, component=1, signing_key=key)
+    friend = MavlinkLink(f"udpout:127.0.0.1:{port}", system=255, component=190, signing_key=key)
+    unsigned = MavlinkLink(f"udpout:127.0.0.1:{port}", system=254, component=190)
+    raw = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    raw.bind(("127.0.0.1", 0))
+    try:
+        raw.sendto(b"not mavlink at all", ("127.0.0.1", port))
+        if signed:
+            unsigned.heartbeat()
+        _drain(rx)
+        assert rx.stats.bad_packets >= 1 and rx.peers() == frozenset()
+        friend.heartbeat()
+        _drain(rx)
+        friend_addr = ("127.0.0.1", friend.conn.port.getsockname()[1])
+        assert rx.peers() == {friend_addr}
+        rx.heartbeat(vehicle=True)
+        got = [m for m in friend.poll(timeout_s=1.0) if m.get_type() == "HEARTBEAT"]
+        assert len(got) == 1 and got[0].get_srcSystem() == 1
+        assert _heard(raw, 0.3) == b""
+        if signed:
+            assert rx.stats.refused_unsigned >= 1
+            assert unsigned.poll(timeout_s=0.3) == []
+    finally:
+        raw.close()
+        for link in (rx, friend, unsigned):
+            link.close()
+
+
+def test_signing_key_from_a_file_the_environment_or_the_command_line(tmp_path: Path) -> None:
+    key = bytes(range(40, 72))
+    f = tmp_path / "key"
+    f.write_text(f"  {key.hex().upper()}\n")
+    env = {SIGNING_KEY_ENV: bytes(range(32)).hex()}
+    assert read_signing_key(key_hex=None, key_file=f, environ={}) == key
+    assert read_signing_key(key_hex=None, key_file=None, environ=env) == bytes(range(32))
+    assert read_signing_key(key_hex=None, key_file=f, environ=env) == key  # the option wins
+    assert read_signing_key(key_hex=key.hex(), key_file=None, environ=env) == key
+    assert read_signing_key(key_hex=None, key_file=None, environ={}) is None
+    for kwargs, fragment in (
+        ({"key_hex": key.hex(), "key_file": f, "environ": {}}, "not both"),
+        ({"key_hex": None, "key_file": tmp_path / "absent", "environ": {}}, "--signing-key-file"),
+        ({"key_hex": "abc", "key_file": None, "environ": {}}, "--signing-key: the signing key"),
+        ({"key_hex": None, "key_file": None, "environ": {SIGNING_KEY_ENV: ""}}, SIGNING_KEY_ENV),
+        ({"key_hex": None, "key_file": None, "environ": {SIGNING_KEY_ENV: "zz" * 32}}, "64 hex"),
+    ):
+        with pytest.raises(IoError, match=fragment):
+            read_signing_key(**kwargs)  # type: ignore[arg-type]
+    f.write_text(key.hex()[:-2])  # 31 bytes
+    with pytest.raises(ConfigError, match=r"--signing-key-file .*64 hexadecimal digits"):
+        read_signing_key(key_hex=None, key_file=f, environ={})

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import functools
+import math
 import sys
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -13,10 +14,10 @@ import typer
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-from quadnav.errors import QuadnavError
+from quadnav.errors import ConfigError, QuadnavError
 from quadnav.io.run_folder import run_guard
 
-__all__ = ["console", "err_console", "handle_errors", "progress_bar"]
+__all__ = ["check_range", "console", "err_console", "handle_errors", "progress_bar"]
 
 # Piped output (CI logs, files) gets a width that fits the summary tables, not rich's 80.
 console = Console() if sys.stdout.isatty() else Console(width=120)
@@ -69,3 +70,19 @@ def progress_bar(description: str) -> Iterator[Callable[[int, int, str], None]]:
             progress.update(task, completed=done, total=total, what=what)
 
         yield update
+
+
+def check_range(
+    value: float, option: str, low: float, high: float, unit: str, *, low_open: bool = False
+) -> float:
+    """``value`` if it is finite and within ``[low, high]`` (``(low, high]`` when ``low_open``);
+    otherwise a :class:`ConfigError` naming ``option`` and its bounds."""
+    ok = math.isfinite(value) and (value > low if low_open else value >= low) and value <= high
+    if not ok:
+        bound = f"{'(' if low_open else '['}{_num(low)}, {_num(high)}]"
+        raise ConfigError(f"{option} must be a finite number in {bound} {unit}, got {_num(value)}")
+    return value
+
+
+def _num(x: float) -> str:
+    return str(int(x)) if math.isfinite(x) and float(x).is_integer() else f"{x:g}"

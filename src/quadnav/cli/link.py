@@ -9,12 +9,15 @@ from typing import Annotated
 
 import typer
 
-from quadnav.cli.common import console, handle_errors, progress_bar
+from quadnav.cli.common import check_range, console, handle_errors, progress_bar
 from quadnav.errors import IoError
 from quadnav.io.serial_frame import encode
 from quadnav.io.trajectory_io import read_trajectory
 
 __all__ = ["link_app"]
+
+MIN_BAUD, MAX_BAUD = 50, 4_000_000  # what Linux UARTs take (B50 to B4000000)
+MAX_RATE_HZ = 1000.0  # a 115200-baud link carries about 870 frames per second
 
 link_app = typer.Typer(help="Links to a flight controller: serial frames.", no_args_is_help=True)
 
@@ -38,12 +41,22 @@ def serial_command(
             "--from", help="trajectory to stream (TUM, EuRoC, KITTI, quadnav CSV, ULog, bag)"
         ),
     ],
-    baud: Annotated[int, typer.Option("--baud")] = 115200,
+    baud: Annotated[
+        int, typer.Option("--baud", help=f"bits per second, {MIN_BAUD} to {MAX_BAUD}")
+    ] = 115200,
     rate_hz: Annotated[
-        float, typer.Option("--rate", help="frames per second (0: as fast as the link takes)")
+        float,
+        typer.Option(
+            "--rate",
+            help=f"frames per second, at most {MAX_RATE_HZ:g} (0: as fast as the link takes)",
+        ),
     ] = 10.0,
 ) -> None:
     """Send each pose of a trajectory as a serial frame, paced at --rate (the thesis used 10 Hz)."""
+    check_range(baud, "--baud", MIN_BAUD, MAX_BAUD, "bits per second")
+    check_range(
+        rate_hz, "--rate", 0.0, MAX_RATE_HZ, "frames per second (0: as fast as the link takes)"
+    )
     traj = read_trajectory(source)
     link = open_serial(port, baud)
     period = 1.0 / rate_hz if rate_hz > 0 else 0.0

@@ -18,6 +18,7 @@ from quadnav.errors import ConfigError, IoError
 from quadnav.eval.report import ReportSection, ReportTable, write_report
 from quadnav.io.config import dump_config, load_config
 from quadnav.io.frames import VideoOut, open_frames
+from quadnav.io.mavlink import check_bind
 from quadnav.io.opencv_yaml import read_camera_yaml, read_opencv_yaml
 from quadnav.io.run_folder import create_run_folder, write_csv, write_json, write_text
 from quadnav.vision.config import MarkersConfig, from_thesis_vision_params
@@ -62,6 +63,7 @@ def run_markers(
     *,
     progress: Any = None,
     mavlink: str | None = None,
+    allow_remote: bool = False,
     setpoints: Path | None = None,
 ) -> dict[str, Any]:
     """Process every frame of ``source``; write the run folder; return the statistics. With
@@ -91,7 +93,7 @@ def run_markers(
     if mavlink is not None:
         from quadnav.io.mavlink import MavlinkLink
 
-        link = MavlinkLink(mavlink, system=1, component=197)
+        link = MavlinkLink(mavlink, system=1, component=197, allow_remote=allow_remote)
     plan = None
     if setpoints is not None:
         from quadnav.io.trajectory_io import read_trajectory
@@ -287,6 +289,12 @@ def markers_command(
             "--mavlink", help="send the poses to an autopilot, e.g. udpout:127.0.0.1:14540"
         ),
     ] = None,
+    allow_remote: Annotated[
+        bool,
+        typer.Option(
+            "--allow-remote", help="with --mavlink: let udpin bind a non-loopback address"
+        ),
+    ] = False,
     setpoints: Annotated[
         Path | None,
         typer.Option(
@@ -302,6 +310,8 @@ def markers_command(
 
       quadnav markers photos/ --camera cal.yml --set dictionary=DICT_6X6_250 --set marker_length_m=0.05
     """
+    if mavlink is not None:
+        check_bind(mavlink, allow_remote=allow_remote)  # before anything is read or written
     overrides = list(set_ or [])
     if camera is not None:
         if not camera.is_file():
@@ -311,7 +321,8 @@ def markers_command(
     if ignored:
         err_console.print(f"note: parameters not used here: {', '.join(ignored)}", highlight=False)
     with progress_bar("markers") as update:
-        stats = run_markers(cfg, source, out, progress=update, mavlink=mavlink, setpoints=setpoints)
+        stats = run_markers(cfg, source, out, progress=update, mavlink=mavlink,
+                            allow_remote=allow_remote, setpoints=setpoints)  # fmt: skip
     table = Table(title=f"markers: {stats['source']}")
     table.add_column("measure")
     table.add_column("value", justify="right")

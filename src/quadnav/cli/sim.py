@@ -2,19 +2,23 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 from rich.table import Table
 
-from quadnav.cli.common import console, handle_errors
+from quadnav.cli.common import check_range, console, err_console, handle_errors
 from quadnav.errors import ConfigError
 from quadnav.eval.flight import write_flight_run
 from quadnav.experiments.flight import BUILTIN, FlightConfig, builtin_config, run_flight
 from quadnav.io.config import load_config
+from quadnav.io.mavlink import SIGNING_KEY_ENV, read_signing_key
 
 __all__ = ["sim_command"]
+
+MAX_SITL_S = 86_400.0  # --duration: a day at most
 
 
 @handle_errors
@@ -39,12 +43,30 @@ def sim_command(
     signing_key: Annotated[
         str | None,
         typer.Option(
-            "--signing-key", help="MAVLink 2 signing: 64 hex digits; unsigned messages are ignored"
+            "--signing-key",
+            help="MAVLink 2 signing key, 64 hex digits (visible in ps: prefer --signing-key-file "
+            f"or {SIGNING_KEY_ENV}); unsigned messages are ignored",
         ),
     ] = None,
+    signing_key_file: Annotated[
+        Path | None,
+        typer.Option(
+            "--signing-key-file",
+            help=f"with --mavlink: a file holding the signing key, 64 hex digits (or set {SIGNING_KEY_ENV})",
+        ),
+    ] = None,
+    allow_remote: Annotated[
+        bool,
+        typer.Option(
+            "--allow-remote", help="with --mavlink: let udpin/tcpin bind a non-loopback address"
+        ),
+    ] = False,
     duration: Annotated[
         float | None,
-        typer.Option("--duration", help="with --mavlink: stop after this many seconds"),
+        typer.Option(
+            "--duration",
+            help=f"with --mavlink: stop after this many seconds (at most {MAX_SITL_S:g})",
+        ),
     ] = None,
 ) -> None:
     """Fly a closed-loop scenario on the true state: thesis 002's PD and nested-saturation
@@ -59,27 +81,35 @@ def sim_command(
 
       quadnav sim circle_gusts --set wind.gust_sigma_m_s=3
     """
-    if mavlink is not None:
-        _run_sitl(mavlink, signing_key, duration)
+    link_options = (mavlink, signing_key, signing_key_file, duration)
+    if allow_remote or any(v is not None for v in link_options):
+        _run_sitl(mavlink, signing_key, signing_key_file, duration, allow_remote=allow_remote)
         return
     if list_:
         for name in BUILTIN:
             console.print(name, highlight=False)
         return
-    overrides = list(set_ or [])
+    config = _load_scenario(scenario, list(set_ or []))
+    with console.status(f"flying {config.name} ({config.duration_s:g} s)..."):
+        run = run_flight(config)
+        run_dir, m = write_flight_run(run, runs_root=out)
+    _print_flight(config.name, m, run_dir)
+
+
+def _load_scenario(scenario: str, overrides: list[str]) -> FlightConfig:
     if scenario in BUILTIN:
-        config = load_config(FlightConfig, None, overrides, base=builtin_config(scenario))
+        return load_config(FlightConfig, None, overrides, base=builtin_config(scenario))
     else:
         path = Path(scenario)
         if not path.exists():
             raise ConfigError(
                 f"{scenario!r} is neither a built-in scenario ({', '.join(BUILTIN)}) nor a file"
             )
-        config = load_config(FlightConfig, path, overrides)
-    with console.status(f"flying {config.name} ({config.duration_s:g} s)..."):
-        run = run_flight(config)
-        run_dir, m = write_flight_run(run, runs_root=out)
-    table = Table(title=f"{config.name}")
+        return load_config(FlightConfig, path, overrides)
+
+
+def _print_flight(name: str, m: dict[str, Any], run_dir: Path) -> None:
+    table = Table(title=f"{name}")
     table.add_column("metric")
     table.add_column("value", justify="right")
     for key in (
@@ -105,19 +135,24 @@ def sim_command(
     console.print(str(run_dir), soft_wrap=True, highlight=False)
 
 
-def _run_sitl(url: str, signing_key: str | None, duration: float | None) -> None:
-    """The simulated vehicle with its EKF, speaking MAVLink (loopback unless told otherwise)."""
+def _run_sitl(url: str | None, key_hex: str | None, key_file: Path | None, duration: float | None,
+              *, allow_remote: bool) -> None:  # fmt: skip
+    """The simulated vehicle with its EKF, speaking MAVLink (loopback unless --allow-remote)."""
     from quadnav.experiments.sitl import SitlVehicle
 
-    key = None
-    if signing_key is not None:
-        try:
-            key = bytes.fromhex(signing_key)
-        except ValueError:
-            raise ConfigError("--signing-key must be 64 hexadecimal digits") from None
-        if len(key) != 32:
-            raise ConfigError("--signing-key must be 64 hexadecimal digits (32 bytes)")
-    vehicle = SitlVehicle(url=url, signing_key=key)
+    if url is None:
+        given = [name for name, v in (("--signing-key", key_hex), ("--signing-key-file", key_file),
+                 ("--allow-remote", allow_remote or None), ("--duration", duration)) if v is not None]  # fmt: skip
+        raise ConfigError(
+            f"{', '.join(given)}: only with --mavlink (a scenario's length is --set duration_s=...)"
+        )
+    if duration is not None:
+        check_range(duration, "--duration", 0.0, MAX_SITL_S, "seconds", low_open=True)
+    key = read_signing_key(key_hex=key_hex, key_file=key_file, environ=os.environ)
+    if key_hex is not None:
+        err_console.print(f"warning: --signing-key shows the key to every user of this machine (ps); use --signing-key-file or {SIGNING_KEY_ENV}",
+                          highlight=False, soft_wrap=True)  # fmt: skip
+    vehicle = SitlVehicle(url=url, signing_key=key, allow_remote=allow_remote)
     console.print(
         f"SITL vehicle on {url}{' (signed)' if key else ''}; Ctrl-C stops it", highlight=False
     )

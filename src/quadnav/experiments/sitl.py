@@ -20,6 +20,7 @@ from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
 from quadnav.control.cascaded_pid import CascadedPid, Setpoint
+from quadnav.errors import ExperimentError
 from quadnav.estimation.horizon import DelayedHorizonEstimator, HorizonConfig
 from quadnav.estimation.nav_ekf import NavEkf, NavEkfConfig
 from quadnav.geometry.frames import (
@@ -49,6 +50,7 @@ class SitlVehicle:
 
     url: str = "udpin:127.0.0.1:14540"
     signing_key: bytes | None = None
+    allow_remote: bool = False  # bind a non-loopback address (anyone there may command it)
     sim_dt_s: float = 0.002
     seed: int = 0
     truth_log: list[tuple[float, FloatArray]] = field(default_factory=list)
@@ -68,7 +70,8 @@ class SitlVehicle:
                           P0=np.diag([1e-4] * 3 + [1e-4] * 3 + [1e-4] * 3 + [1e-6] * 6))  # fmt: skip
         self.est = DelayedHorizonEstimator(self.ekf, HorizonConfig(imu_period_ns=4_000_000, max_delay_ns=100_000_000,
                                                                    tau_vel_s=0.1, tau_pos_s=0.1, max_fusion_log=10_000), t0_ns=0)  # fmt: skip
-        self.link = MavlinkLink(self.url, system=1, component=1, signing_key=self.signing_key)
+        self.link = MavlinkLink(self.url, system=1, component=1, signing_key=self.signing_key,
+                                allow_remote=self.allow_remote)  # fmt: skip
         self.armed = False
         self.offboard = False
         self.setpoint: tuple[FloatArray, float] | None = None
@@ -192,6 +195,8 @@ class SitlVehicle:
 
     def run(self, duration_s: float | None = None) -> None:
         """Real time: one simulator step per ``sim_dt_s`` of wall time; MAVLink every step."""
+        if duration_s is not None and not (math.isfinite(duration_s) and duration_s > 0):
+            raise ExperimentError(f"SITL duration_s must be finite and positive, got {duration_s}")
         t_wall0 = time.monotonic()
         k = 0
         while not self._stop.is_set():

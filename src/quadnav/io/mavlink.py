@@ -6,13 +6,24 @@ device path). ENU/FLU become NED/FRD here and only here: positions and velocitie
 ``enu_to_ned``, attitudes through ``rotation_enu_flu_to_ned_frd``, covariances through the same
 linear maps. Message signing (MAVLink 2) is an option: with a key, outgoing messages are signed
 and unsigned incoming ones are refused unless ``allow_unsigned``.
+
+A listening URL (``udpin:``, ``udp:``, ``tcpin:``) binds loopback only unless ``allow_remote``,
+and refuses a port another program already holds (pymavlink would share it). A UDP listener
+sends its telemetry only to peers that sent it a valid MAVLink message (with signing, a valid
+signed one), not to whatever address a datagram came from.
 """
 
 from __future__ import annotations
 
+import errno
+import functools
+import ipaddress
 import os
+import socket
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 os.environ.setdefault("MAVLINK20", "1")
@@ -21,7 +32,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
-from quadnav.errors import IoError
+from quadnav.errors import ConfigError, IoError
 from quadnav.geometry.frames import (
     enu_to_ned,
     ned_to_enu,
@@ -30,7 +41,16 @@ from quadnav.geometry.frames import (
 )
 from quadnav.geometry.rotations import Pose
 
-__all__ = ["MavlinkLink", "ReceivedState", "covariance_enu_to_ned", "parse_url", "upper_triangle"]
+__all__ = [
+    "SIGNING_KEY_ENV",
+    "MavlinkLink",
+    "ReceivedState",
+    "check_bind",
+    "covariance_enu_to_ned",
+    "parse_url",
+    "read_signing_key",
+    "upper_triangle",
+]
 
 FloatArray = NDArray[np.float64]
 _M = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])  # ENU <-> NED (its own inverse)
@@ -49,6 +69,98 @@ def parse_url(url: str) -> str:
     raise IoError(
         f"MAVLink URL {url!r}: use udpin:HOST:PORT, udpout:HOST:PORT, tcp:HOST:PORT or serial:DEV:BAUD"
     )
+
+
+LISTENERS = ("udpin:", "udp:", "tcpin:")  # the schemes that bind a local port
+SIGNING_KEY_ENV = "QUADNAV_SIGNING_KEY"
+
+
+def check_bind(url: str, *, allow_remote: bool) -> tuple[str, int] | None:
+    """The ``(host, port)`` a listening URL binds, after checking it: a port number, and a
+    loopback host unless ``allow_remote`` (an empty host or ``0.0.0.0`` is every interface).
+    ``None`` for a URL that does not listen. Nothing is bound here."""
+    scheme = next((s for s in LISTENERS if url.startswith(s)), None)
+    if scheme is None:
+        return None
+    host, sep, port_s = url[len(scheme) :].rpartition(":")
+    if not sep or not port_s.isdigit() or int(port_s) > 65535 or ":" in host:
+        raise IoError(f"MAVLink URL {url!r}: expected {scheme}HOST:PORT, PORT from 0 to 65535")
+    if not allow_remote and not _is_loopback(host, url):
+        where = f"host {host!r}" if host else "an empty host (every interface)"
+        raise IoError(
+            f"MAVLink URL {url!r}: {where} is not loopback, anyone on the network could "
+            "command the vehicle; bind 127.0.0.1, or pass --allow-remote to mean it"
+        )
+    return host, int(port_s)
+
+
+def _is_loopback(host: str, url: str) -> bool:
+    if not host:
+        return False
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:  # a host name: every address it resolves to must be loopback
+        try:
+            infos = socket.getaddrinfo(host, None, socket.AF_INET)
+        except OSError:
+            raise IoError(f"MAVLink URL {url!r}: cannot resolve host {host!r}") from None
+        return all(ipaddress.ip_address(str(i[4][0])).is_loopback for i in infos)
+
+
+def _check_port_free(host: str, port: int, url: str) -> None:
+    """Refuse a UDP port another socket holds (pymavlink sets SO_REUSEADDR and would share it:
+    two vehicles on one port each get some of the datagrams)."""
+    if port == 0:
+        return
+    probe = socket.socket(
+        socket.AF_INET, socket.SOCK_DGRAM
+    )  # no SO_REUSEADDR: any holder conflicts
+    try:
+        probe.bind((host, port))
+    except OSError as exc:
+        raise IoError(_in_use(url, port, exc)) from None
+    finally:
+        probe.close()
+
+
+def _in_use(url: str, port: int, exc: OSError) -> str:
+    if exc.errno == errno.EADDRINUSE:
+        return f"MAVLink {url}: port {port} is already in use (another vehicle or program holds it)"
+    return f"MAVLink {url}: {exc}"
+
+
+def read_signing_key(
+    *, key_hex: str | None, key_file: Path | None, environ: Mapping[str, str]
+) -> bytes | None:
+    """The 32-byte MAVLink 2 signing key, as 64 hexadecimal digits from ``--signing-key-file``
+    (a file), ``--signing-key`` (the command line, visible in ``ps``) or the environment
+    variable ``QUADNAV_SIGNING_KEY``, in that order; ``None`` when none is given."""
+    if key_hex is not None and key_file is not None:
+        raise ConfigError(
+            "give the signing key once: --signing-key-file or --signing-key, not both"
+        )
+    if key_file is not None:
+        try:
+            text = key_file.read_text(encoding="ascii")
+        except (OSError, UnicodeDecodeError) as exc:
+            raise IoError(f"--signing-key-file {key_file}: cannot read it ({exc})") from None
+        return _key_from_hex(text, f"--signing-key-file {key_file}")
+    if key_hex is not None:
+        return _key_from_hex(key_hex, "--signing-key")
+    if SIGNING_KEY_ENV in environ:
+        return _key_from_hex(environ[SIGNING_KEY_ENV], SIGNING_KEY_ENV)
+    return None
+
+
+def _key_from_hex(text: str, what: str) -> bytes:
+    digits = text.strip()
+    try:
+        key = bytes.fromhex(digits)
+    except ValueError:
+        key = b""
+    if len(key) != 32:
+        raise ConfigError(f"{what}: the signing key must be 64 hexadecimal digits (32 bytes)")
+    return key
 
 
 def upper_triangle(C: FloatArray) -> list[float]:
@@ -84,6 +196,78 @@ def covariance_enu_to_ned(C_enu: FloatArray, R_ENU_FLU: Rotation) -> FloatArray:
     return 0.5 * (C + C.T)
 
 
+def _connect(mavutil: Any, url: str, system: int, component: int, *, allow_remote: bool) -> Any:
+    """pymavlink's connection for ``url``; a UDP listener is a :func:`_peer_udp_class` that
+    holds its port alone."""
+    bind = check_bind(url, allow_remote=allow_remote)
+    try:
+        if bind is not None and not url.startswith("tcpin:"):
+            host, port = bind
+            _check_port_free(host, port, url)
+            mavutil.set_dialect("common")
+            conn = _peer_udp_class(mavutil)(f"{host}:{port}", input=True, source_system=system,
+                                            source_component=component)  # fmt: skip
+            # later binders conflict with us, even those that set SO_REUSEADDR themselves
+            conn.port.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 0)
+            return conn
+        return mavutil.mavlink_connection(
+            parse_url(url), source_system=system, source_component=component, dialect="common"
+        )
+    except OSError as exc:
+        raise IoError(_in_use(url, bind[1] if bind else 0, exc)) from None
+    except IoError:
+        raise
+    except Exception as exc:  # pymavlink raises SerialException, ValueError...
+        raise IoError(f"MAVLink {url}: {exc}") from None
+
+
+@functools.cache
+def _peer_udp_class(mavutil: Any) -> type[Any]:
+    """pymavlink's UDP listener, except that it replies only to peers: senders of a valid
+    MAVLink message (a valid signed one once ``require_signed``), not every address a datagram
+    came from. A message is credited to its datagram's sender only if it began in that datagram."""
+
+    class PeerUdp(mavutil.mavudp):  # type: ignore[misc]
+        require_signed = False
+        sender: tuple[str, int] | None = None
+        sender_clean = False  # the parser held nothing from an earlier datagram
+
+        def recv(self, n: int | None = None) -> bytes | str:
+            try:
+                data, addr = self.port.recvfrom(mavutil.UDP_MAX_PACKET_LEN)
+            except OSError as exc:
+                if exc.errno in (errno.EAGAIN, errno.EWOULDBLOCK, errno.ECONNREFUSED):
+                    return ""
+                raise
+            self.sender, self.sender_clean = addr, self.mav.buf_len() == 0
+            return bytes(data)
+
+        def recv_msg(self) -> Any:
+            self.pre_message()
+            m = self.mav.parse_char(b"")  # the rest of the last datagram first
+            if m is None:
+                s = self.recv()
+                if not s:
+                    return None
+                if self.first_byte:
+                    self.auto_mavlink_version(s)
+                m = self.mav.parse_char(s)
+            if m is not None:
+                self._admit(m)
+                self.post_message(m)
+            return m
+
+        def _admit(self, m: Any) -> None:
+            if m.get_type() == "BAD_DATA" or not self.sender_clean or self.sender is None:
+                return
+            if self.require_signed and not m.get_signed():
+                return
+            self.clients.add(self.sender)
+            self.clients_last_alive[self.sender] = time.time()
+
+    return PeerUdp
+
+
 @dataclass
 class ReceivedState:
     """What a vehicle told us, in ENU/FLU."""
@@ -117,24 +301,22 @@ class MavlinkLink:
         component: int = 197,  # MAV_COMP_ID_VISUAL_INERTIAL_ODOMETRY
         signing_key: bytes | None = None,
         allow_unsigned: bool = False,
+        allow_remote: bool = False,
     ) -> None:
         from pymavlink import mavutil  # type: ignore[import-untyped]
 
         self._mavutil = mavutil
-        try:
-            self.conn = mavutil.mavlink_connection(
-                parse_url(url), source_system=system, source_component=component, dialect="common"
-            )
-        except Exception as exc:  # pymavlink raises OSError, SerialException...
-            raise IoError(f"MAVLink {url}: {exc}") from None
+        if signing_key is not None and len(signing_key) != 32:
+            raise IoError("MAVLink signing key must be 32 bytes")
+        self.conn = _connect(mavutil, url, system, component, allow_remote=allow_remote)
         self.url = url
         self.mav = self.conn.mav
         self.stats = LinkStats()
         self.state = ReceivedState()
         self.t0 = time.monotonic()
         if signing_key is not None:
-            if len(signing_key) != 32:
-                raise IoError("MAVLink signing key must be 32 bytes")
+            if isinstance(self.conn, _peer_udp_class(mavutil)):
+                self.conn.require_signed = True
 
             def allow(_mav: Any, _msg_id: int) -> bool:
                 if not allow_unsigned:
@@ -142,6 +324,13 @@ class MavlinkLink:
                 return allow_unsigned
 
             self.conn.setup_signing(signing_key, sign_outgoing=True, allow_unsigned_callback=allow)
+
+    def peers(self) -> frozenset[tuple[str, int]]:
+        """Where a UDP listener sends: the peers that sent it a valid (with signing, signed)
+        message. Empty for other links."""
+        if isinstance(self.conn, _peer_udp_class(self._mavutil)):
+            return frozenset(self.conn.clients)
+        return frozenset()
 
     def _count(self, name: str) -> None:
         self.stats.sent[name] = self.stats.sent.get(name, 0) + 1
