@@ -38,12 +38,8 @@ def calibrate_source(
         if fr.image is None:
             skipped.append(f"frame {fr.index}: {fr.error}")
             continue
-        h, w = fr.image.shape[:2]
         if size is None:
-            size = (w, h)
-        elif size != (w, h):
-            skipped.append(f"frame {fr.index}: size {w}x{h} differs from {size[0]}x{size[1]}")
-            continue
+            size = (fr.image.shape[1], fr.image.shape[0])  # the source skips other sizes
         views.append((fr.index, target.detect(fr.image)))
         if callable(progress):
             progress(fr.index + 1, frames.total or 0, f"{len(views)} views")

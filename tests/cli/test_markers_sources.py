@@ -1,0 +1,203 @@
+"""`quadnav markers` on what issue 12 found: raw streams timed at the configured fps, a
+calibration for another resolution, a folder of unreadable images, metrics.json, a live camera
+given the thesis's settings, the window, rejected candidates and saved frames."""
+
+from __future__ import annotations
+
+import csv
+import json
+import shutil
+import subprocess
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from quadnav.cli.main import app
+from quadnav.cli.markers import fit_calibration
+from quadnav.errors import ConfigError
+from quadnav.io.frames import is_raw_stream
+from quadnav.io.opencv_yaml import write_camera_yaml
+from quadnav.vision.camera import thesis_camera
+from tests.cli.conftest import marker_views
+
+runner = CliRunner()
+IDENTITY_MOUNT = ["--set", "mount_rpy_deg=[0,0,0]", "--set", "video=false"]
+
+
+def _markers(args: list[str], out: Path) -> tuple[Any, Path | None]:
+    res = runner.invoke(app, ["markers", *args, "--out", str(out)])
+    runs = sorted(out.glob("*_markers"))
+    return res, runs[-1] if runs else None
+
+
+def _t_ns(run: Path) -> np.ndarray:
+    return np.array([int(r["t_ns"]) for r in csv.DictReader((run / "poses.csv").open())])
+
+
+def _thesis_params(path: Path, **extra: object) -> Path:
+    """A vision_params.yml as the thesis program reads it (OpenCV YAML)."""
+    lines = ["%YAML:1.0", "dict_type: 2", "marker_length: 0.2335"]
+    lines += [f"{k}: {v}" for k, v in extra.items()]
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+@pytest.fixture(scope="module")
+def raw_mjpeg(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+    """Six frames as a raw MJPEG stream (JPEGs back to back: no container, no timestamps;
+    OpenCV reports 25 fps for it), and the calibration."""
+    root = tmp_path_factory.mktemp("raw")
+    images, _ = marker_views(thesis_camera(), 6)
+    stream = root / "flight.mjpeg"
+    stream.write_bytes(b"".join(cv2.imencode(".jpg", im)[1].tobytes() for im in images))
+    cal = root / "cal.yml"
+    write_camera_yaml(cal, thesis_camera())
+    return stream, cal
+
+
+def test_a_raw_stream_is_timed_at_the_configured_fps(raw_mjpeg, tmp_path: Path) -> None:
+    stream, cal = raw_mjpeg
+    assert is_raw_stream(stream)
+    for extra, period_ns, says in (
+        (["--set", "fps=40"], 25_000_000, "40 fps (fps; the stream has no timestamps)"),
+        (["--fps", "20"], 50_000_000, "20 fps (fps;"),
+        ([], round(1e9 / 30), "30 fps (the default; set fps or --fps"),
+    ):
+        res, run = _markers([str(stream), "--camera", str(cal), *IDENTITY_MOUNT, *extra], tmp_path / str(period_ns))  # fmt: skip
+        assert res.exit_code == 0, res.output
+        assert run is not None
+        # k * 1e9 / fps rounded to whole nanoseconds
+        np.testing.assert_allclose(np.diff(_t_ns(run)), period_ns, atol=1)
+        stats = json.loads((run / "stats.json").read_text())
+        assert says in stats["time_base"] and "time base" in res.output
+
+
+def test_a_raw_h264_stream_takes_the_thesis_fps(tmp_path: Path) -> None:
+    """The thesis's own case: a raw .h264 (as the Raspberry Pi camera records) with its
+    vision_params.yml saying fps: 40; the overlay video is written at 40 fps too."""
+    ffmpeg = shutil.which("ffmpeg")
+    if ffmpeg is None:
+        pytest.skip("ffmpeg is not installed: it is needed to encode a raw .h264 stream")
+    images, _ = marker_views(thesis_camera(), 5)
+    for k, im in enumerate(images):
+        cv2.imwrite(str(tmp_path / f"f{k:03d}.png"), im)
+    stream = tmp_path / "flight.h264"
+    subprocess.run([ffmpeg, "-loglevel", "error", "-framerate", "40", "-i", str(tmp_path / "f%03d.png"),
+                    "-c:v", "libx264", "-pix_fmt", "yuv420p", str(stream)], check=True)  # fmt: skip
+    cal = tmp_path / "cal.yml"
+    write_camera_yaml(cal, thesis_camera())
+    params = _thesis_params(tmp_path / "vision_params.yml", fps=40)
+    res, run = _markers([str(stream), "--params", str(params), "--camera", str(cal),
+                         "--set", "mount_rpy_deg=[0,0,0]"], tmp_path / "out")  # fmt: skip
+    assert res.exit_code == 0, res.output
+    assert run is not None
+    np.testing.assert_array_equal(np.diff(_t_ns(run)), 25_000_000)
+    assert cv2.VideoCapture(str(run / "overlay.mp4")).get(cv2.CAP_PROP_FPS) == pytest.approx(40)
+
+
+def test_a_video_with_timestamps_keeps_them(tmp_path: Path) -> None:
+    images, _ = marker_views(thesis_camera(), 4)
+    video = tmp_path / "flight.mp4"
+    w = cv2.VideoWriter(str(video), cv2.VideoWriter.fourcc(*"mp4v"), 40, (640, 480))
+    for im in images:
+        w.write(cv2.cvtColor(im, cv2.COLOR_GRAY2BGR))
+    w.release()
+    assert not is_raw_stream(video)
+    cal = tmp_path / "cal.yml"
+    write_camera_yaml(cal, thesis_camera())
+    res, run = _markers([str(video), "--camera", str(cal), *IDENTITY_MOUNT, "--fps", "10"], tmp_path / "out")  # fmt: skip
+    assert res.exit_code == 0, res.output
+    assert run is not None
+    np.testing.assert_array_equal(np.diff(_t_ns(run)), 25_000_000)
+    assert json.loads((run / "stats.json").read_text())["time_base"].startswith("the video's")
+
+
+def test_raw_stream_sniffing(tmp_path: Path) -> None:
+    cases = {
+        "annexb4.h264": (b"\x00\x00\x00\x01\x67\x64", True),
+        "annexb3.h265": (b"\x00\x00\x01\x40\x01", True),
+        "program.mpg": (b"\x00\x00\x01\xba\x44", False),  # MPEG-PS carries timestamps
+        "mjpeg.bin": (b"\xff\xd8\xff\xe0", True),
+        "box.mp4": (b"\x00\x00\x00\x1cftypisom", False),
+        "matroska.mkv": (b"\x1a\x45\xdf\xa3", False),
+    }
+    for name, (head, raw) in cases.items():
+        (tmp_path / name).write_bytes(head + b"\x00" * 16)
+        assert is_raw_stream(tmp_path / name) is raw, name
+
+
+def test_fit_calibration_scales_or_refuses() -> None:
+    cam = thesis_camera()
+    same, note = fit_calibration(cam, (640, 480))
+    assert same is cam and note == ""
+    big, note = fit_calibration(cam, (1280, 960))
+    np.testing.assert_allclose(big.K[:2], 2 * cam.K[:2])
+    np.testing.assert_array_equal(big.dist, cam.dist)
+    assert (big.width, big.height) == (1280, 960) and "scaled x2" in note and "640x480" in note
+    with pytest.raises(ConfigError, match=r"--camera.*640x480.*799x533"):
+        fit_calibration(cam, (799, 533))
+
+
+def test_a_calibration_of_the_same_shape_is_scaled_and_said(tmp_path: Path) -> None:
+    """Frames at 1280x960 and the 640x480 calibration of the same lens: the run says it
+    scaled the calibration and the poses are as good as at the calibrated size."""
+    big = thesis_camera().scaled(1280, 960)
+    images, truth = marker_views(big, 4)
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    for k, im in enumerate(images):
+        cv2.imwrite(str(folder / f"f{k}.png"), im)
+    cal = tmp_path / "cal.yml"
+    write_camera_yaml(cal, thesis_camera())
+    res, run = _markers([str(folder), "--camera", str(cal), *IDENTITY_MOUNT], tmp_path / "out")
+    assert res.exit_code == 0, res.output
+    assert "640x480" in res.output and "scaled x2 to the frames' 1280x960" in res.output
+    assert run is not None
+    rows = list(csv.DictReader((run / "poses.csv").open()))
+    assert len(rows) == 4
+    for r in rows:
+        p = np.array([float(r["x_m"]), float(r["y_m"]), float(r["z_m"])])
+        assert np.linalg.norm(p - truth[int(r["frame"])].p_A_B) < 0.02
+
+
+def test_a_calibration_of_another_shape_is_refused(frames, tmp_path: Path) -> None:
+    folder, cal, _ = frames
+    odd = tmp_path / "odd"
+    odd.mkdir()
+    img = cv2.imread(str(folder / "f000.png"))
+    cv2.imwrite(str(odd / "f0.png"), cv2.resize(img, (799, 533)))
+    res, run = _markers([str(odd), "--camera", str(cal)], tmp_path / "out")
+    assert res.exit_code == 2 and run is None
+    assert "640x480" in res.output and "799x533" in res.output and "--camera" in res.output
+    assert "Traceback" not in res.output and len(res.output.strip().splitlines()) == 1
+
+
+def test_a_folder_of_unreadable_images_is_an_error(frames, tmp_path: Path) -> None:
+    _, cal, _ = frames
+    bad = tmp_path / "bad"
+    bad.mkdir()
+    for k in range(3):
+        (bad / f"f{k}.jpg").write_bytes(b"\xff\xd8 not really a jpeg")
+    res, run = _markers([str(bad), "--camera", str(cal)], tmp_path / "out")
+    assert res.exit_code == 2 and run is None, res.output
+    assert "none of the 3 images can be decoded" in res.output
+    assert "Traceback" not in res.output and len(res.output.strip().splitlines()) == 1
+
+
+def test_metrics_json_is_a_flat_mapping_of_numbers(frames, tmp_path: Path) -> None:
+    folder, cal, _ = frames
+    res, run = _markers([str(folder), "--camera", str(cal), *IDENTITY_MOUNT], tmp_path)
+    assert res.exit_code == 0, res.output
+    assert run is not None
+    metrics = json.loads((run / "metrics.json").read_text())
+    stats = json.loads((run / "stats.json").read_text())
+    assert metrics.pop("kind") == "markers"
+    assert metrics["frames"] == 10 and metrics["frames_skipped"] == 1
+    assert metrics["fraction_with_pose"] == pytest.approx(0.9)
+    for k, v in metrics.items():
+        assert v is None or (isinstance(v, int | float) and not isinstance(v, bool)), k
+        assert v == stats[k], k
