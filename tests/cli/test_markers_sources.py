@@ -17,7 +17,7 @@ import pytest
 from typer.testing import CliRunner
 
 from quadnav.cli.main import app
-from quadnav.cli.markers import fit_calibration
+from quadnav.cli.markers import fit_calibration, load_markers_config, run_markers
 from quadnav.errors import ConfigError
 from quadnav.io.frames import is_raw_stream
 from quadnav.io.opencv_yaml import write_camera_yaml
@@ -201,3 +201,133 @@ def test_metrics_json_is_a_flat_mapping_of_numbers(frames, tmp_path: Path) -> No
     for k, v in metrics.items():
         assert v is None or (isinstance(v, int | float) and not isinstance(v, bool)), k
         assert v == stats[k], k
+
+
+class FakeCamera:
+    """A V4L2 camera as OpenCV's capture object shows it: it takes a frame size and the
+    exposure mode, rounds any frame rate to the 30 fps it supports and refuses a manual
+    exposure time. It gives ``images`` at its current size, then stops."""
+
+    def __init__(self, images: list[np.ndarray]) -> None:
+        self.images = images
+        self.props = {cv2.CAP_PROP_FRAME_WIDTH: 1280.0, cv2.CAP_PROP_FRAME_HEIGHT: 720.0,
+                      cv2.CAP_PROP_FPS: 30.0, cv2.CAP_PROP_AUTO_EXPOSURE: 3.0, cv2.CAP_PROP_EXPOSURE: 166.0}  # fmt: skip
+        self.calls: list[tuple[Any, ...]] = []
+        self.released = False
+
+    def isOpened(self) -> bool:  # OpenCV's name
+        return True
+
+    def set(self, prop: int, value: float) -> bool:
+        self.calls.append(("set", prop, value))
+        if prop in (
+            cv2.CAP_PROP_FRAME_WIDTH,
+            cv2.CAP_PROP_FRAME_HEIGHT,
+            cv2.CAP_PROP_AUTO_EXPOSURE,
+        ):
+            self.props[prop] = value
+            return True
+        if prop == cv2.CAP_PROP_FPS:
+            self.props[prop] = 30.0
+            return True
+        return False
+
+    def get(self, prop: int) -> float:
+        return self.props.get(prop, 0.0)
+
+    def read(self) -> tuple[bool, np.ndarray | None]:
+        self.calls.append(("read",))
+        k = sum(c == ("read",) for c in self.calls) - 1
+        if k >= len(self.images):
+            return False, None
+        size = (
+            int(self.props[cv2.CAP_PROP_FRAME_WIDTH]),
+            int(self.props[cv2.CAP_PROP_FRAME_HEIGHT]),
+        )
+        return True, cv2.cvtColor(cv2.resize(self.images[k], size), cv2.COLOR_GRAY2BGR)
+
+    def release(self) -> None:
+        self.released = True
+
+
+def test_a_live_camera_is_given_the_thesis_settings(frames, tmp_path: Path) -> None:
+    """The thesis's fps, frame size and exposure go to the camera before the first frame; the
+    run says which the driver took; write_images saves each overlay frame."""
+    _, cal, _ = frames
+    images, _ = marker_views(thesis_camera(), 5)
+    camera = FakeCamera(images)
+    params = _thesis_params(tmp_path / "vision_params.yml", fps=40, frame_width=640, frame_height=480,
+                            exposure_time=40, open_window="false", show_rejected="false", write_images="true")  # fmt: skip
+    cfg, ignored = load_markers_config(params, [f"camera_file={cal}", "mount_rpy_deg=[0,0,0]", "video=false"])  # fmt: skip
+    thesis_keys = {"fps", "frame_width", "frame_height", "exposure_time", "open_window", "show_rejected", "write_images"}  # fmt: skip
+    assert not thesis_keys & set(ignored), ignored
+    stats = run_markers(cfg, "0", tmp_path / "out", open_camera=lambda index: camera)
+    props = {p["name"]: p for p in stats["camera_properties"]}
+    assert props["frame_width_px"]["accepted"] and props["frame_height_px"]["got"] == 480
+    assert props["fps"]["requested"] == 40 and props["fps"]["got"] == 30 and not props["fps"]["accepted"]  # fmt: skip
+    assert props["auto_exposure"]["got"] == 1 and props["auto_exposure"]["accepted"]  # manual
+    assert props["exposure_time_100us"]["requested"] == 40 and not props["exposure_time_100us"]["accepted"]  # fmt: skip
+    first_read = camera.calls.index(("read",))
+    assert all(c[0] == "set" for c in camera.calls[:first_read]) and len(camera.calls[:first_read]) == 5  # fmt: skip
+    assert stats["frames"] == stats["frames_with_pose"] == 5 and camera.released
+    assert stats["time_base"].startswith("arrival time")
+    run = Path(stats["run_dir"])
+    assert stats["images_written"] == 5 and len(list((run / "images").glob("frame_*.png"))) == 5
+    assert np.all(np.diff(_t_ns(run)) > 0)
+
+
+def test_show_without_a_display_is_one_line(frames, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:  # fmt: skip
+    folder, cal, _ = frames
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    params = _thesis_params(tmp_path / "vision_params.yml", open_window="true")
+    for extra in (["--show"], ["--params", str(params)]):
+        res, run = _markers([str(folder), "--camera", str(cal), *extra], tmp_path / "out")
+        assert res.exit_code == 2 and run is None, res.output
+        assert "--show" in res.output and "no display (DISPLAY" in res.output
+        assert "Traceback" not in res.output and len(res.output.strip().splitlines()) == 1
+
+
+def test_show_puts_each_frame_in_a_window_and_q_stops(frames, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:  # fmt: skip
+    """With a display (the window calls faked: there is no X server here), each overlay frame
+    is shown and pressing q ends the run cleanly, the frames so far written out."""
+    folder, cal, _ = frames
+    monkeypatch.setenv("DISPLAY", ":99")
+    shown: list[np.ndarray] = []
+    keys = [-1, -1, ord("q")]
+    monkeypatch.setattr(cv2, "imshow", lambda title, img: shown.append(img))
+    monkeypatch.setattr(cv2, "waitKey", lambda ms: keys.pop(0))
+    monkeypatch.setattr(cv2, "destroyWindow", lambda title: None)
+    res, run = _markers([str(folder), "--camera", str(cal), *IDENTITY_MOUNT, "--show"], tmp_path)
+    assert res.exit_code == 0, res.output
+    assert run is not None
+    stats = json.loads((run / "stats.json").read_text())
+    assert len(shown) == 3 and shown[0].shape == (480, 640, 3)
+    assert stats["frames"] == 3 and stats["stopped_in_window"] and stats["frames_with_pose"] == 3
+
+
+def test_show_rejected_draws_the_candidates_in_the_saved_frames(frames, tmp_path: Path) -> None:
+    _, cal, _ = frames
+    images, _ = marker_views(thesis_camera(), 3)
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    for k, im in enumerate(images):
+        # a black square with a white centre: a marker candidate no dictionary code fits
+        cv2.rectangle(im, (20, 20), (120, 120), 0, -1)
+        cv2.rectangle(im, (45, 45), (95, 95), 255, -1)
+        cv2.imwrite(str(folder / f"f{k}.png"), im)
+    pink = {}
+    for flag in ("true", "false"):
+        res, run = _markers([str(folder), "--camera", str(cal), *IDENTITY_MOUNT, "--set", "write_images=true",
+                             "--set", f"show_rejected={flag}"], tmp_path / flag)  # fmt: skip
+        assert res.exit_code == 0, res.output
+        assert run is not None
+        saved = sorted((run / "images").glob("frame_*.png"))
+        assert [p.name for p in saved] == [
+            "frame_000000.png",
+            "frame_000001.png",
+            "frame_000002.png",
+        ]
+        edge = cv2.imread(str(saved[0]))[18:23, 40:100].astype(int)  # the candidate's top edge
+        pink[flag] = np.all(np.abs(edge - [100, 0, 255]) < 60, axis=2).any(axis=0).mean()
+    assert pink["true"] > 0.9 and pink["false"] == 0.0

@@ -11,7 +11,7 @@ from rich.table import Table
 
 from quadnav.cli.common import console, handle_errors, progress_bar
 from quadnav.errors import ConfigError
-from quadnav.io.frames import open_frames
+from quadnav.io.frames import open_frames, quiet_libraries
 from quadnav.io.opencv_yaml import write_camera_yaml
 from quadnav.vision.calibration import Calibration, calibrate_charuco
 from quadnav.vision.markers import CharucoDetections, CharucoSpec, CharucoTarget
@@ -73,7 +73,7 @@ def calibrate_command(
       quadnav calibrate calibration_images/ --out camera.yml
     """
     spec = CharucoSpec(squares[0], squares[1], square_m, marker_m, dictionary)
-    with progress_bar("calibrate") as update:
+    with progress_bar("calibrate") as update, quiet_libraries():
         cal, n, skipped = calibrate_source(source, spec, every=every, progress=update)
     write_camera_yaml(
         out, cal.camera, avg_reprojection_error=cal.rms_px, views=len(cal.per_view_rms_px)
