@@ -274,6 +274,7 @@ def test_a_live_camera_is_given_the_thesis_settings(frames, tmp_path: Path) -> N
     run = Path(stats["run_dir"])
     assert stats["images_written"] == 5 and len(list((run / "images").glob("frame_*.png"))) == 5
     assert np.all(np.diff(_t_ns(run)) > 0)
+    assert "camera 0 did not take fps=40 (it reports 30)" in stats["notes"]
 
 
 def test_show_without_a_display_is_one_line(frames, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:  # fmt: skip

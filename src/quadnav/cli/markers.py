@@ -289,9 +289,12 @@ def run_markers(
             overlay.close()
     stats = _statistics(cfg, frames, done, run_dir)
     stats.update(calibration=cal_note or f"{camera.width}x{camera.height}, as calibrated",
+                 notes=[cal_note] if cal_note else [],
                  images_written=overlay.images.frames if overlay.images is not None else 0,
                  stopped_in_window=overlay.stopped,
                  unknown_detector_parameters=unknown, run_dir=str(run_dir))  # fmt: skip
+    stats["notes"] += [f"{frames.description} did not take {p.name}={p.requested:g} (it reports {p.got:g})"
+                       for p in frames.properties if not p.accepted]  # fmt: skip
     if companion is not None:
         stats["mavlink"] = companion.close()
     write_json(run_dir / "stats.json", stats)
@@ -381,7 +384,7 @@ def _write_report(run_dir: Path, cfg: MarkersConfig, frames: FrameSource, done: 
     det_ms = np.array([r.detect_ms for r in done.results])
     pose_ms = np.array([r.pose_ms for r in done.results if r.pose is not None])
     images = _plots(run_dir, t, pos, det_ms, pose_ms)
-    hidden = ("skipped", "run_dir", "unknown_detector_parameters", "camera_properties", "mavlink")  # fmt: skip
+    hidden = ("skipped", "run_dir", "unknown_detector_parameters", "camera_properties", "mavlink", "notes")  # fmt: skip
     rows = [[k, v] for k, v in stats.items() if k not in hidden]
     rows += [[f"camera {p['name']}", f"asked {p['requested']:g}, got {p['got']:g}"]
              for p in stats["camera_properties"]]  # fmt: skip
@@ -482,8 +485,12 @@ def markers_command(
         err_console.print(note, highlight=False, soft_wrap=True)
     with progress_bar("markers") as update:
         stats = run_markers(cfg, source, out, progress=update, mavlink=mavlink, setpoints=setpoints)
-    if not stats["calibration"].endswith("as calibrated"):
-        err_console.print(f"note: {stats['calibration']}", highlight=False, soft_wrap=True)
+    for note in stats["notes"]:
+        err_console.print(f"note: {note}", highlight=False, soft_wrap=True)
+    _print_summary(stats)
+
+
+def _print_summary(stats: dict[str, Any]) -> None:
     table = Table(title=f"markers: {stats['source']}")
     table.add_column("measure")
     table.add_column("value", justify="right")
@@ -492,7 +499,7 @@ def markers_command(
     for p in stats["camera_properties"]:
         verdict = "accepted" if p["accepted"] else "not accepted"
         table.add_row(f"camera {p['name']}", f"asked {p['requested']:g}, got {p['got']:g} ({verdict})")  # fmt: skip
-    table.add_row("frames skipped (unreadable)", str(stats["frames_skipped"]))
+    table.add_row("frames skipped (unreadable, other size)", str(stats["frames_skipped"]))
     table.add_row(
         "frames with a pose", f"{stats['frames_with_pose']} ({stats['fraction_with_pose']:.1%})"
     )

@@ -257,12 +257,12 @@ def open_frames(
 
 @contextmanager
 def quiet_libraries() -> Iterator[None]:
-    """OpenCV's and FFmpeg's warnings off the terminal (a skipped frame is counted and
-    reported by quadnav instead); OpenCV's errors still show."""
+    """OpenCV's and FFmpeg's log lines off the terminal: quadnav counts and reports a
+    skipped frame itself, and raises its own one-line error where OpenCV fails."""
     # read once, when OpenCV's FFmpeg backend starts: -8 is AV_LOG_QUIET
     os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")
     level = cv2.utils.logging.getLogLevel()
-    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
+    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)
     try:
         yield
     finally:
