@@ -214,6 +214,7 @@ class FakeCamera:
                       cv2.CAP_PROP_FPS: 30.0, cv2.CAP_PROP_AUTO_EXPOSURE: 3.0, cv2.CAP_PROP_EXPOSURE: 166.0}  # fmt: skip
         self.calls: list[tuple[Any, ...]] = []
         self.released = False
+        self.interrupt_at = -1  # the read at which the user presses Ctrl-C
 
     def isOpened(self) -> bool:  # OpenCV's name
         return True
@@ -238,6 +239,8 @@ class FakeCamera:
     def read(self) -> tuple[bool, np.ndarray | None]:
         self.calls.append(("read",))
         k = sum(c == ("read",) for c in self.calls) - 1
+        if k == self.interrupt_at:
+            raise KeyboardInterrupt
         if k >= len(self.images):
             return False, None
         size = (
@@ -304,7 +307,11 @@ def test_show_puts_each_frame_in_a_window_and_q_stops(frames, tmp_path: Path, mo
     assert run is not None
     stats = json.loads((run / "stats.json").read_text())
     assert len(shown) == 3 and shown[0].shape == (480, 640, 3)
-    assert stats["frames"] == 3 and stats["stopped_in_window"] and stats["frames_with_pose"] == 3
+    assert (
+        stats["frames"] == 3
+        and stats["stopped_by"] == "window (q or Esc)"
+        and stats["frames_with_pose"] == 3
+    )
 
 
 def test_show_rejected_draws_the_candidates_in_the_saved_frames(frames, tmp_path: Path) -> None:
@@ -332,3 +339,18 @@ def test_show_rejected_draws_the_candidates_in_the_saved_frames(frames, tmp_path
         edge = cv2.imread(str(saved[0]))[18:23, 40:100].astype(int)  # the candidate's top edge
         pink[flag] = np.all(np.abs(edge - [100, 0, 255]) < 60, axis=2).any(axis=0).mean()
     assert pink["true"] > 0.9 and pink["false"] == 0.0
+
+
+def test_ctrl_c_ends_a_live_run_with_its_results_written(frames, tmp_path: Path) -> None:
+    _, cal, _ = frames
+    images, _ = marker_views(thesis_camera(), 6)
+    camera = FakeCamera(images)
+    camera.interrupt_at = 4
+    camera.props[cv2.CAP_PROP_FRAME_WIDTH], camera.props[cv2.CAP_PROP_FRAME_HEIGHT] = 640.0, 480.0
+    cfg, _ = load_markers_config(None, [f"camera_file={cal}", "mount_rpy_deg=[0,0,0]"])
+    stats = run_markers(cfg, "0", tmp_path, open_camera=lambda index: camera)
+    assert stats["stopped_by"] == "interrupt (Ctrl-C)" and stats["frames_with_pose"] == 4
+    run = Path(stats["run_dir"])
+    assert len(_t_ns(run)) == 4 and (run / "metrics.json").is_file()
+    assert (run / "overlay.mp4").stat().st_size > 1000
+    assert not [c for c in camera.calls if c[0] == "set"]  # nothing asked: the driver's settings

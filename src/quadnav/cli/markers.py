@@ -211,6 +211,7 @@ class _Processed:
     skipped: list[str] = field(default_factory=list)
     world_id: int | None = None
     n_total: int = 0
+    stopped_by: str | None = None
 
 
 def _process(cfg: MarkersConfig, frames: FrameSource, camera: PinholeCamera, det_params: Any,
@@ -226,31 +227,36 @@ def _process(cfg: MarkersConfig, frames: FrameSource, camera: PinholeCamera, det
     detector = MarkerDetector(get_dictionary(cfg.dictionary), det_params)
     total = frames.total if cfg.max_frames is None else min(frames.total or cfg.max_frames, cfg.max_frames)  # fmt: skip
     n_poses = 0
-    for fr in frames:
-        if (cfg.max_frames is not None and fr.index >= cfg.max_frames) or overlay.stopped:
-            break
-        out.n_total += 1
-        if fr.image is None:
-            out.skipped.append(f"frame {fr.index}: {fr.error}")
-        else:
-            probe = None
-            if pipeline is None:
-                # One marker is the world: the lowest id of the first frame that shows any.
-                probe = detector.detect(fr.image)
-                if len(probe):
-                    out.world_id = int(probe.ids.min())
-                    pipeline = MarkerPipeline(camera, cfg.marker_map(out.world_id), cfg.T_B_C(), params=det_params,
-                                              prior_sigma_px=cfg.prior_sigma_px, max_rms_px=cfg.max_rms_px)  # fmt: skip
-            fp = pipeline.process(fr.image, fr.t_ns) if pipeline is not None else None
-            if fp is not None:
-                out.results.append(fp)
-                out.frame_idx.append(fr.index)
-                n_poses += fp.pose is not None
-                if companion is not None:
-                    companion.send(fr.t_ns, fp)
-            overlay.frame(fr.index, fr.image, fp, probe)
-        if progress:
-            progress(fr.index + 1, total or 0, f"{n_poses} poses")
+    try:
+        for fr in frames:
+            if (cfg.max_frames is not None and fr.index >= cfg.max_frames) or overlay.stopped:
+                break
+            out.n_total += 1
+            if fr.image is None:
+                out.skipped.append(f"frame {fr.index}: {fr.error}")
+            else:
+                probe = None
+                if pipeline is None:
+                    # One marker is the world: the lowest id of the first frame that shows any.
+                    probe = detector.detect(fr.image)
+                    if len(probe):
+                        out.world_id = int(probe.ids.min())
+                        pipeline = MarkerPipeline(camera, cfg.marker_map(out.world_id), cfg.T_B_C(), params=det_params,
+                                                  prior_sigma_px=cfg.prior_sigma_px, max_rms_px=cfg.max_rms_px)  # fmt: skip
+                fp = pipeline.process(fr.image, fr.t_ns) if pipeline is not None else None
+                if fp is not None:
+                    out.results.append(fp)
+                    out.frame_idx.append(fr.index)
+                    n_poses += fp.pose is not None
+                    if companion is not None:
+                        companion.send(fr.t_ns, fp)
+                overlay.frame(fr.index, fr.image, fp, probe)
+            if progress:
+                progress(fr.index + 1, total or 0, f"{n_poses} poses")
+    except KeyboardInterrupt:  # Ctrl-C ends a live run; what came so far is written
+        out.stopped_by = "interrupt (Ctrl-C)"
+    if overlay.stopped:
+        out.stopped_by = "window (q or Esc)"
     return out
 
 
@@ -291,7 +297,7 @@ def run_markers(
     stats.update(calibration=cal_note or f"{camera.width}x{camera.height}, as calibrated",
                  notes=[cal_note] if cal_note else [],
                  images_written=overlay.images.frames if overlay.images is not None else 0,
-                 stopped_in_window=overlay.stopped,
+                 stopped_by=done.stopped_by,
                  unknown_detector_parameters=unknown, run_dir=str(run_dir))  # fmt: skip
     stats["notes"] += [f"{frames.description} did not take {p.name}={p.requested:g} (it reports {p.got:g})"
                        for p in frames.properties if not p.accepted]  # fmt: skip
