@@ -13,36 +13,9 @@ import pytest
 from typer.testing import CliRunner
 
 from quadnav.cli.main import app
-from quadnav.experiments.markers import look_at
 from quadnav.geometry.rotations import Pose
-from quadnav.io.opencv_yaml import write_camera_yaml
-from quadnav.sim.camera import RenderSettings, SyntheticCamera, marker_object
-from quadnav.vision.camera import thesis_camera
-from quadnav.vision.markers import get_dictionary
 
 runner = CliRunner()
-
-
-@pytest.fixture(scope="module")
-def frames(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path, list[Pose]]:
-    """Ten renders of marker 5 (0.2335 m) from a camera drifting 1.2 to 1.6 m above it, the
-    fourth one replaced by garbage bytes; and the camera's calibration file."""
-    root = tmp_path_factory.mktemp("markers")
-    cam = thesis_camera()
-    scene = SyntheticCamera(cam, [marker_object(get_dictionary("DICT_4X4_250"), 5, 0.2335, Pose.identity())], RenderSettings(noise_sigma=2.0))  # fmt: skip
-    truth = []
-    folder = root / "frames"
-    folder.mkdir()
-    for k in range(10):
-        T = look_at(
-            np.array([0.02 * k, -0.01 * k, 1.2 + 0.04 * k]), np.array([0.0, 0.0, 0.0]), 0.1 * k
-        )
-        truth.append(T)
-        cv2.imwrite(str(folder / f"f{k:03d}.png"), scene.render(T))
-    (folder / "f003.png").write_bytes(b"\x89PNG garbage \x00\x01")
-    cal = root / "cal.yml"
-    write_camera_yaml(cal, cam)
-    return folder, cal, truth
 
 
 def test_markers_on_an_image_folder_with_a_corrupt_frame(frames, tmp_path: Path) -> None:

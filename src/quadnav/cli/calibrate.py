@@ -11,7 +11,7 @@ from rich.table import Table
 
 from quadnav.cli.common import console, handle_errors, progress_bar
 from quadnav.errors import ConfigError
-from quadnav.io.frames import open_frames
+from quadnav.io.frames import open_frames, quiet_libraries
 from quadnav.io.opencv_yaml import write_camera_yaml
 from quadnav.vision.calibration import Calibration, calibrate_charuco
 from quadnav.vision.markers import CharucoDetections, CharucoSpec, CharucoTarget
@@ -38,12 +38,8 @@ def calibrate_source(
         if fr.image is None:
             skipped.append(f"frame {fr.index}: {fr.error}")
             continue
-        h, w = fr.image.shape[:2]
         if size is None:
-            size = (w, h)
-        elif size != (w, h):
-            skipped.append(f"frame {fr.index}: size {w}x{h} differs from {size[0]}x{size[1]}")
-            continue
+            size = (fr.image.shape[1], fr.image.shape[0])  # the source skips other sizes
         views.append((fr.index, target.detect(fr.image)))
         if callable(progress):
             progress(fr.index + 1, frames.total or 0, f"{len(views)} views")
@@ -77,7 +73,7 @@ def calibrate_command(
       quadnav calibrate calibration_images/ --out camera.yml
     """
     spec = CharucoSpec(squares[0], squares[1], square_m, marker_m, dictionary)
-    with progress_bar("calibrate") as update:
+    with progress_bar("calibrate") as update, quiet_libraries():
         cal, n, skipped = calibrate_source(source, spec, every=every, progress=update)
     write_camera_yaml(
         out, cal.camera, avg_reprojection_error=cal.rms_px, views=len(cal.per_view_rms_px)

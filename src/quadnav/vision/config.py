@@ -81,7 +81,20 @@ class MarkersConfig(_Section):
         (180.0, 0.0, 180.0), description="camera in the body (thesis: down, turned 180 deg)"
     )
     mount_xyz_m: Vec3 = (0.0, 0.0, 0.0)
-    fps: float = Field(30.0, gt=0, description="frame rate of an image folder")
+    fps: float = Field(
+        30.0,
+        gt=0,
+        description="frame rate of an image folder or a stream without timestamps (raw .h264); "
+        "asked of a live camera when set",
+    )
+    frame_width_px: int | None = Field(None, ge=1, description="asked of a live camera")
+    frame_height_px: int | None = Field(None, ge=1, description="asked of a live camera")
+    exposure_time_100us: int | None = Field(
+        None, ge=0, description="asked of a live camera, V4L2 unit (100 us); 0: automatic"
+    )
+    show: bool = Field(False, description="show the overlay in a window (needs a display)")
+    show_rejected: bool = Field(False, description="draw the rejected marker candidates")
+    write_images: bool = Field(False, description="save every overlay frame to images/")
     max_rms_px: float = Field(
         3.0, gt=0, description="poses with a larger reprojection error are refused"
     )
@@ -133,6 +146,11 @@ class MarkersConfig(_Section):
         )
 
 
+def _thesis_bool(value: Any) -> bool:
+    """The thesis program reads a flag as the string ``"true"`` (anything else is false)."""
+    return str(value).strip().lower() in ("true", "1")
+
+
 def from_thesis_vision_params(values: dict[str, Any]) -> tuple[dict[str, Any], list[str]]:
     """Thesis 000's ``vision_params.yml`` (dict_type, marker_length, charuco, squaresX...)
     as :class:`MarkersConfig` keys; returns them and the keys left out."""
@@ -143,6 +161,12 @@ def from_thesis_vision_params(values: dict[str, Any]) -> tuple[dict[str, Any], l
         ("marker_length", "marker_length_m", float),
         ("fps", "fps", float),
         ("camera_parameters", "camera_file", str),
+        ("frame_width", "frame_width_px", int),
+        ("frame_height", "frame_height_px", int),
+        ("exposure_time", "exposure_time_100us", int),
+        ("open_window", "show", _thesis_bool),
+        ("show_rejected", "show_rejected", _thesis_bool),
+        ("write_images", "write_images", _thesis_bool),
     ):
         if theirs in values:
             out[ours] = cast(values[theirs])
