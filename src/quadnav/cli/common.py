@@ -5,6 +5,7 @@ from __future__ import annotations
 import functools
 import math
 import sys
+import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -53,8 +54,15 @@ def handle_errors(fn: Callable[P, R]) -> Callable[P, R]:
 
 
 @contextmanager
-def progress_bar(description: str) -> Iterator[Callable[[int, int, str], None]]:
-    """A progress bar on stderr; yields ``update(done, total, what)``."""
+def progress_bar(
+    description: str, *, line_step: float = 0.1
+) -> Iterator[Callable[[int, int, str], None]]:
+    """A progress bar on stderr; yields ``update(done, total, what)``. When stderr is not a
+    terminal (CI logs, pipes), a plain line instead, each time another ``line_step`` of the
+    work is done (0: every item, a seed say) or 30 s have passed, and at the end."""
+    if not err_console.is_terminal:
+        yield _progress_lines(description, line_step)
+        return
     with Progress(
         TextColumn("[bold]{task.description}"),
         BarColumn(),
@@ -70,6 +78,25 @@ def progress_bar(description: str) -> Iterator[Callable[[int, int, str], None]]:
             progress.update(task, completed=done, total=total, what=what)
 
         yield update
+
+
+def _progress_lines(description: str, line_step: float) -> Callable[[int, int, str], None]:
+    start = time.monotonic()
+    last = {"done": 0, "t": start}
+
+    def update(done: int, total: int, what: str) -> None:
+        now = time.monotonic()
+        step = max(1.0, line_step * total) if total else 1.0
+        due = done >= total > 0 or done - last["done"] >= step or now - last["t"] >= 30.0
+        if done <= last["done"] or not due:
+            return
+        last.update(done=done, t=now)
+        of = f"/{total}" if total else ""
+        print(
+            f"{description}: {done}{of} {what} ({now - start:.1f} s)", file=sys.stderr, flush=True
+        )
+
+    return update
 
 
 def check_range(

@@ -10,6 +10,7 @@ import typer
 from rich.table import Table
 
 from quadnav.cli.common import console, handle_errors, progress_bar
+from quadnav.eval.na import fmt_metric
 from quadnav.eval.planar import PlanarStudy, run_planar_study
 from quadnav.experiments.planar import PlanarConfig
 from quadnav.io.config import load_config
@@ -44,11 +45,11 @@ def print_planar_summary(study: PlanarStudy) -> None:
     for exp, s in study.summary.items():
         table.add_row(
             exp,
-            f"{s['rmse_delayed_m']['median']:.4f}",
-            f"{s['rmse_output_m']['median']:.4f}",
-            f"{s['rmse_floor_m']['median']:.4f}",
-            f"{s['output_over_floor']['median']:.3f}",
-            f"{s['nees_mean']['mean']:.3g}",
+            fmt_metric(s["rmse_delayed_m"]["median"], ".4f"),
+            fmt_metric(s["rmse_output_m"]["median"], ".4f"),
+            fmt_metric(s["rmse_floor_m"]["median"], ".4f"),
+            fmt_metric(s["output_over_floor"]["median"], ".3f"),
+            fmt_metric(s["nees_mean"]["mean"], ".3g"),
             str(s["gps_fused_total"]),
             str(s["gps_rejected_gate_total"]),
             str(s["gps_rejected_too_old_total"]),
@@ -73,7 +74,7 @@ def run_planar_from_cli(
     if seeds is not None:
         all_overrides.append(f"seeds={seeds}")
     config = load_config(PlanarConfig, config_path, all_overrides)
-    with progress_bar("planar") as update:
+    with progress_bar("planar", line_step=0) as update:
         study = run_planar_study(
             config, runs_root=out, progress=update, jobs=jobs or os.cpu_count() or 1
         )

@@ -12,6 +12,7 @@ from rich.table import Table
 from quadnav.cli.common import console, handle_errors, progress_bar
 from quadnav.cli.planar import JobsOpt, OutOpt, SeedsOpt, SetOpt, run_planar_from_cli
 from quadnav.errors import ConfigError
+from quadnav.eval.na import fmt_metric
 from quadnav.eval.nav import run_nav_study
 from quadnav.experiments.nav import NavScenario
 from quadnav.io.config import load_config
@@ -104,7 +105,7 @@ def run_command(
                 f"{scenario!r} is neither a built-in scenario ({', '.join([*BUILTIN_RUNS, 'planar'])}) nor a file"
             )
         config = load_config(NavScenario, path, overrides)
-    with progress_bar(config.name) as update:
+    with progress_bar(config.name, line_step=0) as update:
         study = run_nav_study(
             config, runs_root=out, progress=update, jobs=jobs or os.cpu_count() or 1
         )
@@ -121,12 +122,17 @@ def run_command(
         ("delayed estimate RMSE (m)", s["delayed_rmse_m"]),
         ("attitude RMSE (deg)", s["attitude_rmse_deg"]),
         ("NEES, mean (15 states)", s["nees_mean"]),
-        ("gyro bias error / true bias after 60 s", s["gyro_bias_error_fraction_median"]),
-        ("accel bias error / true bias after 60 s", s["accel_bias_error_fraction_median"]),
+        (
+            "gyro bias error / true bias, 60 s after alignment or at the end",
+            s["gyro_bias_error_fraction_median"],
+        ),
+        (
+            "accel bias error / true bias, 60 s after alignment or at the end",
+            s["accel_bias_error_fraction_median"],
+        ),
     ]
     for k, v in rows:
-        if v == v:  # rows that do not apply (no vision, no dropouts) are NaN: left out
-            table.add_row(k, f"{v:.4g}")
+        table.add_row(k, fmt_metric(v))
     for src, frac in s.get("nis_above_95pct_gate", {}).items():
         table.add_row(f"{src}: innovations beyond the 95 % gate", f"{frac:.1%}")
     console.print(table)

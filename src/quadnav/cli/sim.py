@@ -12,6 +12,7 @@ from rich.table import Table
 from quadnav.cli.common import check_range, console, err_console, handle_errors
 from quadnav.errors import ConfigError
 from quadnav.eval.flight import write_flight_run
+from quadnav.eval.na import fmt_metric
 from quadnav.experiments.flight import BUILTIN, FlightConfig, builtin_config, run_flight
 from quadnav.io.config import load_config
 from quadnav.io.mavlink import SIGNING_KEY_ENV, read_signing_key
@@ -128,7 +129,7 @@ def _print_flight(name: str, m: dict[str, Any], run_dir: Path) -> None:
             v = m[key]
             if isinstance(v, dict):
                 v = ", ".join(f"{k} {x:.3g}" for k, x in v.items()) or "-"
-            table.add_row(key, f"{v:.4g}" if isinstance(v, float) else str(v))
+            table.add_row(key, fmt_metric(v))
     for key, v in m["events"].items():
         table.add_row(key, str(v))
     console.print(table)

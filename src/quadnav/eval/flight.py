@@ -15,6 +15,7 @@ from matplotlib.patches import Rectangle
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
+from quadnav.eval.na import na, rms_or_na
 from quadnav.eval.report import ReportSection, ReportTable, write_report
 from quadnav.experiments.flight import FlightRun
 from quadnav.geometry.trajectory import Trajectory
@@ -53,9 +54,18 @@ def flight_metrics(run: FlightRun) -> dict[str, Any]:
         e = run.p - run.ref_p
         err = np.linalg.norm(e, axis=1)
         win = t >= cfg.tracking_start_s
-        out["settling_time_s"] = settling_time_s(t, err, cfg.settle_band_m)
-        out["tracking_rmse_m"] = float(np.sqrt(np.mean(err[win] ** 2)))
-        out["tracking_rmse_whole_run_m"] = float(np.sqrt(np.mean(err**2)))
+        settle = settling_time_s(t, err, cfg.settle_band_m)
+        out["settling_time_s"] = (
+            settle
+            if math.isfinite(settle)
+            else na(f"not settled within settle_band_m ({cfg.settle_band_m:g} m) by the end")
+        )
+        out["tracking_rmse_m"] = rms_or_na(
+            err[win],
+            f"no samples after tracking_start_s ({cfg.tracking_start_s:g} s) in a "
+            f"{cfg.duration_s:g} s flight",
+        )
+        out["tracking_rmse_whole_run_m"] = rms_or_na(err, "no samples")
         out["final_error_m"] = float(err[-1])
         e0 = e[0]
         over = {}
@@ -196,15 +206,16 @@ def write_flight_run(run: FlightRun, *, runs_root: Path) -> tuple[Path, dict[str
     )
     metrics = flight_metrics(run)
     images = plot_flight(run, run_dir / "plots")
+    no_ref = na("no reference trajectory")
     row = {
         "scenario": cfg.name,
-        "tracking RMSE (m)": metrics.get("tracking_rmse_m", math.nan),
-        "settling (s)": metrics.get("settling_time_s", math.nan),
+        "tracking RMSE (m)": metrics.get("tracking_rmse_m", no_ref),
+        "settling (s)": metrics.get("settling_time_s", no_ref),
         "peak thrust (N)": metrics["peak_thrust_n"],
         "saturated (s)": metrics["saturation_time_s"],
         "min clearance (m)": metrics["min_obstacle_distance_m"]
         if metrics["min_obstacle_distance_m"] is not None
-        else math.nan,
+        else na("no obstacle"),
     }
     write_json(run_dir / "metrics.json", {"kind": "sim", **metrics, "table": [row]})
     write_report(

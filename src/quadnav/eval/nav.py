@@ -18,6 +18,7 @@ from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
 from quadnav.eval.metrics import nees
+from quadnav.eval.na import Metric, max_or_na, mean_or_na, median_or_na, na, rms_or_na
 from quadnav.eval.report import ReportSection, ReportTable, write_report
 from quadnav.eval.seeds import run_tasks
 from quadnav.experiments.nav import NavRunResult, NavScenario, run_nav
@@ -54,10 +55,12 @@ def nav_metrics(r: NavRunResult) -> dict[str, Any]:
     dropout_end, recovery = [], []
     for a, b in sc.vision.dropouts_s if sc.vision.enabled else []:
         with_vision &= ~((t >= a) & (t < b + 1.0))
+        if not t[0] <= b <= t[-1]:
+            continue  # the flight ended before vision came back: no end, no recovery
         k = int(np.argmin(np.abs(t - b)))
         dropout_end.append(float(err[k]))
         back = np.flatnonzero((t > b) & (err < 0.03))
-        recovery.append(float(t[back[0]] - b) if len(back) else math.nan)
+        recovery.append(float(t[back[0]] - b) if len(back) else na("never back under 3 cm"))
     # Hover: the holds at flight height above the take-off point (after the climb and before
     # the descent), from their first second on. The corner stops of the square are not hovers.
     above_start = np.all(np.abs(r.ref_p[:, 0:2] - r.ref_p[0, 0:2]) < 1e-9, axis=1)
@@ -83,39 +86,57 @@ def nav_metrics(r: NavRunResult) -> dict[str, Any]:
     ]
     # Bias convergence: the delayed estimate's bias error 60 s after alignment (or at the end
     # of a shorter flight), relative to the true bias.
-    t_60 = r.t_align_ns + 60_000_000_000
-    fin = np.flatnonzero(np.isfinite(r.delayed_err).all(axis=1) & (r.t_delayed_ns <= t_60))[-1]
-    bias_frac = {}
-    for name, est_sl, err_sl in (
-        ("gyro", slice(10, 13), slice(9, 12)),
-        ("accel", slice(13, 16), slice(12, 15)),
-    ):
-        e = r.delayed_err[fin, err_sl]
-        true = r.delayed_x[fin, est_sl] + e
-        bias_frac[name] = float(np.linalg.norm(e) / max(float(np.linalg.norm(true)), 1e-12))
+    bias_frac = _bias_error_fractions(r)
     ratios = {}
     for src, f in r.fusion.items():
         if len(f["nis"]) and src != "landed":  # (a pseudo-measurement: standing still)
             gate95 = chi2.ppf(0.95, f["dof"])
             ratios[src] = float(np.mean(f["nis"] > gate95))
+    in_air = "no samples in the air"
+    att_rmse = rms_or_na(att_err, in_air)
     return {
         "seed": r.seed,
-        "output_rmse_with_vision_m": float(np.sqrt(np.mean(err[with_vision] ** 2)))
+        "output_rmse_with_vision_m": rms_or_na(
+            err[with_vision], "no samples in the air with vision"
+        )
         if sc.vision.enabled
-        else math.nan,
-        "output_rmse_m": float(np.sqrt(np.mean(err[airborne] ** 2))),
+        else na("vision disabled"),
+        "output_rmse_m": rms_or_na(err[airborne], in_air),
         "bias_error_fraction_60s": bias_frac,
         "dropout_end_error_m": dropout_end,
         "dropout_recovery_s": recovery,
-        "hold_max_horizontal_error_m": float(horiz.max()) if len(horiz) else math.nan,
-        "delayed_rmse_m": float(np.sqrt(np.mean(np.sum(r.delayed_err[ok, 6:9] ** 2, axis=1)))),
-        "attitude_rmse_deg": float(np.degrees(np.sqrt(np.mean(att_err**2)))),
-        "nees_mean": float(nees(r.delayed_err[ok], r.delayed_P[ok]).mean()),
+        "hold_max_horizontal_error_m": max_or_na(
+            horiz, "no hold above the take-off point of over 1 s"
+        ),
+        "delayed_rmse_m": rms_or_na(np.linalg.norm(r.delayed_err[ok, 6:9], axis=1), in_air),
+        "attitude_rmse_deg": att_rmse if isinstance(att_rmse, str) else math.degrees(att_rmse),
+        "nees_mean": mean_or_na(
+            nees(r.delayed_err[ok], r.delayed_P[ok]) if ok.any() else [], in_air
+        ),
         "nis_above_95pct_gate": ratios,
         "counts": r.counts,
         "filter_events": [f"{t * 1e-9:.3f} s: {msg}" for t, msg in (r.events or [])],
         "landed_at_m": r.truth_p[-1].tolist(),
     }
+
+
+def _bias_error_fractions(r: NavRunResult) -> dict[str, Metric]:
+    """The delayed estimate's bias errors 60 s after alignment (or at the end of a shorter
+    flight), relative to the true biases."""
+    t_60 = r.t_align_ns + 60_000_000_000
+    valid = np.flatnonzero(np.isfinite(r.delayed_err).all(axis=1) & (r.t_delayed_ns <= t_60))
+    out: dict[str, Metric] = {}
+    for name, est_sl, err_sl in (
+        ("gyro", slice(10, 13), slice(9, 12)),
+        ("accel", slice(13, 16), slice(12, 15)),
+    ):
+        if not len(valid):
+            out[name] = na("no delayed estimate after alignment")
+            continue
+        e = r.delayed_err[valid[-1], err_sl]
+        true = r.delayed_x[valid[-1], est_sl] + e
+        out[name] = float(np.linalg.norm(e) / max(float(np.linalg.norm(true)), 1e-12))
+    return out
 
 
 def plot_nav_run(r: NavRunResult, folder: Path) -> list[Path]:
@@ -295,6 +316,48 @@ def _write_sensor_streams(r: NavRunResult, folder: Path) -> None:
         write_csv(folder / f"sensors_{name}.csv", cols)
 
 
+def _worst(values: list[Metric], none: str) -> Metric:
+    """The worst case over dropouts: a dropout never recovered from beats any number."""
+    never = [v for v in values if isinstance(v, str)]
+    return never[0] if never else median_or_na(values, worst=True) if values else na(none)
+
+
+def _summarize(per_seed: list[dict[str, Any]]) -> dict[str, Any]:
+    """Medians over seeds (worst cases where marked); metrics no seed has say why."""
+
+    def med(key: str) -> Metric:
+        return median_or_na(m[key] for m in per_seed)
+
+    no_dropout = "no dropout ended during the flight"
+    ends: list[Metric] = [x for m in per_seed for x in m["dropout_end_error_m"]]
+    recs: list[Metric] = [x for m in per_seed for x in m["dropout_recovery_s"]]
+    nees_means = [m["nees_mean"] for m in per_seed if not isinstance(m["nees_mean"], str)]
+    return {
+        "seeds": len(per_seed),
+        "output_rmse_m": med("output_rmse_m"),
+        "output_rmse_with_vision_m": med("output_rmse_with_vision_m"),
+        "dropout_end_error_max_m": _worst(ends, no_dropout),
+        "dropout_recovery_max_s": _worst(recs, no_dropout),
+        "hold_max_horizontal_error_m": median_or_na(
+            (m["hold_max_horizontal_error_m"] for m in per_seed), worst=True
+        ),
+        "delayed_rmse_m": med("delayed_rmse_m"),
+        "attitude_rmse_deg": med("attitude_rmse_deg"),
+        "nees_mean": float(np.mean(nees_means)) if nees_means else per_seed[0]["nees_mean"],
+        "nees_state_dim": 15,
+        "gyro_bias_error_fraction_median": median_or_na(
+            m["bias_error_fraction_60s"]["gyro"] for m in per_seed
+        ),
+        "nis_above_95pct_gate": {
+            src: float(np.mean([m["nis_above_95pct_gate"].get(src, np.nan) for m in per_seed]))
+            for src in per_seed[0]["nis_above_95pct_gate"]
+        },
+        "accel_bias_error_fraction_median": median_or_na(
+            m["bias_error_fraction_60s"]["accel"] for m in per_seed
+        ),
+    }
+
+
 @dataclass(frozen=True, slots=True)
 class NavStudy:
     run_dir: Path
@@ -333,33 +396,7 @@ def run_nav_study(
     images = plot_nav_run(first, run_dir / "plots")
     per_seed = [results[s] for s in seeds]
 
-    def med(key: str) -> float:
-        return float(np.median([m[key] for m in per_seed]))
-
-    ends = [x for m in per_seed for x in m["dropout_end_error_m"]]
-    recs = [x for m in per_seed for x in m["dropout_recovery_s"]]
-    summary = {
-        "seeds": len(seeds),
-        "output_rmse_m": med("output_rmse_m"),
-        "output_rmse_with_vision_m": med("output_rmse_with_vision_m"),
-        "dropout_end_error_max_m": max(ends) if ends else math.nan,
-        "dropout_recovery_max_s": max(recs) if recs else math.nan,
-        "hold_max_horizontal_error_m": max(m["hold_max_horizontal_error_m"] for m in per_seed),
-        "delayed_rmse_m": med("delayed_rmse_m"),
-        "attitude_rmse_deg": med("attitude_rmse_deg"),
-        "nees_mean": float(np.mean([m["nees_mean"] for m in per_seed])),
-        "nees_state_dim": 15,
-        "gyro_bias_error_fraction_median": float(
-            np.median([m["bias_error_fraction_60s"]["gyro"] for m in per_seed])
-        ),
-        "nis_above_95pct_gate": {
-            src: float(np.mean([m["nis_above_95pct_gate"].get(src, np.nan) for m in per_seed]))
-            for src in per_seed[0]["nis_above_95pct_gate"]
-        },
-        "accel_bias_error_fraction_median": float(
-            np.median([m["bias_error_fraction_60s"]["accel"] for m in per_seed])
-        ),
-    }
+    summary = _summarize(per_seed)
     table = [{
         "scenario": sc.name, "seeds": len(seeds),
         "output RMSE in the air (m)": summary["output_rmse_m"],

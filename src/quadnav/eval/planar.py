@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -17,6 +16,7 @@ from numpy.typing import NDArray
 
 from quadnav.errors import EvalError
 from quadnav.eval.metrics import ape, error_stats, nees
+from quadnav.eval.na import Metric, median_or_na, na
 from quadnav.eval.report import ReportSection, ReportTable, write_report
 from quadnav.eval.seeds import run_tasks
 from quadnav.experiments.planar import ExperimentName, PlanarConfig, PlanarRun, run_planar
@@ -95,8 +95,10 @@ def planar_metrics(run: PlanarRun) -> dict[str, Any]:
     di = run.delayed_index[rows_d]
     t_d = run.t_delayed_ns[rows_d]
 
-    def rmse(ref: Trajectory, est: Trajectory) -> float:
-        return error_stats(ape(ref, est, "trans"))["rmse"]
+    def rmse(ref: Trajectory, est: Trajectory) -> Metric:
+        if len(ref.t_ns) == 0:
+            return na("run not longer than the delay: the delayed horizon never moved")
+        return float(error_stats(ape(ref, est, "trans"))["rmse"])
 
     truth_now = planar_trajectory(run.t_ns[rows], run.truth_p[rows], run.truth_theta[rows])
     rmse_d = rmse(
@@ -113,7 +115,7 @@ def planar_metrics(run: PlanarRun) -> dict[str, Any]:
     # After the first fused fix; with no fix at all (IMU only), over every step, which tests
     # the consistency of the covariance propagation alone.
     m = rows_d[run.t_delayed_ns[rows_d] >= fused.min()] if len(fused) else rows_d
-    nees_mean = math.nan
+    nees_mean: Metric = na("no delayed estimate after the first fused fix")
     if len(m):
         nees_mean = float(nees(_delayed_errors(run, m), run.delayed_P[m]).mean())
     nees_steps = len(m)
@@ -122,7 +124,9 @@ def planar_metrics(run: PlanarRun) -> dict[str, Any]:
         "rmse_delayed_m": rmse_d,
         "rmse_output_m": rmse_o,
         "rmse_floor_m": rmse_f,
-        "output_over_floor": rmse_o / rmse_f if rmse_f > 0 else math.nan,
+        "output_over_floor": rmse_o / rmse_f
+        if isinstance(rmse_o, float) and isinstance(rmse_f, float) and rmse_f > 0
+        else na("no floor to compare with"),
         "nees_mean": nees_mean,
         "nees_steps": nees_steps,
         "gps_received": run.gps_received,
@@ -138,10 +142,12 @@ def summarize_seeds(per_seed: list[dict[str, Any]]) -> dict[str, Any]:
     """Median, mean, 10th and 90th percentile over seeds of each summary metric."""
     out: dict[str, Any] = {"seeds": len(per_seed)}
     for key in SUMMARY_KEYS:
-        values = np.array([m[key] for m in per_seed], dtype=np.float64)
-        finite = values[np.isfinite(values)]
+        values = [m[key] for m in per_seed]
+        finite = np.array([v for v in values if not isinstance(v, str)], dtype=np.float64)
+        finite = finite[np.isfinite(finite)]
         if len(finite) == 0:
-            out[key] = {"median": math.nan, "mean": math.nan, "p10": math.nan, "p90": math.nan}
+            why = median_or_na(values)  # no seed has a number: the reason
+            out[key] = {"median": why, "mean": why, "p10": why, "p90": why}
             continue
         out[key] = {
             "median": float(np.median(finite)),
