@@ -16,7 +16,17 @@ SHORT = ["--set", "plan.square_m=0.5", "--set", "plan.hold_s=0.5", "--set", "vis
 def test_run_prints_a_line_per_finished_seed_when_piped(tmp_path: Path) -> None:
     result = CliRunner().invoke(
         app,
-        ["run", "indoor_vision_pose", "--seeds", "2", "--jobs", "1", "--out", str(tmp_path), *SHORT],
+        [
+            "run",
+            "indoor_vision_pose",
+            "--seeds",
+            "2",
+            "--jobs",
+            "1",
+            "--out",
+            str(tmp_path),
+            *SHORT,
+        ],
     )
     assert result.exit_code == 0, result.output
     lines = re.findall(r"^indoor_vision_pose: (\d)/2 seed (\d) \(\d+\.\d s\)$", result.stderr, re.M)

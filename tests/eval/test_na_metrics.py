@@ -41,7 +41,12 @@ def test_a_dropout_over_the_whole_flight_says_why() -> None:
     sc = load_config(
         NavScenario,
         None,
-        ["vision.source=pose", "vision.dropouts_s=[[0,100]]", "plan.hold_s=0.5", "plan.square_m=0.5"],
+        [
+            "vision.source=pose",
+            "vision.dropouts_s=[[0,100]]",
+            "plan.hold_s=0.5",
+            "plan.square_m=0.5",
+        ],
     )
     with warnings.catch_warnings():
         warnings.simplefilter("error")
