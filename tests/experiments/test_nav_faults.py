@@ -6,14 +6,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from quadnav.cli.run import BUILTIN_RUNS
 from quadnav.eval.nav import nav_metrics
 from quadnav.experiments.nav import NavRunResult, NavScenario, run_nav
-from quadnav.io.config import load_config
+from quadnav.experiments.scenarios import nav_builtin
 
 
 def scenario(name: str, *extra: str) -> NavScenario:
-    return load_config(NavScenario, None, [f"name={name}", *BUILTIN_RUNS[name], *extra])
+    return nav_builtin(name, extra)
 
 
 def output_jump_m(r: NavRunResult) -> float:

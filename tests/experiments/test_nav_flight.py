@@ -142,10 +142,9 @@ def test_ground_alignment_heading_from_the_magnetometer() -> None:
 
 def test_outdoor_gps_baro_mag_flight() -> None:
     """One seed of the outdoor built-in (GPS 5 Hz, 200 ms late, 0.5 m; baro; magnetometer)."""
-    from quadnav.cli.run import BUILTIN_RUNS
-    from quadnav.io.config import load_config
+    from quadnav.experiments.scenarios import nav_builtin
 
-    sc = load_config(NavScenario, None, BUILTIN_RUNS["outdoor_gps"])
+    sc = nav_builtin("outdoor_gps")
     m = nav_metrics(run_nav(sc, 0))
     assert m["output_rmse_m"] <= 0.6 * sc.gps.sigma_h_m  # type: ignore[operator]
     assert m["attitude_rmse_deg"] <= 1.0  # type: ignore[operator]

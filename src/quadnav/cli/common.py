@@ -6,7 +6,7 @@ import functools
 import math
 import sys
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 from typing import ParamSpec, TypeVar
@@ -26,6 +26,27 @@ err_console = Console(stderr=True)
 
 P = ParamSpec("P")
 R = TypeVar("R")
+
+
+def command_help(
+    summary: str,
+    body: str = "",
+    *,
+    lists: Sequence[tuple[str, Mapping[str, str]]] = (),
+    examples: Sequence[str] = (),
+) -> str:
+    """A command's help text, made from its registries (built-in scenarios, examples) so it
+    cannot drift from them: one paragraph per entry, as typer lays out a docstring."""
+    parts = [summary]
+    if body:
+        parts.append(body)
+    for title, entries in lists:
+        parts.append(f"{title}:")
+        parts.extend(f"  {name}: {text}" for name, text in entries.items())
+    if examples:
+        parts.append("Examples:")
+        parts.extend(f"  {e}" for e in examples)
+    return "\n\n".join(parts)
 
 
 def handle_errors(fn: Callable[P, R]) -> Callable[P, R]:

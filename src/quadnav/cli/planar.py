@@ -4,18 +4,25 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 from rich.table import Table
 
-from quadnav.cli.common import console, handle_errors, progress_bar
+from quadnav.cli.common import command_help, console, handle_errors, progress_bar
 from quadnav.eval.na import fmt_metric
 from quadnav.eval.planar import PlanarStudy, run_planar_study
 from quadnav.experiments.planar import PlanarConfig
 from quadnav.io.config import load_config
 
-__all__ = ["planar_command", "print_planar_summary", "run_planar_from_cli"]
+__all__ = [
+    "EXAMPLES",
+    "check_example",
+    "planar_command",
+    "print_planar_summary",
+    "resolve_planar_config",
+    "run_planar_config",
+]
 
 ConfigArg = Annotated[
     Path | None, typer.Argument(help="YAML config; every key is optional (defaults: the thesis's)")
@@ -63,23 +70,35 @@ def print_planar_summary(study: PlanarStudy) -> None:
     )
 
 
-def run_planar_from_cli(
-    config_path: Path | None,
-    overrides: list[str] | None,
-    seeds: int | None,
-    out: Path,
-    jobs: int | None = None,
-) -> None:
-    all_overrides = list(overrides or [])
-    if seeds is not None:
-        all_overrides.append(f"seeds={seeds}")
-    config = load_config(PlanarConfig, config_path, all_overrides)
+def resolve_planar_config(
+    config_path: Path | None, overrides: list[str] | None, seeds: int | None
+) -> PlanarConfig:
+    """The validated configuration a ``quadnav planar`` would run (no work, no folder)."""
+    all_overrides = [*(overrides or []), *([f"seeds={seeds}"] if seeds is not None else [])]
+    return load_config(PlanarConfig, config_path, all_overrides)
+
+
+def check_example(params: dict[str, Any]) -> None:
+    """Validate an example's arguments as the command would, without running it."""
+    resolve_planar_config(params["config"], params["set_"], params["seeds"])
+
+
+def run_planar_config(config: PlanarConfig, out: Path, jobs: int | None = None) -> None:
     with progress_bar("planar", line_step=0) as update:
         study = run_planar_study(
             config, runs_root=out, progress=update, jobs=jobs or os.cpu_count() or 1
         )
     print_planar_summary(study)
     console.print(str(study.run_dir), soft_wrap=True, highlight=False)
+
+
+#: The examples of ``quadnav planar --help`` (each parsed and validated by the tests).
+EXAMPLES = (
+    "quadnav planar",
+    "quadnav planar --seeds 20",
+    "quadnav planar --set gps.delay_s=0.255 --set imu.accel_model=kinematic",
+    "quadnav planar --set estimator.propagate_velocity_correction=false --set estimator.tau_vel_s=0.25",
+)
 
 
 @handle_errors
@@ -90,14 +109,12 @@ def planar_command(
     out: OutOpt = Path("runs"),
     jobs: JobsOpt = None,
 ) -> None:
-    """Thesis 000's planar experiments: no update, delayed GPS fused as if current, delays handled.
+    run_planar_config(resolve_planar_config(config, set_, seeds), out, jobs)
 
-    Examples:
 
-      quadnav planar                          # the thesis's parameters, one seed
-
-      quadnav planar --seeds 20               # Monte Carlo over 20 seeds
-
-      quadnav planar --set gps.delay_s=0.255 --set imu.accel_model=kinematic
-    """
-    run_planar_from_cli(config, set_, seeds, out, jobs)
+planar_command.__doc__ = command_help(
+    "Thesis 000's planar experiments: no update, delayed GPS fused as if current, delays handled.",
+    "The same delayed-measurement problem in two dimensions (thesis figures 2.3-2.5), with the "
+    "thesis's parameters by default; --seeds runs a Monte Carlo study.",
+    examples=EXAMPLES,
+)

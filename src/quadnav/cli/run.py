@@ -4,107 +4,71 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 from rich.table import Table
 
-from quadnav.cli.common import console, handle_errors, progress_bar
-from quadnav.cli.planar import JobsOpt, OutOpt, SeedsOpt, SetOpt, run_planar_from_cli
+from quadnav.cli.common import command_help, console, handle_errors, progress_bar
+from quadnav.cli.planar import JobsOpt, OutOpt, SeedsOpt, SetOpt, run_planar_config
 from quadnav.errors import ConfigError
 from quadnav.eval.na import fmt_metric
 from quadnav.eval.nav import run_nav_study
 from quadnav.experiments.nav import NavScenario
+from quadnav.experiments.planar import PlanarConfig
+from quadnav.experiments.scenarios import NAV_SCENARIOS, nav_builtin
 from quadnav.io.config import load_config
 
-__all__ = ["BUILTIN_RUNS", "run_command"]
+__all__ = ["EXAMPLES", "check_example", "resolve_run_config", "run_command"]
 
-#: Built-in scenarios of `quadnav run` (overrides on the NavScenario defaults).
-_OUTDOOR = [
-    "vision.enabled=false",
-    "gps.enabled=true",
-    "mag.enabled=true",
-    "plan.height_m=5",
-    "plan.square_m=20",
-    "plan.speed_m_s=3",
-    "plan.accel_m_s2=2",
-    "plan.hold_s=3",
-    "plan.yaw=along_track",
-]
 
-BUILTIN_RUNS: dict[str, list[str]] = {
-    "indoor_vision": [],
-    # The same flight on the pose shortcut (true pose + 1 cm noise): 3x faster, no images.
-    "indoor_vision_pose": ["vision.source=pose"],
-    "indoor_vision_truth_control": ["closed_loop=false"],
-    # PX4's rotated external vision (thesis 000 eqs 3.7-3.8): the marker frame is turned 30
-    # degrees and offset from the world, the heading is the magnetometer's.
-    "indoor_vision_rotated": [
-        "vision.source=pose",
-        "mag.enabled=true",
-        "estimator.vision_frame=rotate",
-        "vision.frame_yaw_deg=30",
-        "vision.frame_offset_m=[1.5,-0.7,0.0]",
-    ],
-    # A range finder to the floor next to the barometer.
-    "indoor_vision_range": ["vision.source=pose", "range.enabled=true"],
-    "outdoor_gps": _OUTDOOR,
-    # Faults: each is a scenario and a test (tests/experiments/test_nav_faults.py).
-    "fault_gps_glitch": [*_OUTDOOR, "faults.gps_glitch=[[25,28,20,0]]"],
-    "fault_vision_jump": ["vision.source=pose", "vision.jumps=[[12.5,20,1.0,-0.5,0.0]]"],
-    "fault_bad_samples": [
-        "vision.source=pose",
-        "faults.imu_nan_s=[3,6.5,12]",
-        "faults.imu_repeat_s=[4,8]",
-        "faults.vision_late_s=[[5,0.5],[13,1.0]]",
-    ],
-}
+def resolve_run_config(
+    scenario: str | None, set_: list[str] | None, seeds: int | None
+) -> NavScenario | PlanarConfig:
+    """The validated configuration a ``quadnav run`` would fly (no work, no folder)."""
+    overrides = [*(set_ or []), *([f"seeds={seeds}"] if seeds is not None else [])]
+    if scenario == "planar":
+        return load_config(PlanarConfig, None, overrides)
+    if scenario is None or scenario in NAV_SCENARIOS:
+        return nav_builtin(scenario or "indoor_vision", overrides)
+    path = Path(scenario)
+    if not path.exists():
+        raise ConfigError(
+            f"{scenario!r} is neither a built-in scenario ({', '.join([*NAV_SCENARIOS, 'planar'])}) nor a file"
+        )
+    return load_config(NavScenario, path, overrides)
+
+
+def check_example(params: dict[str, Any]) -> None:
+    """Validate an example's arguments as the command would, without running it."""
+    resolve_run_config(params["scenario"], params["set_"], params["seeds"])
+
+
+#: The examples of ``quadnav run --help`` (each parsed and validated by the tests).
+EXAMPLES = (
+    "quadnav run",
+    "quadnav run --seeds 20",
+    "quadnav run indoor_vision_pose --set vision.delay_s=0.1 --set plan.square_m=4",
+    "quadnav run outdoor_gps --set gps.outages_s=[[20,25]]",
+    "quadnav run planar --seeds 20",
+)
 
 
 @handle_errors
 def run_command(
     scenario: Annotated[
         str | None,
-        typer.Argument(help="built-in scenario (see the list below) or a YAML file"),
+        typer.Argument(help="a built-in scenario (listed above) or a YAML file"),
     ] = None,
     set_: SetOpt = None,
     seeds: SeedsOpt = None,
     out: OutOpt = Path("runs"),
     jobs: JobsOpt = None,
 ) -> None:
-    """Run the main job. With no arguments: the indoor vision flight of thesis 000.
-
-    A quadrotor aligns on the ground, takes off to 1.5 m, holds, flies a 2 m square, holds and
-    lands, flown by a cascaded PID on the navigation EKF's output predictor; a delayed
-    external pose (30 Hz, 250 ms, 1 cm) drops out twice for 2 s. SCENARIO is a built-in name
-    (indoor_vision, indoor_vision_truth_control, outdoor_gps, planar) or a YAML file.
-
-    Examples:
-
-      quadnav run
-
-      quadnav run --seeds 20
-
-      quadnav run --set vision.delay_s=0.1 --set plan.square_m=4
-
-      quadnav run planar --seeds 20
-    """
-    if scenario == "planar":
-        run_planar_from_cli(None, set_, seeds, out, jobs)
+    config = resolve_run_config(scenario, set_, seeds)
+    if isinstance(config, PlanarConfig):
+        run_planar_config(config, out, jobs)
         return
-    overrides = list(set_ or [])
-    if seeds is not None:
-        overrides.append(f"seeds={seeds}")
-    if scenario is None or scenario in BUILTIN_RUNS:
-        name = scenario or "indoor_vision"
-        config = load_config(NavScenario, None, [f"name={name}", *BUILTIN_RUNS[name], *overrides])
-    else:
-        path = Path(scenario)
-        if not path.exists():
-            raise ConfigError(
-                f"{scenario!r} is neither a built-in scenario ({', '.join([*BUILTIN_RUNS, 'planar'])}) nor a file"
-            )
-        config = load_config(NavScenario, path, overrides)
     with progress_bar(config.name, line_step=0) as update:
         study = run_nav_study(
             config, runs_root=out, progress=update, jobs=jobs or os.cpu_count() or 1
@@ -137,3 +101,23 @@ def run_command(
         table.add_row(f"{src}: innovations beyond the 95 % gate", f"{frac:.1%}")
     console.print(table)
     console.print(str(study.run_dir), soft_wrap=True, highlight=False)
+
+
+run_command.__doc__ = command_help(
+    "Run the main job. With no arguments: thesis 000's indoor flight over printed markers.",
+    "A quadrotor aligns on the ground, takes off to 1.5 m, holds, flies a 2 m square, holds and "
+    "lands, flown by a cascaded PID on the navigation EKF's output predictor. The default "
+    "renders a downward camera's images of a 6x6 marker field, detects the markers and solves "
+    "the pose (30 Hz, 250 ms late, two 2 s dropouts). SCENARIO is a built-in name or a YAML "
+    "file; --set overrides any field of it.",
+    lists=[
+        (
+            "Built-in scenarios",
+            {
+                **{name: e.description for name, e in NAV_SCENARIOS.items()},
+                "planar": "thesis 000's planar delayed-GPS study (as quadnav planar)",
+            },
+        )
+    ],
+    examples=EXAMPLES,
+)

@@ -9,17 +9,33 @@ from typing import Annotated, Any
 import typer
 from rich.table import Table
 
-from quadnav.cli.common import check_range, console, err_console, handle_errors
+from quadnav.cli.common import check_range, command_help, console, err_console, handle_errors
 from quadnav.errors import ConfigError
 from quadnav.eval.flight import write_flight_run
 from quadnav.eval.na import fmt_metric
-from quadnav.experiments.flight import BUILTIN, FlightConfig, builtin_config, run_flight
+from quadnav.experiments.flight import (
+    BUILTIN,
+    BUILTIN_DESCRIPTIONS,
+    FlightConfig,
+    builtin_config,
+    run_flight,
+)
 from quadnav.io.config import load_config
-from quadnav.io.mavlink import SIGNING_KEY_ENV, read_signing_key
+from quadnav.io.mavlink import SIGNING_KEY_ENV, check_bind, read_signing_key
 
-__all__ = ["sim_command"]
+__all__ = ["EXAMPLES", "check_example", "sim_command"]
 
 MAX_SITL_S = 86_400.0  # --duration: a day at most
+
+
+#: The examples of ``quadnav sim --help`` (each parsed and validated by the tests).
+EXAMPLES = (
+    "quadnav sim --list",
+    "quadnav sim thesis002_nested_tracking",
+    "quadnav sim circle_gusts --set wind.gust_sigma_m_s=3",
+    "quadnav sim thesis003_obstacle --set duration_s=40",
+    "quadnav sim --mavlink udpin:127.0.0.1:14540 --signing-key-file key.hex --duration 60",
+)
 
 
 @handle_errors
@@ -70,31 +86,29 @@ def sim_command(
         ),
     ] = None,
 ) -> None:
-    """Fly a closed-loop scenario on the true state: thesis 002's PD and nested-saturation
-    simulations, the rigid-body circle with the cascaded PID, thesis 003's take-off and
-    obstacle experiments.
-
-    Examples:
-
-      quadnav sim --list
-
-      quadnav sim thesis002_nested_tracking
-
-      quadnav sim circle_gusts --set wind.gust_sigma_m_s=3
-    """
     link_options = (mavlink, signing_key, signing_key_file, duration)
     if allow_remote or any(v is not None for v in link_options):
         _run_sitl(mavlink, signing_key, signing_key_file, duration, allow_remote=allow_remote)
         return
     if list_:
         for name in BUILTIN:
-            console.print(name, highlight=False)
+            console.print(f"{name}: {BUILTIN_DESCRIPTIONS[name]}", highlight=False, soft_wrap=True)
         return
     config = _load_scenario(scenario, list(set_ or []))
     with console.status(f"flying {config.name} ({config.duration_s:g} s)..."):
         run = run_flight(config)
         run_dir, m = write_flight_run(run, runs_root=out)
     _print_flight(config.name, m, run_dir)
+
+
+def check_example(params: dict[str, Any]) -> None:
+    """Validate an example's arguments as the command would, without flying or binding."""
+    if params["mavlink"] is not None:
+        check_bind(params["mavlink"], allow_remote=params["allow_remote"])
+        if params["duration"] is not None:
+            check_range(params["duration"], "--duration", 0.0, MAX_SITL_S, "seconds", low_open=True)
+    elif not params["list_"]:
+        _load_scenario(params["scenario"], list(params["set_"] or []))
 
 
 def _load_scenario(scenario: str, overrides: list[str]) -> FlightConfig:
@@ -167,3 +181,13 @@ def _run_sitl(url: str | None, key_hex: str | None, key_file: Path | None, durat
     console.print(f"sent {sum(st.sent.values())}, received {sum(st.received.values())}, refused unsigned "
                   f"{st.refused_unsigned}, bad packets {st.bad_packets}, vision estimates fused from the link "
                   f"{vehicle.est.stats('mavlink_vision').fused}", highlight=False)  # fmt: skip
+
+
+sim_command.__doc__ = command_help(
+    "Fly a closed-loop scenario on the true state, or be a MAVLink vehicle (--mavlink).",
+    "Thesis 002's PD and nested-saturation simulations, the rigid-body circle with the cascaded "
+    "PID, thesis 003's take-off and obstacle experiments. With --mavlink, the simulated vehicle "
+    "with its EKF speaks MAVLink in real time (loopback unless --allow-remote).",
+    lists=[("Built-in scenarios", BUILTIN_DESCRIPTIONS)],
+    examples=EXAMPLES,
+)

@@ -36,7 +36,14 @@ from quadnav.sim.rigid_body import RigidBodyQuadrotor, Wind
 from quadnav.sim.world import Box, LaserScanner, World
 from quadnav.vehicle import RigidBodyParams
 
-__all__ = ["BUILTIN", "FlightConfig", "FlightRun", "builtin_config", "run_flight"]
+__all__ = [
+    "BUILTIN",
+    "BUILTIN_DESCRIPTIONS",
+    "FlightConfig",
+    "FlightRun",
+    "builtin_config",
+    "run_flight",
+]
 
 FloatArray = NDArray[np.float64]
 Vec3 = tuple[float, float, float]
@@ -175,6 +182,20 @@ BUILTIN: dict[str, dict[str, Any]] = {
         "world": [{"name": "house", "min_m": (3.5, -2.0, 0.0), "max_m": (5.5, 2.0, 3.0)}],
         "duration_s": 30.0,
     },
+}
+
+#: What each built-in scenario shows (``quadnav sim --list`` and ``--help``).
+BUILTIN_DESCRIPTIONS: dict[str, str] = {
+    "thesis002_pd_stabilization": "thesis 002's PD laws on its Euler-Lagrange model: settle on "
+    "(0, 0, 5) from (1, 2, 2, psi 0.5)",
+    "thesis002_nested_stabilization": "the same with thesis 002's nested saturations",
+    "thesis002_pd_tracking": "thesis 002's PD laws on its 20 m sigmoids",
+    "thesis002_nested_tracking": "nested saturations on the sigmoids",
+    "circle": "rigid body with the cascaded PID, 2 m radius at 1 m/s",
+    "circle_gusts": "the circle in 2 m/s gusts",
+    "thesis003_takeoff": "thesis 003's take-off P controller, then forward to (5, 0, 5)",
+    "thesis003_obstacle": "thesis 003's PID waypoint follower with a laser scan: sees the house, "
+    "retreats",
 }
 
 

@@ -1,0 +1,116 @@
+"""The built-in scenarios of ``quadnav run``: a name, what it shows, and its overrides on the
+:class:`~quadnav.experiments.nav.NavScenario` defaults. The command's help and the README
+table are made from this registry, so neither can drift from it."""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from dataclasses import dataclass
+
+from quadnav.errors import ExperimentError
+from quadnav.experiments.nav import NavScenario
+from quadnav.io.config import load_config
+
+__all__ = ["NAV_SCENARIOS", "NavBuiltin", "nav_builtin", "nav_builtin_overrides"]
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class NavBuiltin:
+    name: str
+    description: str
+    overrides: tuple[str, ...] = ()
+
+
+_OUTDOOR = (
+    "vision.enabled=false",
+    "gps.enabled=true",
+    "mag.enabled=true",
+    "plan.height_m=5",
+    "plan.square_m=20",
+    "plan.speed_m_s=3",
+    "plan.accel_m_s2=2",
+    "plan.hold_s=3",
+    "plan.yaw=along_track",
+)
+
+_ENTRIES = (
+    NavBuiltin(
+        name="indoor_vision",
+        description="the default: thesis 000's indoor flight over a 6x6 marker field, seen by the "
+        "downward camera (rendered, detected, posed; 30 Hz, 250 ms late), two 2 s dropouts",
+    ),
+    NavBuiltin(
+        name="indoor_vision_pose",
+        description="the same flight on the pose shortcut (the true pose + 1 cm noise, no "
+        "images): 3x faster",
+        overrides=("vision.source=pose",),
+    ),
+    NavBuiltin(
+        name="indoor_vision_truth_control",
+        description="the default flown on the truth: the estimator's share of the hover error",
+        overrides=("closed_loop=false",),
+    ),
+    NavBuiltin(
+        name="indoor_vision_rotated",
+        description="PX4's rotated external vision (thesis 000 eqs 3.7-3.8): the marker frame "
+        "turned 30 degrees and offset, the heading from the magnetometer",
+        overrides=(
+            "vision.source=pose",
+            "mag.enabled=true",
+            "estimator.vision_frame=rotate",
+            "vision.frame_yaw_deg=30",
+            "vision.frame_offset_m=[1.5,-0.7,0.0]",
+        ),
+    ),
+    NavBuiltin(
+        name="indoor_vision_range",
+        description="a downward range finder (20 Hz, 2 cm) next to the barometer",
+        overrides=("vision.source=pose", "range.enabled=true"),
+    ),
+    NavBuiltin(
+        name="outdoor_gps",
+        description="a 20 m square at 3 m/s and 5 m on GPS (5 Hz, 200 ms late, 0.5 m), "
+        "barometer and magnetometer, facing the direction of travel",
+        overrides=_OUTDOOR,
+    ),
+    NavBuiltin(
+        name="fault_gps_glitch",
+        description="outdoor_gps with a 20 m GNSS jump from 25 to 28 s: each glitched fix refused "
+        "by the gate and counted",
+        overrides=(*_OUTDOOR, "faults.gps_glitch=[[25,28,20,0]]"),
+    ),
+    NavBuiltin(
+        name="fault_vision_jump",
+        description="the vision frame jumps 1.1 m and 20 degrees with its reset counter bumped: "
+        "the filter re-anchors it, the output does not jump",
+        overrides=("vision.source=pose", "vision.jumps=[[12.5,20,1.0,-0.5,0.0]]"),
+    ),
+    NavBuiltin(
+        name="fault_bad_samples",
+        description="IMU samples with NaN and repeated, vision samples later than the buffer: "
+        "each refused and counted",
+        overrides=(
+            "vision.source=pose",
+            "faults.imu_nan_s=[3,6.5,12]",
+            "faults.imu_repeat_s=[4,8]",
+            "faults.vision_late_s=[[5,0.5],[13,1.0]]",
+        ),
+    ),
+)
+
+#: Every built-in scenario of ``quadnav run`` by name (``planar`` is the planar study).
+NAV_SCENARIOS: dict[str, NavBuiltin] = {e.name: e for e in _ENTRIES}
+
+
+def nav_builtin_overrides(name: str) -> list[str]:
+    """The name and overrides of a built-in scenario, for :func:`~quadnav.io.load_config`."""
+    if name not in NAV_SCENARIOS:
+        raise ExperimentError(
+            f"no built-in scenario {name!r}; choose from {', '.join(NAV_SCENARIOS)}"
+        )
+    return [f"name={name}", *NAV_SCENARIOS[name].overrides]
+
+
+def nav_builtin(name: str, extra: Iterable[str] = ()) -> NavScenario:
+    """A built-in scenario validated, with ``extra`` overrides on top."""
+    return load_config(NavScenario, None, [*nav_builtin_overrides(name), *extra])
