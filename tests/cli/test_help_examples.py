@@ -20,6 +20,7 @@ COMMANDS = {
     ("run",): "quadnav.cli.run",
     ("planar",): "quadnav.cli.planar",
     ("sim",): "quadnav.cli.sim",
+    ("link", "serial"): "quadnav.cli.link",
 }
 
 

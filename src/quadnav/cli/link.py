@@ -5,16 +5,16 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 
-from quadnav.cli.common import check_range, console, handle_errors, progress_bar
+from quadnav.cli.common import check_range, command_help, console, handle_errors, progress_bar
 from quadnav.errors import IoError
 from quadnav.io.serial_frame import encode
 from quadnav.io.trajectory_io import read_trajectory
 
-__all__ = ["link_app"]
+__all__ = ["EXAMPLES", "check_example", "link_app"]
 
 MIN_BAUD, MAX_BAUD = 50, 4_000_000  # what Linux UARTs take (B50 to B4000000)
 MAX_RATE_HZ = 1000.0  # a 115200-baud link carries about 870 frames per second
@@ -29,6 +29,26 @@ def open_serial(port: str, baud: int) -> object:
         return serial.Serial(port, baudrate=baud, bytesize=8, parity="N", stopbits=1, timeout=0.1)
     except (serial.SerialException, OSError, ValueError) as exc:
         raise IoError(f"serial port {port}: {exc}") from None
+
+
+def _check_options(baud: int, rate_hz: float) -> None:
+    check_range(baud, "--baud", MIN_BAUD, MAX_BAUD, "bits per second")
+    check_range(
+        rate_hz, "--rate", 0.0, MAX_RATE_HZ, "frames per second (0: as fast as the link takes)"
+    )
+
+
+def check_example(params: dict[str, Any]) -> None:
+    """Validate an example's options as the command would, without opening the port."""
+    _check_options(params["baud"], params["rate_hz"])
+
+
+#: The examples of ``quadnav link serial --help`` (each parsed and validated by the tests).
+EXAMPLES = (
+    "quadnav link serial /dev/ttyTHS1 --from estimate.tum",
+    "quadnav link serial /dev/ttyACM0 --from runs/flight/output.tum --baud 57600 --rate 20",
+    "quadnav link serial /dev/ttyUSB0 --from slam_poses.csv --rate 0",
+)
 
 
 @link_app.command("serial")
@@ -52,11 +72,7 @@ def serial_command(
         ),
     ] = 10.0,
 ) -> None:
-    """Send each pose of a trajectory as a serial frame, paced at --rate (the thesis used 10 Hz)."""
-    check_range(baud, "--baud", MIN_BAUD, MAX_BAUD, "bits per second")
-    check_range(
-        rate_hz, "--rate", 0.0, MAX_RATE_HZ, "frames per second (0: as fast as the link takes)"
-    )
+    _check_options(baud, rate_hz)
     traj = read_trajectory(source)
     link = open_serial(port, baud)
     period = 1.0 / rate_hz if rate_hz > 0 else 0.0
@@ -74,3 +90,10 @@ def serial_command(
     link.flush()  # type: ignore[attr-defined]
     link.close()  # type: ignore[attr-defined]
     console.print(f"{sent} frames sent to {port} at {baud} baud", highlight=False)
+
+
+serial_command.__doc__ = command_help(
+    "Send each pose of a trajectory as thesis 002's X<cm>Y<cm>Z<cm>F serial frame, paced at "
+    "--rate (the thesis used 10 Hz), 8N1.",
+    examples=EXAMPLES,
+)
