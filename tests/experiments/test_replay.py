@@ -118,3 +118,34 @@ def test_visual_odometry_and_range_topics_are_fused_when_present() -> None:
     r = replay(dataclasses.replace(s, vision=vision, range=rng_d), config_from_px4(s.params))
     assert r.counts["vision"]["fused"] > 0.8 * r.counts["vision"]["received"] > 200
     assert r.counts["range"]["received"] > 200
+
+
+def test_a_gate_in_sigma_holds_at_any_width() -> None:
+    """PX4 gates in standard deviations; 8.5 sigma and more used to round to probability 1."""
+    from quadnav.estimation.nav_ekf import NavEkf, NavEkfConfig
+    from quadnav.messages import HeightSample
+
+    for gate in (3.0, 8.5, 40.0):
+        ekf = NavEkf(NavEkfConfig(gate_sigma=gate), p0=np.zeros(3), v0=np.zeros(3),
+                     q0_xyzw=np.array([0.0, 0.0, 0.0, 1.0]), P0=np.eye(15) * 0.09)  # fmt: skip
+        s = np.sqrt(0.09 + 0.16)  # innovation sigma: state 0.3 m, measurement 0.4 m
+        inside = ekf.fuse(HeightSample(t_ns=1, z_m=0.98 * gate * s, sigma_m=0.4))
+        ekf = NavEkf(NavEkfConfig(gate_sigma=gate), p0=np.zeros(3), v0=np.zeros(3),
+                     q0_xyzw=np.array([0.0, 0.0, 0.0, 1.0]), P0=np.eye(15) * 0.09)  # fmt: skip
+        outside = ekf.fuse(HeightSample(t_ns=1, z_m=1.02 * gate * s, sigma_m=0.4))
+        assert inside.accepted and not outside.accepted, gate
+
+
+@needs_data
+def test_a_log_with_a_wide_gps_gate_replays(tmp_path: Path) -> None:
+    s = read_ulog_sensors(SITL)
+    cfg = config_from_px4({**s.params, "EKF2_GPS_P_GATE": 8.5})
+    assert cfg.gate_sigma == 8.5
+    r = replay(s, cfg)
+    assert r.counts["gps"]["fused"] > 0 and np.isfinite(r.p).all()
+    # a bad gate names the setting the user can change, and the CLI says it in one line
+    res = CliRunner().invoke(
+        app, ["replay", str(SITL), "--set", "gate_sigma=0", "--out", str(tmp_path)]
+    )
+    assert res.exit_code == 2 and "gate_sigma" in res.output and "Traceback" not in res.output
+    assert "gate_probability" not in res.output and "not permitted" not in res.output

@@ -8,12 +8,11 @@ from typing import Annotated, Any
 
 import numpy as np
 import typer
-from pydantic import ValidationError
 from rich.table import Table
 
 from quadnav.cli.common import console, err_console, handle_errors, progress_bar
 from quadnav.cli.planar import OutOpt, SetOpt
-from quadnav.errors import ConfigError, IoError
+from quadnav.errors import IoError
 from quadnav.eval.associate import associate
 from quadnav.eval.metrics import ape
 from quadnav.eval.plots import plot_xyz
@@ -47,12 +46,7 @@ def replay_log(log: Path, overrides: list[str], out: Path, progress: Any = None)
     values: dict[str, Any] = {}
     for o in overrides:
         apply_override(values, o)
-    try:
-        cfg = config_from_px4(sensors.params, values)
-    except ValidationError as exc:
-        raise ConfigError(
-            f"invalid replay setting: {exc.errors()[0]['loc'][0]}: {exc.errors()[0]['msg']}"
-        ) from None
+    cfg = config_from_px4(sensors.params, values)
     res = replay(sensors, cfg, progress=progress)
     ours = Trajectory(t_ns=res.t_ns, p_W_B=res.p, q_W_B_xyzw=res.q_xyzw, name="quadnav")
     run_dir = create_run_folder(out, f"replay_{log.stem}")

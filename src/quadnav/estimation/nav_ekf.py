@@ -51,6 +51,7 @@ __all__ = [
     "NavEkf",
     "NavEkfConfig",
     "NavKinematics",
+    "gate_thresholds",
     "mag_heading_jacobian",
     "nav_jacobians",
     "range_jacobian",
@@ -160,6 +161,25 @@ def nav_jacobians(
     return F, G
 
 
+def gate_thresholds(gate_sigma: float, dims: tuple[int, ...]) -> dict[int, float]:
+    """Chi-square thresholds of a gate of ``gate_sigma`` standard deviations: ``gate_sigma**2``
+    in one dimension (PX4's test ratio ``innov^2 / (gate^2 var)``), and in ``k`` dimensions the
+    threshold with the same tail probability. The probability is carried as a tail (never as
+    ``1 - tail``, which rounds to 1 from 8.5 sigma); where even the tail underflows (beyond
+    about 37 sigma) the tail's asymptote ``x + (k - 1) ln x`` stands in."""
+    x = float(gate_sigma) ** 2
+    tail = float(chi2.sf(x, 1))
+    out: dict[int, float] = {}
+    for k in dims:
+        if k == 1:
+            out[k] = x
+        elif tail > 0.0:
+            out[k] = float(chi2.isf(tail, k))
+        else:
+            out[k] = x + (k - 1) * math.log(x)
+    return out
+
+
 def yaw_of(R: FloatArray) -> float:
     return math.atan2(R[1, 0], R[0, 0])
 
@@ -216,6 +236,10 @@ class NavEkfConfig:
     accel_bias_rw_m_s2_sqrt_s: float = 1e-3
     gravity_m_s2: float = 9.81
     gate_probability: float = 0.9999
+    # The innovation gate in standard deviations, as PX4 sets it (``EKF2_*_GATE``); when given it
+    # replaces ``gate_probability`` (which cannot express gates of 8.5 sigma and more: the
+    # probability rounds to 1). A k-dimensional test keeps the 1-D gate's tail probability.
+    gate_sigma: float | None = None
     reset_after_s: float = 2.0  # a source rejected this long resets the states it observes
     datum_lla: tuple[float, float, float] | None = (
         None  # GNSS origin of the world frame; None: first fix
@@ -242,7 +266,12 @@ class NavEkfConfig:
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
                 raise EstimationError(f"NavEkfConfig.{name} must be finite and > 0, got {v}")
-        if not 0 < self.gate_probability < 1:
+        if self.gate_sigma is not None:
+            if not (math.isfinite(self.gate_sigma) and self.gate_sigma > 0):
+                raise EstimationError(
+                    f"NavEkfConfig.gate_sigma must be finite and > 0, got {self.gate_sigma}"
+                )
+        elif not 0 < self.gate_probability < 1:
             raise EstimationError("NavEkfConfig.gate_probability must lie in (0, 1)")
         if self.vision_frame not in ("world", "rotate"):
             raise EstimationError(
@@ -285,7 +314,11 @@ class NavEkf:
         self.bg = np.zeros(3) if bg0 is None else np.asarray(bg0, dtype=np.float64).copy()
         self.ba = np.zeros(3) if ba0 is None else np.asarray(ba0, dtype=np.float64).copy()
         self._P = 0.5 * (P0 + P0.T)
-        self._gates = {k: float(chi2.ppf(config.gate_probability, k)) for k in (1, 2, 3, 4, 6)}
+        self._gates = (
+            {k: float(chi2.ppf(config.gate_probability, k)) for k in (1, 2, 3, 4, 6)}
+            if config.gate_sigma is None
+            else gate_thresholds(config.gate_sigma, (1, 2, 3, 4, 6))
+        )
         self._datum = config.datum_lla
         self._g_W = np.array([0.0, 0.0, -config.gravity_m_s2])
         self._jac_dt = math.nan

@@ -19,8 +19,7 @@ from typing import Any
 import numpy as np
 import pymap3d
 from numpy.typing import NDArray
-from pydantic import BaseModel, ConfigDict, Field
-from scipy.stats import chi2
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from quadnav.errors import ExperimentError
 from quadnav.estimation.horizon import DelayedHorizonEstimator, HorizonConfig
@@ -47,7 +46,7 @@ FloatArray = NDArray[np.float64]
 class ReplayConfig(BaseModel):
     """The filter's settings for a replay; :func:`config_from_px4` fills them from EKF2's."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     gyro_noise_rad_s: float = Field(0.015, gt=0)
     accel_noise_m_s2: float = Field(0.35, gt=0)
@@ -65,7 +64,9 @@ class ReplayConfig(BaseModel):
     gps_vel_noise_m_s: float = Field(0.3, gt=0)
     baro_noise_m: float = Field(3.5, gt=0)
     heading_noise_rad: float = Field(0.3, gt=0)
-    gate_sigma: float = Field(5.0, gt=0)
+    gate_sigma: float = Field(
+        5.0, gt=0, description="innovation gate in standard deviations (EKF2_GPS_P_GATE); any > 0"
+    )
     mag_declination_rad: float | None = Field(None, description="None: from the log")
     align_s: float = Field(1.0, gt=0)
     zero_velocity_when_landed: bool = True
@@ -89,7 +90,10 @@ class ReplayConfig(BaseModel):
 def config_from_px4(
     params: dict[str, float], overrides: dict[str, Any] | None = None
 ) -> ReplayConfig:
-    """EKF2 parameters (as logged) onto :class:`ReplayConfig`; ``overrides`` win."""
+    """EKF2 parameters (as logged) onto :class:`ReplayConfig`; ``overrides`` win.
+
+    A value that does not fit is an :class:`ExperimentError` naming the setting the user can
+    change (``--set name=value``) and, when it came from the log, the EKF2 parameter."""
     mapping = {
         "EKF2_GYR_NOISE": ("gyro_noise_rad_s", 1.0), "EKF2_ACC_NOISE": ("accel_noise_m_s2", 1.0),
         "EKF2_GYR_B_NOISE": ("gyro_bias_noise_rad_s2", 1.0), "EKF2_ACC_B_NOISE": ("accel_bias_noise_m_s3", 1.0),
@@ -103,17 +107,39 @@ def config_from_px4(
         "EKF2_RNG_NOISE": ("range_noise_m", 1.0),
     }  # fmt: skip
     values: dict[str, Any] = {}
+    origin: dict[str, str] = {}
     for key, (name, scale) in mapping.items():
         if key in params and math.isfinite(params[key]) and params[key] > 0:
             values[name] = params[key] * scale
+            origin[name] = key
     if "EKF2_REQ_EPH" in params:
         values["gps_max_eph_m"] = params["EKF2_REQ_EPH"]
+        origin["gps_max_eph_m"] = "EKF2_REQ_EPH"
     if "EKF2_GPS_CTRL" in params:  # v1.14 and later: bit 1 is the GNSS altitude
         values["gps_height"] = bool(int(params["EKF2_GPS_CTRL"]) & 2)
     elif "EKF2_HGT_MODE" in params:  # earlier: the GNSS altitude only as the height reference
         values["gps_height"] = int(params["EKF2_HGT_MODE"]) == 1
+    for name in overrides or {}:
+        origin.pop(name, None)
     values.update(overrides or {})
-    return ReplayConfig.model_validate(values)
+    try:
+        return ReplayConfig.model_validate(values)
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        name = str(err["loc"][0]) if err["loc"] else "?"
+        if err["type"] == "extra_forbidden":
+            known = ", ".join(ReplayConfig.model_fields)
+            raise ExperimentError(
+                f"replay setting {name}: unknown (the settings are: {known})"
+            ) from None
+        where = (
+            f"the log's {origin[name]} = {params[origin[name]]:g}"
+            if name in origin
+            else f"got {err.get('input')!r}"
+        )
+        raise ExperimentError(
+            f"replay setting {name} ({where}): {err['msg']}; set it with --set {name}=..."
+        ) from None
 
 
 @dataclass
@@ -297,7 +323,7 @@ def replay(s: UlogSensors, cfg: ReplayConfig, *, progress: Any = None) -> Replay
         gyro_sigma_rad_s=cfg.gyro_noise_rad_s, accel_sigma_m_s2=cfg.accel_noise_m_s2,
         gyro_bias_rw_rad_s_sqrt_s=cfg.gyro_bias_noise_rad_s2 * math.sqrt(dt),
         accel_bias_rw_m_s2_sqrt_s=cfg.accel_bias_noise_m_s3 * math.sqrt(dt),
-        gate_probability=float(chi2.cdf(cfg.gate_sigma**2, 1)), datum_lla=datum, mag_declination_rad=decl,
+        gate_sigma=cfg.gate_sigma, datum_lla=datum, mag_declination_rad=decl,
         reset_after_s=5.0,
     )  # fmt: skip
     sig = np.array(
