@@ -7,12 +7,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 from typer.testing import CliRunner
 
 from quadnav.cli.main import app
 from quadnav.cli.replay import replay_log
 from quadnav.errors import IoError
 from quadnav.experiments.replay import config_from_px4, replay
+from quadnav.geometry.trajectory import Trajectory
 from quadnav.io.ulog_sensors import read_ulog_sensors
 from tests.shared_data import PX4_EVENTS as EVENTS
 from tests.shared_data import PX4_SITL as SITL
@@ -50,8 +52,10 @@ def test_replay_of_a_flight_follows_px4(tmp_path: Path) -> None:
 def test_replay_against_sitl_ground_truth(tmp_path: Path) -> None:
     m = replay_log(SITL, [], tmp_path)
     ours, px4 = m["quadnav_vs_truth"], m["px4_vs_truth"]
-    assert ours["horizontal_rms_m"] <= 1.2 * px4["horizontal_rms_m"] + 0.002
-    assert ours["attitude_rms_deg"] <= 1.2 * px4["attitude_rms_deg"] + 0.05
+    # PX4 never called its horizontal position valid here: ours is judged against truth alone
+    assert m["quadnav_vs_truth_everywhere"]["horizontal_rms_m"] < 0.05
+    assert ours["tilt_rms_deg"] <= 1.2 * px4["tilt_rms_deg"] + 0.05
+    assert ours["yaw_rms_deg"] <= 1.2 * px4["yaw_rms_deg"] + 0.05
     # vertical: 1.9 cm against PX4's 1.0 cm on this 10 s log on the ground (issue 7's 1.2x is
     # not met; see the issue note). Guarded so it cannot get worse unnoticed.
     assert ours["vertical_rms_m"] < 0.03
@@ -149,3 +153,68 @@ def test_a_log_with_a_wide_gps_gate_replays(tmp_path: Path) -> None:
     )
     assert res.exit_code == 2 and "gate_sigma" in res.output and "Traceback" not in res.output
     assert "gate_probability" not in res.output and "not permitted" not in res.output
+
+
+def _still(n: int, yaw_deg: float = 0.0, roll_deg: float = 0.0, dx_m: float = 0.0) -> Trajectory:
+
+    q = Rotation.from_euler("ZX", [yaw_deg, roll_deg], degrees=True).as_quat()
+    p = np.zeros((n, 3))
+    p[:, 0] = dx_m
+    return Trajectory(t_ns=np.arange(n, dtype=np.int64) * 100_000_000 + 2_000_000_000,
+                      p_W_B=p, q_W_B_xyzw=np.tile(q, (n, 1)))  # fmt: skip
+
+
+def test_comparison_only_where_px4_called_its_estimate_valid() -> None:
+    from quadnav.experiments.replay_compare import compare
+    from quadnav.io.ulog_sensors import Px4Validity
+
+    ref = _still(100)
+    est = _still(100, yaw_deg=3.0, dx_m=5.0)
+    est.p_W_B[50:, 0] = 0.1  # 5 m off while PX4 said xy invalid, 0.1 m once valid
+    flags_t = np.array([0, 7_000_000_000], dtype=np.int64)  # xy valid from 7 s (5 s into est)
+    v = Px4Validity(t_ns=flags_t, xy_valid=np.array([False, True]), z_valid=np.array([True, True]),
+                    att_t_ns=ref.t_ns[:80])  # attitude stops 2 s before the end  # fmt: skip
+    c = compare(ref, est, t0_ns=1_000_000_000, validity=v)
+    assert c.horizontal_rms_m == pytest.approx(0.1) and c.n_horizontal == 50
+    assert c.horizontal_spans_s == ((6.0, 10.9),)  # seconds from the log's start (1 s)
+    assert ("horizontal", 1.0, 5.9) in c.not_compared_s
+    assert c.n_attitude < 90 and any(q == "attitude" for q, _, _ in c.not_compared_s)
+    # attitude split: a pure yaw difference is yaw, not tilt; a roll is tilt, not yaw
+    assert c.yaw_rms_deg == pytest.approx(3.0, abs=1e-6) and c.tilt_rms_deg < 1e-6
+    r = compare(ref, _still(100, roll_deg=2.0), t0_ns=0, validity=None)
+    assert r.tilt_rms_deg == pytest.approx(2.0, abs=1e-6) and r.yaw_rms_deg < 1e-6
+
+
+@needs_data
+def test_px4_innovations_are_plotted_in_our_convention() -> None:
+    """Our north beside PX4's north (not its east), with PX4's prediction-minus-measurement sign
+    turned into ours: on a real flight the two agree in sign, component by component."""
+    from quadnav.experiments.replay_compare import px4_innovations_as_ours
+
+    s = read_ulog_sensors(EVENTS)
+    r = replay(s, config_from_px4(s.params))
+    pairs = px4_innovations_as_ours(s.px4_innovations, s.px4_validity, s.t_start_ns)
+    assert [p.label.split()[0:2] for p in pairs][:2] == [["GNSS", "east"], ["GNSS", "north"]]
+    for p in pairs:
+        f = r.fusion[p.source]
+        ours_t = (f["t_obs_ns"] - s.t_start_ns) * 1e-9
+        delay = 0.11 if p.source == "gps" else 0.0  # PX4 logs at fusion, we at validity
+        mine = np.interp(p.px4_t_s - delay, ours_t, f["innovation"][:, p.column])
+        assert np.corrcoef(mine, p.px4_m)[0, 1] > 0.3, p.label
+        assert p.px4_t_s.min() >= 0 and p.px4_t_s.max() < s.duration_s + 1
+
+
+@needs_data
+def test_metrics_say_what_was_compared(tmp_path: Path) -> None:
+    import json
+
+    m = replay_log(SITL, [], tmp_path)
+    saved = json.loads((Path(m["run_dir"]) / "metrics.json").read_text())
+    # PX4 never called its horizontal position valid on this log (it never fused GNSS)
+    assert saved["px4_vs_truth"]["horizontal_spans_s"] == []
+    assert saved["px4_vs_truth"]["horizontal_rms_m"] is None
+    assert saved["quadnav_vs_truth"]["vertical_spans_s"][0][0] < 2.0  # s from the log's start
+    assert any(q == "horizontal" for q, _, _ in saved["quadnav_vs_px4"]["not_compared_s"])
+    assert "xy_valid" in saved["compared"]
+    assert "tilt_rms_deg" in saved["ratio_quadnav_to_px4_vs_truth"]
+    assert "Compared spans" in (Path(m["run_dir"]) / "report.html").read_text()

@@ -21,7 +21,7 @@ from numpy.typing import NDArray
 from quadnav.errors import IoError
 from quadnav.geometry.frames import frd_to_flu, ned_to_enu
 
-__all__ = ["UlogSensors", "read_ulog_sensors"]
+__all__ = ["Px4Validity", "UlogSensors", "read_ulog_sensors"]
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -32,6 +32,37 @@ TOPICS = [
     "vehicle_local_position", "vehicle_attitude", "estimator_states", "estimator_innovations",
     "vehicle_local_position_groundtruth", "vehicle_attitude_groundtruth",
 ]  # fmt: skip
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Px4Validity:
+    """When PX4 itself called its estimate valid: ``vehicle_local_position``'s ``xy_valid`` and
+    ``z_valid`` (each held until the next message) and the times of ``vehicle_attitude``."""
+
+    t_ns: IntArray
+    xy_valid: NDArray[np.bool_]
+    z_valid: NDArray[np.bool_]
+    att_t_ns: IntArray
+
+    def at(
+        self, t_ns: IntArray, *, att_max_gap_s: float = 0.5
+    ) -> tuple[NDArray[np.bool_], NDArray[np.bool_], NDArray[np.bool_]]:
+        """(xy valid, z valid, attitude present) at each time: the flags as last logged (false
+        before the first message), an attitude sample within ``att_max_gap_s``."""
+        t = np.asarray(t_ns, dtype=np.int64)
+        j = np.searchsorted(self.t_ns, t, side="right") - 1
+        seen = j >= 0
+        jj = np.clip(j, 0, max(len(self.t_ns) - 1, 0))
+        xy = seen & self.xy_valid[jj] if len(self.t_ns) else np.zeros(len(t), bool)
+        z = seen & self.z_valid[jj] if len(self.t_ns) else np.zeros(len(t), bool)
+        att = np.zeros(len(t), bool)
+        if len(self.att_t_ns):
+            k = np.clip(np.searchsorted(self.att_t_ns, t), 1, len(self.att_t_ns) - 1)
+            if len(self.att_t_ns) == 1:
+                k = np.zeros(len(t), np.int64)
+            gap = np.minimum(np.abs(self.att_t_ns[k] - t), np.abs(self.att_t_ns[k - 1] - t))
+            att = gap <= round(att_max_gap_s * 1e9)
+        return xy, z, att
 
 
 @dataclass
@@ -55,6 +86,8 @@ class UlogSensors:
     earth_field_declination_rad: float | None = None
     params: dict[str, float] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
+    t_start_ns: int = 0  # the log's start (ULog header), the origin of every plot's time axis
+    px4_validity: Px4Validity | None = None
 
 
 def _data(ulog: Any, name: str) -> dict[str, NDArray[Any]] | None:
@@ -72,6 +105,20 @@ def _t_ns(d: dict[str, NDArray[Any]]) -> IntArray:
 
 def _vec(d: dict[str, NDArray[Any]], fmt: str) -> FloatArray:
     return np.column_stack([d[fmt.format(k)] for k in range(3)]).astype(np.float64)
+
+
+def _px4_validity(
+    lp: dict[str, NDArray[Any]] | None, att: dict[str, NDArray[Any]] | None
+) -> Px4Validity | None:
+    if lp is None and att is None:
+        return None
+    empty = np.zeros(0, np.int64)
+    t = np.asarray(lp["timestamp"], np.int64) * 1000 if lp is not None else empty
+    ones = np.ones(len(t), bool)
+    xy = np.asarray(lp["xy_valid"]) > 0 if lp is not None and "xy_valid" in lp else ones
+    z = np.asarray(lp["z_valid"]) > 0 if lp is not None and "z_valid" in lp else ones
+    t_att = np.asarray(att["timestamp"], np.int64) * 1000 if att is not None else empty
+    return Px4Validity(t_ns=t, xy_valid=xy, z_valid=z, att_t_ns=np.sort(t_att))
 
 
 def read_ulog_sensors(path: Path) -> UlogSensors:
@@ -109,7 +156,7 @@ def read_ulog_sensors(path: Path) -> UlogSensors:
             accel = frd_to_flu(_vec(vi, "delta_velocity[{}]") / dt_a[:, None])
         clip = np.asarray(vi.get("delta_velocity_clipping", np.zeros(len(t))), dtype=np.int64)
     out = UlogSensors(path, duration, t, np.asarray(gyro, float), np.asarray(accel, float), clip,
-                      params=params, notes=notes)  # fmt: skip
+                      params=params, notes=notes, t_start_ns=int(ulog.start_timestamp) * 1000)  # fmt: skip
     g = _data(ulog, "vehicle_gps_position") or _data(ulog, "sensor_gps")
     if g is not None:
         lat = g["latitude_deg"] if "latitude_deg" in g else g["lat"] * 1e-7
@@ -174,6 +221,7 @@ def read_ulog_sensors(path: Path) -> UlogSensors:
             "landed": np.asarray(ld["landed"], bool),
         }
     lp = _data(ulog, "vehicle_local_position")
+    out.px4_validity = _px4_validity(lp, _data(ulog, "vehicle_attitude"))
     if lp is not None and "ref_lat" in lp:
         ok = (
             np.flatnonzero(np.asarray(lp["xy_valid"]) > 0)
