@@ -15,11 +15,11 @@ from quadnav.cli.common import console, err_console, handle_errors, progress_bar
 from quadnav.cli.planar import OutOpt, SetOpt
 from quadnav.errors import IoError
 from quadnav.eval.report import ReportSection, ReportTable, write_report
-from quadnav.experiments.replay import config_from_px4, replay
+from quadnav.experiments.replay import CHECK_NAMES, config_from_px4, replay
 from quadnav.experiments.replay_compare import Comparison, compare, px4_innovations_as_ours
 from quadnav.geometry.trajectory import Trajectory
 from quadnav.io.config import apply_override, dump_config
-from quadnav.io.run_folder import create_run_folder, write_json
+from quadnav.io.run_folder import create_run_folder, write_csv, write_json
 from quadnav.io.trajectory_io import write_tum
 from quadnav.io.ulog import read_ulog_trajectory
 from quadnav.io.ulog_sensors import UlogSensors, read_ulog_sensors
@@ -38,6 +38,11 @@ def replay_log(log: Path, overrides: list[str], out: Path, progress: Any = None)
     run_dir = create_run_folder(out, f"replay_{log.stem}")
     (run_dir / "config.yaml").write_text(dump_config(cfg))
     write_tum(run_dir / "quadnav.tum", ours)
+    if res.gnss_checks is not None:  # why each fix was refused (1: that check failed)
+        g = res.gnss_checks
+        cols = {"t_ns": g.t_ns, "used": g.usable.astype(np.int64)}
+        cols.update({name: (g.failed >> b) & 1 for b, name in enumerate(CHECK_NAMES)})
+        write_csv(run_dir / "gnss_checks.csv", cols)
     trajs = {"quadnav": ours}
     notes = list(res.notes)
     try:

@@ -22,11 +22,12 @@ from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from quadnav.errors import ExperimentError
+from quadnav.estimation.gnss_checks import CHECK_NAMES, GnssCheckConfig, GnssChecks, run_gnss_checks
 from quadnav.estimation.horizon import DelayedHorizonEstimator, HorizonConfig
 from quadnav.estimation.nav_ekf import NavEkf, NavEkfConfig
 from quadnav.experiments.nav import ground_alignment
 from quadnav.geometry.rotations import quat_xyzw_from_matrix
-from quadnav.io.ulog_sensors import UlogSensors
+from quadnav.io.ulog_sensors import UlogSensors, held_flags
 from quadnav.messages import (
     GpsSample,
     HeightSample,
@@ -38,7 +39,14 @@ from quadnav.messages import (
     VelocitySample,
 )
 
-__all__ = ["ReplayConfig", "ReplayResult", "config_from_px4", "replay"]
+__all__ = [
+    "CHECK_NAMES",
+    "ReplayConfig",
+    "ReplayResult",
+    "config_from_px4",
+    "gnss_checks_for",
+    "replay",
+]
 
 FloatArray = NDArray[np.float64]
 
@@ -77,6 +85,18 @@ class ReplayConfig(BaseModel):
     gps_max_eph_m: float = Field(
         3.0, gt=0, description="fixes less precise than this are not used (EKF2_REQ_EPH)"
     )
+    gps_check_mask: int = Field(
+        245, ge=0, description="PX4's GNSS checks to apply (EKF2_GPS_CHECK bits)"
+    )
+    gps_min_sats: int = Field(6, ge=0, description="EKF2_REQ_NSATS")
+    gps_max_pdop: float = Field(2.5, gt=0, description="EKF2_REQ_PDOP")
+    gps_max_epv_m: float = Field(5.0, gt=0, description="EKF2_REQ_EPV")
+    gps_max_sacc_m_s: float = Field(0.5, gt=0, description="EKF2_REQ_SACC")
+    gps_max_hdrift_m_s: float = Field(0.1, gt=0, description="EKF2_REQ_HDRIFT (landed, at rest)")
+    gps_max_vdrift_m_s: float = Field(0.2, gt=0, description="EKF2_REQ_VDRIFT (landed, at rest)")
+    gps_pass_s: float = Field(
+        10.0, ge=0, description="the checks pass this long before GNSS is used (EKF2_REQ_GPS_H)"
+    )
     gps_height: bool = Field(
         True,
         description="fuse the GNSS altitude (PX4: EKF2_GPS_CTRL bit 1, or EKF2_HGT_MODE=1 before v1.14)",
@@ -112,9 +132,18 @@ def config_from_px4(
         if key in params and math.isfinite(params[key]) and params[key] > 0:
             values[name] = params[key] * scale
             origin[name] = key
-    if "EKF2_REQ_EPH" in params:
-        values["gps_max_eph_m"] = params["EKF2_REQ_EPH"]
-        origin["gps_max_eph_m"] = "EKF2_REQ_EPH"
+    direct = {
+        "EKF2_REQ_EPH": "gps_max_eph_m", "EKF2_GPS_CHECK": "gps_check_mask", "EKF2_REQ_NSATS": "gps_min_sats",
+        "EKF2_REQ_PDOP": "gps_max_pdop", "EKF2_REQ_EPV": "gps_max_epv_m", "EKF2_REQ_SACC": "gps_max_sacc_m_s",
+        "EKF2_REQ_HDRIFT": "gps_max_hdrift_m_s", "EKF2_REQ_VDRIFT": "gps_max_vdrift_m_s", "EKF2_REQ_GPS_H": "gps_pass_s",
+    }  # fmt: skip
+    for key, name in direct.items():
+        if key in params:
+            v = params[key]
+            values[name] = (
+                int(v) if name in ("gps_check_mask", "gps_min_sats") and math.isfinite(v) else v
+            )
+            origin[name] = key
     if "EKF2_GPS_CTRL" in params:  # v1.14 and later: bit 1 is the GNSS altitude
         values["gps_height"] = bool(int(params["EKF2_GPS_CTRL"]) & 2)
     elif "EKF2_HGT_MODE" in params:  # earlier: the GNSS altitude only as the height reference
@@ -157,19 +186,20 @@ class ReplayResult:
     events: list[tuple[int, str]]
     notes: list[str] = field(default_factory=list)
     replay_wall_s: float = 0.0
+    gnss_checks: GnssChecks | None = None
 
 
 def _stream(
-    s: UlogSensors, cfg: ReplayConfig, datum_lla: tuple[float, float, float], baro_ref_m: float
+    s: UlogSensors, cfg: ReplayConfig, gnss: GnssChecks | None, baro_ref_m: float
 ) -> list[tuple[int, int, Sample]]:
-    """(arrival ns, order, sample) for every measurement, with times of validity."""
+    """(arrival ns, order, sample) for every measurement, with times of validity; GNSS fixes
+    only where PX4's quality checks let them through."""
     out: list[tuple[int, int, Sample]] = []
     seq = 0
     g = s.gps
-    if g:
+    if g and gnss is not None:
         d_ns = round(cfg.gps_delay_s * 1e9)
-        usable = (g["fix"] >= cfg.min_gps_fix) & (g["eph"] <= cfg.gps_max_eph_m)
-        for k in np.flatnonzero(usable).tolist():
+        for k in np.flatnonzero(gnss.usable).tolist():
             t = int(g["t_ns"][k])
             sh = max(float(g["eph"][k]), cfg.gps_pos_noise_m)
             # without GNSS height fusion the altitude is given no weight
@@ -259,57 +289,81 @@ def _downsample(t: NDArray[np.int64], gyro: FloatArray, accel: FloatArray, n: in
     return tt[:, -1].copy(), g, a
 
 
-def replay(s: UlogSensors, cfg: ReplayConfig, *, progress: Any = None) -> ReplayResult:
-    notes = list(s.notes)
+def _landed(s: UlogSensors, t_ns: NDArray[np.int64]) -> NDArray[np.bool_]:
+    """PX4's land detector, held between its messages, at each time."""
+    return held_flags(
+        s.landed.get("t_ns", np.zeros(0, np.int64)), s.landed.get("landed", np.zeros(0, bool)), t_ns
+    )
+
+
+def gnss_checks_for(s: UlogSensors, cfg: ReplayConfig) -> GnssChecks | None:
+    """PX4's GNSS quality checks over the log's fixes (None without GNSS)."""
+    if not s.gps:
+        return None
+    c = GnssCheckConfig(mask=cfg.gps_check_mask, min_fix=cfg.min_gps_fix, min_sats=cfg.gps_min_sats,
+                        max_pdop=cfg.gps_max_pdop, max_eph_m=cfg.gps_max_eph_m, max_epv_m=cfg.gps_max_epv_m,
+                        max_sacc_m_s=cfg.gps_max_sacc_m_s, max_hdrift_m_s=cfg.gps_max_hdrift_m_s,
+                        max_vdrift_m_s=cfg.gps_max_vdrift_m_s, pass_s=cfg.gps_pass_s)  # fmt: skip
+    return run_gnss_checks(s.gps, _landed(s, s.gps["t_ns"]), c)
+
+
+def _gnss_note(g: GnssChecks, t0_ns: int) -> str:
+    refused = int((~g.usable).sum())
+    why = ", ".join(
+        f"{k} {v}" for k, v in sorted(g.refused_counts().items(), key=lambda kv: -kv[1])
+    )
+    when = (f"the receiver passed PX4's checks at {(g.t_qualified_ns - t0_ns) * 1e-9:.2f} s"
+            if g.t_qualified_ns is not None else "the receiver never passed PX4's checks: GNSS not used")  # fmt: skip
+    return f"GNSS: {refused} of {len(g.usable)} fixes refused by PX4's quality checks ({why or 'none'}); {when}"
+
+
+def _prepare_imu(s: UlogSensors, cfg: ReplayConfig, notes: list[str]) -> tuple[NDArray[np.int64], FloatArray, FloatArray, int]:  # fmt: skip
     n_imu = len(s.imu_t_ns)
     if n_imu < 10:
         raise ExperimentError(f"{s.path}: only {n_imu} IMU samples")
-    t_wall0 = time.perf_counter()
-    t_imu, gyro_all, accel_all = _downsample(
-        s.imu_t_ns, s.gyro_rad_s, s.accel_m_s2, cfg.imu_downsample
-    )
-    n_imu = len(t_imu)
+    t_imu, gyro, accel = _downsample(s.imu_t_ns, s.gyro_rad_s, s.accel_m_s2, cfg.imu_downsample)
     period_ns = int(np.median(np.diff(t_imu)))
-    jumps = np.flatnonzero(np.diff(t_imu) > 20 * period_ns)
-    for k in jumps.tolist():
+    for k in np.flatnonzero(np.diff(t_imu) > 20 * period_ns).tolist():
         notes.append(
             f"IMU gap of {(t_imu[k + 1] - t_imu[k]) * 1e-9:.3f} s at {t_imu[k] * 1e-9:.3f} s: predicted across it"
         )
     back = int(np.sum(np.diff(t_imu) <= 0))
     if back:
         notes.append(f"{back} IMU timestamps not increasing: rejected and counted")
-    # Datum: PX4's local origin when the log has one (so the frames match), else the first fix.
-    datum = s.local_origin_lla
-    if datum is None and s.gps:
-        ok = np.flatnonzero(s.gps["fix"] >= cfg.min_gps_fix)
-        if len(ok):
-            k = int(ok[0])
-            datum = (float(s.gps["lat"][k]), float(s.gps["lon"][k]), float(s.gps["alt"][k]))
-            notes.append("no PX4 local origin in the log: the first GNSS fix is the datum")
-    if datum is None:
-        datum = (0.0, 0.0, 0.0)
-        notes.append("no GNSS: the world origin is where the log starts")
-    decl = (
-        cfg.mag_declination_rad
-        if cfg.mag_declination_rad is not None
-        else (s.earth_field_declination_rad or 0.0)
-    )
-    # Alignment on the first align_s of IMU and magnetometer data.
-    t0 = int(t_imu[0])
-    t_align = t0 + round(cfg.align_s * 1e9)
-    align_idx = np.flatnonzero(t_imu <= t_align)
-    align_imu = [ImuSample(t_ns=int(t_imu[i]), gyro_rad_s=gyro_all[i], accel_m_s2=accel_all[i]) for i in align_idx.tolist()
-                 if np.isfinite(gyro_all[i]).all() and np.isfinite(accel_all[i]).all()]  # fmt: skip
+    return t_imu, gyro, accel, period_ns
+
+
+def _datum(s: UlogSensors, gnss: GnssChecks | None, notes: list[str]) -> tuple[float, float, float]:
+    """PX4's local origin when the log has one (so the frames match), else the first fix
+    PX4's checks let through."""
+    if s.local_origin_lla is not None:
+        return s.local_origin_lla
+    if gnss is not None and gnss.usable.any():
+        k = int(np.flatnonzero(gnss.usable)[0])
+        notes.append(
+            "no PX4 local origin in the log: the first GNSS fix that passed the checks is the datum"
+        )
+        return (float(s.gps["lat"][k]), float(s.gps["lon"][k]), float(s.gps["alt"][k]))
+    notes.append("no usable GNSS: the world origin is where the log starts")
+    return (0.0, 0.0, 0.0)
+
+
+def _align(s: UlogSensors, cfg: ReplayConfig, imu: tuple[NDArray[np.int64], FloatArray, FloatArray], t_align: int,
+           datum: tuple[float, float, float], decl: float, gnss: GnssChecks | None) -> tuple[Any, FloatArray, bool]:  # fmt: skip
+    """Attitude and position from the first ``align_s`` of IMU and magnetometer data (and a
+    usable fix near then)."""
+    t_imu, gyro, accel = imu
+    idx = np.flatnonzero(t_imu <= t_align).tolist()
+    align_imu = [ImuSample(t_ns=int(t_imu[i]), gyro_rad_s=gyro[i], accel_m_s2=accel[i]) for i in idx
+                 if np.isfinite(gyro[i]).all() and np.isfinite(accel[i]).all()]  # fmt: skip
     align_mag = []
     if s.mag:
         sel = (s.mag["t_ns"] <= t_align) & np.isfinite(s.mag["field_B"]).all(axis=1)
         align_mag = [MagSample(t_ns=int(t), field_B=f, sigma_heading_rad=cfg.heading_noise_rad)
                      for t, f in zip(s.mag["t_ns"][sel], s.mag["field_B"][sel], strict=True)]  # fmt: skip
     gps_enu = None
-    if s.gps:
-        ok = np.flatnonzero(
-            (s.gps["fix"] >= cfg.min_gps_fix) & (s.gps["t_ns"] <= t_align + 2_000_000_000)
-        )
+    if gnss is not None:
+        ok = np.flatnonzero(gnss.usable & (s.gps["t_ns"] <= t_align + 2_000_000_000))
         if len(ok):
             k = int(ok[0])
             gps_enu = np.array(
@@ -318,20 +372,20 @@ def replay(s: UlogSensors, cfg: ReplayConfig, *, progress: Any = None) -> Replay
     R0, p0 = ground_alignment(
         align_imu, None, mag=align_mag, declination_rad=decl, gps_enu_m=gps_enu
     )
+    return R0, p0, gps_enu is not None
+
+
+def _filter(s: UlogSensors, cfg: ReplayConfig, period_ns: int, t_align: int, datum: tuple[float, float, float],
+            decl: float, R0: Any, p0: FloatArray, gps_at_start: bool) -> tuple[NavEkf, DelayedHorizonEstimator]:  # fmt: skip
     dt = period_ns * 1e-9
     ekf_cfg = NavEkfConfig(
         gyro_sigma_rad_s=cfg.gyro_noise_rad_s, accel_sigma_m_s2=cfg.accel_noise_m_s2,
         gyro_bias_rw_rad_s_sqrt_s=cfg.gyro_bias_noise_rad_s2 * math.sqrt(dt),
         accel_bias_rw_m_s2_sqrt_s=cfg.accel_bias_noise_m_s3 * math.sqrt(dt),
-        gate_sigma=cfg.gate_sigma, datum_lla=datum, mag_declination_rad=decl,
-        reset_after_s=5.0,
+        gate_sigma=cfg.gate_sigma, datum_lla=datum, mag_declination_rad=decl, reset_after_s=5.0,
     )  # fmt: skip
     sig = np.array(
-        [0.05, 0.05, 0.3]
-        + [0.3] * 3
-        + [2.0 if gps_enu is not None else 0.5] * 3
-        + [0.01] * 3
-        + [0.2] * 3
+        [0.05, 0.05, 0.3] + [0.3] * 3 + [2.0 if gps_at_start else 0.5] * 3 + [0.01] * 3 + [0.2] * 3
     )
     ekf = NavEkf(ekf_cfg, p0=p0, v0=np.zeros(3), q0_xyzw=R0.as_quat(), P0=np.diag(sig**2))
     max_delay = max(
@@ -345,30 +399,26 @@ def replay(s: UlogSensors, cfg: ReplayConfig, *, progress: Any = None) -> Replay
         ekf, HorizonConfig(imu_period_ns=period_ns, max_delay_ns=round(max_delay * 1e9),
                            tau_vel_s=cfg.tau_vel_s, tau_pos_s=cfg.tau_pos_s), t0_ns=t_align,
     )  # fmt: skip
-    baro_ref = datum[2]
+    return ekf, est
+
+
+def _baro_ref(s: UlogSensors, t_align: int, datum_alt_m: float, z0_m: float) -> float:
+    """The barometer's reading at the start height: its median over the alignment."""
     if s.baro:
         sel = (s.baro["t_ns"] <= t_align) & np.isfinite(s.baro["alt"])
         if sel.any():
-            baro_ref = float(np.median(s.baro["alt"][sel])) - float(p0[2])
-    obs = [o for o in _stream(s, cfg, datum, baro_ref) if o[0] > t_align]
+            return float(np.median(s.baro["alt"][sel])) - z0_m
+    return datum_alt_m
+
+
+def _run(est: DelayedHorizonEstimator, cfg: ReplayConfig, imu: tuple[NDArray[np.int64], FloatArray, FloatArray],
+         start: int, obs: list[tuple[int, int, Sample]], landed_at: NDArray[np.bool_], progress: Any) -> tuple[list[int], list[FloatArray], list[FloatArray], list[FloatArray]]:  # fmt: skip
+    """Feed the IMU and the measurements in arrival order; the output every fifth IMU step."""
+    t_imu, gyro, accel = imu
     heapq.heapify(obs)
-    # PX4's land detector, held between its messages, at every IMU time
-    landed_t = s.landed.get("t_ns", np.zeros(0, np.int64))
-    landed_v = s.landed.get("landed", np.zeros(0, bool))
-    j_land = np.searchsorted(landed_t, t_imu, side="right") - 1
-    landed_at = (
-        (j_land >= 0) & np.asarray(landed_v, bool)[np.clip(j_land, 0, max(len(landed_v) - 1, 0))]
-        if len(landed_t)
-        else np.zeros(n_imu, bool)
-    )
-    landed_at &= cfg.zero_velocity_when_landed
-    rows_t: list[int] = []
-    rows_p: list[FloatArray] = []
-    rows_v: list[FloatArray] = []
-    rows_q: list[FloatArray] = []
-    start = int(align_idx[-1]) + 1 if len(align_idx) else 0
+    rows: tuple[list[int], list[FloatArray], list[FloatArray], list[FloatArray]] = ([], [], [], [])
     n_zupt = 0
-    for k in range(start, n_imu):
+    for k in range(start, len(t_imu)):
         t = int(t_imu[k])
         while obs and obs[0][0] <= t:
             est.push(heapq.heappop(obs)[2])
@@ -378,18 +428,64 @@ def replay(s: UlogSensors, cfg: ReplayConfig, *, progress: Any = None) -> Replay
                 est.push(
                     VelocitySample(t_ns=t, v_W_B=np.zeros(3), sigma_m_s=cfg.zero_velocity_sigma_m_s)
                 )
-        est.push_raw(ImuSample, t_ns=t, gyro_rad_s=gyro_all[k], accel_m_s2=accel_all[k])
+        est.push_raw(ImuSample, t_ns=t, gyro_rad_s=gyro[k], accel_m_s2=accel[k])
         if k % 5 == 0:
             o = est.output_nav()
-            rows_t.append(o.t_ns)
-            rows_p.append(o.pos)
-            rows_v.append(o.vel)
-            rows_q.append(quat_xyzw_from_matrix(o.att.reshape(3, 3)))
+            rows[0].append(o.t_ns)
+            rows[1].append(o.pos)
+            rows[2].append(o.vel)
+            rows[3].append(quat_xyzw_from_matrix(o.att.reshape(3, 3)))
         if progress and k % 2000 == 0:
-            progress(k, n_imu, "IMU samples")
+            progress(k, len(t_imu), "IMU samples")
+    return rows
+
+
+def replay(s: UlogSensors, cfg: ReplayConfig, *, progress: Any = None) -> ReplayResult:
+    notes = list(s.notes)
+    t_wall0 = time.perf_counter()
+    t_imu, gyro_all, accel_all, period_ns = _prepare_imu(s, cfg, notes)
+    gnss = gnss_checks_for(s, cfg)
+    if gnss is not None:
+        notes.append(_gnss_note(gnss, s.t_start_ns))
+    datum = _datum(s, gnss, notes)
+    decl = (
+        cfg.mag_declination_rad
+        if cfg.mag_declination_rad is not None
+        else (s.earth_field_declination_rad or 0.0)
+    )
+    t_align = int(t_imu[0]) + round(cfg.align_s * 1e9)
+    imu = (t_imu, gyro_all, accel_all)
+    R0, p0, gps_at_start = _align(s, cfg, imu, t_align, datum, decl, gnss)
+    ekf, est = _filter(s, cfg, period_ns, t_align, datum, decl, R0, p0, gps_at_start)
+    obs = [
+        o
+        for o in _stream(s, cfg, gnss, _baro_ref(s, t_align, datum[2], float(p0[2])))
+        if o[0] > t_align
+    ]
+    landed_at = _landed(s, t_imu) & cfg.zero_velocity_when_landed
+    start = int(np.searchsorted(t_imu, t_align, side="right"))
+    rows_t, rows_p, rows_v, rows_q = _run(est, cfg, imu, start, obs, landed_at, progress)
     wall = time.perf_counter() - t_wall0
     if est.rejected_invalid:
         notes.append(f"refused at the boundary (non-finite values): {est.rejected_invalid}")
+    counts = {src: {"received": st.received, "fused": st.fused, "rejected_gate": st.rejected_gate,
+                    "rejected_too_old": st.rejected_too_old} for src in est.sources for st in [est.stats(src)]}  # fmt: skip
+    counts["imu"] = {"received": len(t_imu) - start, "rejected_out_of_order": est.imu_rejected_out_of_order,
+                     "rejected_invalid": est.rejected_invalid.get("ImuSample", 0), "clipping_flagged": int(np.count_nonzero(s.imu_clipping))}  # fmt: skip
+    if gnss is not None:
+        counts["gps_checks"] = {
+            "fixes": len(gnss.usable),
+            "passed": int(gnss.usable.sum()),
+            **gnss.refused_counts(),
+        }
+    return ReplayResult(
+        t_ns=np.array(rows_t, dtype=np.int64), p=np.array(rows_p), v=np.array(rows_v), q_xyzw=np.array(rows_q),
+        datum_lla=datum, counts=counts, fusion=_fusion_log(est), events=list(ekf.events), notes=notes,
+        replay_wall_s=wall, gnss_checks=gnss,
+    )  # fmt: skip
+
+
+def _fusion_log(est: DelayedHorizonEstimator) -> dict[str, dict[str, FloatArray]]:
     fusion: dict[str, dict[str, FloatArray]] = {}
     for src in est.sources:
         recs = [r for r in est.fusion_log if r.source == src]
@@ -399,11 +495,4 @@ def replay(s: UlogSensors, cfg: ReplayConfig, *, progress: Any = None) -> Replay
             "accepted": np.array([r.result.accepted for r in recs], dtype=np.float64),
             "innovation": np.array([np.pad(r.result.innovation, (0, 6 - len(r.result.innovation)), constant_values=np.nan) for r in recs]).reshape(-1, 6),
         }  # fmt: skip
-    counts = {src: {"received": st.received, "fused": st.fused, "rejected_gate": st.rejected_gate,
-                    "rejected_too_old": st.rejected_too_old} for src in est.sources for st in [est.stats(src)]}  # fmt: skip
-    counts["imu"] = {"received": n_imu - start, "rejected_out_of_order": est.imu_rejected_out_of_order,
-                     "rejected_invalid": est.rejected_invalid.get("ImuSample", 0), "clipping_flagged": int(np.sum(s.imu_clipping))}  # fmt: skip
-    return ReplayResult(
-        t_ns=np.array(rows_t, dtype=np.int64), p=np.array(rows_p), v=np.array(rows_v), q_xyzw=np.array(rows_q),
-        datum_lla=datum, counts=counts, fusion=fusion, events=list(ekf.events), notes=notes, replay_wall_s=wall,
-    )  # fmt: skip
+    return fusion

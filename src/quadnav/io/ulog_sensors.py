@@ -21,7 +21,7 @@ from numpy.typing import NDArray
 from quadnav.errors import IoError
 from quadnav.geometry.frames import frd_to_flu, ned_to_enu
 
-__all__ = ["Px4Validity", "UlogSensors", "read_ulog_sensors"]
+__all__ = ["Px4Validity", "UlogSensors", "held_flags", "read_ulog_sensors"]
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -32,6 +32,17 @@ TOPICS = [
     "vehicle_local_position", "vehicle_attitude", "estimator_states", "estimator_innovations",
     "vehicle_local_position_groundtruth", "vehicle_attitude_groundtruth",
 ]  # fmt: skip
+
+
+def held_flags(t_msg_ns: IntArray, flags: NDArray[Any], t_ns: IntArray) -> NDArray[np.bool_]:
+    """A logged flag at each time of ``t_ns``, held from one message to the next (false
+    before the first)."""
+    t = np.asarray(t_ns, dtype=np.int64)
+    if len(t_msg_ns) == 0:
+        return np.zeros(len(t), bool)
+    j = np.searchsorted(t_msg_ns, t, side="right") - 1
+    held: NDArray[np.bool_] = (j >= 0) & np.asarray(flags, bool)[np.clip(j, 0, len(t_msg_ns) - 1)]
+    return held
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -50,11 +61,8 @@ class Px4Validity:
         """(xy valid, z valid, attitude present) at each time: the flags as last logged (false
         before the first message), an attitude sample within ``att_max_gap_s``."""
         t = np.asarray(t_ns, dtype=np.int64)
-        j = np.searchsorted(self.t_ns, t, side="right") - 1
-        seen = j >= 0
-        jj = np.clip(j, 0, max(len(self.t_ns) - 1, 0))
-        xy = seen & self.xy_valid[jj] if len(self.t_ns) else np.zeros(len(t), bool)
-        z = seen & self.z_valid[jj] if len(self.t_ns) else np.zeros(len(t), bool)
+        xy = held_flags(self.t_ns, self.xy_valid, t)
+        z = held_flags(self.t_ns, self.z_valid, t)
         att = np.zeros(len(t), bool)
         if len(self.att_t_ns):
             k = np.clip(np.searchsorted(self.att_t_ns, t), 1, len(self.att_t_ns) - 1)
@@ -169,6 +177,10 @@ def read_ulog_sensors(path: Path) -> UlogSensors:
                    "alt": np.asarray(alt, float), "v_enu": ned_to_enu(v_ned), "eph": np.asarray(g["eph"], float),
                    "epv": np.asarray(g["epv"], float), "s_var": np.asarray(g["s_variance_m_s"], float),
                    "fix": np.asarray(g["fix_type"], np.int64)}  # fmt: skip
+        if "satellites_used" in g:
+            out.gps["nsats"] = np.asarray(g["satellites_used"], np.int64)
+        if "hdop" in g and "vdop" in g:  # PX4's EKF2 takes PDOP as the norm of the two
+            out.gps["pdop"] = np.hypot(np.asarray(g["hdop"], float), np.asarray(g["vdop"], float))
     else:
         notes.append("no GNSS topic: replaying without GNSS")
     b = _data(ulog, "vehicle_air_data")
