@@ -56,9 +56,9 @@ def test_replay_against_sitl_ground_truth(tmp_path: Path) -> None:
     assert m["quadnav_vs_truth_everywhere"]["horizontal_rms_m"] < 0.05
     assert ours["tilt_rms_deg"] <= 1.2 * px4["tilt_rms_deg"] + 0.05
     assert ours["yaw_rms_deg"] <= 1.2 * px4["yaw_rms_deg"] + 0.05
-    # vertical: 1.9 cm against PX4's 1.0 cm on this 10 s log on the ground (issue 7's 1.2x is
-    # not met; see the issue note). Guarded so it cannot get worse unnoticed.
-    assert ours["vertical_rms_m"] < 0.03
+    # vertical: the barometer's offset is a bias state (PX4's BiasEstimator), so the start
+    # height is the origin and the barometer's wander goes into the bias (was 1.9 cm, 1.9x PX4's)
+    assert ours["vertical_rms_m"] <= 1.2 * px4["vertical_rms_m"]
 
 
 @needs_data
@@ -269,3 +269,33 @@ def test_gnss_starts_when_px4s_checks_passed(tmp_path: Path) -> None:
     t_ours_s = rows["t_ns"][rows["used"] > 0][0] * 1e-9
     assert abs(t_ours_s - t_px4_s) < 0.3  # PX4 logs a little after the fix's time
     assert (rows["eph"][rows["used"] == 0] > 0).sum() > 100  # the refused ones say why
+
+
+@needs_data
+def test_barometer_drift_at_rest_goes_into_its_bias() -> None:
+    """The weather moves a barometer's reading (here 0.64 m over 8 s) while the vehicle stands
+    still: with PX4's bias estimator the height stays; without it, it follows the drift."""
+    s = read_ulog_sensors(SITL)
+    b = dict(s.baro)
+    t_s = (b["t_ns"] - b["t_ns"][0]) * 1e-9
+    b["alt"] = b["alt"] + 0.08 * np.clip(t_s - 2.0, 0.0, None)
+    drifting = dataclasses.replace(s, baro=b)
+    for noise_m in (3.5, 0.3):  # the log's EKF2_BARO_NOISE, and a barometer trusted more
+        with_bias = replay(drifting, config_from_px4(s.params, {"baro_noise_m": noise_m}))
+        without = replay(
+            drifting,
+            config_from_px4(s.params, {"baro_noise_m": noise_m, "baro_bias_nsd_m_s": None}),
+        )
+        assert np.abs(with_bias.p[:, 2]).max() < 0.3 * np.abs(without.p[:, 2]).max(), noise_m
+        assert np.abs(without.p[:, 2]).max() > 0.15
+
+
+def test_bias_estimator_gates_and_caps_its_variance() -> None:
+    from quadnav.estimation.bias_estimator import BiasEstimator
+
+    b = BiasEstimator(0.13, var=0.01, var_max=0.04)
+    for _ in range(1000):
+        b.predict(0.01)
+    assert b.var == pytest.approx(0.04)  # capped at the measurement variance
+    assert not b.fuse(5.0, 0.01) and b.bias == 0.0  # 5 m off a 0.22 m sigma: gated out
+    assert b.fuse(0.2, 0.01) and 0.0 < b.bias < 0.2 and b.var < 0.04

@@ -19,6 +19,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from quadnav.errors import EstimationError
+from quadnav.estimation.horizon import require_positive
 
 __all__ = ["CHECK_NAMES", "GnssCheckConfig", "GnssChecks", "run_gnss_checks"]
 
@@ -48,11 +49,8 @@ class GnssCheckConfig:
     pass_s: float = 10.0
 
     def __post_init__(self) -> None:
-        for name in ("max_pdop", "max_eph_m", "max_epv_m", "max_sacc_m_s", "max_hdrift_m_s",
-                     "max_vdrift_m_s"):  # fmt: skip
-            v = getattr(self, name)
-            if not (math.isfinite(v) and v > 0):
-                raise EstimationError(f"GnssCheckConfig.{name} must be finite and > 0, got {v}")
+        require_positive(self, ("max_pdop", "max_eph_m", "max_epv_m", "max_sacc_m_s",
+                                "max_hdrift_m_s", "max_vdrift_m_s"))  # fmt: skip
         if not (math.isfinite(self.pass_s) and self.pass_s >= 0):
             raise EstimationError(f"GnssCheckConfig.pass_s must be >= 0, got {self.pass_s}")
 

@@ -26,7 +26,8 @@ from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
 from quadnav.errors import EstimationError
-from quadnav.estimation.horizon import FusionResult, NavState
+from quadnav.estimation.bias_estimator import BiasEstimator
+from quadnav.estimation.horizon import FusionResult, NavState, require_positive
 from quadnav.geometry.rotations import (
     quat_xyzw_from_matrix,
     rotation_matrix_xyzw,
@@ -252,26 +253,19 @@ class NavEkfConfig:
     vision_frame: str = "world"
     vision_rotation_gain: float = 0.05  # low-pass gain per sample of the estimated frame yaw
     vision_anchor_samples: int = 30  # poses averaged to anchor a vision frame after a reset
+    # A barometer bias estimated beside the state, as PX4's EKF2 does (its ``baro_bias_nsd``,
+    # 0.13 m/s/sqrt(Hz)); None: barometer heights are taken as they come.
+    baro_bias_nsd_m_s: float | None = None
+    baro_bias_var0_m2: float = 0.1  # the bias's initial variance (PX4's: 0.1)
     terrain_z_m: float = 0.0  # height of the flat ground the range finder sees
     range_max_tilt_rad: float = 0.7  # range readings at larger tilts are not fused
 
     def __post_init__(self) -> None:
-        for name in (
-            "gyro_sigma_rad_s",
-            "accel_sigma_m_s2",
-            "gyro_bias_rw_rad_s_sqrt_s",
-            "accel_bias_rw_m_s2_sqrt_s",
-            "gravity_m_s2",
-        ):
-            v = getattr(self, name)
-            if not (math.isfinite(v) and v > 0):
-                raise EstimationError(f"NavEkfConfig.{name} must be finite and > 0, got {v}")
-        if self.gate_sigma is not None:
-            if not (math.isfinite(self.gate_sigma) and self.gate_sigma > 0):
-                raise EstimationError(
-                    f"NavEkfConfig.gate_sigma must be finite and > 0, got {self.gate_sigma}"
-                )
-        elif not 0 < self.gate_probability < 1:
+        require_positive(self, ("gyro_sigma_rad_s", "accel_sigma_m_s2", "gyro_bias_rw_rad_s_sqrt_s",
+                                "accel_bias_rw_m_s2_sqrt_s", "gravity_m_s2"))  # fmt: skip
+        optional = ("gate_sigma", "baro_bias_nsd_m_s", "baro_bias_var0_m2")
+        require_positive(self, tuple(n for n in optional if getattr(self, n) is not None))
+        if self.gate_sigma is None and not 0 < self.gate_probability < 1:
             raise EstimationError("NavEkfConfig.gate_probability must lie in (0, 1)")
         if self.vision_frame not in ("world", "rotate"):
             raise EstimationError(
@@ -332,6 +326,10 @@ class NavEkf:
         self._ev_anchor: dict[str, _FrameAnchor] = {}
         self._last_accepted_ns: dict[str, int] = {}
         self.events: list[tuple[int, str]] = []
+        nsd = config.baro_bias_nsd_m_s
+        self.baro_bias: BiasEstimator | None = (
+            None if nsd is None else BiasEstimator(nsd, var=config.baro_bias_var0_m2)
+        )
 
     # -- the DelayedFilter protocol --------------------------------------------------------
     @property
@@ -400,6 +398,8 @@ class NavEkf:
         if self._n_predict % 32 == 0:  # rounding makes P drift from symmetry, slowly
             P = 0.5 * (P + P.T)
         self._P = P
+        if self.baro_bias is not None:
+            self.baro_bias.predict(dt_s)
 
     def fuse(self, obs: Sample) -> FusionResult:
         if isinstance(obs, PositionSample):
@@ -408,6 +408,8 @@ class NavEkf:
             return self._gated(obs, obs.p_W_B - self.p, H, np.eye(3) * obs.sigma_m**2, obs.p_W_B)
         if isinstance(obs, PoseSample):
             return self._fuse_pose(obs)
+        if isinstance(obs, HeightSample) and obs.source == "baro" and self.baro_bias is not None:
+            return self._fuse_baro_with_bias(obs, self.baro_bias)
         if isinstance(obs, HeightSample):
             H = np.zeros((1, 15))
             H[0, 8] = 1.0
@@ -426,6 +428,18 @@ class NavEkf:
             Rn = np.eye(3) * obs.sigma_m_s**2
             return self._update(obs.v_W_B - self.v, H, Rn)
         raise EstimationError(f"the navigation EKF cannot fuse {type(obs).__name__}")
+
+    def _fuse_baro_with_bias(self, obs: HeightSample, bias: BiasEstimator) -> FusionResult:
+        """PX4's order: the innovation with the current bias, then the bias estimator updated
+        from the state before the main update, then the main update."""
+        var = obs.sigma_m**2
+        H = np.zeros((1, 15))
+        H[0, 8] = 1.0
+        r = np.array([obs.z_m - bias.bias - self.p[2]])
+        Rn = np.array([[var + bias.var]])
+        bias.var_max = var
+        bias.fuse(obs.z_m - float(self.p[2]), var + float(self._P[8, 8]))
+        return self._gated(obs, r, H, Rn, None)
 
     def gps_to_enu(self, obs: GpsSample) -> FloatArray:
         """A fix in the world frame: ENU about the datum (the first fix when none was given)."""

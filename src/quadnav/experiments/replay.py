@@ -71,6 +71,11 @@ class ReplayConfig(BaseModel):
     gps_pos_noise_m: float = Field(0.5, gt=0)
     gps_vel_noise_m_s: float = Field(0.3, gt=0)
     baro_noise_m: float = Field(3.5, gt=0)
+    baro_bias_nsd_m_s: float | None = Field(
+        0.13,
+        gt=0,
+        description="barometer bias random walk (PX4's baro_bias_nsd); null: no bias state",
+    )
     heading_noise_rad: float = Field(0.3, gt=0)
     gate_sigma: float = Field(
         5.0, gt=0, description="innovation gate in standard deviations (EKF2_GPS_P_GATE); any > 0"
@@ -376,16 +381,25 @@ def _align(s: UlogSensors, cfg: ReplayConfig, imu: tuple[NDArray[np.int64], Floa
 
 
 def _filter(s: UlogSensors, cfg: ReplayConfig, period_ns: int, t_align: int, datum: tuple[float, float, float],
-            decl: float, R0: Any, p0: FloatArray, gps_at_start: bool) -> tuple[NavEkf, DelayedHorizonEstimator]:  # fmt: skip
+            decl: float, R0: Any, p0: FloatArray, gps_at_start: bool, baro_anchor_var_m2: float) -> tuple[NavEkf, DelayedHorizonEstimator]:  # fmt: skip
     dt = period_ns * 1e-9
     ekf_cfg = NavEkfConfig(
         gyro_sigma_rad_s=cfg.gyro_noise_rad_s, accel_sigma_m_s2=cfg.accel_noise_m_s2,
         gyro_bias_rw_rad_s_sqrt_s=cfg.gyro_bias_noise_rad_s2 * math.sqrt(dt),
         accel_bias_rw_m_s2_sqrt_s=cfg.accel_bias_noise_m_s3 * math.sqrt(dt),
         gate_sigma=cfg.gate_sigma, datum_lla=datum, mag_declination_rad=decl, reset_after_s=5.0,
+        baro_bias_nsd_m_s=cfg.baro_bias_nsd_m_s, baro_bias_var0_m2=baro_anchor_var_m2,
     )  # fmt: skip
+    # With a barometer bias and no GNSS height the world's height origin is where the log
+    # starts: the start height is known, and the anchor's uncertainty is the bias's.
+    sig_z0 = 0.01 if cfg.baro_bias_nsd_m_s is not None and not cfg.gps_height else 0.5
     sig = np.array(
-        [0.05, 0.05, 0.3] + [0.3] * 3 + [2.0 if gps_at_start else 0.5] * 3 + [0.01] * 3 + [0.2] * 3
+        [0.05, 0.05, 0.3]
+        + [0.3] * 3
+        + [2.0 if gps_at_start else 0.5] * 2
+        + [sig_z0]
+        + [0.01] * 3
+        + [0.2] * 3
     )
     ekf = NavEkf(ekf_cfg, p0=p0, v0=np.zeros(3), q0_xyzw=R0.as_quat(), P0=np.diag(sig**2))
     max_delay = max(
@@ -402,13 +416,14 @@ def _filter(s: UlogSensors, cfg: ReplayConfig, period_ns: int, t_align: int, dat
     return ekf, est
 
 
-def _baro_ref(s: UlogSensors, t_align: int, datum_alt_m: float, z0_m: float) -> float:
-    """The barometer's reading at the start height: its median over the alignment."""
+def _baro_ref(s: UlogSensors, cfg: ReplayConfig, t_align: int, datum_alt_m: float, z0_m: float) -> tuple[float, float]:  # fmt: skip
+    """The barometer's reading at the start height (its median over the alignment) and that
+    anchor's variance by the log's barometer noise (EKF2_BARO_NOISE squared over the readings)."""
     if s.baro:
         sel = (s.baro["t_ns"] <= t_align) & np.isfinite(s.baro["alt"])
         if sel.any():
-            return float(np.median(s.baro["alt"][sel])) - z0_m
-    return datum_alt_m
+            return float(np.median(s.baro["alt"][sel])) - z0_m, cfg.baro_noise_m**2 / int(sel.sum())
+    return datum_alt_m, cfg.baro_noise_m**2
 
 
 def _run(est: DelayedHorizonEstimator, cfg: ReplayConfig, imu: tuple[NDArray[np.int64], FloatArray, FloatArray],
@@ -456,12 +471,11 @@ def replay(s: UlogSensors, cfg: ReplayConfig, *, progress: Any = None) -> Replay
     t_align = int(t_imu[0]) + round(cfg.align_s * 1e9)
     imu = (t_imu, gyro_all, accel_all)
     R0, p0, gps_at_start = _align(s, cfg, imu, t_align, datum, decl, gnss)
-    ekf, est = _filter(s, cfg, period_ns, t_align, datum, decl, R0, p0, gps_at_start)
-    obs = [
-        o
-        for o in _stream(s, cfg, gnss, _baro_ref(s, t_align, datum[2], float(p0[2])))
-        if o[0] > t_align
-    ]
+    baro_ref, baro_anchor_var = _baro_ref(s, cfg, t_align, datum[2], float(p0[2]))
+    ekf, est = _filter(
+        s, cfg, period_ns, t_align, datum, decl, R0, p0, gps_at_start, baro_anchor_var
+    )
+    obs = [o for o in _stream(s, cfg, gnss, baro_ref) if o[0] > t_align]
     landed_at = _landed(s, t_imu) & cfg.zero_velocity_when_landed
     start = int(np.searchsorted(t_imu, t_align, side="right"))
     rows_t, rows_p, rows_v, rows_q = _run(est, cfg, imu, start, obs, landed_at, progress)
