@@ -28,6 +28,12 @@ from scipy.stats import chi2
 from quadnav.errors import EstimationError
 from quadnav.estimation.bias_estimator import BiasEstimator
 from quadnav.estimation.horizon import FusionResult, NavState, require_positive
+from quadnav.estimation.imu_clipping import (
+    BADACC_NOISE_M_S2,
+    BiasLearningGate,
+    Releveller,
+    clip_axes,
+)
 from quadnav.geometry.rotations import (
     quat_xyzw_from_matrix,
     rotation_matrix_xyzw,
@@ -257,13 +263,22 @@ class NavEkfConfig:
     # 0.13 m/s/sqrt(Hz)); None: barometer heights are taken as they come.
     baro_bias_nsd_m_s: float | None = None
     baro_bias_var0_m2: float = 0.1  # the bias's initial variance (PX4's: 0.1)
+    # Clipped accelerometer axes (a ClippedImuSample) get this process noise (PX4's 4.9).
+    clipped_accel_sigma_m_s2: float = BADACC_NOISE_M_S2
+    # PX4's accelerometer-bias learning gate (EKF2_ABL_GYRLIM, _ACCLIM, _TAU); None: always learn.
+    accel_bias_learn_gyro_limit_rad_s: float | None = None
+    accel_bias_learn_accel_limit_m_s2: float = 25.0
+    accel_bias_learn_tau_s: float = 0.5
+    # After clipping, re-level once at rest this long (Releveller); None: never.
+    relevel_at_rest_s: float | None = None
     terrain_z_m: float = 0.0  # height of the flat ground the range finder sees
     range_max_tilt_rad: float = 0.7  # range readings at larger tilts are not fused
 
     def __post_init__(self) -> None:
         require_positive(self, ("gyro_sigma_rad_s", "accel_sigma_m_s2", "gyro_bias_rw_rad_s_sqrt_s",
                                 "accel_bias_rw_m_s2_sqrt_s", "gravity_m_s2"))  # fmt: skip
-        optional = ("gate_sigma", "baro_bias_nsd_m_s", "baro_bias_var0_m2")
+        optional = ("gate_sigma", "baro_bias_nsd_m_s", "baro_bias_var0_m2", "clipped_accel_sigma_m_s2",
+                    "accel_bias_learn_gyro_limit_rad_s", "relevel_at_rest_s")  # fmt: skip
         require_positive(self, tuple(n for n in optional if getattr(self, n) is not None))
         if self.gate_sigma is None and not 0 < self.gate_probability < 1:
             raise EstimationError("NavEkfConfig.gate_probability must lie in (0, 1)")
@@ -330,6 +345,13 @@ class NavEkf:
         self.baro_bias: BiasEstimator | None = (
             None if nsd is None else BiasEstimator(nsd, var=config.baro_bias_var0_m2)
         )
+        lim = config.accel_bias_learn_gyro_limit_rad_s
+        self.bias_gate: BiasLearningGate | None = None if lim is None else BiasLearningGate(
+            gyro_limit_rad_s=lim, accel_limit_m_s2=config.accel_bias_learn_accel_limit_m_s2,
+            tau_s=config.accel_bias_learn_tau_s)  # fmt: skip
+        self.n_clipped = 0
+        rl = config.relevel_at_rest_s
+        self.releveller: Releveller | None = None if rl is None else Releveller(window_s=rl)
 
     # -- the DelayedFilter protocol --------------------------------------------------------
     @property
@@ -393,13 +415,48 @@ class NavEkf:
         self.v = self.v + dt_s * (R_new @ f + self._g_W)
         self.p = self.p + dt_s * self.v
         self.R = R_new
-        P = F @ self._P @ F.T + (G * self._q) @ G.T
+        clipped = clip_axes(imu)
+        q = self._q
+        if clipped:  # PX4: a saturated axis's reading is as uncertain as BADACC_BIAS_PNOISE
+            self.n_clipped += 1
+            q = q.copy()
+            for k in range(3):
+                if clipped >> k & 1:
+                    q[3 + k] = max(q[3 + k], self.config.clipped_accel_sigma_m_s2**2)
+        P = F @ self._P @ F.T + (G * q) @ G.T
+        if self.bias_gate is not None:
+            self.bias_gate.apply(P, 12, self.bias_gate.update(w, f, clipped, dt_s))
         self._n_predict += 1
         if self._n_predict % 32 == 0:  # rounding makes P drift from symmetry, slowly
             P = 0.5 * (P + P.T)
         self._P = P
+        if self.releveller is not None:
+            if clipped:
+                self.releveller.on_clip(self.ba, np.diag(P)[I_BA].copy())
+            f_rest = self.releveller.update(w, imu.accel_m_s2, dt_s, self.config.gravity_m_s2)
+            if f_rest is not None:
+                self._relevel(imu.t_ns, f_rest, self.releveller)
         if self.baro_bias is not None:
             self.baro_bias.predict(dt_s)
+
+    def _relevel(self, t_ns: int, f_mean: FloatArray, rl: Releveller) -> None:
+        """Roll and pitch from the mean specific force at rest (less the bias from before the
+        clipping), the heading kept; velocity zero; the bias back; their covariances reset."""
+        f = f_mean - rl.bias_before
+        roll, pitch = math.atan2(f[1], f[2]), math.atan2(-f[0], math.hypot(f[1], f[2]))
+        R_new = Rotation.from_euler("ZYX", [yaw_of(self.R), pitch, roll]).as_matrix()
+        moved_deg = math.degrees(math.acos(min(1.0, float(self.R[:, 2] @ R_new[:, 2]))))
+        j = yaw_jacobian(self.R)
+        var_yaw = float(j @ self._P[I_TH, I_TH] @ j)
+        P = self._P
+        for blk in (I_TH, I_V, I_BA):
+            P[blk, :] = 0.0
+            P[:, blk] = 0.0
+        P[I_TH, I_TH] = R_new.T @ np.diag([0.02**2, 0.02**2, var_yaw]) @ R_new  # world tilt, yaw
+        P[I_V, I_V] = np.eye(3) * 0.1**2
+        P[I_BA, I_BA] = np.diag(rl.bias_var_before)
+        self.R, self.v, self.ba = R_new, np.zeros(3), rl.bias_before.copy()
+        self.events.append((t_ns, f"re-levelled at rest after accelerometer clipping: tilt moved {moved_deg:.1f} deg, velocity zeroed"))  # fmt: skip
 
     def fuse(self, obs: Sample) -> FusionResult:
         if isinstance(obs, PositionSample):

@@ -24,6 +24,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from quadnav.errors import ExperimentError
 from quadnav.estimation.gnss_checks import CHECK_NAMES, GnssCheckConfig, GnssChecks, run_gnss_checks
 from quadnav.estimation.horizon import DelayedHorizonEstimator, HorizonConfig
+from quadnav.estimation.imu_clipping import BADACC_NOISE_M_S2, ClippedImuSample
 from quadnav.estimation.nav_ekf import NavEkf, NavEkfConfig
 from quadnav.experiments.nav import ground_alignment
 from quadnav.geometry.rotations import quat_xyzw_from_matrix
@@ -90,6 +91,27 @@ class ReplayConfig(BaseModel):
     gps_max_eph_m: float = Field(
         3.0, gt=0, description="fixes less precise than this are not used (EKF2_REQ_EPH)"
     )
+    clipped_accel_noise_m_s2: float = Field(
+        BADACC_NOISE_M_S2,
+        gt=0,
+        description="process noise of a clipped accelerometer axis (PX4's BADACC_BIAS_PNOISE)",
+    )
+    accel_bias_learn_gyro_limit_rad_s: float | None = Field(
+        3.0,
+        gt=0,
+        description="no accelerometer-bias learning above this body rate (EKF2_ABL_GYRLIM); null: always",
+    )
+    accel_bias_learn_accel_limit_m_s2: float = Field(
+        25.0, gt=0, description="nor above this specific force (EKF2_ABL_ACCLIM)"
+    )
+    accel_bias_learn_tau_s: float = Field(
+        0.5, gt=0, description="decay of those peak detectors (EKF2_ABL_TAU)"
+    )
+    relevel_at_rest_s: float | None = Field(
+        1.0,
+        gt=0,
+        description="after accelerometer clipping, re-level once the IMU shows rest this long; null: never",
+    )
     gps_check_mask: int = Field(
         245, ge=0, description="PX4's GNSS checks to apply (EKF2_GPS_CHECK bits)"
     )
@@ -129,7 +151,8 @@ def config_from_px4(
         "EKF2_TAU_VEL": ("tau_vel_s", 1.0), "EKF2_TAU_POS": ("tau_pos_s", 1.0),
         "EKF2_EV_DELAY": ("ev_delay_s", 1e-3), "EKF2_RNG_DELAY": ("range_delay_s", 1e-3),
         "EKF2_EVP_NOISE": ("ev_pos_noise_m", 1.0), "EKF2_EVA_NOISE": ("ev_yaw_noise_rad", 1.0),
-        "EKF2_RNG_NOISE": ("range_noise_m", 1.0),
+        "EKF2_RNG_NOISE": ("range_noise_m", 1.0), "EKF2_ABL_GYRLIM": ("accel_bias_learn_gyro_limit_rad_s", 1.0),
+        "EKF2_ABL_ACCLIM": ("accel_bias_learn_accel_limit_m_s2", 1.0), "EKF2_ABL_TAU": ("accel_bias_learn_tau_s", 1.0),
     }  # fmt: skip
     values: dict[str, Any] = {}
     origin: dict[str, str] = {}
@@ -278,12 +301,13 @@ def _stream(
     return out
 
 
-def _downsample(t: NDArray[np.int64], gyro: FloatArray, accel: FloatArray, n: int) -> tuple[NDArray[np.int64], FloatArray, FloatArray]:  # fmt: skip
-    """Average each run of ``n`` IMU samples into one, stamped at its last sample (what PX4's
-    IMU down-sampler hands EKF2). A sample with a non-finite value spoils its group, which the
-    estimator then refuses at its boundary and counts."""
+def _downsample(t: NDArray[np.int64], gyro: FloatArray, accel: FloatArray, clip: NDArray[np.int64], n: int) -> tuple[NDArray[np.int64], FloatArray, FloatArray, NDArray[np.int64]]:  # fmt: skip
+    """Average each run of ``n`` IMU samples into one, stamped at its last sample, its clipping
+    flags ORed (what PX4's IMU down-sampler hands EKF2). A sample with a non-finite value
+    spoils its group, which the estimator then refuses at its boundary and counts."""
+    clip = np.asarray(clip, dtype=np.int64)
     if n == 1:
-        return t, gyro, accel
+        return t, gyro, accel, clip
     m = (len(t) // n) * n
     tt = t[:m].reshape(-1, n)
     w = np.diff(np.concatenate([[t[0] - (t[1] - t[0])], t[:m]])).reshape(-1, n).astype(np.float64)
@@ -291,7 +315,8 @@ def _downsample(t: NDArray[np.int64], gyro: FloatArray, accel: FloatArray, n: in
     w /= np.maximum(w.sum(axis=1, keepdims=True), 1e-12)
     g = np.einsum("kn,knj->kj", w, gyro[:m].reshape(-1, n, 3))
     a = np.einsum("kn,knj->kj", w, accel[:m].reshape(-1, n, 3))
-    return tt[:, -1].copy(), g, a
+    c = np.bitwise_or.reduce(clip[:m].reshape(-1, n), axis=1)
+    return tt[:, -1].copy(), g, a, c
 
 
 def _landed(s: UlogSensors, t_ns: NDArray[np.int64]) -> NDArray[np.bool_]:
@@ -322,11 +347,14 @@ def _gnss_note(g: GnssChecks, t0_ns: int) -> str:
     return f"GNSS: {refused} of {len(g.usable)} fixes refused by PX4's quality checks ({why or 'none'}); {when}"
 
 
-def _prepare_imu(s: UlogSensors, cfg: ReplayConfig, notes: list[str]) -> tuple[NDArray[np.int64], FloatArray, FloatArray, int]:  # fmt: skip
+def _prepare_imu(s: UlogSensors, cfg: ReplayConfig, notes: list[str]) -> tuple[NDArray[np.int64], FloatArray, FloatArray, NDArray[np.int64], int]:  # fmt: skip
     n_imu = len(s.imu_t_ns)
     if n_imu < 10:
         raise ExperimentError(f"{s.path}: only {n_imu} IMU samples")
-    t_imu, gyro, accel = _downsample(s.imu_t_ns, s.gyro_rad_s, s.accel_m_s2, cfg.imu_downsample)
+    clip = s.imu_clipping if len(s.imu_clipping) == n_imu else np.zeros(n_imu, np.int64)
+    t_imu, gyro, accel, clip = _downsample(
+        s.imu_t_ns, s.gyro_rad_s, s.accel_m_s2, clip, cfg.imu_downsample
+    )
     period_ns = int(np.median(np.diff(t_imu)))
     for k in np.flatnonzero(np.diff(t_imu) > 20 * period_ns).tolist():
         notes.append(
@@ -335,7 +363,11 @@ def _prepare_imu(s: UlogSensors, cfg: ReplayConfig, notes: list[str]) -> tuple[N
     back = int(np.sum(np.diff(t_imu) <= 0))
     if back:
         notes.append(f"{back} IMU timestamps not increasing: rejected and counted")
-    return t_imu, gyro, accel, period_ns
+    n_clip = int(np.count_nonzero(clip & 7))
+    if n_clip:
+        notes.append(f"accelerometer clipping flagged in {n_clip} filter steps: those axes carry "
+                     f"{cfg.clipped_accel_noise_m_s2:g} m/s^2 of process noise and learn no bias (PX4)")  # fmt: skip
+    return t_imu, gyro, accel, clip & 7, period_ns
 
 
 def _datum(s: UlogSensors, gnss: GnssChecks | None, notes: list[str]) -> tuple[float, float, float]:
@@ -389,6 +421,10 @@ def _filter(s: UlogSensors, cfg: ReplayConfig, period_ns: int, t_align: int, dat
         accel_bias_rw_m_s2_sqrt_s=cfg.accel_bias_noise_m_s3 * math.sqrt(dt),
         gate_sigma=cfg.gate_sigma, datum_lla=datum, mag_declination_rad=decl, reset_after_s=5.0,
         baro_bias_nsd_m_s=cfg.baro_bias_nsd_m_s, baro_bias_var0_m2=baro_anchor_var_m2,
+        clipped_accel_sigma_m_s2=cfg.clipped_accel_noise_m_s2,
+        accel_bias_learn_gyro_limit_rad_s=cfg.accel_bias_learn_gyro_limit_rad_s,
+        accel_bias_learn_accel_limit_m_s2=cfg.accel_bias_learn_accel_limit_m_s2, accel_bias_learn_tau_s=cfg.accel_bias_learn_tau_s,
+        relevel_at_rest_s=cfg.relevel_at_rest_s,
     )  # fmt: skip
     # With a barometer bias and no GNSS height the world's height origin is where the log
     # starts: the start height is known, and the anchor's uncertainty is the bias's.
@@ -427,7 +463,7 @@ def _baro_ref(s: UlogSensors, cfg: ReplayConfig, t_align: int, datum_alt_m: floa
 
 
 def _run(est: DelayedHorizonEstimator, cfg: ReplayConfig, imu: tuple[NDArray[np.int64], FloatArray, FloatArray],
-         start: int, obs: list[tuple[int, int, Sample]], landed_at: NDArray[np.bool_], progress: Any) -> tuple[list[int], list[FloatArray], list[FloatArray], list[FloatArray]]:  # fmt: skip
+         clip: NDArray[np.int64], start: int, obs: list[tuple[int, int, Sample]], landed_at: NDArray[np.bool_], progress: Any) -> tuple[list[int], list[FloatArray], list[FloatArray], list[FloatArray]]:  # fmt: skip
     """Feed the IMU and the measurements in arrival order; the output every fifth IMU step."""
     t_imu, gyro, accel = imu
     heapq.heapify(obs)
@@ -443,7 +479,16 @@ def _run(est: DelayedHorizonEstimator, cfg: ReplayConfig, imu: tuple[NDArray[np.
                 est.push(
                     VelocitySample(t_ns=t, v_W_B=np.zeros(3), sigma_m_s=cfg.zero_velocity_sigma_m_s)
                 )
-        est.push_raw(ImuSample, t_ns=t, gyro_rad_s=gyro[k], accel_m_s2=accel[k])
+        if clip[k]:  # PX4's clipping flags go with the sample to the delayed horizon
+            est.push_raw(
+                ClippedImuSample,
+                t_ns=t,
+                gyro_rad_s=gyro[k],
+                accel_m_s2=accel[k],
+                accel_clip_axes=int(clip[k]),
+            )
+        else:
+            est.push_raw(ImuSample, t_ns=t, gyro_rad_s=gyro[k], accel_m_s2=accel[k])
         if k % 5 == 0:
             o = est.output_nav()
             rows[0].append(o.t_ns)
@@ -458,7 +503,7 @@ def _run(est: DelayedHorizonEstimator, cfg: ReplayConfig, imu: tuple[NDArray[np.
 def replay(s: UlogSensors, cfg: ReplayConfig, *, progress: Any = None) -> ReplayResult:
     notes = list(s.notes)
     t_wall0 = time.perf_counter()
-    t_imu, gyro_all, accel_all, period_ns = _prepare_imu(s, cfg, notes)
+    t_imu, gyro_all, accel_all, clip_all, period_ns = _prepare_imu(s, cfg, notes)
     gnss = gnss_checks_for(s, cfg)
     if gnss is not None:
         notes.append(_gnss_note(gnss, s.t_start_ns))
@@ -478,7 +523,7 @@ def replay(s: UlogSensors, cfg: ReplayConfig, *, progress: Any = None) -> Replay
     obs = [o for o in _stream(s, cfg, gnss, baro_ref) if o[0] > t_align]
     landed_at = _landed(s, t_imu) & cfg.zero_velocity_when_landed
     start = int(np.searchsorted(t_imu, t_align, side="right"))
-    rows_t, rows_p, rows_v, rows_q = _run(est, cfg, imu, start, obs, landed_at, progress)
+    rows_t, rows_p, rows_v, rows_q = _run(est, cfg, imu, clip_all, start, obs, landed_at, progress)
     wall = time.perf_counter() - t_wall0
     if est.rejected_invalid:
         notes.append(f"refused at the boundary (non-finite values): {est.rejected_invalid}")

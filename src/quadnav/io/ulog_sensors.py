@@ -82,7 +82,9 @@ class UlogSensors:
     imu_t_ns: IntArray
     gyro_rad_s: FloatArray  # (N, 3) FLU
     accel_m_s2: FloatArray  # (N, 3) FLU
-    imu_clipping: IntArray  # samples where PX4 flagged accelerometer or gyro clipping
+    imu_clipping: (
+        IntArray  # PX4's clipping bits per sample: accelerometer x, y, z (0-2), gyro (3-5)
+    )
     gps: dict[str, NDArray[Any]] = field(default_factory=dict)
     baro: dict[str, NDArray[Any]] = field(default_factory=dict)
     mag: dict[str, NDArray[Any]] = field(default_factory=dict)
@@ -147,10 +149,12 @@ def read_ulog_sensors(path: Path) -> UlogSensors:
         t = np.asarray(sc["timestamp"], dtype=np.int64) * 1000
         gyro = frd_to_flu(_vec(sc, "gyro_rad[{}]"))
         accel = frd_to_flu(_vec(sc, "accelerometer_m_s2[{}]"))
+        # PX4's per-axis bits (x, y, z: FRD and FLU share the axes): accelerometer in bits
+        # 0-2, gyro in bits 3-5
         clip = np.zeros(len(t), dtype=np.int64)
-        for key in ("accelerometer_clipping", "gyro_clipping"):
+        for key, shift in (("accelerometer_clipping", 0), ("gyro_clipping", 3)):
             if key in sc:
-                clip |= (np.asarray(sc[key]) != 0).astype(np.int64)
+                clip |= (np.asarray(sc[key]).astype(np.int64) & 7) << shift
     else:
         vi = _data(ulog, "vehicle_imu")
         if vi is None:
@@ -162,7 +166,7 @@ def read_ulog_sensors(path: Path) -> UlogSensors:
         with np.errstate(divide="ignore", invalid="ignore"):
             gyro = frd_to_flu(_vec(vi, "delta_angle[{}]") / dt_g[:, None])
             accel = frd_to_flu(_vec(vi, "delta_velocity[{}]") / dt_a[:, None])
-        clip = np.asarray(vi.get("delta_velocity_clipping", np.zeros(len(t))), dtype=np.int64)
+        clip = np.asarray(vi.get("delta_velocity_clipping", np.zeros(len(t))), dtype=np.int64) & 7
     out = UlogSensors(path, duration, t, np.asarray(gyro, float), np.asarray(accel, float), clip,
                       params=params, notes=notes, t_start_ns=int(ulog.start_timestamp) * 1000)  # fmt: skip
     g = _data(ulog, "vehicle_gps_position") or _data(ulog, "sensor_gps")
