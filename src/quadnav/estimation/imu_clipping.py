@@ -31,6 +31,8 @@ from quadnav.messages import ImuSample
 __all__ = ["BADACC_NOISE_M_S2", "BiasLearningGate", "ClippedImuSample", "Releveller", "clip_axes"]
 
 BADACC_NOISE_M_S2 = 4.9  # PX4's BADACC_BIAS_PNOISE
+_NONE = np.zeros(3, bool)
+_ALL = np.ones(3, bool)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -64,16 +66,19 @@ class BiasLearningGate:
     def update(self, gyro: NDArray[np.float64], accel: NDArray[np.float64], clipped: int, dt_s: float) -> NDArray[np.bool_]:  # fmt: skip
         """The axes to inhibit after this IMU sample."""
         beta = 1.0 - min(max(dt_s / self.tau_s, 0.0), 1.0)
-        self.rate_filt = max(float(np.linalg.norm(gyro)), beta * self.rate_filt)
-        self.accel_filt = max(float(np.linalg.norm(accel)), beta * self.accel_filt)
+        self.rate_filt = max(math.sqrt(float(gyro @ gyro)), beta * self.rate_filt)
+        self.accel_filt = max(math.sqrt(float(accel @ accel)), beta * self.accel_filt)
         hard = self.rate_filt > self.gyro_limit_rad_s or self.accel_filt > self.accel_limit_m_s2
-        axes = np.array([hard or bool(clipped >> k & 1) for k in range(3)])
-        self.n_inhibited_steps += int(axes.any())
-        return axes
+        if not hard and not clipped:
+            return _NONE
+        self.n_inhibited_steps += 1
+        return _ALL if hard else np.array([bool(clipped >> k & 1) for k in range(3)])
 
     def apply(self, P: NDArray[np.float64], first: int, axes: NDArray[np.bool_]) -> None:
         """Zero the covariance of newly inhibited bias states (``first`` + axis), keeping
         their variances; give them back to axes learning again. In place."""
+        if not axes.any() and not self.inhibited.any():
+            return
         for k in range(3):
             i = first + k
             if axes[k]:
