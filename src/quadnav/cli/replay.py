@@ -4,6 +4,7 @@ estimate and (SITL logs) the simulator's ground truth."""
 from __future__ import annotations
 
 import dataclasses
+import math
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -122,7 +123,7 @@ def _write_report(
         "tilt_rms_deg",
         "yaw_rms_deg",
     )
-    rows = [[k, *(f"{getattr(v, m):.3f}" for m in cols)] for k, v in pairs.items()]
+    rows = [[k, *(_cell(getattr(v, m), 3) for m in cols)] for k, v in pairs.items()]
     spans = "\n".join(
         f"{k}: horizontal {_fmt(v.horizontal_spans_s)}; vertical {_fmt(v.vertical_spans_s)}; attitude {_fmt(v.attitude_spans_s)}; "
         f"not compared: {', '.join(f'{q} {a:.2f}-{b:.2f} s' for q, a, b in v.not_compared_s) or 'none'}"
@@ -146,6 +147,11 @@ def _write_report(
         ReportSection("Notes", text="\n".join(notes) or "nothing skipped"),
         ReportSection("Configuration", code=config),
     ])  # fmt: skip
+
+
+def _cell(value: float, digits: int) -> str:
+    """A table cell: the number, or why there is none (PX4 never called that estimate valid)."""
+    return f"{value:.{digits}f}" if math.isfinite(value) else "not compared"
 
 
 def _ratios(ours: Comparison, px4: Comparison) -> dict[str, float]:
@@ -232,10 +238,8 @@ def replay_command(
             v = m[k]
             table.add_row(
                 k.replace("_", " "),
-                f"{v['horizontal_rms_m']:.3f}",
-                f"{v['vertical_rms_m']:.3f}",
-                f"{v['tilt_rms_deg']:.2f}",
-                f"{v['yaw_rms_deg']:.2f}",
+                *(_cell(v[c], 3) for c in ("horizontal_rms_m", "vertical_rms_m")),
+                *(_cell(v[c], 2) for c in ("tilt_rms_deg", "yaw_rms_deg")),
             )
     console.print(table)
     for n in m["notes"]:

@@ -358,7 +358,7 @@ def _prepare_imu(s: UlogSensors, cfg: ReplayConfig, notes: list[str]) -> tuple[N
     period_ns = int(np.median(np.diff(t_imu)))
     for k in np.flatnonzero(np.diff(t_imu) > 20 * period_ns).tolist():
         notes.append(
-            f"IMU gap of {(t_imu[k + 1] - t_imu[k]) * 1e-9:.3f} s at {t_imu[k] * 1e-9:.3f} s: predicted across it"
+            f"IMU gap of {(t_imu[k + 1] - t_imu[k]) * 1e-9:.3f} s at {(t_imu[k] - s.t_start_ns) * 1e-9:.3f} s: predicted across it"
         )
     back = int(np.sum(np.diff(t_imu) <= 0))
     if back:
