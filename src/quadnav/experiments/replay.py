@@ -217,30 +217,38 @@ class ReplayResult:
     gnss_checks: GnssChecks | None = None
 
 
+def _gps_stream(
+    s: UlogSensors, cfg: ReplayConfig, gnss: GnssChecks | None
+) -> list[tuple[int, int, Sample]]:
+    """The fixes PX4's quality checks let through, with their accuracies as noise."""
+    out: list[tuple[int, int, Sample]] = []
+    g = s.gps
+    if not g or gnss is None:
+        return out
+    d_ns = round(cfg.gps_delay_s * 1e9)
+    for k in np.flatnonzero(gnss.usable).tolist():
+        t = int(g["t_ns"][k])
+        sh = max(float(g["eph"][k]), cfg.gps_pos_noise_m)
+        # without GNSS height fusion the altitude is given no weight
+        sv = max(float(g["epv"][k]), 1.5 * cfg.gps_pos_noise_m) if cfg.gps_height else 1e4
+        svel = max(float(g["s_var"][k]), cfg.gps_vel_noise_m_s)
+        try:
+            sample = GpsSample(t_ns=t - d_ns, lat_deg=float(g["lat"][k]), lon_deg=float(g["lon"][k]),
+                               alt_m=float(g["alt"][k]), v_enu_m_s=g["v_enu"][k], sigma_h_m=sh, sigma_v_m=sv,
+                               sigma_vel_m_s=svel)  # fmt: skip
+        except Exception:  # a corrupt record: left out (counted by the caller as missing)
+            continue
+        out.append((t, len(out), sample))
+    return out
+
+
 def _stream(
     s: UlogSensors, cfg: ReplayConfig, gnss: GnssChecks | None, baro_ref_m: float
 ) -> list[tuple[int, int, Sample]]:
     """(arrival ns, order, sample) for every measurement, with times of validity; GNSS fixes
     only where PX4's quality checks let them through."""
-    out: list[tuple[int, int, Sample]] = []
-    seq = 0
-    g = s.gps
-    if g and gnss is not None:
-        d_ns = round(cfg.gps_delay_s * 1e9)
-        for k in np.flatnonzero(gnss.usable).tolist():
-            t = int(g["t_ns"][k])
-            sh = max(float(g["eph"][k]), cfg.gps_pos_noise_m)
-            # without GNSS height fusion the altitude is given no weight
-            sv = max(float(g["epv"][k]), 1.5 * cfg.gps_pos_noise_m) if cfg.gps_height else 1e4
-            svel = max(float(g["s_var"][k]), cfg.gps_vel_noise_m_s)
-            try:
-                sample = GpsSample(t_ns=t - d_ns, lat_deg=float(g["lat"][k]), lon_deg=float(g["lon"][k]),
-                                   alt_m=float(g["alt"][k]), v_enu_m_s=g["v_enu"][k], sigma_h_m=sh, sigma_v_m=sv,
-                                   sigma_vel_m_s=svel)  # fmt: skip
-            except Exception:  # a corrupt record: left out (counted by the caller as missing)
-                continue
-            out.append((t, seq, sample))
-            seq += 1
+    out = _gps_stream(s, cfg, gnss)
+    seq = len(out)
     b = s.baro
     if b:
         d_ns = round(cfg.baro_delay_s * 1e9)

@@ -131,19 +131,10 @@ def _px4_validity(
     return Px4Validity(t_ns=t, xy_valid=xy, z_valid=z, att_t_ns=np.sort(t_att))
 
 
-def read_ulog_sensors(path: Path) -> UlogSensors:
-    from pyulog import ULog  # type: ignore[import-untyped]
-
-    path = Path(path)
-    if not path.is_file():
-        raise IoError(f"ULog file not found: {path}")
-    try:
-        ulog = ULog(str(path), TOPICS)
-    except Exception as exc:  # pyulog raises bare exceptions on corrupt or truncated files
-        raise IoError(f"{path}: cannot parse the ULog: {exc}") from None
-    notes: list[str] = []
-    params = {k: float(v) for k, v in ulog.initial_parameters.items() if k.startswith("EKF2_")}
-    duration = (ulog.last_timestamp - ulog.start_timestamp) * 1e-6
+def _imu(
+    ulog: Any, path: Path, notes: list[str]
+) -> tuple[IntArray, FloatArray, FloatArray, IntArray]:
+    """Times, rates, specific forces (FLU) and PX4's clipping bits of the IMU."""
     sc = _data(ulog, "sensor_combined")
     if sc is not None:
         t = np.asarray(sc["timestamp"], dtype=np.int64) * 1000
@@ -167,24 +158,76 @@ def read_ulog_sensors(path: Path) -> UlogSensors:
             gyro = frd_to_flu(_vec(vi, "delta_angle[{}]") / dt_g[:, None])
             accel = frd_to_flu(_vec(vi, "delta_velocity[{}]") / dt_a[:, None])
         clip = np.asarray(vi.get("delta_velocity_clipping", np.zeros(len(t))), dtype=np.int64) & 7
+    return t, gyro, accel, clip
+
+
+def _gps(g: dict[str, NDArray[Any]]) -> dict[str, NDArray[Any]]:
+    """A GNSS topic's fixes (either PX4 naming), velocities in ENU."""
+    lat = g["latitude_deg"] if "latitude_deg" in g else g["lat"] * 1e-7
+    lon = g["longitude_deg"] if "longitude_deg" in g else g["lon"] * 1e-7
+    alt = g["altitude_ellipsoid_m"] if "altitude_ellipsoid_m" in g else g["alt_ellipsoid"] * 1e-3
+    v_ned = np.column_stack([g["vel_n_m_s"], g["vel_e_m_s"], g["vel_d_m_s"]])
+    gps = {"t_ns": _t_ns(g), "lat": np.asarray(lat, float), "lon": np.asarray(lon, float),
+           "alt": np.asarray(alt, float), "v_enu": ned_to_enu(v_ned), "eph": np.asarray(g["eph"], float),
+           "epv": np.asarray(g["epv"], float), "s_var": np.asarray(g["s_variance_m_s"], float),
+           "fix": np.asarray(g["fix_type"], np.int64)}  # fmt: skip
+    if "satellites_used" in g:
+        gps["nsats"] = np.asarray(g["satellites_used"], np.int64)
+    if "hdop" in g and "vdop" in g:  # PX4's EKF2 takes PDOP as the norm of the two
+        gps["pdop"] = np.hypot(np.asarray(g["hdop"], float), np.asarray(g["vdop"], float))
+    return gps
+
+
+def _vision(vo: dict[str, NDArray[Any]]) -> dict[str, NDArray[Any]]:
+    """External-vision poses (ENU/FLU) with their variances and reset counters ({} if unusable)."""
+    pos_key = "position[{}]" if "position[0]" in vo else None
+    if pos_key is None and "x" in vo:
+        p_ned = np.column_stack([vo["x"], vo["y"], vo["z"]])
+    elif pos_key is not None:
+        p_ned = _vec(vo, pos_key)
+    else:
+        p_ned = None
+    if p_ned is not None and "q[0]" in vo:
+        from scipy.spatial.transform import Rotation
+
+        from quadnav.geometry.frames import rotation_ned_frd_to_enu_flu
+
+        q_wxyz = np.column_stack([vo[f"q[{k}]"] for k in range(4)]).astype(np.float64)
+        good = (
+            np.isfinite(q_wxyz).all(axis=1)
+            & (np.linalg.norm(q_wxyz, axis=1) > 0.5)
+            & np.isfinite(p_ned).all(axis=1)
+        )
+        R = rotation_ned_frd_to_enu_flu(Rotation.from_quat(q_wxyz[good][:, [1, 2, 3, 0]]))
+        var = (
+            _vec(vo, "position_variance[{}]")[good]
+            if "position_variance[0]" in vo
+            else np.full((int(good.sum()), 3), np.nan)
+        )
+        return {"t_ns": _t_ns(vo)[good], "p": ned_to_enu(p_ned[good]), "q_xyzw": R.as_quat(),
+                "var": var, "reset": np.asarray(vo.get("reset_counter", np.zeros(len(good))))[good].astype(np.int64)}  # fmt: skip
+    return {}
+
+
+def read_ulog_sensors(path: Path) -> UlogSensors:
+    from pyulog import ULog  # type: ignore[import-untyped]
+
+    path = Path(path)
+    if not path.is_file():
+        raise IoError(f"ULog file not found: {path}")
+    try:
+        ulog = ULog(str(path), TOPICS)
+    except Exception as exc:  # pyulog raises bare exceptions on corrupt or truncated files
+        raise IoError(f"{path}: cannot parse the ULog: {exc}") from None
+    notes: list[str] = []
+    params = {k: float(v) for k, v in ulog.initial_parameters.items() if k.startswith("EKF2_")}
+    duration = (ulog.last_timestamp - ulog.start_timestamp) * 1e-6
+    t, gyro, accel, clip = _imu(ulog, path, notes)
     out = UlogSensors(path, duration, t, np.asarray(gyro, float), np.asarray(accel, float), clip,
                       params=params, notes=notes, t_start_ns=int(ulog.start_timestamp) * 1000)  # fmt: skip
     g = _data(ulog, "vehicle_gps_position") or _data(ulog, "sensor_gps")
     if g is not None:
-        lat = g["latitude_deg"] if "latitude_deg" in g else g["lat"] * 1e-7
-        lon = g["longitude_deg"] if "longitude_deg" in g else g["lon"] * 1e-7
-        alt = (
-            g["altitude_ellipsoid_m"] if "altitude_ellipsoid_m" in g else g["alt_ellipsoid"] * 1e-3
-        )
-        v_ned = np.column_stack([g["vel_n_m_s"], g["vel_e_m_s"], g["vel_d_m_s"]])
-        out.gps = {"t_ns": _t_ns(g), "lat": np.asarray(lat, float), "lon": np.asarray(lon, float),
-                   "alt": np.asarray(alt, float), "v_enu": ned_to_enu(v_ned), "eph": np.asarray(g["eph"], float),
-                   "epv": np.asarray(g["epv"], float), "s_var": np.asarray(g["s_variance_m_s"], float),
-                   "fix": np.asarray(g["fix_type"], np.int64)}  # fmt: skip
-        if "satellites_used" in g:
-            out.gps["nsats"] = np.asarray(g["satellites_used"], np.int64)
-        if "hdop" in g and "vdop" in g:  # PX4's EKF2 takes PDOP as the norm of the two
-            out.gps["pdop"] = np.hypot(np.asarray(g["hdop"], float), np.asarray(g["vdop"], float))
+        out.gps = _gps(g)
     else:
         notes.append("no GNSS topic: replaying without GNSS")
     b = _data(ulog, "vehicle_air_data")
@@ -199,32 +242,7 @@ def read_ulog_sensors(path: Path) -> UlogSensors:
         notes.append("no vehicle_magnetometer: replaying without magnetometer")
     vo = _data(ulog, "vehicle_visual_odometry")
     if vo is not None:
-        pos_key = "position[{}]" if "position[0]" in vo else None
-        if pos_key is None and "x" in vo:
-            p_ned = np.column_stack([vo["x"], vo["y"], vo["z"]])
-        elif pos_key is not None:
-            p_ned = _vec(vo, pos_key)
-        else:
-            p_ned = None
-        if p_ned is not None and "q[0]" in vo:
-            from scipy.spatial.transform import Rotation
-
-            from quadnav.geometry.frames import rotation_ned_frd_to_enu_flu
-
-            q_wxyz = np.column_stack([vo[f"q[{k}]"] for k in range(4)]).astype(np.float64)
-            good = (
-                np.isfinite(q_wxyz).all(axis=1)
-                & (np.linalg.norm(q_wxyz, axis=1) > 0.5)
-                & np.isfinite(p_ned).all(axis=1)
-            )
-            R = rotation_ned_frd_to_enu_flu(Rotation.from_quat(q_wxyz[good][:, [1, 2, 3, 0]]))
-            var = (
-                _vec(vo, "position_variance[{}]")[good]
-                if "position_variance[0]" in vo
-                else np.full((int(good.sum()), 3), np.nan)
-            )
-            out.vision = {"t_ns": _t_ns(vo)[good], "p": ned_to_enu(p_ned[good]), "q_xyzw": R.as_quat(),
-                          "var": var, "reset": np.asarray(vo.get("reset_counter", np.zeros(len(good))))[good].astype(np.int64)}  # fmt: skip
+        out.vision = _vision(vo)
     ds = _data(ulog, "distance_sensor")
     if ds is not None and "current_distance" in ds:
         down = np.asarray(ds.get("orientation", np.full(len(ds["current_distance"]), 25))) == 25
