@@ -7,12 +7,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 from typer.testing import CliRunner
 
 from quadnav.cli.main import app
 from quadnav.cli.replay import replay_log
 from quadnav.errors import IoError
-from quadnav.experiments.replay import config_from_px4, replay
+from quadnav.experiments.replay import ReplayResult, config_from_px4, replay
+from quadnav.geometry.trajectory import Trajectory
 from quadnav.io.ulog_sensors import read_ulog_sensors
 from tests.shared_data import PX4_EVENTS as EVENTS
 from tests.shared_data import PX4_SITL as SITL
@@ -50,11 +52,13 @@ def test_replay_of_a_flight_follows_px4(tmp_path: Path) -> None:
 def test_replay_against_sitl_ground_truth(tmp_path: Path) -> None:
     m = replay_log(SITL, [], tmp_path)
     ours, px4 = m["quadnav_vs_truth"], m["px4_vs_truth"]
-    assert ours["horizontal_rms_m"] <= 1.2 * px4["horizontal_rms_m"] + 0.002
-    assert ours["attitude_rms_deg"] <= 1.2 * px4["attitude_rms_deg"] + 0.05
-    # vertical: 1.9 cm against PX4's 1.0 cm on this 10 s log on the ground (issue 7's 1.2x is
-    # not met; see the issue note). Guarded so it cannot get worse unnoticed.
-    assert ours["vertical_rms_m"] < 0.03
+    # PX4 never called its horizontal position valid here: ours is judged against truth alone
+    assert m["quadnav_vs_truth_everywhere"]["horizontal_rms_m"] < 0.05
+    assert ours["tilt_rms_deg"] <= 1.2 * px4["tilt_rms_deg"] + 0.05
+    assert ours["yaw_rms_deg"] <= 1.2 * px4["yaw_rms_deg"] + 0.05
+    # vertical: the barometer's offset is a bias state (PX4's BiasEstimator), so the start
+    # height is the origin and the barometer's wander goes into the bias (was 1.9 cm, 1.9x PX4's)
+    assert ours["vertical_rms_m"] <= 1.2 * px4["vertical_rms_m"]
 
 
 @needs_data
@@ -118,3 +122,220 @@ def test_visual_odometry_and_range_topics_are_fused_when_present() -> None:
     r = replay(dataclasses.replace(s, vision=vision, range=rng_d), config_from_px4(s.params))
     assert r.counts["vision"]["fused"] > 0.8 * r.counts["vision"]["received"] > 200
     assert r.counts["range"]["received"] > 200
+
+
+def test_a_gate_in_sigma_holds_at_any_width() -> None:
+    """PX4 gates in standard deviations; 8.5 sigma and more used to round to probability 1."""
+    from quadnav.estimation.nav_ekf import NavEkf, NavEkfConfig
+    from quadnav.messages import HeightSample
+
+    for gate in (3.0, 8.5, 40.0):
+        ekf = NavEkf(NavEkfConfig(gate_sigma=gate), p0=np.zeros(3), v0=np.zeros(3),
+                     q0_xyzw=np.array([0.0, 0.0, 0.0, 1.0]), P0=np.eye(15) * 0.09)  # fmt: skip
+        s = np.sqrt(0.09 + 0.16)  # innovation sigma: state 0.3 m, measurement 0.4 m
+        inside = ekf.fuse(HeightSample(t_ns=1, z_m=0.98 * gate * s, sigma_m=0.4))
+        ekf = NavEkf(NavEkfConfig(gate_sigma=gate), p0=np.zeros(3), v0=np.zeros(3),
+                     q0_xyzw=np.array([0.0, 0.0, 0.0, 1.0]), P0=np.eye(15) * 0.09)  # fmt: skip
+        outside = ekf.fuse(HeightSample(t_ns=1, z_m=1.02 * gate * s, sigma_m=0.4))
+        assert inside.accepted and not outside.accepted, gate
+
+
+@needs_data
+def test_a_log_with_a_wide_gps_gate_replays(tmp_path: Path) -> None:
+    s = read_ulog_sensors(SITL)
+    cfg = config_from_px4({**s.params, "EKF2_GPS_P_GATE": 8.5})
+    assert cfg.gate_sigma == 8.5
+    r = replay(s, cfg)
+    assert r.counts["gps"]["fused"] > 0 and np.isfinite(r.p).all()
+    # a bad gate names the setting the user can change, and the CLI says it in one line
+    res = CliRunner().invoke(
+        app, ["replay", str(SITL), "--set", "gate_sigma=0", "--out", str(tmp_path)]
+    )
+    assert res.exit_code == 2 and "gate_sigma" in res.output and "Traceback" not in res.output
+    assert "gate_probability" not in res.output and "not permitted" not in res.output
+
+
+def _still(n: int, yaw_deg: float = 0.0, roll_deg: float = 0.0, dx_m: float = 0.0) -> Trajectory:
+
+    q = Rotation.from_euler("ZX", [yaw_deg, roll_deg], degrees=True).as_quat()
+    p = np.zeros((n, 3))
+    p[:, 0] = dx_m
+    return Trajectory(t_ns=np.arange(n, dtype=np.int64) * 100_000_000 + 2_000_000_000,
+                      p_W_B=p, q_W_B_xyzw=np.tile(q, (n, 1)))  # fmt: skip
+
+
+def test_comparison_only_where_px4_called_its_estimate_valid() -> None:
+    from quadnav.experiments.replay_compare import compare
+    from quadnav.io.ulog_sensors import Px4Validity
+
+    ref = _still(100)
+    est = _still(100, yaw_deg=3.0, dx_m=5.0)
+    est.p_W_B[50:, 0] = 0.1  # 5 m off while PX4 said xy invalid, 0.1 m once valid
+    flags_t = np.array([0, 7_000_000_000], dtype=np.int64)  # xy valid from 7 s (5 s into est)
+    v = Px4Validity(t_ns=flags_t, xy_valid=np.array([False, True]), z_valid=np.array([True, True]),
+                    att_t_ns=ref.t_ns[:80])  # attitude stops 2 s before the end  # fmt: skip
+    c = compare(ref, est, t0_ns=1_000_000_000, validity=v)
+    assert c.horizontal_rms_m == pytest.approx(0.1) and c.n_horizontal == 50
+    assert c.horizontal_spans_s == ((6.0, 10.9),)  # seconds from the log's start (1 s)
+    assert ("horizontal", 1.0, 5.9) in c.not_compared_s
+    assert c.n_attitude < 90 and any(q == "attitude" for q, _, _ in c.not_compared_s)
+    # attitude split: a pure yaw difference is yaw, not tilt; a roll is tilt, not yaw
+    assert c.yaw_rms_deg == pytest.approx(3.0, abs=1e-6) and c.tilt_rms_deg < 1e-6
+    r = compare(ref, _still(100, roll_deg=2.0), t0_ns=0, validity=None)
+    assert r.tilt_rms_deg == pytest.approx(2.0, abs=1e-6) and r.yaw_rms_deg < 1e-6
+
+
+@needs_data
+def test_px4_innovations_are_plotted_in_our_convention() -> None:
+    """Our north beside PX4's north (not its east), with PX4's prediction-minus-measurement sign
+    turned into ours: on a real flight the two agree in sign, component by component."""
+    from quadnav.experiments.replay_compare import px4_innovations_as_ours
+
+    s = read_ulog_sensors(EVENTS)
+    r = replay(s, config_from_px4(s.params))
+    pairs = px4_innovations_as_ours(s.px4_innovations, s.px4_validity, s.t_start_ns)
+    assert [p.label.split()[0:2] for p in pairs][:2] == [["GNSS", "east"], ["GNSS", "north"]]
+    for p in pairs:
+        f = r.fusion[p.source]
+        ours_t = (f["t_obs_ns"] - s.t_start_ns) * 1e-9
+        delay = 0.11 if p.source == "gps" else 0.0  # PX4 logs at fusion, we at validity
+        mine = np.interp(p.px4_t_s - delay, ours_t, f["innovation"][:, p.column])
+        assert np.corrcoef(mine, p.px4_m)[0, 1] > 0.3, p.label
+        assert p.px4_t_s.min() >= 0 and p.px4_t_s.max() < s.duration_s + 1
+
+
+@needs_data
+def test_metrics_say_what_was_compared(tmp_path: Path) -> None:
+    import json
+
+    m = replay_log(SITL, [], tmp_path)
+    saved = json.loads((Path(m["run_dir"]) / "metrics.json").read_text())
+    # PX4 never called its horizontal position valid on this log (it never fused GNSS)
+    assert saved["px4_vs_truth"]["horizontal_spans_s"] == []
+    assert saved["px4_vs_truth"]["horizontal_rms_m"] is None
+    assert saved["quadnav_vs_truth"]["vertical_spans_s"][0][0] < 2.0  # s from the log's start
+    assert any(q == "horizontal" for q, _, _ in saved["quadnav_vs_px4"]["not_compared_s"])
+    assert "xy_valid" in saved["compared"]
+    assert "tilt_rms_deg" in saved["ratio_quadnav_to_px4_vs_truth"]
+    assert "Compared spans" in (Path(m["run_dir"]) / "report.html").read_text()
+
+
+def _drifting_fixes(s_gps: dict[str, np.ndarray], radius_m: float) -> dict[str, np.ndarray]:
+    """The log's fixes replaced by a receiver at rest whose fixes circle ``radius_m`` every
+    30 s (multipath) while claiming 1 m accuracy and a 3-D fix."""
+    g = {k: np.array(v, copy=True) for k, v in s_gps.items()}
+    t_s = (g["t_ns"] - g["t_ns"][0]) * 1e-9
+    w = 2 * np.pi * t_s / 30.0
+    lat0, lon0 = float(g["lat"][-1]), float(g["lon"][-1])
+    g["lat"] = lat0 + np.degrees(radius_m * np.sin(w) / 6_371_000.0)
+    g["lon"] = lon0 + np.degrees(
+        radius_m * (np.cos(w) - 1) / (6_371_000.0 * np.cos(np.radians(lat0)))
+    )
+    g["eph"][:] = 1.0
+    g["epv"][:] = 1.5
+    g["fix"][:] = 3
+    return g
+
+
+@needs_data
+def test_gnss_that_px4_would_refuse_is_not_fused(tmp_path: Path) -> None:
+    """A vehicle on the ground whose fixes wander metres: PX4's drift checks never let them
+    through, so neither do we, and the estimate stays where the vehicle stands."""
+    s = read_ulog_sensors(SITL)  # 10 s standing on the ground
+    stuck = dataclasses.replace(s, gps=_drifting_fixes(s.gps, 4.0))
+    # 2 s of passing required (PX4's default is 10 s, longer than this log; it has 0.5 s)
+    r = replay(stuck, config_from_px4(s.params, {"gps_pass_s": 2.0}))
+    assert r.gnss_checks is not None and not r.gnss_checks.usable.any()
+    assert r.counts.get("gps", {}).get("fused", 0) == 0
+    assert r.counts["gps_checks"]["horizontal_drift"] > 0.5 * len(s.gps["t_ns"])
+    assert any("horizontal_drift" in n and "never passed" in n for n in r.notes)
+    assert np.abs(r.p[:, 0:2] - r.p[0, 0:2]).max() < 0.1  # did not follow the 4 m wander
+    # the same fixes with the checks turned off (PX4's EKF2_GPS_CHECK = 0) are fused and followed
+    r0 = replay(stuck, config_from_px4({**s.params, "EKF2_GPS_CHECK": 0}, {"gps_pass_s": 2.0}))
+    assert r0.counts["gps"]["fused"] > 100 and np.abs(r0.p[:, 0:2] - r0.p[0, 0:2]).max() > 2.0
+
+
+@needs_data
+def test_gnss_starts_when_px4s_checks_passed(tmp_path: Path) -> None:
+    """PX4 logged when its checks passed (estimator_gps_status); ours agree within a fix."""
+    from pyulog import ULog
+
+    u = ULog(str(SITL), ["estimator_gps_status"])
+    st = next(d for d in u.data_list if d.name == "estimator_gps_status" and d.multi_id == 0)
+    t_px4_s = st.data["timestamp"][np.argmax(st.data["checks_passed"] > 0)] * 1e-6
+    m = replay_log(SITL, [], tmp_path)
+    run = Path(m["run_dir"])
+    rows = np.genfromtxt(run / "gnss_checks.csv", delimiter=",", names=True)
+    t_ours_s = rows["t_ns"][rows["used"] > 0][0] * 1e-9
+    assert abs(t_ours_s - t_px4_s) < 0.3  # PX4 logs a little after the fix's time
+    assert (rows["eph"][rows["used"] == 0] > 0).sum() > 100  # the refused ones say why
+
+
+@needs_data
+def test_barometer_drift_at_rest_goes_into_its_bias() -> None:
+    """The weather moves a barometer's reading (here 0.64 m over 8 s) while the vehicle stands
+    still: with PX4's bias estimator the height stays; without it, it follows the drift."""
+    s = read_ulog_sensors(SITL)
+    b = dict(s.baro)
+    t_s = (b["t_ns"] - b["t_ns"][0]) * 1e-9
+    b["alt"] = b["alt"] + 0.08 * np.clip(t_s - 2.0, 0.0, None)
+    drifting = dataclasses.replace(s, baro=b)
+    for noise_m in (3.5, 0.3):  # the log's EKF2_BARO_NOISE, and a barometer trusted more
+        with_bias = replay(drifting, config_from_px4(s.params, {"baro_noise_m": noise_m}))
+        without = replay(
+            drifting,
+            config_from_px4(s.params, {"baro_noise_m": noise_m, "baro_bias_nsd_m_s": None}),
+        )
+        assert np.abs(with_bias.p[:, 2]).max() < 0.3 * np.abs(without.p[:, 2]).max(), noise_m
+        assert np.abs(without.p[:, 2]).max() > 0.15
+
+
+def test_bias_estimator_gates_and_caps_its_variance() -> None:
+    from quadnav.estimation.bias_estimator import BiasEstimator
+
+    b = BiasEstimator(0.13, var=0.01, var_max=0.04)
+    for _ in range(1000):
+        b.predict(0.01)
+    assert b.var == pytest.approx(0.04)  # capped at the measurement variance
+    assert not b.fuse(5.0, 0.01) and b.bias == 0.0  # 5 m off a 0.22 m sigma: gated out
+    assert b.fuse(0.2, 0.01) and 0.0 < b.bias < 0.2 and b.var < 0.04
+
+
+def _tilt_error_deg(r: ReplayResult, R_true: Rotation, after_ns: int) -> float:
+    q = r.q_xyzw[r.t_ns > after_ns]
+    z_est = Rotation.from_quat(q).as_matrix()[:, :, 2]
+    return float(np.degrees(np.arccos(np.clip(z_est @ R_true.as_matrix()[:, 2], -1.0, 1.0))).mean())
+
+
+def test_tilt_after_a_crash_agrees_with_the_accelerometer_at_rest() -> None:
+    """A simulated crash (tests/experiments/crash_stream.py): 14 rad/s, impacts of 35-40 g on a
+    16 g accelerometer, then at rest tilted. Before, the clipped samples were integrated as if
+    true and the zero-velocity updates at rest turned the lost velocity into ~4 degrees of tilt
+    held up by a wrong accelerometer bias. Seeded Monte Carlo over the sensor noise."""
+    from tests.experiments.crash_stream import crash_sensors
+
+    plain = {
+        "clipped_accel_noise_m_s2": 0.35,
+        "accel_bias_learn_gyro_limit_rad_s": None,
+        "relevel_at_rest_s": None,
+    }
+    for seed in range(3):
+        s, R_true = crash_sensors(seed=seed)
+        after = s.t_start_ns + 12_000_000_000  # from 6 s after the crash to the end
+        r = replay(s, config_from_px4({}))
+        assert r.counts["imu"]["clipping_flagged"] > 10
+        assert _tilt_error_deg(r, R_true, after) < 0.5, seed
+        assert any("re-levelled at rest" in m for _, m in r.events)
+        assert any("clipping flagged" in n for n in r.notes)
+        r0 = replay(s, config_from_px4({}, plain))  # clipped samples taken at face value
+        assert _tilt_error_deg(r0, R_true, after) > 2.0, seed
+
+
+def test_clipping_alone_does_not_relevel_a_healthy_flight() -> None:
+    """No clipping: nothing re-levels, and the bias gate leaves the shared logs' numbers alone."""
+    from tests.experiments.crash_stream import crash_sensors
+
+    s, _ = crash_sensors(seed=0)
+    calm = dataclasses.replace(s, imu_clipping=np.zeros_like(s.imu_clipping))
+    r = replay(calm, config_from_px4({}))
+    assert not any("re-levelled" in m for _, m in r.events)

@@ -53,9 +53,19 @@ __all__ = [
     "NavState",
     "SourceStats",
     "imu_buffer_length",
+    "require_positive",
 ]
 
 FloatArray = NDArray[np.float64]
+
+
+def require_positive(obj: object, names: tuple[str, ...]) -> None:
+    """Each named field of a config must be a finite number > 0 (else an EstimationError
+    naming ``Type.field``)."""
+    for name in names:
+        v = getattr(obj, name)
+        if not (math.isfinite(v) and v > 0):
+            raise EstimationError(f"{type(obj).__name__}.{name} must be finite and > 0, got {v}")
 
 
 def imu_buffer_length(*, max_delay_ns: int, imu_period_ns: int) -> int:
@@ -199,10 +209,7 @@ class HorizonConfig:
 
     def __post_init__(self) -> None:
         imu_buffer_length(max_delay_ns=self.max_delay_ns, imu_period_ns=self.imu_period_ns)
-        for name in ("tau_vel_s", "tau_pos_s"):
-            value = getattr(self, name)
-            if not math.isfinite(value) or value <= 0.0:
-                raise EstimationError(f"HorizonConfig.{name} must be finite and > 0, got {value}")
+        require_positive(self, ("tau_vel_s", "tau_pos_s"))
         if self.max_fusion_log is not None and self.max_fusion_log < 1:
             raise EstimationError("HorizonConfig.max_fusion_log must be >= 1 or None")
         if self.max_observations_per_source < 1:

@@ -26,7 +26,14 @@ from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
 from quadnav.errors import EstimationError
-from quadnav.estimation.horizon import FusionResult, NavState
+from quadnav.estimation.bias_estimator import BiasEstimator
+from quadnav.estimation.horizon import FusionResult, NavState, require_positive
+from quadnav.estimation.imu_clipping import (
+    BADACC_NOISE_M_S2,
+    BiasLearningGate,
+    Releveller,
+    clip_axes,
+)
 from quadnav.geometry.rotations import (
     quat_xyzw_from_matrix,
     rotation_matrix_xyzw,
@@ -51,6 +58,7 @@ __all__ = [
     "NavEkf",
     "NavEkfConfig",
     "NavKinematics",
+    "gate_thresholds",
     "mag_heading_jacobian",
     "nav_jacobians",
     "range_jacobian",
@@ -160,6 +168,25 @@ def nav_jacobians(
     return F, G
 
 
+def gate_thresholds(gate_sigma: float, dims: tuple[int, ...]) -> dict[int, float]:
+    """Chi-square thresholds of a gate of ``gate_sigma`` standard deviations: ``gate_sigma**2``
+    in one dimension (PX4's test ratio ``innov^2 / (gate^2 var)``), and in ``k`` dimensions the
+    threshold with the same tail probability. The probability is carried as a tail (never as
+    ``1 - tail``, which rounds to 1 from 8.5 sigma); where even the tail underflows (beyond
+    about 37 sigma) the tail's asymptote ``x + (k - 1) ln x`` stands in."""
+    x = float(gate_sigma) ** 2
+    tail = float(chi2.sf(x, 1))
+    out: dict[int, float] = {}
+    for k in dims:
+        if k == 1:
+            out[k] = x
+        elif tail > 0.0:
+            out[k] = float(chi2.isf(tail, k))
+        else:
+            out[k] = x + (k - 1) * math.log(x)
+    return out
+
+
 def yaw_of(R: FloatArray) -> float:
     return math.atan2(R[1, 0], R[0, 0])
 
@@ -216,6 +243,10 @@ class NavEkfConfig:
     accel_bias_rw_m_s2_sqrt_s: float = 1e-3
     gravity_m_s2: float = 9.81
     gate_probability: float = 0.9999
+    # The innovation gate in standard deviations, as PX4 sets it (``EKF2_*_GATE``); when given it
+    # replaces ``gate_probability`` (which cannot express gates of 8.5 sigma and more: the
+    # probability rounds to 1). A k-dimensional test keeps the 1-D gate's tail probability.
+    gate_sigma: float | None = None
     reset_after_s: float = 2.0  # a source rejected this long resets the states it observes
     datum_lla: tuple[float, float, float] | None = (
         None  # GNSS origin of the world frame; None: first fix
@@ -228,21 +259,28 @@ class NavEkfConfig:
     vision_frame: str = "world"
     vision_rotation_gain: float = 0.05  # low-pass gain per sample of the estimated frame yaw
     vision_anchor_samples: int = 30  # poses averaged to anchor a vision frame after a reset
+    # A barometer bias estimated beside the state, as PX4's EKF2 does (its ``baro_bias_nsd``,
+    # 0.13 m/s/sqrt(Hz)); None: barometer heights are taken as they come.
+    baro_bias_nsd_m_s: float | None = None
+    baro_bias_var0_m2: float = 0.1  # the bias's initial variance (PX4's: 0.1)
+    # Clipped accelerometer axes (a ClippedImuSample) get this process noise (PX4's 4.9).
+    clipped_accel_sigma_m_s2: float = BADACC_NOISE_M_S2
+    # PX4's accelerometer-bias learning gate (EKF2_ABL_GYRLIM, _ACCLIM, _TAU); None: always learn.
+    accel_bias_learn_gyro_limit_rad_s: float | None = None
+    accel_bias_learn_accel_limit_m_s2: float = 25.0
+    accel_bias_learn_tau_s: float = 0.5
+    # After clipping, re-level once at rest this long (Releveller); None: never.
+    relevel_at_rest_s: float | None = None
     terrain_z_m: float = 0.0  # height of the flat ground the range finder sees
     range_max_tilt_rad: float = 0.7  # range readings at larger tilts are not fused
 
     def __post_init__(self) -> None:
-        for name in (
-            "gyro_sigma_rad_s",
-            "accel_sigma_m_s2",
-            "gyro_bias_rw_rad_s_sqrt_s",
-            "accel_bias_rw_m_s2_sqrt_s",
-            "gravity_m_s2",
-        ):
-            v = getattr(self, name)
-            if not (math.isfinite(v) and v > 0):
-                raise EstimationError(f"NavEkfConfig.{name} must be finite and > 0, got {v}")
-        if not 0 < self.gate_probability < 1:
+        require_positive(self, ("gyro_sigma_rad_s", "accel_sigma_m_s2", "gyro_bias_rw_rad_s_sqrt_s",
+                                "accel_bias_rw_m_s2_sqrt_s", "gravity_m_s2"))  # fmt: skip
+        optional = ("gate_sigma", "baro_bias_nsd_m_s", "baro_bias_var0_m2", "clipped_accel_sigma_m_s2",
+                    "accel_bias_learn_gyro_limit_rad_s", "relevel_at_rest_s")  # fmt: skip
+        require_positive(self, tuple(n for n in optional if getattr(self, n) is not None))
+        if self.gate_sigma is None and not 0 < self.gate_probability < 1:
             raise EstimationError("NavEkfConfig.gate_probability must lie in (0, 1)")
         if self.vision_frame not in ("world", "rotate"):
             raise EstimationError(
@@ -285,7 +323,11 @@ class NavEkf:
         self.bg = np.zeros(3) if bg0 is None else np.asarray(bg0, dtype=np.float64).copy()
         self.ba = np.zeros(3) if ba0 is None else np.asarray(ba0, dtype=np.float64).copy()
         self._P = 0.5 * (P0 + P0.T)
-        self._gates = {k: float(chi2.ppf(config.gate_probability, k)) for k in (1, 2, 3, 4, 6)}
+        self._gates = (
+            {k: float(chi2.ppf(config.gate_probability, k)) for k in (1, 2, 3, 4, 6)}
+            if config.gate_sigma is None
+            else gate_thresholds(config.gate_sigma, (1, 2, 3, 4, 6))
+        )
         self._datum = config.datum_lla
         self._g_W = np.array([0.0, 0.0, -config.gravity_m_s2])
         self._jac_dt = math.nan
@@ -299,6 +341,17 @@ class NavEkf:
         self._ev_anchor: dict[str, _FrameAnchor] = {}
         self._last_accepted_ns: dict[str, int] = {}
         self.events: list[tuple[int, str]] = []
+        nsd = config.baro_bias_nsd_m_s
+        self.baro_bias: BiasEstimator | None = (
+            None if nsd is None else BiasEstimator(nsd, var=config.baro_bias_var0_m2)
+        )
+        lim = config.accel_bias_learn_gyro_limit_rad_s
+        self.bias_gate: BiasLearningGate | None = None if lim is None else BiasLearningGate(
+            gyro_limit_rad_s=lim, accel_limit_m_s2=config.accel_bias_learn_accel_limit_m_s2,
+            tau_s=config.accel_bias_learn_tau_s)  # fmt: skip
+        self.n_clipped = 0
+        rl = config.relevel_at_rest_s
+        self.releveller: Releveller | None = None if rl is None else Releveller(window_s=rl)
 
     # -- the DelayedFilter protocol --------------------------------------------------------
     @property
@@ -362,11 +415,48 @@ class NavEkf:
         self.v = self.v + dt_s * (R_new @ f + self._g_W)
         self.p = self.p + dt_s * self.v
         self.R = R_new
-        P = F @ self._P @ F.T + (G * self._q) @ G.T
+        clipped = clip_axes(imu)
+        q = self._q
+        if clipped:  # PX4: a saturated axis's reading is as uncertain as BADACC_BIAS_PNOISE
+            self.n_clipped += 1
+            q = q.copy()
+            for k in range(3):
+                if clipped >> k & 1:
+                    q[3 + k] = max(q[3 + k], self.config.clipped_accel_sigma_m_s2**2)
+        P = F @ self._P @ F.T + (G * q) @ G.T
+        if self.bias_gate is not None:
+            self.bias_gate.apply(P, 12, self.bias_gate.update(w, f, clipped, dt_s))
         self._n_predict += 1
         if self._n_predict % 32 == 0:  # rounding makes P drift from symmetry, slowly
             P = 0.5 * (P + P.T)
         self._P = P
+        if self.releveller is not None:
+            if clipped:
+                self.releveller.on_clip(self.ba, np.diag(P)[I_BA].copy())
+            f_rest = self.releveller.update(w, imu.accel_m_s2, dt_s, self.config.gravity_m_s2)
+            if f_rest is not None:
+                self._relevel(imu.t_ns, f_rest, self.releveller)
+        if self.baro_bias is not None:
+            self.baro_bias.predict(dt_s)
+
+    def _relevel(self, t_ns: int, f_mean: FloatArray, rl: Releveller) -> None:
+        """Roll and pitch from the mean specific force at rest (less the bias from before the
+        clipping), the heading kept; velocity zero; the bias back; their covariances reset."""
+        f = f_mean - rl.bias_before
+        roll, pitch = math.atan2(f[1], f[2]), math.atan2(-f[0], math.hypot(f[1], f[2]))
+        R_new = Rotation.from_euler("ZYX", [yaw_of(self.R), pitch, roll]).as_matrix()
+        moved_deg = math.degrees(math.acos(min(1.0, float(self.R[:, 2] @ R_new[:, 2]))))
+        j = yaw_jacobian(self.R)
+        var_yaw = float(j @ self._P[I_TH, I_TH] @ j)
+        P = self._P
+        for blk in (I_TH, I_V, I_BA):
+            P[blk, :] = 0.0
+            P[:, blk] = 0.0
+        P[I_TH, I_TH] = R_new.T @ np.diag([0.02**2, 0.02**2, var_yaw]) @ R_new  # world tilt, yaw
+        P[I_V, I_V] = np.eye(3) * 0.1**2
+        P[I_BA, I_BA] = np.diag(rl.bias_var_before)
+        self.R, self.v, self.ba = R_new, np.zeros(3), rl.bias_before.copy()
+        self.events.append((t_ns, f"re-levelled at rest after accelerometer clipping: tilt moved {moved_deg:.1f} deg, velocity zeroed"))  # fmt: skip
 
     def fuse(self, obs: Sample) -> FusionResult:
         if isinstance(obs, PositionSample):
@@ -375,6 +465,8 @@ class NavEkf:
             return self._gated(obs, obs.p_W_B - self.p, H, np.eye(3) * obs.sigma_m**2, obs.p_W_B)
         if isinstance(obs, PoseSample):
             return self._fuse_pose(obs)
+        if isinstance(obs, HeightSample) and obs.source == "baro" and self.baro_bias is not None:
+            return self._fuse_baro_with_bias(obs, self.baro_bias)
         if isinstance(obs, HeightSample):
             H = np.zeros((1, 15))
             H[0, 8] = 1.0
@@ -393,6 +485,18 @@ class NavEkf:
             Rn = np.eye(3) * obs.sigma_m_s**2
             return self._update(obs.v_W_B - self.v, H, Rn)
         raise EstimationError(f"the navigation EKF cannot fuse {type(obs).__name__}")
+
+    def _fuse_baro_with_bias(self, obs: HeightSample, bias: BiasEstimator) -> FusionResult:
+        """PX4's order: the innovation with the current bias, then the bias estimator updated
+        from the state before the main update, then the main update."""
+        var = obs.sigma_m**2
+        H = np.zeros((1, 15))
+        H[0, 8] = 1.0
+        r = np.array([obs.z_m - bias.bias - self.p[2]])
+        Rn = np.array([[var + bias.var]])
+        bias.var_max = var
+        bias.fuse(obs.z_m - float(self.p[2]), var + float(self._P[8, 8]))
+        return self._gated(obs, r, H, Rn, None)
 
     def gps_to_enu(self, obs: GpsSample) -> FloatArray:
         """A fix in the world frame: ENU about the datum (the first fix when none was given)."""

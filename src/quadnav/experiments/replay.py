@@ -19,15 +19,16 @@ from typing import Any
 import numpy as np
 import pymap3d
 from numpy.typing import NDArray
-from pydantic import BaseModel, ConfigDict, Field
-from scipy.stats import chi2
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from quadnav.errors import ExperimentError
+from quadnav.estimation.gnss_checks import CHECK_NAMES, GnssCheckConfig, GnssChecks, run_gnss_checks
 from quadnav.estimation.horizon import DelayedHorizonEstimator, HorizonConfig
+from quadnav.estimation.imu_clipping import BADACC_NOISE_M_S2, ClippedImuSample
 from quadnav.estimation.nav_ekf import NavEkf, NavEkfConfig
 from quadnav.experiments.nav import ground_alignment
 from quadnav.geometry.rotations import quat_xyzw_from_matrix
-from quadnav.io.ulog_sensors import UlogSensors
+from quadnav.io.ulog_sensors import UlogSensors, held_flags
 from quadnav.messages import (
     GpsSample,
     HeightSample,
@@ -39,7 +40,14 @@ from quadnav.messages import (
     VelocitySample,
 )
 
-__all__ = ["ReplayConfig", "ReplayResult", "config_from_px4", "replay"]
+__all__ = [
+    "CHECK_NAMES",
+    "ReplayConfig",
+    "ReplayResult",
+    "config_from_px4",
+    "gnss_checks_for",
+    "replay",
+]
 
 FloatArray = NDArray[np.float64]
 
@@ -47,7 +55,7 @@ FloatArray = NDArray[np.float64]
 class ReplayConfig(BaseModel):
     """The filter's settings for a replay; :func:`config_from_px4` fills them from EKF2's."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     gyro_noise_rad_s: float = Field(0.015, gt=0)
     accel_noise_m_s2: float = Field(0.35, gt=0)
@@ -64,8 +72,15 @@ class ReplayConfig(BaseModel):
     gps_pos_noise_m: float = Field(0.5, gt=0)
     gps_vel_noise_m_s: float = Field(0.3, gt=0)
     baro_noise_m: float = Field(3.5, gt=0)
+    baro_bias_nsd_m_s: float | None = Field(
+        0.13,
+        gt=0,
+        description="barometer bias random walk (PX4's baro_bias_nsd); null: no bias state",
+    )
     heading_noise_rad: float = Field(0.3, gt=0)
-    gate_sigma: float = Field(5.0, gt=0)
+    gate_sigma: float = Field(
+        5.0, gt=0, description="innovation gate in standard deviations (EKF2_GPS_P_GATE); any > 0"
+    )
     mag_declination_rad: float | None = Field(None, description="None: from the log")
     align_s: float = Field(1.0, gt=0)
     zero_velocity_when_landed: bool = True
@@ -75,6 +90,39 @@ class ReplayConfig(BaseModel):
     min_gps_fix: int = Field(3, ge=2)
     gps_max_eph_m: float = Field(
         3.0, gt=0, description="fixes less precise than this are not used (EKF2_REQ_EPH)"
+    )
+    clipped_accel_noise_m_s2: float = Field(
+        BADACC_NOISE_M_S2,
+        gt=0,
+        description="process noise of a clipped accelerometer axis (PX4's BADACC_BIAS_PNOISE)",
+    )
+    accel_bias_learn_gyro_limit_rad_s: float | None = Field(
+        3.0,
+        gt=0,
+        description="no accelerometer-bias learning above this body rate (EKF2_ABL_GYRLIM); null: always",
+    )
+    accel_bias_learn_accel_limit_m_s2: float = Field(
+        25.0, gt=0, description="nor above this specific force (EKF2_ABL_ACCLIM)"
+    )
+    accel_bias_learn_tau_s: float = Field(
+        0.5, gt=0, description="decay of those peak detectors (EKF2_ABL_TAU)"
+    )
+    relevel_at_rest_s: float | None = Field(
+        1.0,
+        gt=0,
+        description="after accelerometer clipping, re-level once the IMU shows rest this long; null: never",
+    )
+    gps_check_mask: int = Field(
+        245, ge=0, description="PX4's GNSS checks to apply (EKF2_GPS_CHECK bits)"
+    )
+    gps_min_sats: int = Field(6, ge=0, description="EKF2_REQ_NSATS")
+    gps_max_pdop: float = Field(2.5, gt=0, description="EKF2_REQ_PDOP")
+    gps_max_epv_m: float = Field(5.0, gt=0, description="EKF2_REQ_EPV")
+    gps_max_sacc_m_s: float = Field(0.5, gt=0, description="EKF2_REQ_SACC")
+    gps_max_hdrift_m_s: float = Field(0.1, gt=0, description="EKF2_REQ_HDRIFT (landed, at rest)")
+    gps_max_vdrift_m_s: float = Field(0.2, gt=0, description="EKF2_REQ_VDRIFT (landed, at rest)")
+    gps_pass_s: float = Field(
+        10.0, ge=0, description="the checks pass this long before GNSS is used (EKF2_REQ_GPS_H)"
     )
     gps_height: bool = Field(
         True,
@@ -89,7 +137,10 @@ class ReplayConfig(BaseModel):
 def config_from_px4(
     params: dict[str, float], overrides: dict[str, Any] | None = None
 ) -> ReplayConfig:
-    """EKF2 parameters (as logged) onto :class:`ReplayConfig`; ``overrides`` win."""
+    """EKF2 parameters (as logged) onto :class:`ReplayConfig`; ``overrides`` win.
+
+    A value that does not fit is an :class:`ExperimentError` naming the setting the user can
+    change (``--set name=value``) and, when it came from the log, the EKF2 parameter."""
     mapping = {
         "EKF2_GYR_NOISE": ("gyro_noise_rad_s", 1.0), "EKF2_ACC_NOISE": ("accel_noise_m_s2", 1.0),
         "EKF2_GYR_B_NOISE": ("gyro_bias_noise_rad_s2", 1.0), "EKF2_ACC_B_NOISE": ("accel_bias_noise_m_s3", 1.0),
@@ -100,20 +151,52 @@ def config_from_px4(
         "EKF2_TAU_VEL": ("tau_vel_s", 1.0), "EKF2_TAU_POS": ("tau_pos_s", 1.0),
         "EKF2_EV_DELAY": ("ev_delay_s", 1e-3), "EKF2_RNG_DELAY": ("range_delay_s", 1e-3),
         "EKF2_EVP_NOISE": ("ev_pos_noise_m", 1.0), "EKF2_EVA_NOISE": ("ev_yaw_noise_rad", 1.0),
-        "EKF2_RNG_NOISE": ("range_noise_m", 1.0),
+        "EKF2_RNG_NOISE": ("range_noise_m", 1.0), "EKF2_ABL_GYRLIM": ("accel_bias_learn_gyro_limit_rad_s", 1.0),
+        "EKF2_ABL_ACCLIM": ("accel_bias_learn_accel_limit_m_s2", 1.0), "EKF2_ABL_TAU": ("accel_bias_learn_tau_s", 1.0),
     }  # fmt: skip
     values: dict[str, Any] = {}
+    origin: dict[str, str] = {}
     for key, (name, scale) in mapping.items():
         if key in params and math.isfinite(params[key]) and params[key] > 0:
             values[name] = params[key] * scale
-    if "EKF2_REQ_EPH" in params:
-        values["gps_max_eph_m"] = params["EKF2_REQ_EPH"]
+            origin[name] = key
+    direct = {
+        "EKF2_REQ_EPH": "gps_max_eph_m", "EKF2_GPS_CHECK": "gps_check_mask", "EKF2_REQ_NSATS": "gps_min_sats",
+        "EKF2_REQ_PDOP": "gps_max_pdop", "EKF2_REQ_EPV": "gps_max_epv_m", "EKF2_REQ_SACC": "gps_max_sacc_m_s",
+        "EKF2_REQ_HDRIFT": "gps_max_hdrift_m_s", "EKF2_REQ_VDRIFT": "gps_max_vdrift_m_s", "EKF2_REQ_GPS_H": "gps_pass_s",
+    }  # fmt: skip
+    for key, name in direct.items():
+        if key in params:
+            v = params[key]
+            values[name] = (
+                int(v) if name in ("gps_check_mask", "gps_min_sats") and math.isfinite(v) else v
+            )
+            origin[name] = key
     if "EKF2_GPS_CTRL" in params:  # v1.14 and later: bit 1 is the GNSS altitude
         values["gps_height"] = bool(int(params["EKF2_GPS_CTRL"]) & 2)
     elif "EKF2_HGT_MODE" in params:  # earlier: the GNSS altitude only as the height reference
         values["gps_height"] = int(params["EKF2_HGT_MODE"]) == 1
+    for name in overrides or {}:
+        origin.pop(name, None)
     values.update(overrides or {})
-    return ReplayConfig.model_validate(values)
+    try:
+        return ReplayConfig.model_validate(values)
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        name = str(err["loc"][0]) if err["loc"] else "?"
+        if err["type"] == "extra_forbidden":
+            known = ", ".join(ReplayConfig.model_fields)
+            raise ExperimentError(
+                f"replay setting {name}: unknown (the settings are: {known})"
+            ) from None
+        where = (
+            f"the log's {origin[name]} = {params[origin[name]]:g}"
+            if name in origin
+            else f"got {err.get('input')!r}"
+        )
+        raise ExperimentError(
+            f"replay setting {name} ({where}): {err['msg']}; set it with --set {name}=..."
+        ) from None
 
 
 @dataclass
@@ -131,32 +214,41 @@ class ReplayResult:
     events: list[tuple[int, str]]
     notes: list[str] = field(default_factory=list)
     replay_wall_s: float = 0.0
+    gnss_checks: GnssChecks | None = None
+
+
+def _gps_stream(
+    s: UlogSensors, cfg: ReplayConfig, gnss: GnssChecks | None
+) -> list[tuple[int, int, Sample]]:
+    """The fixes PX4's quality checks let through, with their accuracies as noise."""
+    out: list[tuple[int, int, Sample]] = []
+    g = s.gps
+    if not g or gnss is None:
+        return out
+    d_ns = round(cfg.gps_delay_s * 1e9)
+    for k in np.flatnonzero(gnss.usable).tolist():
+        t = int(g["t_ns"][k])
+        sh = max(float(g["eph"][k]), cfg.gps_pos_noise_m)
+        # without GNSS height fusion the altitude is given no weight
+        sv = max(float(g["epv"][k]), 1.5 * cfg.gps_pos_noise_m) if cfg.gps_height else 1e4
+        svel = max(float(g["s_var"][k]), cfg.gps_vel_noise_m_s)
+        try:
+            sample = GpsSample(t_ns=t - d_ns, lat_deg=float(g["lat"][k]), lon_deg=float(g["lon"][k]),
+                               alt_m=float(g["alt"][k]), v_enu_m_s=g["v_enu"][k], sigma_h_m=sh, sigma_v_m=sv,
+                               sigma_vel_m_s=svel)  # fmt: skip
+        except Exception:  # a corrupt record: left out (counted by the caller as missing)
+            continue
+        out.append((t, len(out), sample))
+    return out
 
 
 def _stream(
-    s: UlogSensors, cfg: ReplayConfig, datum_lla: tuple[float, float, float], baro_ref_m: float
+    s: UlogSensors, cfg: ReplayConfig, gnss: GnssChecks | None, baro_ref_m: float
 ) -> list[tuple[int, int, Sample]]:
-    """(arrival ns, order, sample) for every measurement, with times of validity."""
-    out: list[tuple[int, int, Sample]] = []
-    seq = 0
-    g = s.gps
-    if g:
-        d_ns = round(cfg.gps_delay_s * 1e9)
-        usable = (g["fix"] >= cfg.min_gps_fix) & (g["eph"] <= cfg.gps_max_eph_m)
-        for k in np.flatnonzero(usable).tolist():
-            t = int(g["t_ns"][k])
-            sh = max(float(g["eph"][k]), cfg.gps_pos_noise_m)
-            # without GNSS height fusion the altitude is given no weight
-            sv = max(float(g["epv"][k]), 1.5 * cfg.gps_pos_noise_m) if cfg.gps_height else 1e4
-            svel = max(float(g["s_var"][k]), cfg.gps_vel_noise_m_s)
-            try:
-                sample = GpsSample(t_ns=t - d_ns, lat_deg=float(g["lat"][k]), lon_deg=float(g["lon"][k]),
-                                   alt_m=float(g["alt"][k]), v_enu_m_s=g["v_enu"][k], sigma_h_m=sh, sigma_v_m=sv,
-                                   sigma_vel_m_s=svel)  # fmt: skip
-            except Exception:  # a corrupt record: left out (counted by the caller as missing)
-                continue
-            out.append((t, seq, sample))
-            seq += 1
+    """(arrival ns, order, sample) for every measurement, with times of validity; GNSS fixes
+    only where PX4's quality checks let them through."""
+    out = _gps_stream(s, cfg, gnss)
+    seq = len(out)
     b = s.baro
     if b:
         d_ns = round(cfg.baro_delay_s * 1e9)
@@ -217,12 +309,13 @@ def _stream(
     return out
 
 
-def _downsample(t: NDArray[np.int64], gyro: FloatArray, accel: FloatArray, n: int) -> tuple[NDArray[np.int64], FloatArray, FloatArray]:  # fmt: skip
-    """Average each run of ``n`` IMU samples into one, stamped at its last sample (what PX4's
-    IMU down-sampler hands EKF2). A sample with a non-finite value spoils its group, which the
-    estimator then refuses at its boundary and counts."""
+def _downsample(t: NDArray[np.int64], gyro: FloatArray, accel: FloatArray, clip: NDArray[np.int64], n: int) -> tuple[NDArray[np.int64], FloatArray, FloatArray, NDArray[np.int64]]:  # fmt: skip
+    """Average each run of ``n`` IMU samples into one, stamped at its last sample, its clipping
+    flags ORed (what PX4's IMU down-sampler hands EKF2). A sample with a non-finite value
+    spoils its group, which the estimator then refuses at its boundary and counts."""
+    clip = np.asarray(clip, dtype=np.int64)
     if n == 1:
-        return t, gyro, accel
+        return t, gyro, accel, clip
     m = (len(t) // n) * n
     tt = t[:m].reshape(-1, n)
     w = np.diff(np.concatenate([[t[0] - (t[1] - t[0])], t[:m]])).reshape(-1, n).astype(np.float64)
@@ -230,60 +323,92 @@ def _downsample(t: NDArray[np.int64], gyro: FloatArray, accel: FloatArray, n: in
     w /= np.maximum(w.sum(axis=1, keepdims=True), 1e-12)
     g = np.einsum("kn,knj->kj", w, gyro[:m].reshape(-1, n, 3))
     a = np.einsum("kn,knj->kj", w, accel[:m].reshape(-1, n, 3))
-    return tt[:, -1].copy(), g, a
+    c = np.bitwise_or.reduce(clip[:m].reshape(-1, n), axis=1)
+    return tt[:, -1].copy(), g, a, c
 
 
-def replay(s: UlogSensors, cfg: ReplayConfig, *, progress: Any = None) -> ReplayResult:
-    notes = list(s.notes)
+def _landed(s: UlogSensors, t_ns: NDArray[np.int64]) -> NDArray[np.bool_]:
+    """PX4's land detector, held between its messages, at each time."""
+    return held_flags(
+        s.landed.get("t_ns", np.zeros(0, np.int64)), s.landed.get("landed", np.zeros(0, bool)), t_ns
+    )
+
+
+def gnss_checks_for(s: UlogSensors, cfg: ReplayConfig) -> GnssChecks | None:
+    """PX4's GNSS quality checks over the log's fixes (None without GNSS)."""
+    if not s.gps:
+        return None
+    c = GnssCheckConfig(mask=cfg.gps_check_mask, min_fix=cfg.min_gps_fix, min_sats=cfg.gps_min_sats,
+                        max_pdop=cfg.gps_max_pdop, max_eph_m=cfg.gps_max_eph_m, max_epv_m=cfg.gps_max_epv_m,
+                        max_sacc_m_s=cfg.gps_max_sacc_m_s, max_hdrift_m_s=cfg.gps_max_hdrift_m_s,
+                        max_vdrift_m_s=cfg.gps_max_vdrift_m_s, pass_s=cfg.gps_pass_s)  # fmt: skip
+    return run_gnss_checks(s.gps, _landed(s, s.gps["t_ns"]), c)
+
+
+def _gnss_note(g: GnssChecks, t0_ns: int) -> str:
+    refused = int((~g.usable).sum())
+    why = ", ".join(
+        f"{k} {v}" for k, v in sorted(g.refused_counts().items(), key=lambda kv: -kv[1])
+    )
+    when = (f"the receiver passed PX4's checks at {(g.t_qualified_ns - t0_ns) * 1e-9:.2f} s"
+            if g.t_qualified_ns is not None else "the receiver never passed PX4's checks: GNSS not used")  # fmt: skip
+    return f"GNSS: {refused} of {len(g.usable)} fixes refused by PX4's quality checks ({why or 'none'}); {when}"
+
+
+def _prepare_imu(s: UlogSensors, cfg: ReplayConfig, notes: list[str]) -> tuple[NDArray[np.int64], FloatArray, FloatArray, NDArray[np.int64], int]:  # fmt: skip
     n_imu = len(s.imu_t_ns)
     if n_imu < 10:
         raise ExperimentError(f"{s.path}: only {n_imu} IMU samples")
-    t_wall0 = time.perf_counter()
-    t_imu, gyro_all, accel_all = _downsample(
-        s.imu_t_ns, s.gyro_rad_s, s.accel_m_s2, cfg.imu_downsample
+    clip = s.imu_clipping if len(s.imu_clipping) == n_imu else np.zeros(n_imu, np.int64)
+    t_imu, gyro, accel, clip = _downsample(
+        s.imu_t_ns, s.gyro_rad_s, s.accel_m_s2, clip, cfg.imu_downsample
     )
-    n_imu = len(t_imu)
     period_ns = int(np.median(np.diff(t_imu)))
-    jumps = np.flatnonzero(np.diff(t_imu) > 20 * period_ns)
-    for k in jumps.tolist():
+    for k in np.flatnonzero(np.diff(t_imu) > 20 * period_ns).tolist():
         notes.append(
-            f"IMU gap of {(t_imu[k + 1] - t_imu[k]) * 1e-9:.3f} s at {t_imu[k] * 1e-9:.3f} s: predicted across it"
+            f"IMU gap of {(t_imu[k + 1] - t_imu[k]) * 1e-9:.3f} s at {(t_imu[k] - s.t_start_ns) * 1e-9:.3f} s: predicted across it"
         )
     back = int(np.sum(np.diff(t_imu) <= 0))
     if back:
         notes.append(f"{back} IMU timestamps not increasing: rejected and counted")
-    # Datum: PX4's local origin when the log has one (so the frames match), else the first fix.
-    datum = s.local_origin_lla
-    if datum is None and s.gps:
-        ok = np.flatnonzero(s.gps["fix"] >= cfg.min_gps_fix)
-        if len(ok):
-            k = int(ok[0])
-            datum = (float(s.gps["lat"][k]), float(s.gps["lon"][k]), float(s.gps["alt"][k]))
-            notes.append("no PX4 local origin in the log: the first GNSS fix is the datum")
-    if datum is None:
-        datum = (0.0, 0.0, 0.0)
-        notes.append("no GNSS: the world origin is where the log starts")
-    decl = (
-        cfg.mag_declination_rad
-        if cfg.mag_declination_rad is not None
-        else (s.earth_field_declination_rad or 0.0)
-    )
-    # Alignment on the first align_s of IMU and magnetometer data.
-    t0 = int(t_imu[0])
-    t_align = t0 + round(cfg.align_s * 1e9)
-    align_idx = np.flatnonzero(t_imu <= t_align)
-    align_imu = [ImuSample(t_ns=int(t_imu[i]), gyro_rad_s=gyro_all[i], accel_m_s2=accel_all[i]) for i in align_idx.tolist()
-                 if np.isfinite(gyro_all[i]).all() and np.isfinite(accel_all[i]).all()]  # fmt: skip
+    n_clip = int(np.count_nonzero(clip & 7))
+    if n_clip:
+        notes.append(f"accelerometer clipping flagged in {n_clip} filter steps: those axes carry "
+                     f"{cfg.clipped_accel_noise_m_s2:g} m/s^2 of process noise and learn no bias (PX4)")  # fmt: skip
+    return t_imu, gyro, accel, clip & 7, period_ns
+
+
+def _datum(s: UlogSensors, gnss: GnssChecks | None, notes: list[str]) -> tuple[float, float, float]:
+    """PX4's local origin when the log has one (so the frames match), else the first fix
+    PX4's checks let through."""
+    if s.local_origin_lla is not None:
+        return s.local_origin_lla
+    if gnss is not None and gnss.usable.any():
+        k = int(np.flatnonzero(gnss.usable)[0])
+        notes.append(
+            "no PX4 local origin in the log: the first GNSS fix that passed the checks is the datum"
+        )
+        return (float(s.gps["lat"][k]), float(s.gps["lon"][k]), float(s.gps["alt"][k]))
+    notes.append("no usable GNSS: the world origin is where the log starts")
+    return (0.0, 0.0, 0.0)
+
+
+def _align(s: UlogSensors, cfg: ReplayConfig, imu: tuple[NDArray[np.int64], FloatArray, FloatArray], t_align: int,
+           datum: tuple[float, float, float], decl: float, gnss: GnssChecks | None) -> tuple[Any, FloatArray, bool]:  # fmt: skip
+    """Attitude and position from the first ``align_s`` of IMU and magnetometer data (and a
+    usable fix near then)."""
+    t_imu, gyro, accel = imu
+    idx = np.flatnonzero(t_imu <= t_align).tolist()
+    align_imu = [ImuSample(t_ns=int(t_imu[i]), gyro_rad_s=gyro[i], accel_m_s2=accel[i]) for i in idx
+                 if np.isfinite(gyro[i]).all() and np.isfinite(accel[i]).all()]  # fmt: skip
     align_mag = []
     if s.mag:
         sel = (s.mag["t_ns"] <= t_align) & np.isfinite(s.mag["field_B"]).all(axis=1)
         align_mag = [MagSample(t_ns=int(t), field_B=f, sigma_heading_rad=cfg.heading_noise_rad)
                      for t, f in zip(s.mag["t_ns"][sel], s.mag["field_B"][sel], strict=True)]  # fmt: skip
     gps_enu = None
-    if s.gps:
-        ok = np.flatnonzero(
-            (s.gps["fix"] >= cfg.min_gps_fix) & (s.gps["t_ns"] <= t_align + 2_000_000_000)
-        )
+    if gnss is not None:
+        ok = np.flatnonzero(gnss.usable & (s.gps["t_ns"] <= t_align + 2_000_000_000))
         if len(ok):
             k = int(ok[0])
             gps_enu = np.array(
@@ -292,18 +417,31 @@ def replay(s: UlogSensors, cfg: ReplayConfig, *, progress: Any = None) -> Replay
     R0, p0 = ground_alignment(
         align_imu, None, mag=align_mag, declination_rad=decl, gps_enu_m=gps_enu
     )
+    return R0, p0, gps_enu is not None
+
+
+def _filter(s: UlogSensors, cfg: ReplayConfig, period_ns: int, t_align: int, datum: tuple[float, float, float],
+            decl: float, R0: Any, p0: FloatArray, gps_at_start: bool, baro_anchor_var_m2: float) -> tuple[NavEkf, DelayedHorizonEstimator]:  # fmt: skip
     dt = period_ns * 1e-9
     ekf_cfg = NavEkfConfig(
         gyro_sigma_rad_s=cfg.gyro_noise_rad_s, accel_sigma_m_s2=cfg.accel_noise_m_s2,
         gyro_bias_rw_rad_s_sqrt_s=cfg.gyro_bias_noise_rad_s2 * math.sqrt(dt),
         accel_bias_rw_m_s2_sqrt_s=cfg.accel_bias_noise_m_s3 * math.sqrt(dt),
-        gate_probability=float(chi2.cdf(cfg.gate_sigma**2, 1)), datum_lla=datum, mag_declination_rad=decl,
-        reset_after_s=5.0,
+        gate_sigma=cfg.gate_sigma, datum_lla=datum, mag_declination_rad=decl, reset_after_s=5.0,
+        baro_bias_nsd_m_s=cfg.baro_bias_nsd_m_s, baro_bias_var0_m2=baro_anchor_var_m2,
+        clipped_accel_sigma_m_s2=cfg.clipped_accel_noise_m_s2,
+        accel_bias_learn_gyro_limit_rad_s=cfg.accel_bias_learn_gyro_limit_rad_s,
+        accel_bias_learn_accel_limit_m_s2=cfg.accel_bias_learn_accel_limit_m_s2, accel_bias_learn_tau_s=cfg.accel_bias_learn_tau_s,
+        relevel_at_rest_s=cfg.relevel_at_rest_s,
     )  # fmt: skip
+    # With a barometer bias and no GNSS height the world's height origin is where the log
+    # starts: the start height is known, and the anchor's uncertainty is the bias's.
+    sig_z0 = 0.01 if cfg.baro_bias_nsd_m_s is not None and not cfg.gps_height else 0.5
     sig = np.array(
         [0.05, 0.05, 0.3]
         + [0.3] * 3
-        + [2.0 if gps_enu is not None else 0.5] * 3
+        + [2.0 if gps_at_start else 0.5] * 2
+        + [sig_z0]
         + [0.01] * 3
         + [0.2] * 3
     )
@@ -319,30 +457,27 @@ def replay(s: UlogSensors, cfg: ReplayConfig, *, progress: Any = None) -> Replay
         ekf, HorizonConfig(imu_period_ns=period_ns, max_delay_ns=round(max_delay * 1e9),
                            tau_vel_s=cfg.tau_vel_s, tau_pos_s=cfg.tau_pos_s), t0_ns=t_align,
     )  # fmt: skip
-    baro_ref = datum[2]
+    return ekf, est
+
+
+def _baro_ref(s: UlogSensors, cfg: ReplayConfig, t_align: int, datum_alt_m: float, z0_m: float) -> tuple[float, float]:  # fmt: skip
+    """The barometer's reading at the start height (its median over the alignment) and that
+    anchor's variance by the log's barometer noise (EKF2_BARO_NOISE squared over the readings)."""
     if s.baro:
         sel = (s.baro["t_ns"] <= t_align) & np.isfinite(s.baro["alt"])
         if sel.any():
-            baro_ref = float(np.median(s.baro["alt"][sel])) - float(p0[2])
-    obs = [o for o in _stream(s, cfg, datum, baro_ref) if o[0] > t_align]
+            return float(np.median(s.baro["alt"][sel])) - z0_m, cfg.baro_noise_m**2 / int(sel.sum())
+    return datum_alt_m, cfg.baro_noise_m**2
+
+
+def _run(est: DelayedHorizonEstimator, cfg: ReplayConfig, imu: tuple[NDArray[np.int64], FloatArray, FloatArray],
+         clip: NDArray[np.int64], start: int, obs: list[tuple[int, int, Sample]], landed_at: NDArray[np.bool_], progress: Any) -> tuple[list[int], list[FloatArray], list[FloatArray], list[FloatArray]]:  # fmt: skip
+    """Feed the IMU and the measurements in arrival order; the output every fifth IMU step."""
+    t_imu, gyro, accel = imu
     heapq.heapify(obs)
-    # PX4's land detector, held between its messages, at every IMU time
-    landed_t = s.landed.get("t_ns", np.zeros(0, np.int64))
-    landed_v = s.landed.get("landed", np.zeros(0, bool))
-    j_land = np.searchsorted(landed_t, t_imu, side="right") - 1
-    landed_at = (
-        (j_land >= 0) & np.asarray(landed_v, bool)[np.clip(j_land, 0, max(len(landed_v) - 1, 0))]
-        if len(landed_t)
-        else np.zeros(n_imu, bool)
-    )
-    landed_at &= cfg.zero_velocity_when_landed
-    rows_t: list[int] = []
-    rows_p: list[FloatArray] = []
-    rows_v: list[FloatArray] = []
-    rows_q: list[FloatArray] = []
-    start = int(align_idx[-1]) + 1 if len(align_idx) else 0
+    rows: tuple[list[int], list[FloatArray], list[FloatArray], list[FloatArray]] = ([], [], [], [])
     n_zupt = 0
-    for k in range(start, n_imu):
+    for k in range(start, len(t_imu)):
         t = int(t_imu[k])
         while obs and obs[0][0] <= t:
             est.push(heapq.heappop(obs)[2])
@@ -352,18 +487,72 @@ def replay(s: UlogSensors, cfg: ReplayConfig, *, progress: Any = None) -> Replay
                 est.push(
                     VelocitySample(t_ns=t, v_W_B=np.zeros(3), sigma_m_s=cfg.zero_velocity_sigma_m_s)
                 )
-        est.push_raw(ImuSample, t_ns=t, gyro_rad_s=gyro_all[k], accel_m_s2=accel_all[k])
+        if clip[k]:  # PX4's clipping flags go with the sample to the delayed horizon
+            est.push_raw(
+                ClippedImuSample,
+                t_ns=t,
+                gyro_rad_s=gyro[k],
+                accel_m_s2=accel[k],
+                accel_clip_axes=int(clip[k]),
+            )
+        else:
+            est.push_raw(ImuSample, t_ns=t, gyro_rad_s=gyro[k], accel_m_s2=accel[k])
         if k % 5 == 0:
             o = est.output_nav()
-            rows_t.append(o.t_ns)
-            rows_p.append(o.pos)
-            rows_v.append(o.vel)
-            rows_q.append(quat_xyzw_from_matrix(o.att.reshape(3, 3)))
+            rows[0].append(o.t_ns)
+            rows[1].append(o.pos)
+            rows[2].append(o.vel)
+            rows[3].append(quat_xyzw_from_matrix(o.att.reshape(3, 3)))
         if progress and k % 2000 == 0:
-            progress(k, n_imu, "IMU samples")
+            progress(k, len(t_imu), "IMU samples")
+    return rows
+
+
+def replay(s: UlogSensors, cfg: ReplayConfig, *, progress: Any = None) -> ReplayResult:
+    notes = list(s.notes)
+    t_wall0 = time.perf_counter()
+    t_imu, gyro_all, accel_all, clip_all, period_ns = _prepare_imu(s, cfg, notes)
+    gnss = gnss_checks_for(s, cfg)
+    if gnss is not None:
+        notes.append(_gnss_note(gnss, s.t_start_ns))
+    datum = _datum(s, gnss, notes)
+    decl = (
+        cfg.mag_declination_rad
+        if cfg.mag_declination_rad is not None
+        else (s.earth_field_declination_rad or 0.0)
+    )
+    t_align = int(t_imu[0]) + round(cfg.align_s * 1e9)
+    imu = (t_imu, gyro_all, accel_all)
+    R0, p0, gps_at_start = _align(s, cfg, imu, t_align, datum, decl, gnss)
+    baro_ref, baro_anchor_var = _baro_ref(s, cfg, t_align, datum[2], float(p0[2]))
+    ekf, est = _filter(
+        s, cfg, period_ns, t_align, datum, decl, R0, p0, gps_at_start, baro_anchor_var
+    )
+    obs = [o for o in _stream(s, cfg, gnss, baro_ref) if o[0] > t_align]
+    landed_at = _landed(s, t_imu) & cfg.zero_velocity_when_landed
+    start = int(np.searchsorted(t_imu, t_align, side="right"))
+    rows_t, rows_p, rows_v, rows_q = _run(est, cfg, imu, clip_all, start, obs, landed_at, progress)
     wall = time.perf_counter() - t_wall0
     if est.rejected_invalid:
         notes.append(f"refused at the boundary (non-finite values): {est.rejected_invalid}")
+    counts = {src: {"received": st.received, "fused": st.fused, "rejected_gate": st.rejected_gate,
+                    "rejected_too_old": st.rejected_too_old} for src in est.sources for st in [est.stats(src)]}  # fmt: skip
+    counts["imu"] = {"received": len(t_imu) - start, "rejected_out_of_order": est.imu_rejected_out_of_order,
+                     "rejected_invalid": est.rejected_invalid.get("ImuSample", 0), "clipping_flagged": int(np.count_nonzero(s.imu_clipping))}  # fmt: skip
+    if gnss is not None:
+        counts["gps_checks"] = {
+            "fixes": len(gnss.usable),
+            "passed": int(gnss.usable.sum()),
+            **gnss.refused_counts(),
+        }
+    return ReplayResult(
+        t_ns=np.array(rows_t, dtype=np.int64), p=np.array(rows_p), v=np.array(rows_v), q_xyzw=np.array(rows_q),
+        datum_lla=datum, counts=counts, fusion=_fusion_log(est), events=list(ekf.events), notes=notes,
+        replay_wall_s=wall, gnss_checks=gnss,
+    )  # fmt: skip
+
+
+def _fusion_log(est: DelayedHorizonEstimator) -> dict[str, dict[str, FloatArray]]:
     fusion: dict[str, dict[str, FloatArray]] = {}
     for src in est.sources:
         recs = [r for r in est.fusion_log if r.source == src]
@@ -373,11 +562,4 @@ def replay(s: UlogSensors, cfg: ReplayConfig, *, progress: Any = None) -> Replay
             "accepted": np.array([r.result.accepted for r in recs], dtype=np.float64),
             "innovation": np.array([np.pad(r.result.innovation, (0, 6 - len(r.result.innovation)), constant_values=np.nan) for r in recs]).reshape(-1, 6),
         }  # fmt: skip
-    counts = {src: {"received": st.received, "fused": st.fused, "rejected_gate": st.rejected_gate,
-                    "rejected_too_old": st.rejected_too_old} for src in est.sources for st in [est.stats(src)]}  # fmt: skip
-    counts["imu"] = {"received": n_imu - start, "rejected_out_of_order": est.imu_rejected_out_of_order,
-                     "rejected_invalid": est.rejected_invalid.get("ImuSample", 0), "clipping_flagged": int(np.sum(s.imu_clipping))}  # fmt: skip
-    return ReplayResult(
-        t_ns=np.array(rows_t, dtype=np.int64), p=np.array(rows_p), v=np.array(rows_v), q_xyzw=np.array(rows_q),
-        datum_lla=datum, counts=counts, fusion=fusion, events=list(ekf.events), notes=notes, replay_wall_s=wall,
-    )  # fmt: skip
+    return fusion
