@@ -21,6 +21,7 @@ COMMANDS = {
     ("planar",): "quadnav.cli.planar",
     ("sim",): "quadnav.cli.sim",
     ("link", "serial"): "quadnav.cli.link",
+    ("replay",): "quadnav.cli.replay",
 }
 
 

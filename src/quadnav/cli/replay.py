@@ -12,7 +12,7 @@ import numpy as np
 import typer
 from rich.table import Table
 
-from quadnav.cli.common import console, err_console, handle_errors, progress_bar
+from quadnav.cli.common import command_help, console, err_console, handle_errors, progress_bar
 from quadnav.cli.planar import OutOpt, SetOpt
 from quadnav.errors import IoError
 from quadnav.eval.report import ReportSection, ReportTable, write_report
@@ -20,24 +20,41 @@ from quadnav.experiments.replay import CHECK_NAMES, config_from_px4, replay
 from quadnav.experiments.replay_compare import Comparison, compare, px4_innovations_as_ours
 from quadnav.geometry.trajectory import Trajectory
 from quadnav.io.config import apply_override, dump_config
-from quadnav.io.run_folder import create_run_folder, write_csv, write_json
+from quadnav.io.run_folder import create_run_folder, write_csv, write_json, write_text
 from quadnav.io.trajectory_io import write_tum
 from quadnav.io.ulog import read_ulog_trajectory
 from quadnav.io.ulog_sensors import UlogSensors, read_ulog_sensors
 
-__all__ = ["replay_command", "replay_log"]
+__all__ = ["EXAMPLES", "check_example", "replay_command", "replay_log"]
+
+
+def _overrides(overrides: list[str]) -> dict[str, Any]:
+    values: dict[str, Any] = {}
+    for o in overrides:
+        apply_override(values, o)
+    return values
+
+
+def check_example(params: dict[str, Any]) -> None:
+    """Validate an example's --set keys and values (on EKF2's defaults, no log read)."""
+    config_from_px4({}, _overrides(list(params["set_"] or [])))
+
+
+#: The examples of ``quadnav replay --help`` (each parsed and validated by the tests).
+EXAMPLES = (
+    "quadnav replay flight.ulg",
+    "quadnav replay flight.ulg --set gps_delay_s=0.2 --set gate_sigma=5",
+    "quadnav replay crash.ulg --set baro_noise_m=2 --out /tmp/runs",
+)
 
 
 def replay_log(log: Path, overrides: list[str], out: Path, progress: Any = None) -> dict[str, Any]:
     sensors = read_ulog_sensors(log)
-    values: dict[str, Any] = {}
-    for o in overrides:
-        apply_override(values, o)
-    cfg = config_from_px4(sensors.params, values)
+    cfg = config_from_px4(sensors.params, _overrides(overrides))
     res = replay(sensors, cfg, progress=progress)
     ours = Trajectory(t_ns=res.t_ns, p_W_B=res.p, q_W_B_xyzw=res.q_xyzw, name="quadnav")
     run_dir = create_run_folder(out, f"replay_{log.stem}")
-    (run_dir / "config.yaml").write_text(dump_config(cfg))
+    write_text(run_dir / "config.yaml", dump_config(cfg))
     write_tum(run_dir / "quadnav.tum", ours)
     if res.gnss_checks is not None:  # why each fix was refused (1: that check failed)
         g = res.gnss_checks
@@ -224,8 +241,6 @@ def replay_command(
     set_: SetOpt = None,
     out: OutOpt = Path("runs"),
 ) -> None:
-    """Replay a PX4 log's sensors through quadnav's navigation EKF (started from the log's EKF2
-    parameters; override with --set gps_delay_s=0.2 ...) and compare with PX4's estimate."""
     with progress_bar("replay") as update:
         m = replay_log(log, list(set_ or []), out, update)
     table = Table(
@@ -245,3 +260,13 @@ def replay_command(
     for n in m["notes"]:
         err_console.print(f"note: {n}", highlight=False)
     console.print(m["run_dir"], soft_wrap=True, highlight=False)
+
+
+replay_command.__doc__ = command_help(
+    "Replay a PX4 log's sensors through quadnav's navigation EKF and compare with PX4's estimate "
+    "(and a SITL log's ground truth).",
+    "The filter starts from the log's EKF2 parameters; --set overrides any of them by its "
+    "setting name (gps_delay_s, gate_sigma, baro_noise_m...). PX4's GNSS checks decide when "
+    "fixes are used; the comparison covers only where PX4 flagged its estimate valid.",
+    examples=EXAMPLES,
+)

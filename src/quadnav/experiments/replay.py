@@ -19,8 +19,9 @@ from typing import Any
 import numpy as np
 import pymap3d
 from numpy.typing import NDArray
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import Field, ValidationError
 
+from quadnav.config_model import MAX_DELAY_S, ConfigModel
 from quadnav.errors import ExperimentError
 from quadnav.estimation.gnss_checks import CHECK_NAMES, GnssCheckConfig, GnssChecks, run_gnss_checks
 from quadnav.estimation.horizon import DelayedHorizonEstimator, HorizonConfig
@@ -52,20 +53,18 @@ __all__ = [
 FloatArray = NDArray[np.float64]
 
 
-class ReplayConfig(BaseModel):
+class ReplayConfig(ConfigModel):
     """The filter's settings for a replay; :func:`config_from_px4` fills them from EKF2's."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     gyro_noise_rad_s: float = Field(0.015, gt=0)
     accel_noise_m_s2: float = Field(0.35, gt=0)
     gyro_bias_noise_rad_s2: float = Field(0.001, gt=0)
     accel_bias_noise_m_s3: float = Field(0.003, gt=0)
-    gps_delay_s: float = Field(0.11, ge=0)
-    baro_delay_s: float = Field(0.0, ge=0)
-    mag_delay_s: float = Field(0.0, ge=0)
-    ev_delay_s: float = Field(0.0, ge=0)
-    range_delay_s: float = Field(0.005, ge=0)
+    gps_delay_s: float = Field(0.11, ge=0, le=MAX_DELAY_S)
+    baro_delay_s: float = Field(0.0, ge=0, le=MAX_DELAY_S)
+    mag_delay_s: float = Field(0.0, ge=0, le=MAX_DELAY_S)
+    ev_delay_s: float = Field(0.0, ge=0, le=MAX_DELAY_S)
+    range_delay_s: float = Field(0.005, ge=0, le=MAX_DELAY_S)
     ev_pos_noise_m: float = Field(0.1, gt=0)
     ev_yaw_noise_rad: float = Field(0.1, gt=0)
     range_noise_m: float = Field(0.1, gt=0)
