@@ -27,8 +27,10 @@ from quadnav.geometry.rotations import Pose, so3_log
 from quadnav.vision.camera import PinholeCamera
 
 __all__ = [
+    "DegeneratePoseError",
     "PnpResult",
     "VehiclePose",
+    "check_point_set",
     "marker_corners_3d",
     "mount_pose",
     "solve_pnp",
@@ -72,6 +74,44 @@ class PnpResult:
     alternative: FloatArray | None = None  # (rvec, tvec) of a second pose that fits almost as well
 
 
+class DegeneratePoseError(VisionError):
+    """A point set that fixes no pose, or a PnP result that is not one: ``reason`` is a short
+    key (``too_few_points``, ``collinear``, ``non_finite``, ``pnp_failed``, ``behind_camera``)
+    for counting; the message says what was wrong."""
+
+    def __init__(self, reason: str, message: str) -> None:
+        super().__init__(message)
+        self.reason = reason
+
+
+def check_point_set(obj: FloatArray, img: FloatArray, *, collinear_tol: float = 1e-3) -> None:
+    """Refuse what no PnP can pose: fewer than 4 pairs or distinct points, a non-finite value,
+    object points on one line (one column of a board in view) or pixels on one line (a plane
+    seen edge-on). ``collinear_tol``: the second singular value over the first."""
+    if len(obj) != len(img):
+        raise DegeneratePoseError(
+            "too_few_points", f"PnP got {len(obj)} object points and {len(img)} pixels"
+        )
+    if not (np.isfinite(obj).all() and np.isfinite(img).all()):
+        raise DegeneratePoseError("non_finite", "PnP input holds a non-finite value")
+    n_distinct = len(np.unique(np.round(obj, 9), axis=0))
+    if n_distinct < 4:
+        raise DegeneratePoseError(
+            "too_few_points", f"PnP needs at least 4 distinct points, got {n_distinct}"
+        )
+    for name, pts in (("object points", obj), ("pixels", img)):
+        s = np.linalg.svd(pts - pts.mean(axis=0), compute_uv=False)
+        if s[1] <= collinear_tol * s[0]:
+            raise DegeneratePoseError("collinear", f"the {len(pts)} {name} lie on one line")
+
+
+def _check_result(rvec: FloatArray, tvec: FloatArray, what: str) -> None:
+    if not (np.isfinite(rvec).all() and np.isfinite(tvec).all()):
+        raise DegeneratePoseError("non_finite", f"PnP {what} is not finite")
+    if not tvec[2] > 0:
+        raise DegeneratePoseError("behind_camera", f"PnP {what} puts the target behind the camera")
+
+
 def _is_planar(obj: FloatArray) -> bool:
     c = obj - obj.mean(axis=0)
     s = np.linalg.svd(c, compute_uv=False)
@@ -98,19 +138,21 @@ def solve_pnp(
     obj = np.asarray(obj_pts, dtype=np.float64).reshape(-1, 3)
     img = np.asarray(img_pts, dtype=np.float64).reshape(-1, 2)
     n = len(obj)
-    if n < 4 or len(img) != n:
-        raise VisionError(f"PnP needs at least 4 point pairs, got {n} and {len(img)}")
-    if not (np.isfinite(obj).all() and np.isfinite(img).all()):
-        raise VisionError("PnP input holds a non-finite value")
+    check_point_set(obj, img)
     if square:
         flag = cv2.SOLVEPNP_IPPE_SQUARE
     elif _is_planar(obj):
         flag = cv2.SOLVEPNP_IPPE
     else:
         flag = cv2.SOLVEPNP_SQPNP
-    n_sol, rvecs, tvecs, errs = cv2.solvePnPGeneric(obj, img, camera.K, camera.dist, flags=flag)
+    try:
+        n_sol, rvecs, tvecs, errs = cv2.solvePnPGeneric(obj, img, camera.K, camera.dist, flags=flag)
+    except cv2.error as exc:
+        raise DegeneratePoseError(
+            "pnp_failed", f"PnP failed: {str(exc).strip().splitlines()[-1]}"
+        ) from None
     if not n_sol:
-        raise VisionError("PnP found no pose")
+        raise DegeneratePoseError("pnp_failed", "PnP found no pose")
     order = np.argsort(np.asarray(errs).ravel()) if errs is not None else np.arange(n_sol)
     rvec, tvec = rvecs[order[0]], tvecs[order[0]]
     # A planar target seen small or nearly head-on has two poses that fit almost equally well
@@ -120,10 +162,13 @@ def solve_pnp(
         e = np.asarray(errs).ravel()
         if e[order[1]] < ambiguity_ratio * max(e[order[0]], 0.05):
             alternative = np.concatenate([np.ravel(rvecs[order[1]]), np.ravel(tvecs[order[1]])])
+            alternative = alternative if np.isfinite(alternative).all() else None
+    _check_result(np.ravel(rvec), np.ravel(tvec), "pose")
     if refine:
         rvec, tvec = cv2.solvePnPRefineLM(obj, img, camera.K, camera.dist, rvec, tvec)
     rvec = np.asarray(rvec, dtype=np.float64).ravel()
     tvec = np.asarray(tvec, dtype=np.float64).ravel()
+    _check_result(rvec, tvec, "refined pose")
     proj, jac = cv2.projectPoints(obj, rvec, tvec, camera.K, camera.dist)
     res = (proj.reshape(-1, 2) - img).ravel()
     J = jac[:, 0:6]
@@ -136,7 +181,11 @@ def solve_pnp(
     try:
         cov = s2 * np.linalg.inv(JtJ)
     except np.linalg.LinAlgError:
-        raise VisionError("PnP pose is degenerate (singular Jacobian)") from None
+        raise DegeneratePoseError(
+            "degenerate", "PnP pose is degenerate (singular Jacobian)"
+        ) from None
+    if not np.isfinite(cov).all():
+        raise DegeneratePoseError("non_finite", "PnP covariance is not finite")
     T = Pose(Rotation.from_rotvec(rvec), tvec)
     rms = float(math.sqrt(float(res @ res) / n))
     return PnpResult(T, rvec, tvec, 0.5 * (cov + cov.T), rms, math.sqrt(s2), n, alternative)
