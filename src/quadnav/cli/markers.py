@@ -5,6 +5,7 @@ frames with a pose."""
 from __future__ import annotations
 
 import math
+from collections import Counter
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -19,7 +20,7 @@ from quadnav.eval.report import ReportSection, ReportTable, write_report
 from quadnav.io.config import dump_config, load_config
 from quadnav.io.frames import VideoOut, open_frames
 from quadnav.io.opencv_yaml import read_camera_yaml, read_opencv_yaml
-from quadnav.io.run_folder import create_run_folder, write_csv, write_json, write_text
+from quadnav.io.run_folder import CsvAppender, create_run_folder, write_json, write_text
 from quadnav.vision.config import MarkersConfig, from_thesis_vision_params
 from quadnav.vision.markers import MarkerDetector, detector_parameters, get_dictionary
 from quadnav.vision.overlay import draw_overlay
@@ -43,16 +44,28 @@ def load_markers_config(
     return load_config(MarkersConfig, params, overrides), []
 
 
-def _cov_columns(poses: list[FramePose]) -> dict[str, np.ndarray]:
-    iu = np.triu_indices(6)
-    names = ["x", "y", "z", "rx", "ry", "rz"]
-    out: dict[str, np.ndarray] = {}
-    covs = np.array(
-        [fp.pose.cov[iu] if fp.pose is not None else np.full(21, np.nan) for fp in poses]
-    )
-    for k, (i, j) in enumerate(zip(*iu, strict=True)):
-        out[f"cov_{names[i]}_{names[j]}"] = covs[:, k] if len(poses) else np.zeros(0)
-    return out
+_COV_INDEX = np.triu_indices(6)
+_COV_NAMES = ["x", "y", "z", "rx", "ry", "rz"]
+POSE_COLUMNS = [
+    "t_ns", "frame", "x_m", "y_m", "z_m", "roll_deg", "pitch_deg", "yaw_deg",
+    "qx", "qy", "qz", "qw", "n_markers", "ids", "n_points", "rms_px", "detect_ms", "pose_ms",
+    "reason",
+    *(f"cov_{_COV_NAMES[i]}_{_COV_NAMES[j]}" for i, j in zip(*_COV_INDEX, strict=True)),
+]  # fmt: skip
+
+
+def _pose_row(frame: int, fp: FramePose) -> list[Any]:
+    """One line of ``poses.csv`` (:data:`POSE_COLUMNS`); NaN where the frame has no pose, and
+    why in ``reason``."""
+    if fp.pose is not None:
+        R = fp.pose.T_W_B.R_A_B
+        pose = [*fp.pose.T_W_B.p_A_B, *R.as_euler("ZYX", degrees=True)[::-1], *R.as_quat()]
+        cov = list(fp.pose.cov[_COV_INDEX])
+    else:
+        pose, cov = [math.nan] * 10, [math.nan] * 21
+    ids = " ".join(str(i) for i in sorted(fp.detections.ids.tolist())) or "-"
+    return [fp.t_ns, frame, *pose, len(fp.detections), ids, fp.n_points, fp.rms_px,
+            fp.detect_ms, fp.pose_ms, fp.reason or "-", *cov]  # fmt: skip
 
 
 def run_markers(
@@ -109,6 +122,8 @@ def run_markers(
         else min(frames.total or cfg.max_frames, cfg.max_frames)
     )
     n_total = 0
+    # one row per frame as it comes, flushed: a run stopped half way keeps what it made
+    poses_csv = CsvAppender(run_dir / "poses.csv", POSE_COLUMNS)
     for fr in frames:
         if cfg.max_frames is not None and fr.index >= cfg.max_frames:
             break
@@ -127,6 +142,7 @@ def run_markers(
             if pipeline is not None:
                 fp = pipeline.process(fr.image, fr.t_ns)
                 results.append(fp)
+                poses_csv.append(_pose_row(fr.index, fp))
                 frame_idx.append(fr.index)
                 if link is not None:
                     t_first = fr.t_ns if t_first is None else t_first
@@ -156,6 +172,7 @@ def run_markers(
             progress(
                 fr.index + 1, total or 0, f"{len([r for r in results if r.pose is not None])} poses"
             )
+    poses_csv.close()
     if video is not None:
         video.close()
     ok = [r for r in results if r.pose is not None]
@@ -163,33 +180,6 @@ def run_markers(
     pos = np.array(
         [r.pose.T_W_B.p_A_B if r.pose is not None else np.full(3, np.nan) for r in results]
     ).reshape(-1, 3)
-    quat = np.array(
-        [
-            r.pose.T_W_B.R_A_B.as_quat() if r.pose is not None else np.full(4, np.nan)
-            for r in results
-        ]
-    ).reshape(-1, 4)
-    rpy = np.array(
-        [
-            r.pose.T_W_B.R_A_B.as_euler("ZYX", degrees=True)[::-1]
-            if r.pose is not None
-            else np.full(3, np.nan)
-            for r in results
-        ]
-    ).reshape(-1, 3)
-    cols: dict[str, np.ndarray] = {
-        "t_ns": t, "frame": np.array(frame_idx, dtype=np.int64),
-        "x_m": pos[:, 0], "y_m": pos[:, 1], "z_m": pos[:, 2],
-        "roll_deg": rpy[:, 0], "pitch_deg": rpy[:, 1], "yaw_deg": rpy[:, 2],
-        "qx": quat[:, 0], "qy": quat[:, 1], "qz": quat[:, 2], "qw": quat[:, 3],
-        "n_markers": np.array([len(r.detections) for r in results], dtype=np.int64),
-        "ids": np.array([" ".join(str(i) for i in sorted(r.detections.ids.tolist())) or "-" for r in results], dtype=object),
-        "n_points": np.array([r.n_points for r in results], dtype=np.int64),
-        "rms_px": np.array([r.rms_px for r in results]),
-        "detect_ms": np.array([r.detect_ms for r in results]), "pose_ms": np.array([r.pose_ms for r in results]),
-    }  # fmt: skip
-    cols.update(_cov_columns(results))
-    write_csv(run_dir / "poses.csv", cols)
     # Jitter: the pose noise from frame to frame. A moving camera's smooth motion cancels in
     # the second difference p[k+1] - 2 p[k] + p[k-1] of consecutive frames; white noise of
     # sigma per axis gives it a variance of 6 sigma^2.
@@ -207,6 +197,8 @@ def run_markers(
         "source": frames.description, "frames": n_total, "frames_processed": len(results),
         "frames_skipped": len(skipped), "skipped": skipped[:50],
         "frames_with_pose": len(ok), "fraction_with_pose": len(ok) / n_total if n_total else 0.0,
+        "frames_rejected": sum(r.pose is None and r.reason != "no_target" for r in results),
+        "rejected_by_reason": dict(Counter(r.reason for r in results if r.pose is None)),
         "world_marker_id": world_id if cfg.target == "marker" else None,
         "jitter_rms_mm": float(np.sqrt(np.mean(steps**2)) * 1e3) if len(steps) else math.nan,
         "jitter_median_mm": float(np.median(steps) * 1e3) if len(steps) else math.nan,
@@ -320,6 +312,7 @@ def markers_command(
     table.add_row(
         "frames with a pose", f"{stats['frames_with_pose']} ({stats['fraction_with_pose']:.1%})"
     )
+    table.add_row("frames rejected (degenerate view, bad fit)", str(stats["frames_rejected"]))
     table.add_row(
         "frame-to-frame jitter, RMS / median (mm)",
         f"{stats['jitter_rms_mm']:.2f} / {stats['jitter_median_mm']:.2f}",

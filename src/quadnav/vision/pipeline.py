@@ -117,6 +117,15 @@ class _Observed:
     obj_W: list[FloatArray] = field(default_factory=list)
     img: list[FloatArray] = field(default_factory=list)
     square: tuple[float, FloatArray, Pose] | None = None
+    # a board's marker corners to use instead of its chessboard corners (entry k) if those
+    # give no pose
+    instead: dict[int, tuple[FloatArray, FloatArray]] = field(default_factory=dict)
+
+    def with_markers_instead(self) -> _Observed:
+        obj_W, img = list(self.obj_W), list(self.img)
+        for k, (o, i) in self.instead.items():
+            obj_W[k], img[k] = o, i
+        return _Observed(obj_W, img, self.square)
 
     def add(self, obj_W: FloatArray, img: FloatArray) -> None:
         self.obj_W.append(obj_W)
@@ -195,15 +204,20 @@ class MarkerPipeline:
             det = target.detect(gray)
             markers = det.markers if len(det.markers) > len(markers) else markers
             obj = target.chessboard_corners[det.corner_ids]
-            if len(det.corner_ids) >= self.min_charuco_corners and _poseable(obj, det.corners):
-                seen.add(T_W_O @ obj, det.corners)
-            elif self.board_marker_fallback and len(det.markers):
-                # Too few chessboard corners (close up, partial view) or all on one line (one
-                # column in view): the board's marker corners still fix its pose, less precisely.
+            marker_pts = None
+            if self.board_marker_fallback and len(det.markers):
                 mobj = target.marker_corners(det.markers.ids)
                 keep = np.isfinite(mobj[:, 0, 0])
                 if keep.any():
-                    seen.add(T_W_O @ mobj[keep].reshape(-1, 3), det.markers.corners[keep].reshape(-1, 2))  # fmt: skip
+                    marker_pts = (T_W_O @ mobj[keep].reshape(-1, 3), det.markers.corners[keep].reshape(-1, 2))  # fmt: skip
+            if len(det.corner_ids) >= self.min_charuco_corners and _poseable(obj, det.corners):
+                if marker_pts is not None:
+                    seen.instead[len(seen.obj_W)] = marker_pts
+                seen.add(T_W_O @ obj, det.corners)
+            elif marker_pts is not None:
+                # Too few chessboard corners (close up, partial view) or all on one line (one
+                # column in view): the board's marker corners still fix its pose, less precisely.
+                seen.add(*marker_pts)
         return markers
 
     def _observe_diamonds(
@@ -264,7 +278,12 @@ class MarkerPipeline:
             return FramePose(t_ns, markers, None, float("nan"), n, detect_ms, 0.0,
                              "no known marker", "no_target")  # fmt: skip
         try:
-            vp, rms_px = self._solve(seen)
+            try:
+                vp, rms_px = self._solve(seen)
+            except DegeneratePoseError:
+                if not seen.instead:
+                    raise
+                vp, rms_px = self._solve(seen.with_markers_instead())
         except (VisionError, GeometryError) as exc:
             pose_ms = (time.perf_counter() - t1) * 1e3
             reason = exc.reason if isinstance(exc, DegeneratePoseError) else "pose_error"

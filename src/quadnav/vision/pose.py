@@ -105,11 +105,15 @@ def check_point_set(obj: FloatArray, img: FloatArray, *, collinear_tol: float = 
             raise DegeneratePoseError("collinear", f"the {len(pts)} {name} lie on one line")
 
 
-def _check_result(rvec: FloatArray, tvec: FloatArray, what: str) -> None:
+def _check_result(rvec: FloatArray, tvec: FloatArray, obj: FloatArray | None, what: str) -> None:
+    """A finite pose; with ``obj``, one that puts every point in front of the camera (the
+    object's origin itself may be behind it: a board's corner seen close up and tilted)."""
     if not (np.isfinite(rvec).all() and np.isfinite(tvec).all()):
         raise DegeneratePoseError("non_finite", f"PnP {what} is not finite")
-    if not tvec[2] > 0:
-        raise DegeneratePoseError("behind_camera", f"PnP {what} puts the target behind the camera")
+    if obj is not None:
+        R, _ = cv2.Rodrigues(rvec)
+        if not np.all(obj @ R[2] + tvec[2] > 0):
+            raise DegeneratePoseError("behind_camera", f"PnP {what} puts points behind the camera")
 
 
 def _is_planar(obj: FloatArray) -> bool:
@@ -163,12 +167,12 @@ def solve_pnp(
         if e[order[1]] < ambiguity_ratio * max(e[order[0]], 0.05):
             alternative = np.concatenate([np.ravel(rvecs[order[1]]), np.ravel(tvecs[order[1]])])
             alternative = alternative if np.isfinite(alternative).all() else None
-    _check_result(np.ravel(rvec), np.ravel(tvec), "pose")
+    _check_result(np.ravel(rvec), np.ravel(tvec), None, "pose")
     if refine:
         rvec, tvec = cv2.solvePnPRefineLM(obj, img, camera.K, camera.dist, rvec, tvec)
     rvec = np.asarray(rvec, dtype=np.float64).ravel()
     tvec = np.asarray(tvec, dtype=np.float64).ravel()
-    _check_result(rvec, tvec, "refined pose")
+    _check_result(rvec, tvec, obj, "refined pose")
     proj, jac = cv2.projectPoints(obj, rvec, tvec, camera.K, camera.dist)
     res = (proj.reshape(-1, 2) - img).ravel()
     J = jac[:, 0:6]
