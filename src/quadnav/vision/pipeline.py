@@ -218,6 +218,8 @@ class MarkerPipeline:
                 # Too few chessboard corners (close up, partial view) or all on one line (one
                 # column in view): the board's marker corners still fix its pose, less precisely.
                 seen.add(*marker_pts)
+            elif len(det.corner_ids) >= self.min_charuco_corners:
+                seen.add(T_W_O @ obj, det.corners)  # for the PnP to refuse, with its reason
         return markers
 
     def _observe_diamonds(
