@@ -198,18 +198,25 @@ class MarkerPipeline:
         self.prior_sigma_px = prior_sigma_px
         self.max_rms_px = max_rms_px
 
+    def _board_marker_points(
+        self, target: CharucoTarget, T_W_O: Pose, markers: MarkerDetections
+    ) -> tuple[FloatArray, FloatArray] | None:
+        """The board's marker corners in view, in the world, and their pixels."""
+        if not (self.board_marker_fallback and len(markers)):
+            return None
+        mobj = target.marker_corners(markers.ids)
+        keep = np.isfinite(mobj[:, 0, 0])
+        if not keep.any():
+            return None
+        return T_W_O @ mobj[keep].reshape(-1, 3), markers.corners[keep].reshape(-1, 2)
+
     def _observe_boards(self, gray: NDArray[np.uint8], seen: _Observed) -> MarkerDetections:
         markers = MarkerDetections.from_opencv((), None)
         for target, T_W_O in self.boards:
             det = target.detect(gray)
             markers = det.markers if len(det.markers) > len(markers) else markers
             obj = target.chessboard_corners[det.corner_ids]
-            marker_pts = None
-            if self.board_marker_fallback and len(det.markers):
-                mobj = target.marker_corners(det.markers.ids)
-                keep = np.isfinite(mobj[:, 0, 0])
-                if keep.any():
-                    marker_pts = (T_W_O @ mobj[keep].reshape(-1, 3), det.markers.corners[keep].reshape(-1, 2))  # fmt: skip
+            marker_pts = self._board_marker_points(target, T_W_O, det.markers)
             if len(det.corner_ids) >= self.min_charuco_corners and _poseable(obj, det.corners):
                 if marker_pts is not None:
                     seen.instead[len(seen.obj_W)] = marker_pts

@@ -30,6 +30,7 @@ __all__ = [
     "DegeneratePoseError",
     "PnpResult",
     "VehiclePose",
+    "chain_jacobian",
     "check_point_set",
     "marker_corners_3d",
     "mount_pose",
@@ -84,6 +85,16 @@ class DegeneratePoseError(VisionError):
         self.reason = reason
 
 
+def _count_distinct(points: FloatArray, enough: int = 4) -> int:
+    """How many distinct points (to the nanometre), counting up to ``enough``."""
+    seen: set[tuple[float, ...]] = set()
+    for row in np.round(points, 9).tolist():
+        seen.add(tuple(row))
+        if len(seen) >= enough:
+            break
+    return len(seen)
+
+
 def check_point_set(obj: FloatArray, img: FloatArray, *, collinear_tol: float = 1e-3) -> None:
     """Refuse what no PnP can pose: fewer than 4 pairs or distinct points, a non-finite value,
     object points on one line (one column of a board in view) or pixels on one line (a plane
@@ -94,7 +105,8 @@ def check_point_set(obj: FloatArray, img: FloatArray, *, collinear_tol: float = 
         )
     if not (np.isfinite(obj).all() and np.isfinite(img).all()):
         raise DegeneratePoseError("non_finite", "PnP input holds a non-finite value")
-    n_distinct = len(np.unique(np.round(obj, 9), axis=0))
+    n_distinct = _count_distinct(obj[:16])
+    n_distinct = n_distinct if n_distinct >= 4 else _count_distinct(obj)
     if n_distinct < 4:
         raise DegeneratePoseError(
             "too_few_points", f"PnP needs at least 4 distinct points, got {n_distinct}"
@@ -221,28 +233,50 @@ def _chain(rt: FloatArray, T_W_O: FloatArray, T_C_B: FloatArray) -> FloatArray:
     return np.asarray(T_W_O @ T_O_C @ T_C_B, dtype=np.float64)
 
 
+def _skew(v: FloatArray) -> FloatArray:
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
+def _left_jacobian(phi: FloatArray) -> FloatArray:
+    """SO(3)'s left Jacobian: ``Exp(phi + d) = Exp(J_l(phi) d) Exp(phi)`` to first order."""
+    th = float(np.linalg.norm(phi))
+    K = _skew(phi)
+    if th < 1e-8:
+        return np.eye(3) + 0.5 * K
+    return np.eye(3) + (1.0 - math.cos(th)) / th**2 * K + (th - math.sin(th)) / th**3 * (K @ K)
+
+
+def chain_jacobian(rt: FloatArray, T_W_O: FloatArray, T_C_B: FloatArray) -> FloatArray:
+    """d(p_W_B, dtheta_W) / d(rvec, tvec) of ``T_W_B = T_W_O T_C_O(rvec, tvec)^-1 T_C_B``.
+
+    With ``R = Exp(r)``: ``R_W_B = R_W_O R^T R_C_B`` and ``p_W_B = R_W_O R^T (p_C_B - t) +
+    p_W_O``; ``Exp(r + d)^T = Exp(r)^T Exp(-J_l d)`` gives, with ``M = R_W_O R^T``,
+    ``dp = M [p_C_B - t]x J_l dr - M dt`` and ``dtheta = -M J_l dr``."""
+    r, t = rt[0:3], rt[3:6]
+    R, _ = cv2.Rodrigues(r)
+    M = T_W_O[:3, :3] @ R.T
+    Jl = _left_jacobian(r)
+    J = np.zeros((6, 6))
+    J[0:3, 0:3] = M @ _skew(T_C_B[:3, 3] - t) @ Jl
+    J[0:3, 3:6] = -M
+    J[3:6, 0:3] = -M @ Jl
+    return J
+
+
 def vehicle_pose(pnp: PnpResult, T_W_O: Pose, T_B_C: Pose) -> VehiclePose:
     """The body in the world from a PnP pose of an object at ``T_W_O`` seen by a camera mounted
-    at ``T_B_C``, with the PnP covariance carried through the chain (numerical Jacobian)."""
-    TWO = T_W_O.matrix()
-    TCB = T_B_C.inverse().matrix()
+    at ``T_B_C``, with the PnP covariance carried through the chain (analytic Jacobian,
+    :func:`chain_jacobian`)."""
+    T_C_B = T_B_C.inverse()
+    T_W_B = T_W_O @ pnp.T_C_O.inverse() @ T_C_B
+    TWO, TCB = T_W_O.matrix(), T_C_B.matrix()
     rt = np.concatenate([pnp.rvec, pnp.tvec])
-    T0 = _chain(rt, TWO, TCB)
-    R0 = T0[:3, :3]
-    J = np.zeros((6, 6))
-    for k in range(6):
-        step = 1e-6
-        d = np.zeros(6)
-        d[k] = step
-        Tp, Tm = _chain(rt + d, TWO, TCB), _chain(rt - d, TWO, TCB)
-        J[0:3, k] = (Tp[:3, 3] - Tm[:3, 3]) / (2 * step)
-        # (cv2.Rodrigues rounds rotations this small to zero; so3_log does not)
-        J[3:6, k] = (so3_log(Tp[:3, :3] @ R0.T) - so3_log(Tm[:3, :3] @ R0.T)) / (2 * step)
+    J = chain_jacobian(rt, TWO, TCB)
     cov = J @ pnp.cov_rt @ J.T
     if pnp.alternative is not None:
         # Either pose may be the true one: the covariance of the two-point mixture (equal
         # weights) adds a quarter of the outer product of their difference.
-        T1 = _chain(pnp.alternative, TWO, TCB)
-        delta = np.concatenate([T1[:3, 3] - T0[:3, 3], so3_log(T1[:3, :3] @ R0.T)])
+        T0, T1 = T_W_B.matrix(), _chain(pnp.alternative, TWO, TCB)
+        delta = np.concatenate([T1[:3, 3] - T0[:3, 3], so3_log(T1[:3, :3] @ T0[:3, :3].T)])
         cov = cov + 0.25 * np.outer(delta, delta)
-    return VehiclePose(Pose.from_matrix(T0), 0.5 * (cov + cov.T))
+    return VehiclePose(T_W_B, 0.5 * (cov + cov.T))
