@@ -59,7 +59,7 @@ def test_one_column_of_corners_falls_back_to_the_markers_or_is_refused() -> None
     np.testing.assert_allclose(fp.pose.T_W_B.p_A_B, T_W_B.p_A_B, atol=0.01)
 
 
-def _camera_yaml(path: Path) -> Path:
+def write_camera_yaml(path: Path) -> Path:
     fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
     fs.write("image_width", THESIS_CAMERA.width)
     fs.write("image_height", THESIS_CAMERA.height)
@@ -78,7 +78,7 @@ def test_a_run_counts_degenerate_frames_and_keeps_its_rows_when_stopped(tmp_path
         cv2.imwrite(str(folder / f"frame_{k:03d}.png"), scene.render(T @ T_B_C))
     cfg = MarkersConfig(
         target="charuco", dictionary="DICT_4X4_250", video=False, mount_rpy_deg=(180.0, 0.0, 0.0),
-        camera_file=str(_camera_yaml(tmp_path / "cal.yml")),
+        camera_file=str(write_camera_yaml(tmp_path / "cal.yml")),
         charuco={"squares_x": 2, "squares_y": 5, "square_m": 0.07, "marker_m": 0.05, "marker_fallback": False},
     )  # fmt: skip
     stats = run_markers(cfg, str(folder), tmp_path / "runs")

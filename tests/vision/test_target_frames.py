@@ -4,12 +4,16 @@ above it, upright. Renders with known poses, seeded."""
 
 from __future__ import annotations
 
+import csv
 import math
+from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from quadnav.cli.markers import load_markers_config, run_markers
 from quadnav.geometry.rotations import Pose
 from quadnav.sim.camera import (
     PlanarObject,
@@ -23,6 +27,7 @@ from quadnav.vision.config import MarkersConfig, from_thesis_vision_params
 from quadnav.vision.markers import CharucoSpec, CharucoTarget, get_dictionary
 from quadnav.vision.pipeline import MarkerMap, MarkerPipeline
 from quadnav.vision.pose import marker_corners_3d
+from tests.vision.test_degenerate_views import write_camera_yaml
 from tests.vision.test_pose_synthetic import THESIS_CAMERA
 
 D = get_dictionary("DICT_4X4_250")
@@ -137,3 +142,27 @@ def test_a_diamond_is_posed_with_its_square_not_the_thesis_marker_length() -> No
         np.testing.assert_allclose(fp.pose.T_W_B.p_A_B, T_W_B.p_A_B - origin, atol=0.02)  # fmt: skip
     # a map of markers only does not see diamonds as a target
     assert MarkerMap.single_marker(3, 0.075, 2).diamonds == []
+
+
+def test_the_thesis_diamond_key_through_the_command(tmp_path: Path) -> None:
+    """A thesis ``vision_params.yml`` with ``diamond: true``: the run poses the diamond at
+    its squareLength (no note that the key is unused)."""
+    params = tmp_path / "vision_params.yml"
+    params.write_text(
+        "%YAML:1.0\ndict_type: 2\nmarker_length: 0.96\ndiamond: true\ncharuco: false\n"
+        "squareLength: 0.12\nmarkerLength: 0.075\n"
+    )
+    cfg0, ignored = load_markers_config(params, [])
+    assert "diamond" not in ignored and cfg0.target == "diamond"
+    scene = SyntheticCamera(THESIS_CAMERA, [diamond_object(D, DIAMOND_IDS, 0.12, 0.075, Pose.identity())],
+                            RenderSettings(noise_sigma=1.0))  # fmt: skip
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    heights = [0.7, 0.75, 0.8]
+    for k, h in enumerate(heights):
+        T_W_B = Pose(Rotation.from_euler("z", 0.3 * k), np.array([0.02, -0.03, h]))
+        cv2.imwrite(str(folder / f"{k:03d}.png"), scene.render(T_W_B @ cfg0.T_B_C()))
+    cfg, _ = load_markers_config(params, [f"camera_file={write_camera_yaml(tmp_path / 'cal.yml')}", "video=false"])  # fmt: skip
+    stats = run_markers(cfg, str(folder), tmp_path / "runs")
+    rows = list(csv.DictReader((Path(stats["run_dir"]) / "poses.csv").open()))
+    np.testing.assert_allclose([float(r["z_m"]) for r in rows], heights, atol=0.02)
