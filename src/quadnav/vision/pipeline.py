@@ -1,5 +1,6 @@
 """From an image to the vehicle's pose: detection, PnP against what is known of the scene
-(a single marker, a ChArUco board or a marker map), the camera mount, and the covariance.
+(a single marker, a ChArUco board, a diamond or a marker map), the camera mount, and the
+covariance. Every target has z out of its printed face.
 
 :class:`MarkerMap` places markers and boards in the world (the thesis's first future-work item:
 navigating over a field of markers); :class:`MarkerPipeline` turns a frame into a

@@ -1,8 +1,8 @@
 """Pose from markers: PnP with a covariance, and the frame chain of thesis 000 (eqs 3.1-3.6).
 
 Frames: ``C`` camera (x right, y down, z along the optical axis), ``O`` a planar object (a
-marker: origin at its centre, x right, y up, z out of the printed face; a board: OpenCV's
-board frame), ``W`` the world, ``B`` the body (FLU). PnP gives ``T_C_O``; the camera mount is
+marker or diamond: origin at its centre, x right, y up, z out of the printed face; a board:
+the same axes from the bottom-left corner of its pattern), ``W`` the world, ``B`` the body (FLU). PnP gives ``T_C_O``; the camera mount is
 ``T_B_C``; the vehicle is ``T_W_B = T_W_O T_C_O^-1 T_B_C^-1``.
 
 The covariance of a PnP pose is ``s^2 (J^T J)^-1`` with ``J`` the Jacobian of the reprojected
