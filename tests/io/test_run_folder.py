@@ -11,6 +11,7 @@ import pytest
 from quadnav.errors import ConfigError, IoError
 from quadnav.io import create_run_folder, write_csv, write_json
 from quadnav.io.run_folder import (
+    CsvAppender,
     finish_run_folder,
     read_run_status,
     require_complete,
@@ -130,3 +131,22 @@ def test_folders_from_before_statuses_read_as_unknown(tmp_path: Path) -> None:
     (tmp_path / "old").mkdir()
     assert read_run_status(tmp_path / "old") is None
     require_complete(tmp_path / "old" / "truth.csv")  # legacy folders are still readable
+
+
+def test_csv_appender_writes_what_write_csv_writes_row_by_row(tmp_path: Path) -> None:
+    cols = {"t_ns": np.array([5, 10], np.int64), "x_m": np.array([0.1, np.nan]), "ids": np.array(["1 2", "-"], dtype=object)}  # fmt: skip
+    write_csv(tmp_path / "all.csv", cols)
+    out = CsvAppender(tmp_path / "rows.csv", list(cols))
+    out.append([5, 0.1, "1 2"])
+    # flushed at once: a reader sees the row before the file is closed
+    assert (tmp_path / "rows.csv").read_text().splitlines() == ["t_ns,x_m,ids", "5,0.1,1 2"]
+    out.append([10, float("nan"), "-"])
+    out.close()
+    assert (tmp_path / "rows.csv").read_text() == (tmp_path / "all.csv").read_text()
+    with pytest.raises(IoError, match="first CSV column must be t_ns"):
+        CsvAppender(tmp_path / "bad.csv", ["x", "t_ns"])
+    with CsvAppender(tmp_path / "short.csv", ["t_ns", "x"]) as short:
+        with pytest.raises(IoError, match="a row of 1 values for 2 columns"):
+            short.append([1])
+        with pytest.raises(IoError, match="integer nanoseconds"):
+            short.append([1.5, 2.0])

@@ -11,16 +11,19 @@ import numpy as np
 import pytest
 
 from quadnav.errors import IoError, VisionError
+from quadnav.geometry.rotations import Pose
 from quadnav.io.opencv_yaml import read_camera_yaml, read_opencv_yaml
 from quadnav.vision.markers import (
     CharucoSpec,
     CharucoTarget,
+    DiamondSpec,
     MarkerDetector,
     custom_dictionary,
     detect_diamonds,
     detector_parameters,
     get_dictionary,
 )
+from quadnav.vision.pipeline import MapDiamond, MarkerMap, MarkerPipeline
 from tests.shared_data import SHARED, needs
 
 DATA = SHARED / "aruco"
@@ -130,3 +133,23 @@ def test_thesis_detector_parameter_file_is_applied() -> None:
     assert {"nmarkers", "minMarkerDistance", "minCornerDistance"} <= set(unknown)
     with pytest.raises(VisionError, match="adaptiveThreshWinSizeMax"):
         detector_parameters({"adaptiveThreshWinSizeMax": "big"})
+
+
+@needs_data
+def test_diamonds_face_the_camera_in_the_tutorial_photo() -> None:
+    """The three diamonds printed on one sheet: each one's z (out of the face) points at the
+    camera, and the three agree, as a marker's would."""
+    camera = read_camera_yaml(DATA / "tutorial_camera_params.yml")
+    params, _ = detector_parameters(read_opencv_yaml(DATA / "detector_params.yml"))
+    image = cv2.imread(str(DATA / "diamondmarkers.png"))
+    normals = []
+    for ids in expected()["diamondmarkers.png"]["diamond"]["expected_diamond_ids"]:
+        mmap = MarkerMap(0, diamonds=[MapDiamond(DiamondSpec(0.04, 0.025, tuple(ids)), Pose.identity())])  # fmt: skip
+        pipe = MarkerPipeline(camera, mmap, Pose.identity(), params=params, dictionary=tutorial_dictionary())  # fmt: skip
+        fp = pipe.process(image)
+        assert fp.pose is not None and fp.rms_px < 1.0, ids
+        R_C_D = fp.pose.T_W_B.R_A_B.inv()  # the camera is the body: T_W_C with W the diamond
+        normals.append(R_C_D.apply([0.0, 0.0, 1.0]))
+        assert normals[-1][2] < -0.5, ids  # towards the camera (camera z looks away from it)
+    for n in normals[1:]:
+        assert np.degrees(np.arccos(np.clip(n @ normals[0], -1, 1))) < 20

@@ -85,7 +85,7 @@ def test_marker_map_and_board_give_one_pose_from_everything_in_view() -> None:
     }
     spec = CharucoSpec(5, 4, 0.08, 0.06, "DICT_4X4_250")
     target = CharucoTarget(spec)
-    T_W_O = Pose(Rotation.from_euler("x", 180, degrees=True), np.array([1.5, 0.0, 0.0]))
+    T_W_O = Pose(Rotation.from_euler("z", 3, degrees=True), np.array([1.5, -0.32, 0.0]))
     objects = [marker_object(d, 10 + i, 0.2, p) for i, p in poses.items()]
     objects.append(board_object(target.board, (0.4, 0.32), T_W_O))
     scene = SyntheticCamera(THESIS_CAMERA, objects, RenderSettings(noise_sigma=1.0))
@@ -95,7 +95,7 @@ def test_marker_map_and_board_give_one_pose_from_everything_in_view() -> None:
     fp = pipe.process(scene.render(T_W_C))
     assert fp.pose is not None and fp.n_points == 16
     assert np.linalg.norm(fp.pose.T_W_B.p_A_B - T_W_C.p_A_B) < 0.02
-    # the board alone, upside down at x = 1.5 m (its frame's z points into the floor)
+    # the board alone at x = 1.5 m (its face frame: z out of the print, origin bottom-left)
     bmap = MarkerMap("DICT_4X4_250", boards=[MapBoard(spec, T_W_O)])
     pipe_b = MarkerPipeline(THESIS_CAMERA, bmap, Pose.identity())
     T_W_C2 = look_at(np.array([1.25, -0.3, 0.8]), np.array([1.7, -0.16, 0.0]))  # 30 deg oblique

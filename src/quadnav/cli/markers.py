@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -33,7 +34,7 @@ from quadnav.io.frames import (
 )
 from quadnav.io.mavlink import check_bind
 from quadnav.io.opencv_yaml import read_camera_yaml, read_opencv_yaml
-from quadnav.io.run_folder import create_run_folder, write_csv, write_json, write_text
+from quadnav.io.run_folder import CsvAppender, create_run_folder, write_json, write_text
 from quadnav.vision.camera import PinholeCamera
 from quadnav.vision.config import MarkersConfig, from_thesis_vision_params
 from quadnav.vision.markers import (
@@ -64,16 +65,28 @@ def load_markers_config(
     return load_config(MarkersConfig, params, overrides), []
 
 
-def _cov_columns(poses: list[FramePose]) -> dict[str, np.ndarray]:
-    iu = np.triu_indices(6)
-    names = ["x", "y", "z", "rx", "ry", "rz"]
-    out: dict[str, np.ndarray] = {}
-    covs = np.array(
-        [fp.pose.cov[iu] if fp.pose is not None else np.full(21, np.nan) for fp in poses]
-    )
-    for k, (i, j) in enumerate(zip(*iu, strict=True)):
-        out[f"cov_{names[i]}_{names[j]}"] = covs[:, k] if len(poses) else np.zeros(0)
-    return out
+_COV_INDEX = np.triu_indices(6)
+_COV_NAMES = ["x", "y", "z", "rx", "ry", "rz"]
+POSE_COLUMNS = [
+    "t_ns", "frame", "x_m", "y_m", "z_m", "roll_deg", "pitch_deg", "yaw_deg",
+    "qx", "qy", "qz", "qw", "n_markers", "ids", "n_points", "rms_px", "detect_ms", "pose_ms",
+    "reason",
+    *(f"cov_{_COV_NAMES[i]}_{_COV_NAMES[j]}" for i, j in zip(*_COV_INDEX, strict=True)),
+]  # fmt: skip
+
+
+def _pose_row(frame: int, fp: FramePose) -> list[Any]:
+    """One line of ``poses.csv`` (:data:`POSE_COLUMNS`); NaN where the frame has no pose, and
+    why in ``reason``."""
+    if fp.pose is not None:
+        R = fp.pose.T_W_B.R_A_B
+        pose = [*fp.pose.T_W_B.p_A_B, *R.as_euler("ZYX", degrees=True)[::-1], *R.as_quat()]
+        cov = list(fp.pose.cov[_COV_INDEX])
+    else:
+        pose, cov = [math.nan] * 10, [math.nan] * 21
+    ids = " ".join(str(i) for i in sorted(fp.detections.ids.tolist())) or "-"
+    return [fp.t_ns, frame, *pose, len(fp.detections), ids, fp.n_points, fp.rms_px,
+            fp.detect_ms, fp.pose_ms, fp.reason or "-", *cov]  # fmt: skip
 
 
 def fit_calibration(camera: PinholeCamera, size: tuple[int, int]) -> tuple[PinholeCamera, str]:
@@ -216,8 +229,10 @@ class _Processed:
 
 
 def _process(cfg: MarkersConfig, frames: FrameSource, camera: PinholeCamera, det_params: Any,
-             overlay: _Overlay, companion: _Companion | None, progress: Any) -> _Processed:  # fmt: skip
-    """Every frame through the pipeline, the overlay and the link."""
+             overlay: _Overlay, companion: _Companion | None, progress: Any,
+             poses_csv: CsvAppender) -> _Processed:  # fmt: skip
+    """Every frame through the pipeline, the overlay and the link; each pipeline result is a
+    row of ``poses_csv`` at once (flushed: a run stopped half way keeps what it made)."""
     out = _Processed(world_id=cfg.marker_id)
     pipeline: MarkerPipeline | None = None
     if cfg.target != "marker" or cfg.marker_id is not None:
@@ -247,6 +262,7 @@ def _process(cfg: MarkersConfig, frames: FrameSource, camera: PinholeCamera, det
                 fp = pipeline.process(fr.image, fr.t_ns) if pipeline is not None else None
                 if fp is not None:
                     out.results.append(fp)
+                    poses_csv.append(_pose_row(fr.index, fp))
                     out.frame_idx.append(fr.index)
                     n_poses += fp.pose is not None
                     if companion is not None:
@@ -296,7 +312,9 @@ def run_markers(
             else None
         )
         try:
-            done = _process(cfg, frames, camera, det_params, overlay, companion, progress)
+            with CsvAppender(run_dir / "poses.csv", POSE_COLUMNS) as poses_csv:
+                done = _process(cfg, frames, camera, det_params, overlay, companion, progress,
+                                poses_csv)  # fmt: skip
         finally:
             overlay.close()
     stats = _statistics(cfg, frames, done, run_dir)
@@ -313,30 +331,6 @@ def run_markers(
     write_json(run_dir / "metrics.json", _metrics(stats))
     _write_report(run_dir, cfg, frames, done, stats)
     return stats
-
-
-def _pose_columns(done: _Processed) -> dict[str, np.ndarray]:
-    """poses.csv: one row per frame through the pipeline (NaN where it gave no pose)."""
-    results = done.results
-    t = np.array([r.t_ns for r in results], dtype=np.int64)
-    nan = np.full(7, np.nan)
-    pq = np.array([np.concatenate([r.pose.T_W_B.p_A_B, r.pose.T_W_B.R_A_B.as_quat()])
-                   if r.pose is not None else nan for r in results]).reshape(-1, 7)  # fmt: skip
-    rpy = np.array([r.pose.T_W_B.R_A_B.as_euler("ZYX", degrees=True)[::-1]
-                    if r.pose is not None else nan[:3] for r in results]).reshape(-1, 3)  # fmt: skip
-    cols: dict[str, np.ndarray] = {
-        "t_ns": t, "frame": np.array(done.frame_idx, dtype=np.int64),
-        "x_m": pq[:, 0], "y_m": pq[:, 1], "z_m": pq[:, 2],
-        "roll_deg": rpy[:, 0], "pitch_deg": rpy[:, 1], "yaw_deg": rpy[:, 2],
-        "qx": pq[:, 3], "qy": pq[:, 4], "qz": pq[:, 5], "qw": pq[:, 6],
-        "n_markers": np.array([len(r.detections) for r in results], dtype=np.int64),
-        "ids": np.array([" ".join(str(i) for i in sorted(r.detections.ids.tolist())) or "-" for r in results], dtype=object),
-        "n_points": np.array([r.n_points for r in results], dtype=np.int64),
-        "rms_px": np.array([r.rms_px for r in results]),
-        "detect_ms": np.array([r.detect_ms for r in results]), "pose_ms": np.array([r.pose_ms for r in results]),
-    }  # fmt: skip
-    cols.update(_cov_columns(results))
-    return cols
 
 
 def _jitter(pos: np.ndarray, frame_idx: list[int]) -> np.ndarray:
@@ -357,9 +351,9 @@ def _median(values: Any) -> float:
 
 
 def _statistics(cfg: MarkersConfig, frames: FrameSource, done: _Processed, run_dir: Path) -> dict[str, Any]:  # fmt: skip
-    cols = _pose_columns(done)
-    write_csv(run_dir / "poses.csv", cols)
-    pos = np.column_stack([cols["x_m"], cols["y_m"], cols["z_m"]])
+    nan3 = np.full(3, np.nan)
+    pos = np.array([r.pose.T_W_B.p_A_B if r.pose is not None else nan3
+                    for r in done.results]).reshape(-1, 3)  # fmt: skip
     steps = _jitter(pos, done.frame_idx)
     ok = [r for r in done.results if r.pose is not None]
     n_total = done.n_total
@@ -368,10 +362,12 @@ def _statistics(cfg: MarkersConfig, frames: FrameSource, done: _Processed, run_d
         "frames": n_total, "frames_processed": len(done.results),
         "frames_skipped": len(done.skipped), "skipped": done.skipped[:50],
         "frames_with_pose": len(ok), "fraction_with_pose": len(ok) / n_total if n_total else 0.0,
+        "frames_rejected": sum(r.pose is None and r.reason != "no_target" for r in done.results),
+        "rejected_by_reason": dict(Counter(r.reason for r in done.results if r.pose is None)),
         "world_marker_id": done.world_id if cfg.target == "marker" else None,
         "jitter_rms_mm": float(np.sqrt(np.mean(steps**2)) * 1e3) if len(steps) else math.nan,
         "jitter_median_mm": _median(steps) * 1e3,
-        "detect_ms_median": _median(cols["detect_ms"]),
+        "detect_ms_median": _median([r.detect_ms for r in done.results]),
         "pose_ms_median": _median([r.pose_ms for r in ok]),
         "rms_px_median": _median([r.rms_px for r in ok]),
         "camera_properties": [dataclasses.asdict(p) for p in frames.properties],
@@ -380,7 +376,7 @@ def _statistics(cfg: MarkersConfig, frames: FrameSource, done: _Processed, run_d
 
 #: The named numbers of a markers run that ``quadnav eval --table`` puts side by side.
 METRICS = ("frames", "frames_processed", "frames_skipped", "frames_with_pose",
-           "fraction_with_pose", "jitter_rms_mm", "jitter_median_mm", "detect_ms_median",
+           "fraction_with_pose", "frames_rejected", "jitter_rms_mm", "jitter_median_mm", "detect_ms_median",
            "pose_ms_median", "rms_px_median", "fps")  # fmt: skip
 
 
@@ -524,6 +520,7 @@ def _print_summary(stats: dict[str, Any]) -> None:
     table.add_row(
         "frames with a pose", f"{stats['frames_with_pose']} ({stats['fraction_with_pose']:.1%})"
     )
+    table.add_row("frames rejected (degenerate view, bad fit)", str(stats["frames_rejected"]))
     table.add_row(
         "frame-to-frame jitter, RMS / median (mm)",
         f"{stats['jitter_rms_mm']:.2f} / {stats['jitter_median_mm']:.2f}",

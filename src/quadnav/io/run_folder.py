@@ -16,10 +16,11 @@ import math
 import os
 import re
 import shutil
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Literal
+from types import TracebackType
+from typing import IO, Any, Literal, Self
 
 import numpy as np
 from numpy.typing import NDArray
@@ -28,6 +29,7 @@ from quadnav.errors import IoError
 
 __all__ = [
     "STATUS_FILE",
+    "CsvAppender",
     "RunStatus",
     "append_jsonl",
     "create_run_folder",
@@ -225,3 +227,59 @@ def write_csv(path: Path, columns: Mapping[str, NDArray[Any]]) -> None:
             tmp, table, fmt=fmts, delimiter=",", header=",".join(names), comments=""
         ),
     )
+
+
+def _cell(value: Any) -> str:
+    """One CSV cell as :func:`write_csv` writes it: integers as such, floats to 9 digits."""
+    if isinstance(value, bool | np.bool_):
+        return str(int(value))
+    if isinstance(value, int | np.integer):
+        return str(int(value))
+    if isinstance(value, float | np.floating):
+        return f"{float(value):.9g}"
+    return str(value)
+
+
+class CsvAppender:
+    """A CSV written one row at a time and flushed after each, so that a run stopped half way
+    (an error, Ctrl-C) keeps every row it made. Same header and number format as
+    :func:`write_csv`; the first column must be ``t_ns``."""
+
+    def __init__(self, path: Path, names: Sequence[str]) -> None:
+        if not names or names[0] != "t_ns":
+            raise IoError(f"{path.name}: the first CSV column must be t_ns, got {list(names[:1])}")
+        self.path = path
+        self.names = list(names)
+        self.n_rows = 0
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            self._file: IO[str] = path.open("w", encoding="utf-8", newline="")
+            self._write(",".join(self.names))
+        except OSError as exc:
+            raise IoError(f"cannot write {path}: {exc.strerror}") from None
+
+    def _write(self, line: str) -> None:
+        self._file.write(line + "\n")
+        self._file.flush()
+
+    def append(self, row: Sequence[Any]) -> None:
+        if len(row) != len(self.names):
+            raise IoError(
+                f"{self.path.name}: a row of {len(row)} values for {len(self.names)} columns"
+            )
+        if not isinstance(row[0], int | np.integer):
+            raise IoError(f"{self.path.name}: t_ns must be integer nanoseconds")
+        try:
+            self._write(",".join(_cell(v) for v in row))
+        except OSError as exc:
+            raise IoError(f"cannot write {self.path}: {exc.strerror}") from None
+        self.n_rows += 1
+
+    def close(self) -> None:
+        self._file.close()
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None) -> None:  # fmt: skip
+        self.close()

@@ -19,7 +19,14 @@ from quadnav.errors import SimError
 from quadnav.geometry.rotations import Pose
 from quadnav.vision.camera import PinholeCamera
 
-__all__ = ["PlanarObject", "RenderSettings", "SyntheticCamera", "board_object", "marker_object"]
+__all__ = [
+    "PlanarObject",
+    "RenderSettings",
+    "SyntheticCamera",
+    "board_object",
+    "diamond_object",
+    "marker_object",
+]
 
 FloatArray = NDArray[np.float64]
 U8 = NDArray[np.uint8]
@@ -68,17 +75,38 @@ def marker_object(
     return PlanarObject(tex, A, T_W_M, f"marker {marker_id}")
 
 
-def board_object(board: cv2.aruco.Board, size_m: tuple[float, float], T_W_O: Pose, *, px_per_m: float = 1500.0, margin_m: float = 0.02) -> PlanarObject:  # fmt: skip
-    """An OpenCV board (ChArUco or grid) in its own frame (origin at the top-left corner of the
-    pattern, x right, y down the printed image, as OpenCV's board object points), with a white
-    margin of ``margin_m``."""
+def _pattern_object(board: cv2.aruco.Board, size_m: tuple[float, float], T_W_O: Pose, origin_m: tuple[float, float], px_per_m: float, margin_m: float, name: str) -> PlanarObject:  # fmt: skip
+    """The image OpenCV prints of ``board`` (``size_m`` without the white margin), in a frame
+    with x right, y up the printed image, z out of its face and the origin ``origin_m`` from
+    the pattern's bottom-left corner."""
     w_m, h_m = size_m
     m_px = round(margin_m * px_per_m)
     w_px, h_px = round(w_m * px_per_m), round(h_m * px_per_m)
     img = board.generateImage((w_px + 2 * m_px, h_px + 2 * m_px), marginSize=m_px)
     s = 1.0 / px_per_m
-    A = np.array([[s, 0.0, (0.5 - m_px) * s], [0.0, s, (0.5 - m_px) * s], [0.0, 0.0, 1.0]])
-    return PlanarObject(np.asarray(img, np.uint8), A, T_W_O, "board")
+    # Pixel centres sit at integer coordinates: texture pixel u covers [u - 0.5, u + 0.5].
+    x0, y0 = (0.5 - m_px) * s - origin_m[0], h_m - (0.5 - m_px) * s - origin_m[1]
+    A = np.array([[s, 0.0, x0], [0.0, -s, y0], [0.0, 0.0, 1.0]])
+    return PlanarObject(np.asarray(img, np.uint8), A, T_W_O, name)
+
+
+def board_object(board: cv2.aruco.Board, size_m: tuple[float, float], T_W_O: Pose, *, px_per_m: float = 1500.0, margin_m: float = 0.02) -> PlanarObject:  # fmt: skip
+    """An OpenCV board (ChArUco or grid) of ``size_m`` in its face frame (origin at the
+    bottom-left corner of the pattern, x right, y up, z out of the printed face, as
+    :class:`~quadnav.vision.markers.CharucoTarget` poses it), with a white margin of
+    ``margin_m``."""
+    return _pattern_object(board, size_m, T_W_O, (0.0, 0.0), px_per_m, margin_m, "board")
+
+
+def diamond_object(dictionary: cv2.aruco.Dictionary, ids: tuple[int, int, int, int], square_m: float, marker_m: float, T_W_D: Pose, *, px_per_m: float = 1500.0, margin_m: float = 0.02) -> PlanarObject:  # fmt: skip
+    """A ChArUco diamond (a 3x3 ChArUco board of the markers ``ids``) centred on its frame
+    (x right, y up, z out of the face), with a white margin of ``margin_m``."""
+    board = cv2.aruco.CharucoBoard(
+        (3, 3), square_m, marker_m, dictionary, np.asarray(ids, np.int32)
+    )
+    side = 3 * square_m
+    o = 0.5 * side
+    return _pattern_object(board, (side, side), T_W_D, (o, o), px_per_m, margin_m, f"diamond {ids}")
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

@@ -9,8 +9,8 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 from scipy.spatial.transform import Rotation
 
 from quadnav.geometry.rotations import Pose
-from quadnav.vision.markers import CharucoSpec
-from quadnav.vision.pipeline import MapBoard, MapMarker, MarkerMap
+from quadnav.vision.markers import CharucoSpec, DiamondSpec
+from quadnav.vision.pipeline import MapBoard, MapDiamond, MapMarker, MarkerMap
 from quadnav.vision.pose import mount_pose
 
 __all__ = ["MarkersConfig", "from_thesis_vision_params"]
@@ -36,6 +36,26 @@ class CharucoSection(_Section):
     )
 
 
+class DiamondSection(_Section):
+    """A ChArUco diamond (thesis 000 sec. 3.3): square and marker side; the world is the centre
+    of its middle square (x right, y up, z out of the face)."""
+
+    square_m: float = Field(0.066, gt=0)
+    marker_m: float = Field(0.0397, gt=0)
+    ids: tuple[int, int, int, int] | None = Field(
+        None, description="the diamond's four marker ids (None: any diamond in view)"
+    )
+
+    @model_validator(mode="after")
+    def _check(self) -> Self:
+        if self.marker_m >= self.square_m:
+            raise ValueError("diamond.marker_m must be smaller than diamond.square_m")
+        return self
+
+    def spec(self) -> DiamondSpec:
+        return DiamondSpec(self.square_m, self.marker_m, self.ids)
+
+
 class MapMarkerEntry(_Section):
     id: int = Field(ge=0)
     length_m: float = Field(gt=0)
@@ -49,6 +69,12 @@ class MapBoardEntry(_Section):
     rpy_deg: Vec3 = (0.0, 0.0, 0.0)
 
 
+class MapDiamondEntry(_Section):
+    diamond: DiamondSection
+    position_m: Vec3 = (0.0, 0.0, 0.0)
+    rpy_deg: Vec3 = (0.0, 0.0, 0.0)
+
+
 def _pose(position_m: Vec3, rpy_deg: Vec3) -> Pose:
     r, p, y = rpy_deg
     return Pose(Rotation.from_euler("ZYX", [y, p, r], degrees=True), list(position_m))  # type: ignore[arg-type]
@@ -58,17 +84,21 @@ class MarkersConfig(_Section):
     """What the camera looks at and how the pipeline runs (defaults: thesis 000's rig)."""
 
     dictionary: str | int = "DICT_4X4_250"
-    target: Literal["marker", "charuco", "map"] = Field(
+    target: Literal["marker", "charuco", "diamond", "map"] = Field(
         "marker",
-        description="marker: one marker is the world; charuco: a board is; map: markers/boards placed in the world",
+        description="marker: one marker is the world; charuco: a board is; diamond: a ChArUco "
+        "diamond is; map: markers/boards/diamonds placed in the world. Every target's frame "
+        "has z out of its printed face",
     )
     marker_id: int | None = Field(
         None, description="the world's marker (None: the lowest id in view)"
     )
     marker_length_m: float = Field(0.2335, gt=0)
     charuco: CharucoSection = CharucoSection()
+    diamond: DiamondSection = DiamondSection()
     map_markers: list[MapMarkerEntry] = Field(default_factory=list)
     map_boards: list[MapBoardEntry] = Field(default_factory=list)
+    map_diamonds: list[MapDiamondEntry] = Field(default_factory=list)
     camera_file: str | None = Field(
         None, description="OpenCV YAML calibration (camera_matrix, distortion_coefficients)"
     )
@@ -106,8 +136,8 @@ class MarkersConfig(_Section):
 
     @model_validator(mode="after")
     def _check(self) -> Self:
-        if self.target == "map" and not (self.map_markers or self.map_boards):
-            raise ValueError("target=map needs map_markers or map_boards")
+        if self.target == "map" and not (self.map_markers or self.map_boards or self.map_diamonds):
+            raise ValueError("target=map needs map_markers, map_boards or map_diamonds")
         if self.charuco.marker_m >= self.charuco.square_m:
             raise ValueError("charuco.marker_m must be smaller than charuco.square_m")
         return self
@@ -128,6 +158,10 @@ class MarkersConfig(_Section):
             return MarkerMap(
                 self.dictionary, boards=[MapBoard(self.charuco_spec(self.charuco), Pose.identity())]
             )
+        if self.target == "diamond":
+            return MarkerMap(
+                self.dictionary, diamonds=[MapDiamond(self.diamond.spec(), Pose.identity())]
+            )
         return MarkerMap(
             self.dictionary,
             {
@@ -137,6 +171,10 @@ class MarkersConfig(_Section):
             [
                 MapBoard(self.charuco_spec(b.charuco), _pose(b.position_m, b.rpy_deg))
                 for b in self.map_boards
+            ],
+            [
+                MapDiamond(d.diamond.spec(), _pose(d.position_m, d.rpy_deg))
+                for d in self.map_diamonds
             ],
         )
 
@@ -155,7 +193,7 @@ def from_thesis_vision_params(values: dict[str, Any]) -> tuple[dict[str, Any], l
     """Thesis 000's ``vision_params.yml`` (dict_type, marker_length, charuco, squaresX...)
     as :class:`MarkersConfig` keys; returns them and the keys left out."""
     out: dict[str, Any] = {}
-    used = {"charuco", "squaresX", "squaresY", "squareLength", "markerLength"}
+    used = {"charuco", "diamond", "squaresX", "squaresY", "squareLength", "markerLength"}
     for theirs, ours, cast in (
         ("dict_type", "dictionary", int),
         ("marker_length", "marker_length_m", float),
@@ -171,12 +209,20 @@ def from_thesis_vision_params(values: dict[str, Any]) -> tuple[dict[str, Any], l
         if theirs in values:
             out[ours] = cast(values[theirs])
             used.add(theirs)
+    lengths = {
+        "square_m": float(values.get("squareLength", 0.066)),
+        "marker_m": float(values.get("markerLength", 0.0397)),
+    }
+    # The thesis's program tries a board first, then a diamond (its squareLength and
+    # markerLength are the diamond's too), then single markers.
     if values.get("charuco"):
         out["target"] = "charuco"
         out["charuco"] = {
             "squares_x": int(values.get("squaresX", 12)),
             "squares_y": int(values.get("squaresY", 17)),
-            "square_m": float(values.get("squareLength", 0.066)),
-            "marker_m": float(values.get("markerLength", 0.0397)),
+            **lengths,
         }
+    elif values.get("diamond"):
+        out["target"] = "diamond"
+        out["diamond"] = lengths
     return out, sorted(set(values) - used)

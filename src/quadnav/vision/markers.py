@@ -21,12 +21,15 @@ __all__ = [
     "CharucoSpec",
     "CharucoTarget",
     "Diamond",
+    "DiamondSpec",
+    "DiamondTarget",
     "MarkerDetections",
     "MarkerDetector",
     "custom_dictionary",
     "detect_diamonds",
     "detector_parameters",
     "get_dictionary",
+    "opencv_board_to_face",
     "to_gray",
 ]
 
@@ -182,8 +185,19 @@ class CharucoDetections:
     markers: MarkerDetections
 
 
+def opencv_board_to_face(points: FloatArray, height_m: float) -> FloatArray:
+    """Points of OpenCV's board frame (origin at the top-left corner of the pattern, x right,
+    y down the printed image, so z into the board) in the board's face frame (origin at the
+    bottom-left corner, x right, y up, z out of the printed face, as a single marker's and
+    as OpenCV's boards before 4.6, the thesis's): a half turn about x, then up by the height."""
+    p = np.asarray(points, np.float64)
+    return np.stack([p[..., 0], height_m - p[..., 1], -p[..., 2]], axis=-1)
+
+
 class CharucoTarget:
-    """A ChArUco board and its detector (``cv2.aruco.CharucoDetector``)."""
+    """A ChArUco board and its detector (``cv2.aruco.CharucoDetector``). Its points are in the
+    board's face frame (:func:`opencv_board_to_face`): z out of the printed face, as every
+    target's."""
 
     def __init__(
         self,
@@ -205,7 +219,14 @@ class CharucoTarget:
         cp = cv2.aruco.CharucoParameters()
         cp.tryRefineMarkers = refine
         cp.minMarkers = min_markers
-        self._marker_obj = np.asarray(self.board.getObjPoints(), np.float64).reshape(-1, 4, 3)
+        self.height_m = spec.squares_y * spec.square_m
+        self._marker_obj = opencv_board_to_face(
+            np.asarray(self.board.getObjPoints(), np.float64).reshape(-1, 4, 3), self.height_m
+        )
+        self._chessboard = opencv_board_to_face(
+            np.asarray(self.board.getChessboardCorners(), np.float64).reshape(-1, 3),
+            self.height_m,
+        )
         self._marker_index = {
             int(i): k for k, i in enumerate(np.asarray(self.board.getIds()).ravel())
         }
@@ -213,8 +234,9 @@ class CharucoTarget:
         self._detector = cv2.aruco.CharucoDetector(self.board, cp, self.params)
 
     def marker_corners(self, ids: IntArray) -> FloatArray:
-        """The corners (N, 4, 3) of the board's markers ``ids`` in the board frame; NaN for an
-        id the board does not have."""
+        """The corners (N, 4, 3) of the board's markers ``ids`` in the face frame, in detection
+        order (top-left, top-right, bottom-right, bottom-left); NaN for an id the board does
+        not have."""
         out = np.full((len(ids), 4, 3), np.nan)
         for k, i in enumerate(ids):
             j = self._marker_index.get(int(i))
@@ -224,8 +246,8 @@ class CharucoTarget:
 
     @property
     def chessboard_corners(self) -> FloatArray:
-        """The board's inner corners (K, 3) in the board frame (m)."""
-        return np.asarray(self.board.getChessboardCorners(), dtype=np.float64).reshape(-1, 3)
+        """The board's inner corners (K, 3) in the face frame (m), by corner id."""
+        return self._chessboard
 
     def detect(self, image: NDArray[Any]) -> CharucoDetections:
         ch_corners, ch_ids, m_corners, m_ids = self._detector.detectBoard(to_gray(image))
@@ -247,6 +269,66 @@ class Diamond:
     corners: FloatArray = field(repr=False)
 
 
+@dataclass(frozen=True, slots=True)
+class DiamondSpec:
+    """A ChArUco diamond (a 3x3 ChArUco board of 4 markers): square and marker side (m), and
+    the ids of the one that is the target (OpenCV's order; None: any diamond in view)."""
+
+    square_m: float
+    marker_m: float
+    ids: tuple[int, int, int, int] | None = None
+
+    def __post_init__(self) -> None:
+        if not 0 < self.marker_m < self.square_m:
+            raise VisionError("a diamond's markers must be smaller than its squares")
+
+
+class DiamondTarget:
+    """Detects ChArUco diamonds (``CharucoDetector.detectDiamonds``); the detector is built
+    once. A diamond's corners come in a marker's order (top-left, top-right, bottom-right,
+    bottom-left of its centre square), so its frame is a marker's of side ``square_m``."""
+
+    def __init__(
+        self,
+        dictionary: cv2.aruco.Dictionary,
+        square_to_marker_ratio: float,
+        params: Any | None = None,
+    ) -> None:
+        if not square_to_marker_ratio > 1.0:
+            raise VisionError("a diamond's square must be larger than its markers (ratio > 1)")
+        board = cv2.aruco.CharucoBoard((3, 3), square_to_marker_ratio, 1.0, dictionary)
+        self.params = params if params is not None else cv2.aruco.DetectorParameters()
+        self._detector = cv2.aruco.CharucoDetector(
+            board, cv2.aruco.CharucoParameters(), self.params
+        )
+
+    def detect(
+        self, image: NDArray[Any], markers: MarkerDetections | None = None
+    ) -> tuple[list[Diamond], MarkerDetections]:
+        """The diamonds in view and the markers found on the way (or given: ``markers``, from
+        a detection already made on this image)."""
+        if markers is not None and len(markers):
+            mc, mi = markers.as_opencv()
+            corners, ids, m_corners, m_ids = self._detector.detectDiamonds(
+                to_gray(image), markerCorners=mc, markerIds=mi
+            )
+        else:
+            corners, ids, m_corners, m_ids = self._detector.detectDiamonds(to_gray(image))
+        markers = MarkerDetections.from_opencv(m_corners, m_ids)
+        if ids is None:
+            return [], markers
+        out = []
+        for c, i in zip(corners, ids, strict=True):
+            v = np.asarray(i).ravel()
+            out.append(
+                Diamond(
+                    (int(v[0]), int(v[1]), int(v[2]), int(v[3])),
+                    np.asarray(c, np.float64).reshape(4, 2),
+                )
+            )
+        return out, markers
+
+
 def detect_diamonds(
     image: NDArray[Any],
     dictionary: cv2.aruco.Dictionary,
@@ -254,22 +336,4 @@ def detect_diamonds(
     params: Any | None = None,
 ) -> list[Diamond]:
     """Every ChArUco diamond in view (``square_to_marker_ratio`` = square / marker side)."""
-    if square_to_marker_ratio <= 1.0:
-        raise VisionError("a diamond's square must be larger than its markers (ratio > 1)")
-    board = cv2.aruco.CharucoBoard((3, 3), square_to_marker_ratio, 1.0, dictionary)
-    det = cv2.aruco.CharucoDetector(
-        board, cv2.aruco.CharucoParameters(), params or cv2.aruco.DetectorParameters()
-    )
-    corners, ids, _, _ = det.detectDiamonds(to_gray(image))
-    if ids is None:
-        return []
-    out = []
-    for c, i in zip(corners, ids, strict=True):
-        v = np.asarray(i).ravel()
-        out.append(
-            Diamond(
-                (int(v[0]), int(v[1]), int(v[2]), int(v[3])),
-                np.asarray(c, np.float64).reshape(4, 2),
-            )
-        )
-    return out
+    return DiamondTarget(dictionary, square_to_marker_ratio, params).detect(image)[0]

@@ -1,5 +1,6 @@
 """From an image to the vehicle's pose: detection, PnP against what is known of the scene
-(a single marker, a ChArUco board or a marker map), the camera mount, and the covariance.
+(a single marker, a ChArUco board, a diamond or a marker map), the camera mount, and the
+covariance. Every target has z out of its printed face.
 
 :class:`MarkerMap` places markers and boards in the world (the thesis's first future-work item:
 navigating over a field of markers); :class:`MarkerPipeline` turns a frame into a
@@ -16,20 +17,29 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from quadnav.errors import VisionError
+from quadnav.errors import GeometryError, VisionError
 from quadnav.geometry.rotations import Pose
 from quadnav.vision.camera import PinholeCamera
 from quadnav.vision.markers import (
     CharucoSpec,
     CharucoTarget,
+    DiamondSpec,
+    DiamondTarget,
     MarkerDetections,
     MarkerDetector,
     get_dictionary,
     to_gray,
 )
-from quadnav.vision.pose import VehiclePose, marker_corners_3d, solve_pnp, vehicle_pose
+from quadnav.vision.pose import (
+    DegeneratePoseError,
+    VehiclePose,
+    check_point_set,
+    marker_corners_3d,
+    solve_pnp,
+    vehicle_pose,
+)
 
-__all__ = ["FramePose", "MapBoard", "MapMarker", "MarkerMap", "MarkerPipeline"]
+__all__ = ["FramePose", "MapBoard", "MapDiamond", "MapMarker", "MarkerMap", "MarkerPipeline"]
 
 FloatArray = NDArray[np.float64]
 
@@ -45,23 +55,35 @@ class MapMarker:
 
 @dataclass(frozen=True, slots=True)
 class MapBoard:
-    """A ChArUco board at ``T_W_O`` (OpenCV's board frame)."""
+    """A ChArUco board at ``T_W_O``, its face frame: origin at the bottom-left corner of the
+    printed pattern, x right, y up, z out of the face (see
+    :func:`~quadnav.vision.markers.opencv_board_to_face`)."""
 
     spec: CharucoSpec
     T_W_O: Pose
 
 
 @dataclass(frozen=True, slots=True)
+class MapDiamond:
+    """A ChArUco diamond at ``T_W_D`` (centre of its middle square; x right, y up, z out of the
+    face, as a marker of side ``spec.square_m``)."""
+
+    spec: DiamondSpec
+    T_W_D: Pose
+
+
+@dataclass(frozen=True, slots=True)
 class MarkerMap:
-    """Markers and boards with known poses in the world, all of one dictionary."""
+    """Markers, boards and diamonds with known poses in the world, all of one dictionary."""
 
     dictionary: str | int
     markers: dict[int, MapMarker] = field(default_factory=dict)
     boards: list[MapBoard] = field(default_factory=list)
+    diamonds: list[MapDiamond] = field(default_factory=list)
 
     def __post_init__(self) -> None:
-        if not self.markers and not self.boards:
-            raise VisionError("a marker map needs at least one marker or board")
+        if not self.markers and not self.boards and not self.diamonds:
+            raise VisionError("a marker map needs at least one marker, board or diamond")
         for m in self.markers.values():
             if not m.length_m > 0:
                 raise VisionError(f"marker {m.id}: length must be > 0")
@@ -74,7 +96,8 @@ class MarkerMap:
 
 @dataclass(frozen=True, slots=True)
 class FramePose:
-    """What one frame gave: the markers seen, and the vehicle pose if there was one."""
+    """What one frame gave: the markers seen, and the vehicle pose if there was one; if not,
+    why (``reason``: a short key to count, ``note``: the message)."""
 
     t_ns: int
     detections: MarkerDetections
@@ -84,6 +107,46 @@ class FramePose:
     detect_ms: float
     pose_ms: float
     note: str = ""
+    reason: str = ""
+
+
+@dataclass(slots=True)
+class _Observed:
+    """Object points in the world and their pixels gathered from one frame; ``square``: the
+    first square target (marker or diamond) seen, for IPPE_SQUARE when it is all there is."""
+
+    obj_W: list[FloatArray] = field(default_factory=list)
+    img: list[FloatArray] = field(default_factory=list)
+    square: tuple[float, FloatArray, Pose] | None = None
+    # a board's marker corners to use instead of its chessboard corners (entry k) if those
+    # give no pose
+    instead: dict[int, tuple[FloatArray, FloatArray]] = field(default_factory=dict)
+
+    def with_markers_instead(self) -> _Observed:
+        obj_W, img = list(self.obj_W), list(self.img)
+        for k, (o, i) in self.instead.items():
+            obj_W[k], img[k] = o, i
+        return _Observed(obj_W, img, self.square)
+
+    def add(self, obj_W: FloatArray, img: FloatArray) -> None:
+        self.obj_W.append(obj_W)
+        self.img.append(img)
+
+    def add_square(self, side_m: float, corners: FloatArray, T_W_O: Pose) -> None:
+        self.add(T_W_O @ marker_corners_3d(side_m), corners)
+        self.square = (side_m, corners, T_W_O) if self.square is None else self.square
+
+    @property
+    def n(self) -> int:
+        return sum(len(o) for o in self.obj_W)
+
+
+def _poseable(obj: FloatArray, img: FloatArray) -> bool:
+    try:
+        check_point_set(obj, img)
+    except DegeneratePoseError:
+        return False
+    return True
 
 
 class MarkerPipeline:
@@ -129,64 +192,114 @@ class MarkerPipeline:
             )
             for b in marker_map.boards
         ]
+        ratios = sorted({d.spec.square_m / d.spec.marker_m for d in marker_map.diamonds})
+        self.diamond_targets = [DiamondTarget(self.dictionary, r, params) for r in ratios]
         self.min_charuco_corners = max(4, min_charuco_corners)
         self.board_marker_fallback = board_marker_fallback
         self.prior_sigma_px = prior_sigma_px
         self.max_rms_px = max_rms_px
 
+    def _board_marker_points(
+        self, target: CharucoTarget, T_W_O: Pose, markers: MarkerDetections
+    ) -> tuple[FloatArray, FloatArray] | None:
+        """The board's marker corners in view, in the world, and their pixels."""
+        if not (self.board_marker_fallback and len(markers)):
+            return None
+        mobj = target.marker_corners(markers.ids)
+        keep = np.isfinite(mobj[:, 0, 0])
+        if not keep.any():
+            return None
+        return T_W_O @ mobj[keep].reshape(-1, 3), markers.corners[keep].reshape(-1, 2)
+
+    def _observe_boards(self, gray: NDArray[np.uint8], seen: _Observed) -> MarkerDetections:
+        markers = MarkerDetections.from_opencv((), None)
+        for target, T_W_O in self.boards:
+            det = target.detect(gray)
+            markers = det.markers if len(det.markers) > len(markers) else markers
+            obj = target.chessboard_corners[det.corner_ids]
+            marker_pts = self._board_marker_points(target, T_W_O, det.markers)
+            if len(det.corner_ids) >= self.min_charuco_corners and _poseable(obj, det.corners):
+                if marker_pts is not None:
+                    seen.instead[len(seen.obj_W)] = marker_pts
+                seen.add(T_W_O @ obj, det.corners)
+            elif marker_pts is not None:
+                # Too few chessboard corners (close up, partial view) or all on one line (one
+                # column in view): the board's marker corners still fix its pose, less precisely.
+                seen.add(*marker_pts)
+            elif len(det.corner_ids) >= self.min_charuco_corners:
+                seen.add(T_W_O @ obj, det.corners)  # for the PnP to refuse, with its reason
+        return markers
+
+    def _observe_diamonds(
+        self, gray: NDArray[np.uint8], markers: MarkerDetections | None, seen: _Observed
+    ) -> MarkerDetections:
+        found = []
+        for target in self.diamond_targets:
+            diamonds, markers = target.detect(gray, markers)
+            found.extend(diamonds)
+        found.sort(key=lambda d: d.ids)
+        used: set[tuple[int, int, int, int]] = set()
+        for md in self.map.diamonds:
+            match = next(
+                (d for d in found if d.ids not in used and md.spec.ids in (None, d.ids)), None
+            )
+            if match is not None:
+                used.add(match.ids)
+                seen.add_square(md.spec.square_m, match.corners, md.T_W_D)
+        return markers if markers is not None else MarkerDetections.from_opencv((), None)
+
+    def _observe(self, gray: NDArray[np.uint8]) -> tuple[MarkerDetections, _Observed]:
+        seen = _Observed()
+        markers: MarkerDetections | None = None
+        if self.boards:
+            markers = self._observe_boards(gray, seen)
+        if self.diamond_targets:
+            markers = self._observe_diamonds(gray, markers, seen)
+        if markers is None:
+            markers = self.detector.detect(gray)
+        if self.map.markers:
+            for mid, corners in zip(markers.ids, markers.corners, strict=True):
+                m = self.map.markers.get(int(mid))
+                if m is not None:
+                    seen.add_square(m.length_m, corners, m.T_W_M)
+        return markers, seen
+
+    def _solve(self, seen: _Observed) -> tuple[VehiclePose, float]:
+        if seen.n == 4 and seen.square is not None:
+            # One square target: IPPE_SQUARE in its own frame, then into the world.
+            side_m, corners, T_W_O = seen.square
+            pnp = solve_pnp(marker_corners_3d(side_m), corners, self.camera, square=True,
+                            prior_sigma_px=self.prior_sigma_px)  # fmt: skip
+            return vehicle_pose(pnp, T_W_O, self.T_B_C), pnp.rms_px
+        pnp = solve_pnp(np.concatenate(seen.obj_W), np.concatenate(seen.img), self.camera,
+                        prior_sigma_px=self.prior_sigma_px)  # fmt: skip
+        return vehicle_pose(pnp, Pose.identity(), self.T_B_C), pnp.rms_px
+
     def process(self, image: NDArray[Any], t_ns: int = 0) -> FramePose:
+        """One frame's pose, or the reason there is none; a degenerate view (too few points,
+        collinear, a non-finite PnP result) is refused here, never raised."""
         gray = to_gray(image)
         t0 = time.perf_counter()
-        obj_W: list[FloatArray] = []
-        img: list[FloatArray] = []
-        single: tuple[MapMarker, FloatArray] | None = None
-        if self.boards:
-            markers = MarkerDetections.from_opencv((), None)
-            for target, T_W_O in self.boards:
-                det = target.detect(gray)
-                markers = det.markers if len(det.markers) > len(markers) else markers
-                if len(det.corner_ids) >= self.min_charuco_corners:
-                    obj_W.append(T_W_O @ target.chessboard_corners[det.corner_ids])
-                    img.append(det.corners)
-                elif self.board_marker_fallback and len(det.markers):
-                    # Too few chessboard corners (close up, partial view): the board's marker
-                    # corners still fix its pose, less precisely.
-                    obj = target.marker_corners(det.markers.ids)
-                    keep = np.isfinite(obj[:, 0, 0])
-                    if keep.any():
-                        obj_W.append(T_W_O @ obj[keep].reshape(-1, 3))
-                        img.append(det.markers.corners[keep].reshape(-1, 2))
-        else:
-            markers = self.detector.detect(gray)
-        for mid, corners in zip(markers.ids, markers.corners, strict=True):
-            m = self.map.markers.get(int(mid))
-            if m is None:
-                continue
-            obj_W.append(m.T_W_M @ marker_corners_3d(m.length_m))
-            img.append(corners)
-            single = (m, corners) if single is None else single
+        markers, seen = self._observe(gray)
         t1 = time.perf_counter()
         detect_ms = (t1 - t0) * 1e3
-        n = sum(len(o) for o in obj_W)
+        n = seen.n
         if n < 4:
-            return FramePose(
-                t_ns, markers, None, float("nan"), n, detect_ms, 0.0, "no known marker"
-            )
+            return FramePose(t_ns, markers, None, float("nan"), n, detect_ms, 0.0,
+                             "no known marker", "no_target")  # fmt: skip
         try:
-            if n == 4 and single is not None:
-                # One marker: IPPE_SQUARE in its own frame, then into the world.
-                pnp = solve_pnp(marker_corners_3d(single[0].length_m), single[1], self.camera,
-                                square=True, prior_sigma_px=self.prior_sigma_px)  # fmt: skip
-                vp = vehicle_pose(pnp, single[0].T_W_M, self.T_B_C)
-            else:
-                pnp = solve_pnp(np.concatenate(obj_W), np.concatenate(img), self.camera,
-                                prior_sigma_px=self.prior_sigma_px)  # fmt: skip
-                vp = vehicle_pose(pnp, Pose.identity(), self.T_B_C)
-        except VisionError as exc:
+            try:
+                vp, rms_px = self._solve(seen)
+            except DegeneratePoseError:
+                if not seen.instead:
+                    raise
+                vp, rms_px = self._solve(seen.with_markers_instead())
+        except (VisionError, GeometryError) as exc:
             pose_ms = (time.perf_counter() - t1) * 1e3
-            return FramePose(t_ns, markers, None, float("nan"), n, detect_ms, pose_ms, str(exc))
+            reason = exc.reason if isinstance(exc, DegeneratePoseError) else "pose_error"
+            return FramePose(t_ns, markers, None, float("nan"), n, detect_ms, pose_ms, str(exc), reason)  # fmt: skip
         pose_ms = (time.perf_counter() - t1) * 1e3
-        if not pnp.rms_px <= self.max_rms_px:
-            return FramePose(t_ns, markers, None, pnp.rms_px, n, detect_ms, pose_ms,
-                             f"reprojection error {pnp.rms_px:.2f} px > {self.max_rms_px}")  # fmt: skip
-        return FramePose(t_ns, markers, vp, pnp.rms_px, n, detect_ms, pose_ms)
+        if not rms_px <= self.max_rms_px:
+            return FramePose(t_ns, markers, None, rms_px, n, detect_ms, pose_ms,
+                             f"reprojection error {rms_px:.2f} px > {self.max_rms_px}", "reprojection")  # fmt: skip
+        return FramePose(t_ns, markers, vp, rms_px, n, detect_ms, pose_ms)

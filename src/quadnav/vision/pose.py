@@ -1,8 +1,8 @@
 """Pose from markers: PnP with a covariance, and the frame chain of thesis 000 (eqs 3.1-3.6).
 
 Frames: ``C`` camera (x right, y down, z along the optical axis), ``O`` a planar object (a
-marker: origin at its centre, x right, y up, z out of the printed face; a board: OpenCV's
-board frame), ``W`` the world, ``B`` the body (FLU). PnP gives ``T_C_O``; the camera mount is
+marker or diamond: origin at its centre, x right, y up, z out of the printed face; a board:
+the same axes from the bottom-left corner of its pattern), ``W`` the world, ``B`` the body (FLU). PnP gives ``T_C_O``; the camera mount is
 ``T_B_C``; the vehicle is ``T_W_B = T_W_O T_C_O^-1 T_B_C^-1``.
 
 The covariance of a PnP pose is ``s^2 (J^T J)^-1`` with ``J`` the Jacobian of the reprojected
@@ -27,8 +27,11 @@ from quadnav.geometry.rotations import Pose, so3_log
 from quadnav.vision.camera import PinholeCamera
 
 __all__ = [
+    "DegeneratePoseError",
     "PnpResult",
     "VehiclePose",
+    "chain_jacobian",
+    "check_point_set",
     "marker_corners_3d",
     "mount_pose",
     "solve_pnp",
@@ -72,6 +75,59 @@ class PnpResult:
     alternative: FloatArray | None = None  # (rvec, tvec) of a second pose that fits almost as well
 
 
+class DegeneratePoseError(VisionError):
+    """A point set that fixes no pose, or a PnP result that is not one: ``reason`` is a short
+    key (``too_few_points``, ``collinear``, ``non_finite``, ``pnp_failed``, ``behind_camera``)
+    for counting; the message says what was wrong."""
+
+    def __init__(self, reason: str, message: str) -> None:
+        super().__init__(message)
+        self.reason = reason
+
+
+def _count_distinct(points: FloatArray, enough: int = 4) -> int:
+    """How many distinct points (to the nanometre), counting up to ``enough``."""
+    seen: set[tuple[float, ...]] = set()
+    for row in np.round(points, 9).tolist():
+        seen.add(tuple(row))
+        if len(seen) >= enough:
+            break
+    return len(seen)
+
+
+def check_point_set(obj: FloatArray, img: FloatArray, *, collinear_tol: float = 1e-3) -> None:
+    """Refuse what no PnP can pose: fewer than 4 pairs or distinct points, a non-finite value,
+    object points on one line (one column of a board in view) or pixels on one line (a plane
+    seen edge-on). ``collinear_tol``: the second singular value over the first."""
+    if len(obj) != len(img):
+        raise DegeneratePoseError(
+            "too_few_points", f"PnP got {len(obj)} object points and {len(img)} pixels"
+        )
+    if not (np.isfinite(obj).all() and np.isfinite(img).all()):
+        raise DegeneratePoseError("non_finite", "PnP input holds a non-finite value")
+    n_distinct = _count_distinct(obj[:16])
+    n_distinct = n_distinct if n_distinct >= 4 else _count_distinct(obj)
+    if n_distinct < 4:
+        raise DegeneratePoseError(
+            "too_few_points", f"PnP needs at least 4 distinct points, got {n_distinct}"
+        )
+    for name, pts in (("object points", obj), ("pixels", img)):
+        s = np.linalg.svd(pts - pts.mean(axis=0), compute_uv=False)
+        if s[1] <= collinear_tol * s[0]:
+            raise DegeneratePoseError("collinear", f"the {len(pts)} {name} lie on one line")
+
+
+def _check_result(rvec: FloatArray, tvec: FloatArray, obj: FloatArray | None, what: str) -> None:
+    """A finite pose; with ``obj``, one that puts every point in front of the camera (the
+    object's origin itself may be behind it: a board's corner seen close up and tilted)."""
+    if not (np.isfinite(rvec).all() and np.isfinite(tvec).all()):
+        raise DegeneratePoseError("non_finite", f"PnP {what} is not finite")
+    if obj is not None:
+        R, _ = cv2.Rodrigues(rvec)
+        if not np.all(obj @ R[2] + tvec[2] > 0):
+            raise DegeneratePoseError("behind_camera", f"PnP {what} puts points behind the camera")
+
+
 def _is_planar(obj: FloatArray) -> bool:
     c = obj - obj.mean(axis=0)
     s = np.linalg.svd(c, compute_uv=False)
@@ -98,19 +154,21 @@ def solve_pnp(
     obj = np.asarray(obj_pts, dtype=np.float64).reshape(-1, 3)
     img = np.asarray(img_pts, dtype=np.float64).reshape(-1, 2)
     n = len(obj)
-    if n < 4 or len(img) != n:
-        raise VisionError(f"PnP needs at least 4 point pairs, got {n} and {len(img)}")
-    if not (np.isfinite(obj).all() and np.isfinite(img).all()):
-        raise VisionError("PnP input holds a non-finite value")
+    check_point_set(obj, img)
     if square:
         flag = cv2.SOLVEPNP_IPPE_SQUARE
     elif _is_planar(obj):
         flag = cv2.SOLVEPNP_IPPE
     else:
         flag = cv2.SOLVEPNP_SQPNP
-    n_sol, rvecs, tvecs, errs = cv2.solvePnPGeneric(obj, img, camera.K, camera.dist, flags=flag)
+    try:
+        n_sol, rvecs, tvecs, errs = cv2.solvePnPGeneric(obj, img, camera.K, camera.dist, flags=flag)
+    except cv2.error as exc:
+        raise DegeneratePoseError(
+            "pnp_failed", f"PnP failed: {str(exc).strip().splitlines()[-1]}"
+        ) from None
     if not n_sol:
-        raise VisionError("PnP found no pose")
+        raise DegeneratePoseError("pnp_failed", "PnP found no pose")
     order = np.argsort(np.asarray(errs).ravel()) if errs is not None else np.arange(n_sol)
     rvec, tvec = rvecs[order[0]], tvecs[order[0]]
     # A planar target seen small or nearly head-on has two poses that fit almost equally well
@@ -120,10 +178,13 @@ def solve_pnp(
         e = np.asarray(errs).ravel()
         if e[order[1]] < ambiguity_ratio * max(e[order[0]], 0.05):
             alternative = np.concatenate([np.ravel(rvecs[order[1]]), np.ravel(tvecs[order[1]])])
+            alternative = alternative if np.isfinite(alternative).all() else None
+    _check_result(np.ravel(rvec), np.ravel(tvec), None, "pose")
     if refine:
         rvec, tvec = cv2.solvePnPRefineLM(obj, img, camera.K, camera.dist, rvec, tvec)
     rvec = np.asarray(rvec, dtype=np.float64).ravel()
     tvec = np.asarray(tvec, dtype=np.float64).ravel()
+    _check_result(rvec, tvec, obj, "refined pose")
     proj, jac = cv2.projectPoints(obj, rvec, tvec, camera.K, camera.dist)
     res = (proj.reshape(-1, 2) - img).ravel()
     J = jac[:, 0:6]
@@ -136,7 +197,11 @@ def solve_pnp(
     try:
         cov = s2 * np.linalg.inv(JtJ)
     except np.linalg.LinAlgError:
-        raise VisionError("PnP pose is degenerate (singular Jacobian)") from None
+        raise DegeneratePoseError(
+            "degenerate", "PnP pose is degenerate (singular Jacobian)"
+        ) from None
+    if not np.isfinite(cov).all():
+        raise DegeneratePoseError("non_finite", "PnP covariance is not finite")
     T = Pose(Rotation.from_rotvec(rvec), tvec)
     rms = float(math.sqrt(float(res @ res) / n))
     return PnpResult(T, rvec, tvec, 0.5 * (cov + cov.T), rms, math.sqrt(s2), n, alternative)
@@ -168,28 +233,50 @@ def _chain(rt: FloatArray, T_W_O: FloatArray, T_C_B: FloatArray) -> FloatArray:
     return np.asarray(T_W_O @ T_O_C @ T_C_B, dtype=np.float64)
 
 
+def _skew(v: FloatArray) -> FloatArray:
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
+def _left_jacobian(phi: FloatArray) -> FloatArray:
+    """SO(3)'s left Jacobian: ``Exp(phi + d) = Exp(J_l(phi) d) Exp(phi)`` to first order."""
+    th = float(np.linalg.norm(phi))
+    K = _skew(phi)
+    if th < 1e-8:
+        return np.eye(3) + 0.5 * K
+    return np.eye(3) + (1.0 - math.cos(th)) / th**2 * K + (th - math.sin(th)) / th**3 * (K @ K)
+
+
+def chain_jacobian(rt: FloatArray, T_W_O: FloatArray, T_C_B: FloatArray) -> FloatArray:
+    """d(p_W_B, dtheta_W) / d(rvec, tvec) of ``T_W_B = T_W_O T_C_O(rvec, tvec)^-1 T_C_B``.
+
+    With ``R = Exp(r)``: ``R_W_B = R_W_O R^T R_C_B`` and ``p_W_B = R_W_O R^T (p_C_B - t) +
+    p_W_O``; ``Exp(r + d)^T = Exp(r)^T Exp(-J_l d)`` gives, with ``M = R_W_O R^T``,
+    ``dp = M [p_C_B - t]x J_l dr - M dt`` and ``dtheta = -M J_l dr``."""
+    r, t = rt[0:3], rt[3:6]
+    R, _ = cv2.Rodrigues(r)
+    M = T_W_O[:3, :3] @ R.T
+    Jl = _left_jacobian(r)
+    J = np.zeros((6, 6))
+    J[0:3, 0:3] = M @ _skew(T_C_B[:3, 3] - t) @ Jl
+    J[0:3, 3:6] = -M
+    J[3:6, 0:3] = -M @ Jl
+    return J
+
+
 def vehicle_pose(pnp: PnpResult, T_W_O: Pose, T_B_C: Pose) -> VehiclePose:
     """The body in the world from a PnP pose of an object at ``T_W_O`` seen by a camera mounted
-    at ``T_B_C``, with the PnP covariance carried through the chain (numerical Jacobian)."""
-    TWO = T_W_O.matrix()
-    TCB = T_B_C.inverse().matrix()
+    at ``T_B_C``, with the PnP covariance carried through the chain (analytic Jacobian,
+    :func:`chain_jacobian`)."""
+    T_C_B = T_B_C.inverse()
+    T_W_B = T_W_O @ pnp.T_C_O.inverse() @ T_C_B
+    TWO, TCB = T_W_O.matrix(), T_C_B.matrix()
     rt = np.concatenate([pnp.rvec, pnp.tvec])
-    T0 = _chain(rt, TWO, TCB)
-    R0 = T0[:3, :3]
-    J = np.zeros((6, 6))
-    for k in range(6):
-        step = 1e-6
-        d = np.zeros(6)
-        d[k] = step
-        Tp, Tm = _chain(rt + d, TWO, TCB), _chain(rt - d, TWO, TCB)
-        J[0:3, k] = (Tp[:3, 3] - Tm[:3, 3]) / (2 * step)
-        # (cv2.Rodrigues rounds rotations this small to zero; so3_log does not)
-        J[3:6, k] = (so3_log(Tp[:3, :3] @ R0.T) - so3_log(Tm[:3, :3] @ R0.T)) / (2 * step)
+    J = chain_jacobian(rt, TWO, TCB)
     cov = J @ pnp.cov_rt @ J.T
     if pnp.alternative is not None:
         # Either pose may be the true one: the covariance of the two-point mixture (equal
         # weights) adds a quarter of the outer product of their difference.
-        T1 = _chain(pnp.alternative, TWO, TCB)
-        delta = np.concatenate([T1[:3, 3] - T0[:3, 3], so3_log(T1[:3, :3] @ R0.T)])
+        T0, T1 = T_W_B.matrix(), _chain(pnp.alternative, TWO, TCB)
+        delta = np.concatenate([T1[:3, 3] - T0[:3, 3], so3_log(T1[:3, :3] @ T0[:3, :3].T)])
         cov = cov + 0.25 * np.outer(delta, delta)
-    return VehiclePose(Pose.from_matrix(T0), 0.5 * (cov + cov.T))
+    return VehiclePose(T_W_B, 0.5 * (cov + cov.T))
