@@ -68,7 +68,8 @@ def test_eval_on_kitti_prints_evos_numbers(tmp_path: Path) -> None:
     )
     m = metrics["estimates"]["KITTI_00_ORB"]
     assert m["ape_trans_m"]["rmse"] == pytest.approx(1.3034497145650266, abs=1e-6)
-    assert m["rpe_trans_m"]["rmse"] == pytest.approx(0.22626134329310163, abs=1e-6)
+    # evo 1.38.1: evo_rpe kitti KITTI_00_gt.txt KITTI_00_ORB.txt --delta 10 --delta_unit m -a
+    assert m["rpe_trans_m"]["rmse"] == pytest.approx(0.23676346946465268, rel=1e-6)
 
 
 @pytest.mark.parametrize(

@@ -111,9 +111,9 @@ def evaluate_pair(ref: Trajectory, est: Trajectory, opts: EvalOptions) -> Estima
         "all_pairs": opts.rpe_all_pairs,
         "pairs_from": opts.rpe_pairs_from,
     }
-    # RPE is invariant to a rigid alignment, so it is computed on the unaligned estimate (as evo).
-    rpe_t, _ = rpe(r, e, relation="trans", **rpe_kwargs)
-    rpe_r, _ = rpe(r, e, relation="rot", **rpe_kwargs)
+    # RPE on the aligned estimate, as evo_rpe -a/-as (a similarity scales the relative motions).
+    rpe_t, _ = rpe(r, e_al, relation="trans", **rpe_kwargs)
+    rpe_r, _ = rpe(r, e_al, relation="rot", **rpe_kwargs)
     metrics["rpe_trans_m"] = error_stats(rpe_t)
     metrics["rpe_rot_deg"] = error_stats(np.degrees(rpe_r))
     if e_al.cov_p is not None:
