@@ -10,7 +10,13 @@ from rich.table import Table
 
 from quadnav.cli.common import console, handle_errors, progress_bar
 from quadnav.errors import EvalError
-from quadnav.eval.evaluate import EvalOptions, compare_runs, format_table, run_eval
+from quadnav.eval.evaluate import (
+    OPTION_NAMES,
+    EvalOptions,
+    compare_runs,
+    format_table,
+    run_eval,
+)
 
 __all__ = ["eval_command"]
 
@@ -35,10 +41,12 @@ def eval_command(
     ] = None,
     topic: Annotated[str | None, typer.Option("--topic", help="ROS bag topic")] = None,
     t_max_diff: Annotated[
-        float, typer.Option("--t-max-diff", help="largest time gap of a matched pair (s)")
+        float,
+        typer.Option("--t-max-diff", help="largest time gap of a matched pair (s, 0 to 1e6)"),
     ] = 0.01,
     t_offset: Annotated[
-        float, typer.Option("--t-offset", help="added to estimate timestamps (s)")
+        float,
+        typer.Option("--t-offset", help="added to estimate timestamps (s, at most 4e9 either way)"),
     ] = 0.0,
     interpolate: Annotated[
         bool, typer.Option("--interpolate", help="interpolate the reference at estimate times")
@@ -49,12 +57,27 @@ def eval_command(
     align_first: Annotated[
         int | None, typer.Option("--align-first", help="align on the first N poses only")
     ] = None,
-    rpe_delta: Annotated[float, typer.Option("--rpe-delta", help="RPE step")] = 1.0,
+    gravity_axis: Annotated[
+        str | None,
+        typer.Option(
+            "--gravity-axis",
+            help="x, y or z: the vertical 4dof rotates about (default z; y for KITTI poses)",
+        ),
+    ] = None,
+    rpe_delta: Annotated[
+        float, typer.Option("--rpe-delta", help="RPE step, > 0 and at most 1e9")
+    ] = 1.0,
     rpe_unit: Annotated[
         str, typer.Option("--rpe-unit", help="frames, seconds or metres")
     ] = "frames",
     all_pairs: Annotated[
         bool, typer.Option("--all-pairs", help="RPE over all pairs, not consecutive ones")
+    ] = False,
+    pairs_from_reference: Annotated[
+        bool,
+        typer.Option(
+            "--pairs-from-reference", help="RPE pairs by the reference's path, not the estimate's"
+        ),
     ] = False,
     no_plots: Annotated[bool, typer.Option("--no-plots", help="skip the figures")] = False,
     out: Annotated[Path, typer.Option("--out", help="folder that receives the run folder")] = Path(
@@ -82,30 +105,26 @@ def eval_command(
         raise EvalError(
             "give a reference and at least one estimate: quadnav eval REF EST [EST ...]"
         )
-    from pydantic import ValidationError
-
-    try:
-        opts = EvalOptions(
-            ref_format=ref_format,
-            est_format=fmt,
-            topic=topic,
-            t_max_diff_s=t_max_diff,
-            t_offset_s=t_offset,
-            interpolate=interpolate,
-            align=align,
-            align_first_n=align_first,
-            rpe_delta=rpe_delta,
-            rpe_unit=rpe_unit,
-            rpe_all_pairs=all_pairs,
-            plots=not no_plots,
-        )
-    except ValidationError as exc:
-        err = exc.errors()[0]
-        raise EvalError(
-            f"--{str(err['loc'][0]).replace('_', '-')}: {err['msg']} (got {err.get('input')!r})"
-        ) from None
+    opts = _options(
+        ref_format=ref_format,
+        est_format=fmt,
+        topic=topic,
+        t_max_diff_s=t_max_diff,
+        t_offset_s=t_offset,
+        interpolate=interpolate,
+        align=align,
+        align_first_n=align_first,
+        gravity_axis=gravity_axis,
+        rpe_delta=rpe_delta,
+        rpe_unit=rpe_unit,
+        rpe_all_pairs=all_pairs,
+        rpe_pairs_from="reference" if pairs_from_reference else "estimate",
+        plots=not no_plots,
+    )
     with progress_bar("eval") as update:
         result = run_eval(paths[0], paths[1:], opts, runs_root=out, progress=update)
+    for note in result.notes:
+        console.print(f"note: {note}", soft_wrap=True, highlight=False)
     for res in result.results:
         t = Table(
             title=f"{res.name}: {res.n_matched} matched poses, alignment {res.alignment.method}"
@@ -119,3 +138,16 @@ def eval_command(
             )
         console.print(t)
     console.print(str(result.run_dir), soft_wrap=True, highlight=False)
+
+
+def _options(**values: object) -> EvalOptions:
+    """The options, or a one-line error naming the user's option (``--t-offset``)."""
+    from pydantic import ValidationError
+
+    try:
+        return EvalOptions.model_validate(values)
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        field = str(err["loc"][0]) if err["loc"] else ""
+        option = OPTION_NAMES.get(field, field)
+        raise EvalError(f"{option}: {err['msg']} (got {err.get('input')!r})") from None

@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Literal
 
@@ -13,17 +13,17 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from quadnav.errors import EvalError, IoError
-from quadnav.eval.align import Alignment, AlignMethod, align
+from quadnav.eval.align import Alignment, AlignMethod, GravityAxis, align
 from quadnav.eval.associate import associate
 from quadnav.eval.metrics import RpeUnit, ape, error_stats, position_nees, rpe
-from quadnav.eval.plots import plot_errors, plot_trajectories, plot_xyz
 from quadnav.eval.report import ReportSection, ReportTable, write_report
 from quadnav.geometry.trajectory import Trajectory
 from quadnav.io.config import dump_config
 from quadnav.io.run_folder import create_run_folder, write_json, write_text
-from quadnav.io.trajectory_io import read_trajectory, write_tum
+from quadnav.io.trajectory_io import TrajectoryFormat, read_trajectory, write_tum
 
 __all__ = [
+    "OPTION_NAMES",
     "EstimateResult",
     "EvalOptions",
     "EvalRun",
@@ -34,6 +34,27 @@ __all__ = [
 ]
 
 Progress = Callable[[int, int, str], None]
+MAX_T_MAX_DIFF_S = 1e6
+MAX_T_OFFSET_S = 4e9
+MAX_RPE_DELTA = 1e9
+
+# The command-line option of each EvalOptions field, for error messages.
+OPTION_NAMES: dict[str, str] = {
+    "ref_format": "--ref-format",
+    "est_format": "--format",
+    "topic": "--topic",
+    "t_max_diff_s": "--t-max-diff",
+    "t_offset_s": "--t-offset",
+    "interpolate": "--interpolate",
+    "align": "--align",
+    "align_first_n": "--align-first",
+    "gravity_axis": "--gravity-axis",
+    "rpe_delta": "--rpe-delta",
+    "rpe_unit": "--rpe-unit",
+    "rpe_all_pairs": "--all-pairs",
+    "rpe_pairs_from": "--rpe-pairs-from",
+    "plots": "--no-plots",
+}
 
 
 class EvalOptions(BaseModel):
@@ -41,17 +62,34 @@ class EvalOptions(BaseModel):
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
-    ref_format: str | None = Field(None, description="reference format; guessed when None")
-    est_format: str | None = Field(None, description="estimate format; guessed when None")
+    ref_format: TrajectoryFormat | None = Field(
+        None, description="reference format; guessed when None"
+    )
+    est_format: TrajectoryFormat | None = Field(
+        None, description="estimate format; guessed when None"
+    )
     topic: str | None = Field(None, description="ROS bag topic, when a bag holds several")
-    t_max_diff_s: float = Field(0.01, ge=0)
-    t_offset_s: float = Field(0.0, description="added to the estimate's timestamps")
+    # Bounds keep every time in int64 nanoseconds: 1e6 s is 11.6 days; 4e9 s covers the gap
+    # between Unix time and a log that starts at zero.
+    t_max_diff_s: float = Field(0.01, ge=0, le=MAX_T_MAX_DIFF_S, allow_inf_nan=False)
+    t_offset_s: float = Field(
+        0.0,
+        ge=-MAX_T_OFFSET_S,
+        le=MAX_T_OFFSET_S,
+        allow_inf_nan=False,
+        description="added to the estimate's timestamps",
+    )
     interpolate: bool = Field(False, description="interpolate the reference at estimate times")
     align: AlignMethod = "none"
     align_first_n: int | None = Field(
         None, ge=1, description="estimate the alignment on the first N poses"
     )
-    rpe_delta: float = Field(1.0, gt=0)
+    gravity_axis: GravityAxis | None = Field(
+        None,
+        description="the axis 4dof alignment rotates about: z (ENU); None is y for KITTI "
+        "(a reference without timestamps, in its camera frame) and z otherwise",
+    )
+    rpe_delta: float = Field(1.0, gt=0, le=MAX_RPE_DELTA, allow_inf_nan=False)
     rpe_unit: RpeUnit = "frames"
     rpe_all_pairs: bool = False
     rpe_pairs_from: Literal["estimate", "reference"] = "estimate"
@@ -69,6 +107,7 @@ class EstimateResult:
     ref: Trajectory
     est_aligned: Trajectory
     ape_trans: np.ndarray
+    notes: tuple[str, ...] = ()
 
     def row(self) -> dict[str, Any]:
         """A flat summary row (for tables)."""
@@ -98,7 +137,8 @@ def evaluate_pair(ref: Trajectory, est: Trajectory, opts: EvalOptions) -> Estima
         t_offset_s=opts.t_offset_s,
         interpolate=opts.interpolate,
     )
-    e_al, alignment = align(r, e, opts.align, first_n=opts.align_first_n)
+    axis, notes = _gravity_axis(ref, opts)
+    e_al, alignment = align(r, e, opts.align, first_n=opts.align_first_n, gravity_axis=axis)
     ape_t = ape(r, e_al, "trans")
     metrics: dict[str, dict[str, float]] = {
         "ape_trans_m": error_stats(ape_t),
@@ -126,13 +166,28 @@ def evaluate_pair(ref: Trajectory, est: Trajectory, opts: EvalOptions) -> Estima
         ref=r,
         est_aligned=e_al,
         ape_trans=ape_t,
+        notes=notes,
     )
+
+
+def _gravity_axis(ref: Trajectory, opts: EvalOptions) -> tuple[GravityAxis, tuple[str, ...]]:
+    """The axis of 4dof alignment, and a note when it was chosen for KITTI."""
+    if opts.gravity_axis is not None:
+        return opts.gravity_axis, ()
+    if ref.timed:
+        return "z", ()
+    note = (
+        "4dof alignment rotates about y, the vertical of KITTI's camera frame (the reference "
+        "has no timestamps: KITTI); pass --gravity-axis z for a z-up frame"
+    )
+    return "y", (note,) if opts.align == "4dof" else ()
 
 
 @dataclass(frozen=True, slots=True)
 class EvalRun:
     run_dir: Path
     results: list[EstimateResult]
+    notes: tuple[str, ...] = ()
 
 
 def _unique_names(trajs: list[Trajectory]) -> list[Trajectory]:
@@ -141,18 +196,18 @@ def _unique_names(trajs: list[Trajectory]) -> list[Trajectory]:
     for t in trajs:
         base = t.name or "estimate"
         seen[base] = seen.get(base, 0) + 1
-        name = base if seen[base] == 1 else f"{base}-{seen[base]}"
-        out.append(
-            Trajectory(
-                t_ns=t.t_ns,
-                p_W_B=t.p_W_B,
-                q_W_B_xyzw=t.q_W_B_xyzw,
-                cov_p=t.cov_p,
-                timed=t.timed,
-                name=name,
-            )
-        )
+        out.append(replace(t, name=base if seen[base] == 1 else f"{base}-{seen[base]}"))
     return out
+
+
+def _read_inputs(
+    ref_path: Path, est_paths: list[Path], opts: EvalOptions
+) -> tuple[Trajectory, list[Trajectory]]:
+    ref = read_trajectory(ref_path, opts.ref_format, topic=opts.topic)
+    ests = _unique_names([read_trajectory(p, opts.est_format, topic=opts.topic) for p in est_paths])
+    if ref.name in {e.name for e in ests}:
+        ref = replace(ref, name=f"{ref.name} (reference)", cov_p=None)
+    return ref, ests
 
 
 def run_eval(
@@ -166,76 +221,80 @@ def run_eval(
     """Read, evaluate every estimate, and write a run folder with metrics, plots and a report."""
     if not est_paths:
         raise EvalError("give at least one estimate to evaluate")
-    ref = read_trajectory(ref_path, opts.ref_format, topic=opts.topic)
-    ests = _unique_names([read_trajectory(p, opts.est_format, topic=opts.topic) for p in est_paths])
-    if ref.name in {e.name for e in ests}:
-        ref = Trajectory(
-            t_ns=ref.t_ns,
-            p_W_B=ref.p_W_B,
-            q_W_B_xyzw=ref.q_W_B_xyzw,
-            timed=ref.timed,
-            name=f"{ref.name} (reference)",
-        )
+    ref, ests = _read_inputs(ref_path, est_paths, opts)
     results = []
     for k, est in enumerate(ests):
         results.append(evaluate_pair(ref, est, opts))
         if progress is not None:
             progress(k + 1, len(ests), est.name)
+    notes = tuple(t.meta["note"] for t in (ref, *ests) if "note" in t.meta)
+    notes += tuple(dict.fromkeys(n for res in results for n in res.notes))
     run_dir = create_run_folder(runs_root, "eval")
     write_text(
         run_dir / "config.yaml",
         dump_config(opts) + f"reference: {ref_path}\nestimates: {[str(p) for p in est_paths]}\n",
     )
-    images: list[Path] = []
-    if opts.plots:
-        plot_xyz(ref, [r.est_aligned for r in results], run_dir / "plots" / "xyz.png")
-        plot_trajectories(
-            ref, [r.est_aligned for r in results], run_dir / "plots" / "trajectories.png"
-        )
-        images += [run_dir / "plots" / "xyz.png", run_dir / "plots" / "trajectories.png"]
-        for res in results:
-            p = run_dir / "plots" / f"ape_{res.name}.png"
-            plot_errors(res.ref, res.est_aligned, res.ape_trans, p, what="APE translation (m)")
-            images.append(p)
+    images = _write_plots(run_dir, ref, results) if opts.plots else []
     for res in results:
         write_tum(run_dir / "aligned" / f"{res.name}.tum", res.est_aligned)
     table = [res.row() for res in results]
-    write_json(
-        run_dir / "metrics.json",
-        {
-            "kind": "eval",
-            "reference": str(ref_path),
-            "estimates": {
-                res.name: {
-                    "matched": res.n_matched,
-                    "alignment": {
-                        "method": res.alignment.method,
-                        "R": res.alignment.R.as_matrix(),
-                        "t": res.alignment.t,
-                        "s": res.alignment.s,
-                        "n_used": res.alignment.n_used,
-                    },
-                    **res.metrics,
-                }
-                for res in results
-            },
-            "table": table,
-        },
-    )
+    write_json(run_dir / "metrics.json", _metrics_json(ref_path, results, table, notes))
     write_report(
         run_dir / "report.html",
         title=f"Trajectory evaluation against {Path(ref_path).name}",
         sections=[
             ReportSection(
                 heading="Metrics",
-                text=f"{len(results)} estimate(s); alignment {opts.align}; RPE delta {opts.rpe_delta} {opts.rpe_unit}.",
+                text=f"{len(results)} estimate(s); alignment {opts.align}; RPE delta "
+                f"{opts.rpe_delta} {opts.rpe_unit}." + "".join(f"\n{n}" for n in notes),
                 tables=[_report_table(table)],
             ),
             ReportSection(heading="Plots", images=images),
             ReportSection(heading="Configuration", code=(run_dir / "config.yaml").read_text()),
         ],
     )
-    return EvalRun(run_dir=run_dir, results=results)
+    return EvalRun(run_dir=run_dir, results=results, notes=notes)
+
+
+def _write_plots(run_dir: Path, ref: Trajectory, results: list[EstimateResult]) -> list[Path]:
+    from quadnav.eval.plots import plot_errors, plot_trajectories, plot_xyz  # matplotlib: slow
+
+    plot_xyz(ref, [r.est_aligned for r in results], run_dir / "plots" / "xyz.png")
+    plot_trajectories(ref, [r.est_aligned for r in results], run_dir / "plots" / "trajectories.png")
+    images = [run_dir / "plots" / "xyz.png", run_dir / "plots" / "trajectories.png"]
+    for res in results:
+        p = run_dir / "plots" / f"ape_{res.name}.png"
+        plot_errors(res.ref, res.est_aligned, res.ape_trans, p, what="APE translation (m)")
+        images.append(p)
+    return images
+
+
+def _metrics_json(
+    ref_path: Path,
+    results: list[EstimateResult],
+    table: list[dict[str, Any]],
+    notes: tuple[str, ...],
+) -> dict[str, Any]:
+    return {
+        "kind": "eval",
+        "reference": str(ref_path),
+        "estimates": {
+            res.name: {
+                "matched": res.n_matched,
+                "alignment": {
+                    "method": res.alignment.method,
+                    "R": res.alignment.R.as_matrix(),
+                    "t": res.alignment.t,
+                    "s": res.alignment.s,
+                    "n_used": res.alignment.n_used,
+                },
+                **res.metrics,
+            }
+            for res in results
+        },
+        "notes": list(notes),
+        "table": table,
+    }
 
 
 def _report_table(rows: list[dict[str, Any]], caption: str = "") -> ReportTable:

@@ -129,13 +129,32 @@ def _build(path: Path, **kwargs: object) -> Trajectory:
         raise IoError(f"{path}: {exc}") from None
 
 
+def _first_of_repeats(
+    path: Path, numbers: list[int], t: NDArray[np.int64], v: FloatArray
+) -> tuple[NDArray[np.int64], FloatArray, dict[str, str]]:
+    """Keep the first pose of each run of equal timestamps (evo reads such files); the count
+    and the first repeated line go into the trajectory's ``meta``."""
+    repeat = np.concatenate([[False], np.diff(t) == 0]) if len(t) > 1 else np.zeros(len(t), bool)
+    n = int(repeat.sum())
+    if n == 0:
+        return t, v, {}
+    line = numbers[int(np.argmax(repeat))]
+    note = (
+        f"{path.name}: {n} pose(s) repeat the timestamp of the line before (first at line "
+        f"{line}); kept the first of each"
+    )
+    return t[~repeat], v[~repeat], {"repeated_timestamps": str(n), "note": note}
+
+
 def read_tum(path: Path) -> Trajectory:
-    """TUM RGB-D format: ``t x y z qx qy qz qw`` per line, time in seconds."""
+    """TUM RGB-D format: ``t x y z qx qy qz qw`` per line, time in seconds. A pose whose
+    timestamp repeats the one before is left out and counted (``meta``)."""
     path = Path(path)
     numbers, rows = _rows(path, _read_lines(path), 8, sep=None)
     t = np.array([_seconds_to_ns(r[0], f"{path}:{k}") for k, r in zip(numbers, rows, strict=True)])
     v = _floats(path, numbers, rows, slice(1, 8))
-    return _build(path, t_ns=t, p_W_B=v[:, 0:3], q_W_B_xyzw=v[:, 3:7], name=path.stem)
+    t, v, meta = _first_of_repeats(path, numbers, t, v)
+    return _build(path, t_ns=t, p_W_B=v[:, 0:3], q_W_B_xyzw=v[:, 3:7], name=path.stem, meta=meta)
 
 
 def read_euroc(path: Path) -> Trajectory:
