@@ -146,13 +146,52 @@ def _first_of_repeats(
     return t[~repeat], v[~repeat], {"repeated_timestamps": str(n), "note": note}
 
 
+def _tum_fast(lines: list[str]) -> tuple[list[int], NDArray[np.int64], FloatArray] | None:
+    """Line numbers, times and values of a well-formed TUM file in bulk, or None (then the
+    line-by-line reader finds and names the bad line)."""
+    numbers, rows = [], []
+    for k, raw in enumerate(lines, start=1):
+        tokens = raw.split()
+        if not tokens or tokens[0][0] in "#%":
+            continue
+        if len(tokens) != 8:
+            return None
+        numbers.append(k)
+        rows.append(tokens)
+    whole, frac = [], []
+    for r in rows:
+        w, _, f = r[0].partition(".")
+        whole.append(w)
+        frac.append(f.ljust(9, "0"))
+    plain = all(w.isascii() and w.isdigit() and len(w) <= 10 for w in whole) and all(
+        len(f) == 9 and f.isascii() and f.isdigit() for f in frac
+    )
+    if not rows or not plain:
+        return None
+    try:
+        v = np.array([r[1:] for r in rows], dtype=np.float64)
+    except ValueError:
+        return None
+    if not np.isfinite(v).all():
+        return None
+    t = np.array(whole, dtype=np.int64) * 1_000_000_000 + np.array(frac, dtype=np.int64)
+    return numbers, t, v
+
+
 def read_tum(path: Path) -> Trajectory:
     """TUM RGB-D format: ``t x y z qx qy qz qw`` per line, time in seconds. A pose whose
     timestamp repeats the one before is left out and counted (``meta``)."""
     path = Path(path)
-    numbers, rows = _rows(path, _read_lines(path), 8, sep=None)
-    t = np.array([_seconds_to_ns(r[0], f"{path}:{k}") for k, r in zip(numbers, rows, strict=True)])
-    v = _floats(path, numbers, rows, slice(1, 8))
+    lines = _read_lines(path)
+    fast = _tum_fast(lines)
+    if fast is not None:
+        numbers, t, v = fast
+    else:
+        numbers, rows = _rows(path, lines, 8, sep=None)
+        t = np.array(
+            [_seconds_to_ns(r[0], f"{path}:{k}") for k, r in zip(numbers, rows, strict=True)]
+        )
+        v = _floats(path, numbers, rows, slice(1, 8))
     t, v, meta = _first_of_repeats(path, numbers, t, v)
     return _build(path, t_ns=t, p_W_B=v[:, 0:3], q_W_B_xyzw=v[:, 3:7], name=path.stem, meta=meta)
 
@@ -300,9 +339,8 @@ def _ns_to_seconds(t_ns: NDArray[np.int64]) -> list[str]:
 
 
 def _table(prefix: list[str], values: FloatArray, sep: str) -> str:
-    body = [
-        sep.join([pre, *(f"{x:.9g}" for x in row)]) for pre, row in zip(prefix, values, strict=True)
-    ]
+    line = sep.join(["%s", *["%.9g"] * values.shape[1]])  # one format per line: 4x faster
+    body = [line % (pre, *row) for pre, row in zip(prefix, values.tolist(), strict=True)]
     return "\n".join(body) + ("\n" if body else "")
 
 
