@@ -49,10 +49,18 @@ def test_eval_writes_metrics_plots_and_report(tmp_path: Path) -> None:
         assert (run_dir / "plots" / name).stat().st_size > 10_000
     assert "data:image/png;base64" in (run_dir / "report.html").read_text()
     assert (run_dir / "aligned" / "est.tum").is_file()
-    table = runner.invoke(app, ["eval", "--table", str(run_dir), "--table-format", "csv"])
-    assert table.exit_code == 0
-    header, row = table.stdout.strip().splitlines()[:2]
-    assert header.startswith("run,estimate") and ",est," in row
+    empty = tmp_path / "runs" / "not_a_run"
+    empty.mkdir()
+    replay = tmp_path / "runs" / "replay"
+    replay.mkdir()
+    (replay / "metrics.json").write_text('{"quadnav_vs_px4": {"horizontal_rms_m": 0.5}}')
+    paths = [str(run_dir), str(replay), str(empty)]
+    table = runner.invoke(app, ["eval", "--table", *paths, "--table-format", "csv"])
+    assert table.exit_code == 0, table.output
+    header, row, replay_row, none = table.stdout.strip().splitlines()
+    assert header.startswith("run,kind,note,estimate") and ",eval,,est," in row
+    assert replay_row.startswith("replay,replay,,") and ",quadnav vs px4,0.5" in replay_row
+    assert none.startswith("not_a_run,,no metrics.json")
 
 
 @pytest.mark.skipif(not (EVO / "KITTI_00_gt.txt").exists(), reason=f"shared data not at {EVO}")

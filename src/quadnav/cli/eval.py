@@ -10,13 +10,8 @@ from rich.table import Table
 
 from quadnav.cli.common import console, handle_errors, progress_bar
 from quadnav.errors import EvalError
-from quadnav.eval.evaluate import (
-    OPTION_NAMES,
-    EvalOptions,
-    compare_runs,
-    format_table,
-    run_eval,
-)
+from quadnav.eval.evaluate import OPTION_NAMES, EvalOptions, run_eval
+from quadnav.eval.runs import compare_runs, format_table
 
 __all__ = ["eval_command"]
 

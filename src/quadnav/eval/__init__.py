@@ -14,11 +14,14 @@ from quadnav.eval.metrics import (
     PoseRelation,
     RpeUnit,
     ape,
+    ape_matrices,
     error_stats,
     nees,
     nis,
+    pose_errors,
     position_nees,
     rpe,
+    rpe_matrices,
     rpe_pairs,
 )
 
@@ -27,9 +30,7 @@ if TYPE_CHECKING:
         EstimateResult,
         EvalOptions,
         EvalRun,
-        compare_runs,
         evaluate_pair,
-        format_table,
         run_eval,
     )
     from quadnav.eval.planar import (
@@ -43,6 +44,7 @@ if TYPE_CHECKING:
     )
     from quadnav.eval.plots import plot_errors, plot_trajectories, plot_xyz
     from quadnav.eval.report import ReportSection, ReportTable, write_report
+    from quadnav.eval.runs import RunRow, compare_runs, format_table
 
 __all__ = [
     "AlignMethod",
@@ -56,8 +58,10 @@ __all__ = [
     "ReportSection",
     "ReportTable",
     "RpeUnit",
+    "RunRow",
     "align",
     "ape",
+    "ape_matrices",
     "associate",
     "compare_runs",
     "error_stats",
@@ -72,8 +76,10 @@ __all__ = [
     "plot_planar_run",
     "plot_trajectories",
     "plot_xyz",
+    "pose_errors",
     "position_nees",
     "rpe",
+    "rpe_matrices",
     "rpe_pairs",
     "run_eval",
     "run_planar_study",
@@ -92,9 +98,10 @@ _WHERE: dict[str, str] = {
     "PlanarStudy": "quadnav.eval.planar",
     "ReportSection": "quadnav.eval.report",
     "ReportTable": "quadnav.eval.report",
-    "compare_runs": "quadnav.eval.evaluate",
+    "RunRow": "quadnav.eval.runs",
+    "compare_runs": "quadnav.eval.runs",
     "evaluate_pair": "quadnav.eval.evaluate",
-    "format_table": "quadnav.eval.evaluate",
+    "format_table": "quadnav.eval.runs",
     "planar_metrics": "quadnav.eval.planar",
     "planar_trajectory": "quadnav.eval.planar",
     "plot_errors": "quadnav.eval.plots",

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import json
-import math
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -12,11 +10,20 @@ from typing import Any, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from quadnav.errors import EvalError, IoError
+from quadnav.errors import EvalError
 from quadnav.eval.align import Alignment, AlignMethod, GravityAxis, align
 from quadnav.eval.associate import associate
-from quadnav.eval.metrics import RpeUnit, ape, error_stats, position_nees, rpe
+from quadnav.eval.metrics import (
+    RpeUnit,
+    ape,
+    ape_matrices,
+    error_stats,
+    pose_errors,
+    position_nees,
+    rpe_matrices,
+)
 from quadnav.eval.report import ReportSection, ReportTable, write_report
+from quadnav.eval.runs import compare_runs, format_table
 from quadnav.geometry.trajectory import Trajectory
 from quadnav.io.config import dump_config
 from quadnav.io.run_folder import create_run_folder, write_json, write_text
@@ -140,22 +147,23 @@ def evaluate_pair(ref: Trajectory, est: Trajectory, opts: EvalOptions) -> Estima
     axis, notes = _gravity_axis(ref, opts)
     e_al, alignment = align(r, e, opts.align, first_n=opts.align_first_n, gravity_axis=axis)
     ape_t = ape(r, e_al, "trans")
+    E = ape_matrices(r, e_al)
+    # RPE on the aligned estimate, as evo_rpe -a/-as (a similarity scales the relative motions).
+    E_rel, _ = rpe_matrices(
+        r,
+        e_al,
+        delta=opts.rpe_delta,
+        unit=opts.rpe_unit,
+        all_pairs=opts.rpe_all_pairs,
+        pairs_from=opts.rpe_pairs_from,
+    )
     metrics: dict[str, dict[str, float]] = {
         "ape_trans_m": error_stats(ape_t),
-        "ape_rot_deg": error_stats(np.degrees(ape(r, e_al, "rot"))),
-        "ape_full": error_stats(ape(r, e_al, "full")),
+        "ape_rot_deg": error_stats(np.degrees(pose_errors(E, "rot"))),
+        "ape_full": error_stats(pose_errors(E, "full")),
+        "rpe_trans_m": error_stats(pose_errors(E_rel, "trans")),
+        "rpe_rot_deg": error_stats(np.degrees(pose_errors(E_rel, "rot"))),
     }
-    rpe_kwargs: dict[str, Any] = {
-        "delta": opts.rpe_delta,
-        "unit": opts.rpe_unit,
-        "all_pairs": opts.rpe_all_pairs,
-        "pairs_from": opts.rpe_pairs_from,
-    }
-    # RPE on the aligned estimate, as evo_rpe -a/-as (a similarity scales the relative motions).
-    rpe_t, _ = rpe(r, e_al, relation="trans", **rpe_kwargs)
-    rpe_r, _ = rpe(r, e_al, relation="rot", **rpe_kwargs)
-    metrics["rpe_trans_m"] = error_stats(rpe_t)
-    metrics["rpe_rot_deg"] = error_stats(np.degrees(rpe_r))
     if e_al.cov_p is not None:
         metrics["nees_pos"] = error_stats(position_nees(r, e_al))
     return EstimateResult(
@@ -300,46 +308,3 @@ def _metrics_json(
 def _report_table(rows: list[dict[str, Any]], caption: str = "") -> ReportTable:
     headers = list(dict.fromkeys(k for row in rows for k in row))
     return ReportTable(caption, headers, [[row.get(h, "") for h in headers] for row in rows])
-
-
-def compare_runs(run_dirs: list[Path]) -> list[dict[str, Any]]:
-    """The summary rows of several run folders in one table (each run's ``metrics.json``)."""
-    rows: list[dict[str, Any]] = []
-    for d in run_dirs:
-        f = Path(d) / "metrics.json"
-        if not f.is_file():
-            raise IoError(f"{d}: not a quadnav run folder (no metrics.json)")
-        try:
-            data = json.loads(f.read_text(encoding="utf-8"))
-        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-            raise IoError(f"{f}: not valid JSON: {exc}") from None
-        table = data.get("table") if isinstance(data, dict) else None
-        if not isinstance(table, list):
-            raise IoError(f"{f}: has no summary table")
-        for row in table:
-            rows.append({"run": Path(d).name, **row})
-    return rows
-
-
-def format_table(rows: list[dict[str, Any]], fmt: Literal["markdown", "csv"] = "markdown") -> str:
-    """Rows as a markdown or CSV table (columns in order of first appearance)."""
-    headers = list(dict.fromkeys(k for row in rows for k in row))
-
-    def cell(v: Any) -> str:
-        if isinstance(v, float):
-            return "nan" if math.isnan(v) else f"{v:.6g}"
-        return "" if v is None else str(v)
-
-    if fmt == "csv":
-        import csv
-        import io
-
-        buf = io.StringIO()
-        w = csv.writer(buf, lineterminator="\n")
-        w.writerow(headers)
-        for row in rows:
-            w.writerow([cell(row.get(h)) for h in headers])
-        return buf.getvalue()
-    lines = ["| " + " | ".join(headers) + " |", "|" + "|".join("---" for _ in headers) + "|"]
-    lines += ["| " + " | ".join(cell(row.get(h)) for h in headers) + " |" for row in rows]
-    return "\n".join(lines) + "\n"

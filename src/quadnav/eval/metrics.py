@@ -19,11 +19,14 @@ __all__ = [
     "PoseRelation",
     "RpeUnit",
     "ape",
+    "ape_matrices",
     "error_stats",
     "nees",
     "nis",
+    "pose_errors",
     "position_nees",
     "rpe",
+    "rpe_matrices",
     "rpe_pairs",
 ]
 
@@ -78,14 +81,26 @@ def _inv_se3(T: FloatArray) -> FloatArray:
     return out
 
 
+def ape_matrices(ref: Trajectory, est: Trajectory) -> FloatArray:
+    """Absolute error poses ``E_i = Q_i^-1 P_i`` (N, 4, 4) of matched trajectories."""
+    if len(ref) != len(est):
+        raise EvalError("APE needs matched trajectories of equal length; associate them first")
+    return np.asarray(_inv_se3(ref.matrices()) @ est.matrices(), dtype=np.float64)
+
+
+def pose_errors(E: FloatArray, relation: PoseRelation) -> FloatArray:
+    """Per-pose error of error poses ``E`` (N, 4, 4): translation norm (m), rotation angle
+    (rad) or ``|E - I|`` (full), as evo's pose relations."""
+    return _relation(E, relation)
+
+
 def ape(ref: Trajectory, est: Trajectory, relation: PoseRelation = "trans") -> FloatArray:
     """Absolute pose error per matched pose (metres, radians, or unitless for ``full``)."""
     if len(ref) != len(est):
         raise EvalError("APE needs matched trajectories of equal length; associate them first")
     if relation == "trans":
         return np.asarray(np.linalg.norm(ref.p_W_B - est.p_W_B, axis=1), dtype=np.float64)
-    E = np.einsum("nij,njk->nik", _inv_se3(ref.matrices()), est.matrices())
-    return _relation(E, relation)
+    return _relation(ape_matrices(ref, est), relation)
 
 
 def rpe_pairs(
@@ -162,6 +177,30 @@ def _nearest_pairs(
     return i[ok], cand[i, best][ok]
 
 
+def rpe_matrices(
+    ref: Trajectory,
+    est: Trajectory,
+    *,
+    delta: float = 1.0,
+    unit: RpeUnit = "frames",
+    all_pairs: bool = False,
+    pairs_from: Literal["estimate", "reference"] = "estimate",
+) -> tuple[FloatArray, IntArray]:
+    """Relative error poses ``E = (Q_i^-1 Q_j)^-1 (P_i^-1 P_j)`` (M, 4, 4) over the pairs of
+    :func:`rpe_pairs`, and each pair's end index ``j``."""
+    if len(ref) != len(est):
+        raise EvalError("RPE needs matched trajectories of equal length; associate them first")
+    i, j = rpe_pairs(est if pairs_from == "estimate" else ref, delta, unit, all_pairs=all_pairs)
+    if len(i) == 0:
+        raise EvalError(
+            f"RPE delta {delta} {unit} gives no pairs on a trajectory of {len(est)} poses"
+        )
+    Q, P = ref.matrices(), est.matrices()
+    Q_rel = _inv_se3(Q[i]) @ Q[j]
+    P_rel = _inv_se3(P[i]) @ P[j]
+    return np.asarray(_inv_se3(Q_rel) @ P_rel, dtype=np.float64), j
+
+
 def rpe(
     ref: Trajectory,
     est: Trajectory,
@@ -173,17 +212,9 @@ def rpe(
     pairs_from: Literal["estimate", "reference"] = "estimate",
 ) -> tuple[FloatArray, IntArray]:
     """Relative pose error per pair, and each pair's end index (for plotting against time)."""
-    if len(ref) != len(est):
-        raise EvalError("RPE needs matched trajectories of equal length; associate them first")
-    i, j = rpe_pairs(est if pairs_from == "estimate" else ref, delta, unit, all_pairs=all_pairs)
-    if len(i) == 0:
-        raise EvalError(
-            f"RPE delta {delta} {unit} gives no pairs on a trajectory of {len(est)} poses"
-        )
-    Q, P = ref.matrices(), est.matrices()
-    Q_rel = np.einsum("nij,njk->nik", _inv_se3(Q[i]), Q[j])
-    P_rel = np.einsum("nij,njk->nik", _inv_se3(P[i]), P[j])
-    E = np.einsum("nij,njk->nik", _inv_se3(Q_rel), P_rel)
+    E, j = rpe_matrices(
+        ref, est, delta=delta, unit=unit, all_pairs=all_pairs, pairs_from=pairs_from
+    )
     return _relation(E, relation), j
 
 

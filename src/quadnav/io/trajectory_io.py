@@ -39,7 +39,8 @@ TrajectoryFormat = Literal["tum", "euroc", "kitti", "quadnav", "rosbag", "ulog"]
 FORMATS: tuple[str, ...] = get_args(TrajectoryFormat)
 
 
-def _read_lines(path: Path) -> list[str]:
+def _read_lines(path: Path, *, head_bytes: int | None = None) -> list[str]:
+    """The lines of a text file, or only those in its first ``head_bytes`` (whole lines)."""
     if not path.exists():
         raise IoError(f"trajectory file not found: {path}")
     if path.is_dir():
@@ -47,7 +48,13 @@ def _read_lines(path: Path) -> list[str]:
             f"{path} is a folder, not a trajectory file (a ROS 2 bag? use --format rosbag)"
         )
     try:
-        return path.read_text(encoding="utf-8").splitlines()
+        if head_bytes is None:
+            return path.read_text(encoding="utf-8").splitlines()
+        with path.open("rb") as f:
+            data = f.read(head_bytes)
+        if len(data) == head_bytes and b"\n" in data:
+            data = data[: data.rindex(b"\n")]  # no cut line (or cut character)
+        return data.decode("utf-8").splitlines()
     except UnicodeDecodeError:
         raise IoError(f"{path}: not a text file (wrong --format?)") from None
     except OSError as exc:
@@ -285,7 +292,7 @@ def guess_format(path: Path) -> TrajectoryFormat:
         return "ulog"
     if suffix in (".bag", ".db3", ".mcap") or (path.is_dir() and (path / "metadata.yaml").exists()):
         return "rosbag"
-    lines = _read_lines(path)
+    lines = _read_lines(path, head_bytes=65536)
     first = next((ln.strip() for ln in lines if ln.strip()), "")
     if first.startswith("t_ns"):
         return "quadnav"
@@ -330,12 +337,13 @@ def read_trajectory(path: Path, fmt: str | None = None, *, topic: str | None = N
 
 
 def _ns_to_seconds(t_ns: NDArray[np.int64]) -> list[str]:
-    out = []
-    for t in t_ns.tolist():
-        sign = "-" if t < 0 else ""
-        a = abs(t)
-        out.append(f"{sign}{a // 1_000_000_000}.{a % 1_000_000_000:09d}")
-    return out
+    """Exact decimal seconds, ``-1.500000000`` for -1.5 s."""
+    whole, ns = np.divmod(np.abs(t_ns), 1_000_000_000)
+    sign = np.where(t_ns < 0, "-", "").tolist()
+    return [
+        "%s%d.%09d" % x  # noqa: UP031 - one format per line, 3x faster than an f-string
+        for x in zip(sign, whole.tolist(), ns.tolist(), strict=True)
+    ]
 
 
 def _table(prefix: list[str], values: FloatArray, sep: str) -> str:
@@ -346,10 +354,8 @@ def _table(prefix: list[str], values: FloatArray, sep: str) -> str:
 
 def write_tum(path: Path, traj: Trajectory) -> None:
     """TUM: ``t x y z qx qy qz qw``, time in seconds written exactly from ``t_ns``."""
-    write_text(
-        Path(path),
-        _table(_ns_to_seconds(traj.t_ns), np.column_stack([traj.p_W_B, traj.q_W_B_xyzw]), " "),
-    )
+    values = np.column_stack([traj.p_W_B, traj.q_W_B_xyzw])
+    write_text(Path(path), _table(_ns_to_seconds(traj.t_ns), values, " "))
 
 
 def write_euroc(path: Path, traj: Trajectory) -> None:
