@@ -11,74 +11,81 @@ from rich.table import Table
 
 from quadnav.cli.common import console, handle_errors, progress_bar
 from quadnav.errors import EvalError
-from quadnav.eval.evaluate import OPTION_NAMES, EvalOptions, run_eval
+from quadnav.eval.evaluate import OPTION_NAMES, EvalOptions, EvalRun, run_eval
 from quadnav.eval.runs import compare_runs, format_table
 
 __all__ = ["eval_command"]
 
 
+PathsArg = Annotated[
+    list[Path], typer.Argument(help="REF EST [EST ...], or RUN_DIR ... with --table")
+]
+TableOpt = Annotated[bool, typer.Option("--table", help="tabulate the metrics of run folders")]
+TableFormatOpt = Annotated[str, typer.Option("--table-format", help="markdown or csv")]
+FormatOpt = Annotated[
+    str | None,
+    typer.Option("--format", help="estimate format: tum, euroc, kitti, quadnav, rosbag, ulog"),
+]
+RefFormatOpt = Annotated[
+    str | None, typer.Option("--ref-format", help="reference format (default: guessed)")
+]
+TopicOpt = Annotated[str | None, typer.Option("--topic", help="ROS bag topic")]
+TMaxDiffOpt = Annotated[
+    float, typer.Option("--t-max-diff", help="largest time gap of a matched pair (s, 0 to 1e6)")
+]
+TOffsetOpt = Annotated[
+    float,
+    typer.Option("--t-offset", help="added to estimate timestamps (s, at most 4e9 either way)"),
+]
+InterpolateOpt = Annotated[
+    bool, typer.Option("--interpolate", help="interpolate the reference at estimate times")
+]
+AlignOpt = Annotated[str, typer.Option("--align", help="none, se3, sim3 or 4dof (position + yaw)")]
+AlignFirstOpt = Annotated[
+    int | None, typer.Option("--align-first", help="align on the first N poses only")
+]
+GravityAxisOpt = Annotated[
+    str | None,
+    typer.Option(
+        "--gravity-axis",
+        help="x, y or z: the vertical 4dof rotates about (default z; y for KITTI poses)",
+    ),
+]
+RpeDeltaOpt = Annotated[float, typer.Option("--rpe-delta", help="RPE step, > 0 and at most 1e9")]
+RpeUnitOpt = Annotated[str, typer.Option("--rpe-unit", help="frames, seconds or metres")]
+AllPairsOpt = Annotated[
+    bool, typer.Option("--all-pairs", help="RPE over all pairs, not consecutive ones")
+]
+PairsFromRefOpt = Annotated[
+    bool,
+    typer.Option(
+        "--pairs-from-reference", help="RPE pairs by the reference's path, not the estimate's"
+    ),
+]
+NoPlotsOpt = Annotated[bool, typer.Option("--no-plots", help="skip the figures")]
+OutOpt = Annotated[Path, typer.Option("--out", help="folder that receives the run folder")]
+
+
 @handle_errors
 def eval_command(
-    paths: Annotated[
-        list[Path], typer.Argument(help="REF EST [EST ...], or RUN_DIR ... with --table")
-    ],
-    table: Annotated[
-        bool, typer.Option("--table", help="tabulate the metrics of run folders")
-    ] = False,
-    table_format: Annotated[
-        str, typer.Option("--table-format", help="markdown or csv")
-    ] = "markdown",
-    fmt: Annotated[
-        str | None,
-        typer.Option("--format", help="estimate format: tum, euroc, kitti, quadnav, rosbag, ulog"),
-    ] = None,
-    ref_format: Annotated[
-        str | None, typer.Option("--ref-format", help="reference format (default: guessed)")
-    ] = None,
-    topic: Annotated[str | None, typer.Option("--topic", help="ROS bag topic")] = None,
-    t_max_diff: Annotated[
-        float,
-        typer.Option("--t-max-diff", help="largest time gap of a matched pair (s, 0 to 1e6)"),
-    ] = 0.01,
-    t_offset: Annotated[
-        float,
-        typer.Option("--t-offset", help="added to estimate timestamps (s, at most 4e9 either way)"),
-    ] = 0.0,
-    interpolate: Annotated[
-        bool, typer.Option("--interpolate", help="interpolate the reference at estimate times")
-    ] = False,
-    align: Annotated[
-        str, typer.Option("--align", help="none, se3, sim3 or 4dof (position + yaw)")
-    ] = "none",
-    align_first: Annotated[
-        int | None, typer.Option("--align-first", help="align on the first N poses only")
-    ] = None,
-    gravity_axis: Annotated[
-        str | None,
-        typer.Option(
-            "--gravity-axis",
-            help="x, y or z: the vertical 4dof rotates about (default z; y for KITTI poses)",
-        ),
-    ] = None,
-    rpe_delta: Annotated[
-        float, typer.Option("--rpe-delta", help="RPE step, > 0 and at most 1e9")
-    ] = 1.0,
-    rpe_unit: Annotated[
-        str, typer.Option("--rpe-unit", help="frames, seconds or metres")
-    ] = "frames",
-    all_pairs: Annotated[
-        bool, typer.Option("--all-pairs", help="RPE over all pairs, not consecutive ones")
-    ] = False,
-    pairs_from_reference: Annotated[
-        bool,
-        typer.Option(
-            "--pairs-from-reference", help="RPE pairs by the reference's path, not the estimate's"
-        ),
-    ] = False,
-    no_plots: Annotated[bool, typer.Option("--no-plots", help="skip the figures")] = False,
-    out: Annotated[Path, typer.Option("--out", help="folder that receives the run folder")] = Path(
-        "runs"
-    ),
+    paths: PathsArg,
+    table: TableOpt = False,
+    table_format: TableFormatOpt = "markdown",
+    fmt: FormatOpt = None,
+    ref_format: RefFormatOpt = None,
+    topic: TopicOpt = None,
+    t_max_diff: TMaxDiffOpt = 0.01,
+    t_offset: TOffsetOpt = 0.0,
+    interpolate: InterpolateOpt = False,
+    align: AlignOpt = "none",
+    align_first: AlignFirstOpt = None,
+    gravity_axis: GravityAxisOpt = None,
+    rpe_delta: RpeDeltaOpt = 1.0,
+    rpe_unit: RpeUnitOpt = "frames",
+    all_pairs: AllPairsOpt = False,
+    pairs_from_reference: PairsFromRefOpt = False,
+    no_plots: NoPlotsOpt = False,
+    out: OutOpt = Path("runs"),
 ) -> None:
     """Compare trajectories with a reference: APE, RPE, NEES, plots and an HTML report.
 
@@ -88,14 +95,13 @@ def eval_command(
 
       quadnav eval data.csv vins.tum --align 4dof --interpolate
 
-      quadnav eval --table runs/2026-*_eval
+      quadnav eval --table runs/*
     """
     if table:
         if table_format not in ("markdown", "csv"):
             raise EvalError(f"--table-format must be markdown or csv, got {table_format!r}")
-        rows = compare_runs(paths)
         tf: Literal["markdown", "csv"] = "csv" if table_format == "csv" else "markdown"
-        typer.echo(format_table(rows, tf), nl=False)
+        typer.echo(format_table(compare_runs(paths), tf), nl=False)
         return
     if len(paths) < 2:
         raise EvalError(
@@ -121,19 +127,23 @@ def eval_command(
     bar = progress_bar("eval") if len(paths) > 2 else nullcontext(None)
     with bar as update:
         result = run_eval(paths[0], paths[1:], opts, runs_root=out, progress=update)
+    _print_results(result)
+
+
+def _print_results(result: EvalRun) -> None:
+    """Notes, a table per estimate, and the run folder last."""
     for note in result.notes:
         console.print(f"note: {note}", soft_wrap=True, highlight=False)
+    cols = ("rmse", "mean", "median", "std", "min", "max")
     for res in result.results:
         t = Table(
             title=f"{res.name}: {res.n_matched} matched poses, alignment {res.alignment.method}"
         )
         t.add_column("metric")
-        for col in ("rmse", "mean", "median", "std", "min", "max"):
+        for col in cols:
             t.add_column(col, justify="right")
         for key, stats in res.metrics.items():
-            t.add_row(
-                key, *(f"{stats[c]:.6g}" for c in ("rmse", "mean", "median", "std", "min", "max"))
-            )
+            t.add_row(key, *(f"{stats[c]:.6g}" for c in cols))
         console.print(t)
     console.print(str(result.run_dir), soft_wrap=True, highlight=False)
 
