@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
+import json
+import math
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Literal, get_args
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
 
 from quadnav.errors import EvalError
 from quadnav.eval.align import Alignment, AlignMethod, GravityAxis, align
@@ -25,7 +26,6 @@ from quadnav.eval.metrics import (
 from quadnav.eval.report import ReportSection, ReportTable, write_report
 from quadnav.eval.runs import compare_runs, format_table
 from quadnav.geometry.trajectory import Trajectory
-from quadnav.io.config import dump_config
 from quadnav.io.run_folder import create_run_folder, write_json, write_text
 from quadnav.io.trajectory_io import TrajectoryFormat, read_trajectory, write_tum
 
@@ -59,48 +59,75 @@ OPTION_NAMES: dict[str, str] = {
     "rpe_delta": "--rpe-delta",
     "rpe_unit": "--rpe-unit",
     "rpe_all_pairs": "--all-pairs",
-    "rpe_pairs_from": "--rpe-pairs-from",
+    "rpe_pairs_from": "--pairs-from-reference",
     "plots": "--no-plots",
 }
 
 
-class EvalOptions(BaseModel):
-    """How estimates are compared with the reference (saved as the run's config.yaml)."""
+@dataclass(frozen=True, slots=True, kw_only=True)
+class EvalOptions:
+    """How estimates are compared with the reference (saved as the run's config.yaml).
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    Checked on construction: a bad value is an :class:`EvalError` naming the command-line
+    option (``--t-offset: ...``). A plain dataclass: no model schema to build, and no YAML
+    library to load, at start-up.
+    """
 
-    ref_format: TrajectoryFormat | None = Field(
-        None, description="reference format; guessed when None"
-    )
-    est_format: TrajectoryFormat | None = Field(
-        None, description="estimate format; guessed when None"
-    )
-    topic: str | None = Field(None, description="ROS bag topic, when a bag holds several")
-    # Bounds keep every time in int64 nanoseconds: 1e6 s is 11.6 days; 4e9 s covers the gap
-    # between Unix time and a log that starts at zero.
-    t_max_diff_s: float = Field(0.01, ge=0, le=MAX_T_MAX_DIFF_S, allow_inf_nan=False)
-    t_offset_s: float = Field(
-        0.0,
-        ge=-MAX_T_OFFSET_S,
-        le=MAX_T_OFFSET_S,
-        allow_inf_nan=False,
-        description="added to the estimate's timestamps",
-    )
-    interpolate: bool = Field(False, description="interpolate the reference at estimate times")
+    ref_format: TrajectoryFormat | None = None  # guessed when None
+    est_format: TrajectoryFormat | None = None
+    topic: str | None = None  # ROS bag topic, when a bag holds several
+    t_max_diff_s: float = 0.01
+    t_offset_s: float = 0.0  # added to the estimate's timestamps
+    interpolate: bool = False  # interpolate the reference at estimate times
     align: AlignMethod = "none"
-    align_first_n: int | None = Field(
-        None, ge=1, description="estimate the alignment on the first N poses"
-    )
-    gravity_axis: GravityAxis | None = Field(
-        None,
-        description="the axis 4dof alignment rotates about: z (ENU); None is y for KITTI "
-        "(a reference without timestamps, in its camera frame) and z otherwise",
-    )
-    rpe_delta: float = Field(1.0, gt=0, le=MAX_RPE_DELTA, allow_inf_nan=False)
+    align_first_n: int | None = None  # estimate the alignment on the first N poses
+    # The axis 4dof alignment rotates about: None is y for KITTI (a reference without
+    # timestamps, in its camera frame) and z otherwise.
+    gravity_axis: GravityAxis | None = None
+    rpe_delta: float = 1.0
     rpe_unit: RpeUnit = "frames"
     rpe_all_pairs: bool = False
     rpe_pairs_from: Literal["estimate", "reference"] = "estimate"
     plots: bool = True
+
+    def __post_init__(self) -> None:
+        _choice(self, "ref_format", (None, *get_args(TrajectoryFormat)))
+        _choice(self, "est_format", (None, *get_args(TrajectoryFormat)))
+        _choice(self, "align", get_args(AlignMethod))
+        _choice(self, "gravity_axis", (None, *get_args(GravityAxis)))
+        _choice(self, "rpe_unit", get_args(RpeUnit))
+        _choice(self, "rpe_pairs_from", ("estimate", "reference"))
+        # Bounds keep every time in int64 nanoseconds: 1e6 s is 11.6 days; 4e9 s covers the
+        # gap between Unix time and a log that starts at zero.
+        _number(self, "t_max_diff_s", 0.0, MAX_T_MAX_DIFF_S)
+        _number(self, "t_offset_s", -MAX_T_OFFSET_S, MAX_T_OFFSET_S)
+        _number(self, "rpe_delta", 0.0, MAX_RPE_DELTA, low_open=True)
+        n = self.align_first_n
+        if n is not None and (isinstance(n, bool) or not isinstance(n, int) or n < 1):
+            raise EvalError(f"--align-first: must be a whole number >= 1 (got {n!r})")
+        if self.topic is not None and not isinstance(self.topic, str):
+            raise EvalError(f"--topic: must be text (got {self.topic!r})")
+
+    def as_yaml(self) -> str:
+        """Every field, one ``key: value`` line each (JSON scalars, which YAML reads)."""
+        return "".join(f"{f.name}: {json.dumps(getattr(self, f.name))}\n" for f in fields(self))
+
+
+def _choice(opts: EvalOptions, name: str, allowed: tuple[object, ...]) -> None:
+    value = getattr(opts, name)
+    if value not in allowed:
+        shown = ", ".join(str(a) for a in allowed if a is not None)
+        raise EvalError(f"{OPTION_NAMES[name]}: must be one of {shown} (got {value!r})")
+
+
+def _number(opts: EvalOptions, name: str, lo: float, hi: float, *, low_open: bool = False) -> None:
+    value = getattr(opts, name)
+    ok = isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
+    if not ok or not (lo < value <= hi if low_open else lo <= value <= hi):
+        low = f"> {lo:g}" if low_open else f">= {lo:g}"
+        raise EvalError(
+            f"{OPTION_NAMES[name]}: must be a finite number {low} and <= {hi:g} (got {value!r})"
+        )
 
 
 @dataclass(frozen=True, slots=True)
@@ -240,7 +267,9 @@ def run_eval(
     run_dir = create_run_folder(runs_root, "eval")
     write_text(
         run_dir / "config.yaml",
-        dump_config(opts) + f"reference: {ref_path}\nestimates: {[str(p) for p in est_paths]}\n",
+        opts.as_yaml()
+        + f"reference: {json.dumps(str(ref_path))}\n"
+        + f"estimates: {json.dumps([str(p) for p in est_paths])}\n",
     )
     images = _write_plots(run_dir, ref, results) if opts.plots else []
     for res in results:
