@@ -10,7 +10,8 @@ from quadnav.geometry import Trajectory
 
 def perturbed_copy(ref: Trajectory, *, seed: int = 12) -> Trajectory:
     """``ref`` with a random-walk drift, white noise and attitude drift, and a frozen stretch
-    (poses 3000-3199 repeat pose 3000, so path distances tie) - the same on every machine."""
+    (poses 3000-3199 repeat pose 3000, so path distances tie). Seeded: the same file for a given
+    numpy (evo's numbers in test_evo_parity.py were computed on the copy numpy 2.4.6 makes)."""
     rng = np.random.default_rng(seed)
     n = len(ref)
     p = ref.p_W_B + np.cumsum(rng.normal(0, 0.002, (n, 3)), axis=0) + rng.normal(0, 0.01, (n, 3))
