@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import importlib
 import shlex
+from pathlib import Path
 from typing import Any
 
 import pytest
@@ -14,6 +15,9 @@ from typer.testing import CliRunner
 from quadnav.cli.main import app
 from quadnav.experiments.flight import BUILTIN, BUILTIN_DESCRIPTIONS
 from quadnav.experiments.scenarios import NAV_SCENARIOS
+from tests.shared_data import SHARED
+
+ROOT = Path(__file__).resolve().parents[2]
 
 #: command path -> the module that holds its EXAMPLES and check_example
 COMMANDS = {
@@ -22,6 +26,8 @@ COMMANDS = {
     ("sim",): "quadnav.cli.sim",
     ("link", "serial"): "quadnav.cli.link",
     ("replay",): "quadnav.cli.replay",
+    ("eval",): "quadnav.cli.eval",
+    ("markers",): "quadnav.cli.markers",
 }
 
 
@@ -42,7 +48,12 @@ def _examples() -> list[tuple[tuple[str, ...], str]]:
 
 
 @pytest.mark.parametrize(("path", "example"), _examples(), ids=lambda x: str(x))
-def test_every_example_parses_and_validates(path: tuple[str, ...], example: str) -> None:
+def test_every_example_parses_and_validates(
+    path: tuple[str, ...], example: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    if "../shared/data" in example and not SHARED.is_dir():
+        pytest.skip(f"shared test data not found at {SHARED}")
+    monkeypatch.chdir(ROOT)  # the examples name ../shared/data from the project folder
     argv = shlex.split(example)
     assert argv[: 1 + len(path)] == ["quadnav", *path], example
     cmd = _command(path)

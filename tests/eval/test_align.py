@@ -72,3 +72,18 @@ def test_degenerate_inputs() -> None:
         align(line, line, "se3")
     with pytest.raises(EvalError, match="at least 3"):
         align(line.select(slice(0, 2)), line.select(slice(0, 2)), "sim3")
+
+
+@pytest.mark.parametrize("axis", ["x", "y", "z"])
+def test_4dof_rotates_about_the_gravity_axis(axis: str) -> None:
+    rng = np.random.default_rng(4)
+    ref = random_walk(rng)
+    R_true = Rotation.from_euler(axis, 0.7)
+    t_true = np.array([3.0, -2.0, 1.0])
+    est = ref.transformed(R_true.inv(), -R_true.inv().apply(t_true))
+    aligned, a = align(ref, est, "4dof", gravity_axis=axis)  # type: ignore[arg-type]
+    assert float(geodesic_angle_rad(a.R, R_true)) < 1e-9
+    np.testing.assert_allclose(aligned.p_W_B, ref.p_W_B, atol=1e-9)
+    if axis != "z":  # about z (the old behaviour) the yaw of a KITTI-like y-vertical is lost
+        bad, _ = align(ref, est, "4dof", gravity_axis="z")
+        assert np.sqrt(np.mean(np.sum((bad.p_W_B - ref.p_W_B) ** 2, axis=1))) > 1.0

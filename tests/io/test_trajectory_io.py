@@ -74,7 +74,7 @@ def test_euroc_ground_truth_with_extra_columns(tmp_path: Path) -> None:
         ("1.0 0 0 0 0 0 0 1\n2.0 0 0 0 0 0\n", ":2: expected 8 values, got 6"),  # truncated
         ("1.0 0 0 0 0 0 0 1\n2.0 nan 0 0 0 0 0 1\n", ":2: non-finite"),
         ("# header\n1.0 0 0 0 0 0 0 1\n2.0 0 x 0 0 0 0 1\n", ":3: not a number: 'x'"),
-        ("1.0 0 0 0 0 0 0 1\n1.0 0 0 0 0 0 0 1\n", "increase"),
+        ("2.0 0 0 0 0 0 0 1\n1.0 0 0 0 0 0 0 1\n", "increase"),
         ("", "no poses"),
         ("1 2 3\n", "cannot tell the trajectory format"),
     ],
@@ -148,3 +148,16 @@ def test_timestamp_parsing_is_exact_decimal_rounding(whole: int, frac: str) -> N
 
     token = f"{whole}.{frac}" if frac else str(whole)
     assert _seconds_to_ns(token, "t") == int((Decimal(token) * 1_000_000_000).to_integral_value())
+
+
+def test_tum_repeated_timestamps_keep_the_first_pose(tmp_path: Path) -> None:
+    f = tmp_path / "dup.txt"
+    f.write_text(
+        "# t x y z qx qy qz qw\n1.0 0 0 0 0 0 0 1\n1.0 5 0 0 0 0 0 1\n2.0 1 0 0 0 0 0 1\n"
+        "2.0 9 0 0 0 0 0 1\n2.0 9 9 0 0 0 0 1\n3.0 2 0 0 0 0 0 1\n"
+    )
+    tr = read_trajectory(f)
+    assert list(tr.t_ns) == [1_000_000_000, 2_000_000_000, 3_000_000_000]
+    np.testing.assert_array_equal(tr.p_W_B[:, 0], [0.0, 1.0, 2.0])  # the first of each
+    assert tr.meta["repeated_timestamps"] == "3"
+    assert "dup.txt: 3 pose(s) repeat" in tr.meta["note"] and "line 3" in tr.meta["note"]

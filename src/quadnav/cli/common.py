@@ -13,12 +13,18 @@ from typing import ParamSpec, TypeVar
 
 import typer
 from rich.console import Console
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 from quadnav.errors import ConfigError, QuadnavError
 from quadnav.io.run_folder import run_guard
 
-__all__ = ["check_range", "console", "err_console", "handle_errors", "progress_bar"]
+__all__ = [
+    "check_range",
+    "command_help",
+    "console",
+    "err_console",
+    "handle_errors",
+    "progress_bar",
+]
 
 # Piped output (CI logs, files) gets a width that fits the summary tables, not rich's 80.
 console = Console() if sys.stdout.isatty() else Console(width=120)
@@ -84,6 +90,14 @@ def progress_bar(
     if not err_console.is_terminal:
         yield _progress_lines(description, line_step)
         return
+    from rich.progress import (  # 70 ms of start-up for commands that do not need it
+        BarColumn,
+        MofNCompleteColumn,
+        Progress,
+        TextColumn,
+        TimeElapsedColumn,
+    )
+
     with Progress(
         TextColumn("[bold]{task.description}"),
         BarColumn(),

@@ -18,7 +18,7 @@ import typer
 from numpy.typing import NDArray
 from rich.table import Table
 
-from quadnav.cli.common import console, err_console, handle_errors, progress_bar
+from quadnav.cli.common import command_help, console, err_console, handle_errors, progress_bar
 from quadnav.cli.planar import OutOpt, SetOpt
 from quadnav.errors import ConfigError, IoError
 from quadnav.eval.report import ReportSection, ReportTable, write_report
@@ -47,7 +47,14 @@ from quadnav.vision.markers import (
 from quadnav.vision.overlay import draw_overlay
 from quadnav.vision.pipeline import FramePose, MarkerPipeline
 
-__all__ = ["fit_calibration", "load_markers_config", "markers_command", "run_markers"]
+__all__ = [
+    "EXAMPLES",
+    "check_example",
+    "fit_calibration",
+    "load_markers_config",
+    "markers_command",
+    "run_markers",
+]
 
 
 def load_markers_config(
@@ -478,24 +485,7 @@ def markers_command(
         bool, typer.Option("--show", help="show the overlay in a window (q or Esc stops)")
     ] = False,
 ) -> None:
-    """Detect markers and estimate the vehicle's pose in every frame of SOURCE.
-
-    Examples:
-
-      quadnav markers board12_17.mp4 --params vision_params.yml --camera cal.yml
-
-      quadnav markers photos/ --camera cal.yml --set dictionary=DICT_6X6_250 --set marker_length_m=0.05
-    """
-    if mavlink is not None:
-        check_bind(mavlink, allow_remote=allow_remote)  # before anything is read or written
-    overrides = list(set_ or [])
-    if camera is not None:
-        if not camera.is_file():
-            raise IoError(f"{camera}: no such file")
-        overrides.append(f"camera_file={camera}")
-    overrides += [f"fps={fps}"] if fps is not None else []
-    overrides += ["show=true"] if show else []
-    cfg, ignored = load_markers_config(params, overrides)
+    cfg, ignored = _resolve(mavlink, allow_remote, set_, camera, fps, show, params)
     if ignored:
         note = f"note: parameters not used here: {', '.join(ignored)}"
         err_console.print(note, highlight=False, soft_wrap=True)
@@ -505,6 +495,39 @@ def markers_command(
     for note in stats["notes"]:
         err_console.print(f"note: {note}", highlight=False, soft_wrap=True)
     _print_summary(stats)
+
+
+def _resolve(mavlink: str | None, allow_remote: bool, set_: list[str] | None, camera: Path | None,
+             fps: float | None, show: bool, params: Path | None) -> tuple[MarkersConfig, list[str]]:  # fmt: skip
+    """The validated configuration (and the thesis keys not used) of the command's options."""
+    if mavlink is not None:
+        check_bind(mavlink, allow_remote=allow_remote)  # before anything is read or written
+    overrides = list(set_ or [])
+    if camera is not None:
+        if not camera.is_file():
+            raise IoError(f"{camera}: no such file")
+        overrides.append(f"camera_file={camera}")
+    overrides += [f"fps={fps}"] if fps is not None else []
+    overrides += ["show=true"] if show else []
+    return load_markers_config(params, overrides)
+
+
+def check_example(p: dict[str, Any]) -> None:
+    """Validate an example's options and configuration as the command would, reading no frame."""
+    _resolve(
+        p["mavlink"], p["allow_remote"], p["set_"], p["camera"], p["fps"], p["show"], p["params"]
+    )
+
+
+#: The examples of ``quadnav markers --help`` (each parsed and validated by the tests, from the
+#: project's folder, with the shared data beside it).
+EXAMPLES = (
+    "quadnav markers ../shared/data/thesis_rig/board12_17.mp4 --params ../shared/data/thesis_rig/vision_params.yml --camera ../shared/data/thesis_rig/cal.yml",
+    "quadnav markers ../shared/data/aruco --camera ../shared/data/aruco/tutorial_camera_params.yml --set dictionary=DICT_6X6_250 --set marker_length_m=0.05",
+    "quadnav markers 0 --params ../shared/data/thesis_rig/vision_params.yml --camera ../shared/data/thesis_rig/cal.yml --show",
+    "quadnav markers frames.h264 --camera ../shared/data/thesis_rig/cal.yml --fps 40 --set target=charuco",
+    "quadnav markers 0 --camera ../shared/data/thesis_rig/cal.yml --mavlink udpout:127.0.0.1:14540",
+)
 
 
 def _print_summary(stats: dict[str, Any]) -> None:
@@ -535,3 +558,13 @@ def _print_summary(stats: dict[str, Any]) -> None:
         table.add_row("MAVLink messages sent", ", ".join(f"{k} {v}" for k, v in sent.items()))
     console.print(table)
     console.print(stats["run_dir"], soft_wrap=True, highlight=False)
+
+
+markers_command.__doc__ = command_help(
+    "Detect markers and estimate the vehicle's pose in every frame of SOURCE.",
+    "SOURCE is an image folder, a video (a raw .h264 is timed at --fps) or a camera index. "
+    "Targets: single ArUco/AprilTag markers, ChArUco boards and diamonds, marker maps; the pose "
+    "goes through the camera mount to the vehicle, with its covariance. --params takes our "
+    "YAML or the thesis's vision_params.yml; --mavlink sends each pose to an autopilot.",
+    examples=EXAMPLES,
+)

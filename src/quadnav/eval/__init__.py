@@ -1,39 +1,50 @@
 """Evaluation: association, alignment, APE/RPE/NEES, plots, run reports and the planar study."""
 
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
+
+# Light and needed by every evaluation; align and associate are also submodule names, so the
+# functions must be bound here, after their modules.
 from quadnav.errors import EvalError
 from quadnav.eval.align import Alignment, AlignMethod, align, umeyama, yaw_translation
 from quadnav.eval.associate import associate
-from quadnav.eval.evaluate import (
-    EstimateResult,
-    EvalOptions,
-    EvalRun,
-    compare_runs,
-    evaluate_pair,
-    format_table,
-    run_eval,
-)
 from quadnav.eval.metrics import (
     PoseRelation,
     RpeUnit,
     ape,
+    ape_matrices,
     error_stats,
     nees,
     nis,
+    pose_errors,
     position_nees,
     rpe,
+    rpe_matrices,
     rpe_pairs,
 )
-from quadnav.eval.planar import (
-    PlanarStudy,
-    planar_metrics,
-    planar_trajectory,
-    plot_monte_carlo,
-    plot_planar_run,
-    run_planar_study,
-    summarize_seeds,
-)
-from quadnav.eval.plots import plot_errors, plot_trajectories, plot_xyz
-from quadnav.eval.report import ReportSection, ReportTable, write_report
+
+if TYPE_CHECKING:
+    from quadnav.eval.evaluate import (
+        EstimateResult,
+        EvalOptions,
+        EvalRun,
+        evaluate_pair,
+        run_eval,
+    )
+    from quadnav.eval.planar import (
+        PlanarStudy,
+        planar_metrics,
+        planar_trajectory,
+        plot_monte_carlo,
+        plot_planar_run,
+        run_planar_study,
+        summarize_seeds,
+    )
+    from quadnav.eval.plots import plot_errors, plot_trajectories, plot_xyz
+    from quadnav.eval.report import ReportSection, ReportTable, write_report
+    from quadnav.eval.runs import RunRow, compare_runs, format_table
 
 __all__ = [
     "AlignMethod",
@@ -47,8 +58,10 @@ __all__ = [
     "ReportSection",
     "ReportTable",
     "RpeUnit",
+    "RunRow",
     "align",
     "ape",
+    "ape_matrices",
     "associate",
     "compare_runs",
     "error_stats",
@@ -63,8 +76,10 @@ __all__ = [
     "plot_planar_run",
     "plot_trajectories",
     "plot_xyz",
+    "pose_errors",
     "position_nees",
     "rpe",
+    "rpe_matrices",
     "rpe_pairs",
     "run_eval",
     "run_planar_study",
@@ -73,3 +88,41 @@ __all__ = [
     "write_report",
     "yaw_translation",
 ]
+
+# The module of each other name: they load on first use, so ``quadnav eval`` does not import the
+# planar study (scipy.stats) or the plots (matplotlib) it does not need.
+_WHERE: dict[str, str] = {
+    "EstimateResult": "quadnav.eval.evaluate",
+    "EvalOptions": "quadnav.eval.evaluate",
+    "EvalRun": "quadnav.eval.evaluate",
+    "PlanarStudy": "quadnav.eval.planar",
+    "ReportSection": "quadnav.eval.report",
+    "ReportTable": "quadnav.eval.report",
+    "RunRow": "quadnav.eval.runs",
+    "compare_runs": "quadnav.eval.runs",
+    "evaluate_pair": "quadnav.eval.evaluate",
+    "format_table": "quadnav.eval.runs",
+    "planar_metrics": "quadnav.eval.planar",
+    "planar_trajectory": "quadnav.eval.planar",
+    "plot_errors": "quadnav.eval.plots",
+    "plot_monte_carlo": "quadnav.eval.planar",
+    "plot_planar_run": "quadnav.eval.planar",
+    "plot_trajectories": "quadnav.eval.plots",
+    "plot_xyz": "quadnav.eval.plots",
+    "run_eval": "quadnav.eval.evaluate",
+    "run_planar_study": "quadnav.eval.planar",
+    "summarize_seeds": "quadnav.eval.planar",
+    "write_report": "quadnav.eval.report",
+}
+
+
+def __getattr__(name: str) -> Any:
+    if name not in _WHERE:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(_WHERE[name]), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(__all__)

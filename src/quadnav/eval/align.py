@@ -12,10 +12,11 @@ from scipy.spatial.transform import Rotation
 from quadnav.errors import EvalError
 from quadnav.geometry.trajectory import Trajectory
 
-__all__ = ["AlignMethod", "Alignment", "align", "umeyama", "yaw_translation"]
+__all__ = ["AlignMethod", "Alignment", "GravityAxis", "align", "umeyama", "yaw_translation"]
 
 FloatArray = NDArray[np.float64]
 AlignMethod = Literal["none", "se3", "sim3", "4dof"]
+GravityAxis = Literal["x", "y", "z"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -53,24 +54,40 @@ def umeyama(
     return Rotation.from_matrix(R), t, s
 
 
-def yaw_translation(src: FloatArray, dst: FloatArray) -> tuple[Rotation, FloatArray]:
-    """Least-squares ``dst ~ Rz(yaw) src + t``: the 4 unobservable DoF of visual-inertial odometry."""
+# The plane of a rotation about each axis, in the order it turns (x -> y about z, z -> x about y).
+_PLANE: dict[str, tuple[int, int]] = {"x": (1, 2), "y": (2, 0), "z": (0, 1)}
+
+
+def yaw_translation(
+    src: FloatArray, dst: FloatArray, *, gravity_axis: GravityAxis = "z"
+) -> tuple[Rotation, FloatArray]:
+    """Least-squares ``dst ~ R(yaw about gravity_axis) src + t``: the 4 unobservable DoF of
+    visual-inertial odometry. ``z`` is up in an ENU world; KITTI's camera frame has ``y`` down."""
     if src.shape != dst.shape or src.ndim != 2 or src.shape[1] != 3 or len(src) < 2:
         raise EvalError("4-DoF alignment needs at least 2 matched (N, 3) positions")
+    if gravity_axis not in _PLANE:
+        raise EvalError(f"unknown gravity axis {gravity_axis!r}; choose x, y or z")
+    u, v = _PLANE[gravity_axis]
     mu_s, mu_d = src.mean(axis=0), dst.mean(axis=0)
     a, b = src - mu_s, dst - mu_d
-    # Maximise sum b_xy . Rz a_xy: the optimum yaw is the angle of sum(a x b, a . b) in the plane.
+    # Maximise sum b_uv . R a_uv: the optimum yaw is the angle of sum(a x b, a . b) in the plane.
     yaw = np.arctan2(
-        np.sum(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]), np.sum(a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1])
+        np.sum(a[:, u] * b[:, v] - a[:, v] * b[:, u]), np.sum(a[:, u] * b[:, u] + a[:, v] * b[:, v])
     )
-    R = Rotation.from_euler("z", yaw)
+    R = Rotation.from_euler(gravity_axis, yaw)
     return R, mu_d - R.apply(mu_s)
 
 
 def align(
-    ref: Trajectory, est: Trajectory, method: AlignMethod, *, first_n: int | None = None
+    ref: Trajectory,
+    est: Trajectory,
+    method: AlignMethod,
+    *,
+    first_n: int | None = None,
+    gravity_axis: GravityAxis = "z",
 ) -> tuple[Trajectory, Alignment]:
-    """The estimate aligned to the matched reference, estimated on all or the first N pairs."""
+    """The estimate aligned to the matched reference, estimated on all or the first N pairs
+    (4dof: yaw about ``gravity_axis`` of the reference frame)."""
     if len(ref) != len(est):
         raise EvalError("align matched trajectories (equal length); associate them first")
     n = len(est) if first_n is None else min(first_n, len(est))
@@ -82,7 +99,7 @@ def align(
     if method in ("se3", "sim3"):
         R, t, s = umeyama(src, dst, with_scale=method == "sim3")
     elif method == "4dof":
-        R, t = yaw_translation(src, dst)
+        R, t = yaw_translation(src, dst, gravity_axis=gravity_axis)
         s = 1.0
     else:
         raise EvalError(f"unknown alignment {method!r}; choose none, se3, sim3 or 4dof")

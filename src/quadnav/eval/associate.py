@@ -2,12 +2,16 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from quadnav.errors import EvalError
 from quadnav.geometry.trajectory import Trajectory
 
 __all__ = ["associate"]
+
+_INT64_MIN, _INT64_MAX = -(2**63), 2**63 - 1
 
 
 def _span(t: Trajectory) -> str:
@@ -30,8 +34,8 @@ def associate(
     position, slerp attitude) at each estimate time inside its span whose nearest reference
     sample is within ``t_max_diff_s``. Trajectories without timestamps (KITTI) pair by index.
     """
-    if t_max_diff_s < 0:
-        raise EvalError(f"t_max_diff must be >= 0 s, got {t_max_diff_s}")
+    if not 0 <= t_max_diff_s < 9e9:  # also NaN; 9e9 s is the range of int64 nanoseconds
+        raise EvalError(f"--t-max-diff must be finite and >= 0 s, got {t_max_diff_s}")
     if len(ref) == 0 or len(est) == 0:
         raise EvalError("cannot associate an empty trajectory")
     if not ref.timed or not est.timed:
@@ -44,7 +48,15 @@ def associate(
                 f"trajectories without timestamps pair by index but have {len(ref)} and {len(est)} poses"
             )
         return ref, est
-    shifted = est.shifted(round(t_offset_s * 1e9))
+    offset_ns = round(t_offset_s * 1e9) if math.isfinite(t_offset_s) else None
+    if offset_ns is None or not (
+        int(est.t_ns[0]) + offset_ns >= _INT64_MIN and int(est.t_ns[-1]) + offset_ns <= _INT64_MAX
+    ):
+        raise EvalError(
+            f"--t-offset {t_offset_s} s moves the estimate's timestamps out of range "
+            "(signed 64-bit nanoseconds)"
+        )
+    shifted = est.shifted(offset_ns)
     t_e = shifted.t_ns
     t_r = ref.t_ns
     max_diff = round(t_max_diff_s * 1e9)

@@ -5,25 +5,32 @@ from __future__ import annotations
 import json
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, fields, replace
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Literal, get_args
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
 
-from quadnav.errors import EvalError, IoError
-from quadnav.eval.align import Alignment, AlignMethod, align
+from quadnav.errors import EvalError
+from quadnav.eval.align import Alignment, AlignMethod, GravityAxis, align
 from quadnav.eval.associate import associate
-from quadnav.eval.metrics import RpeUnit, ape, error_stats, position_nees, rpe
-from quadnav.eval.plots import plot_errors, plot_trajectories, plot_xyz
+from quadnav.eval.metrics import (
+    RpeUnit,
+    ape,
+    ape_matrices,
+    error_stats,
+    pose_errors,
+    position_nees,
+    rpe_matrices,
+)
 from quadnav.eval.report import ReportSection, ReportTable, write_report
+from quadnav.eval.runs import compare_runs, format_table
 from quadnav.geometry.trajectory import Trajectory
-from quadnav.io.config import dump_config
 from quadnav.io.run_folder import create_run_folder, write_json, write_text
-from quadnav.io.trajectory_io import read_trajectory, write_tum
+from quadnav.io.trajectory_io import TrajectoryFormat, read_trajectory, write_tum
 
 __all__ = [
+    "OPTION_NAMES",
     "EstimateResult",
     "EvalOptions",
     "EvalRun",
@@ -34,28 +41,93 @@ __all__ = [
 ]
 
 Progress = Callable[[int, int, str], None]
+MAX_T_MAX_DIFF_S = 1e6
+MAX_T_OFFSET_S = 4e9
+MAX_RPE_DELTA = 1e9
+
+# The command-line option of each EvalOptions field, for error messages.
+OPTION_NAMES: dict[str, str] = {
+    "ref_format": "--ref-format",
+    "est_format": "--format",
+    "topic": "--topic",
+    "t_max_diff_s": "--t-max-diff",
+    "t_offset_s": "--t-offset",
+    "interpolate": "--interpolate",
+    "align": "--align",
+    "align_first_n": "--align-first",
+    "gravity_axis": "--gravity-axis",
+    "rpe_delta": "--rpe-delta",
+    "rpe_unit": "--rpe-unit",
+    "rpe_all_pairs": "--all-pairs",
+    "rpe_pairs_from": "--pairs-from-reference",
+    "plots": "--no-plots",
+}
 
 
-class EvalOptions(BaseModel):
-    """How estimates are compared with the reference (saved as the run's config.yaml)."""
+@dataclass(frozen=True, slots=True, kw_only=True)
+class EvalOptions:
+    """How estimates are compared with the reference (saved as the run's config.yaml).
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    Checked on construction: a bad value is an :class:`EvalError` naming the command-line
+    option (``--t-offset: ...``). A plain dataclass: no model schema to build, and no YAML
+    library to load, at start-up.
+    """
 
-    ref_format: str | None = Field(None, description="reference format; guessed when None")
-    est_format: str | None = Field(None, description="estimate format; guessed when None")
-    topic: str | None = Field(None, description="ROS bag topic, when a bag holds several")
-    t_max_diff_s: float = Field(0.01, ge=0)
-    t_offset_s: float = Field(0.0, description="added to the estimate's timestamps")
-    interpolate: bool = Field(False, description="interpolate the reference at estimate times")
+    ref_format: TrajectoryFormat | None = None  # guessed when None
+    est_format: TrajectoryFormat | None = None
+    topic: str | None = None  # ROS bag topic, when a bag holds several
+    t_max_diff_s: float = 0.01
+    t_offset_s: float = 0.0  # added to the estimate's timestamps
+    interpolate: bool = False  # interpolate the reference at estimate times
     align: AlignMethod = "none"
-    align_first_n: int | None = Field(
-        None, ge=1, description="estimate the alignment on the first N poses"
-    )
-    rpe_delta: float = Field(1.0, gt=0)
+    align_first_n: int | None = None  # estimate the alignment on the first N poses
+    # The axis 4dof alignment rotates about: None is y for KITTI (a reference without
+    # timestamps, in its camera frame) and z otherwise.
+    gravity_axis: GravityAxis | None = None
+    rpe_delta: float = 1.0
     rpe_unit: RpeUnit = "frames"
     rpe_all_pairs: bool = False
     rpe_pairs_from: Literal["estimate", "reference"] = "estimate"
     plots: bool = True
+
+    def __post_init__(self) -> None:
+        _choice(self, "ref_format", (None, *get_args(TrajectoryFormat)))
+        _choice(self, "est_format", (None, *get_args(TrajectoryFormat)))
+        _choice(self, "align", get_args(AlignMethod))
+        _choice(self, "gravity_axis", (None, *get_args(GravityAxis)))
+        _choice(self, "rpe_unit", get_args(RpeUnit))
+        _choice(self, "rpe_pairs_from", ("estimate", "reference"))
+        # Bounds keep every time in int64 nanoseconds: 1e6 s is 11.6 days; 4e9 s covers the
+        # gap between Unix time and a log that starts at zero.
+        _number(self, "t_max_diff_s", 0.0, MAX_T_MAX_DIFF_S)
+        _number(self, "t_offset_s", -MAX_T_OFFSET_S, MAX_T_OFFSET_S)
+        _number(self, "rpe_delta", 0.0, MAX_RPE_DELTA, low_open=True)
+        n = self.align_first_n
+        if n is not None and (isinstance(n, bool) or not isinstance(n, int) or n < 1):
+            raise EvalError(f"--align-first: must be a whole number >= 1 (got {n!r})")
+        if self.topic is not None and not isinstance(self.topic, str):
+            raise EvalError(f"--topic: must be text (got {self.topic!r})")
+
+    def as_yaml(self) -> str:
+        """Every field, one ``key: value`` line each (JSON scalars, which YAML reads)."""
+        return "".join(f"{f.name}: {json.dumps(getattr(self, f.name))}\n" for f in fields(self))
+
+
+def _choice(opts: EvalOptions, name: str, allowed: tuple[object, ...]) -> None:
+    value = getattr(opts, name)
+    if value not in allowed:
+        shown = ", ".join(str(a) for a in allowed if a is not None)
+        raise EvalError(f"{OPTION_NAMES[name]}: must be one of {shown} (got {value!r})")
+
+
+def _number(opts: EvalOptions, name: str, lo: float, hi: float, *, low_open: bool = False) -> None:
+    value = getattr(opts, name)
+    ok = isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
+    if not ok or not (lo < value <= hi if low_open else lo <= value <= hi):
+        low = f"> {lo:g}" if low_open else f">= {lo:g}"
+        raise EvalError(
+            f"{OPTION_NAMES[name]}: must be a finite number {low} and <= {hi:g} (got {value!r})"
+        )
 
 
 @dataclass(frozen=True, slots=True)
@@ -69,6 +141,7 @@ class EstimateResult:
     ref: Trajectory
     est_aligned: Trajectory
     ape_trans: np.ndarray
+    notes: tuple[str, ...] = ()
 
     def row(self) -> dict[str, Any]:
         """A flat summary row (for tables)."""
@@ -98,24 +171,26 @@ def evaluate_pair(ref: Trajectory, est: Trajectory, opts: EvalOptions) -> Estima
         t_offset_s=opts.t_offset_s,
         interpolate=opts.interpolate,
     )
-    e_al, alignment = align(r, e, opts.align, first_n=opts.align_first_n)
+    axis, notes = _gravity_axis(ref, opts)
+    e_al, alignment = align(r, e, opts.align, first_n=opts.align_first_n, gravity_axis=axis)
     ape_t = ape(r, e_al, "trans")
+    E = ape_matrices(r, e_al)
+    # RPE on the aligned estimate, as evo_rpe -a/-as (a similarity scales the relative motions).
+    E_rel, _ = rpe_matrices(
+        r,
+        e_al,
+        delta=opts.rpe_delta,
+        unit=opts.rpe_unit,
+        all_pairs=opts.rpe_all_pairs,
+        pairs_from=opts.rpe_pairs_from,
+    )
     metrics: dict[str, dict[str, float]] = {
         "ape_trans_m": error_stats(ape_t),
-        "ape_rot_deg": error_stats(np.degrees(ape(r, e_al, "rot"))),
-        "ape_full": error_stats(ape(r, e_al, "full")),
+        "ape_rot_deg": error_stats(np.degrees(pose_errors(E, "rot"))),
+        "ape_full": error_stats(pose_errors(E, "full")),
+        "rpe_trans_m": error_stats(pose_errors(E_rel, "trans")),
+        "rpe_rot_deg": error_stats(np.degrees(pose_errors(E_rel, "rot"))),
     }
-    rpe_kwargs: dict[str, Any] = {
-        "delta": opts.rpe_delta,
-        "unit": opts.rpe_unit,
-        "all_pairs": opts.rpe_all_pairs,
-        "pairs_from": opts.rpe_pairs_from,
-    }
-    # RPE is invariant to a rigid alignment, so it is computed on the unaligned estimate (as evo).
-    rpe_t, _ = rpe(r, e, relation="trans", **rpe_kwargs)
-    rpe_r, _ = rpe(r, e, relation="rot", **rpe_kwargs)
-    metrics["rpe_trans_m"] = error_stats(rpe_t)
-    metrics["rpe_rot_deg"] = error_stats(np.degrees(rpe_r))
     if e_al.cov_p is not None:
         metrics["nees_pos"] = error_stats(position_nees(r, e_al))
     return EstimateResult(
@@ -126,13 +201,28 @@ def evaluate_pair(ref: Trajectory, est: Trajectory, opts: EvalOptions) -> Estima
         ref=r,
         est_aligned=e_al,
         ape_trans=ape_t,
+        notes=notes,
     )
+
+
+def _gravity_axis(ref: Trajectory, opts: EvalOptions) -> tuple[GravityAxis, tuple[str, ...]]:
+    """The axis of 4dof alignment, and a note when it was chosen for KITTI."""
+    if opts.gravity_axis is not None:
+        return opts.gravity_axis, ()
+    if ref.timed:
+        return "z", ()
+    note = (
+        "4dof alignment rotates about y, the vertical of KITTI's camera frame (the reference "
+        "has no timestamps: KITTI); pass --gravity-axis z for a z-up frame"
+    )
+    return "y", (note,) if opts.align == "4dof" else ()
 
 
 @dataclass(frozen=True, slots=True)
 class EvalRun:
     run_dir: Path
     results: list[EstimateResult]
+    notes: tuple[str, ...] = ()
 
 
 def _unique_names(trajs: list[Trajectory]) -> list[Trajectory]:
@@ -141,18 +231,18 @@ def _unique_names(trajs: list[Trajectory]) -> list[Trajectory]:
     for t in trajs:
         base = t.name or "estimate"
         seen[base] = seen.get(base, 0) + 1
-        name = base if seen[base] == 1 else f"{base}-{seen[base]}"
-        out.append(
-            Trajectory(
-                t_ns=t.t_ns,
-                p_W_B=t.p_W_B,
-                q_W_B_xyzw=t.q_W_B_xyzw,
-                cov_p=t.cov_p,
-                timed=t.timed,
-                name=name,
-            )
-        )
+        out.append(replace(t, name=base if seen[base] == 1 else f"{base}-{seen[base]}"))
     return out
+
+
+def _read_inputs(
+    ref_path: Path, est_paths: list[Path], opts: EvalOptions
+) -> tuple[Trajectory, list[Trajectory]]:
+    ref = read_trajectory(ref_path, opts.ref_format, topic=opts.topic)
+    ests = _unique_names([read_trajectory(p, opts.est_format, topic=opts.topic) for p in est_paths])
+    if ref.name in {e.name for e in ests}:
+        ref = replace(ref, name=f"{ref.name} (reference)", cov_p=None)
+    return ref, ests
 
 
 def run_eval(
@@ -166,121 +256,84 @@ def run_eval(
     """Read, evaluate every estimate, and write a run folder with metrics, plots and a report."""
     if not est_paths:
         raise EvalError("give at least one estimate to evaluate")
-    ref = read_trajectory(ref_path, opts.ref_format, topic=opts.topic)
-    ests = _unique_names([read_trajectory(p, opts.est_format, topic=opts.topic) for p in est_paths])
-    if ref.name in {e.name for e in ests}:
-        ref = Trajectory(
-            t_ns=ref.t_ns,
-            p_W_B=ref.p_W_B,
-            q_W_B_xyzw=ref.q_W_B_xyzw,
-            timed=ref.timed,
-            name=f"{ref.name} (reference)",
-        )
+    ref, ests = _read_inputs(ref_path, est_paths, opts)
     results = []
     for k, est in enumerate(ests):
         results.append(evaluate_pair(ref, est, opts))
         if progress is not None:
             progress(k + 1, len(ests), est.name)
+    notes = tuple(t.meta["note"] for t in (ref, *ests) if "note" in t.meta)
+    notes += tuple(dict.fromkeys(n for res in results for n in res.notes))
     run_dir = create_run_folder(runs_root, "eval")
     write_text(
         run_dir / "config.yaml",
-        dump_config(opts) + f"reference: {ref_path}\nestimates: {[str(p) for p in est_paths]}\n",
+        opts.as_yaml()
+        + f"reference: {json.dumps(str(ref_path))}\n"
+        + f"estimates: {json.dumps([str(p) for p in est_paths])}\n",
     )
-    images: list[Path] = []
-    if opts.plots:
-        plot_xyz(ref, [r.est_aligned for r in results], run_dir / "plots" / "xyz.png")
-        plot_trajectories(
-            ref, [r.est_aligned for r in results], run_dir / "plots" / "trajectories.png"
-        )
-        images += [run_dir / "plots" / "xyz.png", run_dir / "plots" / "trajectories.png"]
-        for res in results:
-            p = run_dir / "plots" / f"ape_{res.name}.png"
-            plot_errors(res.ref, res.est_aligned, res.ape_trans, p, what="APE translation (m)")
-            images.append(p)
+    images = _write_plots(run_dir, ref, results) if opts.plots else []
     for res in results:
         write_tum(run_dir / "aligned" / f"{res.name}.tum", res.est_aligned)
     table = [res.row() for res in results]
-    write_json(
-        run_dir / "metrics.json",
-        {
-            "kind": "eval",
-            "reference": str(ref_path),
-            "estimates": {
-                res.name: {
-                    "matched": res.n_matched,
-                    "alignment": {
-                        "method": res.alignment.method,
-                        "R": res.alignment.R.as_matrix(),
-                        "t": res.alignment.t,
-                        "s": res.alignment.s,
-                        "n_used": res.alignment.n_used,
-                    },
-                    **res.metrics,
-                }
-                for res in results
-            },
-            "table": table,
-        },
-    )
+    write_json(run_dir / "metrics.json", _metrics_json(ref_path, results, table, notes))
     write_report(
         run_dir / "report.html",
         title=f"Trajectory evaluation against {Path(ref_path).name}",
         sections=[
             ReportSection(
                 heading="Metrics",
-                text=f"{len(results)} estimate(s); alignment {opts.align}; RPE delta {opts.rpe_delta} {opts.rpe_unit}.",
+                text=f"{len(results)} estimate(s); alignment {opts.align}; RPE delta "
+                f"{opts.rpe_delta} {opts.rpe_unit}." + "".join(f"\n{n}" for n in notes),
                 tables=[_report_table(table)],
             ),
             ReportSection(heading="Plots", images=images),
             ReportSection(heading="Configuration", code=(run_dir / "config.yaml").read_text()),
         ],
     )
-    return EvalRun(run_dir=run_dir, results=results)
+    return EvalRun(run_dir=run_dir, results=results, notes=notes)
+
+
+def _write_plots(run_dir: Path, ref: Trajectory, results: list[EstimateResult]) -> list[Path]:
+    from quadnav.eval.plots import plot_errors, plot_trajectories, plot_xyz  # matplotlib: slow
+
+    plot_xyz(ref, [r.est_aligned for r in results], run_dir / "plots" / "xyz.png")
+    plot_trajectories(ref, [r.est_aligned for r in results], run_dir / "plots" / "trajectories.png")
+    images = [run_dir / "plots" / "xyz.png", run_dir / "plots" / "trajectories.png"]
+    for res in results:
+        p = run_dir / "plots" / f"ape_{res.name}.png"
+        plot_errors(res.ref, res.est_aligned, res.ape_trans, p, what="APE translation (m)")
+        images.append(p)
+    return images
+
+
+def _metrics_json(
+    ref_path: Path,
+    results: list[EstimateResult],
+    table: list[dict[str, Any]],
+    notes: tuple[str, ...],
+) -> dict[str, Any]:
+    return {
+        "kind": "eval",
+        "reference": str(ref_path),
+        "estimates": {
+            res.name: {
+                "matched": res.n_matched,
+                "alignment": {
+                    "method": res.alignment.method,
+                    "R": res.alignment.R.as_matrix(),
+                    "t": res.alignment.t,
+                    "s": res.alignment.s,
+                    "n_used": res.alignment.n_used,
+                },
+                **res.metrics,
+            }
+            for res in results
+        },
+        "notes": list(notes),
+        "table": table,
+    }
 
 
 def _report_table(rows: list[dict[str, Any]], caption: str = "") -> ReportTable:
     headers = list(dict.fromkeys(k for row in rows for k in row))
     return ReportTable(caption, headers, [[row.get(h, "") for h in headers] for row in rows])
-
-
-def compare_runs(run_dirs: list[Path]) -> list[dict[str, Any]]:
-    """The summary rows of several run folders in one table (each run's ``metrics.json``)."""
-    rows: list[dict[str, Any]] = []
-    for d in run_dirs:
-        f = Path(d) / "metrics.json"
-        if not f.is_file():
-            raise IoError(f"{d}: not a quadnav run folder (no metrics.json)")
-        try:
-            data = json.loads(f.read_text(encoding="utf-8"))
-        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-            raise IoError(f"{f}: not valid JSON: {exc}") from None
-        table = data.get("table") if isinstance(data, dict) else None
-        if not isinstance(table, list):
-            raise IoError(f"{f}: has no summary table")
-        for row in table:
-            rows.append({"run": Path(d).name, **row})
-    return rows
-
-
-def format_table(rows: list[dict[str, Any]], fmt: Literal["markdown", "csv"] = "markdown") -> str:
-    """Rows as a markdown or CSV table (columns in order of first appearance)."""
-    headers = list(dict.fromkeys(k for row in rows for k in row))
-
-    def cell(v: Any) -> str:
-        if isinstance(v, float):
-            return "nan" if math.isnan(v) else f"{v:.6g}"
-        return "" if v is None else str(v)
-
-    if fmt == "csv":
-        import csv
-        import io
-
-        buf = io.StringIO()
-        w = csv.writer(buf, lineterminator="\n")
-        w.writerow(headers)
-        for row in rows:
-            w.writerow([cell(row.get(h)) for h in headers])
-        return buf.getvalue()
-    lines = ["| " + " | ".join(headers) + " |", "|" + "|".join("---" for _ in headers) + "|"]
-    lines += ["| " + " | ".join(cell(row.get(h)) for h in headers) + " |" for row in rows]
-    return "\n".join(lines) + "\n"

@@ -19,11 +19,14 @@ __all__ = [
     "PoseRelation",
     "RpeUnit",
     "ape",
+    "ape_matrices",
     "error_stats",
     "nees",
     "nis",
+    "pose_errors",
     "position_nees",
     "rpe",
+    "rpe_matrices",
     "rpe_pairs",
 ]
 
@@ -50,9 +53,14 @@ def error_stats(errors: FloatArray) -> dict[str, float]:
 
 
 def _rotation_angle(R: FloatArray) -> FloatArray:
-    """Angle (rad) of rotation matrices (..., 3, 3), from the trace, clipped for round-off."""
-    c = (np.trace(R, axis1=-2, axis2=-1) - 1.0) / 2.0
-    return np.asarray(np.arccos(np.clip(c, -1.0, 1.0)), dtype=np.float64)
+    """Angle (rad) of rotation matrices (N, 3, 3): ``atan2(|sin|, cos)`` from the skew part and
+    the trace, accurate at small angles (where the trace's arccos is not); agrees with evo's
+    rotation-vector norm to round-off."""
+    s = 0.5 * np.stack(
+        [R[:, 2, 1] - R[:, 1, 2], R[:, 0, 2] - R[:, 2, 0], R[:, 1, 0] - R[:, 0, 1]], axis=1
+    )
+    c = 0.5 * (np.trace(R, axis1=-2, axis2=-1) - 1.0)
+    return np.asarray(np.arctan2(np.linalg.norm(s, axis=1), c), dtype=np.float64)
 
 
 def _relation(E: FloatArray, relation: PoseRelation) -> FloatArray:
@@ -74,24 +82,38 @@ def _inv_se3(T: FloatArray) -> FloatArray:
     return out
 
 
+def ape_matrices(ref: Trajectory, est: Trajectory) -> FloatArray:
+    """Absolute error poses ``E_i = Q_i^-1 P_i`` (N, 4, 4) of matched trajectories."""
+    if len(ref) != len(est):
+        raise EvalError("APE needs matched trajectories of equal length; associate them first")
+    return np.asarray(_inv_se3(ref.matrices()) @ est.matrices(), dtype=np.float64)
+
+
+def pose_errors(E: FloatArray, relation: PoseRelation) -> FloatArray:
+    """Per-pose error of error poses ``E`` (N, 4, 4): translation norm (m), rotation angle
+    (rad) or ``|E - I|`` (full), as evo's pose relations."""
+    return _relation(E, relation)
+
+
 def ape(ref: Trajectory, est: Trajectory, relation: PoseRelation = "trans") -> FloatArray:
     """Absolute pose error per matched pose (metres, radians, or unitless for ``full``)."""
     if len(ref) != len(est):
         raise EvalError("APE needs matched trajectories of equal length; associate them first")
     if relation == "trans":
         return np.asarray(np.linalg.norm(ref.p_W_B - est.p_W_B, axis=1), dtype=np.float64)
-    E = np.einsum("nij,njk->nik", _inv_se3(ref.matrices()), est.matrices())
-    return _relation(E, relation)
+    return _relation(ape_matrices(ref, est), relation)
 
 
 def rpe_pairs(
     traj: Trajectory, delta: float, unit: RpeUnit, *, all_pairs: bool = False, rel_tol: float = 0.1
 ) -> tuple[IntArray, IntArray]:
-    """Index pairs (i, j) a ``delta`` apart (evo's rules).
+    """Index pairs (i, j) a ``delta`` apart, by the rules of evo 1.38.1.
 
-    Consecutive pairs chain from each pair's end to the next; with ``all_pairs`` every pose
-    starts a pair. In metres the distance is the path travelled; all-pairs accepts a pair
-    whose path is within ``rel_tol * delta`` of ``delta``.
+    Frames: consecutive pairs ``(0, d), (d, 2d), ...``; all pairs ``(i, i + d)``. Metres (the path
+    travelled): consecutive pairs chain from the first pose, each ending where the path since the
+    previous end first reaches ``delta``; all pairs take, for each start, the first end whose path
+    is nearest ``delta``, kept when within ``rel_tol * delta``. Seconds (which evo lacks) work
+    like metres on the time since the first pose.
     """
     n = len(traj)
     if delta <= 0:
@@ -105,43 +127,79 @@ def rpe_pairs(
             return i, i + step
         ids = np.arange(0, n, step)
         return ids[:-1], ids[1:]
-    dist: NDArray[np.float64] | NDArray[np.int64]
     if unit == "metres":
-        steps = np.linalg.norm(np.diff(traj.p_W_B, axis=0), axis=1) if n > 1 else np.zeros(0)
-        dist = np.concatenate([[0.0], np.cumsum(steps)])
-    elif unit == "seconds":
+        p = traj.p_W_B
+        steps = np.linalg.norm(p[:-1] - p[1:], axis=1) if n > 1 else np.zeros(0)
+        if not all_pairs:
+            return _chain_pairs(steps.tolist(), delta)
+        return _nearest_pairs(np.concatenate([[0.0], np.cumsum(steps)]), delta, rel_tol * delta)
+    if unit == "seconds":
         if not traj.timed:
             raise EvalError("an RPE delta in seconds needs timestamps")
         # Integer nanoseconds, so 0.3 s steps are not lost to float round-off.
-        dist = traj.t_ns - traj.t_ns[0]
-        delta = round(delta * 1e9)
-    else:
-        raise EvalError(f"unknown RPE unit {unit!r}; choose frames, seconds or metres")
-    if all_pairs:
-        tol = rel_tol * delta
-        i = np.arange(n)
-        j = np.searchsorted(dist, dist + delta)  # first index at or beyond delta
-        j_lo = np.clip(j - 1, 0, n - 1)
-        j_hi = np.clip(j, 0, n - 1)
-        pick = np.where(
-            np.abs(dist[j_hi] - dist - delta) <= np.abs(dist[j_lo] - dist - delta), j_hi, j_lo
-        )
-        ok = (pick > i) & (np.abs(dist[pick] - dist - delta) <= tol)
-        return i[ok], pick[ok]
-    chain: list[int] = []
-    start = dist[0]
-    k = 0
-    # Consecutive: the first index whose distance from the previous id (or the start) reaches delta.
-    while True:
-        k = int(np.searchsorted(dist, start + delta, side="left"))
-        while k < n and dist[k] - start < delta:
-            k += 1
-        if k >= n:
-            break
-        chain.append(k)
-        start = dist[k]
-    arr = np.array(chain, dtype=np.int64)
+        delta_ns = round(delta * 1e9)
+        if not all_pairs:
+            return _chain_pairs(np.diff(traj.t_ns).tolist(), delta_ns)
+        return _nearest_pairs(traj.t_ns - traj.t_ns[0], delta_ns, round(rel_tol * delta_ns))
+    raise EvalError(f"unknown RPE unit {unit!r}; choose frames, seconds or metres")
+
+
+def _chain_pairs(steps: list[float] | list[int], delta: float) -> tuple[IntArray, IntArray]:
+    """Consecutive pairs from pose 0: a pose ends a pair when the sum of the steps since the
+    previous end reaches ``delta`` (evo's ``filter_pairs_by_path``, same float sums)."""
+    ids = [0]
+    acc: float = 0
+    for k, step in enumerate(steps, start=1):
+        acc += step
+        if acc >= delta:
+            ids.append(k)
+            acc = 0
+    arr = np.array(ids, dtype=np.int64)
     return arr[:-1], arr[1:]
+
+
+def _nearest_pairs(
+    dist: FloatArray | IntArray, delta: float, tol: float
+) -> tuple[IntArray, IntArray]:
+    """For each start i < n - 1, the first j > i minimising ``|(dist[j] - dist[i]) - delta|``
+    (evo's all-pairs ``argmin``, ties to the earlier pose), kept when within ``tol``."""
+    n = len(dist)
+    if n < 2:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    i = np.arange(n - 1)
+    j = np.searchsorted(dist, dist[i] + delta)
+    # The optimum is next to the crossing; round-off can move it by one, so look at four.
+    cand = np.clip(j[:, None] + np.arange(-2, 2), i[:, None] + 1, n - 1)
+    # A standstill repeats a distance: its first pose (after i) is the one argmin finds.
+    cand = np.maximum(np.searchsorted(dist, dist[cand], side="left"), i[:, None] + 1)
+    err = np.abs((dist[cand] - dist[i][:, None]) - delta)
+    best = np.lexsort((cand, err), axis=-1)[:, 0]  # least error, then earliest pose
+    ok = err[i, best] <= tol
+    return i[ok], cand[i, best][ok]
+
+
+def rpe_matrices(
+    ref: Trajectory,
+    est: Trajectory,
+    *,
+    delta: float = 1.0,
+    unit: RpeUnit = "frames",
+    all_pairs: bool = False,
+    pairs_from: Literal["estimate", "reference"] = "estimate",
+) -> tuple[FloatArray, IntArray]:
+    """Relative error poses ``E = (Q_i^-1 Q_j)^-1 (P_i^-1 P_j)`` (M, 4, 4) over the pairs of
+    :func:`rpe_pairs`, and each pair's end index ``j``."""
+    if len(ref) != len(est):
+        raise EvalError("RPE needs matched trajectories of equal length; associate them first")
+    i, j = rpe_pairs(est if pairs_from == "estimate" else ref, delta, unit, all_pairs=all_pairs)
+    if len(i) == 0:
+        raise EvalError(
+            f"RPE delta {delta} {unit} gives no pairs on a trajectory of {len(est)} poses"
+        )
+    Q, P = ref.matrices(), est.matrices()
+    Q_rel = _inv_se3(Q[i]) @ Q[j]
+    P_rel = _inv_se3(P[i]) @ P[j]
+    return np.asarray(_inv_se3(Q_rel) @ P_rel, dtype=np.float64), j
 
 
 def rpe(
@@ -155,17 +213,9 @@ def rpe(
     pairs_from: Literal["estimate", "reference"] = "estimate",
 ) -> tuple[FloatArray, IntArray]:
     """Relative pose error per pair, and each pair's end index (for plotting against time)."""
-    if len(ref) != len(est):
-        raise EvalError("RPE needs matched trajectories of equal length; associate them first")
-    i, j = rpe_pairs(est if pairs_from == "estimate" else ref, delta, unit, all_pairs=all_pairs)
-    if len(i) == 0:
-        raise EvalError(
-            f"RPE delta {delta} {unit} gives no pairs on a trajectory of {len(est)} poses"
-        )
-    Q, P = ref.matrices(), est.matrices()
-    Q_rel = np.einsum("nij,njk->nik", _inv_se3(Q[i]), Q[j])
-    P_rel = np.einsum("nij,njk->nik", _inv_se3(P[i]), P[j])
-    E = np.einsum("nij,njk->nik", _inv_se3(Q_rel), P_rel)
+    E, j = rpe_matrices(
+        ref, est, delta=delta, unit=unit, all_pairs=all_pairs, pairs_from=pairs_from
+    )
     return _relation(E, relation), j
 
 

@@ -1,7 +1,11 @@
 """Files, folders and (later) links: configs, run folders, trajectory formats."""
 
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
+
 from quadnav.errors import ConfigError, IoError
-from quadnav.io.config import apply_override, dump_config, load_config
 from quadnav.io.run_folder import create_run_folder, write_csv, write_json, write_text
 from quadnav.io.trajectory_io import (
     guess_format,
@@ -11,6 +15,9 @@ from quadnav.io.trajectory_io import (
     write_trajectory,
     write_tum,
 )
+
+if TYPE_CHECKING:  # configs (yaml, config models) load on first use: eval needs none of them
+    from quadnav.io.config import apply_override, dump_config, load_config
 
 __all__ = [
     "ConfigError",
@@ -29,3 +36,11 @@ __all__ = [
     "write_trajectory",
     "write_tum",
 ]
+
+
+def __getattr__(name: str) -> Any:
+    if name in ("apply_override", "dump_config", "load_config"):
+        value = getattr(importlib.import_module("quadnav.io.config"), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

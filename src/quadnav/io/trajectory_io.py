@@ -18,7 +18,7 @@ from scipy.spatial.transform import Rotation
 
 from quadnav.errors import GeometryError, IoError
 from quadnav.geometry.trajectory import Trajectory
-from quadnav.io.run_folder import write_text
+from quadnav.io.run_folder import require_complete, write_text
 
 __all__ = [
     "TrajectoryFormat",
@@ -39,7 +39,8 @@ TrajectoryFormat = Literal["tum", "euroc", "kitti", "quadnav", "rosbag", "ulog"]
 FORMATS: tuple[str, ...] = get_args(TrajectoryFormat)
 
 
-def _read_lines(path: Path) -> list[str]:
+def _read_lines(path: Path, *, head_bytes: int | None = None) -> list[str]:
+    """The lines of a text file, or only those in its first ``head_bytes`` (whole lines)."""
     if not path.exists():
         raise IoError(f"trajectory file not found: {path}")
     if path.is_dir():
@@ -47,7 +48,13 @@ def _read_lines(path: Path) -> list[str]:
             f"{path} is a folder, not a trajectory file (a ROS 2 bag? use --format rosbag)"
         )
     try:
-        return path.read_text(encoding="utf-8").splitlines()
+        if head_bytes is None:
+            return path.read_text(encoding="utf-8").splitlines()
+        with path.open("rb") as f:
+            data = f.read(head_bytes)
+        if len(data) == head_bytes and b"\n" in data:
+            data = data[: data.rindex(b"\n")]  # no cut line (or cut character)
+        return data.decode("utf-8").splitlines()
     except UnicodeDecodeError:
         raise IoError(f"{path}: not a text file (wrong --format?)") from None
     except OSError as exc:
@@ -129,13 +136,71 @@ def _build(path: Path, **kwargs: object) -> Trajectory:
         raise IoError(f"{path}: {exc}") from None
 
 
+def _first_of_repeats(
+    path: Path, numbers: list[int], t: NDArray[np.int64], v: FloatArray
+) -> tuple[NDArray[np.int64], FloatArray, dict[str, str]]:
+    """Keep the first pose of each run of equal timestamps (evo reads such files); the count
+    and the first repeated line go into the trajectory's ``meta``."""
+    repeat = np.concatenate([[False], np.diff(t) == 0]) if len(t) > 1 else np.zeros(len(t), bool)
+    n = int(repeat.sum())
+    if n == 0:
+        return t, v, {}
+    line = numbers[int(np.argmax(repeat))]
+    note = (
+        f"{path.name}: {n} pose(s) repeat the timestamp of the line before (first at line "
+        f"{line}); kept the first of each"
+    )
+    return t[~repeat], v[~repeat], {"repeated_timestamps": str(n), "note": note}
+
+
+def _tum_fast(lines: list[str]) -> tuple[list[int], NDArray[np.int64], FloatArray] | None:
+    """Line numbers, times and values of a well-formed TUM file in bulk, or None (then the
+    line-by-line reader finds and names the bad line)."""
+    numbers, rows = [], []
+    for k, raw in enumerate(lines, start=1):
+        tokens = raw.split()
+        if not tokens or tokens[0][0] in "#%":
+            continue
+        if len(tokens) != 8:
+            return None
+        numbers.append(k)
+        rows.append(tokens)
+    whole, frac = [], []
+    for r in rows:
+        w, _, f = r[0].partition(".")
+        whole.append(w)
+        frac.append(f.ljust(9, "0"))
+    plain = all(w.isascii() and w.isdigit() and len(w) <= 10 for w in whole) and all(
+        len(f) == 9 and f.isascii() and f.isdigit() for f in frac
+    )
+    if not rows or not plain:
+        return None
+    try:
+        v = np.array([r[1:] for r in rows], dtype=np.float64)
+    except ValueError:
+        return None
+    if not np.isfinite(v).all():
+        return None
+    t = np.array(whole, dtype=np.int64) * 1_000_000_000 + np.array(frac, dtype=np.int64)
+    return numbers, t, v
+
+
 def read_tum(path: Path) -> Trajectory:
-    """TUM RGB-D format: ``t x y z qx qy qz qw`` per line, time in seconds."""
+    """TUM RGB-D format: ``t x y z qx qy qz qw`` per line, time in seconds. A pose whose
+    timestamp repeats the one before is left out and counted (``meta``)."""
     path = Path(path)
-    numbers, rows = _rows(path, _read_lines(path), 8, sep=None)
-    t = np.array([_seconds_to_ns(r[0], f"{path}:{k}") for k, r in zip(numbers, rows, strict=True)])
-    v = _floats(path, numbers, rows, slice(1, 8))
-    return _build(path, t_ns=t, p_W_B=v[:, 0:3], q_W_B_xyzw=v[:, 3:7], name=path.stem)
+    lines = _read_lines(path)
+    fast = _tum_fast(lines)
+    if fast is not None:
+        numbers, t, v = fast
+    else:
+        numbers, rows = _rows(path, lines, 8, sep=None)
+        t = np.array(
+            [_seconds_to_ns(r[0], f"{path}:{k}") for k, r in zip(numbers, rows, strict=True)]
+        )
+        v = _floats(path, numbers, rows, slice(1, 8))
+    t, v, meta = _first_of_repeats(path, numbers, t, v)
+    return _build(path, t_ns=t, p_W_B=v[:, 0:3], q_W_B_xyzw=v[:, 3:7], name=path.stem, meta=meta)
 
 
 def read_euroc(path: Path) -> Trajectory:
@@ -227,7 +292,7 @@ def guess_format(path: Path) -> TrajectoryFormat:
         return "ulog"
     if suffix in (".bag", ".db3", ".mcap") or (path.is_dir() and (path / "metadata.yaml").exists()):
         return "rosbag"
-    lines = _read_lines(path)
+    lines = _read_lines(path, head_bytes=65536)
     first = next((ln.strip() for ln in lines if ln.strip()), "")
     if first.startswith("t_ns"):
         return "quadnav"
@@ -248,8 +313,10 @@ def guess_format(path: Path) -> TrajectoryFormat:
 
 
 def read_trajectory(path: Path, fmt: str | None = None, *, topic: str | None = None) -> Trajectory:
-    """Read a trajectory in any supported format (guessed when ``fmt`` is ``None``)."""
+    """Read a trajectory in any supported format (guessed when ``fmt`` is ``None``). A file
+    of a run folder that is not marked complete (interrupted, failed) is refused."""
     path = Path(path)
+    require_complete(path)
     if fmt is None:
         fmt = guess_format(path)
     if fmt not in FORMATS:
@@ -272,27 +339,25 @@ def read_trajectory(path: Path, fmt: str | None = None, *, topic: str | None = N
 
 
 def _ns_to_seconds(t_ns: NDArray[np.int64]) -> list[str]:
-    out = []
-    for t in t_ns.tolist():
-        sign = "-" if t < 0 else ""
-        a = abs(t)
-        out.append(f"{sign}{a // 1_000_000_000}.{a % 1_000_000_000:09d}")
-    return out
+    """Exact decimal seconds, ``-1.500000000`` for -1.5 s."""
+    whole, ns = np.divmod(np.abs(t_ns), 1_000_000_000)
+    sign = np.where(t_ns < 0, "-", "").tolist()
+    return [
+        "%s%d.%09d" % x  # noqa: UP031 - one format per line, 3x faster than an f-string
+        for x in zip(sign, whole.tolist(), ns.tolist(), strict=True)
+    ]
 
 
 def _table(prefix: list[str], values: FloatArray, sep: str) -> str:
-    body = [
-        sep.join([pre, *(f"{x:.9g}" for x in row)]) for pre, row in zip(prefix, values, strict=True)
-    ]
+    line = sep.join(["%s", *["%.9g"] * values.shape[1]])  # one format per line: 4x faster
+    body = [line % (pre, *row) for pre, row in zip(prefix, values.tolist(), strict=True)]
     return "\n".join(body) + ("\n" if body else "")
 
 
 def write_tum(path: Path, traj: Trajectory) -> None:
     """TUM: ``t x y z qx qy qz qw``, time in seconds written exactly from ``t_ns``."""
-    write_text(
-        Path(path),
-        _table(_ns_to_seconds(traj.t_ns), np.column_stack([traj.p_W_B, traj.q_W_B_xyzw]), " "),
-    )
+    values = np.column_stack([traj.p_W_B, traj.q_W_B_xyzw])
+    write_text(Path(path), _table(_ns_to_seconds(traj.t_ns), values, " "))
 
 
 def write_euroc(path: Path, traj: Trajectory) -> None:
