@@ -42,3 +42,12 @@ def test_a_complete_run_reads(tmp_path: Path) -> None:
     assert len(read_trajectory(d / "handled" / "output.tum").t_ns) == 5
     (row,) = run_rows(d)
     assert row.note == "" and row.cells["rmse"] == 1.0
+
+
+def test_a_table_shows_why_a_metric_is_missing(tmp_path: Path) -> None:
+    d = create_run_folder(tmp_path, "short")
+    why = "n/a: run not longer than the delay: the delayed horizon never moved (a long reason)"
+    write_json(d / "metrics.json", {"kind": "planar", "table": [{"experiment": "x", "rmse": why}]})
+    finish_run_folder(d)
+    (row,) = run_rows(d)
+    assert row.cells["rmse"] == why

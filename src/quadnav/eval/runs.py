@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
+from quadnav.eval.na import is_na
 from quadnav.io.run_folder import read_run_status
 
 __all__ = ["Cell", "RunRow", "compare_runs", "format_table", "run_rows"]
@@ -42,6 +43,8 @@ def _flat(data: dict[str, object]) -> dict[str, Cell]:
             continue
         if isinstance(v, bool):
             out[k] = str(v).lower()
+        elif isinstance(v, str) and is_na(v):
+            out[k] = v  # a metric that says why it is missing, however long the reason
         elif (
             isinstance(v, int | float)
             or v is None
