@@ -8,8 +8,10 @@ from typing import Any, Literal, Self
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 from scipy.spatial.transform import Rotation
 
+from quadnav.errors import VisionError
 from quadnav.geometry.rotations import Pose
-from quadnav.vision.markers import CharucoSpec
+from quadnav.vision.calibration import BoardNames, charuco_board_problem
+from quadnav.vision.markers import CharucoSpec, get_dictionary
 from quadnav.vision.pipeline import MapBoard, MapMarker, MarkerMap
 from quadnav.vision.pose import mount_pose
 
@@ -110,7 +112,27 @@ class MarkersConfig(_Section):
             raise ValueError("target=map needs map_markers or map_boards")
         if self.charuco.marker_m >= self.charuco.square_m:
             raise ValueError("charuco.marker_m must be smaller than charuco.square_m")
+        if problem := self._board_problem():
+            raise ValueError(problem)
         return self
+
+    def _board_problem(self) -> str | None:
+        """The dictionary, the world marker's id and each board, in the configuration's keys."""
+        try:
+            size = int(get_dictionary(self.dictionary).bytesList.shape[0])
+        except VisionError as exc:
+            return f"dictionary: {exc}"
+        ids = [("marker_id", self.marker_id)] + [(f"map_markers[{i}].id", m.id) for i, m in enumerate(self.map_markers)]  # fmt: skip
+        for key, i in ids:
+            if i is not None and i >= size:
+                return f"{key} ({i}) is not in {self.dictionary} (ids 0 to {size - 1})"
+        boards = [("charuco", self.charuco)] if self.target == "charuco" else []
+        boards += [(f"map_boards[{i}].charuco", b.charuco) for i, b in enumerate(self.map_boards)]
+        for key, c in boards:
+            names = BoardNames(f"{key}.squares_x", f"{key}.squares_y", f"{key}.square_m", f"{key}.marker_m", "dictionary")  # fmt: skip
+            if problem := charuco_board_problem((c.squares_x, c.squares_y), c.square_m, c.marker_m, self.dictionary, names):  # fmt: skip
+                return problem
+        return None
 
     def T_B_C(self) -> Pose:
         return mount_pose(self.mount_rpy_deg, self.mount_xyz_m)
@@ -169,14 +191,24 @@ def from_thesis_vision_params(values: dict[str, Any]) -> tuple[dict[str, Any], l
         ("write_images", "write_images", _thesis_bool),
     ):
         if theirs in values:
-            out[ours] = cast(values[theirs])
+            out[ours] = _thesis_value(values, theirs, cast)
             used.add(theirs)
     if values.get("charuco"):
         out["target"] = "charuco"
         out["charuco"] = {
-            "squares_x": int(values.get("squaresX", 12)),
-            "squares_y": int(values.get("squaresY", 17)),
-            "square_m": float(values.get("squareLength", 0.066)),
-            "marker_m": float(values.get("markerLength", 0.0397)),
+            "squares_x": _thesis_value(values, "squaresX", int, 12),
+            "squares_y": _thesis_value(values, "squaresY", int, 17),
+            "square_m": _thesis_value(values, "squareLength", float, 0.066),
+            "marker_m": _thesis_value(values, "markerLength", float, 0.0397),
         }
     return out, sorted(set(values) - used)
+
+
+def _thesis_value(values: dict[str, Any], key: str, cast: Any, default: Any = None) -> Any:
+    """``values[key]`` read as ``cast`` wants; a value it cannot read names the thesis key."""
+    value = values.get(key, default)
+    try:
+        return cast(value)
+    except (TypeError, ValueError):
+        what = {int: "a whole number", float: "a number", str: "a file name"}.get(cast, "a flag")
+        raise VisionError(f"{key} must be {what}, got {value!r}") from None
