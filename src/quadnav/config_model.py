@@ -19,6 +19,8 @@ __all__ = [
     "MAX_DELAY_S",
     "MAX_DURATION_S",
     "MAX_RATE_HZ",
+    "MAX_SIM_STEPS",
+    "MIN_SIGMA",
     "ConfigModel",
     "check_finite_mapping",
 ]
@@ -31,6 +33,11 @@ MAX_DURATION_S = 3600.0
 MAX_DELAY_S = 10.0
 #: The fastest sensor or log rate.
 MAX_RATE_HZ = 100_000.0
+#: The most simulation steps one run may take (its arrays are sized by them).
+MAX_SIM_STEPS = 10_000_000
+#: The smallest standard deviation a filter is told of: below it the covariances it inverts
+#: underflow (a micrometre, a microradian).
+MIN_SIGMA = 1e-6
 
 
 def _numbers(value: Any, path: str) -> Iterator[tuple[str, float]]:

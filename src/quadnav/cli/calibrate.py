@@ -10,13 +10,26 @@ import typer
 from rich.table import Table
 
 from quadnav.cli.common import console, handle_errors, progress_bar
-from quadnav.errors import ConfigError
+from quadnav.errors import ConfigError, VisionError
 from quadnav.io.frames import open_frames, quiet_libraries
 from quadnav.io.opencv_yaml import write_camera_yaml
-from quadnav.vision.calibration import Calibration, calibrate_charuco
+from quadnav.vision.calibration import (
+    BoardNames,
+    Calibration,
+    calibrate_charuco,
+    charuco_board_problem,
+)
 from quadnav.vision.markers import CharucoDetections, CharucoSpec, CharucoTarget
 
 __all__ = ["calibrate_command", "calibrate_source"]
+
+_OPTIONS = BoardNames(
+    squares_x="--squares",
+    squares_y="--squares",
+    square_m="--square-m",
+    marker_m="--marker-m",
+    dictionary="--dictionary",
+)
 
 
 def calibrate_source(
@@ -47,7 +60,10 @@ def calibrate_source(
         raise ConfigError(f"{source}: no readable image")
     views.sort(key=lambda v: -len(v[1].corner_ids))
     chosen = sorted(views[:max_views])
-    return calibrate_charuco([d for _, d in chosen], target, size), n, skipped
+    try:
+        return calibrate_charuco([d for _, d in chosen], target, size), n, skipped
+    except VisionError as exc:
+        raise VisionError(f"{source}: {exc}") from None
 
 
 @handle_errors
@@ -72,6 +88,12 @@ def calibrate_command(
 
       quadnav calibrate calibration_images/ --out camera.yml
     """
+    problem = charuco_board_problem(squares, square_m, marker_m, dictionary, _OPTIONS)
+    if problem:
+        raise ConfigError(problem)
+    if out.is_dir() or not out.parent.is_dir():
+        why = "is a folder" if out.is_dir() else f"there is no folder {out.parent}"
+        raise ConfigError(f"--out {out}: cannot write the calibration there ({why})")
     spec = CharucoSpec(squares[0], squares[1], square_m, marker_m, dictionary)
     with progress_bar("calibrate") as update, quiet_libraries():
         cal, n, skipped = calibrate_source(source, spec, every=every, progress=update)

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import os
 import time
 from pathlib import Path
 from typing import Annotated, Any
@@ -10,9 +11,9 @@ from typing import Annotated, Any
 import typer
 
 from quadnav.cli.common import check_range, command_help, console, handle_errors, progress_bar
-from quadnav.errors import IoError
+from quadnav.errors import ConfigError, IoError
 from quadnav.io.serial_frame import encode
-from quadnav.io.trajectory_io import read_trajectory
+from quadnav.io.trajectory_io import FORMATS, read_trajectory
 
 __all__ = ["EXAMPLES", "check_example", "link_app"]
 
@@ -28,19 +29,23 @@ def open_serial(port: str, baud: int) -> object:
     try:
         return serial.Serial(port, baudrate=baud, bytesize=8, parity="N", stopbits=1, timeout=0.1)
     except (serial.SerialException, OSError, ValueError) as exc:
-        raise IoError(f"serial port {port}: {exc}") from None
+        errno = getattr(exc, "errno", None)  # pyserial's own text repeats the errno and port
+        why = os.strerror(errno) if isinstance(errno, int) else str(exc)
+        raise IoError(f"serial port {port}: {why}") from None
 
 
-def _check_options(baud: int, rate_hz: float) -> None:
+def _check_options(baud: int, rate_hz: float, fmt: str | None) -> None:
     check_range(baud, "--baud", MIN_BAUD, MAX_BAUD, "bits per second")
     check_range(
         rate_hz, "--rate", 0.0, MAX_RATE_HZ, "frames per second (0: as fast as the link takes)"
     )
+    if fmt is not None and fmt not in FORMATS:
+        raise ConfigError(f"--format must be one of {', '.join(FORMATS)}, got {fmt!r}")
 
 
 def check_example(params: dict[str, Any]) -> None:
     """Validate an example's options as the command would, without opening the port."""
-    _check_options(params["baud"], params["rate_hz"])
+    _check_options(params["baud"], params["rate_hz"], params["fmt"])
 
 
 #: The examples of ``quadnav link serial --help`` (each parsed and validated by the tests).
@@ -71,9 +76,16 @@ def serial_command(
             help=f"frames per second, at most {MAX_RATE_HZ:g} (0: as fast as the link takes)",
         ),
     ] = 10.0,
+    fmt: Annotated[
+        str | None,
+        typer.Option("--format", help=f"format of --from: {', '.join(FORMATS)} [default: guessed]"),
+    ] = None,
 ) -> None:
-    _check_options(baud, rate_hz)
-    traj = read_trajectory(source)
+    _check_options(baud, rate_hz, fmt)
+    try:
+        traj = read_trajectory(source, fmt)
+    except IoError as exc:
+        raise IoError(f"--from: {exc}") from None
     link = open_serial(port, baud)
     period = 1.0 / rate_hz if rate_hz > 0 else 0.0
     sent = 0

@@ -20,7 +20,7 @@ from rich.table import Table
 
 from quadnav.cli.common import command_help, console, err_console, handle_errors, progress_bar
 from quadnav.cli.planar import OutOpt, SetOpt
-from quadnav.errors import ConfigError, IoError
+from quadnav.errors import ConfigError, IoError, VisionError
 from quadnav.eval.report import ReportSection, ReportTable, write_report
 from quadnav.io.config import dump_config, load_config
 from quadnav.io.frames import (
@@ -33,7 +33,7 @@ from quadnav.io.frames import (
     quiet_libraries,
 )
 from quadnav.io.mavlink import check_bind
-from quadnav.io.opencv_yaml import read_camera_yaml, read_opencv_yaml
+from quadnav.io.opencv_yaml import opencv_error_text, read_camera_yaml, read_opencv_yaml
 from quadnav.io.run_folder import CsvAppender, create_run_folder, write_json, write_text
 from quadnav.vision.camera import PinholeCamera
 from quadnav.vision.config import MarkersConfig, from_thesis_vision_params
@@ -63,7 +63,10 @@ def load_markers_config(
     """Our YAML, or thesis 000's OpenCV-YAML ``vision_params.yml`` (keys mapped; the ones
     that mean nothing here are returned for a note)."""
     if params is not None and params.is_file() and params.read_bytes()[:9] == b"%YAML:1.0":
-        base, ignored = from_thesis_vision_params(read_opencv_yaml(params))
+        try:
+            base, ignored = from_thesis_vision_params(read_opencv_yaml(params))
+        except VisionError as exc:
+            raise ConfigError(f"{params}: {exc}") from None
         if "camera_file" in base and not (params.parent / base["camera_file"]).is_file():
             del base["camera_file"]  # the thesis's relative path points into its own tree
         elif "camera_file" in base:
@@ -307,6 +310,7 @@ def run_markers(
     values: dict[str, Any] = read_opencv_yaml(cfg.detector_file) if cfg.detector_file else {}
     values.update(cfg.detector)
     det_params, unknown = detector_parameters(values)
+    _check_detector(cfg, det_params)
     with quiet_libraries():
         frames = open_frames(source, fps=cfg.fps, request=_capture_request(cfg), open_camera=open_camera)  # fmt: skip
         camera, cal_note = fit_calibration(camera, frames.size or (camera.width, camera.height))
@@ -338,6 +342,21 @@ def run_markers(
     write_json(run_dir / "metrics.json", _metrics(stats))
     _write_report(run_dir, cfg, frames, done, stats)
     return stats
+
+
+def _check_detector(cfg: MarkersConfig, det_params: Any) -> None:
+    """OpenCV checks detector parameters only when it detects: try them on a blank image, so
+    a bad value is a one-line error naming the user's key before any work."""
+    try:
+        detector = cv2.aruco.ArucoDetector(get_dictionary(cfg.dictionary), det_params)
+        detector.detectMarkers(np.zeros((16, 16), np.uint8))
+    except cv2.error as exc:
+        where = (
+            f"detector (or detector_file {cfg.detector_file})" if cfg.detector_file else "detector"
+        )
+        raise ConfigError(
+            f"{where}: OpenCV refuses these parameters ({opencv_error_text(exc)})"
+        ) from None
 
 
 def _jitter(pos: np.ndarray, frame_idx: list[int]) -> np.ndarray:
@@ -505,7 +524,8 @@ def _resolve(mavlink: str | None, allow_remote: bool, set_: list[str] | None, ca
     overrides = list(set_ or [])
     if camera is not None:
         if not camera.is_file():
-            raise IoError(f"{camera}: no such file")
+            why = "is a folder, not a calibration file" if camera.is_dir() else "no such file"
+            raise IoError(f"--camera {camera}: {why}")
         overrides.append(f"camera_file={camera}")
     overrides += [f"fps={fps}"] if fps is not None else []
     overrides += ["show=true"] if show else []

@@ -18,7 +18,13 @@ from numpy.typing import NDArray
 from pydantic import Field, model_validator
 from scipy.spatial.transform import Rotation
 
-from quadnav.config_model import MAX_DURATION_S, MAX_RATE_HZ, ConfigModel, check_finite_mapping
+from quadnav.config_model import (
+    MAX_DURATION_S,
+    MAX_RATE_HZ,
+    MAX_SIM_STEPS,
+    ConfigModel,
+    check_finite_mapping,
+)
 from quadnav.control.cascaded_pid import CascadedPid, CascadedPidGains, Setpoint
 from quadnav.control.thesis002 import NestedSaturationController, PdController, RefRow
 from quadnav.control.thesis003 import ObstacleAwareWaypointFollower, TakeoffForward
@@ -80,6 +86,15 @@ class BoxSection(ConfigModel):
     min_m: Vec3
     max_m: Vec3
 
+    @model_validator(mode="after")
+    def _ordered(self) -> Self:
+        if not all(a < b for a, b in zip(self.min_m, self.max_m, strict=True)):
+            raise ValueError(
+                f"min_m must be below max_m on every axis, got min_m {list(self.min_m)}, "
+                f"max_m {list(self.max_m)}"
+            )
+        return self
+
 
 class FlightConfig(ConfigModel):
     """A flight scenario: vehicle, controller, trajectory, world, duration, seed."""
@@ -101,7 +116,7 @@ class FlightConfig(ConfigModel):
     tracking_start_s: float = Field(
         0.0, ge=0, le=MAX_DURATION_S, description="tracking RMSE window start"
     )
-    mass_kg: float = Field(1.5, gt=0)
+    mass_kg: float = Field(1.5, ge=0.01, description="kg, 10 g at least")
     frame: Literal["x", "+"] = Field("x", description="rigid body: rotor layout")
     el_pd: dict[str, Any] = Field(default_factory=dict, description="PdController overrides")
     el_nested: dict[str, Any] = Field(
@@ -120,7 +135,20 @@ class FlightConfig(ConfigModel):
                 "cascaded_pid, takeoff_forward and waypoint_follower the rigid_body"
             )
         if self.log_rate_hz > 1.0 / self.dt_s:
-            raise ValueError("log_rate_hz is faster than the simulation step")
+            raise ValueError(
+                f"log_rate_hz ({self.log_rate_hz:g} Hz) is faster than the simulation step "
+                f"(dt_s = {self.dt_s:g} s: at most {1.0 / self.dt_s:g} Hz)"
+            )
+        if self.log_rate_hz * self.duration_s < 2.0:
+            raise ValueError(
+                f"log_rate_hz ({self.log_rate_hz:g} Hz) logs fewer than 2 rows in duration_s "
+                f"({self.duration_s:g} s)"
+            )
+        if self.duration_s / self.dt_s > MAX_SIM_STEPS:
+            raise ValueError(
+                f"duration_s / dt_s is {self.duration_s / self.dt_s:.3g} steps, more than "
+                f"{MAX_SIM_STEPS:g}: raise dt_s or shorten duration_s"
+            )
         for key, target in (
             ("el_pd", PdController),
             ("el_nested", NestedSaturationController),
@@ -128,7 +156,40 @@ class FlightConfig(ConfigModel):
         ):
             names = [f.name for f in dataclasses.fields(target) if f.name != "mass_kg"]
             check_finite_mapping(getattr(self, key), key, names)
+        if problem := self._vehicle_problem():
+            raise ValueError(problem)
         return self
+
+    def _vehicle_problem(self) -> str | None:
+        """The vehicle and its controller's gains as run_flight builds them, with what they
+        refuse named by this configuration's keys."""
+        if self.vehicle == "rigid_body":
+            params = RigidBodyParams(config=self.frame)
+            lift_kg = params.max_thrust_n / (1.2 * params.gravity_m_s2)
+            if self.mass_kg > lift_kg:
+                return (
+                    f"mass_kg ({self.mass_kg:g}) is more than the rotors can fly: at most "
+                    f"{lift_kg:.3g} kg (1.2x the weight in thrust)"
+                )
+        key, target = {"pd": ("el_pd", PdController), "nested_saturation": ("el_nested", NestedSaturationController),
+                       "cascaded_pid": ("pid_gains", CascadedPidGains)}.get(self.controller, ("pid_gains", CascadedPidGains))  # fmt: skip
+        gains = dict(getattr(self, key))
+        for f in dataclasses.fields(target):
+            if (
+                f.name in gains
+                and isinstance(f.default, tuple)
+                and not (
+                    isinstance(gains[f.name], list | tuple) and len(gains[f.name]) == len(f.default)
+                )
+            ):
+                return f"{key}.{f.name} must be a list of {len(f.default)} numbers, got {gains[f.name]!r}"  # fmt: skip
+        if target is not CascadedPidGains:
+            gains["mass_kg"] = self.mass_kg
+        try:
+            target(**gains)
+        except (ControlError, TypeError, ValueError) as exc:
+            return f"{key}: {exc}"
+        return None
 
 
 def _ring(kind: str, **kw: Any) -> dict[str, Any]:

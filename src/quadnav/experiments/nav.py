@@ -18,7 +18,14 @@ from numpy.typing import NDArray
 from pydantic import Field, model_validator
 from scipy.spatial.transform import Rotation
 
-from quadnav.config_model import MAX_DELAY_S, MAX_DURATION_S, MAX_RATE_HZ, ConfigModel
+from quadnav.config_model import (
+    MAX_DELAY_S,
+    MAX_DURATION_S,
+    MAX_RATE_HZ,
+    MAX_SIM_STEPS,
+    MIN_SIGMA,
+    ConfigModel,
+)
 from quadnav.control.cascaded_pid import CascadedPid, Setpoint
 from quadnav.control.trajectories import Waypoints
 from quadnav.errors import ExperimentError, SimError
@@ -55,11 +62,14 @@ __all__ = ["NavRunResult", "NavScenario", "ground_alignment", "run_nav"]
 FloatArray = NDArray[np.float64]
 Vec3 = tuple[float, float, float]
 
+#: The range finder's shortest reading (m).
+RANGE_MIN_M = 0.05
+
 
 class ImuSection(ConfigModel):
     rate_hz: float = Field(250.0, gt=0, le=MAX_RATE_HZ)
-    gyro_sigma_rad_s: float = Field(0.005, gt=0, description="white noise per sample")
-    accel_sigma_m_s2: float = Field(0.05, gt=0, description="white noise per sample")
+    gyro_sigma_rad_s: float = Field(0.005, ge=MIN_SIGMA, description="white noise per sample")
+    accel_sigma_m_s2: float = Field(0.05, ge=MIN_SIGMA, description="white noise per sample")
     gyro_bias_rw_rad_s_sqrt_s: float = Field(1e-4, gt=0)
     accel_bias_rw_m_s2_sqrt_s: float = Field(1e-3, gt=0)
     gyro_bias0_sigma_rad_s: float = Field(0.01, ge=0, description="turn-on bias spread")
@@ -83,8 +93,8 @@ class VisionSection(ConfigModel):
     image_noise: float = Field(2.0, ge=0, description="camera: grey-level noise of the images")
     rate_hz: float = Field(30.0, gt=0, le=MAX_RATE_HZ)
     delay_s: float = Field(0.25, ge=0, le=MAX_DELAY_S)
-    sigma_m: float = Field(0.01, gt=0)
-    yaw_sigma_rad: float = Field(0.01, gt=0)
+    sigma_m: float = Field(0.01, ge=MIN_SIGMA)
+    yaw_sigma_rad: float = Field(0.01, ge=MIN_SIGMA)
     dropouts_s: list[tuple[float, float]] = Field(
         default_factory=lambda: [(9.0, 11.0), (15.0, 17.0)],
         description="[start, end) windows with no vision",
@@ -101,7 +111,7 @@ class BaroSection(ConfigModel):
     enabled: bool = True
     rate_hz: float = Field(50.0, gt=0, le=MAX_RATE_HZ)
     delay_s: float = Field(0.02, ge=0, le=MAX_DELAY_S)
-    sigma_m: float = Field(0.1, gt=0)
+    sigma_m: float = Field(0.1, ge=MIN_SIGMA)
     drift_m_sqrt_s: float = Field(0.002, ge=0, description="random-walk drift of the offset")
 
 
@@ -109,8 +119,8 @@ class RangeSection(ConfigModel):
     enabled: bool = False
     rate_hz: float = Field(20.0, gt=0, le=MAX_RATE_HZ)
     delay_s: float = Field(0.01, ge=0, le=MAX_DELAY_S)
-    sigma_m: float = Field(0.02, gt=0)
-    max_m: float = Field(8.0, gt=0)
+    sigma_m: float = Field(0.02, ge=MIN_SIGMA)
+    max_m: float = Field(8.0, gt=RANGE_MIN_M, description=f"above the {RANGE_MIN_M} m it sees")
 
 
 class FaultsSection(ConfigModel):
@@ -135,9 +145,9 @@ class GpsSection(ConfigModel):
     enabled: bool = False
     rate_hz: float = Field(5.0, gt=0, le=MAX_RATE_HZ)
     delay_s: float = Field(0.2, ge=0, le=MAX_DELAY_S)
-    sigma_h_m: float = Field(0.5, gt=0)
-    sigma_v_m: float = Field(0.8, gt=0)
-    sigma_vel_m_s: float = Field(0.1, gt=0)
+    sigma_h_m: float = Field(0.5, ge=MIN_SIGMA)
+    sigma_v_m: float = Field(0.8, ge=MIN_SIGMA)
+    sigma_vel_m_s: float = Field(0.1, ge=MIN_SIGMA)
     datum_lla: tuple[float, float, float] = Field(
         (47.397742, 8.545594, 488.0), description="lat deg, lon deg, alt m"
     )
@@ -163,7 +173,9 @@ class MagSection(ConfigModel):
     rate_hz: float = Field(50.0, gt=0, le=MAX_RATE_HZ)
     declination_rad: float = 0.05
     noise_sigma: float = Field(0.005, ge=0, description="per axis, in the field's unit (gauss)")
-    sigma_heading_rad: float = Field(0.023, gt=0, description="heading noise the filter assumes")
+    sigma_heading_rad: float = Field(
+        0.023, ge=MIN_SIGMA, description="heading noise the filter assumes"
+    )
 
 
 class PlanSection(ConfigModel):
@@ -226,7 +238,10 @@ class NavScenario(ConfigModel):
     @model_validator(mode="after")
     def _check(self) -> Self:
         if self.imu.rate_hz > 1.0 / self.sim_dt_s:
-            raise ValueError("imu.rate_hz is faster than the simulation step")
+            raise ValueError(
+                f"imu.rate_hz ({self.imu.rate_hz:g} Hz) is faster than the simulation step "
+                f"(sim_dt_s = {self.sim_dt_s:g} s: at most {1.0 / self.sim_dt_s:g} Hz)"
+            )
         if not (self.vision.enabled or self.gps.enabled):
             raise ValueError(
                 "vision and gps are both disabled: nothing bounds the horizontal position"
@@ -257,7 +272,31 @@ class NavScenario(ConfigModel):
                 f"the flight would last {self.flight_s:.4g} s, longer than {MAX_DURATION_S:g} s: "
                 "shorten plan.hold_s or plan.square_m, or raise plan.speed_m_s"
             )
+        if problem := self._timing_problem():
+            raise ValueError(problem)
         return self
+
+    def _timing_problem(self) -> str | None:
+        """A step count too large for memory, or a sensor too slow to give a sample."""
+        steps = self.flight_s / self.sim_dt_s
+        if steps > MAX_SIM_STEPS:
+            return (
+                f"sim_dt_s ({self.sim_dt_s:g} s) would take {steps:.3g} steps for the "
+                f"{self.flight_s:.4g} s flight, more than {MAX_SIM_STEPS:g}: raise sim_dt_s"
+            )
+        if self.imu.rate_hz * self.estimator.align_s < 1.0:
+            return (
+                f"imu.rate_hz ({self.imu.rate_hz:g} Hz) gives no IMU sample during "
+                f"estimator.align_s ({self.estimator.align_s:g} s), which levels the filter"
+            )
+        rates = [(key, sec.enabled, sec.rate_hz) for key, sec in (("vision", self.vision), ("baro", self.baro), ("gps", self.gps), ("mag", self.mag), ("range", self.range))]  # fmt: skip
+        for key, enabled, rate_hz in rates:
+            if enabled and rate_hz * self.flight_s < 1.0:
+                return (
+                    f"{key}.rate_hz ({rate_hz:g} Hz) gives no sample during the "
+                    f"{self.flight_s:.4g} s flight"
+                )
+        return None
 
     def waypoints(self) -> Waypoints:
         h, s = self.plan.height_m, self.plan.square_m
@@ -413,7 +452,7 @@ def run_nav(sc: NavScenario, seed: int, *, record_stream: bool = False) -> NavRu
     baro = BaroSensor(period_ns=round(1e9 / sc.baro.rate_hz), sigma_m=sc.baro.sigma_m,
                       drift_m_sqrt_s=sc.baro.drift_m_sqrt_s) if sc.baro.enabled else None  # fmt: skip
     baro_line: DelayLine[HeightSample] = DelayLine(delay_ns=round(sc.baro.delay_s * 1e9))
-    rangefinder = RangeFinder(period_ns=round(1e9 / sc.range.rate_hz), sigma_m=sc.range.sigma_m,
+    rangefinder = RangeFinder(period_ns=round(1e9 / sc.range.rate_hz), sigma_m=sc.range.sigma_m, min_m=RANGE_MIN_M,
                               max_m=sc.range.max_m) if sc.range.enabled else None  # fmt: skip
     range_line: DelayLine[RangeSample] = DelayLine(delay_ns=round(sc.range.delay_s * 1e9))
     gps = GpsSensor(

@@ -23,9 +23,9 @@ import numpy as np
 from numpy.typing import NDArray
 from pydantic import Field, model_validator
 
-from quadnav.config_model import MAX_DELAY_S, MAX_DURATION_S, ConfigModel
+from quadnav.config_model import MAX_DELAY_S, MAX_DURATION_S, MAX_SIM_STEPS, MIN_SIGMA, ConfigModel
 from quadnav.control.planar import PlanarSetpointProfile, ThesisPlanarController
-from quadnav.errors import ExperimentError
+from quadnav.errors import ExperimentError, SimError
 from quadnav.estimation.floor import reintegration_floor
 from quadnav.estimation.horizon import DelayedHorizonEstimator, HorizonConfig
 from quadnav.estimation.planar_ekf import PlanarEkf, PlanarEkfConfig
@@ -54,7 +54,7 @@ def s_to_ns(t_s: float) -> int:
 
 
 class VehicleSection(ConfigModel):
-    mass_kg: float = Field(1.0, gt=0)
+    mass_kg: float = Field(1.0, ge=0.01, description="kg, 10 g at least")
     gravity_m_s2: float = Field(9.8, gt=0)
     inertia_kg_m2: float = Field(1.0 * 0.45**2 / 12.0, gt=0)
 
@@ -79,13 +79,15 @@ class ControllerSection(ConfigModel):
 
 
 class ImuSection(ConfigModel):
-    accel_sigma_m_s2: float = Field(0.25, gt=0, description="accelerometer noise per sample")
-    gyro_sigma_rad_s: float = Field(0.03, gt=0, description="gyroscope noise per sample")
+    accel_sigma_m_s2: float = Field(
+        0.25, ge=MIN_SIGMA, description="accelerometer noise per sample"
+    )
+    gyro_sigma_rad_s: float = Field(0.03, ge=MIN_SIGMA, description="gyroscope noise per sample")
     accel_model: Literal["specific_force", "kinematic"] = "specific_force"
 
 
 class GpsSection(ConfigModel):
-    sigma_m: float = Field(0.01, gt=0, description="position noise per axis")
+    sigma_m: float = Field(0.01, ge=MIN_SIGMA, description="position noise per axis")
     period_s: float = Field(0.3, gt=0, le=MAX_DURATION_S)
     delay_s: float = Field(1.0, ge=0, le=MAX_DELAY_S, description="time from validity to arrival")
     jitter_s: float = Field(
@@ -95,9 +97,9 @@ class GpsSection(ConfigModel):
 
 class EstimatorSection(ConfigModel):
     gate_probability: float | None = Field(0.9999, gt=0, lt=1)
-    init_sigma_pos_m: float = Field(0.01, gt=0)
-    init_sigma_vel_m_s: float = Field(0.01, gt=0)
-    init_sigma_theta_rad: float = Field(0.005, gt=0)
+    init_sigma_pos_m: float = Field(0.01, ge=MIN_SIGMA)
+    init_sigma_vel_m_s: float = Field(0.01, ge=MIN_SIGMA)
+    init_sigma_theta_rad: float = Field(0.005, ge=MIN_SIGMA)
     tau_vel_s: float = Field(0.1, gt=0, description="output predictor velocity time constant")
     tau_pos_s: float = Field(0.1, gt=0, description="output predictor position time constant")
     propagate_velocity_correction: bool = Field(
@@ -139,6 +141,17 @@ class PlanarConfig(ConfigModel):
             )
         if s_to_ns(self.dt_s) < 1000:
             raise ValueError("dt_s must be at least 1 microsecond")
+        if self.duration_s / self.dt_s > MAX_SIM_STEPS:
+            raise ValueError(
+                f"duration_s / dt_s is {self.duration_s / self.dt_s:.3g} steps, more than "
+                f"{MAX_SIM_STEPS:g}: raise dt_s or shorten duration_s"
+            )
+        if self.buffer_delay_s >= self.duration_s:
+            what = "estimator.max_delay_s" if self.estimator.max_delay_s is not None else "gps.delay_s + gps.jitter_s"  # fmt: skip
+            raise ValueError(
+                f"the delayed horizon runs {what} = {self.buffer_delay_s:g} s behind: "
+                f"duration_s ({self.duration_s:g} s) must be longer"
+            )
         return self
 
     @property
@@ -301,7 +314,13 @@ def run_planar(config: PlanarConfig, experiment: ExperimentName, seed: int) -> P
     truth = sim.state.to_vehicle_state()
     for i in range(1, N):
         thrust, torque = controller(int(t_ns[i]), truth)
-        truth = sim.step(thrust, torque).to_vehicle_state()
+        try:
+            truth = sim.step(thrust, torque).to_vehicle_state()
+        except SimError as exc:
+            raise ExperimentError(
+                f"experiment {experiment}, seed {seed}: {exc}; the vehicle.* and controller.* settings "
+                f"do not hold it at dt_s = {config.dt_s:g} s"
+            ) from None
         imu = imu_sensor.sample(truth, int(t_ns[i]), rng_imu)
         gyro[i], accel[i] = imu.gyro_rad_s, imu.accel_m_s2
         fix = gps_sensor.sample(truth, int(t_ns[i]), rng_gps)

@@ -2,11 +2,12 @@
 parameters, custom ArUco dictionaries and the thesis's ``vision_params.yml``.
 
 Read through ``cv2.FileStorage``, which is what wrote them; every failure is one
-:class:`~quadnav.errors.IoError` line naming the file.
+:class:`~quadnav.errors.IoError` line naming the file (a parse error with its line).
 """
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 from typing import Any
 
@@ -14,9 +15,10 @@ import cv2
 import numpy as np
 
 from quadnav.errors import IoError, VisionError
+from quadnav.io.frames import quiet_libraries
 from quadnav.vision.camera import PinholeCamera
 
-__all__ = ["read_camera_yaml", "read_opencv_yaml", "write_camera_yaml"]
+__all__ = ["opencv_error_text", "read_camera_yaml", "read_opencv_yaml", "write_camera_yaml"]
 
 
 def _node_value(node: Any) -> Any:
@@ -35,20 +37,42 @@ def _node_value(node: Any) -> Any:
     return None
 
 
+_PARSE_ERROR = re.compile(r"\((\d+)\): ([^']+)'")
+_CV_ERROR = re.compile(r"error: \(-?\d+:[^)]*\) (.*?)(?: in function '[^']*')?\s*$", re.S)
+
+
+def opencv_error_text(exc: BaseException) -> str:
+    """The problem an OpenCV error states, without its source file and function:
+    ``line 2: missing , between the elements`` or ``params.minDistanceToBorder >= 0``.
+
+    On a parse error OpenCV's Python binding raises ``SystemError`` ("<class
+    'cv2.FileStorage'> returned a result with an exception set") with the real
+    ``cv2.error`` as its cause; that one is read."""
+    err = exc if isinstance(exc, cv2.error) else (exc.__cause__ or exc.__context__)
+    text = str(err).strip() if isinstance(err, cv2.error) else ""
+    if m := _PARSE_ERROR.search(text):
+        problem = m.group(2).strip().rstrip(".")
+        return f"line {m.group(1)}: {problem[:1].lower()}{problem[1:]}"
+    if m := _CV_ERROR.search(text):
+        return m.group(1).strip()
+    return "OpenCV cannot parse it"
+
+
 def read_opencv_yaml(path: str | Path) -> dict[str, Any]:
     """Every top-level entry of an OpenCV YAML file: numbers, strings, matrices (arrays)."""
     p = Path(path)
+    if p.is_dir():
+        raise IoError(f"{p}: is a folder, not an OpenCV YAML/XML file")
     if not p.is_file():
         raise IoError(f"{p}: no such file")
     try:
-        fs = cv2.FileStorage(str(p), cv2.FILE_STORAGE_READ)
+        with quiet_libraries():
+            fs = cv2.FileStorage(str(p), cv2.FILE_STORAGE_READ)
     except (cv2.error, SystemError) as exc:  # OpenCV's parser raises either on garbage
-        lines = str(exc).strip().splitlines()
-        raise IoError(
-            f"{p}: not an OpenCV YAML file ({lines[-1] if lines else 'unreadable'})"
-        ) from None
+        why = "the file is empty" if p.stat().st_size == 0 else opencv_error_text(exc)
+        raise IoError(f"{p}: not an OpenCV YAML/XML file ({why})") from None
     if not fs.isOpened():
-        raise IoError(f"{p}: cannot be read as an OpenCV YAML file")
+        raise IoError(f"{p}: not an OpenCV YAML/XML file (OpenCV cannot open it)")
     try:
         root = fs.root()
         return {k: _node_value(root.getNode(k)) for k in root.keys()}  # noqa: SIM118 (a FileNode)
@@ -64,10 +88,16 @@ def read_camera_yaml(path: str | Path) -> PinholeCamera:
     if missing:
         raise IoError(f"{path}: not a camera calibration, missing {', '.join(missing)}")
     K = d["camera_matrix"]
-    if not isinstance(K, np.ndarray):
-        raise IoError(f"{path}: camera_matrix is not a matrix")
-    width = int(d.get("image_width", round(2 * K[0, 2])))
-    height = int(d.get("image_height", round(2 * K[1, 2])))
+    if not isinstance(K, np.ndarray) or K.shape != (3, 3):
+        shape = "x".join(map(str, K.shape)) if isinstance(K, np.ndarray) else repr(K)
+        raise IoError(f"{path}: camera_matrix must be a 3x3 matrix, got {shape}")
+    size = {}
+    for key, centre in (("image_width", K[0, 2]), ("image_height", K[1, 2])):
+        value = d.get(key, round(2 * centre) if np.isfinite(centre) else 0)
+        if not isinstance(value, int | float) or not np.isfinite(value):
+            raise IoError(f"{path}: {key} must be a number of pixels, got {value!r}")
+        size[key] = int(value)
+    width, height = size["image_width"], size["image_height"]
     try:
         return PinholeCamera(K, np.asarray(d["distortion_coefficients"]), width, height)
     except VisionError as exc:
@@ -76,9 +106,15 @@ def read_camera_yaml(path: str | Path) -> PinholeCamera:
 
 def write_camera_yaml(path: str | Path, camera: PinholeCamera, **extra: float | str) -> None:
     """Write a calibration in OpenCV's layout (readable by OpenCV and the thesis programs)."""
-    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
+    p = Path(path)
+    if not p.parent.is_dir():
+        raise IoError(f"{p}: cannot be written, no folder {p.parent}")
+    if p.is_dir():
+        raise IoError(f"{p}: cannot be written, it is a folder")
+    with quiet_libraries():
+        fs = cv2.FileStorage(str(p), cv2.FILE_STORAGE_WRITE)
     if not fs.isOpened():
-        raise IoError(f"{path}: cannot be written")
+        raise IoError(f"{p}: cannot be written")
     try:
         fs.write("image_width", camera.width)
         fs.write("image_height", camera.height)

@@ -75,7 +75,8 @@ class EulerLagrangeQuadrotor:
         if not (math.isfinite(u) and np.isfinite(tau).all()):
             raise SimError(f"non-finite input: u {u}, tau {tau.tolist()}")
         p = self.params
-        self.s = rk4_step(lambda s: el_derivative(s, u, tau, p), self.s, self.dt_s)
+        with np.errstate(all="ignore"):  # a diverging state is caught below, in one line
+            self.s = rk4_step(lambda s: el_derivative(s, u, tau, p), self.s, self.dt_s)
         if not np.isfinite(self.s).all():
             raise SimError("the Euler-Lagrange simulation diverged")
         return self.s

@@ -92,17 +92,18 @@ class PlanarQuadrotor:
         p = self.params
         s = self.state
         dt = self.dt_ns * 1e-9
-        theta_rate = s.theta_rate_rad_s + dt * torque_nm / p.inertia_kg_m2
-        theta = s.theta_rad + dt * theta_rate
-        # Thrust along body +z, rotated into the world x-z plane by theta about +y.
-        a = np.array(
-            [
-                thrust_n * np.sin(theta) / p.mass_kg,
-                thrust_n * np.cos(theta) / p.mass_kg - p.gravity_m_s2,
-            ]
-        )
-        v = s.v_xz + dt * a
-        pos = s.p_xz + dt * v
+        with np.errstate(all="ignore"):  # a diverging state is caught below, in one line
+            theta_rate = s.theta_rate_rad_s + dt * torque_nm / p.inertia_kg_m2
+            theta = s.theta_rad + dt * theta_rate
+            # Thrust along body +z, rotated into the world x-z plane by theta about +y.
+            a = np.array(
+                [
+                    thrust_n * np.sin(theta) / p.mass_kg,
+                    thrust_n * np.cos(theta) / p.mass_kg - p.gravity_m_s2,
+                ]
+            )
+            v = s.v_xz + dt * a
+            pos = s.p_xz + dt * v
         self.state = PlanarState(
             t_ns=s.t_ns + self.dt_ns,
             p_xz=pos,
@@ -112,5 +113,5 @@ class PlanarQuadrotor:
             theta_rate_rad_s=float(theta_rate),
         )
         if not (np.all(np.isfinite(pos)) and np.all(np.isfinite(v)) and np.isfinite(theta)):
-            raise SimError(f"the planar simulation diverged at t = {self.state.t_ns} ns")
+            raise SimError(f"the planar simulation diverged at t = {self.state.t_ns * 1e-9:.4g} s")
         return self.state

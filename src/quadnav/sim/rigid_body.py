@@ -158,13 +158,14 @@ class RigidBodyQuadrotor:
         wind = self.wind.step(self.dt_s)
         self._wind_now = wind
         v_before = self.s[3:6].copy()
-        s = rk4_step(lambda x: self.derivative(x, cmd, wind), self.s, self.dt_s)
-        s[6:10] /= np.linalg.norm(s[6:10])
+        with np.errstate(all="ignore"):  # a diverging state is caught below, in one line
+            s = rk4_step(lambda x: self.derivative(x, cmd, wind), self.s, self.dt_s)
+            s[6:10] /= np.linalg.norm(s[6:10])
         s[13:17] = np.clip(s[13:17], p.omega_min_rad_s, p.omega_max_rad_s)
         if s[2] <= 0.0:
             s = self._on_ground(s)
         if not np.isfinite(s).all():
-            raise SimError(f"the rigid-body simulation diverged at t = {self.t_ns} ns")
+            raise SimError(f"the rigid-body simulation diverged at t = {self.t_ns * 1e-9:.4g} s")
         self.last_accel_W = (s[3:6] - v_before) / self.dt_s
         self.s = s
         self.t_ns += self.dt_ns

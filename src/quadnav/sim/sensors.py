@@ -84,7 +84,7 @@ class ImuSensor:
         for name in ("accel_sigma_m_s2", "gyro_sigma_rad_s"):
             value = getattr(self, name)
             if not math.isfinite(value) or value < 0.0:
-                raise SimError(f"ImuSensor.{name} must be finite and >= 0, got {value}")
+                raise SimError(f"IMU {name} must be finite and >= 0, got {value}")
 
     def sample(self, truth: VehicleState, t_ns: int, rng: Generator) -> ImuSample:
         a_W = truth.a_W_B.copy()
@@ -116,9 +116,9 @@ class PositionSensor:
         phase_ns: int = 0,
     ) -> None:
         if not math.isfinite(sigma_m) or sigma_m <= 0.0:
-            raise SimError(f"PositionSensor.sigma_m must be finite and > 0, got {sigma_m}")
+            raise SimError(f"position fix sigma_m must be finite and > 0, got {sigma_m}")
         if period_ns <= 0:
-            raise SimError(f"PositionSensor.period_ns must be > 0, got {period_ns}")
+            raise SimError(f"position fix period_ns must be > 0, got {period_ns}")
         self.sigma_m = float(sigma_m)
         self.period_ns = int(period_ns)
         self.source = source
@@ -195,19 +195,17 @@ class IntegratingImu:
         lever_arm_m: tuple[float, float, float] = (0.0, 0.0, 0.0),
     ) -> None:
         if period_ns <= 0:
-            raise SimError(f"IMU period must be > 0 ns, got {period_ns}")
+            raise SimError(f"IMU period_ns must be > 0, got {period_ns}")
         # The IMU's mount offset from the centre of mass in the body frame: it adds the
         # rotational terms dw/dt x r + w x (w x r) to the specific force it measures.
         self.lever_arm = np.asarray(lever_arm_m, dtype=np.float64)
         if self.lever_arm.shape != (3,) or not np.isfinite(self.lever_arm).all():
-            raise SimError(
-                f"IntegratingImu.lever_arm_m must be 3 finite numbers, got {lever_arm_m}"
-            )
+            raise SimError(f"IMU lever_arm_m must be 3 finite numbers, got {lever_arm_m}")
         self._w_prev: np.ndarray | None = None
         for name, v in (("gyro_sigma_rad_s", gyro_sigma_rad_s), ("accel_sigma_m_s2", accel_sigma_m_s2),
                         ("gyro_bias_rw_rad_s_sqrt_s", gyro_bias_rw_rad_s_sqrt_s), ("accel_bias_rw_m_s2_sqrt_s", accel_bias_rw_m_s2_sqrt_s)):  # fmt: skip
             if not (math.isfinite(v) and v >= 0):
-                raise SimError(f"IntegratingImu.{name} must be finite and >= 0, got {v}")
+                raise SimError(f"IMU {name} must be finite and >= 0, got {v}")
         self.period_ns = int(period_ns)
         self.sg, self.sa = float(gyro_sigma_rad_s), float(accel_sigma_m_s2)
         self.rw_g, self.rw_a = float(gyro_bias_rw_rad_s_sqrt_s), float(accel_bias_rw_m_s2_sqrt_s)
@@ -266,7 +264,10 @@ class GpsSensor:
         glitches: list[tuple[int, int, tuple[float, float, float]]] | None = None,
     ) -> None:
         if period_ns <= 0 or min(sigma_h_m, sigma_v_m, sigma_vel_m_s) <= 0:
-            raise SimError("GpsSensor needs period_ns > 0 and positive standard deviations")
+            raise SimError(
+                f"GNSS needs period_ns > 0 and positive sigma_h_m, sigma_v_m, sigma_vel_m_s, got "
+                f"{period_ns}, {sigma_h_m}, {sigma_v_m}, {sigma_vel_m_s}"
+            )
         self.datum = datum_lla
         self.period_ns = int(period_ns)
         self.sh, self.sv, self.svel = float(sigma_h_m), float(sigma_v_m), float(sigma_vel_m_s)
@@ -312,7 +313,8 @@ class MagSensor:
     ) -> None:
         if period_ns <= 0 or strength <= 0 or noise_sigma < 0 or sigma_heading_rad <= 0:
             raise SimError(
-                "MagSensor needs period_ns > 0, strength > 0, noise_sigma >= 0, sigma_heading_rad > 0"
+                "magnetometer needs period_ns > 0, strength > 0, noise_sigma >= 0 and "
+                f"sigma_heading_rad > 0, got {period_ns}, {strength}, {noise_sigma}, {sigma_heading_rad}"
             )
         h = strength * math.cos(inclination_rad)
         self.field_W = np.array(
@@ -348,7 +350,10 @@ class BaroSensor:
         self, *, period_ns: int, sigma_m: float, drift_m_sqrt_s: float = 0.0, offset_m: float = 0.0
     ) -> None:
         if period_ns <= 0 or not sigma_m > 0 or not drift_m_sqrt_s >= 0:
-            raise SimError("BaroSensor needs period_ns > 0, sigma_m > 0 and drift_m_sqrt_s >= 0")
+            raise SimError(
+                "barometer needs period_ns > 0, sigma_m > 0 and drift_m_sqrt_s >= 0, got "
+                f"{period_ns}, {sigma_m}, {drift_m_sqrt_s}"
+            )
         self.period_ns = int(period_ns)
         self.sigma = float(sigma_m)
         self.drift = float(drift_m_sqrt_s)
@@ -379,7 +384,10 @@ class RangeFinder:
         max_tilt_rad: float = 0.7,
     ) -> None:
         if period_ns <= 0 or not sigma_m > 0 or not 0 <= min_m < max_m:
-            raise SimError("RangeFinder needs period_ns > 0, sigma_m > 0 and 0 <= min_m < max_m")
+            raise SimError(
+                "range finder needs period_ns > 0, sigma_m > 0 and 0 <= min_m < max_m, got "
+                f"{period_ns}, {sigma_m}, {min_m}, {max_m}"
+            )
         self.period_ns = int(period_ns)
         self.sigma, self.min_m, self.max_m = float(sigma_m), float(min_m), float(max_m)
         self.ground_z = float(ground_z_m)
@@ -429,7 +437,10 @@ class VisionPoseSensor:
         jumps: list[VisionFrameJump] | None = None,
     ) -> None:
         if period_ns <= 0 or not sigma_m > 0 or not yaw_sigma_rad > 0:
-            raise SimError("VisionPoseSensor needs period_ns > 0 and positive standard deviations")
+            raise SimError(
+                "vision pose needs period_ns > 0 and positive sigma_m, yaw_sigma_rad, got "
+                f"{period_ns}, {sigma_m}, {yaw_sigma_rad}"
+            )
         self.period_ns = int(period_ns)
         self.sigma, self.yaw_sigma = float(sigma_m), float(yaw_sigma_rad)
         self.R_W_V = Rotation.from_euler("z", frame_yaw_rad)

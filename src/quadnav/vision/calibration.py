@@ -4,6 +4,7 @@ line, or a reprojection error far above the others'."""
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import cv2
@@ -12,9 +13,9 @@ from numpy.typing import NDArray
 
 from quadnav.errors import VisionError
 from quadnav.vision.camera import PinholeCamera
-from quadnav.vision.markers import CharucoDetections, CharucoTarget
+from quadnav.vision.markers import CharucoDetections, CharucoTarget, get_dictionary
 
-__all__ = ["Calibration", "calibrate_charuco"]
+__all__ = ["BoardNames", "Calibration", "calibrate_charuco", "charuco_board_problem"]
 
 FloatArray = NDArray[np.float64]
 
@@ -28,6 +29,57 @@ class Calibration:
     rms_px: float
     per_view_rms_px: dict[int, float]
     rejected: dict[int, str]
+
+
+@dataclass(frozen=True, slots=True)
+class BoardNames:
+    """What the user calls a ChArUco board's settings (options or configuration keys)."""
+
+    squares_x: str
+    squares_y: str
+    square_m: str
+    marker_m: str
+    dictionary: str
+
+
+def charuco_board_problem(
+    squares: tuple[int, int],
+    square_m: float,
+    marker_m: float,
+    dictionary: str | int,
+    names: BoardNames,
+) -> str | None:
+    """Why this ChArUco board cannot exist, in the user's own ``names``; ``None`` if it can.
+
+    Checked before any work: at least 2x2 squares, positive finite sides with the marker
+    inside its square, a known dictionary with a marker for every white square."""
+    nx, ny = squares
+    if min(nx, ny) < 2:
+        if names.squares_x == names.squares_y:
+            return f"{names.squares_x} must be at least 2 2 (across, down), got {nx} {ny}"
+        name, n = (names.squares_x, nx) if nx < 2 else (names.squares_y, ny)
+        return f"{name} must be at least 2, got {n}"
+    for name, v in ((names.square_m, square_m), (names.marker_m, marker_m)):
+        if not math.isfinite(v):
+            return f"{name} must be a finite number of metres, got {v}"
+        if v <= 0:
+            return f"{name} must be positive, got {v:g}"
+    if marker_m >= square_m:
+        return (
+            f"{names.marker_m} ({marker_m:g} m) must be smaller than "
+            f"{names.square_m} ({square_m:g} m): the marker sits inside its square"
+        )
+    try:
+        size = int(get_dictionary(dictionary).bytesList.shape[0])
+    except VisionError as exc:
+        return f"{names.dictionary}: {exc}"
+    if nx * ny // 2 > size:
+        squares_names = " and ".join(dict.fromkeys((names.squares_x, names.squares_y)))
+        return (
+            f"a {nx}x{ny} board needs {nx * ny // 2} markers, the dictionary {dictionary} has "
+            f"{size}: fewer {squares_names} or a larger {names.dictionary}"
+        )
+    return None
 
 
 def calibrate_charuco(

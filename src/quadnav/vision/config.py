@@ -5,11 +5,14 @@ from __future__ import annotations
 
 from typing import Any, Literal, Self
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import Field, model_validator
 from scipy.spatial.transform import Rotation
 
+from quadnav.config_model import ConfigModel
+from quadnav.errors import VisionError
 from quadnav.geometry.rotations import Pose
-from quadnav.vision.markers import CharucoSpec, DiamondSpec
+from quadnav.vision.calibration import BoardNames, charuco_board_problem
+from quadnav.vision.markers import CharucoSpec, DiamondSpec, get_dictionary
 from quadnav.vision.pipeline import MapBoard, MapDiamond, MapMarker, MarkerMap
 from quadnav.vision.pose import mount_pose
 
@@ -18,11 +21,7 @@ __all__ = ["MarkersConfig", "from_thesis_vision_params"]
 Vec3 = tuple[float, float, float]
 
 
-class _Section(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-
-class CharucoSection(_Section):
+class CharucoSection(ConfigModel):
     squares_x: int = Field(12, ge=2)
     squares_y: int = Field(17, ge=2)
     square_m: float = Field(0.066, gt=0)
@@ -36,7 +35,7 @@ class CharucoSection(_Section):
     )
 
 
-class DiamondSection(_Section):
+class DiamondSection(ConfigModel):
     """A ChArUco diamond (thesis 000 sec. 3.3): square and marker side; the world is the centre
     of its middle square (x right, y up, z out of the face)."""
 
@@ -56,20 +55,20 @@ class DiamondSection(_Section):
         return DiamondSpec(self.square_m, self.marker_m, self.ids)
 
 
-class MapMarkerEntry(_Section):
+class MapMarkerEntry(ConfigModel):
     id: int = Field(ge=0)
     length_m: float = Field(gt=0)
     position_m: Vec3 = (0.0, 0.0, 0.0)
     rpy_deg: Vec3 = (0.0, 0.0, 0.0)
 
 
-class MapBoardEntry(_Section):
+class MapBoardEntry(ConfigModel):
     charuco: CharucoSection
     position_m: Vec3 = (0.0, 0.0, 0.0)
     rpy_deg: Vec3 = (0.0, 0.0, 0.0)
 
 
-class MapDiamondEntry(_Section):
+class MapDiamondEntry(ConfigModel):
     diamond: DiamondSection
     position_m: Vec3 = (0.0, 0.0, 0.0)
     rpy_deg: Vec3 = (0.0, 0.0, 0.0)
@@ -80,7 +79,7 @@ def _pose(position_m: Vec3, rpy_deg: Vec3) -> Pose:
     return Pose(Rotation.from_euler("ZYX", [y, p, r], degrees=True), list(position_m))  # type: ignore[arg-type]
 
 
-class MarkersConfig(_Section):
+class MarkersConfig(ConfigModel):
     """What the camera looks at and how the pipeline runs (defaults: thesis 000's rig)."""
 
     dictionary: str | int = "DICT_4X4_250"
@@ -140,7 +139,27 @@ class MarkersConfig(_Section):
             raise ValueError("target=map needs map_markers, map_boards or map_diamonds")
         if self.charuco.marker_m >= self.charuco.square_m:
             raise ValueError("charuco.marker_m must be smaller than charuco.square_m")
+        if problem := self._board_problem():
+            raise ValueError(problem)
         return self
+
+    def _board_problem(self) -> str | None:
+        """The dictionary, the world marker's id and each board, in the configuration's keys."""
+        try:
+            size = int(get_dictionary(self.dictionary).bytesList.shape[0])
+        except VisionError as exc:
+            return f"dictionary: {exc}"
+        ids = [("marker_id", self.marker_id)] + [(f"map_markers[{i}].id", m.id) for i, m in enumerate(self.map_markers)]  # fmt: skip
+        for key, i in ids:
+            if i is not None and i >= size:
+                return f"{key} ({i}) is not in {self.dictionary} (ids 0 to {size - 1})"
+        boards = [("charuco", self.charuco)] if self.target == "charuco" else []
+        boards += [(f"map_boards[{i}].charuco", b.charuco) for i, b in enumerate(self.map_boards)]
+        for key, c in boards:
+            names = BoardNames(f"{key}.squares_x", f"{key}.squares_y", f"{key}.square_m", f"{key}.marker_m", "dictionary")  # fmt: skip
+            if problem := charuco_board_problem((c.squares_x, c.squares_y), c.square_m, c.marker_m, self.dictionary, names):  # fmt: skip
+                return problem
+        return None
 
     def T_B_C(self) -> Pose:
         return mount_pose(self.mount_rpy_deg, self.mount_xyz_m)
@@ -207,22 +226,32 @@ def from_thesis_vision_params(values: dict[str, Any]) -> tuple[dict[str, Any], l
         ("write_images", "write_images", _thesis_bool),
     ):
         if theirs in values:
-            out[ours] = cast(values[theirs])
+            out[ours] = _thesis_value(values, theirs, cast)
             used.add(theirs)
     lengths = {
-        "square_m": float(values.get("squareLength", 0.066)),
-        "marker_m": float(values.get("markerLength", 0.0397)),
+        "square_m": _thesis_value(values, "squareLength", float, 0.066),
+        "marker_m": _thesis_value(values, "markerLength", float, 0.0397),
     }
     # The thesis's program tries a board first, then a diamond (its squareLength and
     # markerLength are the diamond's too), then single markers.
     if values.get("charuco"):
         out["target"] = "charuco"
         out["charuco"] = {
-            "squares_x": int(values.get("squaresX", 12)),
-            "squares_y": int(values.get("squaresY", 17)),
+            "squares_x": _thesis_value(values, "squaresX", int, 12),
+            "squares_y": _thesis_value(values, "squaresY", int, 17),
             **lengths,
         }
     elif values.get("diamond"):
         out["target"] = "diamond"
         out["diamond"] = lengths
     return out, sorted(set(values) - used)
+
+
+def _thesis_value(values: dict[str, Any], key: str, cast: Any, default: Any = None) -> Any:
+    """``values[key]`` read as ``cast`` wants; a value it cannot read names the thesis key."""
+    value = values.get(key, default)
+    try:
+        return cast(value)
+    except (TypeError, ValueError):
+        what = {int: "a whole number", float: "a number", str: "a file name"}.get(cast, "a flag")
+        raise VisionError(f"{key} must be {what}, got {value!r}") from None
