@@ -28,6 +28,7 @@ COMMANDS = {
     ("replay",): "quadnav.cli.replay",
     ("eval",): "quadnav.cli.eval",
     ("markers",): "quadnav.cli.markers",
+    ("calibrate",): "quadnav.cli.calibrate",
 }
 
 
@@ -59,6 +60,13 @@ def test_every_example_parses_and_validates(
     cmd = _command(path)
     ctx = cmd.make_context(" ".join(path), argv[1 + len(path) :])  # a bad option raises here
     importlib.import_module(COMMANDS[path]).check_example(ctx.params)
+
+
+def test_every_command_has_examples() -> None:
+    from quadnav.cli.main import COMMANDS as ALL
+
+    covered = {path[0] for path in COMMANDS}
+    assert covered == set(ALL), f"commands without validated examples: {set(ALL) - covered}"
 
 
 @pytest.mark.parametrize("path", list(COMMANDS), ids=" ".join)

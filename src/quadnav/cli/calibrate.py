@@ -4,12 +4,12 @@ video), with bad views rejected, written as OpenCV YAML."""
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 from rich.table import Table
 
-from quadnav.cli.common import console, handle_errors, progress_bar
+from quadnav.cli.common import command_help, console, handle_errors, progress_bar
 from quadnav.errors import ConfigError, VisionError
 from quadnav.io.frames import open_frames, quiet_libraries
 from quadnav.io.opencv_yaml import write_camera_yaml
@@ -21,7 +21,7 @@ from quadnav.vision.calibration import (
 )
 from quadnav.vision.markers import CharucoDetections, CharucoSpec, CharucoTarget
 
-__all__ = ["calibrate_command", "calibrate_source"]
+__all__ = ["EXAMPLES", "calibrate_command", "calibrate_source", "check_example"]
 
 _OPTIONS = BoardNames(
     squares_x="--squares",
@@ -66,6 +66,30 @@ def calibrate_source(
         raise VisionError(f"{source}: {exc}") from None
 
 
+def _check_options(
+    squares: tuple[int, int], square_m: float, marker_m: float, dictionary: str, out: Path
+) -> None:
+    problem = charuco_board_problem(squares, square_m, marker_m, dictionary, _OPTIONS)
+    if problem:
+        raise ConfigError(problem)
+    if out.is_dir() or not out.parent.is_dir():
+        why = "is a folder" if out.is_dir() else f"there is no folder {out.parent}"
+        raise ConfigError(f"--out {out}: cannot write the calibration there ({why})")
+
+
+def check_example(p: dict[str, Any]) -> None:
+    """Validate an example's board and output as the command would, reading no image."""
+    _check_options(p["squares"], p["square_m"], p["marker_m"], p["dictionary"], p["out"])
+
+
+#: The examples of ``quadnav calibrate --help`` (each parsed and validated by the tests).
+EXAMPLES = (
+    "quadnav calibrate calibration_images/ --out camera.yml",
+    "quadnav calibrate board.mp4 --squares 5 7 --square-m 0.04 --marker-m 0.02 --every 10",
+    "quadnav calibrate views/ --squares 12 17 --square-m 0.066 --marker-m 0.0397 --dictionary DICT_4X4_250",
+)
+
+
 @handle_errors
 def calibrate_command(
     source: Annotated[str, typer.Argument(help="folder of ChArUco images, or a video")],
@@ -82,18 +106,7 @@ def calibrate_command(
         "camera.yml"
     ),
 ) -> None:
-    """Calibrate a camera from views of a ChArUco board; write OpenCV YAML.
-
-    Example (OpenCV's tutorial board, 5x7 squares of 4 cm):
-
-      quadnav calibrate calibration_images/ --out camera.yml
-    """
-    problem = charuco_board_problem(squares, square_m, marker_m, dictionary, _OPTIONS)
-    if problem:
-        raise ConfigError(problem)
-    if out.is_dir() or not out.parent.is_dir():
-        why = "is a folder" if out.is_dir() else f"there is no folder {out.parent}"
-        raise ConfigError(f"--out {out}: cannot write the calibration there ({why})")
+    _check_options(squares, square_m, marker_m, dictionary, out)
     spec = CharucoSpec(squares[0], squares[1], square_m, marker_m, dictionary)
     with progress_bar("calibrate") as update, quiet_libraries():
         cal, n, skipped = calibrate_source(source, spec, every=every, progress=update)
@@ -113,3 +126,12 @@ def calibrate_command(
     for k, why in sorted(cal.rejected.items()):
         console.print(f"rejected view {k}: {why}", highlight=False)
     console.print(str(out), highlight=False)
+
+
+calibrate_command.__doc__ = command_help(
+    "Calibrate a camera from views of a ChArUco board; write OpenCV YAML.",
+    "SOURCE is a folder of images or a video. The defaults are OpenCV's tutorial board (5x7 "
+    "squares of 4 cm, markers of 2 cm, DICT_6X6_250). Views with too few or collinear corners "
+    "or a reprojection error far above the others' are rejected and listed.",
+    examples=EXAMPLES,
+)
