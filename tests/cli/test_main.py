@@ -74,3 +74,28 @@ def test_version_prints_the_package_version() -> None:
     result = CliRunner().invoke(app, ["--version"])
     assert result.exit_code == 0
     assert result.stdout.strip() == f"quadnav {quadnav.__version__}"
+
+
+@pytest.mark.parametrize(
+    ("args", "named"),
+    [
+        (["run", "--seeds", "0"], "--seeds"),
+        (["run", "--sed", "3"], "--sed"),
+        (["calibrate", "x", "--every", "0"], "--every"),
+        (["nosuch"], "nosuch"),
+    ],
+)
+def test_a_usage_error_is_one_line_naming_the_option(args: list[str], named: str) -> None:
+    res = subprocess.run(
+        [sys.executable, "-m", "quadnav", *args], capture_output=True, text=True, timeout=60
+    )
+    assert res.returncode == 2
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: ") and named in lines[0], res.stderr
+
+
+def test_quadnav_alone_shows_its_help() -> None:
+    res = subprocess.run(
+        [sys.executable, "-m", "quadnav"], capture_output=True, text=True, timeout=60
+    )
+    assert res.returncode == 0 and "Commands:" in res.stdout and "run" in res.stdout

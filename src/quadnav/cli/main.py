@@ -10,6 +10,7 @@ from __future__ import annotations
 import ast
 import importlib
 import importlib.util
+import sys
 from collections.abc import Iterator, MutableMapping
 from typing import Any
 
@@ -171,4 +172,19 @@ app.callback()(_root)
 
 
 def main() -> None:
-    app()
+    """Run the command; a usage error (an unknown option, a value typer refuses) is one line
+    naming the option, exit code 2, as every other error of quadnav."""
+    try:
+        code = app(standalone_mode=False)
+    except Exception as exc:  # typer's bundled click raises UsageError and friends
+        message = getattr(exc, "format_message", None)
+        if message is None:
+            raise
+        ctx = getattr(exc, "ctx", None)
+        if type(exc).__name__ == "NoArgsIsHelpError" and ctx is not None:
+            print(ctx.get_help())  # `quadnav` or `quadnav link` alone: the help, as asked
+            raise SystemExit(0) from None
+        where = f" (see {ctx.command_path} --help)" if ctx is not None else ""
+        print(f"error: {' '.join(str(message()).split())}{where}", file=sys.stderr)
+        raise SystemExit(getattr(exc, "exit_code", 2)) from None
+    raise SystemExit(code if isinstance(code, int) else 0)
