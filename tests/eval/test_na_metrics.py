@@ -4,10 +4,10 @@ in the table (issue 12, item 19)."""
 from __future__ import annotations
 
 import warnings
-from pathlib import Path
 
 import pytest
 
+from quadnav.errors import ConfigError
 from quadnav.eval.flight import flight_metrics
 from quadnav.eval.na import fmt_metric, is_na, median_or_na, na, rms_or_na
 from quadnav.eval.nav import nav_metrics
@@ -57,12 +57,18 @@ def test_a_dropout_over_the_whole_flight_says_why() -> None:
     assert isinstance(m["output_rmse_m"], float)  # what can be measured still is
 
 
-def test_a_planar_run_shorter_than_the_delay_says_why(tmp_path: Path) -> None:
-    cfg = load_config(PlanarConfig, None, ["duration_s=0.5"])  # GPS delay 1 s
+def test_a_planar_run_shorter_than_the_delay_is_refused_naming_the_keys() -> None:
+    # it used to fail after the work ("statistics need a non-empty 1-D error array")
+    with pytest.raises(ConfigError, match=r"gps\.delay_s.*duration_s \(0\.5 s\) must be longer"):
+        load_config(PlanarConfig, None, ["duration_s=0.5"])  # GPS delay 1 s
+
+
+def test_planar_summaries_carry_the_reason_when_no_seed_has_a_number() -> None:
+    cfg = load_config(PlanarConfig, None, ["duration_s=2"])
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         per_seed = [planar_metrics(run_planar(cfg, "handled", s)) for s in (0, 1)]
-        summary = summarize_seeds(per_seed)
-    assert is_na(per_seed[0]["rmse_delayed_m"]) and "delay" in per_seed[0]["rmse_delayed_m"]
-    assert is_na(summary["rmse_delayed_m"]["median"])
+    why = na("no delayed estimate after the first fused fix")
+    summary = summarize_seeds([{**m, "nees_mean": why} for m in per_seed])
+    assert summary["nees_mean"]["median"] == why
     assert isinstance(summary["rmse_output_m"]["median"], float)
