@@ -22,6 +22,7 @@ from quadnav.cli.common import command_help, console, err_console, handle_errors
 from quadnav.cli.planar import OutOpt, SetOpt
 from quadnav.errors import ConfigError, IoError
 from quadnav.eval.report import ReportSection, ReportTable, write_report
+from quadnav.geometry.camera import PinholeCamera
 from quadnav.io.config import dump_config, load_config
 from quadnav.io.frames import (
     CaptureRequest,
@@ -35,7 +36,6 @@ from quadnav.io.frames import (
 from quadnav.io.mavlink import check_bind
 from quadnav.io.opencv_yaml import read_camera_yaml, read_opencv_yaml
 from quadnav.io.run_folder import CsvAppender, create_run_folder, write_json, write_text
-from quadnav.vision.camera import PinholeCamera
 from quadnav.vision.config import MarkersConfig, from_thesis_vision_params
 from quadnav.vision.markers import (
     MarkerDetections,

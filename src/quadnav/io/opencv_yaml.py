@@ -13,8 +13,8 @@ from typing import Any
 import cv2
 import numpy as np
 
-from quadnav.errors import IoError, VisionError
-from quadnav.vision.camera import PinholeCamera
+from quadnav.errors import GeometryError, IoError
+from quadnav.geometry.camera import PinholeCamera
 
 __all__ = ["read_camera_yaml", "read_opencv_yaml", "write_camera_yaml"]
 
@@ -70,7 +70,7 @@ def read_camera_yaml(path: str | Path) -> PinholeCamera:
     height = int(d.get("image_height", round(2 * K[1, 2])))
     try:
         return PinholeCamera(K, np.asarray(d["distortion_coefficients"]), width, height)
-    except VisionError as exc:
+    except GeometryError as exc:
         raise IoError(f"{path}: {exc}") from None
 
 

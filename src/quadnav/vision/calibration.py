@@ -11,7 +11,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from quadnav.errors import VisionError
-from quadnav.vision.camera import PinholeCamera
+from quadnav.geometry.camera import PinholeCamera
 from quadnav.vision.markers import CharucoDetections, CharucoTarget
 
 __all__ = ["Calibration", "calibrate_charuco"]
