@@ -234,3 +234,15 @@ def test_library_functions_are_not_taken_from_cli() -> None:
     root = SRC.parents[1]
     found = [v for d in ("tests", "benchmarks", "examples") for v in _cli_imports_outside(root / d)]
     assert not found, "\n".join(found)
+
+
+def test_architecture_document_names_every_unit() -> None:
+    """ARCHITECTURE.md stays current: every package and top-level module of the tree is in it."""
+    text = (SRC.parents[1] / "ARCHITECTURE.md").read_text(encoding="utf-8")
+    missing = [
+        p.name
+        for p in sorted(SRC.iterdir())
+        if (p.is_dir() and (p / "__init__.py").exists() and f"`{p.name}/`" not in text)
+        or (p.suffix == ".py" and f"`{p.name}`" not in text)
+    ]
+    assert not missing, f"not in ARCHITECTURE.md: {missing}"
