@@ -46,9 +46,6 @@ ALLOWED: dict[str, frozenset[str]] = {
     "__main__": frozenset({"cli"}),
 }
 
-# Known violations still open: (importing module, imported unit). Each entry is a real open item.
-KNOWN: frozenset[tuple[str, str]] = frozenset()
-
 _MODULE_NAME = re.compile(r"quadnav(\.[A-Za-z_][A-Za-z0-9_]*)+")
 
 
@@ -123,7 +120,7 @@ def check_source(source: str, module: str, *, is_package: bool = False) -> list[
     out = []
     for line, imported in imports_of(source, module, is_package=is_package):
         unit = _reached_unit(imported)
-        if unit == own or unit in allowed or (module, unit) in KNOWN:
+        if unit == own or unit in allowed:
             continue
         out.append(Violation(module=module, line=line, imported=imported, unit=unit))
     return out
@@ -155,17 +152,6 @@ def test_no_import_breaks_the_layer_order() -> None:
 def test_every_unit_of_the_tree_is_in_the_table() -> None:
     units = {unit_of(_module_name(p)) for p in SRC.rglob("*.py")}
     assert units <= set(ALLOWED), sorted(units - set(ALLOWED))
-
-
-def test_known_violations_are_still_real() -> None:
-    """An allow-list entry that no longer matches an import must be removed."""
-    seen = {
-        (module, _reached_unit(name))
-        for path in SRC.rglob("*.py")
-        for module in [_module_name(path)]
-        for _, name in imports_of(path.read_text(encoding="utf-8"), module)
-    }
-    assert seen >= KNOWN, sorted(KNOWN - seen)
 
 
 def test_checker_catches_every_kind_of_import() -> None:
