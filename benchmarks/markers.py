@@ -25,9 +25,9 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from quadnav.experiments.marker_camera import marker_field, thesis_mount
+from quadnav.geometry.camera import thesis_camera
 from quadnav.geometry.rotations import Pose
 from quadnav.sim.camera import RenderSettings, SyntheticCamera, board_object, marker_object
-from quadnav.vision.camera import thesis_camera
 from quadnav.vision.markers import CharucoSpec, CharucoTarget, get_dictionary, to_gray
 from quadnav.vision.pipeline import MapBoard, MarkerMap, MarkerPipeline
 

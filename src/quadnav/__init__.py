@@ -1,7 +1,8 @@
 """quadnav: GPS-denied quadrotor navigation.
 
-Packages, from the bottom up: ``geometry``, ``messages``, ``sim``/``estimation``/``control``,
-``experiments`` (closed loops wiring those together), ``io``, ``eval``, ``cli``.
+Packages, from the bottom up (ARCHITECTURE.md, enforced by ``tests/test_layers.py``):
+``geometry``, ``messages``; ``sim``, ``estimation``, ``vision``, ``control``; ``io``; ``eval``;
+``experiments`` (closed loops, studies and replays wiring those together); ``cli``.
 """
 
 from quadnav.errors import QuadnavError

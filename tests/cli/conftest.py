@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 
 from quadnav.experiments.markers import look_at
+from quadnav.geometry.camera import PinholeCamera, thesis_camera
 from quadnav.geometry.rotations import Pose
 from quadnav.io.opencv_yaml import write_camera_yaml
 from quadnav.sim.camera import RenderSettings, SyntheticCamera, marker_object
-from quadnav.vision.camera import PinholeCamera, thesis_camera
 from quadnav.vision.markers import get_dictionary
 
 

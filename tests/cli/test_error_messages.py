@@ -61,8 +61,8 @@ def _files(root: Path) -> dict[str, Path]:
 
 
 def _cal(root: Path) -> Path:
+    from quadnav.geometry.camera import thesis_camera
     from quadnav.io.opencv_yaml import write_camera_yaml
-    from quadnav.vision.camera import thesis_camera
 
     path = root / "cal.yml"
     write_camera_yaml(path, thesis_camera())

@@ -17,11 +17,11 @@ import pytest
 from typer.testing import CliRunner
 
 from quadnav.cli.main import app
-from quadnav.cli.markers import fit_calibration, load_markers_config, run_markers
 from quadnav.errors import ConfigError
+from quadnav.experiments.markers_run import fit_calibration, load_markers_config, run_markers
+from quadnav.geometry.camera import thesis_camera
 from quadnav.io.frames import is_raw_stream
 from quadnav.io.opencv_yaml import write_camera_yaml
-from quadnav.vision.camera import thesis_camera
 from tests.cli.conftest import marker_views
 
 runner = CliRunner()

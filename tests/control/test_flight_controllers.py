@@ -9,8 +9,8 @@ import pytest
 from quadnav.control.cascaded_pid import CascadedPidGains
 from quadnav.control.thesis002 import NestedSaturationController, PdController
 from quadnav.errors import ControlError
-from quadnav.eval.flight import flight_metrics
 from quadnav.experiments.flight import FlightConfig, builtin_config, run_flight
+from quadnav.experiments.flight_study import flight_metrics
 
 
 def fly(name: str, **overrides: object) -> dict[str, object]:

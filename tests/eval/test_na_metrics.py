@@ -8,13 +8,14 @@ import warnings
 import pytest
 
 from quadnav.errors import ConfigError
-from quadnav.eval.flight import flight_metrics
 from quadnav.eval.na import fmt_metric, is_na, median_or_na, na, rms_or_na
-from quadnav.eval.nav import nav_metrics
-from quadnav.eval.planar import planar_metrics, summarize_seeds
+from quadnav.eval.planar import summarize_seeds
 from quadnav.experiments import PlanarConfig, run_planar
 from quadnav.experiments.flight import FlightConfig, builtin_config, run_flight
+from quadnav.experiments.flight_study import flight_metrics
 from quadnav.experiments.nav import NavScenario, run_nav
+from quadnav.experiments.nav_study import nav_metrics
+from quadnav.experiments.planar_study import planar_metrics
 from quadnav.io import load_config
 
 

@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from quadnav.eval.nav import nav_metrics
 from quadnav.experiments.nav import NavRunResult, NavScenario, run_nav
+from quadnav.experiments.nav_study import nav_metrics
 from quadnav.experiments.scenarios import nav_builtin
 
 

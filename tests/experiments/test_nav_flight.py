@@ -10,8 +10,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from quadnav.errors import ExperimentError
-from quadnav.eval.nav import nav_metrics, run_nav_study
 from quadnav.experiments.nav import NavScenario, ground_alignment, run_nav
+from quadnav.experiments.nav_study import nav_metrics, run_nav_study
 from quadnav.messages import ImuSample, PoseSample
 
 POSE = NavScenario.model_validate({"vision": {"source": "pose"}})

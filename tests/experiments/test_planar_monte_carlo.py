@@ -7,8 +7,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from quadnav.eval.planar import PlanarStudy, planar_metrics, run_planar_study
 from quadnav.experiments import PlanarConfig, run_planar
+from quadnav.experiments.planar_study import PlanarStudy, planar_metrics, run_planar_study
 
 SEEDS = 20
 

@@ -11,9 +11,9 @@ from scipy.spatial.transform import Rotation
 from typer.testing import CliRunner
 
 from quadnav.cli.main import app
-from quadnav.cli.replay import replay_log
 from quadnav.errors import IoError
 from quadnav.experiments.replay import ReplayResult, config_from_px4, replay
+from quadnav.experiments.replay_run import replay_log
 from quadnav.geometry.trajectory import Trajectory
 from quadnav.io.ulog_sensors import read_ulog_sensors
 from tests.shared_data import PX4_EVENTS as EVENTS

@@ -17,8 +17,10 @@ from quadnav.geometry.rotations import Pose
 from quadnav.io.mavlink import (
     SIGNING_KEY_ENV,
     MavlinkLink,
+    VehicleCommand,
     check_bind,
     covariance_enu_to_ned,
+    decode_vehicle_command,
     from_upper_triangle,
     parse_url,
     read_signing_key,
@@ -241,3 +243,33 @@ def test_signing_key_from_a_file_the_environment_or_the_command_line(tmp_path: P
     f.write_text(key.hex()[:-2])  # 31 bytes
     with pytest.raises(ConfigError, match=r"--signing-key-file .*64 hexadecimal digits"):
         read_signing_key(key_hex=None, key_file=f, environ={})
+
+
+def test_vehicle_commands_decode_from_their_messages() -> None:
+    """Arm/disarm, PX4's offboard mode from either message, an unknown command, a non-command."""
+    from pymavlink import mavutil
+
+    m = mavutil.mavlink
+
+    def long(cmd: int, p1: float = 0.0, p2: float = 0.0) -> object:
+        return m.MAVLink_command_long_message(1, 1, cmd, 0, p1, p2, 0, 0, 0, 0, 0)
+
+    arm = m.MAV_CMD_COMPONENT_ARM_DISARM
+    mode = m.MAV_CMD_DO_SET_MODE
+    assert decode_vehicle_command(long(arm, 1.0)) == VehicleCommand(
+        kind="arm", arm=True, command_id=arm
+    )
+    assert decode_vehicle_command(long(arm, 0.0)) == VehicleCommand(
+        kind="arm", arm=False, command_id=arm
+    )
+    assert decode_vehicle_command(long(mode, 1.0, 6.0)) == VehicleCommand(
+        kind="set_mode", custom_mode=6 << 16, command_id=mode
+    )
+    assert decode_vehicle_command(m.MAVLink_set_mode_message(1, 1, 6 << 16)) == VehicleCommand(
+        kind="set_mode", custom_mode=6 << 16
+    )
+    takeoff = m.MAV_CMD_NAV_TAKEOFF
+    assert decode_vehicle_command(long(takeoff)) == VehicleCommand(
+        kind="unsupported", command_id=takeoff
+    )
+    assert decode_vehicle_command(m.MAVLink_heartbeat_message(2, 12, 0, 0, 4, 3)) is None

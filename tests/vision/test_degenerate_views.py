@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from quadnav.cli.markers import run_markers
+from quadnav.experiments.markers_run import run_markers
 from quadnav.geometry.rotations import Pose
 from quadnav.sim.camera import RenderSettings, SyntheticCamera, board_object
 from quadnav.vision.config import MarkersConfig

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from quadnav.geometry.camera import thesis_camera
 from quadnav.geometry.rotations import Pose
-from quadnav.vision.camera import thesis_camera
 from quadnav.vision.markers import MarkerDetections
 from quadnav.vision.overlay import axis_polylines, draw_overlay
 

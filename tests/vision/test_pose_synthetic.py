@@ -10,9 +10,9 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from quadnav.experiments.markers import look_at, synthetic_marker_study
+from quadnav.geometry.camera import PinholeCamera
 from quadnav.geometry.rotations import Pose
 from quadnav.sim.camera import RenderSettings, SyntheticCamera, board_object, marker_object
-from quadnav.vision.camera import PinholeCamera
 from quadnav.vision.markers import CharucoSpec, CharucoTarget, get_dictionary
 from quadnav.vision.pipeline import MapBoard, MapMarker, MarkerMap, MarkerPipeline
 from quadnav.vision.pose import marker_corners_3d, mount_pose, solve_pnp, vehicle_pose

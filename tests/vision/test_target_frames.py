@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from quadnav.cli.markers import load_markers_config, run_markers
+from quadnav.experiments.markers_run import load_markers_config, run_markers
 from quadnav.geometry.rotations import Pose
 from quadnav.sim.camera import (
     PlanarObject,

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from quadnav.cli.markers import load_markers_config, run_markers
+from quadnav.experiments.markers_run import load_markers_config, run_markers
 from tests.shared_data import SHARED, needs
 
 DATA = SHARED / "thesis_rig"

@@ -11,8 +11,8 @@ from rich.table import Table
 
 from quadnav.cli.common import command_help, console, handle_errors, progress_bar
 from quadnav.eval.na import fmt_metric
-from quadnav.eval.planar import PlanarStudy, run_planar_study
 from quadnav.experiments.planar import PlanarConfig
+from quadnav.experiments.planar_study import PlanarStudy, run_planar_study
 from quadnav.io.config import load_config
 
 __all__ = [

@@ -13,8 +13,8 @@ from quadnav.cli.common import command_help, console, handle_errors, progress_ba
 from quadnav.cli.planar import JobsOpt, OutOpt, SeedsOpt, SetOpt, run_planar_config
 from quadnav.errors import ConfigError
 from quadnav.eval.na import fmt_metric
-from quadnav.eval.nav import run_nav_study
 from quadnav.experiments.nav import NavScenario
+from quadnav.experiments.nav_study import run_nav_study
 from quadnav.experiments.planar import PlanarConfig
 from quadnav.experiments.scenarios import NAV_SCENARIOS, nav_builtin
 from quadnav.io.config import load_config

@@ -11,7 +11,6 @@ from rich.table import Table
 
 from quadnav.cli.common import check_range, command_help, console, err_console, handle_errors
 from quadnav.errors import ConfigError
-from quadnav.eval.flight import write_flight_run
 from quadnav.eval.na import fmt_metric
 from quadnav.experiments.flight import (
     BUILTIN,
@@ -20,6 +19,7 @@ from quadnav.experiments.flight import (
     builtin_config,
     run_flight,
 )
+from quadnav.experiments.flight_study import write_flight_run
 from quadnav.io.config import load_config
 from quadnav.io.mavlink import SIGNING_KEY_ENV, check_bind, read_signing_key
 

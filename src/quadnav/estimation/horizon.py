@@ -121,7 +121,7 @@ class Kinematics(Protocol):
 
 
 class Estimator(Protocol):
-    """What every quadnav estimator offers (DESIGN.md, Interfaces)."""
+    """What every quadnav estimator offers (ARCHITECTURE.md, Interfaces)."""
 
     def push(self, sample: Sample) -> None:
         """Any sample, in arrival order; ``sample.t_ns`` may lie in the past."""

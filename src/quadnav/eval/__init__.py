@@ -1,4 +1,5 @@
-"""Evaluation: association, alignment, APE/RPE/NEES, plots, run reports and the planar study."""
+"""Evaluation: association, alignment, APE/RPE/NEES, plots and run reports, over trajectories and
+arrays. It runs nothing: the studies that produce the runs are in :mod:`quadnav.experiments`."""
 
 from __future__ import annotations
 
@@ -23,6 +24,7 @@ from quadnav.eval.metrics import (
     rpe,
     rpe_matrices,
     rpe_pairs,
+    settling_time_s,
 )
 
 if TYPE_CHECKING:
@@ -33,15 +35,7 @@ if TYPE_CHECKING:
         evaluate_pair,
         run_eval,
     )
-    from quadnav.eval.planar import (
-        PlanarStudy,
-        planar_metrics,
-        planar_trajectory,
-        plot_monte_carlo,
-        plot_planar_run,
-        run_planar_study,
-        summarize_seeds,
-    )
+    from quadnav.eval.planar import planar_trajectory, plot_monte_carlo, summarize_seeds
     from quadnav.eval.plots import plot_errors, plot_trajectories, plot_xyz
     from quadnav.eval.report import ReportSection, ReportTable, write_report
     from quadnav.eval.runs import RunRow, compare_runs, format_table
@@ -53,7 +47,6 @@ __all__ = [
     "EvalError",
     "EvalOptions",
     "EvalRun",
-    "PlanarStudy",
     "PoseRelation",
     "ReportSection",
     "ReportTable",
@@ -69,11 +62,9 @@ __all__ = [
     "format_table",
     "nees",
     "nis",
-    "planar_metrics",
     "planar_trajectory",
     "plot_errors",
     "plot_monte_carlo",
-    "plot_planar_run",
     "plot_trajectories",
     "plot_xyz",
     "pose_errors",
@@ -82,7 +73,7 @@ __all__ = [
     "rpe_matrices",
     "rpe_pairs",
     "run_eval",
-    "run_planar_study",
+    "settling_time_s",
     "summarize_seeds",
     "umeyama",
     "write_report",
@@ -90,27 +81,23 @@ __all__ = [
 ]
 
 # The module of each other name: they load on first use, so ``quadnav eval`` does not import the
-# planar study (scipy.stats) or the plots (matplotlib) it does not need.
+# plots (matplotlib) it does not need.
 _WHERE: dict[str, str] = {
     "EstimateResult": "quadnav.eval.evaluate",
     "EvalOptions": "quadnav.eval.evaluate",
     "EvalRun": "quadnav.eval.evaluate",
-    "PlanarStudy": "quadnav.eval.planar",
     "ReportSection": "quadnav.eval.report",
     "ReportTable": "quadnav.eval.report",
     "RunRow": "quadnav.eval.runs",
     "compare_runs": "quadnav.eval.runs",
     "evaluate_pair": "quadnav.eval.evaluate",
     "format_table": "quadnav.eval.runs",
-    "planar_metrics": "quadnav.eval.planar",
     "planar_trajectory": "quadnav.eval.planar",
     "plot_errors": "quadnav.eval.plots",
     "plot_monte_carlo": "quadnav.eval.planar",
-    "plot_planar_run": "quadnav.eval.planar",
     "plot_trajectories": "quadnav.eval.plots",
     "plot_xyz": "quadnav.eval.plots",
     "run_eval": "quadnav.eval.evaluate",
-    "run_planar_study": "quadnav.eval.planar",
     "summarize_seeds": "quadnav.eval.planar",
     "write_report": "quadnav.eval.report",
 }

@@ -7,6 +7,7 @@ poses after alignment; RPE compares relative motions ``E = (Q_i^-1 Q_j)^-1 (P_i^
 
 from __future__ import annotations
 
+import math
 from typing import Literal
 
 import numpy as np
@@ -28,6 +29,7 @@ __all__ = [
     "rpe",
     "rpe_matrices",
     "rpe_pairs",
+    "settling_time_s",
 ]
 
 FloatArray = NDArray[np.float64]
@@ -254,3 +256,12 @@ def position_nees(ref: Trajectory, est: Trajectory) -> FloatArray:
         raise EvalError("no axis has a positive variance: no NEES")
     e = (est.p_W_B - ref.p_W_B)[:, axes]
     return nees(e, est.cov_p[:, axes][:, :, axes])
+
+
+def settling_time_s(t: FloatArray, err: FloatArray, band: float) -> float:
+    """First time after which ``err`` stays below ``band`` (NaN if it never settles)."""
+    outside = np.flatnonzero(~(err < band))
+    if len(outside) == 0:
+        return float(t[0])
+    last = outside[-1]
+    return float(t[last + 1]) if last + 1 < len(t) else math.nan

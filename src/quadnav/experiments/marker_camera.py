@@ -10,10 +10,10 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.random import Generator
 
+from quadnav.geometry.camera import PinholeCamera, thesis_camera
 from quadnav.geometry.rotations import Pose
 from quadnav.messages import PoseSample, VehicleState
 from quadnav.sim.camera import RenderSettings, SyntheticCamera, marker_object
-from quadnav.vision.camera import PinholeCamera, thesis_camera
 from quadnav.vision.markers import get_dictionary
 from quadnav.vision.pipeline import FramePose, MapMarker, MarkerMap, MarkerPipeline
 from quadnav.vision.pose import mount_pose

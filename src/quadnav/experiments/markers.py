@@ -11,9 +11,9 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
+from quadnav.geometry.camera import PinholeCamera
 from quadnav.geometry.rotations import Pose
 from quadnav.sim.camera import RenderSettings, SyntheticCamera, marker_object
-from quadnav.vision.camera import PinholeCamera
 from quadnav.vision.markers import get_dictionary
 from quadnav.vision.pipeline import MarkerMap, MarkerPipeline
 

@@ -30,7 +30,7 @@ from quadnav.geometry.frames import (
     rotation_ned_frd_to_enu_flu,
 )
 from quadnav.geometry.rotations import Pose, quat_xyzw_from_matrix
-from quadnav.io.mavlink import MavlinkLink
+from quadnav.io.mavlink import MavlinkLink, decode_vehicle_command
 from quadnav.messages import HeightSample, PoseSample, VehicleState
 from quadnav.sim.rigid_body import RigidBodyQuadrotor
 from quadnav.sim.sensors import BaroSensor, DelayLine, IntegratingImu, VisionPoseSensor
@@ -84,21 +84,16 @@ class SitlVehicle:
 
     # -- MAVLink in --------------------------------------------------------------------------
     def _handle(self, msg: Any, t_s: float) -> None:
-        m = self.link._mavutil.mavlink
+        command = decode_vehicle_command(msg)
         name = msg.get_type()
-        if name == "COMMAND_LONG":
-            result = m.MAV_RESULT_ACCEPTED
-            if msg.command == m.MAV_CMD_COMPONENT_ARM_DISARM:
-                self.armed = msg.param1 > 0.5
+        if command is not None:
+            if command.kind == "arm":
+                self.armed = command.arm
                 if not self.armed:
                     self.offboard = False
-            elif msg.command == m.MAV_CMD_DO_SET_MODE:
-                self._set_mode(int(msg.param2) << 16, t_s)
-            else:
-                result = m.MAV_RESULT_UNSUPPORTED
-            self.link.mav.command_ack_send(msg.command, result)
-        elif name == "SET_MODE":
-            self._set_mode(int(msg.custom_mode), t_s)
+            elif command.kind == "set_mode":
+                self._set_mode(command.custom_mode, t_s)
+            self.link.ack_command(command)
         elif name == "SET_POSITION_TARGET_LOCAL_NED":
             p = ned_to_enu(np.array([msg.x, msg.y, msg.z]))
             if np.isfinite(p).all() and math.isfinite(msg.yaw):

@@ -24,7 +24,7 @@ import time
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 os.environ.setdefault("MAVLINK20", "1")
 
@@ -45,8 +45,10 @@ __all__ = [
     "SIGNING_KEY_ENV",
     "MavlinkLink",
     "ReceivedState",
+    "VehicleCommand",
     "check_bind",
     "covariance_enu_to_ned",
+    "decode_vehicle_command",
     "parse_url",
     "read_signing_key",
     "upper_triangle",
@@ -268,6 +270,37 @@ def _peer_udp_class(mavutil: Any) -> type[Any]:
     return PeerUdp
 
 
+@dataclass(frozen=True, slots=True, kw_only=True)
+class VehicleCommand:
+    """A command to a vehicle: arm/disarm or a mode change, from COMMAND_LONG or SET_MODE.
+
+    ``command_id`` is COMMAND_LONG's command (it wants a COMMAND_ACK); None for SET_MODE."""
+
+    kind: Literal["arm", "set_mode", "unsupported"]
+    arm: bool = False
+    custom_mode: int = 0
+    command_id: int | None = None
+
+
+def decode_vehicle_command(msg: Any) -> VehicleCommand | None:
+    """What a vehicle is told to do by ``msg``; None for a message that is not a command.
+    MAV_CMD_DO_SET_MODE carries PX4's custom main mode in ``param2`` (bits 16-23 of the mode)."""
+    from pymavlink import mavutil  # type: ignore[import-untyped]
+
+    m = mavutil.mavlink
+    name = msg.get_type()
+    if name == "SET_MODE":
+        return VehicleCommand(kind="set_mode", custom_mode=int(msg.custom_mode))
+    if name != "COMMAND_LONG":
+        return None
+    cid = int(msg.command)
+    if cid == m.MAV_CMD_COMPONENT_ARM_DISARM:
+        return VehicleCommand(kind="arm", arm=msg.param1 > 0.5, command_id=cid)
+    if cid == m.MAV_CMD_DO_SET_MODE:
+        return VehicleCommand(kind="set_mode", custom_mode=int(msg.param2) << 16, command_id=cid)
+    return VehicleCommand(kind="unsupported", command_id=cid)
+
+
 @dataclass
 class ReceivedState:
     """What a vehicle told us, in ENU/FLU."""
@@ -303,7 +336,7 @@ class MavlinkLink:
         allow_unsigned: bool = False,
         allow_remote: bool = False,
     ) -> None:
-        from pymavlink import mavutil  # type: ignore[import-untyped]
+        from pymavlink import mavutil
 
         self._mavutil = mavutil
         if signing_key is not None and len(signing_key) != 32:
@@ -395,6 +428,16 @@ class MavlinkLink:
         self.mav.set_position_target_local_ned_send(self.boot_ms(), target_system, target_component, m.MAV_FRAME_LOCAL_NED,
                                                     mask, *map(float, p), 0, 0, 0, 0, 0, 0, yaw_ned, 0)  # fmt: skip
         self._count("SET_POSITION_TARGET_LOCAL_NED")
+
+    def ack_command(self, command: VehicleCommand) -> None:
+        """COMMAND_ACK for a COMMAND_LONG: accepted, or unsupported; nothing for SET_MODE."""
+        if command.command_id is None:
+            return
+        m = self._mavutil.mavlink
+        ok = command.kind != "unsupported"
+        result = m.MAV_RESULT_ACCEPTED if ok else m.MAV_RESULT_UNSUPPORTED
+        self.mav.command_ack_send(command.command_id, result)
+        self._count("COMMAND_ACK")
 
     # -- receiving ---------------------------------------------------------------------------
     def poll(self, timeout_s: float = 0.0) -> list[Any]:

@@ -14,9 +14,9 @@ from typing import Any
 import cv2
 import numpy as np
 
-from quadnav.errors import IoError, VisionError
+from quadnav.errors import GeometryError, IoError
+from quadnav.geometry.camera import PinholeCamera
 from quadnav.io.frames import quiet_libraries
-from quadnav.vision.camera import PinholeCamera
 
 __all__ = ["opencv_error_text", "read_camera_yaml", "read_opencv_yaml", "write_camera_yaml"]
 
@@ -100,7 +100,7 @@ def read_camera_yaml(path: str | Path) -> PinholeCamera:
     width, height = size["image_width"], size["image_height"]
     try:
         return PinholeCamera(K, np.asarray(d["distortion_coefficients"]), width, height)
-    except VisionError as exc:
+    except GeometryError as exc:
         raise IoError(f"{path}: {exc}") from None
 
 

@@ -16,8 +16,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from quadnav.errors import SimError
+from quadnav.geometry.camera import PinholeCamera
 from quadnav.geometry.rotations import Pose
-from quadnav.vision.camera import PinholeCamera
 
 __all__ = [
     "PlanarObject",

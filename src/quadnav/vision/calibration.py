@@ -12,7 +12,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from quadnav.errors import VisionError
-from quadnav.vision.camera import PinholeCamera
+from quadnav.geometry.camera import PinholeCamera
 from quadnav.vision.markers import CharucoDetections, CharucoTarget, get_dictionary
 
 __all__ = ["BoardNames", "Calibration", "calibrate_charuco", "charuco_board_problem"]

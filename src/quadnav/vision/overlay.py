@@ -9,8 +9,8 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from quadnav.geometry.camera import PinholeCamera
 from quadnav.geometry.rotations import Pose
-from quadnav.vision.camera import PinholeCamera
 from quadnav.vision.markers import MarkerDetections, to_gray
 
 __all__ = ["axis_polylines", "draw_overlay"]

@@ -18,8 +18,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from quadnav.errors import GeometryError, VisionError
+from quadnav.geometry.camera import PinholeCamera
 from quadnav.geometry.rotations import Pose
-from quadnav.vision.camera import PinholeCamera
 from quadnav.vision.markers import (
     CharucoSpec,
     CharucoTarget,

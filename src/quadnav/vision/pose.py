@@ -23,8 +23,8 @@ from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
 from quadnav.errors import VisionError
+from quadnav.geometry.camera import PinholeCamera
 from quadnav.geometry.rotations import Pose, so3_log
-from quadnav.vision.camera import PinholeCamera
 
 __all__ = [
     "DegeneratePoseError",

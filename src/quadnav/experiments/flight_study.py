@@ -1,4 +1,4 @@
-"""Metrics, plots and run folders of closed-loop flights (``quadnav sim``)."""
+"""Closed-loop flights (``quadnav sim``): their metrics, plots and run folders."""
 
 from __future__ import annotations
 
@@ -15,6 +15,7 @@ from matplotlib.patches import Rectangle
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
+from quadnav.eval.metrics import settling_time_s
 from quadnav.eval.na import na, rms_or_na
 from quadnav.eval.report import ReportSection, ReportTable, write_report
 from quadnav.experiments.flight import FlightRun
@@ -32,15 +33,6 @@ from quadnav.io.trajectory_io import write_tum
 __all__ = ["flight_metrics", "plot_flight", "write_flight_run"]
 
 FloatArray = NDArray[np.float64]
-
-
-def settling_time_s(t: FloatArray, err: FloatArray, band: float) -> float:
-    """First time after which ``err`` stays below ``band`` (NaN if it never settles)."""
-    outside = np.flatnonzero(~(err < band))
-    if len(outside) == 0:
-        return float(t[0])
-    last = outside[-1]
-    return float(t[last + 1]) if last + 1 < len(t) else math.nan
 
 
 def flight_metrics(run: FlightRun) -> dict[str, Any]:

@@ -1,4 +1,5 @@
-"""Metrics, plots and run folders of the main job's navigation flights (``quadnav run``)."""
+"""The main job's navigation study (``quadnav run``): its seeds run, their metrics, plots and
+run folders."""
 
 from __future__ import annotations
 
@@ -20,8 +21,8 @@ from scipy.stats import chi2
 from quadnav.eval.metrics import nees
 from quadnav.eval.na import Metric, max_or_na, mean_or_na, median_or_na, na, rms_or_na
 from quadnav.eval.report import ReportSection, ReportTable, write_report
-from quadnav.eval.seeds import run_tasks
 from quadnav.experiments.nav import NavRunResult, NavScenario, run_nav
+from quadnav.experiments.seeds import run_tasks
 from quadnav.geometry.trajectory import Trajectory
 from quadnav.io.config import dump_config
 from quadnav.io.run_folder import (

@@ -1,6 +1,6 @@
 """A pinhole camera with OpenCV's distortion model (``k1 k2 p1 p2 [k3 [k4 k5 k6 ...]]``).
 
-Pure maths on arrays; reading and writing OpenCV YAML files is in :mod:`quadnav.io.camera_yaml`.
+Pure maths on arrays; reading and writing OpenCV YAML files is in :mod:`quadnav.io.opencv_yaml`.
 """
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from quadnav.errors import VisionError
+from quadnav.errors import GeometryError
 
 __all__ = ["PinholeCamera", "thesis_camera"]
 
@@ -31,15 +31,15 @@ class PinholeCamera:
         K = np.asarray(self.K, dtype=np.float64)
         d = np.asarray(self.dist, dtype=np.float64).ravel()
         if K.shape != (3, 3) or not np.isfinite(K).all() or K[0, 0] <= 0 or K[1, 1] <= 0:
-            raise VisionError(
+            raise GeometryError(
                 f"camera matrix must be 3x3 with positive focal lengths, got {K.tolist()}"
             )
         if d.size not in (0, 4, 5, 8, 12, 14) or not np.isfinite(d).all():
-            raise VisionError(
+            raise GeometryError(
                 f"distortion must have 0, 4, 5, 8, 12 or 14 finite coefficients, got {d.size}"
             )
         if self.width <= 0 or self.height <= 0:
-            raise VisionError(f"image size must be positive, got {self.width}x{self.height}")
+            raise GeometryError(f"image size must be positive, got {self.width}x{self.height}")
         object.__setattr__(self, "K", K)
         object.__setattr__(self, "dist", d)
 
