@@ -139,6 +139,12 @@ def plot_flight(run: FlightRun, folder: Path) -> list[Path]:
     fig.savefig(paths[-1], dpi=100)
     plt.close(fig)
 
+    paths.append(_plot_top_view(run, folder))
+    return paths
+
+
+def _plot_top_view(run: FlightRun, folder: Path) -> Path:
+    """The path from above with the reference, the obstacles and the waypoints."""
     fig, ax = plt.subplots(figsize=(8, 7), constrained_layout=True)
     ax.plot(run.p[:, 0], run.p[:, 1], label="vehicle")
     if np.isfinite(run.ref_p).all():
@@ -163,10 +169,9 @@ def plot_flight(run: FlightRun, folder: Path) -> list[Path]:
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize=8)
     ax.set_title(f"{run.config.name}: top view")
-    paths.append(folder / "top_view.png")
-    fig.savefig(paths[-1], dpi=100)
+    fig.savefig(folder / "top_view.png", dpi=100)
     plt.close(fig)
-    return paths
+    return folder / "top_view.png"
 
 
 def write_flight_run(run: FlightRun, *, runs_root: Path) -> tuple[Path, dict[str, Any]]:

@@ -325,6 +325,18 @@ def run_planar_study(
     summary = {exp: summarize_seeds(v) for exp, v in per_seed.items()}
     if config.seeds > 1:
         plot_monte_carlo(per_seed, run_dir / "plots" / "monte_carlo.png")
+    _write_summary(config, run_dir, per_seed, summary)
+    finish_run_folder(run_dir)
+    return PlanarStudy(run_dir=run_dir, summary=summary, per_seed=per_seed)
+
+
+def _write_summary(
+    config: PlanarConfig,
+    run_dir: Path,
+    per_seed: dict[str, list[dict[str, Any]]],
+    summary: dict[str, dict[str, Any]],
+) -> None:
+    """metrics.json (every seed's metrics, their summary, the table) and the report."""
     table = [
         {
             "experiment": exp,
@@ -375,5 +387,3 @@ def run_planar_study(
             ReportSection(heading="Configuration", code=dump_config(config)),
         ],
     )
-    finish_run_folder(run_dir)
-    return PlanarStudy(run_dir=run_dir, summary=summary, per_seed=per_seed)
