@@ -341,3 +341,5 @@ class StateEstimate:
     x: FloatArray
     names: tuple[str, ...]
     P: FloatArray | None = field(default=None)
+    #: The body's angular rate (rad/s, body frame, gyro bias removed), where the estimator has one.
+    w_B: FloatArray | None = field(default=None)
