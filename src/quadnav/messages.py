@@ -28,6 +28,7 @@ __all__ = [
     "RangeScan",
     "Sample",
     "StateEstimate",
+    "TruthSample",
     "VehicleState",
     "VelocitySample",
     "check_t_ns",
@@ -293,7 +294,6 @@ Observation = (
     | RangeSample
     | VelocitySample
 )
-Sample = ImuSample | Observation
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -323,6 +323,22 @@ class VehicleState:
                 f"VehicleState.q_W_B_xyzw must be a unit quaternion, got {q.tolist()}"
             )
         object.__setattr__(self, "q_W_B_xyzw", q)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class TruthSample:
+    """The simulator's true state as a perfect sensor reports it (it feeds the truth estimator,
+    ``estimator.kind=truth``; a filter counts it as unsupported)."""
+
+    t_ns: int
+    state: VehicleState
+    source: str = "truth"
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "t_ns", check_t_ns(self.t_ns, "TruthSample"))
+
+
+Sample = ImuSample | Observation | TruthSample
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

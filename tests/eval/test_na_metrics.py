@@ -52,10 +52,10 @@ def test_a_dropout_over_the_whole_flight_says_why() -> None:
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         m = nav_metrics(run_nav(sc, 0))
-    assert m["output_rmse_with_vision_m"] == "n/a: no samples in the air with vision"
-    assert m["dropout_end_error_m"] == [] and m["dropout_recovery_s"] == []
-    assert is_na(m["hold_max_horizontal_error_m"])  # 0.5 s holds: none lasts over 1 s
-    assert isinstance(m["output_rmse_m"], float)  # what can be measured still is
+    assert m.output_rmse_with_vision_m == "n/a: no samples in the air with vision"
+    assert m.dropout_end_error_m == [] and m.dropout_recovery_s == []
+    assert is_na(m.hold_max_horizontal_error_m)  # 0.5 s holds: none lasts over 1 s
+    assert isinstance(m.output_rmse_m, float)  # what can be measured still is
 
 
 def test_a_planar_run_shorter_than_the_delay_is_refused_naming_the_keys() -> None:

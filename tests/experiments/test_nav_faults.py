@@ -29,15 +29,15 @@ def test_gps_glitch_of_20_m_is_gated_and_counted(seed: int) -> None:
     )
     r = run_nav(sc, seed)
     m = nav_metrics(r)
-    gps = m["counts"]["gps"]
+    gps = m.sources["gps"]
     # 1.5 s at 5 Hz: every glitched fix is refused by the gate, nothing else is
-    assert 7 <= gps["rejected_gate"] <= 9
+    assert 7 <= gps.rejected_gate <= 9
     t = r.t_ns * 1e-9
     during = (t >= 12.2) & (t < 14.0)
     err = np.linalg.norm(r.output_p - r.truth_p, axis=1)
     assert err[during].max() < 0.5  # the glitch never reached the estimate
-    assert m["output_rmse_m"] <= 0.6 * sc.gps.sigma_h_m
-    assert not m["filter_events"]
+    assert m.output_rmse_m <= 0.6 * sc.gps.sigma_h_m
+    assert not m.filter_events
 
 
 def test_a_glitch_that_persists_resets_the_position_and_says_so() -> None:
@@ -59,8 +59,8 @@ def test_a_glitch_that_persists_resets_the_position_and_says_so() -> None:
 def test_vision_frame_jump_with_reset_counter_is_no_jump_in_the_output(seed: int) -> None:
     r = run_nav(scenario("fault_vision_jump"), seed)
     m = nav_metrics(r)
-    assert any("re-anchored" in e for e in m["filter_events"])
-    assert m["counts"]["vision"]["rejected_gate"] <= 3
+    assert any("re-anchored" in e for e in m.filter_events)
+    assert m.sources["vision"].rejected_gate <= 3
     assert output_jump_m(r) < 0.01  # the frame moved by 1.1 m and 20 degrees
     t = r.t_ns * 1e-9
     after = (t > 13.0) & (r.truth_p[:, 2] > 0.1)
@@ -72,11 +72,11 @@ def test_vision_frame_jump_with_reset_counter_is_no_jump_in_the_output(seed: int
 def test_nan_imu_samples_and_late_or_repeated_samples_are_rejected_and_counted(seed: int) -> None:
     r = run_nav(scenario("fault_bad_samples"), seed)
     m = nav_metrics(r)
-    assert m["counts"]["imu"] == {"rejected_out_of_order": 2, "rejected_invalid": 3}
-    assert m["counts"]["vision"]["rejected_too_old"] == 2
+    assert m.imu.rejected_out_of_order == 2 and m.imu.rejected_invalid == 3
+    assert m.sources["vision"].rejected_too_old == 2
     # and the flight is as good as without them
-    assert m["output_rmse_with_vision_m"] <= 0.02
-    assert max(m["dropout_end_error_m"]) <= 0.20
+    assert m.output_rmse_with_vision_m <= 0.02
+    assert max(m.dropout_end_error_m) <= 0.20
 
 
 @pytest.mark.parametrize("seed", [0, 1])
@@ -85,14 +85,14 @@ def test_rotated_vision_frame_px4_alignment_in_flight(seed: int) -> None:
     (1.5, -0.7) m; the heading is the magnetometer's; the flight is still centimetre-good."""
     r = run_nav(scenario("indoor_vision_rotated"), seed)
     m = nav_metrics(r)
-    assert m["output_rmse_with_vision_m"] <= 0.03
-    assert m["hold_max_horizontal_error_m"] <= 0.05
-    assert m["counts"]["vision"]["fused"] > 0.95 * m["counts"]["vision"]["received"]
+    assert m.output_rmse_with_vision_m <= 0.03
+    assert m.hold_max_horizontal_error_m <= 0.05
+    assert m.sources["vision"].fused > 0.95 * m.sources["vision"].received
 
 
 def test_range_finder_in_flight() -> None:
     r = run_nav(scenario("indoor_vision_range"), 0)
     m = nav_metrics(r)
-    rng = m["counts"]["range"]
-    assert rng["fused"] > 0.9 * rng["received"] > 400
-    assert 0.01 <= m["nis_above_95pct_gate"]["range"] <= 0.10
+    rng = m.sources["range"]
+    assert rng.fused > 0.9 * rng.received > 400
+    assert 0.01 <= m.nis_above_95pct_gate["range"] <= 0.10

@@ -74,30 +74,30 @@ def run_command(
             config, runs_root=out, progress=update, jobs=jobs or os.cpu_count() or 1
         )
     s = study.summary
-    table = Table(title=f"{config.name}: {s['seeds']} seed(s) (median; worst case where marked)")
+    table = Table(title=f"{config.name}: {s.seeds} seed(s) (median; worst case where marked)")
     table.add_column("metric")
     table.add_column("value", justify="right")
     rows = [
-        ("output position RMSE in the air (m)", s["output_rmse_m"]),
-        ("output position RMSE with vision (m)", s["output_rmse_with_vision_m"]),
-        ("error at the end of a dropout, worst (m)", s["dropout_end_error_max_m"]),
-        ("back under 3 cm after a dropout, worst (s)", s["dropout_recovery_max_s"]),
-        ("hover horizontal error, worst (m)", s["hold_max_horizontal_error_m"]),
-        ("delayed estimate RMSE (m)", s["delayed_rmse_m"]),
-        ("attitude RMSE (deg)", s["attitude_rmse_deg"]),
-        ("NEES, mean (15 states)", s["nees_mean"]),
+        ("output position RMSE in the air (m)", s.output_rmse_m),
+        ("output position RMSE with vision (m)", s.output_rmse_with_vision_m),
+        ("error at the end of a dropout, worst (m)", s.dropout_end_error_max_m),
+        ("back under 3 cm after a dropout, worst (s)", s.dropout_recovery_max_s),
+        ("hover horizontal error, worst (m)", s.hold_max_horizontal_error_m),
+        ("delayed estimate RMSE (m)", s.delayed_rmse_m),
+        ("attitude RMSE (deg)", s.attitude_rmse_deg),
+        ("NEES, mean (15 states)", s.nees_mean),
         (
             "gyro bias error / true bias, 60 s after alignment or at the end",
-            s["gyro_bias_error_fraction_median"],
+            s.gyro_bias_error_fraction_median,
         ),
         (
             "accel bias error / true bias, 60 s after alignment or at the end",
-            s["accel_bias_error_fraction_median"],
+            s.accel_bias_error_fraction_median,
         ),
     ]
     for k, v in rows:
         table.add_row(k, fmt_metric(v))
-    for src, frac in s.get("nis_above_95pct_gate", {}).items():
+    for src, frac in s.nis_above_95pct_gate.items():
         table.add_row(f"{src}: innovations beyond the 95 % gate", f"{frac:.1%}")
     console.print(table)
     console.print(str(study.run_dir), soft_wrap=True, highlight=False)

@@ -24,10 +24,11 @@ What is model-specific (the strapdown integration and the attitude error) comes 
 
 from __future__ import annotations
 
+import dataclasses
 import heapq
 import math
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
@@ -51,7 +52,9 @@ __all__ = [
     "HorizonConfig",
     "Kinematics",
     "NavState",
+    "SourceFusion",
     "SourceStats",
+    "fusion_arrays",
     "imu_buffer_length",
     "require_positive",
 ]
@@ -156,6 +159,47 @@ class FusionRecord:
     result: FusionResult
 
 
+@dataclass(frozen=True, slots=True, kw_only=True)
+class SourceFusion:
+    """One source's fusion records as arrays (one row per observation fused or gated).
+
+    ``innovation`` is (N, width) with the widest observation's width; a narrower one (a pose
+    without yaw, say) is padded with NaN.
+    """
+
+    t_obs_ns: NDArray[np.int64]
+    nis: FloatArray
+    test_ratio: FloatArray
+    accepted: NDArray[np.bool_]
+    dof: NDArray[np.int64]
+    innovation: FloatArray
+
+    def __len__(self) -> int:
+        return len(self.t_obs_ns)
+
+
+def fusion_arrays(log: Iterable[FusionRecord]) -> dict[str, SourceFusion]:
+    """A fusion log as arrays, per source (the one conversion every run uses)."""
+    by_source: dict[str, list[FusionRecord]] = {}
+    for r in log:
+        by_source.setdefault(r.source, []).append(r)
+    out: dict[str, SourceFusion] = {}
+    for src, recs in by_source.items():
+        width = max(len(r.result.innovation) for r in recs)
+        innov = np.full((len(recs), width), np.nan)
+        for k, r in enumerate(recs):
+            innov[k, : len(r.result.innovation)] = r.result.innovation
+        out[src] = SourceFusion(
+            t_obs_ns=np.array([r.t_obs_ns for r in recs], dtype=np.int64),
+            nis=np.array([r.result.nis for r in recs], dtype=np.float64),
+            test_ratio=np.array([r.result.test_ratio for r in recs], dtype=np.float64),
+            accepted=np.array([r.result.accepted for r in recs], dtype=bool),
+            dof=np.array([len(r.result.innovation) for r in recs], dtype=np.int64),
+            innovation=innov,
+        )
+    return out
+
+
 class DelayedFilter(Protocol):
     """A filter that runs at the delayed horizon (predict with IMU, fuse observations)."""
 
@@ -217,7 +261,7 @@ class HorizonConfig:
 
 
 @dataclass(slots=True)
-class SourceStats:
+class SourceStats:  # counters, mutated while the estimator runs (copied into a report)
     """Counters for one observation source."""
 
     received: int = 0
@@ -269,6 +313,7 @@ class DelayedHorizonEstimator:
         self._vel_err_integ = np.zeros_like(nav0.vel)
         self._pos_err_integ = np.zeros_like(nav0.pos)
         self._dtheta_corr = np.zeros(3)
+        self._last_gyro: FloatArray | None = None
         self._counters = _Counters()
         # Every fusion with its innovation and test ratio; a live loop bounds it (newest kept).
         self.fusion_log: deque[FusionRecord] = deque(maxlen=config.max_fusion_log)
@@ -308,9 +353,23 @@ class DelayedHorizonEstimator:
     def output(self) -> StateEstimate:
         nav = self.output_nav()
         x = np.concatenate([nav.pos, nav.vel, nav.att])
-        return self.kin.to_estimate(nav, x, self.filter.names, None)
+        est = self.kin.to_estimate(nav, x, self.filter.names, None)
+        return dataclasses.replace(est, w_B=self.body_rate())
+
+    def body_rate(self) -> FloatArray | None:
+        """The newest gyro reading less the filter's gyro bias (None before any IMU sample)."""
+        if self._last_gyro is None:
+            return None
+        bg = self.filter.imu_biases()[0]
+        if self._last_gyro.shape != bg.shape:
+            return None
+        return np.asarray(self._last_gyro - bg, dtype=np.float64)
 
     # -- statistics ------------------------------------------------------------------------
+    @property
+    def imu_received(self) -> int:
+        return self._counters.imu_received
+
     @property
     def imu_rejected_out_of_order(self) -> int:
         return self._counters.imu_rejected_out_of_order
@@ -390,6 +449,7 @@ class DelayedHorizonEstimator:
             return
         dt_s = (imu.t_ns - self._t_last_imu_ns) * 1e-9
         self._t_last_imu_ns = imu.t_ns
+        self._last_gyro = imu.gyro_rad_s
         self._imu_buffer.append((imu, dt_s))
         if self.buffer_length > 1:
             self._integrate_output(imu, dt_s)

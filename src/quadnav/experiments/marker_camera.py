@@ -14,6 +14,7 @@ from quadnav.geometry.camera import PinholeCamera, thesis_camera
 from quadnav.geometry.rotations import Pose
 from quadnav.messages import PoseSample, VehicleState
 from quadnav.sim.camera import RenderSettings, SyntheticCamera, marker_object
+from quadnav.sim.sensors import Ticker
 from quadnav.vision.markers import get_dictionary
 from quadnav.vision.pipeline import FramePose, MapMarker, MarkerMap, MarkerPipeline
 from quadnav.vision.pose import mount_pose
@@ -53,16 +54,15 @@ class MarkerCameraSensor:
         self.scene = SyntheticCamera(self.camera, objects, RenderSettings(noise_sigma=self.noise_sigma, blur_exposure_s=self.exposure_s, seed=self.seed))  # fmt: skip
         mmap = MarkerMap("DICT_4X4_250", {m.id: m for m in self.markers})
         self.pipeline = MarkerPipeline(self.camera, mmap, self.T_B_C)
-        self._next = 0
+        self._ticker = Ticker(self.period_ns)
         self.frames = 0
         self.poses = 0
         self.last: FramePose | None = None
 
     def sample(self, truth: VehicleState, t_ns: int, rng: Generator) -> PoseSample | None:
         del rng  # the image noise has its own generator
-        if t_ns < self._next:
+        if not self._ticker.due(t_ns):
             return None
-        self._next = t_ns + self.period_ns
         if any(a <= t_ns < b for a, b in self.dropouts_ns):
             return None
         assert self.camera is not None

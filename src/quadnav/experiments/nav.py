@@ -1,324 +1,72 @@
-"""The main job's flight: the rigid body flown by the cascaded PID on the navigation EKF's
-output predictor (or on the truth), with a delayed external pose (vision), a barometer and a
-biased IMU, ground alignment before take-off, and vision dropouts.
+"""The main job's flight: the rigid body flown by a controller on an estimator's output, fed by
+sensor channels.
 
-:class:`NavScenario` is the YAML scenario (every field has a default: the indoor flight of
-thesis 000 — take off to 1.5 m, hold, a 2 m square, hold, land, two 2 s vision dropouts).
-:func:`run_nav` returns arrays; files and plots belong to ``io`` and ``eval``.
+:func:`run_nav` composes the loop from parts, each chosen by the scenario
+(:class:`~quadnav.experiments.nav_config.NavScenario`):
+
+* the channels of :mod:`quadnav.experiments.nav_channels` (a sensor, its faults, its delay, its
+  own random stream), iterated over each step;
+* the estimator of :data:`ESTIMATORS` by ``estimator.kind`` (the navigation EKF levelled on the
+  ground, or the truth), pushed every sample that arrives;
+* the cascaded PID on the estimator's output (or on the truth with ``closed_loop: false``);
+* the plan (take off, hold, square, hold, land) and a logger of typed rows.
+
+It returns arrays (:class:`NavRunResult`); files and plots belong to ``io`` and ``eval``.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
-from typing import Literal, Self
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
-from pydantic import Field, model_validator
-from scipy.spatial.transform import Rotation
 
-from quadnav.config_model import (
-    MAX_DELAY_S,
-    MAX_DURATION_S,
-    MAX_RATE_HZ,
-    MAX_SIM_STEPS,
-    MIN_SIGMA,
-    ConfigModel,
-)
 from quadnav.control.cascaded_pid import CascadedPid, Setpoint
-from quadnav.control.trajectories import Waypoints
 from quadnav.errors import ExperimentError, SimError
-from quadnav.estimation.horizon import DelayedHorizonEstimator, HorizonConfig
-from quadnav.estimation.nav_ekf import NavEkf, NavEkfConfig
-from quadnav.experiments.marker_camera import MarkerCameraSensor, marker_field, thesis_mount
-from quadnav.geometry.rotations import quat_xyzw_from_matrix, rotation_matrix_xyzw, so3_log
-from quadnav.messages import (
-    GpsSample,
-    HeightSample,
-    ImuSample,
-    MagSample,
-    PoseSample,
-    RangeSample,
-    Sample,
-    VehicleState,
-    VelocitySample,
+from quadnav.estimation.horizon import HorizonConfig, SourceFusion, SourceStats
+from quadnav.estimation.nav_ekf import NavEkfConfig
+from quadnav.estimation.nav_filter import (
+    AligningNavFilter,
+    AlignmentSigmas,
+    EstimatorReport,
+    InitialSigmas,
+    NavEstimator,
+    NavFilterSetup,
+    TruthEstimator,
+    ground_alignment,
 )
+from quadnav.experiments.nav_channels import FlightPhase, build_channels
+from quadnav.experiments.nav_config import NavScenario
+from quadnav.geometry.rotations import rotation_matrix_xyzw, so3_log
+from quadnav.messages import Sample, StateEstimate, VehicleState
+from quadnav.sim.channels import Channel
 from quadnav.sim.rigid_body import RigidBodyQuadrotor
-from quadnav.sim.sensors import (
-    BaroSensor,
-    DelayLine,
-    GpsSensor,
-    IntegratingImu,
-    MagSensor,
-    RangeFinder,
-    VisionFrameJump,
-    VisionPoseSensor,
-)
+from quadnav.units import s_to_ns
 from quadnav.vehicle import RigidBodyParams
 
-__all__ = ["NavRunResult", "NavScenario", "ground_alignment", "run_nav"]
+__all__ = [
+    "ESTIMATORS",
+    "ImuCounts",
+    "NavRunResult",
+    "NavScenario",
+    "ground_alignment",
+    "heading_reference",
+    "nav_estimator",
+    "run_nav",
+]
 
 FloatArray = NDArray[np.float64]
-Vec3 = tuple[float, float, float]
-
-#: The range finder's shortest reading (m).
-RANGE_MIN_M = 0.05
 
 
-class ImuSection(ConfigModel):
-    rate_hz: float = Field(250.0, gt=0, le=MAX_RATE_HZ)
-    gyro_sigma_rad_s: float = Field(0.005, ge=MIN_SIGMA, description="white noise per sample")
-    accel_sigma_m_s2: float = Field(0.05, ge=MIN_SIGMA, description="white noise per sample")
-    gyro_bias_rw_rad_s_sqrt_s: float = Field(1e-4, gt=0)
-    accel_bias_rw_m_s2_sqrt_s: float = Field(1e-3, gt=0)
-    gyro_bias0_sigma_rad_s: float = Field(0.01, ge=0, description="turn-on bias spread")
-    accel_bias0_sigma_m_s2: float = Field(0.05, ge=0, description="turn-on bias spread")
-    lever_arm_m: Vec3 = Field(
-        (0.0, 0.0, 0.0), description="IMU mount offset from the centre of mass (body FLU)"
-    )
+@dataclass(frozen=True, slots=True, kw_only=True)
+class ImuCounts:
+    """What became of the IMU samples: taken, out of order, refused as invalid at the driver."""
 
-
-class VisionSection(ConfigModel):
-    enabled: bool = True
-    source: Literal["camera", "pose"] = Field(
-        "camera",
-        description="camera: rendered images of a marker field, detected and posed (thesis 000); "
-        "pose: the true pose plus noise (the fast shortcut)",
-    )
-    marker_grid: int = Field(6, ge=1, le=15, description="camera: n x n markers on the floor")
-    marker_spacing_m: float = Field(0.6, gt=0, description="camera: distance between markers")
-    marker_length_m: float = Field(0.2335, gt=0, description="camera: printed marker side")
-    marker_origin_m: tuple[float, float] = Field((-0.6, -0.6), description="camera: first marker")
-    image_noise: float = Field(2.0, ge=0, description="camera: grey-level noise of the images")
-    rate_hz: float = Field(30.0, gt=0, le=MAX_RATE_HZ)
-    delay_s: float = Field(0.25, ge=0, le=MAX_DELAY_S)
-    sigma_m: float = Field(0.01, ge=MIN_SIGMA)
-    yaw_sigma_rad: float = Field(0.01, ge=MIN_SIGMA)
-    dropouts_s: list[tuple[float, float]] = Field(
-        default_factory=lambda: [(9.0, 11.0), (15.0, 17.0)],
-        description="[start, end) windows with no vision",
-    )
-    frame_yaw_deg: float = Field(0.0, description="yaw of the vision frame in the world")
-    frame_offset_m: Vec3 = Field((0.0, 0.0, 0.0), description="vision frame origin in the world")
-    jumps: list[tuple[float, float, float, float, float]] = Field(
-        default_factory=list,
-        description="[t_s, yaw_deg, dx_m, dy_m, dz_m]: the vision frame re-initialises (reset counter + 1)",
-    )
-
-
-class BaroSection(ConfigModel):
-    enabled: bool = True
-    rate_hz: float = Field(50.0, gt=0, le=MAX_RATE_HZ)
-    delay_s: float = Field(0.02, ge=0, le=MAX_DELAY_S)
-    sigma_m: float = Field(0.1, ge=MIN_SIGMA)
-    drift_m_sqrt_s: float = Field(0.002, ge=0, description="random-walk drift of the offset")
-
-
-class RangeSection(ConfigModel):
-    enabled: bool = False
-    rate_hz: float = Field(20.0, gt=0, le=MAX_RATE_HZ)
-    delay_s: float = Field(0.01, ge=0, le=MAX_DELAY_S)
-    sigma_m: float = Field(0.02, ge=MIN_SIGMA)
-    max_m: float = Field(8.0, gt=RANGE_MIN_M, description=f"above the {RANGE_MIN_M} m it sees")
-
-
-class FaultsSection(ConfigModel):
-    """Faults injected into the sensor streams (times in seconds of flight time)."""
-
-    gps_glitch: list[tuple[float, float, float, float]] = Field(
-        default_factory=list, description="[start_s, end_s, east_m, north_m]: fixes jump by this"
-    )
-    imu_nan_s: list[float] = Field(
-        default_factory=list, description="an IMU sample carrying NaN at these times"
-    )
-    imu_repeat_s: list[float] = Field(
-        default_factory=list, description="an IMU sample delivered twice (the copy is out of order)"
-    )
-    vision_late_s: list[tuple[float, float]] = Field(
-        default_factory=list,
-        description="[t_s, extra_delay_s]: the vision sample of t_s arrives this much later",
-    )
-
-
-class GpsSection(ConfigModel):
-    enabled: bool = False
-    rate_hz: float = Field(5.0, gt=0, le=MAX_RATE_HZ)
-    delay_s: float = Field(0.2, ge=0, le=MAX_DELAY_S)
-    sigma_h_m: float = Field(0.5, ge=MIN_SIGMA)
-    sigma_v_m: float = Field(0.8, ge=MIN_SIGMA)
-    sigma_vel_m_s: float = Field(0.1, ge=MIN_SIGMA)
-    datum_lla: tuple[float, float, float] = Field(
-        (47.397742, 8.545594, 488.0), description="lat deg, lon deg, alt m"
-    )
-
-    @model_validator(mode="after")
-    def _datum(self) -> Self:
-        lat, lon, alt = self.datum_lla
-        if not -90.0 <= lat <= 90.0:
-            raise ValueError(f"datum_lla[0] (latitude) must be within +-90 degrees, got {lat:g}")
-        if not -180.0 <= lon <= 180.0:
-            raise ValueError(f"datum_lla[1] (longitude) must be within +-180 degrees, got {lon:g}")
-        if not -1000.0 <= alt <= 100_000.0:
-            raise ValueError(f"datum_lla[2] (altitude) must be within -1000..100000 m, got {alt:g}")
-        return self
-
-    outages_s: list[tuple[float, float]] = Field(
-        default_factory=list, description="[start, end) without a fix"
-    )
-
-
-class MagSection(ConfigModel):
-    enabled: bool = False
-    rate_hz: float = Field(50.0, gt=0, le=MAX_RATE_HZ)
-    declination_rad: float = 0.05
-    noise_sigma: float = Field(0.005, ge=0, description="per axis, in the field's unit (gauss)")
-    sigma_heading_rad: float = Field(
-        0.023, ge=MIN_SIGMA, description="heading noise the filter assumes"
-    )
-
-
-class PlanSection(ConfigModel):
-    height_m: float = Field(1.5, gt=0)
-    square_m: float = Field(2.0, gt=0)
-    speed_m_s: float = Field(1.0, gt=0)
-    accel_m_s2: float = Field(1.0, gt=0)
-    hold_s: float = Field(2.0, ge=0, le=MAX_DURATION_S)
-    yaw: Literal["fixed", "along_track"] = Field(
-        "fixed", description="fixed: face +x throughout; along_track: face the direction of travel"
-    )
-    yaw_rate_deg_s: float = Field(45.0, gt=0, description="turn rate of the along-track heading")
-
-
-class EstimatorSection(ConfigModel):
-    tau_vel_s: float = Field(0.1, gt=0)
-    tau_pos_s: float = Field(0.1, gt=0)
-    gate_probability: float = Field(0.9999, gt=0, lt=1)
-    align_s: float = Field(
-        0.5, gt=0, le=MAX_DURATION_S, description="time on the ground to level the filter"
-    )
-    imu_noise_inflation: float = Field(1.0, ge=1.0, description="filter's IMU noise / the sensor's")
-    vision_frame: Literal["world", "rotate"] = Field(
-        "world",
-        description="world: the vision frame is the navigation frame (its yaw fused); rotate: "
-        "PX4's rotated external vision, heading from the magnetometer (thesis 000 eqs 3.7-3.8)",
-    )
-    reset_after_s: float = Field(
-        2.0, gt=0, le=MAX_DURATION_S, description="a source rejected this long resets"
-    )
-    zero_velocity_on_ground: bool = Field(
-        True,
-        description="fuse zero velocity while the motors are off on the ground (as PX4 at rest)",
-    )
-    bias_rw_inflation: float = Field(
-        3.0,
-        ge=1.0,
-        description="filter's bias random walk / the sensor's (covers unmodelled IMU effects)",
-    )
-
-
-class NavScenario(ConfigModel):
-    """A navigation flight; the defaults are the indoor vision flight of thesis 000."""
-
-    name: str = "indoor_vision"
-    closed_loop: bool = Field(True, description="fly on the output predictor (False: on the truth)")
-    sim_dt_s: float = Field(0.002, gt=0, le=0.01)
-    seed: int = Field(0, ge=0)
-    seeds: int = Field(1, ge=1, le=1000)
-    imu: ImuSection = ImuSection()
-    vision: VisionSection = VisionSection()
-    baro: BaroSection = BaroSection()
-    gps: GpsSection = GpsSection()
-    mag: MagSection = MagSection()
-    range: RangeSection = RangeSection()
-    faults: FaultsSection = FaultsSection()
-    plan: PlanSection = PlanSection()
-    estimator: EstimatorSection = EstimatorSection()
-
-    @model_validator(mode="after")
-    def _check(self) -> Self:
-        if self.imu.rate_hz > 1.0 / self.sim_dt_s:
-            raise ValueError(
-                f"imu.rate_hz ({self.imu.rate_hz:g} Hz) is faster than the simulation step "
-                f"(sim_dt_s = {self.sim_dt_s:g} s: at most {1.0 / self.sim_dt_s:g} Hz)"
-            )
-        if not (self.vision.enabled or self.gps.enabled):
-            raise ValueError(
-                "vision and gps are both disabled: nothing bounds the horizontal position"
-            )
-        frame_moved = self.vision.frame_yaw_deg != 0 or any(self.vision.frame_offset_m)
-        if self.estimator.vision_frame == "world" and frame_moved:
-            raise ValueError(
-                "vision.frame_yaw_deg/frame_offset_m need estimator.vision_frame=rotate: with "
-                "vision_frame=world the vision frame is the navigation frame"
-            )
-        if self.vision.source == "camera" and (self.vision.jumps or frame_moved):
-            raise ValueError(
-                "vision.jumps/frame_yaw_deg/frame_offset_m describe the pose shortcut: "
-                "set vision.source=pose"
-            )
-        if self.estimator.vision_frame == "rotate" and not self.mag.enabled:
-            raise ValueError(
-                "estimator.vision_frame=rotate takes the heading from the magnetometer: "
-                "set mag.enabled=true"
-            )
-        for a, b in self.vision.dropouts_s:
-            if not b > a:
-                raise ValueError(
-                    f"vision.dropouts_s: a window must end after it starts, got ({a}, {b})"
-                )
-        if self.flight_s > MAX_DURATION_S:
-            raise ValueError(
-                f"the flight would last {self.flight_s:.4g} s, longer than {MAX_DURATION_S:g} s: "
-                "shorten plan.hold_s or plan.square_m, or raise plan.speed_m_s"
-            )
-        if problem := self._timing_problem():
-            raise ValueError(problem)
-        return self
-
-    def _timing_problem(self) -> str | None:
-        """A step count too large for memory, or a sensor too slow to give a sample."""
-        steps = self.flight_s / self.sim_dt_s
-        if steps > MAX_SIM_STEPS:
-            return (
-                f"sim_dt_s ({self.sim_dt_s:g} s) would take {steps:.3g} steps for the "
-                f"{self.flight_s:.4g} s flight, more than {MAX_SIM_STEPS:g}: raise sim_dt_s"
-            )
-        if self.imu.rate_hz * self.estimator.align_s < 1.0:
-            return (
-                f"imu.rate_hz ({self.imu.rate_hz:g} Hz) gives no IMU sample during "
-                f"estimator.align_s ({self.estimator.align_s:g} s), which levels the filter"
-            )
-        rates = [(key, sec.enabled, sec.rate_hz) for key, sec in (("vision", self.vision), ("baro", self.baro), ("gps", self.gps), ("mag", self.mag), ("range", self.range))]  # fmt: skip
-        for key, enabled, rate_hz in rates:
-            if enabled and rate_hz * self.flight_s < 1.0:
-                return (
-                    f"{key}.rate_hz ({rate_hz:g} Hz) gives no sample during the "
-                    f"{self.flight_s:.4g} s flight"
-                )
-        return None
-
-    def waypoints(self) -> Waypoints:
-        h, s = self.plan.height_m, self.plan.square_m
-        pts: list[Vec3] = [
-            (0, 0, 0),
-            (0, 0, h),
-            (s, 0, h),
-            (s, s, h),
-            (0, s, h),
-            (0, 0, h),
-            (0, 0, 0),
-        ]
-        return Waypoints(
-            points_m=pts,
-            speed_m_s=self.plan.speed_m_s,
-            accel_m_s2=self.plan.accel_m_s2,
-            hold_s=self.plan.hold_s,
-        )
-
-    @property
-    def flight_s(self) -> float:
-        return self.estimator.align_s + self.waypoints().duration_s + 1.0
+    received: int
+    rejected_out_of_order: int
+    rejected_invalid: int
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -340,13 +88,60 @@ class NavRunResult:
     delayed_err: FloatArray  # (N, 15) true minus estimate (attitude as a body rotation vector)
     delayed_P: FloatArray
     vision_t_ns: NDArray[np.int64]
-    fusion: dict[str, dict[str, NDArray[np.float64]]]
-    counts: dict[str, dict[str, int]]
+    fusion: Mapping[str, SourceFusion]
+    sources: Mapping[str, SourceStats]
+    imu: ImuCounts
     t_align_ns: int
-    events: list[tuple[int, str]] | None = None  # the filter's own log (re-anchors, resets)
-    stream: list[Sample] | None = (
-        None  # every sample the estimator got, in arrival order, if recorded
-    )
+    events: list[tuple[int, str]] = field(default_factory=list)  # the filter's own log
+    stream: list[Sample] | None = None  # every sample the estimator got, in arrival order
+    sample_times_ns: Mapping[str, NDArray[np.int64]] = field(default_factory=dict)
+
+
+def _ekf_estimator(sc: NavScenario, gravity_m_s2: float, max_delay_ns: int) -> NavEstimator:
+    ic, es = sc.imu, sc.estimator
+    ekf = NavEkfConfig(
+        gyro_sigma_rad_s=ic.gyro_sigma_rad_s * es.imu_noise_inflation,
+        accel_sigma_m_s2=ic.accel_sigma_m_s2 * es.imu_noise_inflation,
+        gyro_bias_rw_rad_s_sqrt_s=ic.gyro_bias_rw_rad_s_sqrt_s * es.bias_rw_inflation,
+        accel_bias_rw_m_s2_sqrt_s=ic.accel_bias_rw_m_s2_sqrt_s * es.bias_rw_inflation,
+        gravity_m_s2=gravity_m_s2, gate_probability=es.gate_probability,
+        datum_lla=sc.gps.datum_lla, mag_declination_rad=sc.mag.declination_rad,
+        vision_frame=es.vision_frame, reset_after_s=es.reset_after_s,
+    )  # fmt: skip
+    horizon = HorizonConfig(imu_period_ns=s_to_ns(1.0 / ic.rate_hz), max_delay_ns=max_delay_ns,
+                            tau_vel_s=es.tau_vel_s, tau_pos_s=es.tau_pos_s)  # fmt: skip
+    bg0 = es.init_gyro_bias_sigma_rad_s or max(ic.gyro_bias0_sigma_rad_s, 1e-4)
+    ba0 = es.init_accel_bias_sigma_m_s2 or max(ic.accel_bias0_sigma_m_s2, 1e-3)
+    sigmas = InitialSigmas(tilt_rad=es.init_tilt_sigma_rad, vel_m_s=es.init_vel_sigma_m_s,
+                           gyro_bias_rad_s=bg0, accel_bias_m_s2=ba0)  # fmt: skip
+    alignment = AlignmentSigmas(
+        pose_factor=es.init_source_sigma_factor, gps_factor=es.init_gps_sigma_factor,
+        yaw_from_mag_rad=es.init_yaw_sigma_mag_rad, yaw_unknown_rad=es.init_yaw_sigma_unknown_rad,
+        pos_unknown_m=es.init_pos_sigma_unknown_m,
+    )  # fmt: skip
+    return AligningNavFilter(
+        NavFilterSetup(ekf=ekf, horizon=horizon, sigmas=sigmas),
+        align_ns=s_to_ns(es.align_s), alignment=alignment,
+        heading_from_pose=es.vision_frame != "rotate",
+    )  # fmt: skip
+
+
+def _truth_estimator(sc: NavScenario, gravity_m_s2: float, max_delay_ns: int) -> NavEstimator:
+    del sc, gravity_m_s2, max_delay_ns
+    return TruthEstimator()
+
+
+#: The estimators ``estimator.kind`` chooses from: (scenario, gravity, largest channel delay).
+ESTIMATORS: dict[str, Callable[[NavScenario, float, int], NavEstimator]] = {
+    "ekf": _ekf_estimator,
+    "truth": _truth_estimator,
+}
+
+
+def nav_estimator(sc: NavScenario, gravity_m_s2: float, channels: list[Channel]) -> NavEstimator:
+    """The scenario's estimator, its horizon as long as its slowest channel needs."""
+    max_delay = max((ch.delay_ns for ch in channels), default=0)
+    return ESTIMATORS[sc.estimator.kind](sc, gravity_m_s2, max_delay)
 
 
 def heading_reference(
@@ -367,370 +162,171 @@ def heading_reference(
     return out
 
 
-def _stack_padded(rows: list[FloatArray]) -> FloatArray:
-    """Innovations of one source as rows (a source's size may vary: padded with NaN)."""
-    width = max((len(r) for r in rows), default=0)
-    out = np.full((len(rows), width), np.nan)
-    for k, r in enumerate(rows):
-        out[k, : len(r)] = r
-    return out
+class _Plan:
+    """The plan's references per step and the flight phase: motors off on the ground until the
+    plan climbs, and again once it has come down and the vehicle sits low (touch-down)."""
+
+    def __init__(self, sc: NavScenario) -> None:
+        dt = sc.sim_dt_s
+        self.n_steps = round(sc.flight_s / dt)
+        self.align_ns = s_to_ns(sc.estimator.align_s)
+        ref = sc.waypoints().reference(np.arange(self.n_steps + 1) * dt - sc.estimator.align_s)
+        self.p, self.v, self.a = ref.p, ref.v, ref.a
+        self.yaw = heading_reference(ref.v, dt, sc.plan.yaw, math.radians(sc.plan.yaw_rate_deg_s))
+        self.landed = False
+
+    def on_ground(self, i: int, t_ns: int) -> bool:
+        return t_ns < self.align_ns or self.landed or self._down(i, first_half=True)
+
+    def _down(self, i: int, *, first_half: bool) -> bool:
+        half = self.n_steps // 2
+        return bool(self.p[i][2] <= 0.0) and (i < half if first_half else i > half)
+
+    def setpoint(self, i: int) -> Setpoint:
+        return Setpoint(p=self.p[i], v=self.v[i], a=self.a[i], yaw_rad=float(self.yaw[i]))
+
+    def touch_down(self, i: int, z_m: float) -> bool:
+        """The plan has come down and the vehicle sits low: cut the motors from now on."""
+        self.landed = self.landed or (self._down(i, first_half=False) and z_m < 0.05)
+        return self.landed
 
 
-def ground_alignment(
-    imu: list[ImuSample],
-    pose: PoseSample | None,
-    *,
-    mag: list[MagSample] | None = None,
-    declination_rad: float = 0.0,
-    gps_enu_m: FloatArray | None = None,
-) -> tuple[Rotation, FloatArray]:
-    """Initial attitude and position on the ground: roll and pitch from the mean specific
-    force (gravity); heading from the external pose, else from the magnetometer; position from
-    the external pose, else from a GNSS fix (already in ENU), else the origin."""
-    if not imu:
-        raise ExperimentError("alignment needs IMU samples on the ground")
-    f = np.mean([s.accel_m_s2 for s in imu], axis=0)
-    roll = math.atan2(f[1], f[2])
-    pitch = math.atan2(-f[0], math.hypot(f[1], f[2]))
-    yaw = 0.0
-    if pose is not None:
-        yaw = float(Rotation.from_quat(pose.q_W_B_xyzw).as_euler("ZYX")[0])
-    elif mag:
-        m = Rotation.from_euler("ZYX", [0.0, pitch, roll]).apply(
-            np.mean([s.field_B for s in mag], axis=0)
+def _truth_estimate(truth: VehicleState) -> StateEstimate:
+    x = np.concatenate([truth.p_W_B, truth.v_W_B, truth.q_W_B_xyzw])
+    return StateEstimate(t_ns=truth.t_ns, p_W_B=truth.p_W_B, v_W_B=truth.v_W_B,
+                         q_W_B_xyzw=truth.q_W_B_xyzw, x=x, names=TruthEstimator.names, w_B=truth.w_B)  # fmt: skip
+
+
+def _as_vehicle_state(est: StateEstimate) -> VehicleState:
+    """(The cascaded PID still reads a VehicleState.)"""
+    w = est.w_B if est.w_B is not None else np.zeros(3)
+    return VehicleState(t_ns=est.t_ns, p_W_B=est.p_W_B, v_W_B=est.v_W_B, a_W_B=np.zeros(3),
+                        q_W_B_xyzw=est.q_W_B_xyzw, w_B=w)  # fmt: skip
+
+
+_BIAS_NAMES = ("bgx", "bgy", "bgz", "bax", "bay", "baz")
+
+
+def _biases(est: StateEstimate) -> FloatArray:
+    """The estimate's gyro and accelerometer biases by name (NaN where it has none)."""
+    idx = {n: k for k, n in enumerate(est.names)}
+    return np.array([est.x[idx[n]] if n in idx else np.nan for n in _BIAS_NAMES])
+
+
+class _NavLog:
+    """Typed rows per logged IMU step; the truth kept by time to score the delayed horizon."""
+
+    def __init__(self, *, record_stream: bool) -> None:
+        self.t: list[int] = []
+        self.truth: list[VehicleState] = []
+        self.ref_p: list[FloatArray] = []
+        self.out: list[StateEstimate] = []
+        self.delayed: list[StateEstimate] = []
+        self.err: list[FloatArray] = []
+        self._truth_at: dict[int, tuple[VehicleState, FloatArray]] = {}
+        self.stream: list[Sample] | None = [] if record_stream else None
+
+    def record(self, truth: VehicleState, true_bias: FloatArray, ref_p: FloatArray,
+               out: StateEstimate, dl: StateEstimate) -> None:  # fmt: skip
+        self._truth_at[truth.t_ns] = (truth, true_bias)
+        self.t.append(truth.t_ns)
+        self.truth.append(truth)
+        self.ref_p.append(ref_p)
+        self.out.append(out)
+        self.delayed.append(dl)
+        past = self._truth_at.get(dl.t_ns)
+        if past is None:
+            self.err.append(np.full(15, np.nan))
+            return
+        s, b = past
+        dth = so3_log(rotation_matrix_xyzw(dl.q_W_B_xyzw).T @ rotation_matrix_xyzw(s.q_W_B_xyzw))
+        self.err.append(
+            np.concatenate([dth, s.v_W_B - dl.v_W_B, s.p_W_B - dl.p_W_B, b - _biases(dl)])
         )
-        yaw = math.remainder(math.pi / 2 - declination_rad - math.atan2(m[1], m[0]), 2 * math.pi)
-    if pose is not None:
-        p0 = pose.p_W_B.copy()
-    elif gps_enu_m is not None:
-        p0 = np.asarray(gps_enu_m, dtype=np.float64).copy()
-    else:
-        p0 = np.zeros(3)
-    return Rotation.from_euler("ZYX", [yaw, pitch, roll]), p0
+
+    def arrays(self) -> dict[str, FloatArray]:
+        d = self.delayed
+        P = [x.P if x.P is not None else np.full((15, 15), np.nan) for x in d]
+        return {
+            "truth_p": np.array([s.p_W_B for s in self.truth]),
+            "truth_v": np.array([s.v_W_B for s in self.truth]),
+            "truth_q": np.array([s.q_W_B_xyzw for s in self.truth]),
+            "ref_p": np.array(self.ref_p),
+            "output_p": np.array([o.p_W_B for o in self.out]),
+            "output_v": np.array([o.v_W_B for o in self.out]),
+            "output_q": np.array([o.q_W_B_xyzw for o in self.out]),
+            "delayed_x": np.array([np.concatenate([x.p_W_B, x.v_W_B, x.q_W_B_xyzw, _biases(x)]) for x in d]),
+            "delayed_err": np.array(self.err),
+            "delayed_P": np.array(P),
+        }  # fmt: skip
+
+
+def _result(sc: NavScenario, seed: int, log: _NavLog, channels: list[Channel],
+            report: EstimatorReport) -> NavRunResult:  # fmt: skip
+    by_name = {ch.name: ch for ch in channels}
+    imu = by_name["imu"]
+    times = {ch.name: np.array(ch.sampled_t_ns, dtype=np.int64) for ch in channels}
+    return NavRunResult(
+        scenario=sc, seed=seed, t_ns=np.array(log.t, dtype=np.int64),
+        t_delayed_ns=np.array([x.t_ns for x in log.delayed], dtype=np.int64),
+        vision_t_ns=times.get("vision", np.zeros(0, dtype=np.int64)),
+        fusion=report.fusion, sources=report.sources,
+        imu=ImuCounts(
+            received=report.imu_received,
+            rejected_out_of_order=report.imu_rejected_out_of_order,
+            rejected_invalid=imu.rejected_invalid + report.rejected_invalid.get("ImuSample", 0),
+        ),
+        t_align_ns=s_to_ns(sc.estimator.align_s), events=list(report.events), stream=log.stream,
+        sample_times_ns=times, **log.arrays(),
+    )  # fmt: skip
+
+
+def _true_biases(imu: Channel) -> FloatArray:
+    sensor = imu.sensor
+    bg, ba = getattr(sensor, "bias_g", None), getattr(sensor, "bias_a", None)
+    if bg is None or ba is None:
+        return np.full(6, np.nan)
+    return np.concatenate([bg, ba])
 
 
 def run_nav(sc: NavScenario, seed: int, *, record_stream: bool = False) -> NavRunResult:
     """Align on the ground, fly the plan, and log truth, estimates and fusions."""
-    rng = np.random.default_rng(seed)
-    rng_sens, rng_bias = (np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(2))
-    del rng
     params = RigidBodyParams()
-    dt = sc.sim_dt_s
-    sim = RigidBodyQuadrotor(params, dt_s=dt)
-    ctrl = CascadedPid(params, dt_s=dt)
-    ic = sc.imu
-    imu_period_ns = round(1e9 / ic.rate_hz)
-    imu = IntegratingImu(
-        period_ns=imu_period_ns,
-        gyro_sigma_rad_s=ic.gyro_sigma_rad_s,
-        accel_sigma_m_s2=ic.accel_sigma_m_s2,
-        gyro_bias_rw_rad_s_sqrt_s=ic.gyro_bias_rw_rad_s_sqrt_s,
-        accel_bias_rw_m_s2_sqrt_s=ic.accel_bias_rw_m_s2_sqrt_s,
-        gyro_bias0_rad_s=tuple(ic.gyro_bias0_sigma_rad_s * rng_bias.standard_normal(3)),
-        accel_bias0_m_s2=tuple(ic.accel_bias0_sigma_m_s2 * rng_bias.standard_normal(3)),
-        gravity_m_s2=params.gravity_m_s2,
-        lever_arm_m=ic.lever_arm_m,
-    )
-    vs = sc.vision
-    vision: VisionPoseSensor | MarkerCameraSensor | None
-    if vs.enabled and vs.source == "camera":
-        vision = MarkerCameraSensor(
-            period_ns=round(1e9 / vs.rate_hz),
-            markers=marker_field(vs.marker_grid, vs.marker_spacing_m, vs.marker_length_m, vs.marker_origin_m),
-            T_B_C=thesis_mount(), dropouts_ns=[(round(a * 1e9), round(b * 1e9)) for a, b in vs.dropouts_s],
-            noise_sigma=vs.image_noise, seed=seed,
-        )  # fmt: skip
-    else:
-        vision = VisionPoseSensor(
-        period_ns=round(1e9 / vs.rate_hz), sigma_m=vs.sigma_m, yaw_sigma_rad=vs.yaw_sigma_rad,
-        frame_yaw_rad=math.radians(vs.frame_yaw_deg), frame_offset_m=vs.frame_offset_m,
-        dropouts_ns=[(round(a * 1e9), round(b * 1e9)) for a, b in vs.dropouts_s],
-        jumps=[VisionFrameJump(round(t * 1e9), math.radians(y), (dx, dy, dz)) for t, y, dx, dy, dz in vs.jumps],
-        ) if vs.enabled else None  # fmt: skip
-    vision_line: DelayLine[PoseSample] = DelayLine(delay_ns=round(vs.delay_s * 1e9))
-    late_vision = sorted((round(t * 1e9), round(d * 1e9)) for t, d in sc.faults.vision_late_s)
-    baro = BaroSensor(period_ns=round(1e9 / sc.baro.rate_hz), sigma_m=sc.baro.sigma_m,
-                      drift_m_sqrt_s=sc.baro.drift_m_sqrt_s) if sc.baro.enabled else None  # fmt: skip
-    baro_line: DelayLine[HeightSample] = DelayLine(delay_ns=round(sc.baro.delay_s * 1e9))
-    rangefinder = RangeFinder(period_ns=round(1e9 / sc.range.rate_hz), sigma_m=sc.range.sigma_m, min_m=RANGE_MIN_M,
-                              max_m=sc.range.max_m) if sc.range.enabled else None  # fmt: skip
-    range_line: DelayLine[RangeSample] = DelayLine(delay_ns=round(sc.range.delay_s * 1e9))
-    gps = GpsSensor(
-        datum_lla=sc.gps.datum_lla, period_ns=round(1e9 / sc.gps.rate_hz), sigma_h_m=sc.gps.sigma_h_m,
-        sigma_v_m=sc.gps.sigma_v_m, sigma_vel_m_s=sc.gps.sigma_vel_m_s,
-        outages_ns=[(round(a * 1e9), round(b * 1e9)) for a, b in sc.gps.outages_s],
-        glitches=[(round(a * 1e9), round(b * 1e9), (e, n, 0.0)) for a, b, e, n in sc.faults.gps_glitch],
-    ) if sc.gps.enabled else None  # fmt: skip
-    gps_line: DelayLine[GpsSample] = DelayLine(delay_ns=round(sc.gps.delay_s * 1e9))
-    mag = MagSensor(period_ns=round(1e9 / sc.mag.rate_hz), declination_rad=sc.mag.declination_rad,
-                    noise_sigma=sc.mag.noise_sigma, sigma_heading_rad=sc.mag.sigma_heading_rad) if sc.mag.enabled else None  # fmt: skip
-    imu_nan = sorted(round(t * 1e9) for t in sc.faults.imu_nan_s)
-    imu_repeat = sorted(round(t * 1e9) for t in sc.faults.imu_repeat_s)
-    rotate = sc.estimator.vision_frame == "rotate"
-    align_mag: list[MagSample] = []
-    first_fix: GpsSample | None = None
-    plan = sc.waypoints()
-    align_ns = round(sc.estimator.align_s * 1e9)
-    n_steps = round(sc.flight_s / dt)
-    ref_all = plan.reference(np.arange(n_steps + 1) * dt - sc.estimator.align_s)
-    yaw_ref = heading_reference(ref_all.v, dt, sc.plan.yaw, math.radians(sc.plan.yaw_rate_deg_s))
-
-    est: DelayedHorizonEstimator | None = None
-    ekf: NavEkf | None = None
-    align_imu: list[ImuSample] = []
-    last_pose: PoseSample | None = None
-    last_gyro = np.zeros(3)
-    truth_hist: dict[int, tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]] = {}
-    rows: dict[str, list[object]] = {
-        k: [] for k in ("t", "tp", "tv", "tq", "ref", "op", "ov", "oq", "td", "xd", "err", "P")
-    }
-    vision_times: list[int] = []
-    landed = False
-    n_imu_ground = 0
-    stream: list[Sample] | None = [] if record_stream else None
+    sim = RigidBodyQuadrotor(params, dt_s=sc.sim_dt_s)
+    ctrl = CascadedPid(params, dt_s=sc.sim_dt_s)
+    phase = FlightPhase()
+    channels = build_channels(sc, seed, phase, gravity_m_s2=params.gravity_m_s2)
+    imu = next(ch for ch in channels if ch.name == "imu")
+    est = nav_estimator(sc, params.gravity_m_s2, channels)
+    plan, log = _Plan(sc), _NavLog(record_stream=record_stream)
     try:
-        for i in range(n_steps):
+        for i in range(plan.n_steps):
             truth = sim.state()
             t = truth.t_ns
-            # -- sensors ---------------------------------------------------------------------
-            if vision is not None:
-                pose = vision.sample(truth, t, rng_sens)
-                if pose is not None:
-                    late = 0
-                    if late_vision and t >= late_vision[0][0]:
-                        late = late_vision.pop(0)[1]
-                    vision_line.push(pose, extra_delay_ns=late)
-                    vision_times.append(t)
-            if gps is not None:
-                fix = gps.sample(truth, t, rng_sens)
-                if fix is not None:
-                    gps_line.push(fix)
-            mag_now = mag.sample(truth, t, rng_sens) if mag is not None else None
-            if baro is not None:
-                h = baro.sample(truth, t, rng_sens)
-                if h is not None:
-                    baro_line.push(h)
-            if rangefinder is not None:
-                rs = rangefinder.sample(truth, t, rng_sens)
-                if rs is not None:
-                    range_line.push(rs)
-            # -- estimator -------------------------------------------------------------------
-            sample = imu.accumulate(truth, dt, rng_sens) if i > 0 else None
-            arrived_pose = vision_line.pop_arrived(t)
-            arrived_baro = baro_line.pop_arrived(t)
-            arrived_gps = gps_line.pop_arrived(t)
-            arrived_range = range_line.pop_arrived(t)
-            if est is None:
-                if sample is not None:
-                    align_imu.append(sample)
-                for _, pz in arrived_pose:
-                    last_pose = pz
-                for _, fx in arrived_gps:
-                    first_fix = first_fix or fx
-                if mag_now is not None:
-                    align_mag.append(mag_now)
-                if t >= align_ns and align_imu:
-                    gps_enu = None
-                    if first_fix is not None:
-                        import pymap3d
-
-                        gps_enu = np.array(
-                            pymap3d.geodetic2enu(
-                                first_fix.lat_deg,
-                                first_fix.lon_deg,
-                                first_fix.alt_m,
-                                *sc.gps.datum_lla,
-                            )
-                        )
-                    # Rotated vision: the heading is the magnetometer's, the origin where it stands.
-                    align_pose = None if rotate else last_pose
-                    R0, p0 = ground_alignment(
-                        align_imu,
-                        align_pose,
-                        mag=align_mag,
-                        declination_rad=sc.mag.declination_rad,
-                        gps_enu_m=gps_enu,
-                    )
-                    yaw_sig = (
-                        sc.vision.yaw_sigma_rad * 3 if align_pose else (0.1 if align_mag else 1.0)
-                    )
-                    pos_sig = (
-                        sc.vision.sigma_m * 3
-                        if align_pose
-                        else (sc.gps.sigma_h_m * 2 if first_fix else 0.1)
-                    )
-                    sig = np.array([0.02, 0.02, yaw_sig] + [0.05] * 3 + [pos_sig] * 3
-                                   + [max(ic.gyro_bias0_sigma_rad_s, 1e-4)] * 3 + [max(ic.accel_bias0_sigma_m_s2, 1e-3)] * 3)  # fmt: skip
-                    ekf = NavEkf(
-                        NavEkfConfig(
-                            gyro_sigma_rad_s=ic.gyro_sigma_rad_s * sc.estimator.imu_noise_inflation,
-                            accel_sigma_m_s2=ic.accel_sigma_m_s2 * sc.estimator.imu_noise_inflation,
-                            gyro_bias_rw_rad_s_sqrt_s=ic.gyro_bias_rw_rad_s_sqrt_s * sc.estimator.bias_rw_inflation,
-                            accel_bias_rw_m_s2_sqrt_s=ic.accel_bias_rw_m_s2_sqrt_s * sc.estimator.bias_rw_inflation,
-                            gravity_m_s2=params.gravity_m_s2,
-                            gate_probability=sc.estimator.gate_probability,
-                            datum_lla=sc.gps.datum_lla,
-                            mag_declination_rad=sc.mag.declination_rad,
-                            vision_frame=sc.estimator.vision_frame,
-                            reset_after_s=sc.estimator.reset_after_s,
-                        ),
-                        p0=p0, v0=np.zeros(3), q0_xyzw=R0.as_quat(), P0=np.diag(sig**2),
-                    )  # fmt: skip
-                    max_delay = max(
-                        sc.vision.delay_s if sc.vision.enabled else 0.0,
-                        sc.baro.delay_s if sc.baro.enabled else 0.0,
-                        sc.gps.delay_s if sc.gps.enabled else 0.0,
-                        sc.range.delay_s if sc.range.enabled else 0.0,
-                    )
-                    est = DelayedHorizonEstimator(
-                        ekf,
-                        HorizonConfig(
-                            imu_period_ns=imu_period_ns,
-                            max_delay_ns=round(max_delay * 1e9),
-                            tau_vel_s=sc.estimator.tau_vel_s,
-                            tau_pos_s=sc.estimator.tau_pos_s,
-                        ),
-                        t0_ns=t,
-                    )
-            else:
-                batch: list[Sample] = [o for _, o in arrived_pose]
-                batch.extend(o for _, o in arrived_baro)
-                batch.extend(o for _, o in arrived_gps)
-                batch.extend(o for _, o in arrived_range)
-                if mag_now is not None:
-                    batch.append(mag_now)
-                on_ground = landed or (ref_all.p[i][2] <= 0.0 and i < n_steps // 2)
-                if sample is not None and on_ground and sc.estimator.zero_velocity_on_ground:
-                    n_imu_ground += 1
-                    if n_imu_ground % 10 == 0:  # 25 Hz of "standing still"
-                        batch.append(VelocitySample(t_ns=t, v_W_B=np.zeros(3), sigma_m_s=0.02))
-                if sample is not None and imu_nan and t >= imu_nan[0]:
-                    # A corrupted reading from the driver: refused at the boundary and counted.
-                    imu_nan.pop(0)
-                    gyro = sample.gyro_rad_s.copy()
-                    gyro[1] = math.nan
-                    est.push_raw(ImuSample, t_ns=t, gyro_rad_s=gyro, accel_m_s2=sample.accel_m_s2)
-                elif sample is not None:
-                    batch.append(sample)
-                    if imu_repeat and t >= imu_repeat[0]:
-                        imu_repeat.pop(0)
-                        batch.append(sample)  # delivered twice: the copy is out of order
-                for item in batch:
-                    est.push(item)
-                if stream is not None:
-                    stream.extend(batch)
-            if sample is not None:
-                last_gyro = sample.gyro_rad_s
-            # -- logging at IMU steps after alignment ----------------------------------------
-            if sample is not None and est is not None and ekf is not None and t > est.t_delayed_ns:
-                truth_hist[t] = (
-                    truth.p_W_B,
-                    truth.v_W_B,
-                    truth.q_W_B_xyzw,
-                    imu.bias_g.copy(),
-                    imu.bias_a.copy(),
-                )
-                out = est.output_nav()
-                rows["t"].append(t)
-                rows["tp"].append(truth.p_W_B)
-                rows["tv"].append(truth.v_W_B)
-                rows["tq"].append(truth.q_W_B_xyzw)
-                rows["ref"].append(ref_all.p[i])
-                rows["op"].append(out.pos)
-                rows["ov"].append(out.vel)
-                rows["oq"].append(quat_xyzw_from_matrix(out.att.reshape(3, 3)))
-                td = est.t_delayed_ns
-                rows["td"].append(td)
-                rows["xd"].append(np.concatenate([ekf.p, ekf.v, ekf.q_xyzw, ekf.bg, ekf.ba]))
-                if td in truth_hist:
-                    p_t, v_t, q_t, bg_t, ba_t = truth_hist[td]
-                    dth = so3_log(ekf.R.T @ rotation_matrix_xyzw(q_t))
-                    rows["err"].append(
-                        np.concatenate(
-                            [dth, v_t - ekf.v, p_t - ekf.p, bg_t - ekf.bg, ba_t - ekf.ba]
-                        )
-                    )
-                else:
-                    rows["err"].append(np.full(15, np.nan))
-                rows["P"].append(ekf.P.copy())
-            # -- control ---------------------------------------------------------------------
-            ref_i = ref_all.p[i]
-            # Motors stay off on the ground until the plan starts to climb (and after touch-down).
-            if t < align_ns or landed or (ref_i[2] <= 0.0 and i < n_steps // 2):
+            phase.motors_off = plan.on_ground(i, t)
+            was_ready = est.ready
+            for ch in channels:
+                ch.step(truth, t)
+            for ch in channels:
+                for smp in ch.arrived(t):
+                    est.push(smp)
+                    if was_ready and log.stream is not None:
+                        log.stream.append(smp)
+            out = est.output() if est.ready else None
+            if was_ready and out is not None and imu.sampled_t_ns and imu.sampled_t_ns[-1] == t:
+                log.record(truth, _true_biases(imu), plan.p[i], out, est.delayed())
+            if phase.motors_off:
                 cmd = np.zeros(4)
             else:
-                if sc.closed_loop and est is not None and ekf is not None:
-                    o = est.output_nav()
-                    state = VehicleState(
-                        t_ns=t,
-                        p_W_B=o.pos,
-                        v_W_B=o.vel,
-                        a_W_B=np.zeros(3),
-                        q_W_B_xyzw=quat_xyzw_from_matrix(o.att.reshape(3, 3)),
-                        w_B=last_gyro - ekf.bg,
-                    )
-                else:
-                    state = truth
-                cmd = ctrl(
-                    state,
-                    Setpoint(p=ref_i, v=ref_all.v[i], a=ref_all.a[i], yaw_rad=float(yaw_ref[i])),
-                )
-                # Touch-down: the plan has come down and the vehicle sits low: cut the motors.
-                if i > n_steps // 2 and ref_i[2] <= 0.0 and state.p_W_B[2] < 0.05:
-                    landed = True
+                fly_on = out if sc.closed_loop and out is not None else _truth_estimate(truth)
+                cmd = ctrl(_as_vehicle_state(fly_on), plan.setpoint(i))
+                if plan.touch_down(i, float(fly_on.p_W_B[2])):
                     cmd = np.zeros(4)
             sim.step(cmd)
     except SimError as exc:
         raise ExperimentError(f"scenario {sc.name!r} seed {seed}: {exc}") from None
-    if est is None or ekf is None:
+    if not est.ready or not log.t:
         raise ExperimentError(
             f"scenario {sc.name!r}: the flight ended before the filter was aligned"
         )
-    fusion: dict[str, dict[str, NDArray[np.float64]]] = {}
-    for src in est.sources:
-        recs = [r for r in est.fusion_log if r.source == src]
-        fusion[src] = {
-            "t_obs_ns": np.array([r.t_obs_ns for r in recs], dtype=np.float64),
-            "nis": np.array([r.result.nis for r in recs]),
-            "test_ratio": np.array([r.result.test_ratio for r in recs]),
-            "accepted": np.array([r.result.accepted for r in recs], dtype=np.float64),
-            "dof": np.array([len(r.result.innovation) for r in recs], dtype=np.float64),
-            "innovation": _stack_padded([r.result.innovation for r in recs]),
-        }
-    counts = {
-        src: {
-            "received": s.received,
-            "fused": s.fused,
-            "rejected_gate": s.rejected_gate,
-            "rejected_too_old": s.rejected_too_old,
-            "rejected_unsupported": s.rejected_unsupported,
-        }
-        for src in est.sources
-        for s in [est.stats(src)]
-    }
-    counts["imu"] = {
-        "rejected_out_of_order": est.imu_rejected_out_of_order,
-        "rejected_invalid": est.rejected_invalid.get("ImuSample", 0),
-    }
-    return NavRunResult(
-        scenario=sc,
-        seed=seed,
-        t_ns=np.array(rows["t"], dtype=np.int64),
-        truth_p=np.array(rows["tp"]),
-        truth_v=np.array(rows["tv"]),
-        truth_q=np.array(rows["tq"]),
-        ref_p=np.array(rows["ref"]),
-        output_p=np.array(rows["op"]),
-        output_v=np.array(rows["ov"]),
-        output_q=np.array(rows["oq"]),
-        t_delayed_ns=np.array(rows["td"], dtype=np.int64),
-        delayed_x=np.array(rows["xd"]),
-        delayed_err=np.array(rows["err"]),
-        delayed_P=np.array(rows["P"]),
-        vision_t_ns=np.array(vision_times, dtype=np.int64),
-        fusion=fusion,
-        counts=counts,
-        t_align_ns=align_ns,
-        events=list(ekf.events),
-        stream=stream,
-    )
+    return _result(sc, seed, log, channels, est.report())

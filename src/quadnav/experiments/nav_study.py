@@ -18,10 +18,12 @@ from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
+from quadnav.estimation.horizon import SourceStats
 from quadnav.eval.metrics import nees
 from quadnav.eval.na import Metric, max_or_na, mean_or_na, median_or_na, na, rms_or_na
 from quadnav.eval.report import ReportSection, ReportTable, write_report
-from quadnav.experiments.nav import NavRunResult, NavScenario, run_nav
+from quadnav.experiments.nav import ImuCounts, NavRunResult, NavScenario, run_nav
+from quadnav.experiments.nav_channels import is_pseudo_source
 from quadnav.experiments.seeds import run_tasks
 from quadnav.geometry.trajectory import Trajectory
 from quadnav.io.config import dump_config
@@ -35,7 +37,7 @@ from quadnav.io.run_folder import (
 )
 from quadnav.io.trajectory_io import write_tum
 
-__all__ = ["NavStudy", "nav_metrics", "plot_nav_run", "run_nav_study"]
+__all__ = ["NavMetrics", "NavStudy", "nav_metrics", "plot_nav_run", "run_nav_study"]
 
 FloatArray = NDArray[np.float64]
 Progress = Callable[[int, int, str], None]
@@ -45,15 +47,49 @@ def _t_s(r: NavRunResult) -> FloatArray:
     return np.asarray(r.t_ns * 1e-9, dtype=np.float64)
 
 
-def nav_metrics(r: NavRunResult) -> dict[str, Any]:
-    """The issue-5 numbers of one flight."""
+@dataclass(frozen=True, slots=True, kw_only=True)
+class NavMetrics:
+    """The issue-5 numbers of one flight (a metric no flight can give is an "n/a: why" string)."""
+
+    seed: int
+    output_rmse_with_vision_m: Metric
+    output_rmse_m: Metric
+    bias_error_fraction_60s: dict[str, Metric]
+    dropout_end_error_m: list[Metric]
+    dropout_recovery_s: list[Metric]
+    hold_max_horizontal_error_m: Metric
+    delayed_rmse_m: Metric
+    attitude_rmse_deg: Metric
+    nees_mean: Metric
+    nis_above_95pct_gate: dict[str, float]
+    sources: dict[str, SourceStats]
+    imu: ImuCounts
+    filter_events: list[str]
+    landed_at_m: list[float]
+
+    def to_json(self) -> dict[str, object]:
+        """The flat record ``metrics.json`` and ``seeds.jsonl`` hold (``counts`` per source)."""
+        out = {
+            f: getattr(self, f) for f in self.__dataclass_fields__ if f not in ("sources", "imu")
+        }
+        counts: dict[str, dict[str, int]] = {
+            src: {k: getattr(st, k) for k in _COUNT_KEYS} for src, st in self.sources.items()
+        }
+        counts["imu"] = {"rejected_out_of_order": self.imu.rejected_out_of_order,
+                         "rejected_invalid": self.imu.rejected_invalid}  # fmt: skip
+        return {**out, "counts": counts}
+
+
+_COUNT_KEYS = ("received", "fused", "rejected_gate", "rejected_too_old", "rejected_unsupported")
+
+
+def _dropout_metrics(r: NavRunResult, t: FloatArray, err: FloatArray, airborne: NDArray[np.bool_]) -> tuple[NDArray[np.bool_], list[Metric], list[Metric]]:  # fmt: skip
+    """The samples in the air with vision, and per dropout the error at its end and the time
+    until the error is back under 3 cm."""
     sc = r.scenario
-    t = _t_s(r)
-    err = np.linalg.norm(r.output_p - r.truth_p, axis=1)
-    # In the air: sitting on the ground and touching down are not what the filter is for.
-    airborne = r.truth_p[:, 2] > 0.1
     with_vision = airborne.copy()
-    dropout_end, recovery = [], []
+    dropout_end: list[Metric] = []
+    recovery: list[Metric] = []
     for a, b in sc.vision.dropouts_s if sc.vision.enabled else []:
         with_vision &= ~((t >= a) & (t < b + 1.0))
         if not t[0] <= b <= t[-1]:
@@ -62,12 +98,16 @@ def nav_metrics(r: NavRunResult) -> dict[str, Any]:
         dropout_end.append(float(err[k]))
         back = np.flatnonzero((t > b) & (err < 0.03))
         recovery.append(float(t[back[0]] - b) if len(back) else na("never back under 3 cm"))
-    # Hover: the holds at flight height above the take-off point (after the climb and before
-    # the descent), from their first second on. The corner stops of the square are not hovers.
+    return with_vision, dropout_end, recovery
+
+
+def _hold_mask(r: NavRunResult, t: FloatArray) -> NDArray[np.bool_]:
+    """The holds at flight height above the take-off point (after the climb and before the
+    descent), from their first second on. The corner stops of the square are not hovers."""
     above_start = np.all(np.abs(r.ref_p[:, 0:2] - r.ref_p[0, 0:2]) < 1e-9, axis=1)
     still = (
         np.concatenate([[False], np.all(np.diff(r.ref_p, axis=0) == 0, axis=1)])
-        & (r.ref_p[:, 2] >= sc.plan.height_m - 1e-9)
+        & (r.ref_p[:, 2] >= r.scenario.plan.height_m - 1e-9)
         & above_start
     )
     hold = np.zeros(len(t), dtype=bool)
@@ -78,47 +118,55 @@ def nav_metrics(r: NavRunResult) -> dict[str, Any]:
         if not s:
             start = None
         hold[i] = s and start is not None and t[i] - start >= 1.0
-    horiz = np.abs(r.truth_p[hold, 0:2] - r.ref_p[hold, 0:2])
-    # NEES in the air: ground contact (touch-down) is an external force the filter does not model.
-    airborne = np.interp(r.t_delayed_ns, r.t_ns, r.truth_p[:, 2]) > 0.05
-    ok = np.isfinite(r.delayed_err).all(axis=1) & airborne
-    att_err = (Rotation.from_quat(r.output_q).inv() * Rotation.from_quat(r.truth_q)).magnitude()[
-        airborne
-    ]
-    # Bias convergence: the delayed estimate's bias error 60 s after alignment (or at the end
-    # of a shorter flight), relative to the true bias.
-    bias_frac = _bias_error_fractions(r)
+    return hold
+
+
+def _nis_ratios(r: NavRunResult) -> dict[str, float]:
+    """Per measured source, the fraction of NIS above its 95 % chi-square gate."""
     ratios = {}
     for src, f in r.fusion.items():
-        if len(f["nis"]) and src != "landed":  # (a pseudo-measurement: standing still)
-            gate95 = chi2.ppf(0.95, f["dof"])
-            ratios[src] = float(np.mean(f["nis"] > gate95))
+        if len(f) and not is_pseudo_source(src):  # (standing still is not a measurement)
+            gate95 = chi2.ppf(0.95, f.dof)
+            ratios[src] = float(np.mean(f.nis > gate95))
+    return ratios
+
+
+def nav_metrics(r: NavRunResult) -> NavMetrics:
+    """The issue-5 numbers of one flight."""
+    t = _t_s(r)
+    err = np.linalg.norm(r.output_p - r.truth_p, axis=1)
+    # In the air: sitting on the ground and touching down are not what the filter is for.
+    airborne = r.truth_p[:, 2] > 0.1
+    with_vision, dropout_end, recovery = _dropout_metrics(r, t, err, airborne)
+    horiz = np.abs(r.truth_p[_hold_mask(r, t), 0:2] - r.ref_p[_hold_mask(r, t), 0:2])
+    # NEES at the delayed horizon in the air (its own times): ground contact (touch-down) is an
+    # external force the filter does not model.
+    airborne_delayed = np.interp(r.t_delayed_ns, r.t_ns, r.truth_p[:, 2]) > 0.05
+    ok = np.isfinite(r.delayed_err).all(axis=1) & airborne_delayed
+    ok_P = ok & np.isfinite(r.delayed_P).all(axis=(1, 2))
+    att_err = (Rotation.from_quat(r.output_q).inv() * Rotation.from_quat(r.truth_q)).magnitude()
     in_air = "no samples in the air"
-    att_rmse = rms_or_na(att_err, in_air)
-    return {
-        "seed": r.seed,
-        "output_rmse_with_vision_m": rms_or_na(
-            err[with_vision], "no samples in the air with vision"
-        )
-        if sc.vision.enabled
+    att_rmse = rms_or_na(att_err[airborne], in_air)
+    no_cov = "no covariance in the air (the estimator gives none)"
+    return NavMetrics(
+        seed=r.seed,
+        output_rmse_with_vision_m=rms_or_na(err[with_vision], "no samples in the air with vision")
+        if r.scenario.vision.enabled
         else na("vision disabled"),
-        "output_rmse_m": rms_or_na(err[airborne], in_air),
-        "bias_error_fraction_60s": bias_frac,
-        "dropout_end_error_m": dropout_end,
-        "dropout_recovery_s": recovery,
-        "hold_max_horizontal_error_m": max_or_na(
-            horiz, "no hold above the take-off point of over 1 s"
-        ),
-        "delayed_rmse_m": rms_or_na(np.linalg.norm(r.delayed_err[ok, 6:9], axis=1), in_air),
-        "attitude_rmse_deg": att_rmse if isinstance(att_rmse, str) else math.degrees(att_rmse),
-        "nees_mean": mean_or_na(
-            nees(r.delayed_err[ok], r.delayed_P[ok]) if ok.any() else [], in_air
-        ),
-        "nis_above_95pct_gate": ratios,
-        "counts": r.counts,
-        "filter_events": [f"{t * 1e-9:.3f} s: {msg}" for t, msg in (r.events or [])],
-        "landed_at_m": r.truth_p[-1].tolist(),
-    }
+        output_rmse_m=rms_or_na(err[airborne], in_air),
+        bias_error_fraction_60s=_bias_error_fractions(r),
+        dropout_end_error_m=dropout_end,
+        dropout_recovery_s=recovery,
+        hold_max_horizontal_error_m=max_or_na(horiz, "no hold above the take-off point of over 1 s"),
+        delayed_rmse_m=rms_or_na(np.linalg.norm(r.delayed_err[ok, 6:9], axis=1), in_air),
+        attitude_rmse_deg=att_rmse if isinstance(att_rmse, str) else math.degrees(att_rmse),
+        nees_mean=mean_or_na(nees(r.delayed_err[ok_P], r.delayed_P[ok_P]) if ok_P.any() else [], no_cov),
+        nis_above_95pct_gate=_nis_ratios(r),
+        sources=dict(r.sources),
+        imu=r.imu,
+        filter_events=[f"{t * 1e-9:.3f} s: {msg}" for t, msg in r.events],
+        landed_at_m=r.truth_p[-1].tolist(),
+    )  # fmt: skip
 
 
 def _bias_error_fractions(r: NavRunResult) -> dict[str, Metric]:
@@ -193,24 +241,24 @@ def plot_nav_run(r: NavRunResult, folder: Path) -> list[Path]:
     plt.close(fig)
 
     # Innovation test ratios per source (1 = the gate), and the NIS against its chi-square.
-    srcs = [s for s in r.fusion if len(r.fusion[s]["nis"])]
+    srcs = [s for s in r.fusion if len(r.fusion[s])]
     if srcs:
         fig, axes = plt.subplots(len(srcs), 2, figsize=(12, 2.6 * len(srcs)), squeeze=False,
                                  constrained_layout=True, gridspec_kw={"width_ratios": [3, 1]})  # fmt: skip
         for row, src in zip(axes, srcs, strict=True):
             f = r.fusion[src]
-            ts = f["t_obs_ns"] * 1e-9
-            ok = f["accepted"] > 0
-            row[0].semilogy(ts[ok], np.maximum(f["test_ratio"][ok], 1e-6), ".", ms=2, label="fused")
+            ts = f.t_obs_ns * 1e-9
+            ok = f.accepted
+            row[0].semilogy(ts[ok], np.maximum(f.test_ratio[ok], 1e-6), ".", ms=2, label="fused")
             row[0].semilogy(
-                ts[~ok], f["test_ratio"][~ok], "x", color="tab:red", ms=4, label="rejected"
+                ts[~ok], f.test_ratio[~ok], "x", color="tab:red", ms=4, label="rejected"
             )
             row[0].axhline(1.0, color="k", lw=0.8)
             row[0].set_ylabel(f"{src}\ntest ratio")
             row[0].grid(True, which="both", alpha=0.3)
             shade(row[0])
-            dof = int(np.nanmax(f["dof"]))
-            nis = f["nis"][ok]
+            dof = int(np.max(f.dof))
+            nis = f.nis[ok]
             hi = float(chi2.ppf(0.999, dof))
             counts, _, _ = row[1].hist(nis[nis < hi], bins=40, density=True, alpha=0.6, label="NIS")
             xs = np.linspace(1e-3, hi, 200)
@@ -273,10 +321,10 @@ def _write_series(r: NavRunResult, folder: Path) -> None:
     write_csv(folder / "delayed.csv", {k: v[moved] for k, v in d.items()})
     for src, f in r.fusion.items():
         cols_i: dict[str, NDArray[Any]] = {
-            "t_ns": f["t_obs_ns"].astype(np.int64), "nis": f["nis"], "test_ratio": f["test_ratio"], "accepted": f["accepted"].astype(bool),
+            "t_ns": f.t_obs_ns, "nis": f.nis, "test_ratio": f.test_ratio, "accepted": f.accepted,
         }  # fmt: skip
-        for k in range(f["innovation"].shape[1]):
-            cols_i[f"innovation_{k}"] = f["innovation"][:, k]
+        for k in range(f.innovation.shape[1]):
+            cols_i[f"innovation_{k}"] = f.innovation[:, k]
         write_csv(folder / f"innovations_{src}.csv", cols_i)
     write_tum(folder / "truth.tum", Trajectory(t_ns=r.t_ns, p_W_B=r.truth_p, q_W_B_xyzw=r.truth_q))
     write_tum(
@@ -323,47 +371,65 @@ def _worst(values: list[Metric], none: str) -> Metric:
     return never[0] if never else median_or_na(values, worst=True) if values else na(none)
 
 
-def _summarize(per_seed: list[dict[str, Any]]) -> dict[str, Any]:
+@dataclass(frozen=True, slots=True, kw_only=True)
+class NavSummary:
     """Medians over seeds (worst cases where marked); metrics no seed has say why."""
 
-    def med(key: str) -> Metric:
-        return median_or_na(m[key] for m in per_seed)
+    seeds: int
+    output_rmse_m: Metric
+    output_rmse_with_vision_m: Metric
+    dropout_end_error_max_m: Metric
+    dropout_recovery_max_s: Metric
+    hold_max_horizontal_error_m: Metric
+    delayed_rmse_m: Metric
+    attitude_rmse_deg: Metric
+    nees_mean: Metric
+    nees_state_dim: int
+    gyro_bias_error_fraction_median: Metric
+    nis_above_95pct_gate: dict[str, float]
+    accel_bias_error_fraction_median: Metric
 
+    def to_json(self) -> dict[str, object]:
+        return {f: getattr(self, f) for f in self.__dataclass_fields__}
+
+
+def _summarize(per_seed: list[NavMetrics]) -> NavSummary:
+    """Medians over seeds (worst cases where marked); metrics no seed has say why."""
     no_dropout = "no dropout ended during the flight"
-    ends: list[Metric] = [x for m in per_seed for x in m["dropout_end_error_m"]]
-    recs: list[Metric] = [x for m in per_seed for x in m["dropout_recovery_s"]]
-    nees_means = [m["nees_mean"] for m in per_seed if not isinstance(m["nees_mean"], str)]
-    return {
-        "seeds": len(per_seed),
-        "output_rmse_m": med("output_rmse_m"),
-        "output_rmse_with_vision_m": med("output_rmse_with_vision_m"),
-        "dropout_end_error_max_m": _worst(ends, no_dropout),
-        "dropout_recovery_max_s": _worst(recs, no_dropout),
-        "hold_max_horizontal_error_m": median_or_na(
-            (m["hold_max_horizontal_error_m"] for m in per_seed), worst=True
+    ends: list[Metric] = [x for m in per_seed for x in m.dropout_end_error_m]
+    recs: list[Metric] = [x for m in per_seed for x in m.dropout_recovery_s]
+    nees_means = [m.nees_mean for m in per_seed if not isinstance(m.nees_mean, str)]
+    return NavSummary(
+        seeds=len(per_seed),
+        output_rmse_m=median_or_na(m.output_rmse_m for m in per_seed),
+        output_rmse_with_vision_m=median_or_na(m.output_rmse_with_vision_m for m in per_seed),
+        dropout_end_error_max_m=_worst(ends, no_dropout),
+        dropout_recovery_max_s=_worst(recs, no_dropout),
+        hold_max_horizontal_error_m=median_or_na(
+            (m.hold_max_horizontal_error_m for m in per_seed), worst=True
         ),
-        "delayed_rmse_m": med("delayed_rmse_m"),
-        "attitude_rmse_deg": med("attitude_rmse_deg"),
-        "nees_mean": float(np.mean(nees_means)) if nees_means else per_seed[0]["nees_mean"],
-        "nees_state_dim": 15,
-        "gyro_bias_error_fraction_median": median_or_na(
-            m["bias_error_fraction_60s"]["gyro"] for m in per_seed
+        delayed_rmse_m=median_or_na(m.delayed_rmse_m for m in per_seed),
+        attitude_rmse_deg=median_or_na(m.attitude_rmse_deg for m in per_seed),
+        nees_mean=float(np.mean(nees_means)) if nees_means else per_seed[0].nees_mean,
+        nees_state_dim=15,
+        gyro_bias_error_fraction_median=median_or_na(
+            m.bias_error_fraction_60s["gyro"] for m in per_seed
         ),
-        "nis_above_95pct_gate": {
-            src: float(np.mean([m["nis_above_95pct_gate"].get(src, np.nan) for m in per_seed]))
-            for src in per_seed[0]["nis_above_95pct_gate"]
+        nis_above_95pct_gate={
+            src: float(np.mean([m.nis_above_95pct_gate.get(src, np.nan) for m in per_seed]))
+            for src in per_seed[0].nis_above_95pct_gate
         },
-        "accel_bias_error_fraction_median": median_or_na(
-            m["bias_error_fraction_60s"]["accel"] for m in per_seed
+        accel_bias_error_fraction_median=median_or_na(
+            m.bias_error_fraction_60s["accel"] for m in per_seed
         ),
-    }
+    )
 
 
 @dataclass(frozen=True, slots=True)
 class NavStudy:
     run_dir: Path
-    per_seed: list[dict[str, Any]]
-    summary: dict[str, Any]
+    per_seed: list[NavMetrics]
+    summary: NavSummary
 
 
 def _one(sc: NavScenario, seed: int) -> NavRunResult:
@@ -378,12 +444,12 @@ def run_nav_study(
     run_dir = create_run_folder(runs_root, sc.name)
     write_text(run_dir / "config.yaml", dump_config(sc))
     seeds = [sc.seed + k for k in range(sc.seeds)]
-    results: dict[int, dict[str, Any]] = {}
+    results: dict[int, NavMetrics] = {}
     firsts: list[NavRunResult] = []
 
     def collect(k: int, res: NavRunResult) -> None:
         results[res.seed] = nav_metrics(res)
-        append_jsonl(run_dir / "seeds.jsonl", {"seed": res.seed, **results[res.seed]})
+        append_jsonl(run_dir / "seeds.jsonl", results[res.seed].to_json())
         if k == 0:
             firsts.append(res)
         if progress:
@@ -400,17 +466,22 @@ def run_nav_study(
     summary = _summarize(per_seed)
     table = [{
         "scenario": sc.name, "seeds": len(seeds),
-        "output RMSE in the air (m)": summary["output_rmse_m"],
-        "output RMSE w/ vision (m)": summary["output_rmse_with_vision_m"],
-        "dropout end max (m)": summary["dropout_end_error_max_m"],
-        "recovery max (s)": summary["dropout_recovery_max_s"],
-        "hold max horiz (m)": summary["hold_max_horizontal_error_m"],
-        "attitude RMSE (deg)": summary["attitude_rmse_deg"],
-        "NEES (15)": summary["nees_mean"],
+        "output RMSE in the air (m)": summary.output_rmse_m,
+        "output RMSE w/ vision (m)": summary.output_rmse_with_vision_m,
+        "dropout end max (m)": summary.dropout_end_error_max_m,
+        "recovery max (s)": summary.dropout_recovery_max_s,
+        "hold max horiz (m)": summary.hold_max_horizontal_error_m,
+        "attitude RMSE (deg)": summary.attitude_rmse_deg,
+        "NEES (15)": summary.nees_mean,
     }]  # fmt: skip
     write_json(
         run_dir / "metrics.json",
-        {"kind": "nav", "summary": summary, "per_seed": per_seed, "table": table},
+        {
+            "kind": "nav",
+            "summary": summary.to_json(),
+            "per_seed": [m.to_json() for m in per_seed],
+            "table": table,
+        },
     )
     write_report(
         run_dir / "report.html",

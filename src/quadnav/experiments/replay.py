@@ -27,7 +27,7 @@ from quadnav.estimation.gnss_checks import CHECK_NAMES, GnssCheckConfig, GnssChe
 from quadnav.estimation.horizon import DelayedHorizonEstimator, HorizonConfig
 from quadnav.estimation.imu_clipping import BADACC_NOISE_M_S2, ClippedImuSample
 from quadnav.estimation.nav_ekf import NavEkf, NavEkfConfig
-from quadnav.experiments.nav import ground_alignment
+from quadnav.estimation.nav_filter import ground_alignment
 from quadnav.geometry.rotations import quat_xyzw_from_matrix
 from quadnav.io.ulog_sensors import UlogSensors, held_flags
 from quadnav.messages import (

@@ -27,6 +27,7 @@ from quadnav.messages import (
     PoseSample,
     PositionSample,
     RangeSample,
+    Sample,
     VehicleState,
 )
 
@@ -40,24 +41,37 @@ __all__ = [
     "PositionSensor",
     "RangeFinder",
     "Sensor",
+    "Ticker",
     "VisionFrameJump",
     "VisionPoseSensor",
 ]
 
-S = TypeVar(
-    "S", ImuSample, PositionSample, PoseSample, HeightSample, GpsSample, MagSample, RangeSample
-)
-S_co = TypeVar(
-    "S_co",
-    ImuSample,
-    PositionSample,
-    PoseSample,
-    HeightSample,
-    GpsSample,
-    MagSample,
-    RangeSample,
-    covariant=True,
-)
+S = TypeVar("S", bound=Sample)
+S_co = TypeVar("S_co", bound=Sample, covariant=True)
+
+
+class Ticker:
+    """When a periodic sensor is due: due times accumulate (``k * period`` from the first
+    sample), so a 30 Hz sensor polled on 2 ms steps gives 30 samples a second, not the 29.5 of
+    "next = now + period". A poll after a gap catches up without a burst."""
+
+    __slots__ = ("_next_ns", "period_ns")
+
+    def __init__(self, period_ns: int, *, first_ns: int | None = None) -> None:
+        if period_ns <= 0:
+            raise SimError(f"a sensor's period must be > 0 ns, got {period_ns}")
+        self.period_ns = int(period_ns)
+        self._next_ns: int | None = first_ns
+
+    def due(self, t_ns: int) -> bool:
+        """True (and the next due time set) when a sample is due at ``t_ns``."""
+        nxt = self._next_ns
+        if nxt is not None and t_ns < nxt:
+            return False
+        if nxt is None or t_ns - nxt >= self.period_ns:
+            nxt = t_ns  # the first poll, or after a gap: start the grid afresh
+        self._next_ns = nxt + self.period_ns
+        return True
 
 
 class Sensor(Protocol[S_co]):
@@ -213,9 +227,19 @@ class IntegratingImu:
         self.bias_a = np.asarray(accel_bias0_m_s2, dtype=np.float64).copy()
         self.g = float(gravity_m_s2)
         self._t_last = int(t0_ns)
+        self._t_poll: int | None = None
+        self._ticker = Ticker(self.period_ns, first_ns=self._t_last + self.period_ns)
         self._sum_w = np.zeros(3)
         self._sum_f = np.zeros(3)
         self._sum_dt = 0.0
+
+    def sample(self, truth: VehicleState, t_ns: int, rng: Generator) -> ImuSample | None:
+        """The :class:`Sensor` form, polled every simulator step: the step integrated is the
+        time since the previous poll (the first poll only starts the clock)."""
+        t_prev, self._t_poll = self._t_poll, t_ns
+        if t_prev is None or t_ns <= t_prev:
+            return None
+        return self.accumulate(truth, (t_ns - t_prev) * 1e-9, rng)
 
     def accumulate(self, truth: VehicleState, dt_s: float, rng: Generator) -> ImuSample | None:
         a = truth.a_W_B.copy()
@@ -230,7 +254,7 @@ class IntegratingImu:
         self._sum_f += f_B * dt_s
         self._sum_w += truth.w_B * dt_s
         self._sum_dt += dt_s
-        if truth.t_ns - self._t_last < self.period_ns:
+        if not self._ticker.due(truth.t_ns):
             return None
         T = self._sum_dt
         sample = ImuSample(
@@ -273,14 +297,13 @@ class GpsSensor:
         self.sh, self.sv, self.svel = float(sigma_h_m), float(sigma_v_m), float(sigma_vel_m_s)
         self.outages = outages_ns or []
         self.glitches = [(a, b, np.asarray(off, dtype=np.float64)) for a, b, off in glitches or []]
-        self._next = 0
+        self._ticker = Ticker(self.period_ns)
 
     def sample(self, truth: VehicleState, t_ns: int, rng: Generator) -> GpsSample | None:
         import pymap3d
 
-        if t_ns < self._next:
+        if not self._ticker.due(t_ns):
             return None
-        self._next = t_ns + self.period_ns
         if any(a <= t_ns < b for a, b in self.outages):
             return None
         p = truth.p_W_B + rng.standard_normal(3) * np.array([self.sh, self.sh, self.sv])
@@ -328,12 +351,11 @@ class MagSensor:
         self.noise = float(noise_sigma)
         self.hard_iron = np.asarray(hard_iron, dtype=np.float64)
         self.sigma_heading = float(sigma_heading_rad)
-        self._next = 0
+        self._ticker = Ticker(self.period_ns)
 
     def sample(self, truth: VehicleState, t_ns: int, rng: Generator) -> MagSample | None:
-        if t_ns < self._next:
+        if not self._ticker.due(t_ns):
             return None
-        self._next = t_ns + self.period_ns
         m_B = Rotation.from_quat(truth.q_W_B_xyzw).apply(self.field_W, inverse=True)
         return MagSample(
             t_ns=t_ns,
@@ -358,12 +380,11 @@ class BaroSensor:
         self.sigma = float(sigma_m)
         self.drift = float(drift_m_sqrt_s)
         self.offset = float(offset_m)
-        self._next = 0
+        self._ticker = Ticker(self.period_ns)
 
     def sample(self, truth: VehicleState, t_ns: int, rng: Generator) -> HeightSample | None:
-        if t_ns < self._next:
+        if not self._ticker.due(t_ns):
             return None
-        self._next = t_ns + self.period_ns
         self.offset += self.drift * math.sqrt(self.period_ns * 1e-9) * rng.standard_normal()
         z = float(truth.p_W_B[2]) + self.offset + self.sigma * rng.standard_normal()
         return HeightSample(t_ns=t_ns, z_m=z, sigma_m=self.sigma)
@@ -392,12 +413,11 @@ class RangeFinder:
         self.sigma, self.min_m, self.max_m = float(sigma_m), float(min_m), float(max_m)
         self.ground_z = float(ground_z_m)
         self.cos_max_tilt = math.cos(max_tilt_rad)
-        self._next = 0
+        self._ticker = Ticker(self.period_ns)
 
     def sample(self, truth: VehicleState, t_ns: int, rng: Generator) -> RangeSample | None:
-        if t_ns < self._next:
+        if not self._ticker.due(t_ns):
             return None
-        self._next = t_ns + self.period_ns
         c = float(Rotation.from_quat(truth.q_W_B_xyzw).as_matrix()[2, 2])
         if c < self.cos_max_tilt:
             return None
@@ -448,12 +468,11 @@ class VisionPoseSensor:
         self.dropouts = dropouts_ns or []
         self.jumps = sorted(jumps or [], key=lambda j: j.t_ns)
         self.reset_counter = 0
-        self._next = 0
+        self._ticker = Ticker(self.period_ns)
 
     def sample(self, truth: VehicleState, t_ns: int, rng: Generator) -> PoseSample | None:
-        if t_ns < self._next:
+        if not self._ticker.due(t_ns):
             return None
-        self._next = t_ns + self.period_ns
         while self.jumps and self.jumps[0].t_ns <= t_ns:
             j = self.jumps.pop(0)
             # T_W_V' = T_W_V T_V_V' with T_V_V' = (Rz(yaw), offset).

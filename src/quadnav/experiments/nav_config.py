@@ -1,0 +1,312 @@
+"""The main job's scenario (``quadnav run``): :class:`NavScenario`, the YAML configuration of
+a navigation flight. Every field has a default: the indoor flight of thesis 000 (take off to
+1.5 m, hold, a 2 m square, hold, land, two 2 s vision dropouts). Each sensor section is read by
+its channel's builder in :mod:`quadnav.experiments.nav_channels`; the loop is
+:func:`quadnav.experiments.nav.run_nav`.
+"""
+
+from __future__ import annotations
+
+from typing import Literal, Self
+
+from pydantic import Field, model_validator
+
+from quadnav.config_model import (
+    MAX_DELAY_S,
+    MAX_DURATION_S,
+    MAX_RATE_HZ,
+    MAX_SIM_STEPS,
+    MIN_SIGMA,
+    ConfigModel,
+)
+from quadnav.control.trajectories import Waypoints
+
+__all__ = ["RANGE_MIN_M", "NavScenario"]
+
+Vec3 = tuple[float, float, float]
+
+#: The range finder's shortest reading (m).
+RANGE_MIN_M = 0.05
+
+
+class ImuSection(ConfigModel):
+    rate_hz: float = Field(250.0, gt=0, le=MAX_RATE_HZ)
+    gyro_sigma_rad_s: float = Field(0.005, ge=MIN_SIGMA, description="white noise per sample")
+    accel_sigma_m_s2: float = Field(0.05, ge=MIN_SIGMA, description="white noise per sample")
+    gyro_bias_rw_rad_s_sqrt_s: float = Field(1e-4, gt=0)
+    accel_bias_rw_m_s2_sqrt_s: float = Field(1e-3, gt=0)
+    gyro_bias0_sigma_rad_s: float = Field(0.01, ge=0, description="turn-on bias spread")
+    accel_bias0_sigma_m_s2: float = Field(0.05, ge=0, description="turn-on bias spread")
+    lever_arm_m: Vec3 = Field(
+        (0.0, 0.0, 0.0), description="IMU mount offset from the centre of mass (body FLU)"
+    )
+
+
+class VisionSection(ConfigModel):
+    enabled: bool = True
+    source: Literal["camera", "pose"] = Field(
+        "camera",
+        description="camera: rendered images of a marker field, detected and posed (thesis 000); "
+        "pose: the true pose plus noise (the fast shortcut)",
+    )
+    marker_grid: int = Field(6, ge=1, le=15, description="camera: n x n markers on the floor")
+    marker_spacing_m: float = Field(0.6, gt=0, description="camera: distance between markers")
+    marker_length_m: float = Field(0.2335, gt=0, description="camera: printed marker side")
+    marker_origin_m: tuple[float, float] = Field((-0.6, -0.6), description="camera: first marker")
+    image_noise: float = Field(2.0, ge=0, description="camera: grey-level noise of the images")
+    rate_hz: float = Field(30.0, gt=0, le=MAX_RATE_HZ)
+    delay_s: float = Field(0.25, ge=0, le=MAX_DELAY_S)
+    sigma_m: float = Field(0.01, ge=MIN_SIGMA)
+    yaw_sigma_rad: float = Field(0.01, ge=MIN_SIGMA)
+    dropouts_s: list[tuple[float, float]] = Field(
+        default_factory=lambda: [(9.0, 11.0), (15.0, 17.0)],
+        description="[start, end) windows with no vision",
+    )
+    frame_yaw_deg: float = Field(0.0, description="yaw of the vision frame in the world")
+    frame_offset_m: Vec3 = Field((0.0, 0.0, 0.0), description="vision frame origin in the world")
+    jumps: list[tuple[float, float, float, float, float]] = Field(
+        default_factory=list,
+        description="[t_s, yaw_deg, dx_m, dy_m, dz_m]: the vision frame re-initialises (reset counter + 1)",
+    )
+
+
+class BaroSection(ConfigModel):
+    enabled: bool = True
+    rate_hz: float = Field(50.0, gt=0, le=MAX_RATE_HZ)
+    delay_s: float = Field(0.02, ge=0, le=MAX_DELAY_S)
+    sigma_m: float = Field(0.1, ge=MIN_SIGMA)
+    drift_m_sqrt_s: float = Field(0.002, ge=0, description="random-walk drift of the offset")
+
+
+class RangeSection(ConfigModel):
+    enabled: bool = False
+    rate_hz: float = Field(20.0, gt=0, le=MAX_RATE_HZ)
+    delay_s: float = Field(0.01, ge=0, le=MAX_DELAY_S)
+    sigma_m: float = Field(0.02, ge=MIN_SIGMA)
+    max_m: float = Field(8.0, gt=RANGE_MIN_M, description=f"above the {RANGE_MIN_M} m it sees")
+
+
+class FaultsSection(ConfigModel):
+    """Faults injected into the sensor streams (times in seconds of flight time)."""
+
+    gps_glitch: list[tuple[float, float, float, float]] = Field(
+        default_factory=list, description="[start_s, end_s, east_m, north_m]: fixes jump by this"
+    )
+    imu_nan_s: list[float] = Field(
+        default_factory=list, description="an IMU sample carrying NaN at these times"
+    )
+    imu_repeat_s: list[float] = Field(
+        default_factory=list, description="an IMU sample delivered twice (the copy is out of order)"
+    )
+    vision_late_s: list[tuple[float, float]] = Field(
+        default_factory=list,
+        description="[t_s, extra_delay_s]: the vision sample of t_s arrives this much later",
+    )
+
+
+class GpsSection(ConfigModel):
+    enabled: bool = False
+    rate_hz: float = Field(5.0, gt=0, le=MAX_RATE_HZ)
+    delay_s: float = Field(0.2, ge=0, le=MAX_DELAY_S)
+    sigma_h_m: float = Field(0.5, ge=MIN_SIGMA)
+    sigma_v_m: float = Field(0.8, ge=MIN_SIGMA)
+    sigma_vel_m_s: float = Field(0.1, ge=MIN_SIGMA)
+    datum_lla: tuple[float, float, float] = Field(
+        (47.397742, 8.545594, 488.0), description="lat deg, lon deg, alt m"
+    )
+
+    @model_validator(mode="after")
+    def _datum(self) -> Self:
+        lat, lon, alt = self.datum_lla
+        if not -90.0 <= lat <= 90.0:
+            raise ValueError(f"datum_lla[0] (latitude) must be within +-90 degrees, got {lat:g}")
+        if not -180.0 <= lon <= 180.0:
+            raise ValueError(f"datum_lla[1] (longitude) must be within +-180 degrees, got {lon:g}")
+        if not -1000.0 <= alt <= 100_000.0:
+            raise ValueError(f"datum_lla[2] (altitude) must be within -1000..100000 m, got {alt:g}")
+        return self
+
+    outages_s: list[tuple[float, float]] = Field(
+        default_factory=list, description="[start, end) without a fix"
+    )
+
+
+class MagSection(ConfigModel):
+    enabled: bool = False
+    rate_hz: float = Field(50.0, gt=0, le=MAX_RATE_HZ)
+    declination_rad: float = 0.05
+    noise_sigma: float = Field(0.005, ge=0, description="per axis, in the field's unit (gauss)")
+    sigma_heading_rad: float = Field(
+        0.023, ge=MIN_SIGMA, description="heading noise the filter assumes"
+    )
+
+
+class PlanSection(ConfigModel):
+    height_m: float = Field(1.5, gt=0)
+    square_m: float = Field(2.0, gt=0)
+    speed_m_s: float = Field(1.0, gt=0)
+    accel_m_s2: float = Field(1.0, gt=0)
+    hold_s: float = Field(2.0, ge=0, le=MAX_DURATION_S)
+    yaw: Literal["fixed", "along_track"] = Field(
+        "fixed", description="fixed: face +x throughout; along_track: face the direction of travel"
+    )
+    yaw_rate_deg_s: float = Field(45.0, gt=0, description="turn rate of the along-track heading")
+
+
+class EstimatorSection(ConfigModel):
+    kind: Literal["ekf", "truth"] = Field(
+        "ekf",
+        description="ekf: the navigation EKF behind its delayed horizon; truth: perfect knowledge "
+        "(the estimator's share of every error, by difference)",
+    )
+    init_tilt_sigma_rad: float = Field(0.02, ge=MIN_SIGMA, description="P0: roll and pitch")
+    init_vel_sigma_m_s: float = Field(0.05, ge=MIN_SIGMA, description="P0: velocity")
+    init_gyro_bias_sigma_rad_s: float | None = Field(
+        None, ge=MIN_SIGMA, description="P0: gyro bias (None: imu.gyro_bias0_sigma_rad_s)"
+    )
+    init_accel_bias_sigma_m_s2: float | None = Field(
+        None, ge=MIN_SIGMA, description="P0: accelerometer bias (None: imu.accel_bias0_sigma_m_s2)"
+    )
+    init_source_sigma_factor: float = Field(
+        3.0, gt=0, description="P0 of heading and position levelled from a pose: its sigmas x this"
+    )
+    init_gps_sigma_factor: float = Field(
+        2.0, gt=0, description="P0 of a position levelled from a GNSS fix: its sigma_h x this"
+    )
+    init_yaw_sigma_mag_rad: float = Field(
+        0.1, ge=MIN_SIGMA, description="P0: heading from the magnetometer"
+    )
+    init_yaw_sigma_unknown_rad: float = Field(
+        1.0, ge=MIN_SIGMA, description="P0: heading unobserved"
+    )
+    init_pos_sigma_unknown_m: float = Field(
+        0.1, ge=MIN_SIGMA, description="P0: position unobserved"
+    )
+    tau_vel_s: float = Field(0.1, gt=0)
+    tau_pos_s: float = Field(0.1, gt=0)
+    gate_probability: float = Field(0.9999, gt=0, lt=1)
+    align_s: float = Field(
+        0.5, gt=0, le=MAX_DURATION_S, description="time on the ground to level the filter"
+    )
+    imu_noise_inflation: float = Field(1.0, ge=1.0, description="filter's IMU noise / the sensor's")
+    vision_frame: Literal["world", "rotate"] = Field(
+        "world",
+        description="world: the vision frame is the navigation frame (its yaw fused); rotate: "
+        "PX4's rotated external vision, heading from the magnetometer (thesis 000 eqs 3.7-3.8)",
+    )
+    reset_after_s: float = Field(
+        2.0, gt=0, le=MAX_DURATION_S, description="a source rejected this long resets"
+    )
+    zero_velocity_on_ground: bool = Field(
+        True,
+        description="fuse zero velocity while the motors are off on the ground (as PX4 at rest)",
+    )
+    bias_rw_inflation: float = Field(
+        3.0,
+        ge=1.0,
+        description="filter's bias random walk / the sensor's (covers unmodelled IMU effects)",
+    )
+
+
+class NavScenario(ConfigModel):
+    """A navigation flight; the defaults are the indoor vision flight of thesis 000."""
+
+    name: str = "indoor_vision"
+    closed_loop: bool = Field(True, description="fly on the output predictor (False: on the truth)")
+    sim_dt_s: float = Field(0.002, gt=0, le=0.01)
+    seed: int = Field(0, ge=0)
+    seeds: int = Field(1, ge=1, le=1000)
+    imu: ImuSection = ImuSection()
+    vision: VisionSection = VisionSection()
+    baro: BaroSection = BaroSection()
+    gps: GpsSection = GpsSection()
+    mag: MagSection = MagSection()
+    range: RangeSection = RangeSection()
+    faults: FaultsSection = FaultsSection()
+    plan: PlanSection = PlanSection()
+    estimator: EstimatorSection = EstimatorSection()
+
+    @model_validator(mode="after")
+    def _check(self) -> Self:
+        if self.imu.rate_hz > 1.0 / self.sim_dt_s:
+            raise ValueError(
+                f"imu.rate_hz ({self.imu.rate_hz:g} Hz) is faster than the simulation step "
+                f"(sim_dt_s = {self.sim_dt_s:g} s: at most {1.0 / self.sim_dt_s:g} Hz)"
+            )
+        if not (self.vision.enabled or self.gps.enabled):
+            raise ValueError(
+                "vision and gps are both disabled: nothing bounds the horizontal position"
+            )
+        frame_moved = self.vision.frame_yaw_deg != 0 or any(self.vision.frame_offset_m)
+        if self.estimator.vision_frame == "world" and frame_moved:
+            raise ValueError(
+                "vision.frame_yaw_deg/frame_offset_m need estimator.vision_frame=rotate: with "
+                "vision_frame=world the vision frame is the navigation frame"
+            )
+        if self.vision.source == "camera" and (self.vision.jumps or frame_moved):
+            raise ValueError(
+                "vision.jumps/frame_yaw_deg/frame_offset_m describe the pose shortcut: "
+                "set vision.source=pose"
+            )
+        if self.estimator.vision_frame == "rotate" and not self.mag.enabled:
+            raise ValueError(
+                "estimator.vision_frame=rotate takes the heading from the magnetometer: "
+                "set mag.enabled=true"
+            )
+        for a, b in self.vision.dropouts_s:
+            if not b > a:
+                raise ValueError(
+                    f"vision.dropouts_s: a window must end after it starts, got ({a}, {b})"
+                )
+        if self.flight_s > MAX_DURATION_S:
+            raise ValueError(
+                f"the flight would last {self.flight_s:.4g} s, longer than {MAX_DURATION_S:g} s: "
+                "shorten plan.hold_s or plan.square_m, or raise plan.speed_m_s"
+            )
+        if problem := self._timing_problem():
+            raise ValueError(problem)
+        return self
+
+    def _timing_problem(self) -> str | None:
+        """A step count too large for memory, or a sensor too slow to give a sample."""
+        steps = self.flight_s / self.sim_dt_s
+        if steps > MAX_SIM_STEPS:
+            return (
+                f"sim_dt_s ({self.sim_dt_s:g} s) would take {steps:.3g} steps for the "
+                f"{self.flight_s:.4g} s flight, more than {MAX_SIM_STEPS:g}: raise sim_dt_s"
+            )
+        if self.imu.rate_hz * self.estimator.align_s < 1.0:
+            return (
+                f"imu.rate_hz ({self.imu.rate_hz:g} Hz) gives no IMU sample during "
+                f"estimator.align_s ({self.estimator.align_s:g} s), which levels the filter"
+            )
+        rates = [(key, sec.enabled, sec.rate_hz) for key, sec in (("vision", self.vision), ("baro", self.baro), ("gps", self.gps), ("mag", self.mag), ("range", self.range))]  # fmt: skip
+        for key, enabled, rate_hz in rates:
+            if enabled and rate_hz * self.flight_s < 1.0:
+                return (
+                    f"{key}.rate_hz ({rate_hz:g} Hz) gives no sample during the "
+                    f"{self.flight_s:.4g} s flight"
+                )
+        return None
+
+    def waypoints(self) -> Waypoints:
+        h, s = self.plan.height_m, self.plan.square_m
+        pts: list[Vec3] = [
+            (0, 0, 0),
+            (0, 0, h),
+            (s, 0, h),
+            (s, s, h),
+            (0, s, h),
+            (0, 0, h),
+            (0, 0, 0),
+        ]
+        return Waypoints(
+            points_m=pts,
+            speed_m_s=self.plan.speed_m_s,
+            accel_m_s2=self.plan.accel_m_s2,
+            hold_s=self.plan.hold_s,
+        )
+
+    @property
+    def flight_s(self) -> float:
+        return self.estimator.align_s + self.waypoints().duration_s + 1.0
