@@ -197,9 +197,9 @@ def test_px4_innovations_are_plotted_in_our_convention() -> None:
     assert [p.label.split()[0:2] for p in pairs][:2] == [["GNSS", "east"], ["GNSS", "north"]]
     for p in pairs:
         f = r.fusion[p.source]
-        ours_t = (f["t_obs_ns"] - s.t_start_ns) * 1e-9
+        ours_t = (f.t_obs_ns - s.t_start_ns) * 1e-9
         delay = 0.11 if p.source == "gps" else 0.0  # PX4 logs at fusion, we at validity
-        mine = np.interp(p.px4_t_s - delay, ours_t, f["innovation"][:, p.column])
+        mine = np.interp(p.px4_t_s - delay, ours_t, f.innovation[:, p.column])
         assert np.corrcoef(mine, p.px4_m)[0, 1] > 0.3, p.label
         assert p.px4_t_s.min() >= 0 and p.px4_t_s.max() < s.duration_s + 1
 

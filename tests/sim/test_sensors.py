@@ -117,13 +117,15 @@ def _state(t_ns: int, p, yaw: float = 0.0, roll: float = 0.0, w=(0.0, 0.0, 0.0))
 
 
 def test_vision_pose_is_expressed_in_its_rotated_offset_frame_and_jumps_bump_the_counter() -> None:
-    from quadnav.sim.sensors import VisionFrameJump, VisionPoseSensor
+    from quadnav.sim.channels import Dropouts, FrameJump, FrameJumps
+    from quadnav.sim.sensors import VisionPoseSensor
 
-    sensor = VisionPoseSensor(
+    pose = VisionPoseSensor(
         period_ns=10, sigma_m=1e-9, yaw_sigma_rad=1e-9, frame_yaw_rad=np.pi / 2,
-        frame_offset_m=(1.0, 2.0, 0.0), dropouts_ns=[(100, 200)],
-        jumps=[VisionFrameJump(t_ns=300, yaw_rad=0.0, offset_m=(0.5, 0.0, 0.0))],
+        frame_offset_m=(1.0, 2.0, 0.0),
     )  # fmt: skip
+    jumps = FrameJumps(pose, [FrameJump(t_ns=300, yaw_rad=0.0, offset_m=(0.5, 0.0, 0.0))])
+    sensor = Dropouts(jumps, [(100, 200)])
     rng = np.random.default_rng(0)
     s = sensor.sample(_state(0, [1.0, 3.0, 1.0], yaw=np.pi / 2), 0, rng)
     assert s is not None

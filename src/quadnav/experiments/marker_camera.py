@@ -35,13 +35,12 @@ def marker_field(n: int, spacing_m: float, length_m: float, origin_m: tuple[floa
 
 @dataclass
 class MarkerCameraSensor:
-    """Renders what the camera at ``T_W_B T_B_C`` sees every ``period_ns`` (outside the dropout
-    windows) and returns the vehicle pose the pipeline finds, or nothing."""
+    """Renders what the camera at ``T_W_B T_B_C`` sees every ``period_ns`` and returns the
+    vehicle pose the pipeline finds, or nothing (dropouts: :class:`~quadnav.sim.channels.Dropouts`)."""
 
     period_ns: int
     markers: list[MapMarker]
     T_B_C: Pose
-    dropouts_ns: list[tuple[int, int]]
     camera: PinholeCamera | None = None
     noise_sigma: float = 2.0
     exposure_s: float = 0.004
@@ -62,8 +61,6 @@ class MarkerCameraSensor:
     def sample(self, truth: VehicleState, t_ns: int, rng: Generator) -> PoseSample | None:
         del rng  # the image noise has its own generator
         if not self._ticker.due(t_ns):
-            return None
-        if any(a <= t_ns < b for a, b in self.dropouts_ns):
             return None
         assert self.camera is not None
         T_W_B = Pose.from_quat_xyzw(truth.q_W_B_xyzw, truth.p_W_B)

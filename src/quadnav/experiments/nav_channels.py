@@ -101,7 +101,7 @@ def _vision(sc: NavScenario, ctx: BuildContext, rng: Generator) -> Channel | Non
         )
         seed = int(rng.integers(2**31))  # the image noise draws from its own generator
         sensor = MarkerCameraSensor(period_ns=period, markers=field, T_B_C=thesis_mount(),
-                                    dropouts_ns=[], noise_sigma=vs.image_noise, seed=seed)  # fmt: skip
+                                    noise_sigma=vs.image_noise, seed=seed)  # fmt: skip
     else:
         sensor = VisionPoseSensor(
             period_ns=period, sigma_m=vs.sigma_m, yaw_sigma_rad=vs.yaw_sigma_rad,

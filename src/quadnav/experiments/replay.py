@@ -13,6 +13,7 @@ from __future__ import annotations
 import heapq
 import math
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -21,13 +22,23 @@ import pymap3d
 from numpy.typing import NDArray
 from pydantic import Field, ValidationError
 
-from quadnav.config_model import MAX_DELAY_S, ConfigModel
+from quadnav.config_model import MAX_DELAY_S, MIN_SIGMA, ConfigModel
 from quadnav.errors import ExperimentError
 from quadnav.estimation.gnss_checks import CHECK_NAMES, GnssCheckConfig, GnssChecks, run_gnss_checks
-from quadnav.estimation.horizon import DelayedHorizonEstimator, HorizonConfig
+from quadnav.estimation.horizon import (
+    DelayedHorizonEstimator,
+    HorizonConfig,
+    SourceFusion,
+    fusion_arrays,
+)
 from quadnav.estimation.imu_clipping import BADACC_NOISE_M_S2, ClippedImuSample
 from quadnav.estimation.nav_ekf import NavEkf, NavEkfConfig
-from quadnav.estimation.nav_filter import ground_alignment
+from quadnav.estimation.nav_filter import (
+    InitialSigmas,
+    NavFilterSetup,
+    build_nav_filter,
+    ground_alignment,
+)
 from quadnav.geometry.rotations import quat_xyzw_from_matrix
 from quadnav.io.ulog_sensors import UlogSensors, held_flags
 from quadnav.messages import (
@@ -40,6 +51,7 @@ from quadnav.messages import (
     Sample,
     VelocitySample,
 )
+from quadnav.units import s_to_ns
 
 __all__ = [
     "CHECK_NAMES",
@@ -86,6 +98,19 @@ class ReplayConfig(ConfigModel):
     zero_velocity_sigma_m_s: float = Field(0.05, gt=0, description="standing still, within this")
     tau_vel_s: float = Field(0.25, gt=0)
     tau_pos_s: float = Field(0.25, gt=0)
+    init_tilt_sigma_rad: float = Field(0.05, ge=MIN_SIGMA, description="P0: roll and pitch")
+    init_yaw_sigma_rad: float = Field(0.3, ge=MIN_SIGMA, description="P0: heading")
+    init_vel_sigma_m_s: float = Field(0.3, ge=MIN_SIGMA, description="P0: velocity")
+    init_pos_sigma_m: float = Field(0.5, ge=MIN_SIGMA, description="P0: horizontal position")
+    init_pos_sigma_gps_m: float = Field(
+        2.0, ge=MIN_SIGMA, description="P0: horizontal position levelled from a GNSS fix"
+    )
+    init_height_sigma_m: float = Field(0.5, ge=MIN_SIGMA, description="P0: height")
+    init_height_sigma_anchored_m: float = Field(
+        0.01, ge=MIN_SIGMA, description="P0: height, with a barometer bias and no GNSS height"
+    )
+    init_gyro_bias_sigma_rad_s: float = Field(0.01, ge=MIN_SIGMA, description="P0: gyro bias")
+    init_accel_bias_sigma_m_s2: float = Field(0.2, ge=MIN_SIGMA, description="P0: accel bias")
     min_gps_fix: int = Field(3, ge=2)
     gps_max_eph_m: float = Field(
         3.0, gt=0, description="fixes less precise than this are not used (EKF2_REQ_EPH)"
@@ -209,7 +234,7 @@ class ReplayResult:
     q_xyzw: FloatArray
     datum_lla: tuple[float, float, float]
     counts: dict[str, dict[str, int]]
-    fusion: dict[str, dict[str, FloatArray]]
+    fusion: Mapping[str, SourceFusion]
     events: list[tuple[int, str]]
     notes: list[str] = field(default_factory=list)
     replay_wall_s: float = 0.0
@@ -435,16 +460,12 @@ def _filter(s: UlogSensors, cfg: ReplayConfig, period_ns: int, t_align: int, dat
     )  # fmt: skip
     # With a barometer bias and no GNSS height the world's height origin is where the log
     # starts: the start height is known, and the anchor's uncertainty is the bias's.
-    sig_z0 = 0.01 if cfg.baro_bias_nsd_m_s is not None and not cfg.gps_height else 0.5
-    sig = np.array(
-        [0.05, 0.05, 0.3]
-        + [0.3] * 3
-        + [2.0 if gps_at_start else 0.5] * 2
-        + [sig_z0]
-        + [0.01] * 3
-        + [0.2] * 3
-    )
-    ekf = NavEkf(ekf_cfg, p0=p0, v0=np.zeros(3), q0_xyzw=R0.as_quat(), P0=np.diag(sig**2))
+    sig_z0 = cfg.init_height_sigma_anchored_m if cfg.baro_bias_nsd_m_s is not None and not cfg.gps_height else cfg.init_height_sigma_m  # fmt: skip
+    sigmas = InitialSigmas(
+        tilt_rad=cfg.init_tilt_sigma_rad, yaw_rad=cfg.init_yaw_sigma_rad, vel_m_s=cfg.init_vel_sigma_m_s,
+        pos_xy_m=cfg.init_pos_sigma_gps_m if gps_at_start else cfg.init_pos_sigma_m, pos_z_m=sig_z0,
+        gyro_bias_rad_s=cfg.init_gyro_bias_sigma_rad_s, accel_bias_m_s2=cfg.init_accel_bias_sigma_m_s2,
+    )  # fmt: skip
     max_delay = max(
         cfg.gps_delay_s if s.gps else 0.0,
         cfg.baro_delay_s,
@@ -452,11 +473,12 @@ def _filter(s: UlogSensors, cfg: ReplayConfig, period_ns: int, t_align: int, dat
         cfg.ev_delay_s,
         cfg.range_delay_s,
     )
-    est = DelayedHorizonEstimator(
-        ekf, HorizonConfig(imu_period_ns=period_ns, max_delay_ns=round(max_delay * 1e9),
-                           tau_vel_s=cfg.tau_vel_s, tau_pos_s=cfg.tau_pos_s), t0_ns=t_align,
-    )  # fmt: skip
-    return ekf, est
+    horizon = HorizonConfig(imu_period_ns=period_ns, max_delay_ns=s_to_ns(max_delay),
+                            tau_vel_s=cfg.tau_vel_s, tau_pos_s=cfg.tau_pos_s)  # fmt: skip
+    setup = NavFilterSetup(ekf=ekf_cfg, horizon=horizon, sigmas=sigmas)
+    est = build_nav_filter(setup, t0_ns=t_align, p0=p0, q0_xyzw=R0.as_quat())
+    assert isinstance(est.filter, NavEkf)
+    return est.filter, est
 
 
 def _baro_ref(s: UlogSensors, cfg: ReplayConfig, t_align: int, datum_alt_m: float, z0_m: float) -> tuple[float, float]:  # fmt: skip
@@ -546,19 +568,6 @@ def replay(s: UlogSensors, cfg: ReplayConfig, *, progress: Any = None) -> Replay
         }
     return ReplayResult(
         t_ns=np.array(rows_t, dtype=np.int64), p=np.array(rows_p), v=np.array(rows_v), q_xyzw=np.array(rows_q),
-        datum_lla=datum, counts=counts, fusion=_fusion_log(est), events=list(ekf.events), notes=notes,
+        datum_lla=datum, counts=counts, fusion=fusion_arrays(est.fusion_log), events=list(ekf.events), notes=notes,
         replay_wall_s=wall, gnss_checks=gnss,
     )  # fmt: skip
-
-
-def _fusion_log(est: DelayedHorizonEstimator) -> dict[str, dict[str, FloatArray]]:
-    fusion: dict[str, dict[str, FloatArray]] = {}
-    for src in est.sources:
-        recs = [r for r in est.fusion_log if r.source == src]
-        fusion[src] = {
-            "t_obs_ns": np.array([r.t_obs_ns for r in recs], dtype=np.float64),
-            "test_ratio": np.array([r.result.test_ratio for r in recs]),
-            "accepted": np.array([r.result.accepted for r in recs], dtype=np.float64),
-            "innovation": np.array([np.pad(r.result.innovation, (0, 6 - len(r.result.innovation)), constant_values=np.nan) for r in recs]).reshape(-1, 6),
-        }  # fmt: skip
-    return fusion

@@ -5,12 +5,14 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from quadnav.errors import IoError
+from quadnav.estimation.horizon import SourceFusion
 from quadnav.eval.report import ReportSection, ReportTable, write_report
 from quadnav.experiments.replay import CHECK_NAMES, config_from_px4, replay
 from quadnav.experiments.replay_compare import Comparison, compare, px4_innovations_as_ours
@@ -200,7 +202,7 @@ def _plot_position(path: Path, trajs: dict[str, Trajectory], t0_ns: int) -> Path
     return path
 
 
-def _plot_innovations(path: Path, ours: dict[str, dict[str, np.ndarray]], s: UlogSensors) -> Path:
+def _plot_innovations(path: Path, ours: Mapping[str, SourceFusion], s: UlogSensors) -> Path:
     """Our innovations beside PX4's, component by component, in one convention (ENU, the
     measurement minus the prediction) and one time axis."""
     plt = _pyplot()
@@ -208,9 +210,9 @@ def _plot_innovations(path: Path, ours: dict[str, dict[str, np.ndarray]], s: Ulo
     fig, axes = plt.subplots(max(len(pairs), 1), 1, figsize=(12, 3 * max(len(pairs), 1)), sharex=True, squeeze=False, constrained_layout=True)  # fmt: skip
     for ax, p in zip(axes[:, 0], pairs, strict=False):
         f = ours.get(p.source)
-        if f is not None and len(f["t_obs_ns"]):
-            t_s = (f["t_obs_ns"] - s.t_start_ns) * 1e-9
-            ax.plot(t_s, f["innovation"][:, p.column], ".", ms=2, label="quadnav")
+        if f is not None and len(f):
+            t_s = (f.t_obs_ns - s.t_start_ns) * 1e-9
+            ax.plot(t_s, f.innovation[:, p.column], ".", ms=2, label="quadnav")
         ax.plot(p.px4_t_s, p.px4_m, ".", ms=2, color="tab:orange", label="PX4")
         ax.set_title(p.label, fontsize=9)
         ax.grid(True, alpha=0.3)

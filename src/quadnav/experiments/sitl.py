@@ -21,8 +21,9 @@ from scipy.spatial.transform import Rotation
 
 from quadnav.control.cascaded_pid import CascadedPid, Setpoint
 from quadnav.errors import ExperimentError
-from quadnav.estimation.horizon import DelayedHorizonEstimator, HorizonConfig
+from quadnav.estimation.horizon import HorizonConfig
 from quadnav.estimation.nav_ekf import NavEkf, NavEkfConfig
+from quadnav.estimation.nav_filter import InitialSigmas, NavFilterSetup, build_nav_filter
 from quadnav.geometry.frames import (
     enu_to_ned,
     ned_to_enu,
@@ -66,10 +67,17 @@ class SitlVehicle:
         self.baro = BaroSensor(period_ns=20_000_000, sigma_m=0.1)
         self.vision = VisionPoseSensor(period_ns=33_333_333, sigma_m=0.01, yaw_sigma_rad=0.01)
         self.vision_line: DelayLine[PoseSample] = DelayLine(delay_ns=100_000_000)
-        self.ekf = NavEkf(NavEkfConfig(), p0=np.zeros(3), v0=np.zeros(3), q0_xyzw=np.array([0, 0, 0, 1.0]),
-                          P0=np.diag([1e-4] * 3 + [1e-4] * 3 + [1e-4] * 3 + [1e-6] * 6))  # fmt: skip
-        self.est = DelayedHorizonEstimator(self.ekf, HorizonConfig(imu_period_ns=4_000_000, max_delay_ns=100_000_000,
-                                                                   tau_vel_s=0.1, tau_pos_s=0.1, max_fusion_log=10_000), t0_ns=0)  # fmt: skip
+        horizon = HorizonConfig(imu_period_ns=4_000_000, max_delay_ns=100_000_000, tau_vel_s=0.1,
+                                tau_pos_s=0.1, max_fusion_log=10_000)  # fmt: skip
+        # It boots standing at the origin, level and facing east: a tight initial state.
+        sigmas = InitialSigmas(tilt_rad=0.01, yaw_rad=0.01, vel_m_s=0.01, pos_xy_m=0.01,
+                               pos_z_m=0.01, gyro_bias_rad_s=1e-3, accel_bias_m_s2=1e-3)  # fmt: skip
+        setup = NavFilterSetup(ekf=NavEkfConfig(), horizon=horizon, sigmas=sigmas)
+        self.est = build_nav_filter(
+            setup, t0_ns=0, p0=np.zeros(3), q0_xyzw=np.array([0, 0, 0, 1.0])
+        )
+        assert isinstance(self.est.filter, NavEkf)
+        self.ekf = self.est.filter
         self.link = MavlinkLink(self.url, system=1, component=1, signing_key=self.signing_key,
                                 allow_remote=self.allow_remote)  # fmt: skip
         self.armed = False

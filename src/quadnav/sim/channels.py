@@ -110,8 +110,11 @@ class FrameJumps:
     _p_V_Vn: np.ndarray = field(default_factory=lambda: np.zeros(3))
     _done: int = 0
 
+    def __post_init__(self) -> None:
+        self.jumps = sorted(self.jumps, key=lambda j: j.t_ns)
+
     def sample(self, truth: VehicleState, t_ns: int, rng: Generator) -> PoseSample | None:
-        jumps = sorted(self.jumps, key=lambda j: j.t_ns)
+        jumps = self.jumps
         while self._done < len(jumps) and jumps[self._done].t_ns <= t_ns:
             j = jumps[self._done]
             self._p_V_Vn = self._p_V_Vn + self._R_V_Vn.apply(j.offset_m)

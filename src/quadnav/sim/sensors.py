@@ -42,7 +42,6 @@ __all__ = [
     "RangeFinder",
     "Sensor",
     "Ticker",
-    "VisionFrameJump",
     "VisionPoseSensor",
 ]
 
@@ -273,8 +272,8 @@ class IntegratingImu:
 
 class GpsSensor:
     """A GNSS receiver: geodetic fixes (via pymap3d from the local ENU truth about a datum) and
-    ENU velocity, with Gaussian noise, a fixed rate, optional windows without a fix and
-    glitch windows ``(start_ns, end_ns, ENU offset)`` during which the fixes jump."""
+    ENU velocity, with Gaussian noise, at a fixed rate. Outages and glitches are fault
+    decorators (:class:`~quadnav.sim.channels.Dropouts`, :class:`~quadnav.sim.channels.OffsetTruth`)."""
 
     def __init__(
         self,
@@ -284,8 +283,6 @@ class GpsSensor:
         sigma_h_m: float,
         sigma_v_m: float,
         sigma_vel_m_s: float,
-        outages_ns: list[tuple[int, int]] | None = None,
-        glitches: list[tuple[int, int, tuple[float, float, float]]] | None = None,
     ) -> None:
         if period_ns <= 0 or min(sigma_h_m, sigma_v_m, sigma_vel_m_s) <= 0:
             raise SimError(
@@ -295,8 +292,6 @@ class GpsSensor:
         self.datum = datum_lla
         self.period_ns = int(period_ns)
         self.sh, self.sv, self.svel = float(sigma_h_m), float(sigma_v_m), float(sigma_vel_m_s)
-        self.outages = outages_ns or []
-        self.glitches = [(a, b, np.asarray(off, dtype=np.float64)) for a, b, off in glitches or []]
         self._ticker = Ticker(self.period_ns)
 
     def sample(self, truth: VehicleState, t_ns: int, rng: Generator) -> GpsSample | None:
@@ -304,13 +299,7 @@ class GpsSensor:
 
         if not self._ticker.due(t_ns):
             return None
-        if any(a <= t_ns < b for a, b in self.outages):
-            return None
-        p = truth.p_W_B + rng.standard_normal(3) * np.array([self.sh, self.sh, self.sv])
-        for a, b, off in self.glitches:  # a multipath jump: the fix is off by metres
-            if a <= t_ns < b:
-                p = p + off
-        e, n, u = p
+        e, n, u = truth.p_W_B + rng.standard_normal(3) * np.array([self.sh, self.sh, self.sv])
         lat, lon, alt = pymap3d.enu2geodetic(e, n, u, *self.datum)
         return GpsSample(
             t_ns=t_ns, lat_deg=float(lat), lon_deg=float(lon), alt_m=float(alt),
@@ -429,21 +418,12 @@ class RangeFinder:
         )
 
 
-@dataclass(frozen=True, slots=True)
-class VisionFrameJump:
-    """At ``t_ns`` the vision system re-initialises: its frame turns by ``yaw_rad`` and moves
-    by ``offset_m`` (in the old vision frame), and it bumps its reset counter."""
-
-    t_ns: int
-    yaw_rad: float
-    offset_m: tuple[float, float, float]
-
-
 class VisionPoseSensor:
     """An external pose (marker or VIO system): the body's position and attitude in a vision
     frame ``V`` that is turned by ``frame_yaw_rad`` about the vertical and offset by
-    ``frame_offset_m`` from the world (``T_W_V``), with position and yaw noise, dropout windows
-    and frame jumps flagged by the reset counter."""
+    ``frame_offset_m`` from the world (``T_W_V``), with position and yaw noise. Dropouts and
+    frame jumps are fault decorators (:class:`~quadnav.sim.channels.Dropouts`,
+    :class:`~quadnav.sim.channels.FrameJumps`)."""
 
     def __init__(
         self,
@@ -453,8 +433,6 @@ class VisionPoseSensor:
         yaw_sigma_rad: float,
         frame_yaw_rad: float = 0.0,
         frame_offset_m: tuple[float, float, float] = (0.0, 0.0, 0.0),
-        dropouts_ns: list[tuple[int, int]] | None = None,
-        jumps: list[VisionFrameJump] | None = None,
     ) -> None:
         if period_ns <= 0 or not sigma_m > 0 or not yaw_sigma_rad > 0:
             raise SimError(
@@ -465,21 +443,10 @@ class VisionPoseSensor:
         self.sigma, self.yaw_sigma = float(sigma_m), float(yaw_sigma_rad)
         self.R_W_V = Rotation.from_euler("z", frame_yaw_rad)
         self.p_W_V = np.asarray(frame_offset_m, dtype=np.float64)
-        self.dropouts = dropouts_ns or []
-        self.jumps = sorted(jumps or [], key=lambda j: j.t_ns)
-        self.reset_counter = 0
         self._ticker = Ticker(self.period_ns)
 
     def sample(self, truth: VehicleState, t_ns: int, rng: Generator) -> PoseSample | None:
         if not self._ticker.due(t_ns):
-            return None
-        while self.jumps and self.jumps[0].t_ns <= t_ns:
-            j = self.jumps.pop(0)
-            # T_W_V' = T_W_V T_V_V' with T_V_V' = (Rz(yaw), offset).
-            self.p_W_V = self.p_W_V + self.R_W_V.apply(j.offset_m)
-            self.R_W_V = self.R_W_V * Rotation.from_euler("z", j.yaw_rad)
-            self.reset_counter += 1
-        if any(a <= t_ns < b for a, b in self.dropouts):
             return None
         p_V = self.R_W_V.apply(truth.p_W_B - self.p_W_V, inverse=True)
         R_V_B = (
@@ -493,5 +460,4 @@ class VisionPoseSensor:
             q_W_B_xyzw=R_V_B.as_quat(),
             sigma_pos_m=self.sigma,
             sigma_yaw_rad=self.yaw_sigma,
-            reset_counter=self.reset_counter,
         )
