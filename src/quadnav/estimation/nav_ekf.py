@@ -34,6 +34,7 @@ from quadnav.estimation.imu_clipping import (
     Releveller,
     clip_axes,
 )
+from quadnav.estimation.layout import NAV_ERROR, NAV_NOISE, NAV_NOMINAL, NAV_OUTPUT, StateLayout
 from quadnav.geometry.rotations import (
     quat_xyzw_from_matrix,
     rotation_matrix_xyzw,
@@ -67,16 +68,19 @@ __all__ = [
 ]
 
 FloatArray = NDArray[np.float64]
-STATE_NAMES = (
-    "dtheta_x", "dtheta_y", "dtheta_z", "vx", "vy", "vz", "x", "y", "z",
-    "bgx", "bgy", "bgz", "bax", "bay", "baz",
-)  # fmt: skip
-# Error-state blocks
-I_TH, I_V, I_P, I_BG, I_BA = slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12), slice(12, 15)
+# Error-state blocks and entries, by name (quadnav.estimation.layout), bound once for the hot path
+_ATT, _VEL, _POS, _BG, _BA = (
+    NAV_ERROR[b] for b in ("att", "vel", "pos", "gyro_bias", "accel_bias")
+)
+_N = NAV_ERROR.size
+_Z = NAV_ERROR.index("z")
+_YAW = NAV_ERROR.index("dtheta_z")  # the heading resets turn the attitude about this axis
+# Noise inputs of G (columns): gyro and accelerometer white noise, their biases' random walks
+_N_G, _N_A, _N_BG, _N_BA = (NAV_NOISE[b] for b in ("gyro", "accel", "gyro_bias", "accel_bias"))
 
 
 _I3 = np.eye(3)
-_VAR_COLS = np.r_[0:3, 9:15]  # columns of F's velocity/position rows that change every step
+_VAR_COLS = np.r_[_ATT, _BG, _BA]  # columns of F's velocity/position rows that change every step
 
 
 def skew(a: FloatArray) -> FloatArray:
@@ -122,6 +126,10 @@ class NavKinematics:
         pos_new = pos + dtv * vel_new
         return pos_new, vel_new, R_new.reshape(*R_new.shape[:-2], 9)
 
+    @property
+    def output_names(self) -> tuple[str, ...]:
+        return NAV_OUTPUT.names
+
     def attitude_error(self, att_target: FloatArray, att: FloatArray) -> FloatArray:
         """Body-frame rotation vector taking ``att`` onto ``att_target``."""
         return so3_log(att.reshape(3, 3).T @ att_target.reshape(3, 3))
@@ -147,24 +155,24 @@ def nav_jacobians(
     n_ba) of one prediction step, for ``R' = R Exp(w dt)``, ``v' = v + dt (R' f + g)``."""
     A = so3_exp(w * dt).T  # Exp(-w dt)
     Rf = R_new @ skew(f)
-    F = np.eye(15)
-    F[I_TH, I_TH] = A
-    F[I_TH, I_BG] = -dt * _I3
-    F[I_V, I_TH] = -dt * Rf @ A
-    F[I_V, I_BG] = dt * dt * Rf
-    F[I_V, I_BA] = -dt * R_new
-    F[I_P, I_TH] = dt * F[I_V, I_TH]
-    F[I_P, I_V] = dt * _I3
-    F[I_P, I_BG] = dt * F[I_V, I_BG]
-    F[I_P, I_BA] = dt * F[I_V, I_BA]
-    G = np.zeros((15, 12))
-    G[I_TH, 0:3] = -dt * _I3
-    G[I_V, 0:3] = dt * dt * Rf
-    G[I_V, 3:6] = -dt * R_new
-    G[I_P, 0:3] = dt * G[I_V, 0:3]
-    G[I_P, 3:6] = dt * G[I_V, 3:6]
-    G[I_BG, 6:9] = _I3
-    G[I_BA, 9:12] = _I3
+    F = np.eye(_N)
+    F[_ATT, _ATT] = A
+    F[_ATT, _BG] = -dt * _I3
+    F[_VEL, _ATT] = -dt * Rf @ A
+    F[_VEL, _BG] = dt * dt * Rf
+    F[_VEL, _BA] = -dt * R_new
+    F[_POS, _ATT] = dt * F[_VEL, _ATT]
+    F[_POS, _VEL] = dt * _I3
+    F[_POS, _BG] = dt * F[_VEL, _BG]
+    F[_POS, _BA] = dt * F[_VEL, _BA]
+    G = np.zeros((_N, NAV_NOISE.size))
+    G[_ATT, _N_G] = -dt * _I3
+    G[_VEL, _N_G] = dt * dt * Rf
+    G[_VEL, _N_A] = -dt * R_new
+    G[_POS, _N_G] = dt * G[_VEL, _N_G]
+    G[_POS, _N_A] = dt * G[_VEL, _N_A]
+    G[_BG, _N_BG] = _I3
+    G[_BA, _N_BA] = _I3
     return F, G
 
 
@@ -295,7 +303,11 @@ class NavEkfConfig:
 class NavEkf:
     """The error-state navigation EKF; a :class:`~quadnav.estimation.horizon.DelayedFilter`."""
 
-    names: tuple[str, ...] = STATE_NAMES
+    #: ``x`` (the nominal state) is laid out as ``layout``; ``P`` and the Jacobians as
+    #: ``error_layout``.
+    layout: StateLayout = NAV_NOMINAL
+    error_layout: StateLayout = NAV_ERROR
+    names: tuple[str, ...] = NAV_NOMINAL.names
 
     def __init__(
         self,
@@ -310,7 +322,7 @@ class NavEkf:
     ) -> None:
         P0 = np.asarray(P0, dtype=np.float64)
         if (
-            P0.shape != (15, 15)
+            P0.shape != (_N, _N)
             or not np.isfinite(P0).all()
             or np.min(np.linalg.eigvalsh(0.5 * (P0 + P0.T))) < 0
         ):
@@ -332,9 +344,9 @@ class NavEkf:
         self._g_W = np.array([0.0, 0.0, -config.gravity_m_s2])
         self._jac_dt = math.nan
         self._n_predict = 0
-        self._F = np.eye(15)
-        self._G = np.zeros((15, 12))
-        self._q = np.zeros(12)
+        self._F = np.eye(_N)
+        self._G = np.zeros((_N, NAV_NOISE.size))
+        self._q = np.zeros(NAV_NOISE.size)
         self._datum_offset = np.zeros(3)
         # External-pose frames: per source, the last reset counter and the transform
         # (yaw, offset) that maps its frame onto the filter's, re-anchored on each reset.
@@ -399,11 +411,11 @@ class NavEkf:
         # The velocity row's state-dependent blocks: [d/dtheta | d/db_g | d/db_a]; the position
         # row is dt times the same; the noise inputs are the last two of them.
         Fv = np.concatenate((-dt * Rf @ A, dt * dt * Rf, -dt * R_new), axis=1)
-        F[I_TH, I_TH] = A
-        F[3:6, _VAR_COLS] = Fv
-        F[6:9, _VAR_COLS] = dt * Fv
-        G[3:6, 0:6] = Fv[:, 3:9]
-        G[6:9, 0:6] = dt * Fv[:, 3:9]
+        F[_ATT, _ATT] = A
+        F[_VEL, _VAR_COLS] = Fv
+        F[_POS, _VAR_COLS] = dt * Fv
+        G[_VEL, _N_G.start : _N_A.stop] = Fv[:, 3:9]  # (d/db_g, d/db_a: the inputs' blocks)
+        G[_POS, _N_G.start : _N_A.stop] = dt * Fv[:, 3:9]
         return F, G
 
     def predict(self, imu: ImuSample, dt_s: float) -> None:
@@ -422,17 +434,18 @@ class NavEkf:
             q = q.copy()
             for k in range(3):
                 if clipped >> k & 1:
-                    q[3 + k] = max(q[3 + k], self.config.clipped_accel_sigma_m_s2**2)
+                    i = _N_A.start + k
+                    q[i] = max(q[i], self.config.clipped_accel_sigma_m_s2**2)
         P = F @ self._P @ F.T + (G * q) @ G.T
         if self.bias_gate is not None:
-            self.bias_gate.apply(P, 12, self.bias_gate.update(w, f, clipped, dt_s))
+            self.bias_gate.apply(P, _BA.start, self.bias_gate.update(w, f, clipped, dt_s))
         self._n_predict += 1
         if self._n_predict % 32 == 0:  # rounding makes P drift from symmetry, slowly
             P = 0.5 * (P + P.T)
         self._P = P
         if self.releveller is not None:
             if clipped:
-                self.releveller.on_clip(self.ba, np.diag(P)[I_BA].copy())
+                self.releveller.on_clip(self.ba, np.diag(P)[_BA].copy())
             f_rest = self.releveller.update(w, imu.accel_m_s2, dt_s, self.config.gravity_m_s2)
             if f_rest is not None:
                 self._relevel(imu.t_ns, f_rest, self.releveller)
@@ -447,29 +460,29 @@ class NavEkf:
         R_new = Rotation.from_euler("ZYX", [yaw_of(self.R), pitch, roll]).as_matrix()
         moved_deg = math.degrees(math.acos(min(1.0, float(self.R[:, 2] @ R_new[:, 2]))))
         j = yaw_jacobian(self.R)
-        var_yaw = float(j @ self._P[I_TH, I_TH] @ j)
+        var_yaw = float(j @ self._P[_ATT, _ATT] @ j)
         P = self._P
-        for blk in (I_TH, I_V, I_BA):
+        for blk in (_ATT, _VEL, _BA):
             P[blk, :] = 0.0
             P[:, blk] = 0.0
-        P[I_TH, I_TH] = R_new.T @ np.diag([0.02**2, 0.02**2, var_yaw]) @ R_new  # world tilt, yaw
-        P[I_V, I_V] = np.eye(3) * 0.1**2
-        P[I_BA, I_BA] = np.diag(rl.bias_var_before)
+        P[_ATT, _ATT] = R_new.T @ np.diag([0.02**2, 0.02**2, var_yaw]) @ R_new  # world tilt, yaw
+        P[_VEL, _VEL] = np.eye(3) * 0.1**2
+        P[_BA, _BA] = np.diag(rl.bias_var_before)
         self.R, self.v, self.ba = R_new, np.zeros(3), rl.bias_before.copy()
         self.events.append((t_ns, f"re-levelled at rest after accelerometer clipping: tilt moved {moved_deg:.1f} deg, velocity zeroed"))  # fmt: skip
 
     def fuse(self, obs: Sample) -> FusionResult:
         if isinstance(obs, PositionSample):
-            H = np.zeros((3, 15))
-            H[:, I_P] = np.eye(3)
+            H = np.zeros((3, _N))
+            H[:, _POS] = np.eye(3)
             return self._gated(obs, obs.p_W_B - self.p, H, np.eye(3) * obs.sigma_m**2, obs.p_W_B)
         if isinstance(obs, PoseSample):
             return self._fuse_pose(obs)
         if isinstance(obs, HeightSample) and obs.source == "baro" and self.baro_bias is not None:
             return self._fuse_baro_with_bias(obs, self.baro_bias)
         if isinstance(obs, HeightSample):
-            H = np.zeros((1, 15))
-            H[0, 8] = 1.0
+            H = np.zeros((1, _N))
+            H[0, _Z] = 1.0
             return self._gated(
                 obs, np.array([obs.z_m - self.p[2]]), H, np.array([[obs.sigma_m**2]]), None
             )
@@ -480,8 +493,8 @@ class NavEkf:
         if isinstance(obs, RangeSample):
             return self._fuse_range(obs)
         if isinstance(obs, VelocitySample):
-            H = np.zeros((3, 15))
-            H[:, I_V] = np.eye(3)
+            H = np.zeros((3, _N))
+            H[:, _VEL] = np.eye(3)
             Rn = np.eye(3) * obs.sigma_m_s**2
             return self._update(obs.v_W_B - self.v, H, Rn)
         raise EstimationError(f"the navigation EKF cannot fuse {type(obs).__name__}")
@@ -490,12 +503,12 @@ class NavEkf:
         """PX4's order: the innovation with the current bias, then the bias estimator updated
         from the state before the main update, then the main update."""
         var = obs.sigma_m**2
-        H = np.zeros((1, 15))
-        H[0, 8] = 1.0
+        H = np.zeros((1, _N))
+        H[0, _Z] = 1.0
         r = np.array([obs.z_m - bias.bias - self.p[2]])
         Rn = np.array([[var + bias.var]])
         bias.var_max = var
-        bias.fuse(obs.z_m - float(self.p[2]), var + float(self._P[8, 8]))
+        bias.fuse(obs.z_m - float(self.p[2]), var + float(self._P[_Z, _Z]))
         return self._gated(obs, r, H, Rn, None)
 
     def gps_to_enu(self, obs: GpsSample) -> FloatArray:
@@ -510,9 +523,9 @@ class NavEkf:
 
     def _fuse_gps(self, obs: GpsSample) -> FusionResult:
         p_W = self.gps_to_enu(obs)
-        H = np.zeros((6, 15))
-        H[0:3, I_P] = np.eye(3)
-        H[3:6, I_V] = np.eye(3)
+        H = np.zeros((6, _N))
+        H[0:3, _POS] = np.eye(3)  # (rows: the observation's, position then velocity)
+        H[3:6, _VEL] = np.eye(3)
         r = np.concatenate([p_W - self.p, obs.v_enu_m_s - self.v])
         Rn = np.diag([obs.sigma_h_m**2] * 2 + [obs.sigma_v_m**2] + [obs.sigma_vel_m_s**2] * 3)
         res = self._gated(obs, r, H, Rn, p_W)
@@ -527,20 +540,20 @@ class NavEkf:
         expected = math.pi / 2 - self.config.mag_declination_rad
         h, dh = mag_heading_jacobian(self.R, obs.field_B)
         r = math.remainder(expected - h, 2 * math.pi)
-        H = np.zeros((1, 15))
-        H[0, I_TH] = yaw_jacobian(self.R)
+        H = np.zeros((1, _N))
+        H[0, _ATT] = yaw_jacobian(self.R)
         dh_tilt = dh.copy()
         dh_tilt[2] = 0.0  # (the yaw part is the state the update corrects)
-        var = obs.sigma_heading_rad**2 + float(dh_tilt @ self._P[0:3, 0:3] @ dh_tilt)
+        var = obs.sigma_heading_rad**2 + float(dh_tilt @ self._P[_ATT, _ATT] @ dh_tilt)
         return self._gated(obs, np.array([r]), H, np.array([[var]]), None)
 
     def _fuse_range(self, obs: RangeSample) -> FusionResult:
         if self.R[2, 2] < math.cos(self.config.range_max_tilt_rad):
             return FusionResult(accepted=False, innovation=np.zeros(1), nis=0.0, test_ratio=0.0)
         pred, d_dtheta = range_jacobian(self.R, float(self.p[2]) - self.config.terrain_z_m)
-        H = np.zeros((1, 15))
-        H[0, I_TH] = d_dtheta
-        H[0, 8] = 1.0 / self.R[2, 2]
+        H = np.zeros((1, _N))
+        H[0, _ATT] = d_dtheta
+        H[0, _Z] = 1.0 / self.R[2, 2]
         r = np.array([obs.range_m - pred])
         return self._gated(obs, r, H, np.array([[obs.sigma_m**2]]), None)
 
@@ -594,19 +607,19 @@ class NavEkf:
         d_W = so3_exp(np.array([0.0, 0.0, anchor.yaw])) @ (obs.p_W_B - anchor.p_V0)
         p_W = anchor.p_W0 + d_W
         if self.config.vision_frame == "rotate":
-            H = np.zeros((3, 15))
-            H[:, I_P] = np.eye(3)
+            H = np.zeros((3, _N))
+            H[:, _POS] = np.eye(3)
             # The frame's yaw is only as good as the filter's heading and the vision yaw: its
             # error turns the displacement from the anchor, which the noise must cover.
             J = np.array([-d_W[1], d_W[0], 0.0])
-            var_yaw = float(self._P[2, 2]) + obs.sigma_yaw_rad**2
+            var_yaw = float(self._P[_YAW, _YAW]) + obs.sigma_yaw_rad**2
             Rz = so3_exp(np.array([0.0, 0.0, anchor.yaw]))
             C = np.eye(3) * obs.sigma_pos_m**2 if obs.cov_p_m2 is None else obs.cov_p_m2
             Rn = Rz @ C @ Rz.T + var_yaw * np.outer(J, J)
             return self._gated(obs, p_W - self.p, H, Rn, p_W)
-        H = np.zeros((4, 15))
-        H[0:3, I_P] = np.eye(3)
-        H[3, I_TH] = yaw_jacobian(self.R)
+        H = np.zeros((4, _N))
+        H[0:3, _POS] = np.eye(3)
+        H[3, _ATT] = yaw_jacobian(self.R)
         r_yaw = math.remainder(yaw_of(R_meas) + anchor.yaw - yaw_of(self.R), 2 * math.pi)
         r = np.concatenate([p_W - self.p, [r_yaw]])
         Rn = np.diag([obs.sigma_pos_m**2] * 3 + [obs.sigma_yaw_rad**2])
@@ -630,30 +643,23 @@ class NavEkf:
             # measurement, with the measurement's uncertainty, and say so.
             if p_meas is not None:
                 self.p = p_meas.copy()
-                idx = np.arange(6, 9)
-                self._P[idx, :] = 0.0
-                self._P[:, idx] = 0.0
-                self._P[idx, idx] = np.diag(Rn)[0:3]
+                self._reset_entries(_POS, np.diag(Rn)[0:3])
                 what = "position"
-                if len(r) == 4:  # a pose: its heading too, turning the attitude about world z
+                if isinstance(obs, PoseSample) and self.config.vision_frame == "world":
+                    # a pose in the navigation frame: its heading too (its 4th row), turning the
+                    # attitude about world z
                     self.R = so3_exp(np.array([0.0, 0.0, float(r[3])])) @ self.R
-                    self._P[2, :] = 0.0
-                    self._P[:, 2] = 0.0
-                    self._P[2, 2] = float(Rn[3, 3])
+                    self._reset_entries(slice(_YAW, _YAW + 1), Rn[3, 3:4])
                     what = "position and heading"
             elif isinstance(obs, MagSample):
                 self.R = so3_exp(np.array([0.0, 0.0, float(r[0])])) @ self.R
-                self._P[2, :] = 0.0
-                self._P[:, 2] = 0.0
-                self._P[2, 2] = float(Rn[0, 0])
+                self._reset_entries(slice(_YAW, _YAW + 1), Rn[0, 0:1])
                 what = "heading"
             else:
                 # a range is measured along the tilted body axis: its height is range x R22
                 scale = float(self.R[2, 2]) if isinstance(obs, RangeSample) else 1.0
                 self.p[2] += float(r[0]) * scale
-                self._P[8, :] = 0.0
-                self._P[:, 8] = 0.0
-                self._P[8, 8] = float(Rn[0, 0]) * scale**2
+                self._reset_entries(slice(_Z, _Z + 1), Rn[0, 0:1] * scale**2)
                 what = "height"
             self._last_accepted_ns[src] = obs.t_ns
             self.events.append(
@@ -663,6 +669,12 @@ class NavEkf:
                 )
             )
         return res
+
+    def _reset_entries(self, block: slice, var: FloatArray) -> None:
+        """Forget the covariance of a block of the error state and set its variances."""
+        self._P[block, :] = 0.0
+        self._P[:, block] = 0.0
+        self._P[block, block] = np.diag(var)
 
     def _update(self, r: FloatArray, H: FloatArray, Rn: FloatArray) -> FusionResult:
         P = self._P
@@ -681,13 +693,13 @@ class NavEkf:
         P = P - K @ PHt.T
         # Inject the error into the nominal state and reset the attitude error's covariance:
         # P <- Gr P Gr^T with Gr = I except its attitude block B = I - [dtheta/2]x.
-        self.R = self.R @ so3_exp(dx[I_TH])
-        self.v = self.v + dx[I_V]
-        self.p = self.p + dx[I_P]
-        self.bg = self.bg + dx[I_BG]
-        self.ba = self.ba + dx[I_BA]
-        B = _I3 - 0.5 * skew(dx[I_TH])
-        P[0:3, :] = B @ P[0:3, :]
-        P[:, 0:3] = P[:, 0:3] @ B.T
+        self.R = self.R @ so3_exp(dx[_ATT])
+        self.v = self.v + dx[_VEL]
+        self.p = self.p + dx[_POS]
+        self.bg = self.bg + dx[_BG]
+        self.ba = self.ba + dx[_BA]
+        B = _I3 - 0.5 * skew(dx[_ATT])
+        P[_ATT, :] = B @ P[_ATT, :]
+        P[:, _ATT] = P[:, _ATT] @ B.T
         self._P = 0.5 * (P + P.T)
         return FusionResult(accepted=True, innovation=r, nis=nis, test_ratio=ratio)
