@@ -16,25 +16,22 @@ from quadnav.estimation.flow_model import (
 from quadnav.estimation.layout import NAV_ERROR
 from quadnav.messages import FlowSample
 
+from .differences import central_differences
+
 
 def _pred(R, v, z, *, min_h=0.3):
     return predict_flow(R, v, z, floor_z_m=0.1, min_height_m=min_h)
 
 
-def _numeric_H(R, v, z, *, min_h=0.3, eps=1e-6):
+def _numeric_H(R, v, z, *, min_h=0.3):
     """Central differences of the prediction over the 15-element error state."""
-    H = np.zeros((2, 15))
-    for k in range(15):
-        out = []
-        for sgn in (1.0, -1.0):
-            d = np.zeros(15)
-            d[k] = sgn * eps
-            Rt = R @ Rotation.from_rotvec(d[NAV_ERROR["att"]]).as_matrix()
-            vt = v + d[NAV_ERROR["vel"]]
-            zt = z + d[NAV_ERROR.index("z")]
-            out.append(_pred(Rt, vt, zt, min_h=min_h).flow_rate_rad_s)
-        H[:, k] = (out[0] - out[1]) / (2 * eps)
-    return H
+
+    def perturbed(d):
+        Rt = R @ Rotation.from_rotvec(d[NAV_ERROR["att"]]).as_matrix()
+        vt = v + d[NAV_ERROR["vel"]]
+        return _pred(Rt, vt, z + d[NAV_ERROR.index("z")], min_h=min_h).flow_rate_rad_s
+
+    return central_differences(perturbed, NAV_ERROR.size)
 
 
 @pytest.mark.parametrize("seed", range(8))
