@@ -10,7 +10,8 @@ same semi-implicit step as the planar filter::
 
     R' = R Exp(w dt);  v' = v + dt (R' f + g_W);  p' = p + dt v'
 
-Observations: world position, external pose (position and yaw), height. Each update is gated
+Observations: world position, external pose (position and yaw), height, range, heading,
+velocity, optical flow (PX4's model, :mod:`quadnav.estimation.flow_model`). Each update is gated
 with a chi-square test on its innovation, applied in Joseph form and injected into the nominal
 state with the covariance reset ``P <- G P G^T``.
 """
@@ -27,6 +28,12 @@ from scipy.stats import chi2
 
 from quadnav.errors import EstimationError
 from quadnav.estimation.bias_estimator import BiasEstimator
+from quadnav.estimation.flow_model import (
+    compensated_flow_rate,
+    flow_noise_sigma,
+    predict_flow,
+    tilt_cosine_jacobian,
+)
 from quadnav.estimation.horizon import FusionResult, NavState, require_positive
 from quadnav.estimation.imu_clipping import (
     BADACC_NOISE_M_S2,
@@ -42,6 +49,7 @@ from quadnav.geometry.rotations import (
     so3_log,
 )
 from quadnav.messages import (
+    FlowSample,
     GpsSample,
     HeightSample,
     ImuSample,
@@ -224,10 +232,7 @@ def mag_heading_jacobian(R: FloatArray, field_B: FloatArray) -> tuple[float, Flo
 def range_jacobian(R: FloatArray, height_m: float) -> tuple[float, FloatArray]:
     """A downward range ``h = height / R22`` and ``dh / d dtheta`` (3,) for ``R Exp(dtheta)``."""
     c = float(R[2, 2])
-    row = R[2, :]
-    # d R22 / d dtheta = -R[2, :] [e3]x ;  [e3]x = [[0,-1,0],[1,0,0],[0,0,0]]
-    dc = -np.array([row[1], -row[0], 0.0])
-    return height_m / c, -height_m / (c * c) * dc
+    return height_m / c, -height_m / (c * c) * tilt_cosine_jacobian(R)
 
 
 @dataclass(slots=True)
@@ -280,11 +285,28 @@ class NavEkfConfig:
     # After clipping, re-level once at rest this long (Releveller); None: never.
     relevel_at_rest_s: float | None = None
     terrain_z_m: float = 0.0  # height of the flat ground the range finder sees
-    range_max_tilt_rad: float = 0.7  # range readings at larger tilts are not fused
+    range_max_tilt_rad: float = 0.7  # range (and flow) readings at larger tilts are not fused
+    # Optical flow (PX4 EKF2's defaults): noise from the sample's quality, EKF2_OF_N_MIN at 255
+    # and EKF2_OF_N_MAX at EKF2_OF_QMIN; samples below that quality or above the sensor's
+    # largest rate (SENS_FLOW_MAXR) are refused and counted; its own innovation gate
+    # (EKF2_OF_GATE, sigma) over the 2-D innovation; fused only at heights above the floor
+    # (terrain_z_m) of at least flow_min_height_m (PX4FLOW's sonar: 0.3 m).
+    flow_noise_min_rad_s: float = 0.15
+    flow_noise_max_rad_s: float = 0.5
+    flow_quality_min: int = 1
+    flow_max_rate_rad_s: float = 8.0
+    flow_gate_sigma: float = 3.0
+    flow_min_height_m: float = 0.3
 
     def __post_init__(self) -> None:
         require_positive(self, ("gyro_sigma_rad_s", "accel_sigma_m_s2", "gyro_bias_rw_rad_s_sqrt_s",
                                 "accel_bias_rw_m_s2_sqrt_s", "gravity_m_s2"))  # fmt: skip
+        require_positive(self, ("flow_noise_min_rad_s", "flow_noise_max_rad_s", "flow_max_rate_rad_s",
+                                "flow_gate_sigma", "flow_min_height_m"))  # fmt: skip
+        if not 0 <= self.flow_quality_min <= 255:
+            raise EstimationError(
+                f"NavEkfConfig.flow_quality_min must lie in 0..255, got {self.flow_quality_min}"
+            )
         optional = ("gate_sigma", "baro_bias_nsd_m_s", "baro_bias_var0_m2", "clipped_accel_sigma_m_s2",
                     "accel_bias_learn_gyro_limit_rad_s", "relevel_at_rest_s")  # fmt: skip
         require_positive(self, tuple(n for n in optional if getattr(self, n) is not None))
@@ -340,6 +362,9 @@ class NavEkf:
             if config.gate_sigma is None
             else gate_thresholds(config.gate_sigma, (1, 2, 3, 4, 6))
         )
+        self._flow_gate = gate_thresholds(config.flow_gate_sigma, (2,))[2]
+        self._flow_gyro_bias = np.zeros(3)  # the flow sensor's gyro against ours (PX4's LPF)
+        self._w_B = np.zeros(3)  # the body rate (bias removed) of the last prediction
         self._datum = config.datum_lla
         self._g_W = np.array([0.0, 0.0, -config.gravity_m_s2])
         self._jac_dt = math.nan
@@ -383,7 +408,13 @@ class NavEkf:
         return NavState(t_ns, self.p.copy(), self.v.copy(), self.R.ravel().copy())
 
     def can_fuse(self, obs: Sample) -> bool:
-        return isinstance(obs, Observation)  # every kind there is
+        """Every observation type there is; a flow sample only when its quality reaches
+        ``flow_quality_min`` and its rate is within ``flow_max_rate_rad_s`` (PX4's checks)."""
+        if isinstance(obs, FlowSample):
+            c = self.config
+            rate = float(np.linalg.norm(obs.flow_rate_rad_s))
+            return obs.quality >= c.flow_quality_min and rate <= c.flow_max_rate_rad_s
+        return isinstance(obs, Observation)
 
     def imu_biases(self) -> tuple[FloatArray, FloatArray]:
         return self.bg, self.ba
@@ -423,6 +454,7 @@ class NavEkf:
         f = imu.accel_m_s2 - self.ba
         E = so3_exp(w * dt_s)
         R_new = self.R @ E
+        self._w_B = w
         F, G = self._jacobians_into(R_new, f, w, dt_s, E)
         self.v = self.v + dt_s * (R_new @ f + self._g_W)
         self.p = self.p + dt_s * self.v
@@ -492,6 +524,8 @@ class NavEkf:
             return self._fuse_mag(obs)
         if isinstance(obs, RangeSample):
             return self._fuse_range(obs)
+        if isinstance(obs, FlowSample):
+            return self._fuse_flow(obs)
         if isinstance(obs, VelocitySample):
             H = np.zeros((3, _N))
             H[:, _VEL] = np.eye(3)
@@ -556,6 +590,34 @@ class NavEkf:
         H[0, _Z] = 1.0 / self.R[2, 2]
         r = np.array([obs.range_m - pred])
         return self._gated(obs, r, H, np.array([[obs.sigma_m**2]]), None)
+
+    def _fuse_flow(self, obs: FlowSample) -> FusionResult:
+        """PX4's optical-flow fusion (``quadnav.estimation.flow_model``): the flow rate less the
+        sensor gyro's rate (its bias against our gyro low-passed as EKF2's
+        ``calcBodyRateComp``) against the prediction from the velocity and the height above
+        the floor, as one 2-D observation with its own gate. Not fused too tilted or too low."""
+        c = self.config
+        h = float(self.p[2]) - c.terrain_z_m
+        if self.R[2, 2] < math.cos(c.range_max_tilt_rad) or h < c.flow_min_height_m:
+            return FusionResult(accepted=False, innovation=np.zeros(2), nis=0.0, test_ratio=0.0)
+        d_bias = np.clip(obs.gyro_rate_rad_s - self._w_B, -0.1, 0.1)
+        self._flow_gyro_bias = 0.99 * self._flow_gyro_bias + 0.01 * d_bias
+        meas = compensated_flow_rate(obs, self._flow_gyro_bias)
+        pred = predict_flow(
+            self.R,
+            self.v,
+            float(self.p[2]),
+            floor_z_m=c.terrain_z_m,
+            min_height_m=c.flow_min_height_m,
+        )
+        sigma = flow_noise_sigma(
+            obs.quality,
+            quality_min=c.flow_quality_min,
+            sigma_best_rad_s=c.flow_noise_min_rad_s,
+            sigma_worst_rad_s=c.flow_noise_max_rad_s,
+        )
+        r = meas - pred.flow_rate_rad_s
+        return self._update(r, pred.H, np.eye(2) * sigma**2, gate=self._flow_gate)
 
     def vision_frame_yaw(self, source: str = "vision") -> float | None:
         """The estimated yaw of the vision frame in the filter's (None before its first pose)."""
@@ -676,14 +738,16 @@ class NavEkf:
         self._P[:, block] = 0.0
         self._P[block, block] = np.diag(var)
 
-    def _update(self, r: FloatArray, H: FloatArray, Rn: FloatArray) -> FusionResult:
+    def _update(
+        self, r: FloatArray, H: FloatArray, Rn: FloatArray, *, gate: float | None = None
+    ) -> FusionResult:
         P = self._P
         PHt = P @ H.T
         S = H @ PHt + Rn
         # scalar observations (height, range, heading) need no matrix inverse
         S_inv = 1.0 / S if len(r) == 1 else np.linalg.inv(S)
         nis = float(r @ S_inv @ r)
-        ratio = nis / self._gates[len(r)]
+        ratio = nis / (self._gates[len(r)] if gate is None else gate)
         if ratio > 1.0:
             return FusionResult(accepted=False, innovation=r, nis=nis, test_ratio=ratio)
         K = PHt @ S_inv

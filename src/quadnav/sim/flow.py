@@ -34,7 +34,7 @@ from numpy.random import Generator
 from numpy.typing import NDArray
 
 from quadnav.errors import SimError
-from quadnav.geometry.rotations import rotation_matrix_xyzw
+from quadnav.geometry.rotations import cross3, rotation_matrix_xyzw
 from quadnav.messages import FlowSample, VehicleState
 
 __all__ = ["FLOW_DELAY_S", "FlowSensor", "line_of_sight_rate"]
@@ -52,8 +52,8 @@ def line_of_sight_rate(
     u = np.array([0.0, 0.0, -1.0])  # the optical axis in the body frame
     r = height_m / float(R_W_B[2, 2])
     P = r * u
-    dP = -(R_W_B.T @ v_W) - np.cross(w_B, P)  # the scene point's velocity seen from the body
-    omega_los = np.cross(u, dP) / r  # the rotation of the line of sight, in the body frame
+    dP = -(R_W_B.T @ v_W) - cross3(w_B, P)  # the scene point's velocity seen from the body
+    omega_los = cross3(u, dP) / r  # the rotation of the line of sight, in the body frame
     return np.asarray(-omega_los[:2], dtype=np.float64)  # the sensor's sign: its own rotation
 
 
