@@ -17,6 +17,7 @@ from numpy.typing import NDArray
 from quadnav.errors import SampleError
 
 __all__ = [
+    "FlowSample",
     "GpsSample",
     "HeightSample",
     "ImuSample",
@@ -255,6 +256,71 @@ class RangeSample:
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
+class FlowSample:
+    """A downward optical-flow sensor's integrated reading (PX4FLOW class, MAVLink
+    ``OPTICAL_FLOW_RAD``), over an integration interval of ``integration_ns``.
+
+    ``flow_rad`` is the optical flow integrated over the interval, as angles about the body
+    x and y axes (FLU); ``gyro_rad`` the sensor's own gyro integrated over the same interval
+    (about x, y, z). Signs as MAVLink and PX4's ``sensor_optical_flow``: a right-handed
+    rotation of the sensor about an axis makes a positive flow about it, so in a pure
+    rotation over still ground ``flow_rad == gyro_rad[:2]``; moving forward (+x) makes a
+    negative flow about y, moving left (+y) a positive flow about x.
+
+    ``t_ns`` is the time of validity: the **middle** of the integration interval (PX4's EKF2
+    moves the sample's timestamp there as it turns the integrals into rates), so the
+    interval is ``[t_ns - integration_ns / 2, t_ns + integration_ns / 2]``.
+
+    ``quality`` is the sensor's 0-255 (0: no valid flow, 255: best); ``distance_m`` the
+    reading of its range sensor to the centre of the flow field (m), ``None`` when unknown
+    (MAVLink's negative distance).
+    """
+
+    t_ns: int
+    integration_ns: int
+    flow_rad: FloatArray
+    gyro_rad: FloatArray
+    quality: int
+    distance_m: float | None = None
+    source: str = "flow"
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "t_ns", check_t_ns(self.t_ns, "FlowSample"))
+        n = self.integration_ns
+        if isinstance(n, bool) or not isinstance(n, int | np.integer) or n <= 0:
+            raise SampleError(
+                f"FlowSample.integration_ns must be an integer number of ns > 0, got {n!r}"
+            )
+        object.__setattr__(self, "integration_ns", int(n))
+        object.__setattr__(self, "flow_rad", _array(self.flow_rad, (2,), "FlowSample.flow_rad"))
+        object.__setattr__(self, "gyro_rad", _array(self.gyro_rad, (3,), "FlowSample.gyro_rad"))
+        q = self.quality
+        if isinstance(q, bool) or not isinstance(q, int | np.integer) or not 0 <= q <= 255:
+            raise SampleError(f"FlowSample.quality must be an integer in 0..255, got {q!r}")
+        object.__setattr__(self, "quality", int(q))
+        if self.distance_m is not None:
+            d = float(self.distance_m)
+            if not np.isfinite(d) or d < 0:
+                raise SampleError(f"FlowSample.distance_m must be finite and >= 0, got {d}")
+            object.__setattr__(self, "distance_m", d)
+
+    @property
+    def dt_s(self) -> float:
+        """The integration interval in seconds."""
+        return self.integration_ns * 1e-9
+
+    @property
+    def flow_rate_rad_s(self) -> FloatArray:
+        """The mean flow rate over the interval (rad/s, about body x and y)."""
+        return np.asarray(self.flow_rad / self.dt_s, dtype=np.float64)
+
+    @property
+    def gyro_rate_rad_s(self) -> FloatArray:
+        """The sensor gyro's mean rate over the interval (rad/s, body x, y, z)."""
+        return np.asarray(self.gyro_rad / self.dt_s, dtype=np.float64)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
 class RangeScan:
     """A planar laser scan in the body frame: ray ``i`` points at ``angle_min_rad + i *
     angle_increment_rad`` from body +x (counter-clockwise, about body +z); ``ranges_m`` holds
@@ -293,6 +359,7 @@ Observation = (
     | MagSample
     | RangeSample
     | VelocitySample
+    | FlowSample
 )
 
 

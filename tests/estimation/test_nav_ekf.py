@@ -10,6 +10,8 @@ from quadnav.errors import EstimationError
 from quadnav.estimation.nav_ekf import NavEkf, NavEkfConfig, nav_jacobians, yaw_jacobian, yaw_of
 from quadnav.geometry.rotations import so3_exp
 
+from .differences import central_differences
+
 G = 9.81
 
 
@@ -34,16 +36,7 @@ def boxminus(a, b):
 
 def attitude_derivative(fun, R, eps: float = 1e-7):
     """Central differences of a scalar ``fun(R Exp(dtheta))`` with respect to dtheta (3,)."""
-    return np.array(
-        [
-            (
-                fun(R @ Rotation.from_rotvec(d).as_matrix())
-                - fun(R @ Rotation.from_rotvec(-d).as_matrix())
-            )
-            / (2 * eps)
-            for d in np.eye(3) * eps
-        ]
-    )
+    return central_differences(lambda d: fun(R @ Rotation.from_rotvec(d).as_matrix()), 3, eps)
 
 
 @pytest.mark.parametrize("seed", range(4))
@@ -57,28 +50,18 @@ def test_transition_jacobians_match_finite_differences(seed: int) -> None:
     R2, v2, p2 = step(R, v, p, bg, ba, w_m, f_m, dt)
     nominal_after = (R2, v2, p2, bg, ba)
     F, Gm = nav_jacobians(R2, f_m - ba, w_m - bg, dt)
-    eps = 1e-6
-    F_num = np.zeros((15, 15))
-    for k in range(15):
-        cols = []
-        for sgn in (1.0, -1.0):
-            d = np.zeros(15)
-            d[k] = sgn * eps
-            Rt = R @ Rotation.from_rotvec(d[0:3]).as_matrix()
-            st = step(Rt, v + d[3:6], p + d[6:9], bg + d[9:12], ba + d[12:15], w_m, f_m, dt)
-            cols.append(boxminus((*st, bg + d[9:12], ba + d[12:15]), nominal_after))
-        F_num[:, k] = (cols[0] - cols[1]) / (2 * eps)
+
+    def after_perturbed_state(d):
+        Rt = R @ Rotation.from_rotvec(d[0:3]).as_matrix()
+        st = step(Rt, v + d[3:6], p + d[6:9], bg + d[9:12], ba + d[12:15], w_m, f_m, dt)
+        return boxminus((*st, bg + d[9:12], ba + d[12:15]), nominal_after)
+
+    F_num = central_differences(after_perturbed_state, 15)
     # First-order model of the step (right Jacobian of Exp taken as I): error O(|w| dt) relative.
     np.testing.assert_allclose(F, F_num, atol=2e-5)
-    G_num = np.zeros((15, 6))
-    for k in range(6):
-        cols = []
-        for sgn in (1.0, -1.0):
-            n = np.zeros(6)
-            n[k] = sgn * eps
-            st = step(R, v, p, bg, ba, w_m, f_m, dt, n)
-            cols.append(boxminus((*st, bg, ba), nominal_after))
-        G_num[:, k] = (cols[0] - cols[1]) / (2 * eps)
+    G_num = central_differences(
+        lambda n: boxminus((*step(R, v, p, bg, ba, w_m, f_m, dt, n), bg, ba), nominal_after), 6
+    )
     np.testing.assert_allclose(Gm[:, 0:6], G_num, atol=2e-5)
 
 

@@ -122,6 +122,11 @@ class Kinematics(Protocol):
         """Package a navigation state in the common 3-D form."""
         ...
 
+    @property
+    def output_names(self) -> tuple[str, ...]:
+        """Names of the output predictor's state ``concatenate([pos, vel, att])``."""
+        ...
+
 
 class Estimator(Protocol):
     """What every quadnav estimator offers (ARCHITECTURE.md, Interfaces)."""
@@ -352,8 +357,9 @@ class DelayedHorizonEstimator:
 
     def output(self) -> StateEstimate:
         nav = self.output_nav()
+        # The output predictor carries the kinematics' state, not the filter's: its names.
         x = np.concatenate([nav.pos, nav.vel, nav.att])
-        est = self.kin.to_estimate(nav, x, self.filter.names, None)
+        est = self.kin.to_estimate(nav, x, self.kin.output_names, None)
         return dataclasses.replace(est, w_B=self.body_rate())
 
     def body_rate(self) -> FloatArray | None:

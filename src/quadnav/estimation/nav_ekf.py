@@ -10,7 +10,8 @@ same semi-implicit step as the planar filter::
 
     R' = R Exp(w dt);  v' = v + dt (R' f + g_W);  p' = p + dt v'
 
-Observations: world position, external pose (position and yaw), height. Each update is gated
+Observations: world position, external pose (position and yaw), height, range, heading,
+velocity, optical flow (PX4's model, :mod:`quadnav.estimation.flow_model`). Each update is gated
 with a chi-square test on its innovation, applied in Joseph form and injected into the nominal
 state with the covariance reset ``P <- G P G^T``.
 """
@@ -27,6 +28,12 @@ from scipy.stats import chi2
 
 from quadnav.errors import EstimationError
 from quadnav.estimation.bias_estimator import BiasEstimator
+from quadnav.estimation.flow_model import (
+    compensated_flow_rate,
+    flow_noise_sigma,
+    predict_flow,
+    tilt_cosine_jacobian,
+)
 from quadnav.estimation.horizon import FusionResult, NavState, require_positive
 from quadnav.estimation.imu_clipping import (
     BADACC_NOISE_M_S2,
@@ -34,6 +41,7 @@ from quadnav.estimation.imu_clipping import (
     Releveller,
     clip_axes,
 )
+from quadnav.estimation.layout import NAV_ERROR, NAV_NOISE, NAV_NOMINAL, NAV_OUTPUT, StateLayout
 from quadnav.geometry.rotations import (
     quat_xyzw_from_matrix,
     rotation_matrix_xyzw,
@@ -41,6 +49,7 @@ from quadnav.geometry.rotations import (
     so3_log,
 )
 from quadnav.messages import (
+    FlowSample,
     GpsSample,
     HeightSample,
     ImuSample,
@@ -67,16 +76,19 @@ __all__ = [
 ]
 
 FloatArray = NDArray[np.float64]
-STATE_NAMES = (
-    "dtheta_x", "dtheta_y", "dtheta_z", "vx", "vy", "vz", "x", "y", "z",
-    "bgx", "bgy", "bgz", "bax", "bay", "baz",
-)  # fmt: skip
-# Error-state blocks
-I_TH, I_V, I_P, I_BG, I_BA = slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12), slice(12, 15)
+# Error-state blocks and entries, by name (quadnav.estimation.layout), bound once for the hot path
+_ATT, _VEL, _POS, _BG, _BA = (
+    NAV_ERROR[b] for b in ("att", "vel", "pos", "gyro_bias", "accel_bias")
+)
+_N = NAV_ERROR.size
+_Z = NAV_ERROR.index("z")
+_YAW = NAV_ERROR.index("dtheta_z")  # the heading resets turn the attitude about this axis
+# Noise inputs of G (columns): gyro and accelerometer white noise, their biases' random walks
+_N_G, _N_A, _N_BG, _N_BA = (NAV_NOISE[b] for b in ("gyro", "accel", "gyro_bias", "accel_bias"))
 
 
 _I3 = np.eye(3)
-_VAR_COLS = np.r_[0:3, 9:15]  # columns of F's velocity/position rows that change every step
+_VAR_COLS = np.r_[_ATT, _BG, _BA]  # columns of F's velocity/position rows that change every step
 
 
 def skew(a: FloatArray) -> FloatArray:
@@ -122,6 +134,10 @@ class NavKinematics:
         pos_new = pos + dtv * vel_new
         return pos_new, vel_new, R_new.reshape(*R_new.shape[:-2], 9)
 
+    @property
+    def output_names(self) -> tuple[str, ...]:
+        return NAV_OUTPUT.names
+
     def attitude_error(self, att_target: FloatArray, att: FloatArray) -> FloatArray:
         """Body-frame rotation vector taking ``att`` onto ``att_target``."""
         return so3_log(att.reshape(3, 3).T @ att_target.reshape(3, 3))
@@ -147,24 +163,24 @@ def nav_jacobians(
     n_ba) of one prediction step, for ``R' = R Exp(w dt)``, ``v' = v + dt (R' f + g)``."""
     A = so3_exp(w * dt).T  # Exp(-w dt)
     Rf = R_new @ skew(f)
-    F = np.eye(15)
-    F[I_TH, I_TH] = A
-    F[I_TH, I_BG] = -dt * _I3
-    F[I_V, I_TH] = -dt * Rf @ A
-    F[I_V, I_BG] = dt * dt * Rf
-    F[I_V, I_BA] = -dt * R_new
-    F[I_P, I_TH] = dt * F[I_V, I_TH]
-    F[I_P, I_V] = dt * _I3
-    F[I_P, I_BG] = dt * F[I_V, I_BG]
-    F[I_P, I_BA] = dt * F[I_V, I_BA]
-    G = np.zeros((15, 12))
-    G[I_TH, 0:3] = -dt * _I3
-    G[I_V, 0:3] = dt * dt * Rf
-    G[I_V, 3:6] = -dt * R_new
-    G[I_P, 0:3] = dt * G[I_V, 0:3]
-    G[I_P, 3:6] = dt * G[I_V, 3:6]
-    G[I_BG, 6:9] = _I3
-    G[I_BA, 9:12] = _I3
+    F = np.eye(_N)
+    F[_ATT, _ATT] = A
+    F[_ATT, _BG] = -dt * _I3
+    F[_VEL, _ATT] = -dt * Rf @ A
+    F[_VEL, _BG] = dt * dt * Rf
+    F[_VEL, _BA] = -dt * R_new
+    F[_POS, _ATT] = dt * F[_VEL, _ATT]
+    F[_POS, _VEL] = dt * _I3
+    F[_POS, _BG] = dt * F[_VEL, _BG]
+    F[_POS, _BA] = dt * F[_VEL, _BA]
+    G = np.zeros((_N, NAV_NOISE.size))
+    G[_ATT, _N_G] = -dt * _I3
+    G[_VEL, _N_G] = dt * dt * Rf
+    G[_VEL, _N_A] = -dt * R_new
+    G[_POS, _N_G] = dt * G[_VEL, _N_G]
+    G[_POS, _N_A] = dt * G[_VEL, _N_A]
+    G[_BG, _N_BG] = _I3
+    G[_BA, _N_BA] = _I3
     return F, G
 
 
@@ -216,10 +232,7 @@ def mag_heading_jacobian(R: FloatArray, field_B: FloatArray) -> tuple[float, Flo
 def range_jacobian(R: FloatArray, height_m: float) -> tuple[float, FloatArray]:
     """A downward range ``h = height / R22`` and ``dh / d dtheta`` (3,) for ``R Exp(dtheta)``."""
     c = float(R[2, 2])
-    row = R[2, :]
-    # d R22 / d dtheta = -R[2, :] [e3]x ;  [e3]x = [[0,-1,0],[1,0,0],[0,0,0]]
-    dc = -np.array([row[1], -row[0], 0.0])
-    return height_m / c, -height_m / (c * c) * dc
+    return height_m / c, -height_m / (c * c) * tilt_cosine_jacobian(R)
 
 
 @dataclass(slots=True)
@@ -272,11 +285,28 @@ class NavEkfConfig:
     # After clipping, re-level once at rest this long (Releveller); None: never.
     relevel_at_rest_s: float | None = None
     terrain_z_m: float = 0.0  # height of the flat ground the range finder sees
-    range_max_tilt_rad: float = 0.7  # range readings at larger tilts are not fused
+    range_max_tilt_rad: float = 0.7  # range (and flow) readings at larger tilts are not fused
+    # Optical flow (PX4 EKF2's defaults): noise from the sample's quality, EKF2_OF_N_MIN at 255
+    # and EKF2_OF_N_MAX at EKF2_OF_QMIN; samples below that quality or above the sensor's
+    # largest rate (SENS_FLOW_MAXR) are refused and counted; its own innovation gate
+    # (EKF2_OF_GATE, sigma) over the 2-D innovation; fused only at heights above the floor
+    # (terrain_z_m) of at least flow_min_height_m (PX4FLOW's sonar: 0.3 m).
+    flow_noise_min_rad_s: float = 0.15
+    flow_noise_max_rad_s: float = 0.5
+    flow_quality_min: int = 1
+    flow_max_rate_rad_s: float = 8.0
+    flow_gate_sigma: float = 3.0
+    flow_min_height_m: float = 0.3
 
     def __post_init__(self) -> None:
         require_positive(self, ("gyro_sigma_rad_s", "accel_sigma_m_s2", "gyro_bias_rw_rad_s_sqrt_s",
                                 "accel_bias_rw_m_s2_sqrt_s", "gravity_m_s2"))  # fmt: skip
+        require_positive(self, ("flow_noise_min_rad_s", "flow_noise_max_rad_s", "flow_max_rate_rad_s",
+                                "flow_gate_sigma", "flow_min_height_m"))  # fmt: skip
+        if not 0 <= self.flow_quality_min <= 255:
+            raise EstimationError(
+                f"NavEkfConfig.flow_quality_min must lie in 0..255, got {self.flow_quality_min}"
+            )
         optional = ("gate_sigma", "baro_bias_nsd_m_s", "baro_bias_var0_m2", "clipped_accel_sigma_m_s2",
                     "accel_bias_learn_gyro_limit_rad_s", "relevel_at_rest_s")  # fmt: skip
         require_positive(self, tuple(n for n in optional if getattr(self, n) is not None))
@@ -295,7 +325,11 @@ class NavEkfConfig:
 class NavEkf:
     """The error-state navigation EKF; a :class:`~quadnav.estimation.horizon.DelayedFilter`."""
 
-    names: tuple[str, ...] = STATE_NAMES
+    #: ``x`` (the nominal state) is laid out as ``layout``; ``P`` and the Jacobians as
+    #: ``error_layout``.
+    layout: StateLayout = NAV_NOMINAL
+    error_layout: StateLayout = NAV_ERROR
+    names: tuple[str, ...] = NAV_NOMINAL.names
 
     def __init__(
         self,
@@ -310,7 +344,7 @@ class NavEkf:
     ) -> None:
         P0 = np.asarray(P0, dtype=np.float64)
         if (
-            P0.shape != (15, 15)
+            P0.shape != (_N, _N)
             or not np.isfinite(P0).all()
             or np.min(np.linalg.eigvalsh(0.5 * (P0 + P0.T))) < 0
         ):
@@ -328,13 +362,16 @@ class NavEkf:
             if config.gate_sigma is None
             else gate_thresholds(config.gate_sigma, (1, 2, 3, 4, 6))
         )
+        self._flow_gate = gate_thresholds(config.flow_gate_sigma, (2,))[2]
+        self._flow_gyro_bias = np.zeros(3)  # the flow sensor's gyro against ours (PX4's LPF)
+        self._w_B = np.zeros(3)  # the body rate (bias removed) of the last prediction
         self._datum = config.datum_lla
         self._g_W = np.array([0.0, 0.0, -config.gravity_m_s2])
         self._jac_dt = math.nan
         self._n_predict = 0
-        self._F = np.eye(15)
-        self._G = np.zeros((15, 12))
-        self._q = np.zeros(12)
+        self._F = np.eye(_N)
+        self._G = np.zeros((_N, NAV_NOISE.size))
+        self._q = np.zeros(NAV_NOISE.size)
         self._datum_offset = np.zeros(3)
         # External-pose frames: per source, the last reset counter and the transform
         # (yaw, offset) that maps its frame onto the filter's, re-anchored on each reset.
@@ -371,7 +408,13 @@ class NavEkf:
         return NavState(t_ns, self.p.copy(), self.v.copy(), self.R.ravel().copy())
 
     def can_fuse(self, obs: Sample) -> bool:
-        return isinstance(obs, Observation)  # every kind there is
+        """Every observation type there is; a flow sample only when its quality reaches
+        ``flow_quality_min`` and its rate is within ``flow_max_rate_rad_s`` (PX4's checks)."""
+        if isinstance(obs, FlowSample):
+            c = self.config
+            rate = float(np.linalg.norm(obs.flow_rate_rad_s))
+            return obs.quality >= c.flow_quality_min and rate <= c.flow_max_rate_rad_s
+        return isinstance(obs, Observation)
 
     def imu_biases(self) -> tuple[FloatArray, FloatArray]:
         return self.bg, self.ba
@@ -399,11 +442,11 @@ class NavEkf:
         # The velocity row's state-dependent blocks: [d/dtheta | d/db_g | d/db_a]; the position
         # row is dt times the same; the noise inputs are the last two of them.
         Fv = np.concatenate((-dt * Rf @ A, dt * dt * Rf, -dt * R_new), axis=1)
-        F[I_TH, I_TH] = A
-        F[3:6, _VAR_COLS] = Fv
-        F[6:9, _VAR_COLS] = dt * Fv
-        G[3:6, 0:6] = Fv[:, 3:9]
-        G[6:9, 0:6] = dt * Fv[:, 3:9]
+        F[_ATT, _ATT] = A
+        F[_VEL, _VAR_COLS] = Fv
+        F[_POS, _VAR_COLS] = dt * Fv
+        G[_VEL, _N_G.start : _N_A.stop] = Fv[:, 3:9]  # (d/db_g, d/db_a: the inputs' blocks)
+        G[_POS, _N_G.start : _N_A.stop] = dt * Fv[:, 3:9]
         return F, G
 
     def predict(self, imu: ImuSample, dt_s: float) -> None:
@@ -411,6 +454,7 @@ class NavEkf:
         f = imu.accel_m_s2 - self.ba
         E = so3_exp(w * dt_s)
         R_new = self.R @ E
+        self._w_B = w
         F, G = self._jacobians_into(R_new, f, w, dt_s, E)
         self.v = self.v + dt_s * (R_new @ f + self._g_W)
         self.p = self.p + dt_s * self.v
@@ -422,17 +466,18 @@ class NavEkf:
             q = q.copy()
             for k in range(3):
                 if clipped >> k & 1:
-                    q[3 + k] = max(q[3 + k], self.config.clipped_accel_sigma_m_s2**2)
+                    i = _N_A.start + k
+                    q[i] = max(q[i], self.config.clipped_accel_sigma_m_s2**2)
         P = F @ self._P @ F.T + (G * q) @ G.T
         if self.bias_gate is not None:
-            self.bias_gate.apply(P, 12, self.bias_gate.update(w, f, clipped, dt_s))
+            self.bias_gate.apply(P, _BA.start, self.bias_gate.update(w, f, clipped, dt_s))
         self._n_predict += 1
         if self._n_predict % 32 == 0:  # rounding makes P drift from symmetry, slowly
             P = 0.5 * (P + P.T)
         self._P = P
         if self.releveller is not None:
             if clipped:
-                self.releveller.on_clip(self.ba, np.diag(P)[I_BA].copy())
+                self.releveller.on_clip(self.ba, np.diag(P)[_BA].copy())
             f_rest = self.releveller.update(w, imu.accel_m_s2, dt_s, self.config.gravity_m_s2)
             if f_rest is not None:
                 self._relevel(imu.t_ns, f_rest, self.releveller)
@@ -447,29 +492,29 @@ class NavEkf:
         R_new = Rotation.from_euler("ZYX", [yaw_of(self.R), pitch, roll]).as_matrix()
         moved_deg = math.degrees(math.acos(min(1.0, float(self.R[:, 2] @ R_new[:, 2]))))
         j = yaw_jacobian(self.R)
-        var_yaw = float(j @ self._P[I_TH, I_TH] @ j)
+        var_yaw = float(j @ self._P[_ATT, _ATT] @ j)
         P = self._P
-        for blk in (I_TH, I_V, I_BA):
+        for blk in (_ATT, _VEL, _BA):
             P[blk, :] = 0.0
             P[:, blk] = 0.0
-        P[I_TH, I_TH] = R_new.T @ np.diag([0.02**2, 0.02**2, var_yaw]) @ R_new  # world tilt, yaw
-        P[I_V, I_V] = np.eye(3) * 0.1**2
-        P[I_BA, I_BA] = np.diag(rl.bias_var_before)
+        P[_ATT, _ATT] = R_new.T @ np.diag([0.02**2, 0.02**2, var_yaw]) @ R_new  # world tilt, yaw
+        P[_VEL, _VEL] = np.eye(3) * 0.1**2
+        P[_BA, _BA] = np.diag(rl.bias_var_before)
         self.R, self.v, self.ba = R_new, np.zeros(3), rl.bias_before.copy()
         self.events.append((t_ns, f"re-levelled at rest after accelerometer clipping: tilt moved {moved_deg:.1f} deg, velocity zeroed"))  # fmt: skip
 
     def fuse(self, obs: Sample) -> FusionResult:
         if isinstance(obs, PositionSample):
-            H = np.zeros((3, 15))
-            H[:, I_P] = np.eye(3)
+            H = np.zeros((3, _N))
+            H[:, _POS] = np.eye(3)
             return self._gated(obs, obs.p_W_B - self.p, H, np.eye(3) * obs.sigma_m**2, obs.p_W_B)
         if isinstance(obs, PoseSample):
             return self._fuse_pose(obs)
         if isinstance(obs, HeightSample) and obs.source == "baro" and self.baro_bias is not None:
             return self._fuse_baro_with_bias(obs, self.baro_bias)
         if isinstance(obs, HeightSample):
-            H = np.zeros((1, 15))
-            H[0, 8] = 1.0
+            H = np.zeros((1, _N))
+            H[0, _Z] = 1.0
             return self._gated(
                 obs, np.array([obs.z_m - self.p[2]]), H, np.array([[obs.sigma_m**2]]), None
             )
@@ -479,9 +524,11 @@ class NavEkf:
             return self._fuse_mag(obs)
         if isinstance(obs, RangeSample):
             return self._fuse_range(obs)
+        if isinstance(obs, FlowSample):
+            return self._fuse_flow(obs)
         if isinstance(obs, VelocitySample):
-            H = np.zeros((3, 15))
-            H[:, I_V] = np.eye(3)
+            H = np.zeros((3, _N))
+            H[:, _VEL] = np.eye(3)
             Rn = np.eye(3) * obs.sigma_m_s**2
             return self._update(obs.v_W_B - self.v, H, Rn)
         raise EstimationError(f"the navigation EKF cannot fuse {type(obs).__name__}")
@@ -490,12 +537,12 @@ class NavEkf:
         """PX4's order: the innovation with the current bias, then the bias estimator updated
         from the state before the main update, then the main update."""
         var = obs.sigma_m**2
-        H = np.zeros((1, 15))
-        H[0, 8] = 1.0
+        H = np.zeros((1, _N))
+        H[0, _Z] = 1.0
         r = np.array([obs.z_m - bias.bias - self.p[2]])
         Rn = np.array([[var + bias.var]])
         bias.var_max = var
-        bias.fuse(obs.z_m - float(self.p[2]), var + float(self._P[8, 8]))
+        bias.fuse(obs.z_m - float(self.p[2]), var + float(self._P[_Z, _Z]))
         return self._gated(obs, r, H, Rn, None)
 
     def gps_to_enu(self, obs: GpsSample) -> FloatArray:
@@ -510,9 +557,9 @@ class NavEkf:
 
     def _fuse_gps(self, obs: GpsSample) -> FusionResult:
         p_W = self.gps_to_enu(obs)
-        H = np.zeros((6, 15))
-        H[0:3, I_P] = np.eye(3)
-        H[3:6, I_V] = np.eye(3)
+        H = np.zeros((6, _N))
+        H[0:3, _POS] = np.eye(3)  # (rows: the observation's, position then velocity)
+        H[3:6, _VEL] = np.eye(3)
         r = np.concatenate([p_W - self.p, obs.v_enu_m_s - self.v])
         Rn = np.diag([obs.sigma_h_m**2] * 2 + [obs.sigma_v_m**2] + [obs.sigma_vel_m_s**2] * 3)
         res = self._gated(obs, r, H, Rn, p_W)
@@ -527,22 +574,50 @@ class NavEkf:
         expected = math.pi / 2 - self.config.mag_declination_rad
         h, dh = mag_heading_jacobian(self.R, obs.field_B)
         r = math.remainder(expected - h, 2 * math.pi)
-        H = np.zeros((1, 15))
-        H[0, I_TH] = yaw_jacobian(self.R)
+        H = np.zeros((1, _N))
+        H[0, _ATT] = yaw_jacobian(self.R)
         dh_tilt = dh.copy()
         dh_tilt[2] = 0.0  # (the yaw part is the state the update corrects)
-        var = obs.sigma_heading_rad**2 + float(dh_tilt @ self._P[0:3, 0:3] @ dh_tilt)
+        var = obs.sigma_heading_rad**2 + float(dh_tilt @ self._P[_ATT, _ATT] @ dh_tilt)
         return self._gated(obs, np.array([r]), H, np.array([[var]]), None)
 
     def _fuse_range(self, obs: RangeSample) -> FusionResult:
         if self.R[2, 2] < math.cos(self.config.range_max_tilt_rad):
             return FusionResult(accepted=False, innovation=np.zeros(1), nis=0.0, test_ratio=0.0)
         pred, d_dtheta = range_jacobian(self.R, float(self.p[2]) - self.config.terrain_z_m)
-        H = np.zeros((1, 15))
-        H[0, I_TH] = d_dtheta
-        H[0, 8] = 1.0 / self.R[2, 2]
+        H = np.zeros((1, _N))
+        H[0, _ATT] = d_dtheta
+        H[0, _Z] = 1.0 / self.R[2, 2]
         r = np.array([obs.range_m - pred])
         return self._gated(obs, r, H, np.array([[obs.sigma_m**2]]), None)
+
+    def _fuse_flow(self, obs: FlowSample) -> FusionResult:
+        """PX4's optical-flow fusion (``quadnav.estimation.flow_model``): the flow rate less the
+        sensor gyro's rate (its bias against our gyro low-passed as EKF2's
+        ``calcBodyRateComp``) against the prediction from the velocity and the height above
+        the floor, as one 2-D observation with its own gate. Not fused too tilted or too low."""
+        c = self.config
+        h = float(self.p[2]) - c.terrain_z_m
+        if self.R[2, 2] < math.cos(c.range_max_tilt_rad) or h < c.flow_min_height_m:
+            return FusionResult(accepted=False, innovation=np.zeros(2), nis=0.0, test_ratio=0.0)
+        d_bias = np.clip(obs.gyro_rate_rad_s - self._w_B, -0.1, 0.1)
+        self._flow_gyro_bias = 0.99 * self._flow_gyro_bias + 0.01 * d_bias
+        meas = compensated_flow_rate(obs, self._flow_gyro_bias)
+        pred = predict_flow(
+            self.R,
+            self.v,
+            float(self.p[2]),
+            floor_z_m=c.terrain_z_m,
+            min_height_m=c.flow_min_height_m,
+        )
+        sigma = flow_noise_sigma(
+            obs.quality,
+            quality_min=c.flow_quality_min,
+            sigma_best_rad_s=c.flow_noise_min_rad_s,
+            sigma_worst_rad_s=c.flow_noise_max_rad_s,
+        )
+        r = meas - pred.flow_rate_rad_s
+        return self._update(r, pred.H, np.eye(2) * sigma**2, gate=self._flow_gate)
 
     def vision_frame_yaw(self, source: str = "vision") -> float | None:
         """The estimated yaw of the vision frame in the filter's (None before its first pose)."""
@@ -594,19 +669,19 @@ class NavEkf:
         d_W = so3_exp(np.array([0.0, 0.0, anchor.yaw])) @ (obs.p_W_B - anchor.p_V0)
         p_W = anchor.p_W0 + d_W
         if self.config.vision_frame == "rotate":
-            H = np.zeros((3, 15))
-            H[:, I_P] = np.eye(3)
+            H = np.zeros((3, _N))
+            H[:, _POS] = np.eye(3)
             # The frame's yaw is only as good as the filter's heading and the vision yaw: its
             # error turns the displacement from the anchor, which the noise must cover.
             J = np.array([-d_W[1], d_W[0], 0.0])
-            var_yaw = float(self._P[2, 2]) + obs.sigma_yaw_rad**2
+            var_yaw = float(self._P[_YAW, _YAW]) + obs.sigma_yaw_rad**2
             Rz = so3_exp(np.array([0.0, 0.0, anchor.yaw]))
             C = np.eye(3) * obs.sigma_pos_m**2 if obs.cov_p_m2 is None else obs.cov_p_m2
             Rn = Rz @ C @ Rz.T + var_yaw * np.outer(J, J)
             return self._gated(obs, p_W - self.p, H, Rn, p_W)
-        H = np.zeros((4, 15))
-        H[0:3, I_P] = np.eye(3)
-        H[3, I_TH] = yaw_jacobian(self.R)
+        H = np.zeros((4, _N))
+        H[0:3, _POS] = np.eye(3)
+        H[3, _ATT] = yaw_jacobian(self.R)
         r_yaw = math.remainder(yaw_of(R_meas) + anchor.yaw - yaw_of(self.R), 2 * math.pi)
         r = np.concatenate([p_W - self.p, [r_yaw]])
         Rn = np.diag([obs.sigma_pos_m**2] * 3 + [obs.sigma_yaw_rad**2])
@@ -630,30 +705,23 @@ class NavEkf:
             # measurement, with the measurement's uncertainty, and say so.
             if p_meas is not None:
                 self.p = p_meas.copy()
-                idx = np.arange(6, 9)
-                self._P[idx, :] = 0.0
-                self._P[:, idx] = 0.0
-                self._P[idx, idx] = np.diag(Rn)[0:3]
+                self._reset_entries(_POS, np.diag(Rn)[0:3])
                 what = "position"
-                if len(r) == 4:  # a pose: its heading too, turning the attitude about world z
+                if isinstance(obs, PoseSample) and self.config.vision_frame == "world":
+                    # a pose in the navigation frame: its heading too (its 4th row), turning the
+                    # attitude about world z
                     self.R = so3_exp(np.array([0.0, 0.0, float(r[3])])) @ self.R
-                    self._P[2, :] = 0.0
-                    self._P[:, 2] = 0.0
-                    self._P[2, 2] = float(Rn[3, 3])
+                    self._reset_entries(slice(_YAW, _YAW + 1), Rn[3, 3:4])
                     what = "position and heading"
             elif isinstance(obs, MagSample):
                 self.R = so3_exp(np.array([0.0, 0.0, float(r[0])])) @ self.R
-                self._P[2, :] = 0.0
-                self._P[:, 2] = 0.0
-                self._P[2, 2] = float(Rn[0, 0])
+                self._reset_entries(slice(_YAW, _YAW + 1), Rn[0, 0:1])
                 what = "heading"
             else:
                 # a range is measured along the tilted body axis: its height is range x R22
                 scale = float(self.R[2, 2]) if isinstance(obs, RangeSample) else 1.0
                 self.p[2] += float(r[0]) * scale
-                self._P[8, :] = 0.0
-                self._P[:, 8] = 0.0
-                self._P[8, 8] = float(Rn[0, 0]) * scale**2
+                self._reset_entries(slice(_Z, _Z + 1), Rn[0, 0:1] * scale**2)
                 what = "height"
             self._last_accepted_ns[src] = obs.t_ns
             self.events.append(
@@ -664,14 +732,22 @@ class NavEkf:
             )
         return res
 
-    def _update(self, r: FloatArray, H: FloatArray, Rn: FloatArray) -> FusionResult:
+    def _reset_entries(self, block: slice, var: FloatArray) -> None:
+        """Forget the covariance of a block of the error state and set its variances."""
+        self._P[block, :] = 0.0
+        self._P[:, block] = 0.0
+        self._P[block, block] = np.diag(var)
+
+    def _update(
+        self, r: FloatArray, H: FloatArray, Rn: FloatArray, *, gate: float | None = None
+    ) -> FusionResult:
         P = self._P
         PHt = P @ H.T
         S = H @ PHt + Rn
         # scalar observations (height, range, heading) need no matrix inverse
         S_inv = 1.0 / S if len(r) == 1 else np.linalg.inv(S)
         nis = float(r @ S_inv @ r)
-        ratio = nis / self._gates[len(r)]
+        ratio = nis / (self._gates[len(r)] if gate is None else gate)
         if ratio > 1.0:
             return FusionResult(accepted=False, innovation=r, nis=nis, test_ratio=ratio)
         K = PHt @ S_inv
@@ -681,13 +757,13 @@ class NavEkf:
         P = P - K @ PHt.T
         # Inject the error into the nominal state and reset the attitude error's covariance:
         # P <- Gr P Gr^T with Gr = I except its attitude block B = I - [dtheta/2]x.
-        self.R = self.R @ so3_exp(dx[I_TH])
-        self.v = self.v + dx[I_V]
-        self.p = self.p + dx[I_P]
-        self.bg = self.bg + dx[I_BG]
-        self.ba = self.ba + dx[I_BA]
-        B = _I3 - 0.5 * skew(dx[I_TH])
-        P[0:3, :] = B @ P[0:3, :]
-        P[:, 0:3] = P[:, 0:3] @ B.T
+        self.R = self.R @ so3_exp(dx[_ATT])
+        self.v = self.v + dx[_VEL]
+        self.p = self.p + dx[_POS]
+        self.bg = self.bg + dx[_BG]
+        self.ba = self.ba + dx[_BA]
+        B = _I3 - 0.5 * skew(dx[_ATT])
+        P[_ATT, :] = B @ P[_ATT, :]
+        P[:, _ATT] = P[:, _ATT] @ B.T
         self._P = 0.5 * (P + P.T)
         return FusionResult(accepted=True, innovation=r, nis=nis, test_ratio=ratio)

@@ -81,6 +81,10 @@ class PlanarKinematics:
         pos_new = pos + dtv * vel_new
         return pos_new, vel_new, att_new
 
+    @property
+    def output_names(self) -> tuple[str, ...]:
+        return STATE_NAMES  # the output predictor's [pos, vel, att] is the filter's own order
+
     def attitude_error(self, att_target: FloatArray, att: FloatArray) -> FloatArray:
         err = math.remainder(float(att_target[0] - att[0]), 2.0 * math.pi)
         return np.array([0.0, err, 0.0])
