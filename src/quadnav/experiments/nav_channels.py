@@ -5,14 +5,16 @@ is disabled): the sensor model, wrapped by the fault decorators the scenario ask
 and its own random stream. The loop (:func:`quadnav.experiments.nav.run_nav`) iterates over
 what :func:`build_channels` returns; adding a sensor is one entry here.
 
-Streams: channel ``k`` of the registry draws from child ``k`` of ``SeedSequence(seed)``, whether
-or not the others are enabled, so enabling the range finder leaves the vision noise of the same
-seed as it was. The IMU's turn-on biases have a child of their own.
+Streams: each channel draws from its own child of ``SeedSequence(seed)``, keyed by the channel's
+name (the child ``SeedSequence.spawn`` would make, with a spawn key from the name rather than a
+position), so enabling the range finder, or registering a new sensor, leaves the vision noise of
+the same seed as it was. The IMU's turn-on biases have a child of their own.
 """
 
 from __future__ import annotations
 
 import math
+import zlib
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -34,6 +36,7 @@ from quadnav.sim.channels import (
     OffsetTruth,
     RepeatAt,
 )
+from quadnav.sim.flow import FlowSensor
 from quadnav.sim.sensors import (
     BaroSensor,
     GpsSensor,
@@ -158,6 +161,15 @@ def _mag(sc: NavScenario, ctx: BuildContext, rng: Generator) -> Channel | None:
     return Channel("mag", sensor, rng)
 
 
+def _flow(sc: NavScenario, ctx: BuildContext, rng: Generator) -> Channel | None:
+    f = sc.flow
+    if not f.enabled:
+        return None
+    sensor = FlowSensor(rate_hz=f.rate_hz, flow_sigma_rad_s=f.flow_sigma_rad_s, gyro_sigma_rad_s=f.gyro_sigma_rad_s,
+                        min_height_m=f.min_height_m, max_height_m=f.max_height_m)  # fmt: skip
+    return Channel("flow", sensor, rng, delay_ns=s_to_ns(f.delay_s))
+
+
 @dataclass
 class ZeroVelocityAtRest:
     """PX4's zero-velocity update at rest: "standing still" at ``rate_hz`` while the motors are
@@ -231,6 +243,7 @@ CHANNELS: tuple[ChannelEntry, ...] = (
     ChannelEntry("gps", _gps, "GNSS fixes and velocity"),
     ChannelEntry("range", _range, "downward range finder"),
     ChannelEntry("mag", _mag, "magnetometer heading"),
+    ChannelEntry("flow", _flow, "downward optical flow (PX4FLOW class)"),
     ChannelEntry("landed", _zero_velocity, "zero velocity while the motors are off", pseudo=True),
     ChannelEntry("truth", _truth, "the true state, for estimator.kind=truth"),
     ChannelEntry("imu", _imu, "the IMU, integrated over its period"),
@@ -250,11 +263,16 @@ def build_channels(
     sc: NavScenario, seed: int, phase: FlightPhase, *, gravity_m_s2: float
 ) -> list[Channel]:
     """The scenario's enabled channels, each with its own random stream."""
-    children = np.random.SeedSequence(seed).spawn(len(CHANNELS) + 1)
-    ctx = BuildContext(seed, phase, gravity_m_s2, np.random.default_rng(children[-1]))
+    ctx = BuildContext(seed, phase, gravity_m_s2, channel_rng(seed, "imu_turn_on_bias"))
     out = []
-    for entry, child in zip(CHANNELS, children, strict=False):
-        ch = entry.build(sc, ctx, np.random.default_rng(child))
+    for entry in CHANNELS:
+        ch = entry.build(sc, ctx, channel_rng(seed, entry.name))
         if ch is not None:
             out.append(ch)
     return out
+
+
+def channel_rng(seed: int, name: str) -> Generator:
+    """The generator of one channel: the child of ``SeedSequence(seed)`` keyed by its name."""
+    key = zlib.crc32(name.encode())
+    return np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(key,)))

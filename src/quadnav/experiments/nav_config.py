@@ -86,6 +86,18 @@ class RangeSection(ConfigModel):
     max_m: float = Field(8.0, gt=RANGE_MIN_M, description=f"above the {RANGE_MIN_M} m it sees")
 
 
+class FlowSection(ConfigModel):
+    """A downward optical-flow sensor (PX4FLOW class: integrated flow and gyro, a range)."""
+
+    enabled: bool = False
+    rate_hz: float = Field(50.0, gt=0, le=MAX_RATE_HZ)
+    delay_s: float = Field(0.015, ge=0, le=MAX_DELAY_S, description="thesis 000 fig 2.1c: 15 ms")
+    flow_sigma_rad_s: float = Field(0.05, ge=MIN_SIGMA, description="flow-rate noise")
+    gyro_sigma_rad_s: float = Field(0.005, ge=0, description="its own gyro's noise")
+    min_height_m: float = Field(0.3, gt=0, description="no flow closer to the floor")
+    max_height_m: float = Field(5.0, gt=0, description="quality 0 beyond")
+
+
 class FaultsSection(ConfigModel):
     """Faults injected into the sensor streams (times in seconds of flight time)."""
 
@@ -222,6 +234,7 @@ class NavScenario(ConfigModel):
     gps: GpsSection = GpsSection()
     mag: MagSection = MagSection()
     range: RangeSection = RangeSection()
+    flow: FlowSection = FlowSection()
     faults: FaultsSection = FaultsSection()
     plan: PlanSection = PlanSection()
     estimator: EstimatorSection = EstimatorSection()
@@ -233,9 +246,10 @@ class NavScenario(ConfigModel):
                 f"imu.rate_hz ({self.imu.rate_hz:g} Hz) is faster than the simulation step "
                 f"(sim_dt_s = {self.sim_dt_s:g} s: at most {1.0 / self.sim_dt_s:g} Hz)"
             )
-        if not (self.vision.enabled or self.gps.enabled):
+        if not (self.vision.enabled or self.gps.enabled or self.flow.enabled):
             raise ValueError(
-                "vision and gps are both disabled: nothing bounds the horizontal position"
+                "vision, gps and flow are all disabled: nothing bounds the horizontal position "
+                "or velocity"
             )
         frame_moved = self.vision.frame_yaw_deg != 0 or any(self.vision.frame_offset_m)
         if self.estimator.vision_frame == "world" and frame_moved:
@@ -280,7 +294,7 @@ class NavScenario(ConfigModel):
                 f"imu.rate_hz ({self.imu.rate_hz:g} Hz) gives no IMU sample during "
                 f"estimator.align_s ({self.estimator.align_s:g} s), which levels the filter"
             )
-        rates = [(key, sec.enabled, sec.rate_hz) for key, sec in (("vision", self.vision), ("baro", self.baro), ("gps", self.gps), ("mag", self.mag), ("range", self.range))]  # fmt: skip
+        rates = [(key, sec.enabled, sec.rate_hz) for key, sec in (("vision", self.vision), ("baro", self.baro), ("gps", self.gps), ("mag", self.mag), ("range", self.range), ("flow", self.flow))]  # fmt: skip
         for key, enabled, rate_hz in rates:
             if enabled and rate_hz * self.flight_s < 1.0:
                 return (

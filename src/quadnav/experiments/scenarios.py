@@ -68,6 +68,17 @@ _ENTRIES = (
         overrides=("vision.source=pose", "range.enabled=true"),
     ),
     NavBuiltin(
+        name="indoor_flow",
+        description="no vision: a downward optical-flow sensor (PX4FLOW class, 50 Hz, 15 ms "
+        "late), a range finder, the barometer and the IMU; the position is dead-reckoned",
+        overrides=(
+            "vision.enabled=false",
+            "flow.enabled=true",
+            "range.enabled=true",
+            "estimator.init_yaw_sigma_unknown_rad=0.05",
+        ),
+    ),
+    NavBuiltin(
         name="outdoor_gps",
         description="a 20 m square at 3 m/s and 5 m on GPS (5 Hz, 200 ms late, 0.5 m), "
         "barometer and magnetometer, facing the direction of travel",
