@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from contextlib import nullcontext
 from pathlib import Path
 from typing import Annotated, Any, Literal
@@ -105,7 +106,7 @@ def eval_command(
     _print_results(result)
 
 
-def _options_of(p: dict[str, Any]) -> EvalOptions:
+def _options_of(p: Mapping[str, object]) -> EvalOptions:
     """The validated options of the command's parameters (named as the function names them)."""
     return _options(
         ref_format=p["ref_format"],
@@ -125,7 +126,7 @@ def _options_of(p: dict[str, Any]) -> EvalOptions:
     )
 
 
-def check_example(params: dict[str, Any]) -> None:
+def check_example(params: Mapping[str, object]) -> None:
     """Validate an example's options as the command would, without reading the files."""
     if not params["table"]:
         _options_of(params)
@@ -162,8 +163,8 @@ def _print_results(result: EvalRun) -> None:
         t.add_column("metric")
         for col in cols:
             t.add_column(col, justify="right")
-        for key, stats in res.metrics.items():
-            t.add_row(key, *(f"{stats[c]:.6g}" for c in cols))
+        for key, stats in res.metrics.named():
+            t.add_row(key, *(f"{getattr(stats, c):.6g}" for c in cols))
         console.print(t)
     console.print(str(result.run_dir), soft_wrap=True, highlight=False)
 
