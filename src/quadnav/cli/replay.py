@@ -39,22 +39,24 @@ def replay_command(
     with progress_bar("replay") as update:
         m = replay_log(log, list(set_ or []), out, update)
     table = Table(
-        title=f"replay of {log.name}: {m['duration_s']:.1f} s in {m['replay_wall_s']:.2f} s ({m['times_faster_than_flight']:.0f}x)"
+        title=f"replay of {log.name}: {m.duration_s:.1f} s in {m.replay_wall_s:.2f} s ({m.times_faster_than_flight:.0f}x)"
     )
     for c in ("pair", "horizontal RMS (m)", "vertical RMS (m)", "tilt RMS (deg)", "yaw RMS (deg)"):
         table.add_column(c, justify="right" if c != "pair" else "left")
     for k in ("quadnav_vs_px4", "quadnav_vs_truth", "px4_vs_truth"):
-        if k in m:
-            v = m[k]
+        if k in m.pairs:
+            v = m.pairs[k]
             table.add_row(
                 k.replace("_", " "),
-                *(replay_cell(v[c], 3) for c in ("horizontal_rms_m", "vertical_rms_m")),
-                *(replay_cell(v[c], 2) for c in ("tilt_rms_deg", "yaw_rms_deg")),
+                replay_cell(v.horizontal_rms_m, 3),
+                replay_cell(v.vertical_rms_m, 3),
+                replay_cell(v.tilt_rms_deg, 2),
+                replay_cell(v.yaw_rms_deg, 2),
             )
     console.print(table)
-    for n in m["notes"]:
+    for n in m.notes:
         err_console.print(f"note: {n}", highlight=False)
-    console.print(m["run_dir"], soft_wrap=True, highlight=False)
+    console.print(str(m.run_dir), soft_wrap=True, highlight=False)
 
 
 replay_command.__doc__ = command_help(
