@@ -63,10 +63,11 @@ def load_markers_config(
             base, ignored = from_thesis_vision_params(read_opencv_yaml(params))
         except VisionError as exc:
             raise ConfigError(f"{params}: {exc}") from None
-        if "camera_file" in base and not (params.parent / base["camera_file"]).is_file():
+        camera_file = params.parent / str(base.get("camera_file", ""))
+        if "camera_file" in base and not camera_file.is_file():
             del base["camera_file"]  # the thesis's relative path points into its own tree
         elif "camera_file" in base:
-            base["camera_file"] = str(params.parent / base["camera_file"])
+            base["camera_file"] = str(camera_file)
         return load_config(MarkersConfig, None, overrides, base=base), ignored
     return load_config(MarkersConfig, params, overrides), []
 

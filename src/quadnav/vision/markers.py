@@ -85,7 +85,7 @@ def custom_dictionary(
     return cv2.aruco.Dictionary(byte_list, marker_size, corr)
 
 
-def detector_parameters(values: Mapping[str, Any] | None = None) -> tuple[Any, list[str]]:
+def detector_parameters(values: Mapping[str, object] | None = None) -> tuple[Any, list[str]]:
     """``cv2.aruco.DetectorParameters`` from a mapping as in the thesis's ``detector_params.yml``.
     Returns the parameters and the keys this OpenCV does not know (ignored, for a warning)."""
     params = cv2.aruco.DetectorParameters()
@@ -96,6 +96,8 @@ def detector_parameters(values: Mapping[str, Any] | None = None) -> tuple[Any, l
             continue
         current = getattr(params, key)
         try:
+            if not isinstance(value, int | float | str):  # a matrix, a section, nothing
+                raise TypeError("not a number")
             if isinstance(current, bool):
                 setattr(params, key, bool(value))
             elif isinstance(current, int):
