@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from contextlib import nullcontext
 from pathlib import Path
 from typing import Annotated, Any, Literal
@@ -10,7 +9,7 @@ from typing import Annotated, Any, Literal
 import typer
 from rich.table import Table
 
-from quadnav.cli.common import command_help, console, handle_errors, progress_bar
+from quadnav.cli.common import CommandParams, command_help, console, handle_errors, progress_bar
 from quadnav.errors import EvalError
 from quadnav.eval.evaluate import EvalOptions, EvalRun, run_eval
 from quadnav.eval.runs import compare_runs, format_table
@@ -106,7 +105,7 @@ def eval_command(
     _print_results(result)
 
 
-def _options_of(p: Mapping[str, object]) -> EvalOptions:
+def _options_of(p: CommandParams) -> EvalOptions:
     """The validated options of the command's parameters (named as the function names them)."""
     return _options(
         ref_format=p["ref_format"],
@@ -126,7 +125,7 @@ def _options_of(p: Mapping[str, object]) -> EvalOptions:
     )
 
 
-def check_example(params: Mapping[str, object]) -> None:
+def check_example(params: CommandParams) -> None:
     """Validate an example's options as the command would, without reading the files."""
     if not params["table"]:
         _options_of(params)

@@ -5,12 +5,22 @@ frames with a pose."""
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated
 
 import typer
 from rich.table import Table
 
-from quadnav.cli.common import command_help, console, err_console, handle_errors, progress_bar
+from quadnav.cli.common import (
+    CommandParams,
+    command_help,
+    console,
+    err_console,
+    handle_errors,
+    optional_param,
+    param,
+    progress_bar,
+    strings_param,
+)
 from quadnav.cli.planar import OutOpt, SetOpt
 from quadnav.errors import IoError
 from quadnav.experiments.markers_run import MarkersStats, load_markers_config, run_markers
@@ -93,11 +103,12 @@ def _resolve(mavlink: str | None, allow_remote: bool, set_: list[str] | None, ca
     return load_markers_config(params, overrides)
 
 
-def check_example(p: dict[str, Any]) -> None:
+def check_example(p: CommandParams) -> None:
     """Validate an example's options and configuration as the command would, reading no frame."""
-    _resolve(
-        p["mavlink"], p["allow_remote"], p["set_"], p["camera"], p["fps"], p["show"], p["params"]
-    )
+    _resolve(optional_param(p, "mavlink", str), param(p, "allow_remote", bool),
+             strings_param(p, "set_"), optional_param(p, "camera", Path),
+             optional_param(p, "fps", float), param(p, "show", bool),
+             optional_param(p, "params", Path))  # fmt: skip
 
 
 #: The examples of ``quadnav markers --help`` (each parsed and validated by the tests, from the

@@ -4,12 +4,20 @@ estimate and (SITL logs) the simulator's ground truth."""
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated
 
 import typer
 from rich.table import Table
 
-from quadnav.cli.common import command_help, console, err_console, handle_errors, progress_bar
+from quadnav.cli.common import (
+    CommandParams,
+    command_help,
+    console,
+    err_console,
+    handle_errors,
+    progress_bar,
+    strings_param,
+)
 from quadnav.cli.planar import OutOpt, SetOpt
 from quadnav.experiments.replay import config_from_px4
 from quadnav.experiments.replay_run import replay_cell, replay_log, replay_overrides
@@ -17,9 +25,9 @@ from quadnav.experiments.replay_run import replay_cell, replay_log, replay_overr
 __all__ = ["EXAMPLES", "check_example", "replay_command"]
 
 
-def check_example(params: dict[str, Any]) -> None:
+def check_example(params: CommandParams) -> None:
     """Validate an example's --set keys and values (on EKF2's defaults, no log read)."""
-    config_from_px4({}, replay_overrides(list(params["set_"] or [])))
+    config_from_px4({}, replay_overrides(strings_param(params, "set_")))
 
 
 #: The examples of ``quadnav replay --help`` (each parsed and validated by the tests).
