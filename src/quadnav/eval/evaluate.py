@@ -305,8 +305,10 @@ def _gravity_axis(ref: Trajectory, opts: EvalOptions) -> tuple[GravityAxis, tupl
 
 @dataclass(frozen=True, slots=True)
 class EvalRun:
+    """The run folder of ``quadnav eval``, each estimate's result, and the notes it printed."""
+
     run_dir: Path
-    results: list[EstimateResult]
+    results: tuple[EstimateResult, ...]
     notes: tuple[str, ...] = ()
 
 
@@ -375,7 +377,7 @@ def run_eval(
             ReportSection(heading="Configuration", code=(run_dir / "config.yaml").read_text()),
         ],
     )
-    return EvalRun(run_dir=run_dir, results=results, notes=notes)
+    return EvalRun(run_dir=run_dir, results=tuple(results), notes=notes)
 
 
 def _write_plots(run_dir: Path, ref: Trajectory, results: list[EstimateResult]) -> list[Path]:
