@@ -72,6 +72,9 @@ def load_markers_config(
     return load_config(MarkersConfig, params, overrides), []
 
 
+#: Called after each frame with (frames done, frames in all or 0 when unknown, a short text).
+Progress = Callable[[int, int, str], None]
+
 _COV_INDEX = np.triu_indices(6)
 _COV_NAMES = ["x", "y", "z", "rx", "ry", "rz"]
 POSE_COLUMNS = [
@@ -293,7 +296,7 @@ class _Processed:
 
 
 def _process(cfg: MarkersConfig, frames: FrameSource, camera: PinholeCamera, det_params: Any,
-             overlay: _Overlay, companion: _Companion | None, progress: Any,
+             overlay: _Overlay, companion: _Companion | None, progress: Progress | None,
              poses_csv: CsvAppender) -> _Processed:  # fmt: skip
     """Every frame through the pipeline, the overlay and the link; each pipeline result is a
     row of ``poses_csv`` at once (flushed: a run stopped half way keeps what it made)."""
@@ -346,7 +349,7 @@ def run_markers(
     source: str,
     out: Path,
     *,
-    progress: Any = None,
+    progress: Progress | None = None,
     mavlink: str | None = None,
     allow_remote: bool = False,
     setpoints: Path | None = None,
