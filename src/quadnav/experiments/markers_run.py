@@ -139,7 +139,7 @@ class _Overlay:
     """Where the drawn frames go: the overlay video, a window, PNG files."""
 
     def __init__(self, cfg: MarkersConfig, run_dir: Path, fps: float, camera: PinholeCamera,
-                 det_params: Any, window: FrameWindow | None) -> None:  # fmt: skip
+                 det_params: cv2.aruco.DetectorParameters, window: FrameWindow | None) -> None:  # fmt: skip
         self.video = VideoOut(run_dir / "overlay.mp4", fps) if cfg.video else None
         self.images = ImagesOut(run_dir / "images") if cfg.write_images else None
         self.window, self.camera = window, camera
@@ -295,7 +295,7 @@ class _Processed:
     stopped_by: str | None = None
 
 
-def _process(cfg: MarkersConfig, frames: FrameSource, camera: PinholeCamera, det_params: Any,
+def _process(cfg: MarkersConfig, frames: FrameSource, camera: PinholeCamera, det_params: cv2.aruco.DetectorParameters,
              overlay: _Overlay, companion: _Companion | None, progress: Progress | None,
              poses_csv: CsvAppender) -> _Processed:  # fmt: skip
     """Every frame through the pipeline, the overlay and the link; each pipeline result is a
@@ -507,7 +507,7 @@ def _plots(
     return paths
 
 
-def _check_detector(cfg: MarkersConfig, det_params: Any) -> None:
+def _check_detector(cfg: MarkersConfig, det_params: cv2.aruco.DetectorParameters) -> None:
     """OpenCV checks detector parameters only when it detects: try them on a blank image, so
     a bad value is a one-line error naming the user's key before any work."""
     try:
