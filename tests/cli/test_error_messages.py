@@ -46,6 +46,8 @@ def _files(root: Path) -> dict[str, Path]:
         "cam_2x2": "%YAML:1.0\ncamera_matrix: !!opencv-matrix\n  rows: 2\n  cols: 2\n  dt: d\n"
         "  data: [1, 0, 0, 1]\ndistortion_coefficients: !!opencv-matrix\n  rows: 1\n  cols: 5\n"
         "  dt: d\n  data: [0, 0, 0, 0, 0]\n",
+        "cam_dist_text": "%YAML:1.0\ncamera_matrix: !!opencv-matrix\n  rows: 3\n  cols: 3\n  dt: d\n"
+        "  data: [500, 0, 320, 0, 500, 240, 0, 0, 1]\ndistortion_coefficients: none\n",
         "thesis_bad": "%YAML:1.0\nfps: 30\nmarker_length: abc\n",
         "tum": "0 0 0 0 0 0 0 1\n1 1 1 1 0 0 0 1\n",
     }
@@ -124,6 +126,7 @@ CASES: list[tuple[list[str], str]] = [
     (["markers", "{folder}", "--camera", "{text}"], "text.yml: not an OpenCV YAML/XML file"),
     (["markers", "{folder}", "--camera", "{empty}"], "empty.yml: not an OpenCV YAML/XML file (the file is empty)"),
     (["markers", "{folder}", "--camera", "{cam_2x2}"], "camera_matrix must be a 3x3 matrix"),
+    (["markers", "{folder}", "--camera", "{cam_dist_text}"], "distortion_coefficients must be a matrix, got 'none'"),
     (["markers", "{folder}", "--camera", "{folder}"], "--camera"),
     (["markers", "{folder}", "--params", "{thesis_bad}"], "marker_length"),
     (["markers", "{folder}", "--set", "camera_file={garbage}"], "garbage.bin: not an OpenCV"),

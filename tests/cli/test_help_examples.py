@@ -105,3 +105,19 @@ def test_a_bad_example_would_be_caught() -> None:
         run.check_example({"scenario": None, "set_": ["plan.sqare_m=2"], "seeds": None})
     with pytest.raises(Exception, match="No such option"):
         _command(("run",)).make_context("run", ["--sed", "3"])
+
+
+def test_an_example_checker_reads_each_parameter_as_its_type() -> None:
+    """check_example takes click's parsed parameters: each one is read as the command's type,
+    so a checker handed the wrong shape says which parameter, rather than validating a guess."""
+    from quadnav.cli import link, replay, run
+
+    with pytest.raises(TypeError, match="parameter scenario: 3 is not of type str"):
+        run.check_example({"scenario": 3, "set_": (), "seeds": None})
+    with pytest.raises(
+        TypeError, match=r"parameter set_: 'gps_delay_s=0\.2' is not a list of text"
+    ):
+        replay.check_example({"set_": "gps_delay_s=0.2"})
+    with pytest.raises(TypeError, match="parameter baud: '9600' is not of type int"):
+        link.check_example({"baud": "9600", "rate_hz": 10.0, "fmt": None})
+    run.check_example({"scenario": None, "set_": ("plan.square_m=2",), "seeds": 3})  # a tuple

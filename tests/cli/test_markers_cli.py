@@ -16,6 +16,15 @@ from quadnav.cli.main import app
 from quadnav.geometry.rotations import Pose
 
 runner = CliRunner()
+METRICS_KEYS = ["frames", "frames_processed", "frames_skipped", "frames_with_pose",
+                "fraction_with_pose", "frames_rejected", "jitter_rms_mm", "jitter_median_mm",
+                "detect_ms_median", "pose_ms_median", "rms_px_median", "fps"]  # fmt: skip
+STATS_KEYS = ["source", "time_base", "fps", "frames", "frames_processed", "frames_skipped",
+              "skipped", "frames_with_pose", "fraction_with_pose", "frames_rejected",
+              "rejected_by_reason", "world_marker_id", "jitter_rms_mm", "jitter_median_mm",
+              "detect_ms_median", "pose_ms_median", "rms_px_median", "camera_properties",
+              "calibration", "notes", "images_written", "stopped_by",
+              "unknown_detector_parameters", "run_dir"]  # fmt: skip
 
 
 def test_markers_on_an_image_folder_with_a_corrupt_frame(frames, tmp_path: Path) -> None:
@@ -27,6 +36,11 @@ def test_markers_on_an_image_folder_with_a_corrupt_frame(frames, tmp_path: Path)
     stats = json.loads((run / "stats.json").read_text())
     assert stats["frames"] == 10 and stats["frames_skipped"] == 1 and stats["frames_with_pose"] == 9
     assert stats["world_marker_id"] == 5
+    # The files' layout, key by key, as users' scripts read them (no link: no "mavlink" key).
+    assert list(stats) == STATS_KEYS and stats["run_dir"] == str(run)
+    assert len(stats["skipped"]) == 1 and stats["skipped"][0].startswith("frame 3: ")
+    metrics = json.loads((run / "metrics.json").read_text())
+    assert list(metrics) == ["kind", *METRICS_KEYS]
     rows = list(csv.DictReader((run / "poses.csv").open()))
     assert [int(r["frame"]) for r in rows] == [0, 1, 2, 4, 5, 6, 7, 8, 9]
     for r in rows:
@@ -110,6 +124,14 @@ def test_markers_as_companion_sends_vision_estimates_and_setpoints(frames, tmp_p
         and max(p.y for p in sp) == pytest.approx(1.0)
     )
     assert "HEARTBEAT" in got
+    # stats.json ends with what the link sent: one estimate per pose, one setpoint per frame
+    stats = json.loads((next(tmp_path.glob("*_markers")) / "stats.json").read_text())
+    assert list(stats) == [*STATS_KEYS, "mavlink"]
+    assert list(stats["mavlink"]) == ["url", "sent", "received", "bad_packets"]
+    sent = stats["mavlink"]["sent"]
+    assert sent["VISION_POSITION_ESTIMATE"] == 9 and sent["SET_POSITION_TARGET_LOCAL_NED"] == 9
+    assert stats["mavlink"]["url"] == f"udpout:127.0.0.1:{port}"
+    assert "MAVLink messages sent" in res.output
 
 
 def test_marker_map_from_yaml_places_the_vehicle_in_the_world(frames, tmp_path: Path) -> None:

@@ -265,19 +265,19 @@ def test_a_live_camera_is_given_the_thesis_settings(frames, tmp_path: Path) -> N
     thesis_keys = {"fps", "frame_width", "frame_height", "exposure_time", "open_window", "show_rejected", "write_images"}  # fmt: skip
     assert not thesis_keys & set(ignored), ignored
     stats = run_markers(cfg, "0", tmp_path / "out", open_camera=lambda index: camera)
-    props = {p["name"]: p for p in stats["camera_properties"]}
-    assert props["frame_width_px"]["accepted"] and props["frame_height_px"]["got"] == 480
-    assert props["fps"]["requested"] == 40 and props["fps"]["got"] == 30 and not props["fps"]["accepted"]  # fmt: skip
-    assert props["auto_exposure"]["got"] == 1 and props["auto_exposure"]["accepted"]  # manual
-    assert props["exposure_time_100us"]["requested"] == 40 and not props["exposure_time_100us"]["accepted"]  # fmt: skip
+    props = {p.name: p for p in stats.camera_properties}
+    assert props["frame_width_px"].accepted and props["frame_height_px"].got == 480
+    assert props["fps"].requested == 40 and props["fps"].got == 30 and not props["fps"].accepted
+    assert props["auto_exposure"].got == 1 and props["auto_exposure"].accepted  # manual
+    assert props["exposure_time_100us"].requested == 40 and not props["exposure_time_100us"].accepted  # fmt: skip
     first_read = camera.calls.index(("read",))
     assert all(c[0] == "set" for c in camera.calls[:first_read]) and len(camera.calls[:first_read]) == 5  # fmt: skip
-    assert stats["frames"] == stats["frames_with_pose"] == 5 and camera.released
-    assert stats["time_base"].startswith("arrival time")
-    run = Path(stats["run_dir"])
-    assert stats["images_written"] == 5 and len(list((run / "images").glob("frame_*.png"))) == 5
+    assert stats.frames == stats.frames_with_pose == 5 and camera.released
+    assert stats.time_base.startswith("arrival time")
+    run = stats.run_dir
+    assert stats.images_written == 5 and len(list((run / "images").glob("frame_*.png"))) == 5
     assert np.all(np.diff(_t_ns(run)) > 0)
-    assert "camera 0 did not take fps=40 (it reports 30)" in stats["notes"]
+    assert "camera 0 did not take fps=40 (it reports 30)" in stats.notes
 
 
 def test_show_without_a_display_is_one_line(frames, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:  # fmt: skip
@@ -349,8 +349,8 @@ def test_ctrl_c_ends_a_live_run_with_its_results_written(frames, tmp_path: Path)
     camera.props[cv2.CAP_PROP_FRAME_WIDTH], camera.props[cv2.CAP_PROP_FRAME_HEIGHT] = 640.0, 480.0
     cfg, _ = load_markers_config(None, [f"camera_file={cal}", "mount_rpy_deg=[0,0,0]"])
     stats = run_markers(cfg, "0", tmp_path, open_camera=lambda index: camera)
-    assert stats["stopped_by"] == "interrupt (Ctrl-C)" and stats["frames_with_pose"] == 4
-    run = Path(stats["run_dir"])
+    assert stats.stopped_by == "interrupt (Ctrl-C)" and stats.frames_with_pose == 4
+    run = stats.run_dir
     assert len(_t_ns(run)) == 4 and (run / "metrics.json").is_file()
     assert (run / "overlay.mp4").stat().st_size > 1000
     assert not [c for c in camera.calls if c[0] == "set"]  # nothing asked: the driver's settings

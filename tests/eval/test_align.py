@@ -6,6 +6,7 @@ from scipy.spatial.transform import Rotation
 
 from quadnav.errors import EvalError
 from quadnav.eval import align
+from quadnav.eval.align import AlignMethod, GravityAxis
 from quadnav.geometry import Trajectory, geodesic_angle_rad
 
 
@@ -20,7 +21,7 @@ def random_walk(rng: np.random.Generator, n: int = 400) -> Trajectory:
 
 @pytest.mark.parametrize("seed", range(5))
 @pytest.mark.parametrize("method", ["se3", "sim3", "4dof"])
-def test_alignment_recovers_a_known_transform(method: str, seed: int) -> None:
+def test_alignment_recovers_a_known_transform(method: AlignMethod, seed: int) -> None:
     rng = np.random.default_rng(seed)
     ref = random_walk(rng)
     if method == "4dof":
@@ -32,7 +33,7 @@ def test_alignment_recovers_a_known_transform(method: str, seed: int) -> None:
     # est = inverse similarity of ref, plus 1 cm noise: aligning it must give back (R, t, s).
     p_est = R_true.inv().apply(ref.p_W_B - t_true) / s_true + rng.normal(0, 0.01, ref.p_W_B.shape)
     est = Trajectory(t_ns=ref.t_ns, p_W_B=p_est, q_W_B_xyzw=(R_true.inv() * ref.R_W_B).as_quat())
-    aligned, a = align(ref, est, method)  # type: ignore[arg-type]
+    aligned, a = align(ref, est, method)
     assert float(geodesic_angle_rad(a.R, R_true)) < 1e-3
     np.testing.assert_allclose(a.t, t_true, atol=0.05 * s_true)
     assert a.s == pytest.approx(s_true, rel=1e-3)
@@ -75,13 +76,13 @@ def test_degenerate_inputs() -> None:
 
 
 @pytest.mark.parametrize("axis", ["x", "y", "z"])
-def test_4dof_rotates_about_the_gravity_axis(axis: str) -> None:
+def test_4dof_rotates_about_the_gravity_axis(axis: GravityAxis) -> None:
     rng = np.random.default_rng(4)
     ref = random_walk(rng)
     R_true = Rotation.from_euler(axis, 0.7)
     t_true = np.array([3.0, -2.0, 1.0])
     est = ref.transformed(R_true.inv(), -R_true.inv().apply(t_true))
-    aligned, a = align(ref, est, "4dof", gravity_axis=axis)  # type: ignore[arg-type]
+    aligned, a = align(ref, est, "4dof", gravity_axis=axis)
     assert float(geodesic_angle_rad(a.R, R_true)) < 1e-9
     np.testing.assert_allclose(aligned.p_W_B, ref.p_W_B, atol=1e-9)
     if axis != "z":  # about z (the old behaviour) the yaw of a KITTI-like y-vertical is lost

@@ -94,10 +94,10 @@ def test_rpe_matches_evo(case: Any, request: pytest.FixtureRequest) -> None:
     data, opts, relation, rmse, mean, max_ = case
     ref, est = request.getfixturevalue(data)
     res = evaluate_pair(ref, est, EvalOptions(plots=False, **opts))
-    stats = res.metrics["rpe_trans_m" if relation == "trans" else "rpe_rot_deg"]
+    stats = res.metrics.rpe_trans_m if relation == "trans" else res.metrics.rpe_rot_deg
     # KITTI to 1e-6 relative (3e-7 seen): evo keeps KITTI's 9-digit rotation matrices as read,
     # quadnav projects them onto SO(3); the pairs are the same. TUM agrees to round-off.
     rel = 1e-6 if data == "kitti" else 1e-12
-    assert stats["rmse"] == pytest.approx(rmse, rel=rel)
-    assert stats["mean"] == pytest.approx(mean, rel=rel)
-    assert stats["max"] == pytest.approx(max_, rel=rel)
+    assert stats.rmse == pytest.approx(rmse, rel=rel)
+    assert stats.mean == pytest.approx(mean, rel=rel)
+    assert stats.max == pytest.approx(max_, rel=rel)

@@ -11,11 +11,11 @@ import pytest
 from quadnav.errors import IoError
 from quadnav.eval.runs import run_rows
 from quadnav.geometry.trajectory import Trajectory
-from quadnav.io.run_folder import create_run_folder, finish_run_folder, write_json
+from quadnav.io.run_folder import RunStatus, create_run_folder, finish_run_folder, write_json
 from quadnav.io.trajectory_io import read_trajectory, write_tum
 
 
-def _folder(root: Path, status: str) -> Path:
+def _folder(root: Path, status: RunStatus) -> Path:
     d = create_run_folder(root, status)
     t = Trajectory(
         t_ns=np.arange(5, dtype=np.int64) * 10**8,
@@ -24,12 +24,12 @@ def _folder(root: Path, status: str) -> Path:
     )
     write_tum(d / "handled" / "output.tum", t)
     write_json(d / "metrics.json", {"kind": "planar", "table": [{"experiment": "x", "rmse": 1.0}]})
-    finish_run_folder(d, status)  # type: ignore[arg-type]
+    finish_run_folder(d, status)
     return d
 
 
 @pytest.mark.parametrize("status", ["interrupted", "failed", "running"])
-def test_files_of_an_incomplete_run_are_refused(tmp_path: Path, status: str) -> None:
+def test_files_of_an_incomplete_run_are_refused(tmp_path: Path, status: RunStatus) -> None:
     d = _folder(tmp_path, status)
     with pytest.raises(IoError, match=f"marked '{status}'"):
         read_trajectory(d / "handled" / "output.tum")

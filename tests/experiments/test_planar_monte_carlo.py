@@ -128,10 +128,9 @@ def test_eval_of_the_run_csvs_agrees_with_the_study(study: PlanarStudy) -> None:
     truth = read_trajectory(d / "truth.csv")
     seed0 = study.per_seed["handled"][0]
     out = evaluate_pair(truth, read_trajectory(d / "output.csv"), EvalOptions())
-    assert out.metrics["ape_trans_m"]["rmse"] == pytest.approx(seed0["rmse_output_m"], rel=1e-3)
+    assert out.metrics.ape_trans_m.rmse == pytest.approx(seed0["rmse_output_m"], rel=1e-3)
     delayed = evaluate_pair(truth, read_trajectory(d / "delayed.csv"), EvalOptions())
     # delayed.csv also holds the initial state at t0, which the study leaves out.
-    assert delayed.metrics["ape_trans_m"]["rmse"] == pytest.approx(
-        seed0["rmse_delayed_m"], rel=0.05
-    )
-    assert 0.5 < delayed.metrics["nees_pos"]["mean"] < 5.0  # 2 position axes carry variance
+    assert delayed.metrics.ape_trans_m.rmse == pytest.approx(seed0["rmse_delayed_m"], rel=0.05)
+    nees = delayed.metrics.nees_pos
+    assert nees is not None and 0.5 < nees.mean < 5.0  # 2 position axes carry variance

@@ -13,6 +13,7 @@ from typer.testing import CliRunner
 from quadnav.cli.main import app
 from quadnav.errors import IoError
 from quadnav.experiments.replay import ReplayResult, config_from_px4, replay
+from quadnav.experiments.replay_compare import Comparison
 from quadnav.experiments.replay_run import replay_log
 from quadnav.geometry.trajectory import Trajectory
 from quadnav.io.ulog_sensors import read_ulog_sensors
@@ -39,11 +40,11 @@ def test_px4_tuning_is_read_from_the_log() -> None:
 @needs_data
 def test_replay_of_a_flight_follows_px4(tmp_path: Path) -> None:
     m = replay_log(EVENTS, [], tmp_path)
-    d = m["quadnav_vs_px4"]
-    assert d["horizontal_rms_m"] < 0.5 and d["vertical_rms_m"] < 0.3
-    assert d["attitude_rms_deg"] < 2.0
-    assert m["counts"]["gps"]["fused"] > 300 and m["counts"]["baro"]["fused"] > 500
-    run = Path(m["run_dir"])
+    d = m.pairs["quadnav_vs_px4"]
+    assert d.horizontal_rms_m < 0.5 and d.vertical_rms_m < 0.3
+    assert d.attitude_rms_deg < 2.0
+    assert m.counts["gps"]["fused"] > 300 and m.counts["baro"]["fused"] > 500
+    run = m.run_dir
     for name in ("quadnav.tum", "px4.tum", "metrics.json", "report.html", "plots/innovations.png"):
         assert (run / name).is_file(), name
 
@@ -51,14 +52,14 @@ def test_replay_of_a_flight_follows_px4(tmp_path: Path) -> None:
 @needs_data
 def test_replay_against_sitl_ground_truth(tmp_path: Path) -> None:
     m = replay_log(SITL, [], tmp_path)
-    ours, px4 = m["quadnav_vs_truth"], m["px4_vs_truth"]
+    ours, px4 = m.pairs["quadnav_vs_truth"], m.pairs["px4_vs_truth"]
     # PX4 never called its horizontal position valid here: ours is judged against truth alone
-    assert m["quadnav_vs_truth_everywhere"]["horizontal_rms_m"] < 0.05
-    assert ours["tilt_rms_deg"] <= 1.2 * px4["tilt_rms_deg"] + 0.05
-    assert ours["yaw_rms_deg"] <= 1.2 * px4["yaw_rms_deg"] + 0.05
+    assert m.pairs["quadnav_vs_truth_everywhere"].horizontal_rms_m < 0.05
+    assert ours.tilt_rms_deg <= 1.2 * px4.tilt_rms_deg + 0.05
+    assert ours.yaw_rms_deg <= 1.2 * px4.yaw_rms_deg + 0.05
     # vertical: the barometer's offset is a bias state (PX4's BiasEstimator), so the start
     # height is the origin and the barometer's wander goes into the bias (was 1.9 cm, 1.9x PX4's)
-    assert ours["vertical_rms_m"] <= 1.2 * px4["vertical_rms_m"]
+    assert ours.vertical_rms_m <= 1.2 * px4.vertical_rms_m
 
 
 @needs_data
@@ -209,7 +210,17 @@ def test_metrics_say_what_was_compared(tmp_path: Path) -> None:
     import json
 
     m = replay_log(SITL, [], tmp_path)
-    saved = json.loads((Path(m["run_dir"]) / "metrics.json").read_text())
+    saved = json.loads((m.run_dir / "metrics.json").read_text())
+    # The file's layout, key by key, as users' scripts read it
+    pairs = ["quadnav_vs_px4", "quadnav_vs_truth", "px4_vs_truth", "quadnav_vs_truth_everywhere"]
+    assert list(saved) == ["log", "duration_s", "replay_wall_s", "times_faster_than_flight",
+                           "datum_lla", "counts", "notes", "events", *pairs,
+                           "ratio_quadnav_to_px4_vs_truth", "compared"]  # fmt: skip
+    assert saved["log"] == str(SITL) and saved["duration_s"] == pytest.approx(m.duration_s)
+    assert saved["counts"]["baro"]["fused"] == m.counts["baro"]["fused"] > 0
+    assert list(saved["quadnav_vs_truth"]) == [f.name for f in dataclasses.fields(Comparison)]
+    assert list(saved["ratio_quadnav_to_px4_vs_truth"]) == [
+        "horizontal_rms_m", "vertical_rms_m", "tilt_rms_deg", "yaw_rms_deg", "attitude_rms_deg"]  # fmt: skip
     # PX4 never called its horizontal position valid on this log (it never fused GNSS)
     assert saved["px4_vs_truth"]["horizontal_spans_s"] == []
     assert saved["px4_vs_truth"]["horizontal_rms_m"] is None
@@ -217,7 +228,7 @@ def test_metrics_say_what_was_compared(tmp_path: Path) -> None:
     assert any(q == "horizontal" for q, _, _ in saved["quadnav_vs_px4"]["not_compared_s"])
     assert "xy_valid" in saved["compared"]
     assert "tilt_rms_deg" in saved["ratio_quadnav_to_px4_vs_truth"]
-    assert "Compared spans" in (Path(m["run_dir"]) / "report.html").read_text()
+    assert "Compared spans" in (m.run_dir / "report.html").read_text()
 
 
 def _drifting_fixes(s_gps: dict[str, np.ndarray], radius_m: float) -> dict[str, np.ndarray]:
@@ -264,7 +275,7 @@ def test_gnss_starts_when_px4s_checks_passed(tmp_path: Path) -> None:
     st = next(d for d in u.data_list if d.name == "estimator_gps_status" and d.multi_id == 0)
     t_px4_s = st.data["timestamp"][np.argmax(st.data["checks_passed"] > 0)] * 1e-6
     m = replay_log(SITL, [], tmp_path)
-    run = Path(m["run_dir"])
+    run = m.run_dir
     rows = np.genfromtxt(run / "gnss_checks.csv", delimiter=",", names=True)
     t_ours_s = rows["t_ns"][rows["used"] > 0][0] * 1e-9
     assert abs(t_ours_s - t_px4_s) < 0.3  # PX4 logs a little after the fix's time

@@ -101,3 +101,16 @@ def test_garbage_overrides_never_crash(overrides: list[str]) -> None:
     else:
         assert isinstance(c, PlanarConfig)
         yaml.safe_load(dump_config(c))
+
+
+def test_overrides_leave_the_base_mapping_as_it_was() -> None:
+    """An override of a nested key on a built-in scenario does not leak into the next load
+    (the base's sections were shared, and the first --set wrote into the built-in table)."""
+    from quadnav.experiments.flight import FlightConfig, builtin_config
+
+    base = builtin_config("circle_gusts")
+    gusty = load_config(FlightConfig, None, ["wind.gust_sigma_m_s=5"], base=base)
+    assert gusty.wind.gust_sigma_m_s == 5.0
+    assert base["wind"] == {"gust_sigma_m_s": 2.0, "gust_tau_s": 2.0}
+    again = load_config(FlightConfig, None, [], base=builtin_config("circle_gusts"))
+    assert again.wind.gust_sigma_m_s == 2.0

@@ -82,9 +82,9 @@ def test_a_run_counts_degenerate_frames_and_keeps_its_rows_when_stopped(tmp_path
         charuco={"squares_x": 2, "squares_y": 5, "square_m": 0.07, "marker_m": 0.05, "marker_fallback": False},
     )  # fmt: skip
     stats = run_markers(cfg, str(folder), tmp_path / "runs")
-    assert stats["frames"] == 4 and stats["frames_with_pose"] == 0
-    assert stats["frames_rejected"] == 4 and stats["rejected_by_reason"] == {"collinear": 4}
-    rows = list(csv.DictReader((Path(stats["run_dir"]) / "poses.csv").open()))
+    assert stats.frames == 4 and stats.frames_with_pose == 0
+    assert stats.frames_rejected == 4 and stats.rejected_by_reason == {"collinear": 4}
+    rows = list(csv.DictReader((stats.run_dir / "poses.csv").open()))
     assert [r["reason"] for r in rows] == ["collinear"] * 4
 
     # stopped after the second frame (Ctrl-C in the progress bar): both rows are on disk
@@ -95,7 +95,7 @@ def test_a_run_counts_degenerate_frames_and_keeps_its_rows_when_stopped(tmp_path
     ok_cfg = cfg.model_copy(update={"charuco": cfg.charuco.model_copy(update={"marker_fallback": True})})  # fmt: skip
     # Ctrl-C ends a markers run (a live camera's) with what came so far written and said
     stopped = run_markers(ok_cfg, str(folder), tmp_path / "stopped", progress=stop_after_two)
-    assert stopped["stopped_by"] == "interrupt (Ctrl-C)"
+    assert stopped.stopped_by == "interrupt (Ctrl-C)"
     (run,) = (tmp_path / "stopped").iterdir()
     rows = list(csv.DictReader((run / "poses.csv").open()))
     assert [r["frame"] for r in rows] == ["0", "1"]

@@ -36,7 +36,9 @@ def expected() -> dict:
 
 def tutorial_dictionary() -> cv2.aruco.Dictionary:
     y = read_opencv_yaml(DATA / "tutorial_dict.yml")
-    return custom_dictionary([y[f"marker_{i}"] for i in range(y["nmarkers"])], y["markersize"])
+    n, size = y["nmarkers"], y["markersize"]
+    assert isinstance(n, int) and isinstance(size, int)
+    return custom_dictionary([str(y[f"marker_{i}"]) for i in range(n)], size)
 
 
 def assert_corners(ids, corners, want: dict) -> None:

@@ -164,5 +164,5 @@ def test_the_thesis_diamond_key_through_the_command(tmp_path: Path) -> None:
         cv2.imwrite(str(folder / f"{k:03d}.png"), scene.render(T_W_B @ cfg0.T_B_C()))
     cfg, _ = load_markers_config(params, [f"camera_file={write_camera_yaml(tmp_path / 'cal.yml')}", "video=false"])  # fmt: skip
     stats = run_markers(cfg, str(folder), tmp_path / "runs")
-    rows = list(csv.DictReader((Path(stats["run_dir"]) / "poses.csv").open()))
+    rows = list(csv.DictReader((stats.run_dir / "poses.csv").open()))
     np.testing.assert_allclose([float(r["z_m"]) for r in rows], heights, atol=0.02)

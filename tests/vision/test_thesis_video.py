@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from quadnav.experiments.markers_run import load_markers_config, run_markers
+from quadnav.experiments.markers_run import MarkersStats, load_markers_config, run_markers
 from tests.shared_data import SHARED, needs
 
 DATA = SHARED / "thesis_rig"
@@ -18,7 +18,7 @@ needs_data = needs(DATA)
 @needs_data
 def test_board_pose_in_more_frames_than_opencvs_defaults(tmp_path: Path) -> None:
     common = [f"camera_file={DATA / 'cal.yml'}", "video=false", "max_frames=250"]
-    stats = {}
+    stats: dict[str, MarkersStats] = {}
     for name, extra in (
         ("opencv", ["charuco.marker_fallback=false", "detector={}"]),
         ("quadnav", []),
@@ -27,11 +27,11 @@ def test_board_pose_in_more_frames_than_opencvs_defaults(tmp_path: Path) -> None
         assert cfg.target == "charuco" and cfg.charuco.squares_x == 12 and cfg.dictionary == 2
         assert "mav_connect" in ignored
         stats[name] = run_markers(cfg, str(DATA / "board12_17.mp4"), tmp_path / name)
-    assert stats["opencv"]["frames"] == stats["quadnav"]["frames"] == 250
+    assert stats["opencv"].frames == stats["quadnav"].frames == 250
     # OpenCV's defaults find too few chessboard corners close up; the board's marker corners
     # still give a pose (measured on all 1,086 frames: 20 % -> 71 %)
-    assert stats["quadnav"]["fraction_with_pose"] >= 1.5 * stats["opencv"]["fraction_with_pose"]
-    assert stats["quadnav"]["jitter_median_mm"] < 5.0
+    assert stats["quadnav"].fraction_with_pose >= 1.5 * stats["opencv"].fraction_with_pose
+    assert stats["quadnav"].jitter_median_mm < 5.0
 
 
 @needs_data
@@ -42,9 +42,9 @@ def test_the_board_puts_the_vehicle_above_it_upright(tmp_path: Path) -> None:
     common = [f"camera_file={DATA / 'cal.yml'}", "video=false", "max_frames=300"]
     cfg, _ = load_markers_config(DATA / "vision_params.yml", common)
     stats = run_markers(cfg, str(DATA / "board12_17.mp4"), tmp_path)
-    rows = list(csv.DictReader((Path(stats["run_dir"]) / "poses.csv").open()))
+    rows = list(csv.DictReader((stats.run_dir / "poses.csv").open()))
     posed = [r for r in rows if r["z_m"] != "nan"]
-    assert len(posed) == stats["frames_with_pose"] > 150
+    assert len(posed) == stats.frames_with_pose > 150
     assert np.median([float(r["z_m"]) for r in posed]) > 0.1
     assert np.median([abs(float(r["roll_deg"])) for r in posed]) < 10
     assert np.median([abs(float(r["pitch_deg"])) for r in posed]) < 10

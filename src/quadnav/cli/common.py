@@ -18,12 +18,16 @@ from quadnav.errors import ConfigError, QuadnavError
 from quadnav.io.run_folder import run_guard
 
 __all__ = [
+    "CommandParams",
     "check_range",
     "command_help",
     "console",
     "err_console",
     "handle_errors",
+    "optional_param",
+    "param",
     "progress_bar",
+    "strings_param",
 ]
 
 # Piped output (CI logs, files) gets a width that fits the summary tables, not rich's 80.
@@ -32,6 +36,34 @@ err_console = Console(stderr=True)
 
 P = ParamSpec("P")
 R = TypeVar("R")
+T = TypeVar("T")
+
+#: A command's parameters as click parsed them (``ctx.params``: name -> converted value), which
+#: each command's ``check_example`` validates as the command would.
+CommandParams = Mapping[str, object]
+
+
+def param(params: CommandParams, name: str, kind: type[T]) -> T:
+    """The value click parsed for the parameter ``name``, which must be a ``kind``."""
+    value = params[name]
+    if not isinstance(value, kind):
+        raise TypeError(f"parameter {name}: {value!r} is not of type {kind.__name__}")
+    return value
+
+
+def optional_param(params: CommandParams, name: str, kind: type[T]) -> T | None:
+    """:func:`param` for a parameter that may be unset (None)."""
+    return None if params[name] is None else param(params, name, kind)
+
+
+def strings_param(params: CommandParams, name: str) -> list[str]:
+    """The values of a repeatable option (``--set``; click gives a tuple or a list)."""
+    value = params[name]
+    if value is None:
+        return []
+    if not isinstance(value, list | tuple) or not all(isinstance(v, str) for v in value):
+        raise TypeError(f"parameter {name}: {value!r} is not a list of text")
+    return list(value)
 
 
 def command_help(

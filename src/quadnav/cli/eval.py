@@ -9,7 +9,7 @@ from typing import Annotated, Any, Literal
 import typer
 from rich.table import Table
 
-from quadnav.cli.common import command_help, console, handle_errors, progress_bar
+from quadnav.cli.common import CommandParams, command_help, console, handle_errors, progress_bar
 from quadnav.errors import EvalError
 from quadnav.eval.evaluate import EvalOptions, EvalRun, run_eval
 from quadnav.eval.runs import compare_runs, format_table
@@ -105,7 +105,7 @@ def eval_command(
     _print_results(result)
 
 
-def _options_of(p: dict[str, Any]) -> EvalOptions:
+def _options_of(p: CommandParams) -> EvalOptions:
     """The validated options of the command's parameters (named as the function names them)."""
     return _options(
         ref_format=p["ref_format"],
@@ -125,7 +125,7 @@ def _options_of(p: dict[str, Any]) -> EvalOptions:
     )
 
 
-def check_example(params: dict[str, Any]) -> None:
+def check_example(params: CommandParams) -> None:
     """Validate an example's options as the command would, without reading the files."""
     if not params["table"]:
         _options_of(params)
@@ -162,8 +162,8 @@ def _print_results(result: EvalRun) -> None:
         t.add_column("metric")
         for col in cols:
             t.add_column(col, justify="right")
-        for key, stats in res.metrics.items():
-            t.add_row(key, *(f"{stats[c]:.6g}" for c in cols))
+        for key, stats in res.metrics.named():
+            t.add_row(key, *(f"{getattr(stats, c):.6g}" for c in cols))
         console.print(t)
     console.print(str(result.run_dir), soft_wrap=True, highlight=False)
 

@@ -6,11 +6,20 @@ from __future__ import annotations
 import os
 import time
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated
 
 import typer
 
-from quadnav.cli.common import check_range, command_help, console, handle_errors, progress_bar
+from quadnav.cli.common import (
+    CommandParams,
+    check_range,
+    command_help,
+    console,
+    handle_errors,
+    optional_param,
+    param,
+    progress_bar,
+)
 from quadnav.errors import ConfigError, IoError
 from quadnav.io.serial_frame import encode
 from quadnav.io.trajectory_io import FORMATS, read_trajectory
@@ -43,9 +52,13 @@ def _check_options(baud: int, rate_hz: float, fmt: str | None) -> None:
         raise ConfigError(f"--format must be one of {', '.join(FORMATS)}, got {fmt!r}")
 
 
-def check_example(params: dict[str, Any]) -> None:
+def check_example(params: CommandParams) -> None:
     """Validate an example's options as the command would, without opening the port."""
-    _check_options(params["baud"], params["rate_hz"], params["fmt"])
+    _check_options(
+        param(params, "baud", int),
+        param(params, "rate_hz", float),
+        optional_param(params, "fmt", str),
+    )
 
 
 #: The examples of ``quadnav link serial --help`` (each parsed and validated by the tests).

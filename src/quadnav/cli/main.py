@@ -12,10 +12,14 @@ import importlib
 import importlib.util
 import sys
 from collections.abc import Iterator, MutableMapping
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import typer
 from typer.core import TyperGroup
+
+if TYPE_CHECKING:  # typer's own click (typer.main.get_command returns these)
+    from typer._click.core import Command, Context
+    from typer._click.formatting import HelpFormatter
 
 __all__ = ["COMMANDS", "app", "main"]
 
@@ -52,7 +56,7 @@ def _root(
     """GPS-denied quadrotor navigation: simulate, estimate with delayed measurements, evaluate."""
 
 
-def load_command(name: str) -> Any:
+def load_command(name: str) -> Command:
     """The click command of ``name``, importing its module."""
     module, attr = COMMANDS[name]
     obj = getattr(importlib.import_module(f"quadnav.cli.{module}"), attr)
@@ -118,20 +122,20 @@ def _help_in_source(tree: ast.Module, attr: str) -> str | None:
     return None
 
 
-class _Commands(MutableMapping[str, Any]):
+class _Commands(MutableMapping[str, "Command"]):
     """The commands of the group, each loaded on first use."""
 
     def __init__(self) -> None:
-        self._loaded: dict[str, Any] = {}
+        self._loaded: dict[str, Command] = {}
 
-    def __getitem__(self, name: str) -> Any:
+    def __getitem__(self, name: str) -> Command:
         if name not in self._loaded:
             if name not in COMMANDS:
                 raise KeyError(name)
             self._loaded[name] = load_command(name)
         return self._loaded[name]
 
-    def __setitem__(self, name: str, cmd: Any) -> None:
+    def __setitem__(self, name: str, cmd: Command) -> None:
         self._loaded[name] = cmd
 
     def __delitem__(self, name: str) -> None:
@@ -149,10 +153,10 @@ class _LazyGroup(TyperGroup):
         super().__init__(**kwargs)
         self.commands = _Commands()
 
-    def list_commands(self, ctx: Any) -> list[str]:
+    def list_commands(self, ctx: Context) -> list[str]:
         return list(self.commands)  # the names only: TyperGroup's own loads every command
 
-    def format_commands(self, ctx: Any, formatter: Any) -> None:
+    def format_commands(self, ctx: Context, formatter: HelpFormatter) -> None:
         """The command list from each command's source, importing none of them."""
         with formatter.section("Commands"):
             formatter.write_dl([(name, short_help(name)) for name in self.list_commands(ctx)])

@@ -5,15 +5,25 @@ frames with a pose."""
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated
 
 import typer
 from rich.table import Table
 
-from quadnav.cli.common import command_help, console, err_console, handle_errors, progress_bar
+from quadnav.cli.common import (
+    CommandParams,
+    command_help,
+    console,
+    err_console,
+    handle_errors,
+    optional_param,
+    param,
+    progress_bar,
+    strings_param,
+)
 from quadnav.cli.planar import OutOpt, SetOpt
 from quadnav.errors import IoError
-from quadnav.experiments.markers_run import load_markers_config, run_markers
+from quadnav.experiments.markers_run import MarkersStats, load_markers_config, run_markers
 from quadnav.io.mavlink import check_bind
 from quadnav.vision.config import MarkersConfig
 
@@ -72,7 +82,7 @@ def markers_command(
     with progress_bar("markers") as update:
         stats = run_markers(cfg, source, out, progress=update, mavlink=mavlink,
                             allow_remote=allow_remote, setpoints=setpoints)  # fmt: skip
-    for note in stats["notes"]:
+    for note in stats.notes:
         err_console.print(f"note: {note}", highlight=False, soft_wrap=True)
     _print_summary(stats)
 
@@ -93,11 +103,12 @@ def _resolve(mavlink: str | None, allow_remote: bool, set_: list[str] | None, ca
     return load_markers_config(params, overrides)
 
 
-def check_example(p: dict[str, Any]) -> None:
+def check_example(p: CommandParams) -> None:
     """Validate an example's options and configuration as the command would, reading no frame."""
-    _resolve(
-        p["mavlink"], p["allow_remote"], p["set_"], p["camera"], p["fps"], p["show"], p["params"]
-    )
+    _resolve(optional_param(p, "mavlink", str), param(p, "allow_remote", bool),
+             strings_param(p, "set_"), optional_param(p, "camera", Path),
+             optional_param(p, "fps", float), param(p, "show", bool),
+             optional_param(p, "params", Path))  # fmt: skip
 
 
 #: The examples of ``quadnav markers --help`` (each parsed and validated by the tests, from the
@@ -111,34 +122,34 @@ EXAMPLES = (
 )
 
 
-def _print_summary(stats: dict[str, Any]) -> None:
-    table = Table(title=f"markers: {stats['source']}")
+def _print_summary(stats: MarkersStats) -> None:
+    table = Table(title=f"markers: {stats.source}")
     table.add_column("measure")
     table.add_column("value", justify="right")
-    table.add_row("frames", str(stats["frames"]))
-    table.add_row("time base", stats["time_base"])
-    for p in stats["camera_properties"]:
-        verdict = "accepted" if p["accepted"] else "not accepted"
-        table.add_row(f"camera {p['name']}", f"asked {p['requested']:g}, got {p['got']:g} ({verdict})")  # fmt: skip
-    table.add_row("frames skipped (unreadable, other size)", str(stats["frames_skipped"]))
+    table.add_row("frames", str(stats.frames))
+    table.add_row("time base", stats.time_base)
+    for p in stats.camera_properties:
+        verdict = "accepted" if p.accepted else "not accepted"
+        table.add_row(f"camera {p.name}", f"asked {p.requested:g}, got {p.got:g} ({verdict})")
+    table.add_row("frames skipped (unreadable, other size)", str(stats.frames_skipped))
     table.add_row(
-        "frames with a pose", f"{stats['frames_with_pose']} ({stats['fraction_with_pose']:.1%})"
+        "frames with a pose", f"{stats.frames_with_pose} ({stats.fraction_with_pose:.1%})"
     )
-    table.add_row("frames rejected (degenerate view, bad fit)", str(stats["frames_rejected"]))
+    table.add_row("frames rejected (degenerate view, bad fit)", str(stats.frames_rejected))
     table.add_row(
         "frame-to-frame jitter, RMS / median (mm)",
-        f"{stats['jitter_rms_mm']:.2f} / {stats['jitter_median_mm']:.2f}",
+        f"{stats.jitter_rms_mm:.2f} / {stats.jitter_median_mm:.2f}",
     )
-    table.add_row("detection, median (ms)", f"{stats['detect_ms_median']:.2f}")
-    table.add_row("pose, median (ms)", f"{stats['pose_ms_median']:.2f}")
-    table.add_row("reprojection error, median (px)", f"{stats['rms_px_median']:.3f}")
-    if stats["images_written"]:
-        table.add_row("overlay images written", str(stats["images_written"]))
-    if "mavlink" in stats:
-        sent = stats["mavlink"]["sent"]
+    table.add_row("detection, median (ms)", f"{stats.detect_ms_median:.2f}")
+    table.add_row("pose, median (ms)", f"{stats.pose_ms_median:.2f}")
+    table.add_row("reprojection error, median (px)", f"{stats.rms_px_median:.3f}")
+    if stats.images_written:
+        table.add_row("overlay images written", str(stats.images_written))
+    if stats.mavlink is not None:
+        sent = stats.mavlink.sent
         table.add_row("MAVLink messages sent", ", ".join(f"{k} {v}" for k, v in sent.items()))
     console.print(table)
-    console.print(stats["run_dir"], soft_wrap=True, highlight=False)
+    console.print(str(stats.run_dir), soft_wrap=True, highlight=False)
 
 
 markers_command.__doc__ = command_help(

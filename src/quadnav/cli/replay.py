@@ -4,12 +4,20 @@ estimate and (SITL logs) the simulator's ground truth."""
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated
 
 import typer
 from rich.table import Table
 
-from quadnav.cli.common import command_help, console, err_console, handle_errors, progress_bar
+from quadnav.cli.common import (
+    CommandParams,
+    command_help,
+    console,
+    err_console,
+    handle_errors,
+    progress_bar,
+    strings_param,
+)
 from quadnav.cli.planar import OutOpt, SetOpt
 from quadnav.experiments.replay import config_from_px4
 from quadnav.experiments.replay_run import replay_cell, replay_log, replay_overrides
@@ -17,9 +25,9 @@ from quadnav.experiments.replay_run import replay_cell, replay_log, replay_overr
 __all__ = ["EXAMPLES", "check_example", "replay_command"]
 
 
-def check_example(params: dict[str, Any]) -> None:
+def check_example(params: CommandParams) -> None:
     """Validate an example's --set keys and values (on EKF2's defaults, no log read)."""
-    config_from_px4({}, replay_overrides(list(params["set_"] or [])))
+    config_from_px4({}, replay_overrides(strings_param(params, "set_")))
 
 
 #: The examples of ``quadnav replay --help`` (each parsed and validated by the tests).
@@ -39,22 +47,24 @@ def replay_command(
     with progress_bar("replay") as update:
         m = replay_log(log, list(set_ or []), out, update)
     table = Table(
-        title=f"replay of {log.name}: {m['duration_s']:.1f} s in {m['replay_wall_s']:.2f} s ({m['times_faster_than_flight']:.0f}x)"
+        title=f"replay of {log.name}: {m.duration_s:.1f} s in {m.replay_wall_s:.2f} s ({m.times_faster_than_flight:.0f}x)"
     )
     for c in ("pair", "horizontal RMS (m)", "vertical RMS (m)", "tilt RMS (deg)", "yaw RMS (deg)"):
         table.add_column(c, justify="right" if c != "pair" else "left")
     for k in ("quadnav_vs_px4", "quadnav_vs_truth", "px4_vs_truth"):
-        if k in m:
-            v = m[k]
+        if k in m.pairs:
+            v = m.pairs[k]
             table.add_row(
                 k.replace("_", " "),
-                *(replay_cell(v[c], 3) for c in ("horizontal_rms_m", "vertical_rms_m")),
-                *(replay_cell(v[c], 2) for c in ("tilt_rms_deg", "yaw_rms_deg")),
+                replay_cell(v.horizontal_rms_m, 3),
+                replay_cell(v.vertical_rms_m, 3),
+                replay_cell(v.tilt_rms_deg, 2),
+                replay_cell(v.yaw_rms_deg, 2),
             )
     console.print(table)
-    for n in m["notes"]:
+    for n in m.notes:
         err_console.print(f"note: {n}", highlight=False)
-    console.print(m["run_dir"], soft_wrap=True, highlight=False)
+    console.print(str(m.run_dir), soft_wrap=True, highlight=False)
 
 
 replay_command.__doc__ = command_help(

@@ -4,12 +4,20 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated
 
 import typer
 from rich.table import Table
 
-from quadnav.cli.common import command_help, console, handle_errors, progress_bar
+from quadnav.cli.common import (
+    CommandParams,
+    command_help,
+    console,
+    handle_errors,
+    optional_param,
+    progress_bar,
+    strings_param,
+)
 from quadnav.cli.planar import JobsOpt, OutOpt, SeedsOpt, SetOpt, run_planar_config
 from quadnav.errors import ConfigError
 from quadnav.eval.na import fmt_metric
@@ -39,9 +47,13 @@ def resolve_run_config(
     return load_config(NavScenario, path, overrides)
 
 
-def check_example(params: dict[str, Any]) -> None:
+def check_example(params: CommandParams) -> None:
     """Validate an example's arguments as the command would, without running it."""
-    resolve_run_config(params["scenario"], params["set_"], params["seeds"])
+    resolve_run_config(
+        optional_param(params, "scenario", str),
+        strings_param(params, "set_"),
+        optional_param(params, "seeds", int),
+    )
 
 
 #: The examples of ``quadnav run --help`` (each parsed and validated by the tests).

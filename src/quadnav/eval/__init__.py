@@ -12,6 +12,7 @@ from quadnav.errors import EvalError
 from quadnav.eval.align import Alignment, AlignMethod, align, umeyama, yaw_translation
 from quadnav.eval.associate import associate
 from quadnav.eval.metrics import (
+    ErrorStats,
     PoseRelation,
     RpeUnit,
     ape,
@@ -29,6 +30,7 @@ from quadnav.eval.metrics import (
 
 if TYPE_CHECKING:
     from quadnav.eval.evaluate import (
+        EstimateMetrics,
         EstimateResult,
         EvalOptions,
         EvalRun,
@@ -43,6 +45,8 @@ if TYPE_CHECKING:
 __all__ = [
     "AlignMethod",
     "Alignment",
+    "ErrorStats",
+    "EstimateMetrics",
     "EstimateResult",
     "EvalError",
     "EvalOptions",
@@ -83,6 +87,7 @@ __all__ = [
 # The module of each other name: they load on first use, so ``quadnav eval`` does not import the
 # plots (matplotlib) it does not need.
 _WHERE: dict[str, str] = {
+    "EstimateMetrics": "quadnav.eval.evaluate",
     "EstimateResult": "quadnav.eval.evaluate",
     "EvalOptions": "quadnav.eval.evaluate",
     "EvalRun": "quadnav.eval.evaluate",

@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, fields, replace
 from pathlib import Path
-from typing import Any, Literal, get_args
+from typing import Literal, NotRequired, TypedDict, get_args
 
 import numpy as np
 
@@ -15,10 +15,10 @@ from quadnav.errors import EvalError
 from quadnav.eval.align import Alignment, AlignMethod, GravityAxis, align
 from quadnav.eval.associate import associate
 from quadnav.eval.metrics import (
+    ErrorStats,
     RpeUnit,
     ape,
     ape_matrices,
-    error_stats,
     pose_errors,
     position_nees,
     rpe_matrices,
@@ -31,6 +31,7 @@ from quadnav.io.trajectory_io import TrajectoryFormat, read_trajectory, write_tu
 
 __all__ = [
     "OPTION_NAMES",
+    "EstimateMetrics",
     "EstimateResult",
     "EvalOptions",
     "EvalRun",
@@ -130,6 +131,69 @@ def _number(opts: EvalOptions, name: str, lo: float, hi: float, *, low_open: boo
         )
 
 
+@dataclass(frozen=True, slots=True, kw_only=True)
+class EstimateMetrics:
+    """The error statistics of one estimate, named as ``metrics.json`` names them."""
+
+    ape_trans_m: ErrorStats
+    ape_rot_deg: ErrorStats
+    ape_full: ErrorStats
+    rpe_trans_m: ErrorStats
+    rpe_rot_deg: ErrorStats
+    nees_pos: ErrorStats | None = None  # only for an estimate that carries covariances
+
+    def named(self) -> tuple[tuple[str, ErrorStats], ...]:
+        """Each statistic with its name, in order (NEES only when there is one)."""
+        pairs = ((f.name, getattr(self, f.name)) for f in fields(self))
+        return tuple((name, stats) for name, stats in pairs if stats is not None)
+
+
+# The shapes of ``metrics.json`` (TypedDicts, not dataclasses: the file is the contract that
+# users' scripts read, so its keys, "APE rmse (m)" included, are spelt out once, here).
+SummaryRow = TypedDict(
+    "SummaryRow",
+    {
+        "estimate": str,
+        "matched": int,
+        "align": str,
+        "APE rmse (m)": float,
+        "APE mean (m)": float,
+        "APE max (m)": float,
+        "APE rot rmse (deg)": float,
+        "RPE rmse (m)": float,
+        "RPE rot rmse (deg)": float,
+        "NEES mean": NotRequired[float],
+    },
+)
+
+
+class AlignmentJson(TypedDict):
+    method: str
+    R: list[list[float]]
+    t: list[float]
+    s: float
+    n_used: int
+
+
+class EstimateJson(TypedDict):
+    matched: int
+    alignment: AlignmentJson
+    ape_trans_m: dict[str, float]
+    ape_rot_deg: dict[str, float]
+    ape_full: dict[str, float]
+    rpe_trans_m: dict[str, float]
+    rpe_rot_deg: dict[str, float]
+    nees_pos: NotRequired[dict[str, float]]
+
+
+class EvalMetricsJson(TypedDict):
+    kind: Literal["eval"]
+    reference: str
+    estimates: dict[str, EstimateJson]
+    notes: list[str]
+    table: list[SummaryRow]
+
+
 @dataclass(frozen=True, slots=True)
 class EstimateResult:
     """Everything measured for one estimate against the reference."""
@@ -137,29 +201,51 @@ class EstimateResult:
     name: str
     n_matched: int
     alignment: Alignment
-    metrics: dict[str, dict[str, float]]
+    metrics: EstimateMetrics
     ref: Trajectory
     est_aligned: Trajectory
     ape_trans: np.ndarray
     notes: tuple[str, ...] = ()
 
-    def row(self) -> dict[str, Any]:
+    def row(self) -> SummaryRow:
         """A flat summary row (for tables)."""
         m = self.metrics
-        row: dict[str, Any] = {
+        row: SummaryRow = {
             "estimate": self.name,
             "matched": self.n_matched,
             "align": self.alignment.method,
-            "APE rmse (m)": m["ape_trans_m"]["rmse"],
-            "APE mean (m)": m["ape_trans_m"]["mean"],
-            "APE max (m)": m["ape_trans_m"]["max"],
-            "APE rot rmse (deg)": m["ape_rot_deg"]["rmse"],
-            "RPE rmse (m)": m["rpe_trans_m"]["rmse"],
-            "RPE rot rmse (deg)": m["rpe_rot_deg"]["rmse"],
+            "APE rmse (m)": m.ape_trans_m.rmse,
+            "APE mean (m)": m.ape_trans_m.mean,
+            "APE max (m)": m.ape_trans_m.max,
+            "APE rot rmse (deg)": m.ape_rot_deg.rmse,
+            "RPE rmse (m)": m.rpe_trans_m.rmse,
+            "RPE rot rmse (deg)": m.rpe_rot_deg.rmse,
         }
-        if "nees_pos" in m:
-            row["NEES mean"] = m["nees_pos"]["mean"]
+        if m.nees_pos is not None:
+            row["NEES mean"] = m.nees_pos.mean
         return row
+
+    def as_json(self) -> EstimateJson:
+        """This estimate's entry of ``metrics.json``."""
+        a = self.alignment
+        out: EstimateJson = {
+            "matched": self.n_matched,
+            "alignment": {
+                "method": a.method,
+                "R": a.R.as_matrix().tolist(),
+                "t": np.asarray(a.t, dtype=np.float64).tolist(),
+                "s": float(a.s),
+                "n_used": a.n_used,
+            },
+            "ape_trans_m": self.metrics.ape_trans_m.as_dict(),
+            "ape_rot_deg": self.metrics.ape_rot_deg.as_dict(),
+            "ape_full": self.metrics.ape_full.as_dict(),
+            "rpe_trans_m": self.metrics.rpe_trans_m.as_dict(),
+            "rpe_rot_deg": self.metrics.rpe_rot_deg.as_dict(),
+        }
+        if self.metrics.nees_pos is not None:
+            out["nees_pos"] = self.metrics.nees_pos.as_dict()
+        return out
 
 
 def evaluate_pair(ref: Trajectory, est: Trajectory, opts: EvalOptions) -> EstimateResult:
@@ -184,15 +270,14 @@ def evaluate_pair(ref: Trajectory, est: Trajectory, opts: EvalOptions) -> Estima
         all_pairs=opts.rpe_all_pairs,
         pairs_from=opts.rpe_pairs_from,
     )
-    metrics: dict[str, dict[str, float]] = {
-        "ape_trans_m": error_stats(ape_t),
-        "ape_rot_deg": error_stats(np.degrees(pose_errors(E, "rot"))),
-        "ape_full": error_stats(pose_errors(E, "full")),
-        "rpe_trans_m": error_stats(pose_errors(E_rel, "trans")),
-        "rpe_rot_deg": error_stats(np.degrees(pose_errors(E_rel, "rot"))),
-    }
-    if e_al.cov_p is not None:
-        metrics["nees_pos"] = error_stats(position_nees(r, e_al))
+    metrics = EstimateMetrics(
+        ape_trans_m=ErrorStats.of(ape_t),
+        ape_rot_deg=ErrorStats.of(np.degrees(pose_errors(E, "rot"))),
+        ape_full=ErrorStats.of(pose_errors(E, "full")),
+        rpe_trans_m=ErrorStats.of(pose_errors(E_rel, "trans")),
+        rpe_rot_deg=ErrorStats.of(np.degrees(pose_errors(E_rel, "rot"))),
+        nees_pos=ErrorStats.of(position_nees(r, e_al)) if e_al.cov_p is not None else None,
+    )
     return EstimateResult(
         name=est.name or "estimate",
         n_matched=len(e),
@@ -220,8 +305,10 @@ def _gravity_axis(ref: Trajectory, opts: EvalOptions) -> tuple[GravityAxis, tupl
 
 @dataclass(frozen=True, slots=True)
 class EvalRun:
+    """The run folder of ``quadnav eval``, each estimate's result, and the notes it printed."""
+
     run_dir: Path
-    results: list[EstimateResult]
+    results: tuple[EstimateResult, ...]
     notes: tuple[str, ...] = ()
 
 
@@ -290,7 +377,7 @@ def run_eval(
             ReportSection(heading="Configuration", code=(run_dir / "config.yaml").read_text()),
         ],
     )
-    return EvalRun(run_dir=run_dir, results=results, notes=notes)
+    return EvalRun(run_dir=run_dir, results=tuple(results), notes=notes)
 
 
 def _write_plots(run_dir: Path, ref: Trajectory, results: list[EstimateResult]) -> list[Path]:
@@ -309,31 +396,18 @@ def _write_plots(run_dir: Path, ref: Trajectory, results: list[EstimateResult]) 
 def _metrics_json(
     ref_path: Path,
     results: list[EstimateResult],
-    table: list[dict[str, Any]],
+    table: list[SummaryRow],
     notes: tuple[str, ...],
-) -> dict[str, Any]:
+) -> EvalMetricsJson:
     return {
         "kind": "eval",
         "reference": str(ref_path),
-        "estimates": {
-            res.name: {
-                "matched": res.n_matched,
-                "alignment": {
-                    "method": res.alignment.method,
-                    "R": res.alignment.R.as_matrix(),
-                    "t": res.alignment.t,
-                    "s": res.alignment.s,
-                    "n_used": res.alignment.n_used,
-                },
-                **res.metrics,
-            }
-            for res in results
-        },
+        "estimates": {res.name: res.as_json() for res in results},
         "notes": list(notes),
         "table": table,
     }
 
 
-def _report_table(rows: list[dict[str, Any]], caption: str = "") -> ReportTable:
+def _report_table(rows: Sequence[Mapping[str, object]], caption: str = "") -> ReportTable:
     headers = list(dict.fromkeys(k for row in rows for k in row))
     return ReportTable(caption, headers, [[row.get(h, "") for h in headers] for row in rows])

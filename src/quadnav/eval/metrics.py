@@ -8,6 +8,7 @@ poses after alignment; RPE compares relative motions ``E = (Q_i^-1 Q_j)^-1 (P_i^
 from __future__ import annotations
 
 import math
+from dataclasses import asdict, dataclass
 from typing import Literal
 
 import numpy as np
@@ -17,6 +18,7 @@ from quadnav.errors import EvalError
 from quadnav.geometry.trajectory import Trajectory
 
 __all__ = [
+    "ErrorStats",
     "PoseRelation",
     "RpeUnit",
     "ape",
@@ -38,20 +40,41 @@ PoseRelation = Literal["trans", "rot", "full"]
 RpeUnit = Literal["frames", "seconds", "metres"]
 
 
-def error_stats(errors: FloatArray) -> dict[str, float]:
+@dataclass(frozen=True, slots=True, kw_only=True)
+class ErrorStats:
     """rmse, mean, median, std, min, max and sse of an error array (as evo reports them)."""
-    e = np.asarray(errors, dtype=np.float64)
-    if e.ndim != 1 or len(e) == 0:
-        raise EvalError("statistics need a non-empty 1-D error array")
-    return {
-        "rmse": float(np.sqrt(np.mean(e**2))),
-        "mean": float(np.mean(e)),
-        "median": float(np.median(e)),
-        "std": float(np.std(e)),
-        "min": float(np.min(e)),
-        "max": float(np.max(e)),
-        "sse": float(np.sum(e**2)),
-    }
+
+    rmse: float
+    mean: float
+    median: float
+    std: float
+    min: float
+    max: float
+    sse: float
+
+    @classmethod
+    def of(cls, errors: FloatArray) -> ErrorStats:
+        e = np.asarray(errors, dtype=np.float64)
+        if e.ndim != 1 or len(e) == 0:
+            raise EvalError("statistics need a non-empty 1-D error array")
+        return cls(
+            rmse=float(np.sqrt(np.mean(e**2))),
+            mean=float(np.mean(e)),
+            median=float(np.median(e)),
+            std=float(np.std(e)),
+            min=float(np.min(e)),
+            max=float(np.max(e)),
+            sse=float(np.sum(e**2)),
+        )
+
+    def as_dict(self) -> dict[str, float]:
+        """The statistics by evo's names, in evo's order (the shape ``metrics.json`` keeps)."""
+        return asdict(self)
+
+
+def error_stats(errors: FloatArray) -> dict[str, float]:
+    """:class:`ErrorStats` of an error array, as a mapping by evo's names."""
+    return ErrorStats.of(errors).as_dict()
 
 
 def _rotation_angle(R: FloatArray) -> FloatArray:

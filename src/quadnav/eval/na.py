@@ -37,7 +37,7 @@ def na(reason: str) -> str:
     return _PREFIX + reason
 
 
-def is_na(value: Any) -> bool:
+def is_na(value: object) -> bool:
     return isinstance(value, str) and value.startswith(_PREFIX)
 
 

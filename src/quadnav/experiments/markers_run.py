@@ -7,8 +7,8 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections import Counter
-from collections.abc import Callable
-from dataclasses import dataclass, field
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
@@ -21,6 +21,7 @@ from quadnav.eval.report import ReportSection, ReportTable, write_report
 from quadnav.geometry.camera import PinholeCamera
 from quadnav.io.config import dump_config, load_config
 from quadnav.io.frames import (
+    CaptureProperty,
     CaptureRequest,
     FrameSource,
     FrameWindow,
@@ -42,7 +43,14 @@ from quadnav.vision.markers import (
 from quadnav.vision.overlay import draw_overlay
 from quadnav.vision.pipeline import FramePose, MarkerPipeline
 
-__all__ = ["POSE_COLUMNS", "fit_calibration", "load_markers_config", "run_markers"]
+__all__ = [
+    "POSE_COLUMNS",
+    "MarkersStats",
+    "MavlinkCounts",
+    "fit_calibration",
+    "load_markers_config",
+    "run_markers",
+]
 
 
 def load_markers_config(
@@ -55,13 +63,17 @@ def load_markers_config(
             base, ignored = from_thesis_vision_params(read_opencv_yaml(params))
         except VisionError as exc:
             raise ConfigError(f"{params}: {exc}") from None
-        if "camera_file" in base and not (params.parent / base["camera_file"]).is_file():
+        camera_file = params.parent / str(base.get("camera_file", ""))
+        if "camera_file" in base and not camera_file.is_file():
             del base["camera_file"]  # the thesis's relative path points into its own tree
         elif "camera_file" in base:
-            base["camera_file"] = str(params.parent / base["camera_file"])
+            base["camera_file"] = str(camera_file)
         return load_config(MarkersConfig, None, overrides, base=base), ignored
     return load_config(MarkersConfig, params, overrides), []
 
+
+#: Called after each frame with (frames done, frames in all or 0 when unknown, a short text).
+Progress = Callable[[int, int, str], None]
 
 _COV_INDEX = np.triu_indices(6)
 _COV_NAMES = ["x", "y", "z", "rx", "ry", "rz"]
@@ -127,7 +139,7 @@ class _Overlay:
     """Where the drawn frames go: the overlay video, a window, PNG files."""
 
     def __init__(self, cfg: MarkersConfig, run_dir: Path, fps: float, camera: PinholeCamera,
-                 det_params: Any, window: FrameWindow | None) -> None:  # fmt: skip
+                 det_params: cv2.aruco.DetectorParameters, window: FrameWindow | None) -> None:  # fmt: skip
         self.video = VideoOut(run_dir / "overlay.mp4", fps) if cfg.video else None
         self.images = ImagesOut(run_dir / "images") if cfg.write_images else None
         self.window, self.camera = window, camera
@@ -209,11 +221,68 @@ class _Companion:
             link.send_position_setpoint(self.plan.p_W_B[k], 0.0)
         link.poll()
 
-    def close(self) -> dict[str, Any]:
+    def close(self) -> MavlinkCounts:
         s = self.link.stats
         self.link.close()
-        return {"url": self.url, "sent": dict(s.sent), "received": dict(s.received),
-                "bad_packets": s.bad_packets}  # fmt: skip
+        return MavlinkCounts(url=self.url, sent=dict(s.sent), received=dict(s.received),
+                             bad_packets=s.bad_packets)  # fmt: skip
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class MavlinkCounts:
+    """What the companion link sent and received, by message name."""
+
+    url: str
+    sent: Mapping[str, int]
+    received: Mapping[str, int]
+    bad_packets: int
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class MarkersStats:
+    """What a markers run measured: ``stats.json``; its named numbers are ``metrics.json``."""
+
+    source: str
+    time_base: str
+    fps: float
+    frames: int
+    frames_processed: int
+    frames_skipped: int
+    skipped: tuple[str, ...]  # why, for the first 50
+    frames_with_pose: int
+    fraction_with_pose: float
+    frames_rejected: int
+    rejected_by_reason: Mapping[str, int]
+    world_marker_id: int | None
+    jitter_rms_mm: float
+    jitter_median_mm: float
+    detect_ms_median: float
+    pose_ms_median: float
+    rms_px_median: float
+    camera_properties: tuple[CaptureProperty, ...]
+    calibration: str
+    notes: tuple[str, ...]
+    images_written: int
+    stopped_by: str | None
+    unknown_detector_parameters: tuple[str, ...]
+    run_dir: Path
+    mavlink: MavlinkCounts | None = None  # with --mavlink only
+
+    def as_json(self) -> dict[str, object]:
+        """``stats.json``: every field in order (``mavlink`` only with a link)."""
+        out: dict[str, object] = {f.name: getattr(self, f.name) for f in fields(self)}
+        out["camera_properties"] = [dataclasses.asdict(p) for p in self.camera_properties]
+        out["run_dir"] = str(self.run_dir)
+        if self.mavlink is None:
+            del out["mavlink"]
+        else:
+            out["mavlink"] = dataclasses.asdict(self.mavlink)
+        return out
+
+    def metrics_json(self) -> dict[str, object]:
+        """``metrics.json``: the flat named numbers of :data:`METRICS` (NaN written as null),
+        ``kind: markers``."""
+        return {"kind": "markers", **{k: getattr(self, k) for k in METRICS}}
 
 
 @dataclass(slots=True)
@@ -226,8 +295,8 @@ class _Processed:
     stopped_by: str | None = None
 
 
-def _process(cfg: MarkersConfig, frames: FrameSource, camera: PinholeCamera, det_params: Any,
-             overlay: _Overlay, companion: _Companion | None, progress: Any,
+def _process(cfg: MarkersConfig, frames: FrameSource, camera: PinholeCamera, det_params: cv2.aruco.DetectorParameters,
+             overlay: _Overlay, companion: _Companion | None, progress: Progress | None,
              poses_csv: CsvAppender) -> _Processed:  # fmt: skip
     """Every frame through the pipeline, the overlay and the link; each pipeline result is a
     row of ``poses_csv`` at once (flushed: a run stopped half way keeps what it made)."""
@@ -280,12 +349,12 @@ def run_markers(
     source: str,
     out: Path,
     *,
-    progress: Any = None,
+    progress: Progress | None = None,
     mavlink: str | None = None,
     allow_remote: bool = False,
     setpoints: Path | None = None,
     open_camera: Callable[[int], Any] = cv2.VideoCapture,
-) -> dict[str, Any]:
+) -> MarkersStats:
     """Process every frame of ``source``; write the run folder; return the statistics. With
     ``mavlink``, be thesis 000's companion computer (see :class:`_Companion`). A live camera
     is opened by ``open_camera`` and asked for the configured fps, size and exposure."""
@@ -295,8 +364,7 @@ def run_markers(
         )
     window = FrameWindow("quadnav markers", "show (--show; the thesis's open_window)") if cfg.show else None  # fmt: skip
     camera = read_camera_yaml(cfg.camera_file)
-    values: dict[str, Any] = read_opencv_yaml(cfg.detector_file) if cfg.detector_file else {}
-    values.update(cfg.detector)
+    values = {**(read_opencv_yaml(cfg.detector_file) if cfg.detector_file else {}), **cfg.detector}
     det_params, unknown = detector_parameters(values)
     _check_detector(cfg, det_params)
     with quiet_libraries():
@@ -316,18 +384,21 @@ def run_markers(
                                 poses_csv)  # fmt: skip
         finally:
             overlay.close()
-    stats = _statistics(cfg, frames, done, run_dir)
-    stats.update(calibration=cal_note or f"{camera.width}x{camera.height}, as calibrated",
-                 notes=[cal_note] if cal_note else [],
-                 images_written=overlay.images.frames if overlay.images is not None else 0,
-                 stopped_by=done.stopped_by,
-                 unknown_detector_parameters=unknown, run_dir=str(run_dir))  # fmt: skip
-    stats["notes"] += [f"{frames.description} did not take {p.name}={p.requested:g} (it reports {p.got:g})"
-                       for p in frames.properties if not p.accepted]  # fmt: skip
-    if companion is not None:
-        stats["mavlink"] = companion.close()
-    write_json(run_dir / "stats.json", stats)
-    write_json(run_dir / "metrics.json", _metrics(stats))
+    notes = [cal_note] if cal_note else []
+    notes += [f"{frames.description} did not take {p.name}={p.requested:g} (it reports {p.got:g})"
+              for p in frames.properties if not p.accepted]  # fmt: skip
+    stats = _statistics(
+        cfg, frames, done,
+        calibration=cal_note or f"{camera.width}x{camera.height}, as calibrated",
+        notes=tuple(notes),
+        images_written=overlay.images.frames if overlay.images is not None else 0,
+        stopped_by=done.stopped_by,
+        unknown_detector_parameters=tuple(unknown),
+        run_dir=run_dir,
+        mavlink=companion.close() if companion is not None else None,
+    )  # fmt: skip
+    write_json(run_dir / "stats.json", stats.as_json())
+    write_json(run_dir / "metrics.json", stats.metrics_json())
     _write_report(run_dir, cfg, frames, done, stats)
     return stats
 
@@ -349,28 +420,33 @@ def _median(values: Any) -> float:
     return float(np.median(values)) if len(values) else math.nan
 
 
-def _statistics(cfg: MarkersConfig, frames: FrameSource, done: _Processed, run_dir: Path) -> dict[str, Any]:  # fmt: skip
+def _statistics(cfg: MarkersConfig, frames: FrameSource, done: _Processed, *, calibration: str,
+                notes: tuple[str, ...], images_written: int, stopped_by: str | None,
+                unknown_detector_parameters: tuple[str, ...], run_dir: Path,
+                mavlink: MavlinkCounts | None) -> MarkersStats:  # fmt: skip
     nan3 = np.full(3, np.nan)
     pos = np.array([r.pose.T_W_B.p_A_B if r.pose is not None else nan3
                     for r in done.results]).reshape(-1, 3)  # fmt: skip
     steps = _jitter(pos, done.frame_idx)
     ok = [r for r in done.results if r.pose is not None]
     n_total = done.n_total
-    return {
-        "source": frames.description, "time_base": _time_base(cfg, frames), "fps": frames.fps,
-        "frames": n_total, "frames_processed": len(done.results),
-        "frames_skipped": len(done.skipped), "skipped": done.skipped[:50],
-        "frames_with_pose": len(ok), "fraction_with_pose": len(ok) / n_total if n_total else 0.0,
-        "frames_rejected": sum(r.pose is None and r.reason != "no_target" for r in done.results),
-        "rejected_by_reason": dict(Counter(r.reason for r in done.results if r.pose is None)),
-        "world_marker_id": done.world_id if cfg.target == "marker" else None,
-        "jitter_rms_mm": float(np.sqrt(np.mean(steps**2)) * 1e3) if len(steps) else math.nan,
-        "jitter_median_mm": _median(steps) * 1e3,
-        "detect_ms_median": _median([r.detect_ms for r in done.results]),
-        "pose_ms_median": _median([r.pose_ms for r in ok]),
-        "rms_px_median": _median([r.rms_px for r in ok]),
-        "camera_properties": [dataclasses.asdict(p) for p in frames.properties],
-    }  # fmt: skip
+    return MarkersStats(
+        source=frames.description, time_base=_time_base(cfg, frames), fps=frames.fps,
+        frames=n_total, frames_processed=len(done.results),
+        frames_skipped=len(done.skipped), skipped=tuple(done.skipped[:50]),
+        frames_with_pose=len(ok), fraction_with_pose=len(ok) / n_total if n_total else 0.0,
+        frames_rejected=sum(r.pose is None and r.reason != "no_target" for r in done.results),
+        rejected_by_reason=dict(Counter(r.reason for r in done.results if r.pose is None)),
+        world_marker_id=done.world_id if cfg.target == "marker" else None,
+        jitter_rms_mm=float(np.sqrt(np.mean(steps**2)) * 1e3) if len(steps) else math.nan,
+        jitter_median_mm=_median(steps) * 1e3,
+        detect_ms_median=_median([r.detect_ms for r in done.results]),
+        pose_ms_median=_median([r.pose_ms for r in ok]),
+        rms_px_median=_median([r.rms_px for r in ok]),
+        camera_properties=frames.properties, calibration=calibration, notes=notes,
+        images_written=images_written, stopped_by=stopped_by,
+        unknown_detector_parameters=unknown_detector_parameters, run_dir=run_dir, mavlink=mavlink,
+    )  # fmt: skip
 
 
 #: The named numbers of a markers run that ``quadnav eval --table`` puts side by side.
@@ -379,12 +455,7 @@ METRICS = ("frames", "frames_processed", "frames_skipped", "frames_with_pose",
            "pose_ms_median", "rms_px_median", "fps")  # fmt: skip
 
 
-def _metrics(stats: dict[str, Any]) -> dict[str, Any]:
-    """metrics.json: a flat mapping of named numbers (NaN written as null), ``kind: markers``."""
-    return {"kind": "markers", **{k: stats[k] for k in METRICS}}
-
-
-def _write_report(run_dir: Path, cfg: MarkersConfig, frames: FrameSource, done: _Processed, stats: dict[str, Any]) -> None:  # fmt: skip
+def _write_report(run_dir: Path, cfg: MarkersConfig, frames: FrameSource, done: _Processed, stats: MarkersStats) -> None:  # fmt: skip
     t = np.array([r.t_ns for r in done.results], dtype=np.int64)
     pos = np.array([r.pose.T_W_B.p_A_B if r.pose is not None else np.full(3, np.nan)
                     for r in done.results]).reshape(-1, 3)  # fmt: skip
@@ -392,9 +463,9 @@ def _write_report(run_dir: Path, cfg: MarkersConfig, frames: FrameSource, done: 
     pose_ms = np.array([r.pose_ms for r in done.results if r.pose is not None])
     images = _plots(run_dir, t, pos, det_ms, pose_ms)
     hidden = ("skipped", "run_dir", "unknown_detector_parameters", "camera_properties", "mavlink", "notes")  # fmt: skip
-    rows = [[k, v] for k, v in stats.items() if k not in hidden]
-    rows += [[f"camera {p['name']}", f"asked {p['requested']:g}, got {p['got']:g}"]
-             for p in stats["camera_properties"]]  # fmt: skip
+    rows = [[k, v] for k, v in stats.as_json().items() if k not in hidden]
+    rows += [[f"camera {p.name}", f"asked {p.requested:g}, got {p.got:g}"]
+             for p in stats.camera_properties]  # fmt: skip
     write_report(run_dir / "report.html", title=f"markers: {frames.description}", sections=[
         ReportSection("Statistics", tables=[ReportTable("per run", ["measure", "value"], rows)]),
         ReportSection("Plots", images=images),
@@ -436,7 +507,7 @@ def _plots(
     return paths
 
 
-def _check_detector(cfg: MarkersConfig, det_params: Any) -> None:
+def _check_detector(cfg: MarkersConfig, det_params: cv2.aruco.DetectorParameters) -> None:
     """OpenCV checks detector parameters only when it detects: try them on a blank image, so
     a bad value is a one-line error naming the user's key before any work."""
     try:

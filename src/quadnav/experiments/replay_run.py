@@ -5,7 +5,8 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -17,26 +18,71 @@ from quadnav.eval.report import ReportSection, ReportTable, write_report
 from quadnav.experiments.replay import CHECK_NAMES, config_from_px4, replay
 from quadnav.experiments.replay_compare import Comparison, compare, px4_innovations_as_ours
 from quadnav.geometry.trajectory import Trajectory
-from quadnav.io.config import apply_override, dump_config
+from quadnav.io.config import RawConfig, apply_override, dump_config
 from quadnav.io.run_folder import create_run_folder, write_csv, write_json, write_text
 from quadnav.io.trajectory_io import write_tum
 from quadnav.io.ulog import read_ulog_trajectory
 from quadnav.io.ulog_sensors import UlogSensors, read_ulog_sensors
+from quadnav.units import ns_to_s
 
-__all__ = ["replay_cell", "replay_log", "replay_overrides"]
+__all__ = ["ReplayMetrics", "replay_cell", "replay_log", "replay_overrides"]
+
+#: What the question "what does PX4's estimate cover" is answered with, in ``metrics.json``.
+COMPARED = (
+    "each quantity only where PX4 flagged its estimate valid (horizontal: xy_valid, "
+    "vertical: z_valid, attitude: vehicle_attitude logged); times in s from the log's start"
+)
 
 
-def replay_overrides(overrides: list[str]) -> dict[str, Any]:
+@dataclass(frozen=True, slots=True, kw_only=True)
+class ReplayMetrics:
+    """What a replay measured (``metrics.json``, by :meth:`as_json`) and where it wrote it."""
+
+    log: Path
+    duration_s: float
+    replay_wall_s: float
+    times_faster_than_flight: float
+    datum_lla: tuple[float, float, float]
+    counts: Mapping[str, Mapping[str, int]]  # per source, as the replay counts them
+    notes: tuple[str, ...]
+    events: tuple[str, ...]  # "12.345 s: message", from the log's start
+    pairs: Mapping[str, Comparison]  # quadnav_vs_px4, quadnav_vs_truth, ...
+    ratio_quadnav_to_px4_vs_truth: Mapping[str, float] | None  # SITL logs with PX4's estimate
+    run_dir: Path
+    compared: str = COMPARED
+
+    def as_json(self) -> dict[str, object]:
+        """``metrics.json``: the log, its counts, one entry per pair, what was compared."""
+        out: dict[str, object] = {
+            "log": str(self.log), "duration_s": self.duration_s,
+            "replay_wall_s": self.replay_wall_s,
+            "times_faster_than_flight": self.times_faster_than_flight,
+            "datum_lla": self.datum_lla, "counts": self.counts, "notes": list(self.notes),
+            "events": list(self.events),
+        }  # fmt: skip
+        out.update({k: dataclasses.asdict(v) for k, v in self.pairs.items()})
+        if self.ratio_quadnav_to_px4_vs_truth is not None:
+            out["ratio_quadnav_to_px4_vs_truth"] = self.ratio_quadnav_to_px4_vs_truth
+        out["compared"] = self.compared
+        return out
+
+
+def replay_overrides(overrides: list[str]) -> RawConfig:
     """``--set name=value`` overrides of the EKF2 settings, as a mapping."""
-    values: dict[str, Any] = {}
+    values: RawConfig = {}
     for o in overrides:
         apply_override(values, o)
     return values
 
 
-def replay_log(log: Path, overrides: list[str], out: Path, progress: Any = None) -> dict[str, Any]:
+def replay_log(
+    log: Path,
+    overrides: list[str],
+    out: Path,
+    progress: Callable[[int, int, str], None] | None = None,
+) -> ReplayMetrics:
     """Replay ``log``'s sensors through the navigation EKF (EKF2's parameters from the log,
-    ``overrides`` on top) into a run folder under ``out``; its metrics, with ``run_dir``."""
+    ``overrides`` on top) into a run folder under ``out``; its metrics."""
     sensors = read_ulog_sensors(log)
     cfg = config_from_px4(sensors.params, replay_overrides(overrides))
     res = replay(sensors, cfg, progress=progress)
@@ -67,29 +113,22 @@ def replay_log(log: Path, overrides: list[str], out: Path, progress: Any = None)
         write_tum(run_dir / "truth.tum", trajs["truth"])
     except IoError:
         pass
-    metrics: dict[str, Any] = {"log": str(log), "duration_s": sensors.duration_s, "replay_wall_s": res.replay_wall_s,
-                               "times_faster_than_flight": sensors.duration_s / max(res.replay_wall_s, 1e-9),
-                               "datum_lla": res.datum_lla, "counts": res.counts, "notes": notes,
-                               "events": [f"{(t - sensors.t_start_ns) * 1e-9:.3f} s: {m}" for t, m in res.events]}  # fmt: skip
-    t0 = sensors.t_start_ns
     pairs = _comparisons(trajs, ours, sensors)
-    metrics.update({k: dataclasses.asdict(v) for k, v in pairs.items()})
-    if "quadnav_vs_truth" in pairs:
-        metrics["ratio_quadnav_to_px4_vs_truth"] = _ratios(
-            pairs["quadnav_vs_truth"], pairs["px4_vs_truth"]
-        )
-    metrics["compared"] = (
-        "each quantity only where PX4 flagged its estimate valid (horizontal: xy_valid, "
-        "vertical: z_valid, attitude: vehicle_attitude logged); times in s from the log's start"
-    )
-    write_json(run_dir / "metrics.json", metrics)
+    metrics = ReplayMetrics(
+        log=log, duration_s=sensors.duration_s, replay_wall_s=res.replay_wall_s,
+        times_faster_than_flight=sensors.duration_s / max(res.replay_wall_s, 1e-9),
+        datum_lla=res.datum_lla, counts=res.counts, notes=tuple(notes),
+        events=tuple(f"{ns_to_s(t - sensors.t_start_ns):.3f} s: {m}" for t, m in res.events),
+        pairs=pairs, run_dir=run_dir,
+        ratio_quadnav_to_px4_vs_truth=_ratios(pairs["quadnav_vs_truth"], pairs["px4_vs_truth"])
+        if "quadnav_vs_truth" in pairs else None,
+    )  # fmt: skip
+    write_json(run_dir / "metrics.json", metrics.as_json())
     (run_dir / "plots").mkdir(exist_ok=True)
+    t0 = sensors.t_start_ns
     images = [_plot_position(run_dir / "plots" / "position.png", trajs, t0)]
     images.append(_plot_innovations(run_dir / "plots" / "innovations.png", res.fusion, sensors))
-    _write_report(
-        run_dir, log, pairs, images, notes, metrics["compared"], res.replay_wall_s, sensors
-    )
-    metrics["run_dir"] = str(run_dir)
+    _write_report(run_dir, log, pairs, images, notes, COMPARED, res.replay_wall_s, sensors)
     return metrics
 
 

@@ -5,22 +5,28 @@ Every error is a :class:`~quadnav.errors.ConfigError` with one line naming the k
 
 from __future__ import annotations
 
+import copy
 import re
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import TypeVar
 
 import yaml
 from pydantic import BaseModel, ValidationError
 
 from quadnav.errors import ConfigError
 
-__all__ = ["apply_override", "dump_config", "load_config"]
+__all__ = ["RawConfig", "apply_override", "dump_config", "load_config"]
 
 M = TypeVar("M", bound=BaseModel)
 
+#: A configuration as read (a YAML file's top-level mapping, ``--set`` overrides applied to it),
+#: before a model validates it. Input, not a result: it stays inside the loaders of ``io`` and
+#: ``experiments``; what they return is the validated model.
+RawConfig = dict[str, object]
 
-def _read_yaml(path: Path) -> dict[str, Any]:
+
+def _read_yaml(path: Path) -> RawConfig:
     if not path.exists():
         raise ConfigError(f"config file not found: {path}")
     if not path.is_file():
@@ -45,7 +51,7 @@ def _read_yaml(path: Path) -> dict[str, Any]:
     return data
 
 
-def apply_override(data: dict[str, Any], override: str) -> None:
+def apply_override(data: RawConfig, override: str) -> None:
     """Apply one ``a.b.c=value`` override in place; the value is read as YAML (``1e-3``, ``true``)."""
     key, sep, raw = override.partition("=")
     key = key.strip()
@@ -98,11 +104,11 @@ def load_config(
     path: Path | None = None,
     overrides: Iterable[str] = (),
     *,
-    base: dict[str, Any] | None = None,
+    base: Mapping[str, object] | None = None,
 ) -> M:
     """Read ``path`` (or start from ``base``, else the defaults), apply overrides, validate
-    into ``model``."""
-    data: dict[str, Any] = _read_yaml(Path(path)) if path is not None else dict(base or {})
+    into ``model``. ``base`` is copied, nested sections too: the overrides leave it as it was."""
+    data = _read_yaml(Path(path)) if path is not None else copy.deepcopy(dict(base or {}))
     for override in overrides:
         apply_override(data, override)
     try:

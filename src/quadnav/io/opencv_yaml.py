@@ -9,25 +9,38 @@ from __future__ import annotations
 
 import re
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeAlias
 
 import cv2
 import numpy as np
+from numpy.typing import NDArray
 
 from quadnav.errors import GeometryError, IoError
 from quadnav.geometry.camera import PinholeCamera
 from quadnav.io.frames import quiet_libraries
 
-__all__ = ["opencv_error_text", "read_camera_yaml", "read_opencv_yaml", "write_camera_yaml"]
+__all__ = [
+    "OpenCvValue",
+    "opencv_error_text",
+    "read_camera_yaml",
+    "read_opencv_yaml",
+    "write_camera_yaml",
+]
+
+#: An entry of an OpenCV YAML file: a number, text, a matrix (``!!opencv-matrix``), a mapping
+#: or a sequence of entries, or None (an empty node).
+OpenCvValue: TypeAlias = (
+    "int | float | str | NDArray[np.float64] | dict[str, OpenCvValue] | list[OpenCvValue] | None"
+)
 
 
-def _node_value(node: Any) -> Any:
+def _node_value(node: Any) -> OpenCvValue:
     if node.isInt():
         return int(node.real())
     if node.isReal():
         return float(node.real())
     if node.isString():
-        return node.string()
+        return str(node.string())
     if node.isMap():
         if {"rows", "cols", "data"} <= set(node.keys()):
             return np.asarray(node.mat(), dtype=np.float64)
@@ -58,7 +71,7 @@ def opencv_error_text(exc: BaseException) -> str:
     return "OpenCV cannot parse it"
 
 
-def read_opencv_yaml(path: str | Path) -> dict[str, Any]:
+def read_opencv_yaml(path: str | Path) -> dict[str, OpenCvValue]:
     """Every top-level entry of an OpenCV YAML file: numbers, strings, matrices (arrays)."""
     p = Path(path)
     if p.is_dir():
@@ -98,8 +111,11 @@ def read_camera_yaml(path: str | Path) -> PinholeCamera:
             raise IoError(f"{path}: {key} must be a number of pixels, got {value!r}")
         size[key] = int(value)
     width, height = size["image_width"], size["image_height"]
+    dist = d["distortion_coefficients"]
+    if not isinstance(dist, np.ndarray | list):
+        raise IoError(f"{path}: distortion_coefficients must be a matrix, got {dist!r}")
     try:
-        return PinholeCamera(K, np.asarray(d["distortion_coefficients"]), width, height)
+        return PinholeCamera(K, np.asarray(dist), width, height)
     except GeometryError as exc:
         raise IoError(f"{path}: {exc}") from None
 

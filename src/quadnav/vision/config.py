@@ -3,6 +3,7 @@ from thesis 000's ``vision_params.yml`` onto them."""
 
 from __future__ import annotations
 
+from collections.abc import Callable, Mapping
 from typing import Any, Literal, Self
 
 from pydantic import Field, model_validator
@@ -203,15 +204,18 @@ class MarkersConfig(ConfigModel):
         )
 
 
-def _thesis_bool(value: Any) -> bool:
+def _thesis_bool(value: object) -> bool:
     """The thesis program reads a flag as the string ``"true"`` (anything else is false)."""
     return str(value).strip().lower() in ("true", "1")
 
 
-def from_thesis_vision_params(values: dict[str, Any]) -> tuple[dict[str, Any], list[str]]:
+def from_thesis_vision_params(
+    values: Mapping[str, object],
+) -> tuple[dict[str, object], list[str]]:
     """Thesis 000's ``vision_params.yml`` (dict_type, marker_length, charuco, squaresX...)
-    as :class:`MarkersConfig` keys; returns them and the keys left out."""
-    out: dict[str, Any] = {}
+    as :class:`MarkersConfig` keys (a raw configuration, for ``load_config``'s ``base``);
+    returns them and the keys left out."""
+    out: dict[str, object] = {}
     used = {"charuco", "diamond", "squaresX", "squaresY", "squareLength", "markerLength"}
     for theirs, ours, cast in (
         ("dict_type", "dictionary", int),
@@ -247,11 +251,17 @@ def from_thesis_vision_params(values: dict[str, Any]) -> tuple[dict[str, Any], l
     return out, sorted(set(values) - used)
 
 
-def _thesis_value(values: dict[str, Any], key: str, cast: Any, default: Any = None) -> Any:
+def _thesis_value(
+    values: Mapping[str, object],
+    key: str,
+    cast: Callable[[Any], object],
+    default: object = None,
+) -> object:
     """``values[key]`` read as ``cast`` wants; a value it cannot read names the thesis key."""
     value = values.get(key, default)
     try:
         return cast(value)
     except (TypeError, ValueError):
-        what = {int: "a whole number", float: "a number", str: "a file name"}.get(cast, "a flag")
+        names: dict[object, str] = {int: "a whole number", float: "a number", str: "a file name"}
+        what = names.get(cast, "a flag")
         raise VisionError(f"{key} must be {what}, got {value!r}") from None

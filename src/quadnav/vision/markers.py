@@ -85,7 +85,9 @@ def custom_dictionary(
     return cv2.aruco.Dictionary(byte_list, marker_size, corr)
 
 
-def detector_parameters(values: Mapping[str, Any] | None = None) -> tuple[Any, list[str]]:
+def detector_parameters(
+    values: Mapping[str, object] | None = None,
+) -> tuple[cv2.aruco.DetectorParameters, list[str]]:
     """``cv2.aruco.DetectorParameters`` from a mapping as in the thesis's ``detector_params.yml``.
     Returns the parameters and the keys this OpenCV does not know (ignored, for a warning)."""
     params = cv2.aruco.DetectorParameters()
@@ -96,6 +98,8 @@ def detector_parameters(values: Mapping[str, Any] | None = None) -> tuple[Any, l
             continue
         current = getattr(params, key)
         try:
+            if not isinstance(value, int | float | str):  # a matrix, a section, nothing
+                raise TypeError("not a number")
             if isinstance(current, bool):
                 setattr(params, key, bool(value))
             elif isinstance(current, int):
@@ -147,7 +151,9 @@ class MarkerDetections:
 class MarkerDetector:
     """``cv2.aruco.ArucoDetector`` with quadnav's types."""
 
-    def __init__(self, dictionary: cv2.aruco.Dictionary, params: Any | None = None) -> None:
+    def __init__(
+        self, dictionary: cv2.aruco.Dictionary, params: cv2.aruco.DetectorParameters | None = None
+    ) -> None:
         self.dictionary = dictionary
         self.params = params if params is not None else cv2.aruco.DetectorParameters()
         self._detector = cv2.aruco.ArucoDetector(dictionary, self.params)
@@ -202,7 +208,7 @@ class CharucoTarget:
     def __init__(
         self,
         spec: CharucoSpec,
-        params: Any | None = None,
+        params: cv2.aruco.DetectorParameters | None = None,
         *,
         dictionary: cv2.aruco.Dictionary | None = None,
         refine: bool = True,
@@ -292,7 +298,7 @@ class DiamondTarget:
         self,
         dictionary: cv2.aruco.Dictionary,
         square_to_marker_ratio: float,
-        params: Any | None = None,
+        params: cv2.aruco.DetectorParameters | None = None,
     ) -> None:
         if not square_to_marker_ratio > 1.0:
             raise VisionError("a diamond's square must be larger than its markers (ratio > 1)")
@@ -333,7 +339,7 @@ def detect_diamonds(
     image: NDArray[Any],
     dictionary: cv2.aruco.Dictionary,
     square_to_marker_ratio: float,
-    params: Any | None = None,
+    params: cv2.aruco.DetectorParameters | None = None,
 ) -> list[Diamond]:
     """Every ChArUco diamond in view (``square_to_marker_ratio`` = square / marker side)."""
     return DiamondTarget(dictionary, square_to_marker_ratio, params).detect(image)[0]

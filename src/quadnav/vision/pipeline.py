@@ -158,7 +158,7 @@ class MarkerPipeline:
         marker_map: MarkerMap,
         T_B_C: Pose,
         *,
-        params: Any | None = None,
+        params: cv2.aruco.DetectorParameters | None = None,
         dictionary: cv2.aruco.Dictionary | None = None,
         prior_sigma_px: float = 0.25,
         max_rms_px: float = 3.0,
