@@ -79,9 +79,9 @@ def test_damaged_logs_replay_what_they_can() -> None:
     assert any("IMU gap of 0.50" in n for n in r.notes)
     assert any("not increasing" in n for n in r.notes)
     assert (
-        r.counts["imu"]["rejected_invalid"] == 1 and r.counts["imu"]["rejected_out_of_order"] >= 1
+        r.imu.rejected_invalid == 1 and r.imu.rejected_out_of_order >= 1
     )
-    assert "gps" not in r.counts and r.counts["baro"]["received"] <= half
+    assert "gps" not in r.sources and r.sources["baro"].received <= half
     assert np.isfinite(r.p).all()
 
 
@@ -121,8 +121,8 @@ def test_visual_odometry_and_range_topics_are_fused_when_present() -> None:
         "max_m": np.full(len(z), 20.0),
     }
     r = replay(dataclasses.replace(s, vision=vision, range=rng_d), config_from_px4(s.params))
-    assert r.counts["vision"]["fused"] > 0.8 * r.counts["vision"]["received"] > 200
-    assert r.counts["range"]["received"] > 200
+    assert r.sources["vision"].fused > 0.8 * r.sources["vision"].received > 200
+    assert r.sources["range"].received > 200
 
 
 def test_a_gate_in_sigma_holds_at_any_width() -> None:
@@ -147,7 +147,7 @@ def test_a_log_with_a_wide_gps_gate_replays(tmp_path: Path) -> None:
     cfg = config_from_px4({**s.params, "EKF2_GPS_P_GATE": 8.5})
     assert cfg.gate_sigma == 8.5
     r = replay(s, cfg)
-    assert r.counts["gps"]["fused"] > 0 and np.isfinite(r.p).all()
+    assert r.sources["gps"].fused > 0 and np.isfinite(r.p).all()
     # a bad gate names the setting the user can change, and the CLI says it in one line
     res = CliRunner().invoke(
         app, ["replay", str(SITL), "--set", "gate_sigma=0", "--out", str(tmp_path)]
@@ -257,13 +257,13 @@ def test_gnss_that_px4_would_refuse_is_not_fused(tmp_path: Path) -> None:
     # 2 s of passing required (PX4's default is 10 s, longer than this log; it has 0.5 s)
     r = replay(stuck, config_from_px4(s.params, {"gps_pass_s": 2.0}))
     assert r.gnss_checks is not None and not r.gnss_checks.usable.any()
-    assert r.counts.get("gps", {}).get("fused", 0) == 0
-    assert r.counts["gps_checks"]["horizontal_drift"] > 0.5 * len(s.gps["t_ns"])
+    assert r.counts_json().get("gps", {}).get("fused", 0) == 0
+    assert r.counts_json()["gps_checks"]["horizontal_drift"] > 0.5 * len(s.gps["t_ns"])
     assert any("horizontal_drift" in n and "never passed" in n for n in r.notes)
     assert np.abs(r.p[:, 0:2] - r.p[0, 0:2]).max() < 0.1  # did not follow the 4 m wander
     # the same fixes with the checks turned off (PX4's EKF2_GPS_CHECK = 0) are fused and followed
     r0 = replay(stuck, config_from_px4({**s.params, "EKF2_GPS_CHECK": 0}, {"gps_pass_s": 2.0}))
-    assert r0.counts["gps"]["fused"] > 100 and np.abs(r0.p[:, 0:2] - r0.p[0, 0:2]).max() > 2.0
+    assert r0.sources["gps"].fused > 100 and np.abs(r0.p[:, 0:2] - r0.p[0, 0:2]).max() > 2.0
 
 
 @needs_data
@@ -334,7 +334,7 @@ def test_tilt_after_a_crash_agrees_with_the_accelerometer_at_rest() -> None:
         s, R_true = crash_sensors(seed=seed)
         after = s.t_start_ns + 12_000_000_000  # from 6 s after the crash to the end
         r = replay(s, config_from_px4({}))
-        assert r.counts["imu"]["clipping_flagged"] > 10
+        assert r.imu.clipping_flagged > 10
         assert _tilt_error_deg(r, R_true, after) < 0.5, seed
         assert any("re-levelled at rest" in m for _, m in r.events)
         assert any("clipping flagged" in n for n in r.notes)

@@ -43,17 +43,50 @@ from quadnav.messages import (
 )
 
 __all__ = [
+    "SOURCE_COUNT_KEYS",
     "AligningNavFilter",
     "EstimatorReport",
+    "ImuCounts",
     "InitialSigmas",
     "NavEstimator",
     "NavFilterSetup",
     "TruthEstimator",
     "build_nav_filter",
+    "counts_json",
     "ground_alignment",
 ]
 
 FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class ImuCounts:
+    """What became of the IMU samples: taken, out of order, refused as invalid at the driver,
+    flagged as clipped (a log's own flags)."""
+
+    received: int
+    rejected_out_of_order: int
+    rejected_invalid: int
+    clipping_flagged: int = 0
+
+
+def counts_json(
+    sources: Mapping[str, SourceStats], imu: ImuCounts, *, imu_keys: Sequence[str]
+) -> dict[str, dict[str, int]]:
+    """Per-source counters as the ``counts`` mapping of ``metrics.json`` (and the IMU's)."""
+    out = {src: {k: getattr(st, k) for k in SOURCE_COUNT_KEYS} for src, st in sources.items()}
+    out["imu"] = {k: getattr(imu, k) for k in imu_keys}
+    return out
+
+
+#: The per-source counters a run's ``metrics.json`` reports.
+SOURCE_COUNT_KEYS = (
+    "received",
+    "fused",
+    "rejected_gate",
+    "rejected_too_old",
+    "rejected_unsupported",
+)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -256,9 +289,14 @@ class AligningNavFilter:
             pos = a.gps_factor * fix.sigma_h_m if fix is not None else a.pos_unknown_m
         s = self.setup.sigmas
         sigmas = InitialSigmas(
-            tilt_rad=s.tilt_rad, yaw_rad=yaw, vel_m_s=s.vel_m_s, pos_xy_m=pos, pos_z_m=pos,
-            gyro_bias_rad_s=s.gyro_bias_rad_s, accel_bias_m_s2=s.accel_bias_m_s2,
-        )  # fmt: skip
+            tilt_rad=s.tilt_rad,
+            yaw_rad=yaw,
+            vel_m_s=s.vel_m_s,
+            pos_xy_m=pos,
+            pos_z_m=pos,
+            gyro_bias_rad_s=s.gyro_bias_rad_s,
+            accel_bias_m_s2=s.accel_bias_m_s2,
+        )
         return build_nav_filter(self.setup, t0_ns=t_ns, p0=p0, q0_xyzw=R0.as_quat(), sigmas=sigmas)
 
     def _ready(self) -> DelayedHorizonEstimator:
@@ -328,9 +366,15 @@ class TruthEstimator:
         s = self._last.state
         x = np.concatenate([s.p_W_B, s.v_W_B, s.q_W_B_xyzw])
         return StateEstimate(
-            t_ns=s.t_ns, p_W_B=s.p_W_B, v_W_B=s.v_W_B, q_W_B_xyzw=s.q_W_B_xyzw, x=x,
-            names=self.names, P=None, w_B=s.w_B,
-        )  # fmt: skip
+            t_ns=s.t_ns,
+            p_W_B=s.p_W_B,
+            v_W_B=s.v_W_B,
+            q_W_B_xyzw=s.q_W_B_xyzw,
+            x=x,
+            names=self.names,
+            P=None,
+            w_B=s.w_B,
+        )
 
     def delayed(self) -> StateEstimate:
         return self.output()

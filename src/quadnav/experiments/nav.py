@@ -31,6 +31,7 @@ from quadnav.estimation.nav_filter import (
     AligningNavFilter,
     AlignmentSigmas,
     EstimatorReport,
+    ImuCounts,
     InitialSigmas,
     NavEstimator,
     NavFilterSetup,
@@ -58,15 +59,6 @@ __all__ = [
 ]
 
 FloatArray = NDArray[np.float64]
-
-
-@dataclass(frozen=True, slots=True, kw_only=True)
-class ImuCounts:
-    """What became of the IMU samples: taken, out of order, refused as invalid at the driver."""
-
-    received: int
-    rejected_out_of_order: int
-    rejected_invalid: int
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -104,26 +96,40 @@ def _ekf_estimator(sc: NavScenario, gravity_m_s2: float, max_delay_ns: int) -> N
         accel_sigma_m_s2=ic.accel_sigma_m_s2 * es.imu_noise_inflation,
         gyro_bias_rw_rad_s_sqrt_s=ic.gyro_bias_rw_rad_s_sqrt_s * es.bias_rw_inflation,
         accel_bias_rw_m_s2_sqrt_s=ic.accel_bias_rw_m_s2_sqrt_s * es.bias_rw_inflation,
-        gravity_m_s2=gravity_m_s2, gate_probability=es.gate_probability,
-        datum_lla=sc.gps.datum_lla, mag_declination_rad=sc.mag.declination_rad,
-        vision_frame=es.vision_frame, reset_after_s=es.reset_after_s,
-    )  # fmt: skip
-    horizon = HorizonConfig(imu_period_ns=s_to_ns(1.0 / ic.rate_hz), max_delay_ns=max_delay_ns,
-                            tau_vel_s=es.tau_vel_s, tau_pos_s=es.tau_pos_s)  # fmt: skip
+        gravity_m_s2=gravity_m_s2,
+        gate_probability=es.gate_probability,
+        datum_lla=sc.gps.datum_lla,
+        mag_declination_rad=sc.mag.declination_rad,
+        vision_frame=es.vision_frame,
+        reset_after_s=es.reset_after_s,
+    )
+    horizon = HorizonConfig(
+        imu_period_ns=s_to_ns(1.0 / ic.rate_hz),
+        max_delay_ns=max_delay_ns,
+        tau_vel_s=es.tau_vel_s,
+        tau_pos_s=es.tau_pos_s,
+    )
     bg0 = es.init_gyro_bias_sigma_rad_s or max(ic.gyro_bias0_sigma_rad_s, 1e-4)
     ba0 = es.init_accel_bias_sigma_m_s2 or max(ic.accel_bias0_sigma_m_s2, 1e-3)
-    sigmas = InitialSigmas(tilt_rad=es.init_tilt_sigma_rad, vel_m_s=es.init_vel_sigma_m_s,
-                           gyro_bias_rad_s=bg0, accel_bias_m_s2=ba0)  # fmt: skip
+    sigmas = InitialSigmas(
+        tilt_rad=es.init_tilt_sigma_rad,
+        vel_m_s=es.init_vel_sigma_m_s,
+        gyro_bias_rad_s=bg0,
+        accel_bias_m_s2=ba0,
+    )
     alignment = AlignmentSigmas(
-        pose_factor=es.init_source_sigma_factor, gps_factor=es.init_gps_sigma_factor,
-        yaw_from_mag_rad=es.init_yaw_sigma_mag_rad, yaw_unknown_rad=es.init_yaw_sigma_unknown_rad,
+        pose_factor=es.init_source_sigma_factor,
+        gps_factor=es.init_gps_sigma_factor,
+        yaw_from_mag_rad=es.init_yaw_sigma_mag_rad,
+        yaw_unknown_rad=es.init_yaw_sigma_unknown_rad,
         pos_unknown_m=es.init_pos_sigma_unknown_m,
-    )  # fmt: skip
+    )
     return AligningNavFilter(
         NavFilterSetup(ekf=ekf, horizon=horizon, sigmas=sigmas),
-        align_ns=s_to_ns(es.align_s), alignment=alignment,
+        align_ns=s_to_ns(es.align_s),
+        alignment=alignment,
         heading_from_pose=es.vision_frame != "rotate",
-    )  # fmt: skip
+    )
 
 
 def _truth_estimator(sc: NavScenario, gravity_m_s2: float, max_delay_ns: int) -> NavEstimator:
@@ -193,15 +199,28 @@ class _Plan:
 
 def _truth_estimate(truth: VehicleState) -> StateEstimate:
     x = np.concatenate([truth.p_W_B, truth.v_W_B, truth.q_W_B_xyzw])
-    return StateEstimate(t_ns=truth.t_ns, p_W_B=truth.p_W_B, v_W_B=truth.v_W_B,
-                         q_W_B_xyzw=truth.q_W_B_xyzw, x=x, names=TruthEstimator.names, w_B=truth.w_B)  # fmt: skip
+    return StateEstimate(
+        t_ns=truth.t_ns,
+        p_W_B=truth.p_W_B,
+        v_W_B=truth.v_W_B,
+        q_W_B_xyzw=truth.q_W_B_xyzw,
+        x=x,
+        names=TruthEstimator.names,
+        w_B=truth.w_B,
+    )
 
 
 def _as_vehicle_state(est: StateEstimate) -> VehicleState:
     """(The cascaded PID still reads a VehicleState.)"""
     w = est.w_B if est.w_B is not None else np.zeros(3)
-    return VehicleState(t_ns=est.t_ns, p_W_B=est.p_W_B, v_W_B=est.v_W_B, a_W_B=np.zeros(3),
-                        q_W_B_xyzw=est.q_W_B_xyzw, w_B=w)  # fmt: skip
+    return VehicleState(
+        t_ns=est.t_ns,
+        p_W_B=est.p_W_B,
+        v_W_B=est.v_W_B,
+        a_W_B=np.zeros(3),
+        q_W_B_xyzw=est.q_W_B_xyzw,
+        w_B=w,
+    )
 
 
 _BIAS_NAMES = ("bgx", "bgy", "bgz", "bax", "bay", "baz")
@@ -226,8 +245,14 @@ class _NavLog:
         self._truth_at: dict[int, tuple[VehicleState, FloatArray]] = {}
         self.stream: list[Sample] | None = [] if record_stream else None
 
-    def record(self, truth: VehicleState, true_bias: FloatArray, ref_p: FloatArray,
-               out: StateEstimate, dl: StateEstimate) -> None:  # fmt: skip
+    def record(
+        self,
+        truth: VehicleState,
+        true_bias: FloatArray,
+        ref_p: FloatArray,
+        out: StateEstimate,
+        dl: StateEstimate,
+    ) -> None:
         self._truth_at[truth.t_ns] = (truth, true_bias)
         self.t.append(truth.t_ns)
         self.truth.append(truth)
@@ -255,30 +280,39 @@ class _NavLog:
             "output_p": np.array([o.p_W_B for o in self.out]),
             "output_v": np.array([o.v_W_B for o in self.out]),
             "output_q": np.array([o.q_W_B_xyzw for o in self.out]),
-            "delayed_x": np.array([np.concatenate([x.p_W_B, x.v_W_B, x.q_W_B_xyzw, _biases(x)]) for x in d]),
+            "delayed_x": np.array(
+                [np.concatenate([x.p_W_B, x.v_W_B, x.q_W_B_xyzw, _biases(x)]) for x in d]
+            ),
             "delayed_err": np.array(self.err),
             "delayed_P": np.array(P),
-        }  # fmt: skip
+        }
 
 
-def _result(sc: NavScenario, seed: int, log: _NavLog, channels: list[Channel],
-            report: EstimatorReport) -> NavRunResult:  # fmt: skip
+def _result(
+    sc: NavScenario, seed: int, log: _NavLog, channels: list[Channel], report: EstimatorReport
+) -> NavRunResult:
     by_name = {ch.name: ch for ch in channels}
     imu = by_name["imu"]
     times = {ch.name: np.array(ch.sampled_t_ns, dtype=np.int64) for ch in channels}
     return NavRunResult(
-        scenario=sc, seed=seed, t_ns=np.array(log.t, dtype=np.int64),
+        scenario=sc,
+        seed=seed,
+        t_ns=np.array(log.t, dtype=np.int64),
         t_delayed_ns=np.array([x.t_ns for x in log.delayed], dtype=np.int64),
         vision_t_ns=times.get("vision", np.zeros(0, dtype=np.int64)),
-        fusion=report.fusion, sources=report.sources,
+        fusion=report.fusion,
+        sources=report.sources,
         imu=ImuCounts(
             received=report.imu_received,
             rejected_out_of_order=report.imu_rejected_out_of_order,
             rejected_invalid=imu.rejected_invalid + report.rejected_invalid.get("ImuSample", 0),
         ),
-        t_align_ns=s_to_ns(sc.estimator.align_s), events=list(report.events), stream=log.stream,
-        sample_times_ns=times, **log.arrays(),
-    )  # fmt: skip
+        t_align_ns=s_to_ns(sc.estimator.align_s),
+        events=list(report.events),
+        stream=log.stream,
+        sample_times_ns=times,
+        **log.arrays(),
+    )
 
 
 def _true_biases(imu: Channel) -> FloatArray:

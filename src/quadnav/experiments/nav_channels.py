@@ -103,15 +103,26 @@ def _vision(sc: NavScenario, ctx: BuildContext, rng: Generator) -> Channel | Non
             vs.marker_grid, vs.marker_spacing_m, vs.marker_length_m, vs.marker_origin_m
         )
         seed = int(rng.integers(2**31))  # the image noise draws from its own generator
-        sensor = MarkerCameraSensor(period_ns=period, markers=field, T_B_C=thesis_mount(),
-                                    noise_sigma=vs.image_noise, seed=seed)  # fmt: skip
+        sensor = MarkerCameraSensor(
+            period_ns=period,
+            markers=field,
+            T_B_C=thesis_mount(),
+            noise_sigma=vs.image_noise,
+            seed=seed,
+        )
     else:
         sensor = VisionPoseSensor(
-            period_ns=period, sigma_m=vs.sigma_m, yaw_sigma_rad=vs.yaw_sigma_rad,
-            frame_yaw_rad=math.radians(vs.frame_yaw_deg), frame_offset_m=vs.frame_offset_m,
-        )  # fmt: skip
+            period_ns=period,
+            sigma_m=vs.sigma_m,
+            yaw_sigma_rad=vs.yaw_sigma_rad,
+            frame_yaw_rad=math.radians(vs.frame_yaw_deg),
+            frame_offset_m=vs.frame_offset_m,
+        )
         if vs.jumps:
-            jumps = [FrameJump(s_to_ns(t), math.radians(y), (dx, dy, dz)) for t, y, dx, dy, dz in vs.jumps]  # fmt: skip
+            jumps = [
+                FrameJump(s_to_ns(t), math.radians(y), (dx, dy, dz))
+                for t, y, dx, dy, dz in vs.jumps
+            ]
             sensor = FrameJumps(sensor, jumps)
     if vs.dropouts_s:
         sensor = Dropouts(sensor, _windows(vs.dropouts_s))
@@ -124,7 +135,9 @@ def _baro(sc: NavScenario, ctx: BuildContext, rng: Generator) -> Channel | None:
     b = sc.baro
     if not b.enabled:
         return None
-    sensor = BaroSensor(period_ns=s_to_ns(1.0 / b.rate_hz), sigma_m=b.sigma_m, drift_m_sqrt_s=b.drift_m_sqrt_s)  # fmt: skip
+    sensor = BaroSensor(
+        period_ns=s_to_ns(1.0 / b.rate_hz), sigma_m=b.sigma_m, drift_m_sqrt_s=b.drift_m_sqrt_s
+    )
     return Channel("baro", sensor, rng, delay_ns=s_to_ns(b.delay_s))
 
 
@@ -133,9 +146,12 @@ def _gps(sc: NavScenario, ctx: BuildContext, rng: Generator) -> Channel | None:
     if not g.enabled:
         return None
     sensor: Sensor[Any] = GpsSensor(
-        datum_lla=g.datum_lla, period_ns=s_to_ns(1.0 / g.rate_hz), sigma_h_m=g.sigma_h_m,
-        sigma_v_m=g.sigma_v_m, sigma_vel_m_s=g.sigma_vel_m_s,
-    )  # fmt: skip
+        datum_lla=g.datum_lla,
+        period_ns=s_to_ns(1.0 / g.rate_hz),
+        sigma_h_m=g.sigma_h_m,
+        sigma_v_m=g.sigma_v_m,
+        sigma_vel_m_s=g.sigma_vel_m_s,
+    )
     glitches = [(s_to_ns(a), s_to_ns(b), (e, n, 0.0)) for a, b, e, n in sc.faults.gps_glitch]
     if glitches:
         sensor = OffsetTruth(sensor, glitches)
@@ -148,7 +164,9 @@ def _range(sc: NavScenario, ctx: BuildContext, rng: Generator) -> Channel | None
     r = sc.range
     if not r.enabled:
         return None
-    sensor = RangeFinder(period_ns=s_to_ns(1.0 / r.rate_hz), sigma_m=r.sigma_m, min_m=RANGE_MIN_M, max_m=r.max_m)  # fmt: skip
+    sensor = RangeFinder(
+        period_ns=s_to_ns(1.0 / r.rate_hz), sigma_m=r.sigma_m, min_m=RANGE_MIN_M, max_m=r.max_m
+    )
     return Channel("range", sensor, rng, delay_ns=s_to_ns(r.delay_s))
 
 
@@ -156,8 +174,12 @@ def _mag(sc: NavScenario, ctx: BuildContext, rng: Generator) -> Channel | None:
     m = sc.mag
     if not m.enabled:
         return None
-    sensor = MagSensor(period_ns=s_to_ns(1.0 / m.rate_hz), declination_rad=m.declination_rad,
-                       noise_sigma=m.noise_sigma, sigma_heading_rad=m.sigma_heading_rad)  # fmt: skip
+    sensor = MagSensor(
+        period_ns=s_to_ns(1.0 / m.rate_hz),
+        declination_rad=m.declination_rad,
+        noise_sigma=m.noise_sigma,
+        sigma_heading_rad=m.sigma_heading_rad,
+    )
     return Channel("mag", sensor, rng)
 
 
@@ -165,8 +187,13 @@ def _flow(sc: NavScenario, ctx: BuildContext, rng: Generator) -> Channel | None:
     f = sc.flow
     if not f.enabled:
         return None
-    sensor = FlowSensor(rate_hz=f.rate_hz, flow_sigma_rad_s=f.flow_sigma_rad_s, gyro_sigma_rad_s=f.gyro_sigma_rad_s,
-                        min_height_m=f.min_height_m, max_height_m=f.max_height_m)  # fmt: skip
+    sensor = FlowSensor(
+        rate_hz=f.rate_hz,
+        flow_sigma_rad_s=f.flow_sigma_rad_s,
+        gyro_sigma_rad_s=f.gyro_sigma_rad_s,
+        min_height_m=f.min_height_m,
+        max_height_m=f.max_height_m,
+    )
     return Channel("flow", sensor, rng, delay_ns=s_to_ns(f.delay_s))
 
 

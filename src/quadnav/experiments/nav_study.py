@@ -14,15 +14,18 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
+from matplotlib.axes import Axes
+from matplotlib.figure import Figure
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
 from quadnav.estimation.horizon import SourceStats
+from quadnav.estimation.nav_filter import ImuCounts
 from quadnav.eval.metrics import nees
 from quadnav.eval.na import Metric, max_or_na, mean_or_na, median_or_na, na, rms_or_na
 from quadnav.eval.report import ReportSection, ReportTable, write_report
-from quadnav.experiments.nav import ImuCounts, NavRunResult, NavScenario, run_nav
+from quadnav.experiments.nav import NavRunResult, NavScenario, run_nav
 from quadnav.experiments.nav_channels import is_pseudo_source
 from quadnav.experiments.seeds import run_tasks
 from quadnav.geometry.trajectory import Trajectory
@@ -188,30 +191,34 @@ def _bias_error_fractions(r: NavRunResult) -> dict[str, Metric]:
     return out
 
 
-def plot_nav_run(r: NavRunResult, folder: Path) -> list[Path]:
-    t = _t_s(r)
+def _shade_dropouts(r: NavRunResult, ax: Axes) -> None:
     sc = r.scenario
-    paths = []
+    for a, b in sc.vision.dropouts_s if sc.vision.enabled else []:
+        ax.axvspan(a, b, color="tab:red", alpha=0.12)
 
-    def shade(ax: Any) -> None:
-        for a, b in sc.vision.dropouts_s if sc.vision.enabled else []:
-            ax.axvspan(a, b, color="tab:red", alpha=0.12)
 
+def _save(fig: Figure, path: Path) -> Path:
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
+def _plot_position(r: NavRunResult, t: FloatArray, path: Path) -> Path:
     fig, axes = plt.subplots(3, 1, figsize=(11, 8), sharex=True, constrained_layout=True)
     for k, ax in enumerate(axes):
         ax.plot(t, r.truth_p[:, k], "--", label="truth")
         ax.plot(t, r.output_p[:, k], label="output predictor")
         ax.plot(t, r.ref_p[:, k], ":", color="0.4", label="setpoint")
-        shade(ax)
+        _shade_dropouts(r, ax)
         ax.set_ylabel(f"{'xyz'[k]} (m)")
         ax.grid(True, alpha=0.3)
     axes[0].legend(fontsize=8)
     axes[-1].set_xlabel("t (s)")
-    fig.suptitle(f"{sc.name} seed {r.seed}: position (red: vision dropouts)")
-    paths.append(folder / "position.png")
-    fig.savefig(paths[-1], dpi=100)
-    plt.close(fig)
+    fig.suptitle(f"{r.scenario.name} seed {r.seed}: position (red: vision dropouts)")
+    return _save(fig, path)
 
+
+def _plot_errors(r: NavRunResult, t: FloatArray, path: Path) -> Path:
     fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(11, 7), sharex=True, constrained_layout=True)
     ax1.plot(t, np.linalg.norm(r.output_p - r.truth_p, axis=1), label="output predictor - truth")
     ok = np.isfinite(r.delayed_err).all(axis=1)
@@ -219,59 +226,57 @@ def plot_nav_run(r: NavRunResult, folder: Path) -> list[Path]:
     ax1.plot(
         td[ok], np.linalg.norm(r.delayed_err[ok, 6:9], axis=1), label="delayed EKF - delayed truth"
     )
-    ax1.plot(
-        td[ok],
-        np.sqrt(np.trace(r.delayed_P[ok][:, 6:9, 6:9], axis1=1, axis2=2)),
-        ":",
-        label="EKF 1 sigma",
-    )
-    shade(ax1)
+    sig = np.sqrt(np.trace(r.delayed_P[ok][:, 6:9, 6:9], axis1=1, axis2=2))
+    ax1.plot(td[ok], sig, ":", label="EKF 1 sigma")
+    _shade_dropouts(r, ax1)
     ax1.set_yscale("log")
     ax1.set_ylabel("position error (m)")
     ax1.legend(fontsize=8)
     ax1.grid(True, which="both", alpha=0.3)
     att = (Rotation.from_quat(r.output_q).inv() * Rotation.from_quat(r.truth_q)).magnitude()
     ax2.plot(t, np.degrees(att))
-    shade(ax2)
+    _shade_dropouts(r, ax2)
     ax2.set_ylabel("attitude error (deg)")
     ax2.set_xlabel("t (s)")
     ax2.grid(True, alpha=0.3)
-    paths.append(folder / "errors.png")
-    fig.savefig(paths[-1], dpi=100)
-    plt.close(fig)
+    return _save(fig, path)
 
-    # Innovation test ratios per source (1 = the gate), and the NIS against its chi-square.
-    srcs = [s for s in r.fusion if len(r.fusion[s])]
-    if srcs:
-        fig, axes = plt.subplots(len(srcs), 2, figsize=(12, 2.6 * len(srcs)), squeeze=False,
-                                 constrained_layout=True, gridspec_kw={"width_ratios": [3, 1]})  # fmt: skip
-        for row, src in zip(axes, srcs, strict=True):
-            f = r.fusion[src]
-            ts = f.t_obs_ns * 1e-9
-            ok = f.accepted
-            row[0].semilogy(ts[ok], np.maximum(f.test_ratio[ok], 1e-6), ".", ms=2, label="fused")
-            row[0].semilogy(
-                ts[~ok], f.test_ratio[~ok], "x", color="tab:red", ms=4, label="rejected"
-            )
-            row[0].axhline(1.0, color="k", lw=0.8)
-            row[0].set_ylabel(f"{src}\ntest ratio")
-            row[0].grid(True, which="both", alpha=0.3)
-            shade(row[0])
-            dof = int(np.max(f.dof))
-            nis = f.nis[ok]
-            hi = float(chi2.ppf(0.999, dof))
-            counts, _, _ = row[1].hist(nis[nis < hi], bins=40, density=True, alpha=0.6, label="NIS")
-            xs = np.linspace(1e-3, hi, 200)
-            row[1].plot(xs, chi2.pdf(xs, dof), "k", lw=1, label=f"chi2({dof})")
-            row[1].set_ylim(0, 1.3 * float(np.max(counts, initial=0.1)))
-            row[1].legend(fontsize=7)
-        axes[0][0].legend(fontsize=7)
-        axes[-1][0].set_xlabel("time of validity (s)")
-        fig.suptitle(f"{sc.name} seed {r.seed}: innovation test ratios (gate at 1)")
-        paths.append(folder / "innovations.png")
-        fig.savefig(paths[-1], dpi=100)
-        plt.close(fig)
 
+def _plot_innovations(r: NavRunResult, srcs: list[str], path: Path) -> Path:
+    """Innovation test ratios per source (1 = the gate), and the NIS against its chi-square."""
+    fig, axes = plt.subplots(
+        len(srcs),
+        2,
+        figsize=(12, 2.6 * len(srcs)),
+        squeeze=False,
+        constrained_layout=True,
+        gridspec_kw={"width_ratios": [3, 1]},
+    )
+    for row, src in zip(axes, srcs, strict=True):
+        f = r.fusion[src]
+        ts = f.t_obs_ns * 1e-9
+        ok = f.accepted
+        row[0].semilogy(ts[ok], np.maximum(f.test_ratio[ok], 1e-6), ".", ms=2, label="fused")
+        row[0].semilogy(ts[~ok], f.test_ratio[~ok], "x", color="tab:red", ms=4, label="rejected")
+        row[0].axhline(1.0, color="k", lw=0.8)
+        row[0].set_ylabel(f"{src}\ntest ratio")
+        row[0].grid(True, which="both", alpha=0.3)
+        _shade_dropouts(r, row[0])
+        dof = int(np.max(f.dof))
+        nis = f.nis[ok]
+        hi = float(chi2.ppf(0.999, dof))
+        counts, _, _ = row[1].hist(nis[nis < hi], bins=40, density=True, alpha=0.6, label="NIS")
+        xs = np.linspace(1e-3, hi, 200)
+        row[1].plot(xs, chi2.pdf(xs, dof), "k", lw=1, label=f"chi2({dof})")
+        row[1].set_ylim(0, 1.3 * float(np.max(counts, initial=0.1)))
+        row[1].legend(fontsize=7)
+    axes[0][0].legend(fontsize=7)
+    axes[-1][0].set_xlabel("time of validity (s)")
+    fig.suptitle(f"{r.scenario.name} seed {r.seed}: innovation test ratios (gate at 1)")
+    return _save(fig, path)
+
+
+def _plot_top_view(r: NavRunResult, path: Path) -> Path:
     fig, ax = plt.subplots(figsize=(7, 7), constrained_layout=True)
     ax.plot(r.truth_p[:, 0], r.truth_p[:, 1], "--", label="truth")
     ax.plot(r.output_p[:, 0], r.output_p[:, 1], label="output predictor")
@@ -280,9 +285,20 @@ def plot_nav_run(r: NavRunResult, folder: Path) -> list[Path]:
     ax.set_ylabel("y (m)")
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize=8)
-    paths.append(folder / "top_view.png")
-    fig.savefig(paths[-1], dpi=100)
-    plt.close(fig)
+    return _save(fig, path)
+
+
+def plot_nav_run(r: NavRunResult, folder: Path) -> list[Path]:
+    """The flight's plots: position, errors (with the EKF's sigma), innovations, top view."""
+    t = _t_s(r)
+    paths = [
+        _plot_position(r, t, folder / "position.png"),
+        _plot_errors(r, t, folder / "errors.png"),
+    ]
+    srcs = [s for s in r.fusion if len(r.fusion[s])]
+    if srcs:
+        paths.append(_plot_innovations(r, srcs, folder / "innovations.png"))
+    paths.append(_plot_top_view(r, folder / "top_view.png"))
     return paths
 
 

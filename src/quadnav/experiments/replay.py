@@ -29,14 +29,17 @@ from quadnav.estimation.horizon import (
     DelayedHorizonEstimator,
     HorizonConfig,
     SourceFusion,
+    SourceStats,
     fusion_arrays,
 )
 from quadnav.estimation.imu_clipping import BADACC_NOISE_M_S2, ClippedImuSample
 from quadnav.estimation.nav_ekf import NavEkf, NavEkfConfig
 from quadnav.estimation.nav_filter import (
+    ImuCounts,
     InitialSigmas,
     NavFilterSetup,
     build_nav_filter,
+    counts_json,
     ground_alignment,
 )
 from quadnav.geometry.rotations import quat_xyzw_from_matrix
@@ -233,12 +236,28 @@ class ReplayResult:
     v: FloatArray
     q_xyzw: FloatArray
     datum_lla: tuple[float, float, float]
-    counts: dict[str, dict[str, int]]
+    sources: dict[str, SourceStats]
+    imu: ImuCounts
     fusion: Mapping[str, SourceFusion]
     events: list[tuple[int, str]]
     notes: list[str] = field(default_factory=list)
     replay_wall_s: float = 0.0
     gnss_checks: GnssChecks | None = None
+
+    def counts_json(self) -> dict[str, dict[str, int]]:
+        """The ``counts`` of ``metrics.json``: per source, the IMU, PX4's GNSS checks."""
+        keys = ("received", "rejected_out_of_order", "rejected_invalid", "clipping_flagged")
+        out = counts_json(self.sources, self.imu, imu_keys=keys)
+        for src in self.sources:
+            out[src].pop("rejected_unsupported")
+        g = self.gnss_checks
+        if g is not None:
+            out["gps_checks"] = {
+                "fixes": len(g.usable),
+                "passed": int(g.usable.sum()),
+                **g.refused_counts(),
+            }
+        return out
 
 
 def _gps_stream(
@@ -556,18 +575,14 @@ def replay(s: UlogSensors, cfg: ReplayConfig, *, progress: Any = None) -> Replay
     wall = time.perf_counter() - t_wall0
     if est.rejected_invalid:
         notes.append(f"refused at the boundary (non-finite values): {est.rejected_invalid}")
-    counts = {src: {"received": st.received, "fused": st.fused, "rejected_gate": st.rejected_gate,
-                    "rejected_too_old": st.rejected_too_old} for src in est.sources for st in [est.stats(src)]}  # fmt: skip
-    counts["imu"] = {"received": len(t_imu) - start, "rejected_out_of_order": est.imu_rejected_out_of_order,
-                     "rejected_invalid": est.rejected_invalid.get("ImuSample", 0), "clipping_flagged": int(np.count_nonzero(s.imu_clipping))}  # fmt: skip
-    if gnss is not None:
-        counts["gps_checks"] = {
-            "fixes": len(gnss.usable),
-            "passed": int(gnss.usable.sum()),
-            **gnss.refused_counts(),
-        }
+    imu_counts = ImuCounts(
+        received=len(t_imu) - start,
+        rejected_out_of_order=est.imu_rejected_out_of_order,
+        rejected_invalid=est.rejected_invalid.get("ImuSample", 0),
+        clipping_flagged=int(np.count_nonzero(s.imu_clipping)),
+    )
     return ReplayResult(
         t_ns=np.array(rows_t, dtype=np.int64), p=np.array(rows_p), v=np.array(rows_v), q_xyzw=np.array(rows_q),
-        datum_lla=datum, counts=counts, fusion=fusion_arrays(est.fusion_log), events=list(ekf.events), notes=notes,
+        datum_lla=datum, sources={src: est.stats(src) for src in est.sources}, imu=imu_counts, fusion=fusion_arrays(est.fusion_log), events=list(ekf.events), notes=notes,
         replay_wall_s=wall, gnss_checks=gnss,
     )  # fmt: skip

@@ -117,7 +117,7 @@ def replay_log(
     metrics = ReplayMetrics(
         log=log, duration_s=sensors.duration_s, replay_wall_s=res.replay_wall_s,
         times_faster_than_flight=sensors.duration_s / max(res.replay_wall_s, 1e-9),
-        datum_lla=res.datum_lla, counts=res.counts, notes=tuple(notes),
+        datum_lla=res.datum_lla, counts=res.counts_json(), notes=tuple(notes),
         events=tuple(f"{ns_to_s(t - sensors.t_start_ns):.3f} s: {m}" for t, m in res.events),
         pairs=pairs, run_dir=run_dir,
         ratio_quadnav_to_px4_vs_truth=_ratios(pairs["quadnav_vs_truth"], pairs["px4_vs_truth"])
