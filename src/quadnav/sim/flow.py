@@ -9,8 +9,8 @@ is computed from the moving scene point (the floor point on the optical axis, at
 the two can check each other. The sensor's own gyro is integrated beside it, with its own
 noise and bias.
 
-Timing: :meth:`FlowSensor.sample` is called every simulator step; it integrates between
-calls and returns one sample per period (due times accumulate, so 50 Hz on 2 ms steps is
+Timing: :meth:`FlowSensor.sample` is called every simulator step (a fault wrapper that drops
+samples must drop its output, not skip the call); it integrates between calls and returns one sample per period (due times accumulate, so 50 Hz on 2 ms steps is
 50 Hz), time-stamped at the middle of its interval as PX4 fuses it. Default rate 50 Hz:
 PX4's px4flow driver ran the PX4FLOW at 10 Hz by default and at most 100 Hz (a 20 ms
 interval in its first version), PX4 caps flow publication at ``SENS_FLOW_RATE`` = 70 Hz,
