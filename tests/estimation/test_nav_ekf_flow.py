@@ -144,8 +144,8 @@ def _flow(t_ns: int, *, quality: int, rate: float = 0.0) -> FlowSample:
                       gyro_rad=[0.0, 0.0, 0.0], quality=quality)  # fmt: skip
 
 
-def _hover(z: float) -> tuple[NavEkf, DelayedHorizonEstimator]:
-    ekf = NavEkf(NavEkfConfig(gravity_m_s2=G), p0=np.array([0.0, 0.0, z]), v0=np.zeros(3),
+def _hover(z: float, **config: float) -> tuple[NavEkf, DelayedHorizonEstimator]:
+    ekf = NavEkf(NavEkfConfig(gravity_m_s2=G, **config), p0=np.array([0.0, 0.0, z]), v0=np.zeros(3),
                  q0_xyzw=np.array([0.0, 0.0, 0.0, 1.0]), P0=np.eye(15) * 1e-4)  # fmt: skip
     est = DelayedHorizonEstimator(
         ekf, HorizonConfig(imu_period_ns=IMU_NS, max_delay_ns=40_000_000), t0_ns=0
@@ -172,6 +172,15 @@ def test_bad_flow_samples_are_rejected_and_counted_never_raised() -> None:
                 + [_flow(IMU_NS * k, quality=200) for k in range(50, 60)])  # fmt: skip
     st = est.stats("flow")
     assert (st.received, st.rejected_unsupported, st.fused) == (25, 15, 10)
+
+
+def test_flow_whose_compensated_rate_is_too_fast_is_not_fused() -> None:
+    _, est = _hover(1.0, flow_gate_sigma=1e4)  # no innovation gate would stop it
+    spin = [FlowSample(t_ns=IMU_NS * k, integration_ns=20_000_000, flow_rad=[0.0, 0.0],
+                       gyro_rad=[0.2, 0.0, 0.0], quality=255) for k in range(10, 20)]  # fmt: skip
+    _push_hover(est, spin)  # 10 rad/s of flow against the sensor's gyro: beyond 8 rad/s
+    st = est.stats("flow")
+    assert st.received == 10 and st.fused == 0 and st.rejected_gate == 10
 
 
 def test_flow_is_not_fused_below_its_minimum_height() -> None:

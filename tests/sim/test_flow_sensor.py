@@ -147,3 +147,31 @@ def test_beyond_the_sonar_or_too_fast_the_flow_is_invalid() -> None:
 def test_bad_sensor_settings_are_refused(kw: dict[str, float], message: str) -> None:
     with pytest.raises(SimError, match=message):
         FlowSensor(**kw)
+
+
+def test_after_a_gap_in_the_calls_a_fresh_interval_opens() -> None:
+    # A dropout that does not read the sensor for 0.3 s, while the body turns at 1 rad/s
+    # about x: the next sample covers only time after the gap, still on the 50 Hz grid.
+    sensor, rng = quiet(), np.random.default_rng(0)
+    out = []
+    for k in range(0, 500):
+        t = k * 2_000_000
+        if 200_000_000 <= t < 500_000_000:
+            continue
+        s = sensor.sample(truth(t, w=(1.0, 0.0, 0.0)), t, rng)
+        if s is not None:
+            out.append(s)
+    after = [s for s in out if s.t_ns > 500_000_000]
+    first = after[0]
+    assert first.t_ns - first.integration_ns // 2 == 500_000_000
+    assert first.t_ns + first.integration_ns // 2 == 520_000_000
+    for s in after:
+        np.testing.assert_allclose(s.gyro_rate_rad_s, [1.0, 0.0, 0.0], atol=1e-9)
+        assert s.integration_ns <= 20_000_000
+
+
+def test_called_only_at_its_own_rate_it_still_reports() -> None:
+    samples = run(quiet(), 1.0, step_ns=20_000_000, v=(1.0, 0.0, 0.0))
+    assert len(samples) == 50
+    for s in samples[1:]:
+        np.testing.assert_allclose(s.flow_rate_rad_s, [0.0, -0.5], atol=1e-9)

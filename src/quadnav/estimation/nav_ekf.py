@@ -595,7 +595,8 @@ class NavEkf:
         """PX4's optical-flow fusion (``quadnav.estimation.flow_model``): the flow rate less the
         sensor gyro's rate (its bias against our gyro low-passed as EKF2's
         ``calcBodyRateComp``) against the prediction from the velocity and the height above
-        the floor, as one 2-D observation with its own gate. Not fused too tilted or too low."""
+        the floor, as one 2-D observation with its own gate. Not fused too tilted, too low, or
+        when the compensated rate is beyond ``flow_max_rate_rad_s``."""
         c = self.config
         h = float(self.p[2]) - c.terrain_z_m
         if self.R[2, 2] < math.cos(c.range_max_tilt_rad) or h < c.flow_min_height_m:
@@ -603,6 +604,8 @@ class NavEkf:
         d_bias = np.clip(obs.gyro_rate_rad_s - self._w_B, -0.1, 0.1)
         self._flow_gyro_bias = 0.99 * self._flow_gyro_bias + 0.01 * d_bias
         meas = compensated_flow_rate(obs, self._flow_gyro_bias)
+        if float(np.linalg.norm(meas)) > c.flow_max_rate_rad_s:  # PX4's magnitude check, too
+            return FusionResult(accepted=False, innovation=np.zeros(2), nis=0.0, test_ratio=0.0)
         pred = predict_flow(
             self.R,
             self.v,

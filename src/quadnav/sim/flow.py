@@ -11,7 +11,9 @@ noise and bias.
 
 Timing: :meth:`FlowSensor.sample` is called every simulator step; it integrates between
 calls and returns one sample per period (due times accumulate, so 50 Hz on 2 ms steps is
-50 Hz), time-stamped at the middle of its interval as PX4 fuses it. Default rate 50 Hz:
+50 Hz), time-stamped at the middle of its interval as PX4 fuses it. After a gap of more than
+a period between calls (a dropout that did not read it) it opens a fresh interval rather
+than integrate across the gap. Default rate 50 Hz:
 PX4's px4flow driver ran the PX4FLOW at 10 Hz by default and at most 100 Hz (a 20 ms
 interval in its first version), PX4 caps flow publication at ``SENS_FLOW_RATE`` = 70 Hz,
 and EKF2 fuses every sample it gets. Delay is the channel's: PX4FLOW's is 15 ms (thesis 000,
@@ -111,8 +113,12 @@ class FlowSensor:
     def sample(self, truth: VehicleState, t_ns: int, rng: Generator) -> FlowSample | None:
         R = rotation_matrix_xyzw(truth.q_W_B_xyzw)
         h = float(truth.p_W_B[2]) - self.floor_z
-        if self._t_last is None:
-            self._t_start = t_ns  # the first interval opens at the first call
+        if self._t_last is None or t_ns - self._t_last > self.period_ns:
+            # The first call, or the first after a gap (a dropout that did not read the
+            # sensor): a fresh interval opens here, on the same grid of due times.
+            self._flow, self._gyro, self._t_start = np.zeros(2), np.zeros(3), t_ns
+            while self._next_due <= t_ns:
+                self._next_due += self.period_ns
         elif t_ns > self._t_last and h > 0 and R[2, 2] > 0:
             dt = (t_ns - self._t_last) * 1e-9
             self._flow += dt * line_of_sight_rate(R, truth.v_W_B, truth.w_B, h)
