@@ -19,7 +19,7 @@ from quadnav.experiments.flight import (
     builtin_config,
     run_flight,
 )
-from quadnav.experiments.flight_study import write_flight_run
+from quadnav.experiments.flight_study import FlightMetrics, write_flight_run
 from quadnav.io.config import load_config
 from quadnav.io.mavlink import SIGNING_KEY_ENV, check_bind, read_signing_key
 
@@ -123,28 +123,23 @@ def _load_scenario(scenario: str, overrides: list[str]) -> FlightConfig:
         return load_config(FlightConfig, path, overrides)
 
 
-def _print_flight(name: str, m: dict[str, Any], run_dir: Path) -> None:
+def _print_flight(name: str, m: FlightMetrics, run_dir: Path) -> None:
     table = Table(title=f"{name}")
     table.add_column("metric")
     table.add_column("value", justify="right")
-    for key in (
-        "tracking_rmse_m",
-        "tracking_rmse_whole_run_m",
-        "settling_time_s",
-        "overshoot_pct",
-        "peak_thrust_n",
-        "peak_torque",
-        "saturation_time_s",
-        "max_tilt_deg",
-        "min_obstacle_distance_m",
-        "sim_seconds_per_wall_second",
-    ):
-        if key in m and m[key] is not None:
-            v = m[key]
+    shown = ("tracking_rmse_m", "tracking_rmse_whole_run_m", "settling_time_s", "overshoot_pct",
+             "peak_thrust_n", "peak_torque", "saturation_time_s", "max_tilt_deg",
+             "min_obstacle_distance_m", "sim_seconds_per_wall_second")  # fmt: skip
+    values = dict(m.rows())
+    for key in shown:
+        if key in values:
+            v = values[key]
             if isinstance(v, dict):
                 v = ", ".join(f"{k} {x:.3g}" for k, x in v.items()) or "-"
             table.add_row(key, fmt_metric(v))
-    for key, v in m["events"].items():
+    for key, v in m.events.items():
+        if isinstance(v, tuple):
+            v = ", ".join(f"{x:.3g}" for x in v)
         table.add_row(key, str(v))
     console.print(table)
     console.print(str(run_dir), soft_wrap=True, highlight=False)

@@ -10,7 +10,7 @@ thesis 000 — take off to 1.5 m, hold, a 2 m square, hold, land, two 2 s vision
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Literal, Self
 
 import numpy as np
@@ -26,7 +26,8 @@ from quadnav.config_model import (
     MIN_SIGMA,
     ConfigModel,
 )
-from quadnav.control.cascaded_pid import CascadedPid, Setpoint
+from quadnav.control.base import Setpoint, truth_estimate
+from quadnav.control.cascaded_pid import CascadedPid
 from quadnav.control.trajectories import Waypoints
 from quadnav.errors import ExperimentError, SimError
 from quadnav.estimation.horizon import DelayedHorizonEstimator, HorizonConfig
@@ -41,7 +42,6 @@ from quadnav.messages import (
     PoseSample,
     RangeSample,
     Sample,
-    VehicleState,
     VelocitySample,
 )
 from quadnav.sim.rigid_body import RigidBodyQuadrotor
@@ -660,21 +660,16 @@ def run_nav(sc: NavScenario, seed: int, *, record_stream: bool = False) -> NavRu
                 cmd = np.zeros(4)
             else:
                 if sc.closed_loop and est is not None and ekf is not None:
-                    o = est.output_nav()
-                    state = VehicleState(
-                        t_ns=t,
-                        p_W_B=o.pos,
-                        v_W_B=o.vel,
-                        a_W_B=np.zeros(3),
-                        q_W_B_xyzw=quat_xyzw_from_matrix(o.att.reshape(3, 3)),
-                        w_B=last_gyro - ekf.bg,
-                    )
+                    state = est.output()
+                    if state.w_B is None:  # the output predictor carries no body rate yet
+                        state = replace(state, w_B=last_gyro - ekf.bg)
                 else:
-                    state = truth
+                    state = truth_estimate(truth)
                 cmd = ctrl(
+                    t,
                     state,
                     Setpoint(p=ref_i, v=ref_all.v[i], a=ref_all.a[i], yaw_rad=float(yaw_ref[i])),
-                )
+                ).rotors()
                 # Touch-down: the plan has come down and the vehicle sits low: cut the motors.
                 if i > n_steps // 2 and ref_i[2] <= 0.0 and state.p_W_B[2] < 0.05:
                     landed = True

@@ -12,14 +12,15 @@ from __future__ import annotations
 import math
 import threading
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
-from quadnav.control.cascaded_pid import CascadedPid, Setpoint
+from quadnav.control.base import Setpoint
+from quadnav.control.cascaded_pid import CascadedPid
 from quadnav.errors import ExperimentError
 from quadnav.estimation.horizon import DelayedHorizonEstimator, HorizonConfig
 from quadnav.estimation.nav_ekf import NavEkf, NavEkfConfig
@@ -29,9 +30,9 @@ from quadnav.geometry.frames import (
     rotation_enu_flu_to_ned_frd,
     rotation_ned_frd_to_enu_flu,
 )
-from quadnav.geometry.rotations import Pose, quat_xyzw_from_matrix
+from quadnav.geometry.rotations import Pose
 from quadnav.io.mavlink import MavlinkLink, decode_vehicle_command
-from quadnav.messages import HeightSample, PoseSample, VehicleState
+from quadnav.messages import HeightSample, PoseSample
 from quadnav.sim.rigid_body import RigidBodyQuadrotor
 from quadnav.sim.sensors import BaroSensor, DelayLine, IntegratingImu, VisionPoseSensor
 from quadnav.vehicle import RigidBodyParams
@@ -142,8 +143,9 @@ class SitlVehicle:
             self.est.push(imu)
             self.last_gyro = imu.gyro_rad_s
         o = self.est.output_nav()
-        state = VehicleState(t_ns=t_ns, p_W_B=o.pos, v_W_B=o.vel, a_W_B=np.zeros(3),
-                             q_W_B_xyzw=quat_xyzw_from_matrix(o.att.reshape(3, 3)), w_B=self.last_gyro - self.ekf.bg)  # fmt: skip
+        state = self.est.output()
+        if state.w_B is None:  # the output predictor carries no body rate yet
+            state = replace(state, w_B=self.last_gyro - self.ekf.bg)
         R_now = o.att.reshape(3, 3)
         yaw_now = math.atan2(R_now[1, 0], R_now[0, 0])
         if self.offboard and t_s - self.t_setpoint > SETPOINT_TIMEOUT_S:
@@ -160,8 +162,8 @@ class SitlVehicle:
             if self.hold is None and not self.offboard:
                 self.hold = (np.array([o.pos[0], o.pos[1], max(o.pos[2], 0.0)]), 0.0)
             cmd = self.ctrl(
-                state, Setpoint(p=target[0], v=np.zeros(3), a=np.zeros(3), yaw_rad=target[1])
-            )
+                t_ns, state, Setpoint(p=target[0], v=np.zeros(3), a=np.zeros(3), yaw_rad=target[1])
+            ).rotors()
         if self.offboard:
             self.hold = None
         self.sim.step(cmd)
