@@ -150,7 +150,7 @@ def require_rate(est: StateEstimate, who: str) -> FloatArray:
 
 def euler_rpy_from_quat_xyzw(q: FloatArray) -> tuple[float, float, float]:
     """ZYX Euler angles (roll, pitch, yaw) of a unit quaternion, in rad."""
-    x, y, z, w = (float(c) for c in q)
+    x, y, z, w = np.asarray(q, dtype=np.float64).tolist()
     roll = math.atan2(2.0 * (w * x + y * z), 1.0 - 2.0 * (x * x + y * y))
     pitch = math.asin(max(-1.0, min(1.0, 2.0 * (w * y - z * x))))
     yaw = math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
@@ -172,20 +172,24 @@ def quat_xyzw_from_euler_rpy(roll: float, pitch: float, yaw: float) -> FloatArra
     )
 
 
-def euler_rates_from_body_rates(roll: float, pitch: float, w_B: FloatArray) -> FloatArray:
+def euler_rates_from_body_rates(
+    roll: float, pitch: float, w_B: FloatArray
+) -> tuple[float, float, float]:
     """ZYX Euler angle rates (roll', pitch', yaw') from the body rate (rad/s)."""
-    p, q, r = (float(c) for c in w_B)
+    p, q, r = np.asarray(w_B, dtype=np.float64).tolist()
     sf, cf = math.sin(roll), math.cos(roll)
     ct = math.cos(pitch)
     if abs(ct) < 1e-9:
         raise ControlError(f"Euler rates are undefined at pitch {math.degrees(pitch):.1f} deg")
     tt = math.sin(pitch) / ct
-    return np.array([p + (sf * q + cf * r) * tt, cf * q - sf * r, (sf * q + cf * r) / ct])
+    return (p + (sf * q + cf * r) * tt, cf * q - sf * r, (sf * q + cf * r) / ct)
 
 
-def body_rates_from_euler_rates(roll: float, pitch: float, rates: FloatArray) -> FloatArray:
+def body_rates_from_euler_rates(
+    roll: float, pitch: float, rates: FloatArray
+) -> tuple[float, float, float]:
     """The body rate (rad/s) from ZYX Euler angle rates (roll', pitch', yaw')."""
-    dphi, dtheta, dpsi = (float(c) for c in rates)
+    dphi, dtheta, dpsi = np.asarray(rates, dtype=np.float64).tolist()
     sf, cf = math.sin(roll), math.cos(roll)
     st, ct = math.sin(pitch), math.cos(pitch)
-    return np.array([dphi - st * dpsi, cf * dtheta + sf * ct * dpsi, -sf * dtheta + cf * ct * dpsi])
+    return (dphi - st * dpsi, cf * dtheta + sf * ct * dpsi, -sf * dtheta + cf * ct * dpsi)

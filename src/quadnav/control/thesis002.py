@@ -57,11 +57,11 @@ def _or_zero(x: FloatArray | None) -> FloatArray:
     return _ZERO3 if x is None else x
 
 
-def _model_state(est: StateEstimate, who: str) -> FloatArray:
+def _model_state(est: StateEstimate, who: str) -> list[float]:
     """The model's ``(x, y, z, phi, theta, psi, x', y', z', phi', theta', psi')``."""
     roll, pitch, yaw = euler_rpy_from_quat_xyzw(est.q_W_B_xyzw)
     rates = euler_rates_from_body_rates(roll, pitch, require_rate(est, who))
-    return np.concatenate([est.p_W_B, (roll, pitch, yaw), est.v_W_B, rates])
+    return [*est.p_W_B.tolist(), roll, pitch, yaw, *est.v_W_B.tolist(), *rates]
 
 
 def _position(ref: Setpoint, who: str) -> FloatArray:

@@ -484,8 +484,8 @@ def _setpoint(ref: Reference, i: int) -> Setpoint:
 def _el_estimate(t_ns: int, s: FloatArray) -> StateEstimate:
     """The Euler-Lagrange model's state as a perfect estimate (attitude and body rate from
     its Euler angles and their rates)."""
-    roll, pitch, yaw = (float(a) for a in s[3:6])
-    w_B = body_rates_from_euler_rates(roll, pitch, s[9:12])
+    roll, pitch, yaw = s[3:6].tolist()
+    w_B = np.array(body_rates_from_euler_rates(roll, pitch, s[9:12]))
     q = quat_xyzw_from_euler_rpy(roll, pitch, yaw)
     return StateEstimate(
         t_ns=t_ns, p_W_B=s[0:3], v_W_B=s[6:9], q_W_B_xyzw=q, x=s, names=EL_STATE_NAMES, w_B=w_B
