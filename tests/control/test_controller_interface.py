@@ -163,3 +163,21 @@ def test_waypoint_pid_is_the_thesis_discrete_law() -> None:
     sp = f(100_000_000, est, Setpoint())  # same place: no change of error, the sum doubled
     assert sp.v is not None
     np.testing.assert_allclose(sp.v, [0.2 * 2 + 0.004 * 4, 0.0, 0.0], atol=1e-12)
+
+
+def test_no_loop_forges_a_vehicle_state_from_an_estimate() -> None:
+    """Only the simulators make a ``VehicleState`` (the truth); loops hand controllers a
+    ``StateEstimate``. Before the Controller interface, run_nav and the SITL vehicle built one
+    from the EKF's output."""
+    import ast
+    from pathlib import Path
+
+    import quadnav
+
+    root = Path(quadnav.__file__).parent
+    makers = []
+    for path in sorted(root.rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Call) and getattr(node.func, "id", None) == "VehicleState":
+                makers.append(path.relative_to(root).as_posix())
+    assert makers and set(makers) <= {"sim/rigid_body.py", "sim/planar.py"}, makers

@@ -15,7 +15,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass
-from typing import Any, Literal, Self
+from typing import Literal, Self
 
 import numpy as np
 from numpy.typing import NDArray
@@ -310,7 +310,7 @@ _THESIS002_TRACK = {
 }
 #: Built-in scenarios: thesis 002's four simulations, the circle with and without gusts, and
 #: thesis 003's take-off and obstacle experiments.
-BUILTIN: dict[str, dict[str, Any]] = {
+BUILTIN: dict[str, dict[str, object]] = {
     "thesis002_pd_stabilization": {**_THESIS002_STAB, "controller": "pd"},
     "thesis002_nested_stabilization": {**_THESIS002_STAB, "controller": "nested_saturation"},
     "thesis002_pd_tracking": {**_THESIS002_TRACK, "controller": "pd"},
@@ -363,7 +363,7 @@ BUILTIN_DESCRIPTIONS: dict[str, str] = {
 }
 
 
-def builtin_config(name: str) -> dict[str, Any]:
+def builtin_config(name: str) -> dict[str, object]:
     if name not in BUILTIN:
         raise ExperimentError(f"no built-in scenario {name!r}; choose from {', '.join(BUILTIN)}")
     return {"name": name, **BUILTIN[name]}
