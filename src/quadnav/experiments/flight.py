@@ -260,7 +260,10 @@ class FlightConfig(ConfigModel):
                 )
         key = {"pd": "el_pd", "nested_saturation": "el_nested"}.get(self.controller, "pid_gains")
         try:
-            _controller_gains(self)
+            if self.vehicle == "euler_lagrange":
+                _el_controller(self)
+            else:
+                _pid_gains(self)
             if self.controller in ("takeoff_forward", "waypoint_follower"):
                 key = "thesis003"
                 self.thesis003.gains()
@@ -269,19 +272,18 @@ class FlightConfig(ConfigModel):
         return None
 
 
-def _controller_gains(
-    config: FlightConfig,
-) -> PdController | NestedSaturationController | CascadedPidGains:
-    """The configured controller of the Euler-Lagrange model, or the cascaded PID's gains."""
+def _el_controller(config: FlightConfig) -> PdController | NestedSaturationController:
+    """The configured controller of the Euler-Lagrange model."""
     if config.controller == "pd":
         overrides = config.el_pd.model_dump(exclude_none=True)
-        return PdController(
-            **{**PD_GAIN_SETS[config.el_pd_gains], **overrides}, mass_kg=config.mass_kg
-        )
-    if config.controller == "nested_saturation":
-        return NestedSaturationController(
-            **config.el_nested.model_dump(exclude_none=True), mass_kg=config.mass_kg
-        )
+        gains = {**PD_GAIN_SETS[config.el_pd_gains], **overrides}
+        return PdController(**gains, mass_kg=config.mass_kg)
+    return NestedSaturationController(
+        **config.el_nested.model_dump(exclude_none=True), mass_kg=config.mass_kg
+    )
+
+
+def _pid_gains(config: FlightConfig) -> CascadedPidGains:
     return CascadedPidGains(**config.pid_gains.model_dump(exclude_none=True))
 
 
@@ -458,8 +460,15 @@ class _FlightLog:
     def due(self, i: int) -> bool:
         return self._r < len(self.rows) and self.rows[self._r] == i
 
-    def record(self, s: FloatArray, euler: FloatArray, cmd: Command, *, saturated: bool,
-               rotor_rad_s: FloatArray | None = None) -> None:  # fmt: skip
+    def record(
+        self,
+        s: FloatArray,
+        euler: FloatArray,
+        cmd: Command,
+        *,
+        saturated: bool,
+        rotor_rad_s: FloatArray | None = None,
+    ) -> None:
         """``s`` holds position, velocity and rates at 0:3, 3:6 and 6:9; the rotors' speeds."""
         r = self._r
         self.p[r], self.v[r], self.rates[r], self.euler[r] = s[0:3], s[3:6], s[6:9], euler
@@ -502,8 +511,7 @@ def _fly_euler_lagrange(config: FlightConfig, ref: Reference, log: _FlightLog) -
     s0[0:3] = ic.position_m
     s0[3:6] = ic.euler_rad
     el = EulerLagrangeQuadrotor(EulerLagrangeParams(mass_kg=config.mass_kg), s0=s0, dt_s=dt)
-    ctrl = _controller_gains(config)
-    assert not isinstance(ctrl, CascadedPidGains)  # FlightConfig pairs the vehicle and controller
+    ctrl = _el_controller(config)
     level = ctrl.levels_rad_s2[0] if isinstance(ctrl, NestedSaturationController) else math.inf
     dt_ns = s_to_ns(dt)
     for i in range(n + 1):
@@ -545,10 +553,10 @@ def _fly_rigid_body(
     wind = Wind(
         mean_m_s=w.mean_m_s, gust_sigma_m_s=w.gust_sigma_m_s, gust_tau_s=w.gust_tau_s, rng=rng
     )
-    rb = RigidBodyQuadrotor(params, dt_s=dt, p0=ic.position_m, yaw0_rad=ic.euler_rad[2], hovering=ic.hovering, wind=wind)  # fmt: skip
-    gains = _controller_gains(config)
-    assert isinstance(gains, CascadedPidGains)  # FlightConfig pairs the vehicle and controller
-    ctrl, outer = _rigid_body_controller(config, CascadedPid(params, gains, dt_s=dt))
+    rb = RigidBodyQuadrotor(
+        params, dt_s=dt, p0=ic.position_m, yaw0_rad=ic.euler_rad[2], hovering=ic.hovering, wind=wind
+    )
+    ctrl, outer = _rigid_body_controller(config, CascadedPid(params, _pid_gains(config), dt_s=dt))
     follower = outer if isinstance(outer, ObstacleAwareWaypointFollower) else None
     scanner, scan_every = LaserScanner(), max(1, round(0.025 / dt))  # 40 Hz laser
     for i in range(n + 1):
