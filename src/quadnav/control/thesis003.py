@@ -17,7 +17,8 @@ hector_quadrotor's own controller tracks ``/cmd_vel``), which makes the pair a `
   has them), the yaw-rate command integrated into the yaw setpoint. A waypoint is reached within
   ``reach_radius_m`` (3-D). A laser ray within ``+-sector_half_angle`` of the heading that sees
   something between ``obstacle_min_m`` and ``obstacle_max_m`` marks the route unsafe: the vehicle
-  goes back to the last waypoint it reached by position control (the thesis calls
+  goes back to the last waypoint it reached (the first one if none yet; the thesis goes to
+  its origin then) by position control (the thesis calls
   hector_quadrotor's pose action) and stays there. The thesis checks for an obstacle at its
   10 Hz tick; :class:`OuterLoopController` can run the follower as soon as a scan shows one. After the last waypoint it holds position.
   Code 8.4 integrates ``|e|`` and applies the current sign; we integrate the signed error, the
