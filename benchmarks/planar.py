@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from quadnav.control import ThesisPlanarController
+from quadnav.control import ThesisPlanarController, truth_estimate
 from quadnav.estimation import DelayedHorizonEstimator, HorizonConfig, PlanarEkf, PlanarEkfConfig
 from quadnav.experiments import PlanarConfig, run_planar
 from quadnav.messages import ImuSample, PositionSample
@@ -38,7 +38,8 @@ def record_stream(n_steps: int, delay_ns: int, seed: int = 0) -> list[ImuSample 
     truth = sim.state.to_vehicle_state()
     for i in range(1, n_steps + 1):
         t = i * DT_NS
-        truth = sim.step(*ctrl(t, truth)).to_vehicle_state()
+        cmd = ctrl(t, truth_estimate(truth), ctrl.setpoint(t))
+        truth = sim.step(cmd.thrust_n, float(cmd.torque()[1])).to_vehicle_state()
         fix = gps.sample(truth, t, rng)
         if fix is not None:
             line.push(fix)

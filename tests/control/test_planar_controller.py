@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from quadnav.control import PlanarSetpointProfile, ThesisPlanarController
+from quadnav.control import PlanarSetpointProfile, ThesisPlanarController, truth_estimate
 from quadnav.errors import ControlError
 from quadnav.sim import PlanarParams, PlanarQuadrotor
 
@@ -26,8 +26,8 @@ def test_closed_loop_climbs_then_heads_to_minus_x() -> None:
     truth = sim.state.to_vehicle_state()
     heights, xs = [], []
     for i in range(1, 1001):
-        thrust, torque = ctrl(i * 10_000_000, truth)
-        s = sim.step(thrust, torque)
+        cmd = ctrl(i * 10_000_000, truth_estimate(truth), ctrl.setpoint(i * 10_000_000))
+        s = sim.step(cmd.thrust_n, float(cmd.torque()[1]))
         truth = s.to_vehicle_state()
         heights.append(s.p_xz[1])
         xs.append(s.p_xz[0])

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
-from quadnav.control import PlanarSetpointProfile, ThesisPlanarController
+from quadnav.control import PlanarSetpointProfile, ThesisPlanarController, truth_estimate
 from quadnav.estimation import DelayedHorizonEstimator, HorizonConfig, PlanarEkf, PlanarEkfConfig
 from quadnav.messages import ImuSample, PositionSample
 from quadnav.sim import ImuSensor, PlanarParams, PlanarQuadrotor, PlanarState
@@ -45,8 +45,8 @@ def fly(
     imu = []
     truth = sim.state.to_vehicle_state()
     for i in range(1, n_steps + 1):
-        thrust, torque = ctrl(i * DT_NS, truth)
-        states.append(sim.step(thrust, torque))
+        cmd = ctrl(i * DT_NS, truth_estimate(truth), ctrl.setpoint(i * DT_NS))
+        states.append(sim.step(cmd.thrust_n, float(cmd.torque()[1])))
         truth = states[-1].to_vehicle_state()
         imu.append(imu_sensor.sample(truth, i * DT_NS, rng))
     return Flight(states, imu)

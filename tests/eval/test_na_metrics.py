@@ -34,8 +34,10 @@ def test_a_two_second_sim_says_why_it_has_no_tracking_rmse() -> None:
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # "Mean of empty slice" would fail here
         m = flight_metrics(run_flight(cfg))
-    assert is_na(m["tracking_rmse_m"]) and "tracking_start_s" in m["tracking_rmse_m"]
-    assert isinstance(m["tracking_rmse_whole_run_m"], float)
+    assert m.tracking is not None
+    rmse = m.tracking.tracking_rmse_m
+    assert isinstance(rmse, str) and is_na(rmse) and "tracking_start_s" in rmse
+    assert isinstance(m.tracking.tracking_rmse_whole_run_m, float)
 
 
 def test_a_dropout_over_the_whole_flight_says_why() -> None:

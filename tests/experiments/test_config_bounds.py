@@ -59,8 +59,10 @@ def test_planar_config_refuses_absurd_numbers(override: str, key: str, why: str)
     [
         ("duration_s=inf", "duration_s", "finite"),
         ("duration_s=1e5", "duration_s", "less than or equal to 3600"),
-        ("pid_gains.kp_pos=inf", "pid_gains.kp_pos", "finite"),
-        ("pid_gains.kp_pos=[1,1,.nan]", "pid_gains.kp_pos[2]", "finite"),
+        ("pid_gains.kp_pos=inf", "pid_gains.kp_pos", "valid tuple"),  # three gains, one per axis
+        ("pid_gains.kp_pos=[1,1,.nan]", "pid_gains.kp_pos.2", "finite"),
+        ("pid_gains.max_vel_m_s=inf", "pid_gains.max_vel_m_s", "finite"),
+        ("thesis003.kp_lin=.nan", "thesis003.kp_lin", "finite"),
         ("pid_gains.kp=1", "pid_gains.kp", "unknown key"),
         ("wind.mean_m_s=[1e7,0,0]", "wind.mean_m_s[0]", "within"),
     ],

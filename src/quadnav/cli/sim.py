@@ -19,7 +19,7 @@ from quadnav.experiments.flight import (
     builtin_config,
     run_flight,
 )
-from quadnav.experiments.flight_study import write_flight_run
+from quadnav.experiments.flight_study import FlightMetrics, write_flight_run
 from quadnav.io.config import load_config
 from quadnav.io.mavlink import SIGNING_KEY_ENV, check_bind, read_signing_key
 
@@ -34,6 +34,8 @@ EXAMPLES = (
     "quadnav sim thesis002_nested_tracking",
     "quadnav sim circle_gusts --set wind.gust_sigma_m_s=3",
     "quadnav sim thesis003_obstacle --set duration_s=40",
+    "quadnav sim thesis003_waypoints --set thesis003.kp_lin=0.3",
+    "quadnav sim thesis002_pd_stabilization --set el_pd_gains=table_5_1",
     "quadnav sim --mavlink udpin:127.0.0.1:14540 --signing-key-file key.hex --duration 60",
 )
 
@@ -123,11 +125,11 @@ def _load_scenario(scenario: str, overrides: list[str]) -> FlightConfig:
         return load_config(FlightConfig, path, overrides)
 
 
-def _print_flight(name: str, m: dict[str, Any], run_dir: Path) -> None:
+def _print_flight(name: str, m: FlightMetrics, run_dir: Path) -> None:
     table = Table(title=f"{name}")
     table.add_column("metric")
     table.add_column("value", justify="right")
-    for key in (
+    shown = (
         "tracking_rmse_m",
         "tracking_rmse_whole_run_m",
         "settling_time_s",
@@ -138,26 +140,44 @@ def _print_flight(name: str, m: dict[str, Any], run_dir: Path) -> None:
         "max_tilt_deg",
         "min_obstacle_distance_m",
         "sim_seconds_per_wall_second",
-    ):
-        if key in m and m[key] is not None:
-            v = m[key]
+    )
+    values = dict(m.rows())
+    for key in shown:
+        if key in values:
+            v = values[key]
             if isinstance(v, dict):
                 v = ", ".join(f"{k} {x:.3g}" for k, x in v.items()) or "-"
             table.add_row(key, fmt_metric(v))
-    for key, v in m["events"].items():
+    for key, v in m.events.items():
+        if isinstance(v, tuple):
+            v = ", ".join(f"{x:.3g}" for x in v)
         table.add_row(key, str(v))
     console.print(table)
     console.print(str(run_dir), soft_wrap=True, highlight=False)
 
 
-def _run_sitl(url: str | None, key_hex: str | None, key_file: Path | None, duration: float | None,
-              *, allow_remote: bool) -> None:  # fmt: skip
+def _run_sitl(
+    url: str | None,
+    key_hex: str | None,
+    key_file: Path | None,
+    duration: float | None,
+    *,
+    allow_remote: bool,
+) -> None:
     """The simulated vehicle with its EKF, speaking MAVLink (loopback unless --allow-remote)."""
     from quadnav.experiments.sitl import SitlVehicle
 
     if url is None:
-        given = [name for name, v in (("--signing-key", key_hex), ("--signing-key-file", key_file),
-                 ("--allow-remote", allow_remote or None), ("--duration", duration)) if v is not None]  # fmt: skip
+        given = [
+            name
+            for name, v in (
+                ("--signing-key", key_hex),
+                ("--signing-key-file", key_file),
+                ("--allow-remote", allow_remote or None),
+                ("--duration", duration),
+            )
+            if v is not None
+        ]
         raise ConfigError(
             f"{', '.join(given)}: only with --mavlink (a scenario's length is --set duration_s=...)"
         )
@@ -165,8 +185,11 @@ def _run_sitl(url: str | None, key_hex: str | None, key_file: Path | None, durat
         check_range(duration, "--duration", 0.0, MAX_SITL_S, "seconds", low_open=True)
     key = read_signing_key(key_hex=key_hex, key_file=key_file, environ=os.environ)
     if key_hex is not None:
-        err_console.print(f"warning: --signing-key shows the key to every user of this machine (ps); use --signing-key-file or {SIGNING_KEY_ENV}",
-                          highlight=False, soft_wrap=True)  # fmt: skip
+        err_console.print(
+            f"warning: --signing-key shows the key to every user of this machine (ps); use --signing-key-file or {SIGNING_KEY_ENV}",
+            highlight=False,
+            soft_wrap=True,
+        )
     vehicle = SitlVehicle(url=url, signing_key=key, allow_remote=allow_remote)
     console.print(
         f"SITL vehicle on {url}{' (signed)' if key else ''}; Ctrl-C stops it", highlight=False
@@ -178,15 +201,19 @@ def _run_sitl(url: str | None, key_hex: str | None, key_file: Path | None, durat
     finally:
         vehicle.stop()
     st = vehicle.link.stats
-    console.print(f"sent {sum(st.sent.values())}, received {sum(st.received.values())}, refused unsigned "
-                  f"{st.refused_unsigned}, bad packets {st.bad_packets}, vision estimates fused from the link "
-                  f"{vehicle.est.stats('mavlink_vision').fused}", highlight=False)  # fmt: skip
+    console.print(
+        f"sent {sum(st.sent.values())}, received {sum(st.received.values())}, refused unsigned "
+        f"{st.refused_unsigned}, bad packets {st.bad_packets}, vision estimates fused from the link "
+        f"{vehicle.est.stats('mavlink_vision').fused}",
+        highlight=False,
+    )
 
 
 sim_command.__doc__ = command_help(
     "Fly a closed-loop scenario on the true state, or be a MAVLink vehicle (--mavlink).",
     "Thesis 002's PD and nested-saturation simulations, the rigid-body circle with the cascaded "
-    "PID, thesis 003's take-off and obstacle experiments. With --mavlink, the simulated vehicle "
+    "PID, thesis 003's take-off, waypoint and obstacle experiments with its gains (thesis003.*). "
+    "With --mavlink, the simulated vehicle "
     "with its EKF speaks MAVLink in real time (loopback unless --allow-remote).",
     lists=[("Built-in scenarios", BUILTIN_DESCRIPTIONS)],
     examples=EXAMPLES,

@@ -8,7 +8,10 @@ torques. Integrators are clamped (anti-windup) and frozen while the output satur
 The mixer turns thrust and torques into rotor speed commands.
 
 A setpoint may give a position, or only a velocity (the ``/cmd_vel`` interface of thesis 003's
-controllers), and a yaw.
+controllers), and a yaw; its acceleration is fed forward. It is a
+:class:`~quadnav.control.base.Controller`: it reads the estimate's position, velocity, attitude
+and body rate, and returns a ``rotor_speeds`` :class:`~quadnav.control.base.Command` (with the
+thrust and torque it mixed). It runs every loop at every call, with the fixed ``dt_s``.
 """
 
 from __future__ import annotations
@@ -19,25 +22,16 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from quadnav.control.base import Command, Setpoint, require_rate
 from quadnav.control.stability import routh_hurwitz_stable
 from quadnav.errors import ControlError
 from quadnav.geometry.rotations import cross3, rotation_matrix_xyzw
-from quadnav.messages import VehicleState
+from quadnav.messages import StateEstimate
 from quadnav.vehicle import Mixer, RigidBodyParams
 
-__all__ = ["CascadedPid", "CascadedPidGains", "Setpoint"]
+__all__ = ["CascadedPid", "CascadedPidGains", "Setpoint"]  # Setpoint: from control.base
 
 FloatArray = NDArray[np.float64]
-
-
-@dataclass(frozen=True, slots=True, kw_only=True)
-class Setpoint:
-    """What the vehicle should do now. ``p`` None means velocity control."""
-
-    p: FloatArray | None = None
-    v: FloatArray | None = None
-    a: FloatArray | None = None
-    yaw_rad: float = 0.0
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -99,30 +93,27 @@ class CascadedPid:
         self._rate_int = np.zeros(3)
         self._prev_vel_err: FloatArray | None = None  # no derivative kick on the first call
         self._prev_rate_err: FloatArray | None = None
-        self.saturated = False
-        self.last_thrust_n = 0.0
-        self.last_torque_nm = np.zeros(3)
 
-    def __call__(self, state: VehicleState, sp: Setpoint) -> FloatArray:
-        """Rotor speed commands (rad/s) for the setpoint."""
+    def __call__(self, t_ns: int, est: StateEstimate, ref: Setpoint) -> Command:
+        """Rotor speed commands (rad/s) for the setpoint (``t_ns`` unused: fixed ``dt_s``)."""
         g, p, dt = self.g, self.params, self.dt
         kp_pos, kp_vel, ki_vel, kd_vel = (
             np.asarray(x) for x in (g.kp_pos, g.kp_vel, g.ki_vel, g.kd_vel)
         )
         # Position -> velocity
-        v_sp = np.zeros(3) if sp.v is None else np.asarray(sp.v, dtype=np.float64).copy()
-        if sp.p is not None:
-            v_sp = v_sp + kp_pos * (sp.p - state.p_W_B)
+        v_sp = np.zeros(3) if ref.v is None else np.asarray(ref.v, dtype=np.float64).copy()
+        if ref.p is not None:
+            v_sp = v_sp + kp_pos * (ref.p - est.p_W_B)
         speed = float(np.linalg.norm(v_sp))
         if speed > g.max_vel_m_s:
             v_sp *= g.max_vel_m_s / speed
         # Velocity -> acceleration (PID, anti-windup)
-        err = v_sp - state.v_W_B
+        err = v_sp - est.v_W_B
         d_err = np.zeros(3) if self._prev_vel_err is None else (err - self._prev_vel_err) / dt
         self._prev_vel_err = err
         a_sp = kp_vel * err + self._vel_int + kd_vel * d_err
-        if sp.a is not None:
-            a_sp = a_sp + sp.a
+        if ref.a is not None:
+            a_sp = a_sp + ref.a
         # Thrust vector, limited in tilt and magnitude
         F = p.mass_kg * (a_sp + np.array([0.0, 0.0, p.gravity_m_s2]))
         F_min = g.min_thrust_fraction * p.max_thrust_n
@@ -137,8 +128,8 @@ class CascadedPid:
         thrust_limited = norm > F_max
         if thrust_limited:
             F *= F_max / norm
-        self.saturated = bool(tilt_limited or thrust_limited)
-        if not self.saturated:  # integrate only while the output is achievable
+        saturated = bool(tilt_limited or thrust_limited)
+        if not saturated:  # integrate only while the output is achievable
             self._vel_int = np.clip(
                 self._vel_int + ki_vel * err * dt,
                 -g.vel_integral_limit_m_s2,
@@ -146,19 +137,19 @@ class CascadedPid:
             )
         # Desired attitude: body z along F, heading from the yaw setpoint
         z_d = F / np.linalg.norm(F)
-        x_c = np.array([math.cos(sp.yaw_rad), math.sin(sp.yaw_rad), 0.0])
+        x_c = np.array([math.cos(ref.yaw_rad), math.sin(ref.yaw_rad), 0.0])
         y_d = cross3(z_d, x_c)
         y_d /= np.linalg.norm(y_d)
         x_d = cross3(y_d, z_d)
         R_d = np.column_stack([x_d, y_d, z_d])
-        R = rotation_matrix_xyzw(state.q_W_B_xyzw)
+        R = rotation_matrix_xyzw(est.q_W_B_xyzw)
         # Attitude -> rates: P on the geometric attitude error e_R = vee(R^T R_d - R_d^T R) / 2
         # (Lee, Leok and McClamroch), the rotation towards the desired attitude in the body frame.
         E = R.T @ R_d
         att_err = 0.5 * np.array([E[2, 1] - E[1, 2], E[0, 2] - E[2, 0], E[1, 0] - E[0, 1]])
         w_sp = np.clip(np.asarray(g.kp_att) * att_err, -g.max_rate_rad_s, g.max_rate_rad_s)
         # Rates -> torques (PID plus the gyroscopic term)
-        w = state.w_B
+        w = require_rate(est, "the cascaded PID")
         rerr = w_sp - w
         d_rerr = np.zeros(3) if self._prev_rate_err is None else (rerr - self._prev_rate_err) / dt
         self._prev_rate_err = rerr
@@ -172,6 +163,9 @@ class CascadedPid:
         # Collective thrust along the current body z
         thrust = float(F @ R[:, 2])
         thrust = min(max(thrust, F_min), F_max)
-        self.last_thrust_n = thrust
-        self.last_torque_nm = torque
-        return self.mixer(thrust, torque)
+        return Command(
+            thrust_n=thrust,
+            torque_B_nm=torque,
+            rotor_rad_s=self.mixer(thrust, torque),
+            saturated=saturated,
+        )

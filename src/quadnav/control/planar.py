@@ -6,6 +6,13 @@ for the first quarter of the run, then tilt to one side and to the other.
 
     thrust = m g / cos(theta) + k_climb (vz_ref - vz)
     torque = k_tilt (theta_ref - theta) - kd_tilt theta_rate
+
+It is a :class:`~quadnav.control.base.Controller` on the planar vehicle in its 3-D form (the
+x-z plane, pitch about +y, as ``PlanarState.to_vehicle_state`` gives it): it reads the
+estimate's vertical velocity, its pitch (from ``q_W_B_xyzw``) and pitch rate (``w_B[1]``),
+and the setpoint's vertical velocity ``v[2]`` and tilt (the pitch of ``q_W_B_xyzw``; None is
+level). :meth:`PlanarSetpointProfile.setpoint` gives the thesis's profile as setpoints. The
+command is ``thrust_torque`` with the torque about +y in ``torque_B_nm[1]``.
 """
 
 from __future__ import annotations
@@ -13,8 +20,11 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numpy as np
+
+from quadnav.control.base import Command, Setpoint, require_rate
 from quadnav.errors import ControlError
-from quadnav.messages import VehicleState
+from quadnav.messages import StateEstimate
 
 __all__ = ["PlanarSetpointProfile", "ThesisPlanarController"]
 
@@ -48,6 +58,15 @@ class PlanarSetpointProfile:
             theta_ref = self.tilt_rad
         return vz_ref, theta_ref
 
+    def setpoint(self, t_s: float) -> Setpoint:
+        """The reference at ``t_s`` as a setpoint: ``v = (0, 0, vz_ref)``, tilt about +y."""
+        vz_ref, theta_ref = self.reference(t_s)
+        half = 0.5 * theta_ref
+        return Setpoint(
+            v=np.array([0.0, 0.0, vz_ref]),
+            q_W_B_xyzw=np.array([0.0, math.sin(half), 0.0, math.cos(half)]),
+        )
+
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class ThesisPlanarController:
@@ -68,13 +87,22 @@ class ThesisPlanarController:
         if self.k_climb <= 0.0:
             raise ControlError("k_climb must be > 0 for a stable climb-rate loop")
 
-    def __call__(self, t_ns: int, truth: VehicleState) -> tuple[float, float]:
-        """(thrust in N, torque in N m) for the planar vehicle, from its state in 3-D form."""
-        vz_ref, theta_ref = self.profile.reference((t_ns - self.t0_ns) * 1e-9)
-        q = truth.q_W_B_xyzw
-        theta = 2.0 * math.atan2(float(q[1]), float(q[3]))  # pitch about +y
-        theta_rate = float(truth.w_B[1])
+    def setpoint(self, t_ns: int) -> Setpoint:
+        """The profile's setpoint at ``t_ns`` (its clock starts at ``t0_ns``)."""
+        return self.profile.setpoint((t_ns - self.t0_ns) * 1e-9)
+
+    def __call__(self, t_ns: int, est: StateEstimate, ref: Setpoint) -> Command:
+        """Thrust (N) and the torque about +y (N m) for the planar vehicle."""
+        vz_ref = 0.0 if ref.v is None else float(ref.v[2])
+        theta_ref = 0.0 if ref.q_W_B_xyzw is None else _pitch(ref.q_W_B_xyzw)
+        theta = _pitch(est.q_W_B_xyzw)
+        theta_rate = float(require_rate(est, "the planar controller")[1])
         thrust = self.mass_kg * self.gravity_m_s2 / math.cos(theta)
-        thrust += self.k_climb * (vz_ref - float(truth.v_W_B[2]))
+        thrust += self.k_climb * (vz_ref - float(est.v_W_B[2]))
         torque = self.k_tilt * (theta_ref - theta) - self.kd_tilt * theta_rate
-        return thrust, torque
+        return Command(thrust_n=thrust, torque_B_nm=np.array([0.0, torque, 0.0]))
+
+
+def _pitch(q_xyzw: np.ndarray) -> float:
+    """The rotation about +y of a planar attitude (a quaternion about y only)."""
+    return 2.0 * math.atan2(float(q_xyzw[1]), float(q_xyzw[3]))

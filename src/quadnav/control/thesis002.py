@@ -10,8 +10,15 @@
   their errors from the reference (the angle reference being the acceleration the trajectory
   needs, ``theta_d = x''_d / g``), which is what the thesis's tracking law intends.
 
-Both take the model state ``s = (x, y, z, phi, theta, psi, x', y', z', phi', theta', psi')``
-and a reference row and return ``(u, tau~)`` for eq. A.8.
+Both are a :class:`~quadnav.control.base.Controller`: they read the estimate's position,
+velocity, attitude (as ZYX Euler angles) and body rate (turned into Euler angle rates, the
+model's ``phi', theta', psi'``), and the setpoint's position, velocity and yaw (the nested
+saturations also its acceleration, jerk and snap; a field left None is zero). They return a
+``thrust_tau`` :class:`~quadnav.control.base.Command`: the thrust ``u`` and ``tau~`` of eq. A.8.
+
+:data:`PD_GAIN_SETS` names gain sets of the PD controller: ``table_5_1`` is the attitude gains
+thesis 002 tuned on its vehicle (Table 5.1: Kp 120 and Kd 40 for roll and pitch, Kp 90 and
+Kd 70 for yaw), the other gains staying at their defaults.
 """
 
 from __future__ import annotations
@@ -22,24 +29,45 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from quadnav.control.base import (
+    Command,
+    Setpoint,
+    euler_rates_from_body_rates,
+    euler_rpy_from_quat_xyzw,
+    require_rate,
+)
 from quadnav.control.stability import routh_hurwitz_stable
 from quadnav.errors import ControlError
+from quadnav.messages import StateEstimate
 
-__all__ = ["NestedSaturationController", "PdController", "RefRow"]
+__all__ = ["PD_GAIN_SETS", "NestedSaturationController", "PdController"]
 
 FloatArray = NDArray[np.float64]
 
+#: Named gain sets of :class:`PdController` (keyword overrides of its defaults).
+PD_GAIN_SETS: dict[str, dict[str, float]] = {
+    "default": {},
+    "table_5_1": {"kp_att": 120.0, "kd_att": 40.0, "kp_yaw": 90.0, "kd_yaw": 70.0},
+}
 
-@dataclass(frozen=True, slots=True)
-class RefRow:
-    """One time's reference: position, velocity, acceleration, jerk (3,) and yaw."""
+_ZERO3 = np.zeros(3)
 
-    p: FloatArray
-    v: FloatArray
-    a: FloatArray
-    j: FloatArray
-    yaw: float = 0.0
-    snap: FloatArray | None = None
+
+def _or_zero(x: FloatArray | None) -> FloatArray:
+    return _ZERO3 if x is None else x
+
+
+def _model_state(est: StateEstimate, who: str) -> list[float]:
+    """The model's ``(x, y, z, phi, theta, psi, x', y', z', phi', theta', psi')``."""
+    roll, pitch, yaw = euler_rpy_from_quat_xyzw(est.q_W_B_xyzw)
+    rates = euler_rates_from_body_rates(roll, pitch, require_rate(est, who))
+    return [*est.p_W_B.tolist(), roll, pitch, yaw, *est.v_W_B.tolist(), *rates]
+
+
+def _position(ref: Setpoint, who: str) -> FloatArray:
+    if ref.p is None:
+        raise ControlError(f"{who} flies to a position: the setpoint has none")
+    return ref.p
 
 
 def _sat(x: float, level: float) -> float:
@@ -77,15 +105,23 @@ class PdController:
         if self.max_tilt_rad is not None and not 0 < self.max_tilt_rad < math.pi / 2:
             raise ControlError("max_tilt_rad must lie in (0, pi/2)")
 
-    def __call__(self, s: FloatArray, ref: RefRow) -> tuple[float, FloatArray]:
-        x, y, z, phi, theta, psi, vx, vy, vz, dphi, dtheta, dpsi = s
+    @classmethod
+    def from_gain_set(cls, name: str, **overrides: float) -> PdController:
+        """The controller with the gain set ``name`` of :data:`PD_GAIN_SETS`, then ``overrides``."""
+        if name not in PD_GAIN_SETS:
+            raise ControlError(f"no PD gain set {name!r}; choose from {', '.join(PD_GAIN_SETS)}")
+        return cls(**{**PD_GAIN_SETS[name], **overrides})
+
+    def __call__(self, t_ns: int, est: StateEstimate, ref: Setpoint) -> Command:
+        x, y, z, phi, theta, psi, vx, vy, vz, dphi, dtheta, dpsi = _model_state(est, "the PD laws")
+        p_ref, v_ref = _position(ref, "the PD laws"), _or_zero(ref.v)
         u = (
             self.mass_kg * self.gravity_m_s2
-            + self.kp_z * (ref.p[2] - z)
-            + self.kd_z * (ref.v[2] - vz)
+            + self.kp_z * (p_ref[2] - z)
+            + self.kd_z * (v_ref[2] - vz)
         )
-        theta_d = self.kp_xy * (ref.p[0] - x) + self.kd_xy * (ref.v[0] - vx)
-        phi_d = self.kp_xy * (y - ref.p[1]) + self.kd_xy * (vy - ref.v[1])  # y'' = -g phi
+        theta_d = self.kp_xy * (p_ref[0] - x) + self.kd_xy * (v_ref[0] - vx)
+        phi_d = self.kp_xy * (y - p_ref[1]) + self.kd_xy * (vy - v_ref[1])  # y'' = -g phi
         if self.max_tilt_rad is not None:
             theta_d = _sat(theta_d, self.max_tilt_rad)
             phi_d = _sat(phi_d, self.max_tilt_rad)
@@ -93,10 +129,10 @@ class PdController:
             [
                 -self.kp_att * (phi - phi_d) - self.kd_att * dphi,
                 -self.kp_att * (theta - theta_d) - self.kd_att * dtheta,
-                -self.kp_yaw * (psi - ref.yaw) - self.kd_yaw * dpsi,
+                -self.kp_yaw * (psi - ref.yaw_rad) - self.kd_yaw * dpsi,
             ]
         )
-        return float(u), tau
+        return Command(thrust_n=float(u), tau_B_rad_s2=tau)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -137,23 +173,30 @@ class NestedSaturationController:
         inner = _sat(ang + rate + inner, M2)
         return -_sat(rate + inner, M1)
 
-    def __call__(self, s: FloatArray, ref: RefRow) -> tuple[float, FloatArray]:
-        x, y, z, phi, theta, psi, vx, vy, vz, dphi, dtheta, dpsi = s
+    def __call__(self, t_ns: int, est: StateEstimate, ref: Setpoint) -> Command:
+        who = "the nested saturations"
+        x, y, z, phi, theta, psi, vx, vy, vz, dphi, dtheta, dpsi = _model_state(est, who)
         g = self.gravity_m_s2
-        r1 = -self.kd_z * (vz - ref.v[2]) - self.kp_z * (z - ref.p[2])
+        p_ref, v_ref, a_ref, j_ref = (
+            _position(ref, who),
+            _or_zero(ref.v),
+            _or_zero(ref.a),
+            _or_zero(ref.j),
+        )
+        r1 = -self.kd_z * (vz - v_ref[2]) - self.kp_z * (z - p_ref[2])
         u = (r1 + self.mass_kg * g) / (math.cos(phi) * math.cos(theta))
         # The printed laws are for p'' = -g a (x'' = -g theta, y'' = +g phi); model A.8 has
         # x'' = +g theta and y'' = -g phi, so the chain acts on a = -theta for x and a = phi for y.
         # Tracking: errors from the reference; the angle from the acceleration the reference needs.
-        snap = ref.snap if ref.snap is not None else np.zeros(3)
+        snap = _or_zero(ref.snap)
         tau_theta = snap[0] / g - self._chain(
-            -(theta - ref.a[0] / g),
-            -(dtheta - ref.j[0] / g),
-            (x - ref.p[0]) / g,
-            (vx - ref.v[0]) / g,
+            -(theta - a_ref[0] / g),
+            -(dtheta - j_ref[0] / g),
+            (x - p_ref[0]) / g,
+            (vx - v_ref[0]) / g,
         )
         tau_phi = -snap[1] / g + self._chain(
-            phi + ref.a[1] / g, dphi + ref.j[1] / g, (y - ref.p[1]) / g, (vy - ref.v[1]) / g
+            phi + a_ref[1] / g, dphi + j_ref[1] / g, (y - p_ref[1]) / g, (vy - v_ref[1]) / g
         )
-        tau_psi = -self.kd_yaw * dpsi - self.kp_yaw * (psi - ref.yaw)
-        return float(u), np.array([tau_phi, tau_theta, tau_psi])
+        tau_psi = -self.kd_yaw * dpsi - self.kp_yaw * (psi - ref.yaw_rad)
+        return Command(thrust_n=float(u), tau_B_rad_s2=np.array([tau_phi, tau_theta, tau_psi]))

@@ -2,32 +2,44 @@
 nested-saturation controller, or the rigid-body model with the cascaded PID fed by a
 trajectory, thesis 003's take-off controller or its obstacle-aware waypoint follower.
 
+Every controller is a :class:`~quadnav.control.base.Controller`: the loop hands it the true
+state as a perfect :class:`~quadnav.messages.StateEstimate` (:func:`truth_estimate`) and the
+trajectory's setpoint, and applies the :class:`~quadnav.control.base.Command`.
+
 :class:`FlightConfig` is the YAML scenario (every field has a default); :data:`BUILTIN`
 holds the built-in scenarios; :func:`run_flight` returns arrays.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import math
+import time
 from dataclasses import dataclass
-from typing import Any, Literal, Self
+from typing import Literal, Self
 
 import numpy as np
 from numpy.typing import NDArray
 from pydantic import Field, model_validator
 from scipy.spatial.transform import Rotation
 
-from quadnav.config_model import (
-    MAX_DURATION_S,
-    MAX_RATE_HZ,
-    MAX_SIM_STEPS,
-    ConfigModel,
-    check_finite_mapping,
+from quadnav.config_model import MAX_DURATION_S, MAX_RATE_HZ, MAX_SIM_STEPS, ConfigModel
+from quadnav.control.base import (
+    Command,
+    Controller,
+    Setpoint,
+    body_rates_from_euler_rates,
+    quat_xyzw_from_euler_rpy,
+    truth_estimate,
 )
-from quadnav.control.cascaded_pid import CascadedPid, CascadedPidGains, Setpoint
-from quadnav.control.thesis002 import NestedSaturationController, PdController, RefRow
-from quadnav.control.thesis003 import ObstacleAwareWaypointFollower, TakeoffForward
+from quadnav.control.cascaded_pid import CascadedPid, CascadedPidGains
+from quadnav.control.thesis002 import PD_GAIN_SETS, NestedSaturationController, PdController
+from quadnav.control.thesis003 import (
+    FollowerStatus,
+    ObstacleAwareWaypointFollower,
+    OuterLoopController,
+    TakeoffForward,
+    Thesis003Gains,
+)
 from quadnav.control.trajectories import (
     Circle,
     Hover,
@@ -37,15 +49,18 @@ from quadnav.control.trajectories import (
     Waypoints,
 )
 from quadnav.errors import ControlError, ExperimentError, SimError
+from quadnav.messages import StateEstimate
 from quadnav.sim.euler_lagrange import EulerLagrangeParams, EulerLagrangeQuadrotor
 from quadnav.sim.rigid_body import RigidBodyQuadrotor, Wind
 from quadnav.sim.world import Box, LaserScanner, World
+from quadnav.units import s_to_ns
 from quadnav.vehicle import RigidBodyParams
 
 __all__ = [
     "BUILTIN",
     "BUILTIN_DESCRIPTIONS",
     "FlightConfig",
+    "FlightEvents",
     "FlightRun",
     "builtin_config",
     "run_flight",
@@ -96,6 +111,85 @@ class BoxSection(ConfigModel):
         return self
 
 
+class PdGainsSection(ConfigModel):
+    """Overrides of the PD controller's gains (left out: the ``el_pd_gains`` set's value)."""
+
+    kp_z: float | None = None
+    kd_z: float | None = None
+    kp_xy: float | None = None
+    kd_xy: float | None = None
+    kp_att: float | None = None
+    kd_att: float | None = None
+    kp_yaw: float | None = None
+    kd_yaw: float | None = None
+    max_tilt_rad: float | None = None
+
+
+class NestedGainsSection(ConfigModel):
+    """Overrides of the nested-saturation controller's gains and levels."""
+
+    kp_z: float | None = None
+    kd_z: float | None = None
+    kp_yaw: float | None = None
+    kd_yaw: float | None = None
+    levels_rad_s2: tuple[float, float, float, float] | None = None
+
+
+class PidGainsSection(ConfigModel):
+    """Overrides of the cascaded PID's gains and limits."""
+
+    kp_pos: Vec3 | None = None
+    kp_vel: Vec3 | None = None
+    ki_vel: Vec3 | None = None
+    kd_vel: Vec3 | None = None
+    kp_att: Vec3 | None = None
+    kp_rate: Vec3 | None = None
+    ki_rate: Vec3 | None = None
+    kd_rate: Vec3 | None = None
+    max_vel_m_s: float | None = None
+    max_tilt_rad: float | None = None
+    max_rate_rad_s: float | None = None
+    vel_integral_limit_m_s2: float | None = None
+    rate_integral_limit: float | None = None
+    min_thrust_fraction: float | None = None
+    max_thrust_fraction: float | None = None
+
+
+_T003 = Thesis003Gains()  # the thesis's values
+
+
+class Thesis003Section(ConfigModel):
+    """Thesis 003's gains and limits (sections 6.3 and 6.5): the defaults are the thesis's.
+    ``kd_*`` act on the change of the error over one tick, ``ki_*`` on its sum over the ticks."""
+
+    rate_hz: float = Field(_T003.rate_hz, gt=0, le=1000.0, description="the /cmd_vel rate")
+    takeoff_kp: float = Field(_T003.takeoff_kp, gt=0, description="take-off P: (m/s) per m")
+    takeoff_stop_m: float = Field(
+        _T003.takeoff_stop_m, gt=0, description="take-off: a leg ends within this"
+    )
+    kp_lin: float = Field(_T003.kp_lin, gt=0)
+    kd_lin: float = Field(_T003.kd_lin, ge=0)
+    ki_lin: float = Field(_T003.ki_lin, ge=0)
+    kp_ang: float = Field(_T003.kp_ang, gt=0)
+    kd_ang: float = Field(_T003.kd_ang, ge=0)
+    ki_ang: float = Field(_T003.ki_ang, ge=0)
+    reach_radius_m: float = Field(
+        _T003.reach_radius_m, gt=0, description="a waypoint is reached within this"
+    )
+    obstacle_min_m: float = Field(
+        _T003.obstacle_min_m, ge=0, description="laser hits nearer are ignored"
+    )
+    obstacle_max_m: float = Field(
+        _T003.obstacle_max_m, gt=0, description="an obstacle is nearer than this"
+    )
+    sector_half_angle_deg: float = Field(math.degrees(_T003.sector_half_angle_rad), gt=0, le=180.0)
+
+    def gains(self) -> Thesis003Gains:
+        values = self.model_dump()
+        half = math.radians(values.pop("sector_half_angle_deg"))
+        return Thesis003Gains(**values, sector_half_angle_rad=half)
+
+
 class FlightConfig(ConfigModel):
     """A flight scenario: vehicle, controller, trajectory, world, duration, seed."""
 
@@ -118,13 +212,13 @@ class FlightConfig(ConfigModel):
     )
     mass_kg: float = Field(1.5, ge=0.01, description="kg, 10 g at least")
     frame: Literal["x", "+"] = Field("x", description="rigid body: rotor layout")
-    el_pd: dict[str, Any] = Field(default_factory=dict, description="PdController overrides")
-    el_nested: dict[str, Any] = Field(
-        default_factory=dict, description="NestedSaturationController overrides"
+    el_pd_gains: Literal["default", "table_5_1"] = Field(
+        "default", description="PD gain set: table_5_1 is thesis 002's attitude gains"
     )
-    pid_gains: dict[str, Any] = Field(
-        default_factory=dict, description="CascadedPidGains overrides"
-    )
+    el_pd: PdGainsSection = PdGainsSection()
+    el_nested: NestedGainsSection = NestedGainsSection()
+    pid_gains: PidGainsSection = PidGainsSection()
+    thesis003: Thesis003Section = Thesis003Section()
 
     @model_validator(mode="after")
     def _fits(self) -> Self:
@@ -149,13 +243,6 @@ class FlightConfig(ConfigModel):
                 f"duration_s / dt_s is {self.duration_s / self.dt_s:.3g} steps, more than "
                 f"{MAX_SIM_STEPS:g}: raise dt_s or shorten duration_s"
             )
-        for key, target in (
-            ("el_pd", PdController),
-            ("el_nested", NestedSaturationController),
-            ("pid_gains", CascadedPidGains),
-        ):
-            names = [f.name for f in dataclasses.fields(target) if f.name != "mass_kg"]
-            check_finite_mapping(getattr(self, key), key, names)
         if problem := self._vehicle_problem():
             raise ValueError(problem)
         return self
@@ -171,28 +258,36 @@ class FlightConfig(ConfigModel):
                     f"mass_kg ({self.mass_kg:g}) is more than the rotors can fly: at most "
                     f"{lift_kg:.3g} kg (1.2x the weight in thrust)"
                 )
-        key, target = {"pd": ("el_pd", PdController), "nested_saturation": ("el_nested", NestedSaturationController),
-                       "cascaded_pid": ("pid_gains", CascadedPidGains)}.get(self.controller, ("pid_gains", CascadedPidGains))  # fmt: skip
-        gains = dict(getattr(self, key))
-        for f in dataclasses.fields(target):
-            if (
-                f.name in gains
-                and isinstance(f.default, tuple)
-                and not (
-                    isinstance(gains[f.name], list | tuple) and len(gains[f.name]) == len(f.default)
-                )
-            ):
-                return f"{key}.{f.name} must be a list of {len(f.default)} numbers, got {gains[f.name]!r}"  # fmt: skip
-        if target is not CascadedPidGains:
-            gains["mass_kg"] = self.mass_kg
+        key = {"pd": "el_pd", "nested_saturation": "el_nested"}.get(self.controller, "pid_gains")
         try:
-            target(**gains)
+            if self.vehicle == "euler_lagrange":
+                _el_controller(self)
+            else:
+                _pid_gains(self)
+            if self.controller in ("takeoff_forward", "waypoint_follower"):
+                key = "thesis003"
+                self.thesis003.gains()
         except (ControlError, TypeError, ValueError) as exc:
             return f"{key}: {exc}"
         return None
 
 
-def _ring(kind: str, **kw: Any) -> dict[str, Any]:
+def _el_controller(config: FlightConfig) -> PdController | NestedSaturationController:
+    """The configured controller of the Euler-Lagrange model."""
+    if config.controller == "pd":
+        overrides = config.el_pd.model_dump(exclude_none=True)
+        gains = {**PD_GAIN_SETS[config.el_pd_gains], **overrides}
+        return PdController(**gains, mass_kg=config.mass_kg)
+    return NestedSaturationController(
+        **config.el_nested.model_dump(exclude_none=True), mass_kg=config.mass_kg
+    )
+
+
+def _pid_gains(config: FlightConfig) -> CascadedPidGains:
+    return CascadedPidGains(**config.pid_gains.model_dump(exclude_none=True))
+
+
+def _ring(kind: str, **kw: object) -> dict[str, object]:
     return {"kind": kind, **kw}
 
 
@@ -217,7 +312,7 @@ _THESIS002_TRACK = {
 }
 #: Built-in scenarios: thesis 002's four simulations, the circle with and without gusts, and
 #: thesis 003's take-off and obstacle experiments.
-BUILTIN: dict[str, dict[str, Any]] = {
+BUILTIN: dict[str, dict[str, object]] = {
     "thesis002_pd_stabilization": {**_THESIS002_STAB, "controller": "pd"},
     "thesis002_nested_stabilization": {**_THESIS002_STAB, "controller": "nested_saturation"},
     "thesis002_pd_tracking": {**_THESIS002_TRACK, "controller": "pd"},
@@ -243,6 +338,14 @@ BUILTIN: dict[str, dict[str, Any]] = {
         "world": [{"name": "house", "min_m": (3.5, -2.0, 0.0), "max_m": (5.5, 2.0, 3.0)}],
         "duration_s": 30.0,
     },
+    "thesis003_waypoints": {
+        "controller": "waypoint_follower",
+        "initial": {"position_m": (0.0, 0.0, 0.0)},
+        "trajectory": _ring(
+            "waypoints", points_m=[(0.0, 0.0, 3.0), (2.0, 2.0, 3.0), (4.0, 5.0, 3.0)]
+        ),
+        "duration_s": 40.0,
+    },
 }
 
 #: What each built-in scenario shows (``quadnav sim --list`` and ``--help``).
@@ -256,14 +359,49 @@ BUILTIN_DESCRIPTIONS: dict[str, str] = {
     "circle_gusts": "the circle in 2 m/s gusts",
     "thesis003_takeoff": "thesis 003's take-off P controller, then forward to (5, 0, 5)",
     "thesis003_obstacle": "thesis 003's PID waypoint follower with a laser scan: sees the house, "
-    "retreats",
+    "retreats (figures 6.23-6.24)",
+    "thesis003_waypoints": "thesis 003's PID waypoint follower in free flight through (0, 0, 3), "
+    "(2, 2, 3), (4, 5, 3) (figure 6.22)",
 }
 
 
-def builtin_config(name: str) -> dict[str, Any]:
+def builtin_config(name: str) -> dict[str, object]:
     if name not in BUILTIN:
         raise ExperimentError(f"no built-in scenario {name!r}; choose from {', '.join(BUILTIN)}")
     return {"name": name, **BUILTIN[name]}
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class FlightEvents:
+    """What thesis 003's controllers did (None where the controller has no such event).
+    Waypoints are numbered from 1, as the thesis does."""
+
+    takeoff_phase: str | None = None
+    route_unsafe: bool | None = None
+    obstacle_detected_at_s: float | None = None
+    retreated_to_waypoint: int | None = None
+    last_waypoint_reached: int | None = None
+    waypoints_reached_at_s: tuple[float, ...] = ()
+    finished: bool | None = None
+
+    @classmethod
+    def of_follower(cls, st: FollowerStatus) -> FlightEvents:
+        return cls(
+            route_unsafe=st.route_unsafe,
+            obstacle_detected_at_s=None if st.detected_at_ns is None else st.detected_at_ns * 1e-9,
+            retreated_to_waypoint=st.target_index + 1 if st.retreating else None,
+            last_waypoint_reached=st.last_reached + 1,
+            waypoints_reached_at_s=tuple(t * 1e-9 for t in st.reached_at_ns),
+            finished=st.done,
+        )
+
+    def items(self) -> list[tuple[str, object]]:
+        """The events that happened, by name (for tables, reports and metrics.json)."""
+        return [
+            (name, getattr(self, name))
+            for name in self.__dataclass_fields__
+            if getattr(self, name) not in (None, ())
+        ]
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -282,7 +420,7 @@ class FlightRun:
     rotor_rad_s: FloatArray  # (N, 4); NaN for the Euler-Lagrange model
     saturated: NDArray[np.bool_]
     obstacle_distance_m: FloatArray
-    events: dict[str, Any]
+    events: FlightEvents
     wall_time_s: float
 
 
@@ -305,145 +443,179 @@ def _trajectory(t: TrajectorySection) -> TrajectoryGenerator:
     return Waypoints(points_m=list(t.points_m), speed_m_s=t.speed_m_s, hold_s=t.hold_s)
 
 
+class _FlightLog:
+    """The rows of one flight, every ``every``-th step."""
+
+    def __init__(self, n_steps: int, every: int) -> None:
+        self.rows = list(range(0, n_steps + 1, every))
+        n = len(self.rows)
+        self.p, self.v, self.euler, self.rates, self.torque = (
+            np.full((n, 3), np.nan) for _ in range(5)
+        )
+        self.thrust = np.full(n, np.nan)
+        self.rotors = np.full((n, 4), np.nan)
+        self.sat = np.zeros(n, dtype=bool)
+        self._r = 0
+
+    def due(self, i: int) -> bool:
+        return self._r < len(self.rows) and self.rows[self._r] == i
+
+    def record(
+        self,
+        s: FloatArray,
+        euler: FloatArray,
+        cmd: Command,
+        *,
+        saturated: bool,
+        rotor_rad_s: FloatArray | None = None,
+    ) -> None:
+        """``s`` holds position, velocity and rates at 0:3, 3:6 and 6:9; the rotors' speeds."""
+        r = self._r
+        self.p[r], self.v[r], self.rates[r], self.euler[r] = s[0:3], s[3:6], s[6:9], euler
+        self.thrust[r], self.torque[r] = cmd.thrust_n, cmd.torque()
+        if rotor_rad_s is not None:
+            self.rotors[r] = rotor_rad_s
+        self.sat[r] = saturated
+        self._r += 1
+
+
+def _setpoint(ref: Reference, i: int) -> Setpoint:
+    return Setpoint(
+        p=ref.p[i],
+        v=ref.v[i],
+        a=ref.a[i],
+        j=ref.j[i],
+        snap=None if ref.snap is None else ref.snap[i],
+        yaw_rad=float(ref.yaw[i]),
+    )
+
+
+def _el_estimate(t_ns: int, s: FloatArray) -> StateEstimate:
+    """The Euler-Lagrange model's state as a perfect estimate (attitude and body rate from
+    its Euler angles and their rates)."""
+    roll, pitch, yaw = s[3:6].tolist()
+    w_B = np.array(body_rates_from_euler_rates(roll, pitch, s[9:12]))
+    q = quat_xyzw_from_euler_rpy(roll, pitch, yaw)
+    return StateEstimate(
+        t_ns=t_ns, p_W_B=s[0:3], v_W_B=s[6:9], q_W_B_xyzw=q, x=s, names=EL_STATE_NAMES, w_B=w_B
+    )
+
+
+#: The Euler-Lagrange model's state layout.
+EL_STATE_NAMES = ("x", "y", "z", "phi", "theta", "psi", "vx", "vy", "vz", "dphi", "dtheta", "dpsi")
+
+
+def _fly_euler_lagrange(config: FlightConfig, ref: Reference, log: _FlightLog) -> FlightEvents:
+    ic, dt, n = config.initial, config.dt_s, len(ref.p) - 1
+    s0 = np.zeros(12)
+    s0[0:3] = ic.position_m
+    s0[3:6] = ic.euler_rad
+    el = EulerLagrangeQuadrotor(EulerLagrangeParams(mass_kg=config.mass_kg), s0=s0, dt_s=dt)
+    ctrl = _el_controller(config)
+    level = ctrl.levels_rad_s2[0] if isinstance(ctrl, NestedSaturationController) else math.inf
+    dt_ns = s_to_ns(dt)
+    for i in range(n + 1):
+        cmd = ctrl(i * dt_ns, _el_estimate(i * dt_ns, el.s), _setpoint(ref, i))
+        if log.due(i):
+            s = el.s
+            tau = cmd.torque()
+            sat = bool(np.any(np.abs(tau[0:2]) >= level - 1e-9))
+            log.record(np.concatenate([s[0:3], s[6:9], s[9:12]]), s[3:6], cmd, saturated=sat)
+        if i < n:
+            el.step(cmd.thrust_n, cmd.torque())
+    return FlightEvents()
+
+
+def _rigid_body_controller(
+    config: FlightConfig, pid: CascadedPid
+) -> tuple[Controller, TakeoffForward | ObstacleAwareWaypointFollower | None]:
+    """The controller the rigid body flies, and thesis 003's setpoint source if it is one."""
+    gains = config.thesis003.gains()
+    outer: TakeoffForward | ObstacleAwareWaypointFollower
+    if config.controller == "takeoff_forward":
+        outer = TakeoffForward(gains=gains)
+    elif config.controller == "waypoint_follower":
+        outer = ObstacleAwareWaypointFollower(
+            waypoints_m=list(config.trajectory.points_m), gains=gains
+        )
+    else:
+        return pid, None
+    return OuterLoopController(outer, pid, rate_hz=gains.rate_hz), outer
+
+
+def _fly_rigid_body(
+    config: FlightConfig, ref: Reference, log: _FlightLog, world: World
+) -> FlightEvents:
+    ic, dt, n = config.initial, config.dt_s, len(ref.p) - 1
+    rng = np.random.default_rng(config.seed)
+    params = RigidBodyParams(mass_kg=config.mass_kg, config=config.frame)
+    w = config.wind
+    wind = Wind(
+        mean_m_s=w.mean_m_s, gust_sigma_m_s=w.gust_sigma_m_s, gust_tau_s=w.gust_tau_s, rng=rng
+    )
+    rb = RigidBodyQuadrotor(
+        params, dt_s=dt, p0=ic.position_m, yaw0_rad=ic.euler_rad[2], hovering=ic.hovering, wind=wind
+    )
+    ctrl, outer = _rigid_body_controller(config, CascadedPid(params, _pid_gains(config), dt_s=dt))
+    follower = outer if isinstance(outer, ObstacleAwareWaypointFollower) else None
+    scanner, scan_every = LaserScanner(), max(1, round(0.025 / dt))  # 40 Hz laser
+    for i in range(n + 1):
+        truth = rb.state()
+        if follower is not None and i % scan_every == 0:
+            yaw = float(Rotation.from_quat(truth.q_W_B_xyzw).as_euler("ZYX")[0])
+            seen = follower.observe(scanner.scan(world, truth.p_W_B, yaw, truth.t_ns, rng))
+            if seen and isinstance(ctrl, OuterLoopController):
+                ctrl.interrupt()  # retreat at once, not at the next 10 Hz tick
+        cmd = ctrl(truth.t_ns, truth_estimate(truth), _setpoint(ref, i))
+        rotors = cmd.rotors()
+        if log.due(i):
+            s = rb.s
+            euler = Rotation.from_quat(s[6:10]).as_euler("ZYX")[::-1]
+            sat = cmd.saturated or bool(np.any(rotors >= params.omega_max_rad_s - 1e-9))
+            state = np.concatenate([s[0:3], s[3:6], s[10:13]])
+            log.record(state, euler, cmd, saturated=sat, rotor_rad_s=s[13:17])
+        if i < n:
+            rb.step(rotors)
+    if follower is not None:
+        return FlightEvents.of_follower(follower.status)
+    if isinstance(outer, TakeoffForward):
+        return FlightEvents(takeoff_phase=outer.phase)
+    return FlightEvents()
+
+
 def run_flight(config: FlightConfig) -> FlightRun:
     """Fly the scenario on the true state and log it."""
-    import time
-
     dt = config.dt_s
     n = round(config.duration_s / dt)
-    every = max(1, round(1.0 / (config.log_rate_hz * dt)))
     t_all = np.arange(n + 1) * dt
-    traj = _trajectory(config.trajectory)
-    ref: Reference = traj.reference(t_all)
+    ref: Reference = _trajectory(config.trajectory).reference(t_all)
     world = World(boxes=tuple(Box(name=b.name, min_m=b.min_m, max_m=b.max_m) for b in config.world))
-    rng = np.random.default_rng(config.seed)
-    rows = list(range(0, n + 1, every))
-    N = len(rows)
-    log = {k: np.full((N, 3), np.nan) for k in ("p", "v", "euler", "rates", "torque")}
-    thrust = np.full(N, np.nan)
-    rotors = np.full((N, 4), np.nan)
-    sat = np.zeros(N, dtype=bool)
-    events: dict[str, Any] = {}
-    ic = config.initial
+    log = _FlightLog(n, max(1, round(1.0 / (config.log_rate_hz * dt))))
     wall0 = time.perf_counter()
     try:
         if config.vehicle == "euler_lagrange":
-            s0 = np.zeros(12)
-            s0[0:3] = ic.position_m
-            s0[3:6] = ic.euler_rad
-            el = EulerLagrangeQuadrotor(EulerLagrangeParams(mass_kg=config.mass_kg), s0=s0, dt_s=dt)
-            ctrl: PdController | NestedSaturationController
-            if config.controller == "pd":
-                ctrl = PdController(mass_kg=config.mass_kg, **config.el_pd)
-                level = math.inf
-            else:
-                ctrl = NestedSaturationController(mass_kg=config.mass_kg, **config.el_nested)
-                level = ctrl.levels_rad_s2[0]
-            r = 0
-            for i in range(n + 1):
-                row = RefRow(
-                    ref.p[i],
-                    ref.v[i],
-                    ref.a[i],
-                    ref.j[i],
-                    float(ref.yaw[i]),
-                    None if ref.snap is None else ref.snap[i],
-                )
-                u, tau = ctrl(el.s, row)
-                if r < N and rows[r] == i:
-                    s = el.s
-                    log["p"][r], log["v"][r], log["rates"][r] = s[0:3], s[6:9], s[9:12]
-                    log["euler"][r] = s[3:6]
-                    thrust[r], log["torque"][r] = u, tau
-                    sat[r] = bool(np.any(np.abs(tau[0:2]) >= level - 1e-9))
-                    r += 1
-                if i < n:
-                    el.step(u, tau)
+            events = _fly_euler_lagrange(config, ref, log)
         else:
-            params = RigidBodyParams(mass_kg=config.mass_kg, config=config.frame)
-            wind = Wind(
-                mean_m_s=config.wind.mean_m_s,
-                gust_sigma_m_s=config.wind.gust_sigma_m_s,
-                gust_tau_s=config.wind.gust_tau_s,
-                rng=rng,
-            )
-            rb = RigidBodyQuadrotor(
-                params,
-                dt_s=dt,
-                p0=ic.position_m,
-                yaw0_rad=ic.euler_rad[2],
-                hovering=ic.hovering,
-                wind=wind,
-            )
-            pid = CascadedPid(params, CascadedPidGains(**config.pid_gains), dt_s=dt)
-            scanner = LaserScanner()
-            takeoff = (
-                TakeoffForward(height_m=ref.p[0, 2], forward_m=float(ref.p[0, 0]))
-                if config.controller == "takeoff_forward"
-                else None
-            )
-            follower = (
-                ObstacleAwareWaypointFollower(waypoints_m=list(config.trajectory.points_m), dt_s=dt)
-                if config.controller == "waypoint_follower"
-                else None
-            )
-            scan = None
-            scan_every = max(1, round(0.025 / dt))  # 40 Hz laser
-            r = 0
-            for i in range(n + 1):
-                state = rb.state()
-                if follower is not None:
-                    if i % scan_every == 0:
-                        yaw = float(Rotation.from_quat(state.q_W_B_xyzw).as_euler("ZYX")[0])
-                        scan = scanner.scan(world, state.p_W_B, yaw, state.t_ns, rng)
-                    sp = follower(state, scan)
-                elif takeoff is not None:
-                    sp = takeoff(state)
-                else:
-                    sp = Setpoint(p=ref.p[i], v=ref.v[i], a=ref.a[i], yaw_rad=float(ref.yaw[i]))
-                cmd = pid(state, sp)
-                if r < N and rows[r] == i:
-                    s = rb.s
-                    log["p"][r], log["v"][r], log["rates"][r] = s[0:3], s[3:6], s[10:13]
-                    log["euler"][r] = Rotation.from_quat(s[6:10]).as_euler("ZYX")[::-1]
-                    thrust[r], log["torque"][r] = pid.last_thrust_n, pid.last_torque_nm
-                    rotors[r] = s[13:17]
-                    sat[r] = pid.saturated or bool(np.any(cmd >= params.omega_max_rad_s - 1e-9))
-                    r += 1
-                if i < n:
-                    rb.step(cmd)
-            if follower is not None:
-                st = follower.status
-                events = {
-                    "route_unsafe": st.route_unsafe,
-                    "obstacle_detected_at_s": None
-                    if st.detected_at_ns is None
-                    else st.detected_at_ns * 1e-9,
-                    "retreated_to_waypoint": st.target_index + 1 if st.retreating else None,
-                    "last_waypoint_reached": st.last_reached + 1,
-                    "finished": st.done,
-                }
-            if takeoff is not None:
-                events = {"phase": takeoff.phase}
+            events = _fly_rigid_body(config, ref, log, world)
     except (SimError, ControlError) as exc:
         raise ExperimentError(f"scenario {config.name!r}: {exc}") from None
     wall = time.perf_counter() - wall0
-    ref_rows = ref.p[rows]
+    ref_rows = ref.p[log.rows]
     if config.controller in ("takeoff_forward", "waypoint_follower"):
         ref_rows = np.full_like(ref_rows, np.nan)  # these controllers have no time reference
     return FlightRun(
         config=config,
-        t_s=np.asarray(t_all[rows], dtype=np.float64),
-        p=log["p"],
-        v=log["v"],
-        euler_rpy=log["euler"],
-        rates=log["rates"],
+        t_s=np.asarray(t_all[log.rows], dtype=np.float64),
+        p=log.p,
+        v=log.v,
+        euler_rpy=log.euler,
+        rates=log.rates,
         ref_p=ref_rows,
-        thrust_n=thrust,
-        torque=log["torque"],
-        rotor_rad_s=rotors,
-        saturated=sat,
-        obstacle_distance_m=world.min_distance_m(log["p"]),
+        thrust_n=log.thrust,
+        torque=log.torque,
+        rotor_rad_s=log.rotors,
+        saturated=log.sat,
+        obstacle_distance_m=world.min_distance_m(log.p),
         events=events,
         wall_time_s=wall,
     )

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
 
@@ -16,9 +17,9 @@ from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
 from quadnav.eval.metrics import settling_time_s
-from quadnav.eval.na import na, rms_or_na
+from quadnav.eval.na import Metric, na, rms_or_na
 from quadnav.eval.report import ReportSection, ReportTable, write_report
-from quadnav.experiments.flight import FlightRun
+from quadnav.experiments.flight import FlightEvents, FlightRun
 from quadnav.geometry.trajectory import Trajectory
 from quadnav.io.config import dump_config
 from quadnav.io.run_folder import (
@@ -30,58 +31,109 @@ from quadnav.io.run_folder import (
 )
 from quadnav.io.trajectory_io import write_tum
 
-__all__ = ["flight_metrics", "plot_flight", "write_flight_run"]
+__all__ = ["FlightMetrics", "TrackingMetrics", "flight_metrics", "plot_flight", "write_flight_run"]
 
 FloatArray = NDArray[np.float64]
 
 
-def flight_metrics(run: FlightRun) -> dict[str, Any]:
+@dataclass(frozen=True, slots=True, kw_only=True)
+class TrackingMetrics:
+    """Against the time reference (scenarios that have one)."""
+
+    settling_time_s: Metric
+    tracking_rmse_m: Metric
+    tracking_rmse_whole_run_m: Metric
+    final_error_m: float
+    overshoot_pct: dict[str, float]  # per axis that had a step
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class FlightMetrics:
+    """One flight's figures: tracking (None without a time reference), control effort,
+    saturation, clearance, tilt, speed, and thesis 003's events."""
+
+    scenario: str
+    duration_s: float
+    tracking: TrackingMetrics | None
+    peak_thrust_n: float
+    peak_torque: float
+    torque_unit: str
+    saturation_time_s: float
+    rotor_speed_range_rad_s: tuple[float, float] | None
+    min_obstacle_distance_m: float | None
+    max_tilt_deg: float
+    sim_seconds_per_wall_second: float
+    events: FlightEvents
+
+    def rows(self) -> list[tuple[str, object]]:
+        """(name, value) of every figure there is, in print order (``None`` left out)."""
+        out: list[tuple[str, object]] = [
+            ("scenario", self.scenario),
+            ("duration_s", self.duration_s),
+        ]
+        if self.tracking is not None:
+            out += [(f.name, getattr(self.tracking, f.name)) for f in fields(self.tracking)]
+        for f in fields(self):
+            if f.name not in ("scenario", "duration_s", "tracking", "events"):
+                out.append((f.name, getattr(self, f.name)))
+        return [(k, v) for k, v in out if v is not None]
+
+    def to_json(self) -> dict[str, object]:
+        """The ``metrics.json`` form (the events as a mapping)."""
+        return {**dict(self.rows()), "events": dict(self.events.items())}
+
+
+def _tracking(run: FlightRun) -> TrackingMetrics | None:
+    cfg, t = run.config, run.t_s
+    if not np.isfinite(run.ref_p).all():
+        return None
+    e = run.p - run.ref_p
+    err = np.linalg.norm(e, axis=1)
+    settle = settling_time_s(t, err, cfg.settle_band_m)
+    over = {}
+    for k, axis in enumerate("xyz"):
+        if abs(e[0, k]) > 0.1:  # a step on this axis: how far past the reference it went
+            over[axis] = float(max(0.0, np.max(-e[:, k] * np.sign(e[0, k]))) / abs(e[0, k]) * 100.0)
+    return TrackingMetrics(
+        settling_time_s=settle
+        if math.isfinite(settle)
+        else na(f"not settled within settle_band_m ({cfg.settle_band_m:g} m) by the end"),
+        tracking_rmse_m=rms_or_na(
+            err[t >= cfg.tracking_start_s],
+            f"no samples after tracking_start_s ({cfg.tracking_start_s:g} s) in a "
+            f"{cfg.duration_s:g} s flight",
+        ),
+        tracking_rmse_whole_run_m=rms_or_na(err, "no samples"),
+        final_error_m=float(err[-1]),
+        overshoot_pct=over,
+    )
+
+
+def flight_metrics(run: FlightRun) -> FlightMetrics:
     """Settling time, overshoot, tracking RMSE, peak control effort, saturation time, clearance."""
     cfg = run.config
     t = run.t_s
     dt_log = float(t[1] - t[0]) if len(t) > 1 else cfg.dt_s
-    out: dict[str, Any] = {"scenario": cfg.name, "duration_s": cfg.duration_s}
-    has_ref = bool(np.isfinite(run.ref_p).all())
-    if has_ref:
-        e = run.p - run.ref_p
-        err = np.linalg.norm(e, axis=1)
-        win = t >= cfg.tracking_start_s
-        settle = settling_time_s(t, err, cfg.settle_band_m)
-        out["settling_time_s"] = (
-            settle
-            if math.isfinite(settle)
-            else na(f"not settled within settle_band_m ({cfg.settle_band_m:g} m) by the end")
-        )
-        out["tracking_rmse_m"] = rms_or_na(
-            err[win],
-            f"no samples after tracking_start_s ({cfg.tracking_start_s:g} s) in a "
-            f"{cfg.duration_s:g} s flight",
-        )
-        out["tracking_rmse_whole_run_m"] = rms_or_na(err, "no samples")
-        out["final_error_m"] = float(err[-1])
-        e0 = e[0]
-        over = {}
-        for k, axis in enumerate("xyz"):
-            if abs(e0[k]) > 0.1:  # a step on this axis: how far past the reference it went
-                over[axis] = float(max(0.0, np.max(-e[:, k] * np.sign(e0[k]))) / abs(e0[k]) * 100.0)
-        out["overshoot_pct"] = over
-    out["peak_thrust_n"] = float(np.nanmax(np.abs(run.thrust_n)))
-    out["peak_torque"] = float(np.nanmax(np.abs(run.torque)))
-    out["torque_unit"] = "rad/s^2 (tau~ of eq. A.8)" if cfg.vehicle == "euler_lagrange" else "N m"
-    out["saturation_time_s"] = float(run.saturated.sum() * dt_log)
+    rotors = None
     if np.isfinite(run.rotor_rad_s).any():
-        out["rotor_speed_range_rad_s"] = [
-            float(np.nanmin(run.rotor_rad_s)),
-            float(np.nanmax(run.rotor_rad_s)),
-        ]
+        rotors = (float(np.nanmin(run.rotor_rad_s)), float(np.nanmax(run.rotor_rad_s)))
     clearance = float(np.min(run.obstacle_distance_m))
-    out["min_obstacle_distance_m"] = clearance if math.isfinite(clearance) else None
-    out["max_tilt_deg"] = float(np.degrees(np.max(np.abs(run.euler_rpy[:, 0:2]))))
-    out["sim_seconds_per_wall_second"] = (
-        cfg.duration_s / run.wall_time_s if run.wall_time_s > 0 else math.inf
+    return FlightMetrics(
+        scenario=cfg.name,
+        duration_s=cfg.duration_s,
+        tracking=_tracking(run),
+        peak_thrust_n=float(np.nanmax(np.abs(run.thrust_n))),
+        peak_torque=float(np.nanmax(np.abs(run.torque))),
+        torque_unit="rad/s^2 (tau~ of eq. A.8)" if cfg.vehicle == "euler_lagrange" else "N m",
+        saturation_time_s=float(run.saturated.sum() * dt_log),
+        rotor_speed_range_rad_s=rotors,
+        min_obstacle_distance_m=clearance if math.isfinite(clearance) else None,
+        max_tilt_deg=float(np.degrees(np.max(np.abs(run.euler_rpy[:, 0:2])))),
+        sim_seconds_per_wall_second=cfg.duration_s / run.wall_time_s
+        if run.wall_time_s > 0
+        else math.inf,
+        events=run.events,
     )
-    out["events"] = run.events
-    return out
 
 
 def plot_flight(run: FlightRun, folder: Path) -> list[Path]:
@@ -174,7 +226,7 @@ def _plot_top_view(run: FlightRun, folder: Path) -> Path:
     return folder / "top_view.png"
 
 
-def write_flight_run(run: FlightRun, *, runs_root: Path) -> tuple[Path, dict[str, Any]]:
+def write_flight_run(run: FlightRun, *, runs_root: Path) -> tuple[Path, FlightMetrics]:
     """A run folder: config, states and controls CSV, TUM trajectory, metrics, plots, report."""
     cfg = run.config
     run_dir = create_run_folder(runs_root, cfg.name)
@@ -204,17 +256,18 @@ def write_flight_run(run: FlightRun, *, runs_root: Path) -> tuple[Path, dict[str
     metrics = flight_metrics(run)
     images = plot_flight(run, run_dir / "plots")
     no_ref = na("no reference trajectory")
-    row = {
+    tr = metrics.tracking
+    row: dict[str, object] = {
         "scenario": cfg.name,
-        "tracking RMSE (m)": metrics.get("tracking_rmse_m", no_ref),
-        "settling (s)": metrics.get("settling_time_s", no_ref),
-        "peak thrust (N)": metrics["peak_thrust_n"],
-        "saturated (s)": metrics["saturation_time_s"],
-        "min clearance (m)": metrics["min_obstacle_distance_m"]
-        if metrics["min_obstacle_distance_m"] is not None
+        "tracking RMSE (m)": no_ref if tr is None else tr.tracking_rmse_m,
+        "settling (s)": no_ref if tr is None else tr.settling_time_s,
+        "peak thrust (N)": metrics.peak_thrust_n,
+        "saturated (s)": metrics.saturation_time_s,
+        "min clearance (m)": metrics.min_obstacle_distance_m
+        if metrics.min_obstacle_distance_m is not None
         else na("no obstacle"),
     }
-    write_json(run_dir / "metrics.json", {"kind": "sim", **metrics, "table": [row]})
+    write_json(run_dir / "metrics.json", {"kind": "sim", **metrics.to_json(), "table": [row]})
     write_report(
         run_dir / "report.html",
         title=f"Flight: {cfg.name}",
@@ -222,7 +275,7 @@ def write_flight_run(run: FlightRun, *, runs_root: Path) -> tuple[Path, dict[str
             ReportSection(
                 heading="Metrics",
                 tables=[ReportTable("", list(row), [list(row.values())])],
-                text=f"events: {run.events}" if run.events else "",
+                text="events: " + ", ".join(f"{k} {v}" for k, v in run.events.items()),
             ),
             ReportSection(heading="Plots", images=images),
             ReportSection(heading="Configuration", code=dump_config(cfg)),

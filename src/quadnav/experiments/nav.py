@@ -23,7 +23,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from quadnav.control.cascaded_pid import CascadedPid, Setpoint
+from quadnav.control.base import Setpoint, truth_estimate
+from quadnav.control.cascaded_pid import CascadedPid
 from quadnav.errors import ExperimentError, SimError
 from quadnav.estimation.horizon import HorizonConfig, SourceFusion, SourceStats
 from quadnav.estimation.nav_ekf import NavEkfConfig
@@ -197,32 +198,6 @@ class _Plan:
         return self.landed
 
 
-def _truth_estimate(truth: VehicleState) -> StateEstimate:
-    x = np.concatenate([truth.p_W_B, truth.v_W_B, truth.q_W_B_xyzw])
-    return StateEstimate(
-        t_ns=truth.t_ns,
-        p_W_B=truth.p_W_B,
-        v_W_B=truth.v_W_B,
-        q_W_B_xyzw=truth.q_W_B_xyzw,
-        x=x,
-        names=TruthEstimator.names,
-        w_B=truth.w_B,
-    )
-
-
-def _as_vehicle_state(est: StateEstimate) -> VehicleState:
-    """(The cascaded PID still reads a VehicleState.)"""
-    w = est.w_B if est.w_B is not None else np.zeros(3)
-    return VehicleState(
-        t_ns=est.t_ns,
-        p_W_B=est.p_W_B,
-        v_W_B=est.v_W_B,
-        a_W_B=np.zeros(3),
-        q_W_B_xyzw=est.q_W_B_xyzw,
-        w_B=w,
-    )
-
-
 _BIAS_NAMES = ("bgx", "bgy", "bgz", "bax", "bay", "baz")
 
 
@@ -352,8 +327,8 @@ def run_nav(sc: NavScenario, seed: int, *, record_stream: bool = False) -> NavRu
             if phase.motors_off:
                 cmd = np.zeros(4)
             else:
-                fly_on = out if sc.closed_loop and out is not None else _truth_estimate(truth)
-                cmd = ctrl(_as_vehicle_state(fly_on), plan.setpoint(i))
+                fly_on = out if sc.closed_loop and out is not None else truth_estimate(truth)
+                cmd = ctrl(t, fly_on, plan.setpoint(i)).rotors()
                 if plan.touch_down(i, float(fly_on.p_W_B[2])):
                     cmd = np.zeros(4)
             sim.step(cmd)

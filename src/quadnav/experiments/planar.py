@@ -24,6 +24,7 @@ from numpy.typing import NDArray
 from pydantic import Field, model_validator
 
 from quadnav.config_model import MAX_DELAY_S, MAX_DURATION_S, MAX_SIM_STEPS, MIN_SIGMA, ConfigModel
+from quadnav.control.base import truth_estimate
 from quadnav.control.planar import PlanarSetpointProfile, ThesisPlanarController
 from quadnav.errors import ExperimentError, SimError
 from quadnav.estimation.floor import reintegration_floor
@@ -313,9 +314,10 @@ def run_planar(config: PlanarConfig, experiment: ExperimentName, seed: int) -> P
     record(0)
     truth = sim.state.to_vehicle_state()
     for i in range(1, N):
-        thrust, torque = controller(int(t_ns[i]), truth)
+        t_i = int(t_ns[i])
+        cmd = controller(t_i, truth_estimate(truth), controller.setpoint(t_i))
         try:
-            truth = sim.step(thrust, torque).to_vehicle_state()
+            truth = sim.step(cmd.thrust_n, float(cmd.torque()[1])).to_vehicle_state()
         except SimError as exc:
             raise ExperimentError(
                 f"experiment {experiment}, seed {seed}: {exc}; the vehicle.* and controller.* settings "

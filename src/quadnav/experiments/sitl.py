@@ -19,7 +19,8 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
-from quadnav.control.cascaded_pid import CascadedPid, Setpoint
+from quadnav.control.base import Setpoint
+from quadnav.control.cascaded_pid import CascadedPid
 from quadnav.errors import ExperimentError
 from quadnav.estimation.horizon import HorizonConfig
 from quadnav.estimation.nav_ekf import NavEkf, NavEkfConfig
@@ -30,9 +31,9 @@ from quadnav.geometry.frames import (
     rotation_enu_flu_to_ned_frd,
     rotation_ned_frd_to_enu_flu,
 )
-from quadnav.geometry.rotations import Pose, quat_xyzw_from_matrix
+from quadnav.geometry.rotations import Pose, rotation_matrix_xyzw
 from quadnav.io.mavlink import MavlinkLink, decode_vehicle_command
-from quadnav.messages import HeightSample, PoseSample, VehicleState
+from quadnav.messages import HeightSample, PoseSample
 from quadnav.sim.rigid_body import RigidBodyQuadrotor
 from quadnav.sim.sensors import BaroSensor, DelayLine, IntegratingImu, VisionPoseSensor
 from quadnav.vehicle import RigidBodyParams
@@ -149,27 +150,26 @@ class SitlVehicle:
         if imu is not None:
             self.est.push(imu)
             self.last_gyro = imu.gyro_rad_s
-        o = self.est.output_nav()
-        state = VehicleState(t_ns=t_ns, p_W_B=o.pos, v_W_B=o.vel, a_W_B=np.zeros(3),
-                             q_W_B_xyzw=quat_xyzw_from_matrix(o.att.reshape(3, 3)), w_B=self.last_gyro - self.ekf.bg)  # fmt: skip
-        R_now = o.att.reshape(3, 3)
+        state = self.est.output()
+        pos = state.p_W_B
+        R_now = rotation_matrix_xyzw(state.q_W_B_xyzw)
         yaw_now = math.atan2(R_now[1, 0], R_now[0, 0])
         if self.offboard and t_s - self.t_setpoint > SETPOINT_TIMEOUT_S:
             self.offboard = False  # setpoints stopped: hold where we are, facing where we face
-            self.hold = (o.pos.copy(), yaw_now)
+            self.hold = (pos.copy(), yaw_now)
         if not self.armed:
             cmd = np.zeros(4)
         else:
             target = (
                 self.setpoint
                 if self.offboard and self.setpoint is not None
-                else (self.hold or (o.pos.copy(), 0.0))
+                else (self.hold or (pos.copy(), 0.0))
             )
             if self.hold is None and not self.offboard:
-                self.hold = (np.array([o.pos[0], o.pos[1], max(o.pos[2], 0.0)]), 0.0)
+                self.hold = (np.array([pos[0], pos[1], max(pos[2], 0.0)]), 0.0)
             cmd = self.ctrl(
-                state, Setpoint(p=target[0], v=np.zeros(3), a=np.zeros(3), yaw_rad=target[1])
-            )
+                t_ns, state, Setpoint(p=target[0], v=np.zeros(3), a=np.zeros(3), yaw_rad=target[1])
+            ).rotors()
         if self.offboard:
             self.hold = None
         self.sim.step(cmd)
@@ -177,8 +177,8 @@ class SitlVehicle:
             self.truth_log.append((t_s, truth.p_W_B.copy()))
 
     def _telemetry(self, k: int, t_s: float) -> None:
-        o = self.est.output_nav()
-        R = Rotation.from_matrix(o.att.reshape(3, 3))
+        o = self.est.output()
+        R = Rotation.from_quat(o.q_W_B_xyzw)
         if k % 500 == 0:
             self.link.heartbeat(
                 vehicle=True,
@@ -191,10 +191,10 @@ class SitlVehicle:
             self.link.mav.attitude_send(int(t_s * 1e3), *map(float, rpy), *map(float, w))
             self.link._count("ATTITUDE")
         if k % 16 == 0:
-            p, v = enu_to_ned(o.pos), enu_to_ned(o.vel)
+            p, v = enu_to_ned(o.p_W_B), enu_to_ned(o.v_W_B)
             self.link.mav.local_position_ned_send(int(t_s * 1e3), *map(float, p), *map(float, v))
             self.link._count("LOCAL_POSITION_NED")
-            self.link.send_odometry(int(t_s * 1e9), Pose(R, o.pos), np.eye(6) * 1e-4, o.vel)
+            self.link.send_odometry(int(t_s * 1e9), Pose(R, o.p_W_B), np.eye(6) * 1e-4, o.v_W_B)
 
     def run(self, duration_s: float | None = None) -> None:
         """Real time: one simulator step per ``sim_dt_s`` of wall time; MAVLink every step."""
