@@ -19,8 +19,9 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from quadnav.estimation.horizon import DelayedHorizonEstimator, HorizonConfig
-from quadnav.estimation.nav_ekf import NavEkf, NavEkfConfig
+from quadnav.estimation.horizon import HorizonConfig
+from quadnav.estimation.nav_ekf import NavEkfConfig
+from quadnav.estimation.nav_filter import NavFilterSetup, build_nav_filter
 from quadnav.experiments.nav import NavScenario, run_nav
 from quadnav.messages import ImuSample
 
@@ -42,17 +43,14 @@ def main() -> None:
     imu_period_ns = round(1e9 / sc.imu.rate_hz)
     times = []
     for _ in range(args.repeats):
-        ekf = NavEkf(
-            NavEkfConfig(),
-            p0=np.zeros(3),
-            v0=np.zeros(3),
-            q0_xyzw=Rotation.identity().as_quat(),
-            P0=np.eye(15) * 1e-4,
+        setup = NavFilterSetup(
+            ekf=NavEkfConfig(),
+            horizon=HorizonConfig(
+                imu_period_ns=imu_period_ns, max_delay_ns=round(sc.vision.delay_s * 1e9)
+            ),
         )
-        est = DelayedHorizonEstimator(
-            ekf,
-            HorizonConfig(imu_period_ns=imu_period_ns, max_delay_ns=round(sc.vision.delay_s * 1e9)),
-            t0_ns=stream[0].t_ns - 1,
+        est = build_nav_filter(
+            setup, t0_ns=stream[0].t_ns - 1, p0=np.zeros(3), q0_xyzw=Rotation.identity().as_quat()
         )
         t1 = time.perf_counter()
         for s in stream:
