@@ -32,6 +32,7 @@ from quadnav.estimation.planar_ekf import PlanarEkf, PlanarEkfConfig
 from quadnav.messages import PositionSample
 from quadnav.sim.planar import PlanarParams, PlanarQuadrotor
 from quadnav.sim.sensors import DelayLine, ImuSensor, PositionSensor
+from quadnav.units import GRAVITY_M_S2, s_to_ns
 
 __all__ = [
     "EXPERIMENTS",
@@ -39,7 +40,6 @@ __all__ = [
     "PlanarConfig",
     "PlanarRun",
     "run_planar",
-    "s_to_ns",
 ]
 
 FloatArray = NDArray[np.float64]
@@ -48,14 +48,9 @@ ExperimentName = Literal["no_update", "naive", "handled"]
 EXPERIMENTS: tuple[ExperimentName, ...] = ("no_update", "naive", "handled")
 
 
-def s_to_ns(t_s: float) -> int:
-    """Seconds to integer nanoseconds, rounded to the nearest nanosecond."""
-    return round(t_s * 1e9)
-
-
 class VehicleSection(ConfigModel):
     mass_kg: float = Field(1.0, ge=0.01, description="kg, 10 g at least")
-    gravity_m_s2: float = Field(9.8, gt=0)
+    gravity_m_s2: float = Field(GRAVITY_M_S2, gt=0)
     inertia_kg_m2: float = Field(1.0 * 0.45**2 / 12.0, gt=0)
 
 
