@@ -220,12 +220,9 @@ class _Recorder:
     """Per-step arrays of one run (row ``i``: IMU step ``i``) and the GPS fixes as they arrive."""
 
     def __init__(self, n: int, dt_s: float) -> None:
-        self.truth_p, self.truth_v, self.truth_theta = (
-            np.zeros((n, 2)),
-            np.zeros((n, 2)),
-            np.zeros(n),
-        )
-        self.out_p, self.out_v, self.out_theta = np.zeros((n, 2)), np.zeros((n, 2)), np.zeros(n)
+        self.truth_p, self.out_p = np.zeros((n, 2)), np.zeros((n, 2))
+        self.truth_v, self.out_v = np.zeros((n, 2)), np.zeros((n, 2))
+        self.truth_theta, self.out_theta = np.zeros(n), np.zeros(n)
         self.t_d = np.zeros(n, dtype=np.int64)
         self.x_d = np.zeros((n, 5))
         self.P_d = np.zeros((n, 5, 5))
