@@ -12,6 +12,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from quadnav.errors import SimError
+from quadnav.units import GRAVITY_M_S2
 
 __all__ = ["Mixer", "RigidBodyParams"]
 
@@ -32,7 +33,7 @@ class RigidBodyParams:
     omega_max_rad_s: float = 1100.0
     motor_tau_s: float = 0.02
     drag_n_s_m: tuple[float, float, float] = (0.25, 0.25, 0.35)  # linear drag per body axis
-    gravity_m_s2: float = 9.81
+    gravity_m_s2: float = GRAVITY_M_S2
 
     def __post_init__(self) -> None:
         positive = {

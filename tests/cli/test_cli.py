@@ -24,6 +24,22 @@ def test_planar_writes_a_run_folder_and_prints_its_path_last(tmp_path: Path) -> 
     assert set(metrics["summary"]) == {"no_update", "naive", "handled"}
     assert "handled" in result.stdout and "out/floor" in result.stdout
     assert "duration_s: 2" in (run_dir / "config.yaml").read_text()
+    # Each column of the terminal table shows its own field of the summary.
+    row = next(x for x in result.stdout.splitlines() if "handled" in x)
+    cells = [c.strip() for c in row.strip("│ ").split("│")]
+    s = metrics["summary"]["handled"]
+    assert cells == [
+        "handled",
+        f"{s['rmse_delayed_m']['median']:.4f}",
+        f"{s['rmse_output_m']['median']:.4f}",
+        f"{s['rmse_floor_m']['median']:.4f}",
+        f"{s['output_over_floor']['median']:.3f}",
+        f"{s['nees_mean']['mean']:.3g}",
+        str(s["gps_fused_total"]),
+        str(s["gps_rejected_gate_total"]),
+        str(s["gps_rejected_too_old_total"]),
+    ]
+    assert len(set(cells[1:4])) == 3  # delayed, output and floor differ: a swap would show
 
 
 def test_planar_with_seeds_and_a_config_file(tmp_path: Path) -> None:

@@ -3,6 +3,7 @@ in the table (issue 12, item 19)."""
 
 from __future__ import annotations
 
+import dataclasses
 import warnings
 
 import pytest
@@ -72,6 +73,6 @@ def test_planar_summaries_carry_the_reason_when_no_seed_has_a_number() -> None:
         warnings.simplefilter("error")
         per_seed = [planar_metrics(run_planar(cfg, "handled", s)) for s in (0, 1)]
     why = na("no delayed estimate after the first fused fix")
-    summary = summarize_seeds([{**m, "nees_mean": why} for m in per_seed])
-    assert summary["nees_mean"]["median"] == why
-    assert isinstance(summary["rmse_output_m"]["median"], float)
+    summary = summarize_seeds([dataclasses.replace(m, nees_mean=why) for m in per_seed])
+    assert summary.nees_mean.median == why
+    assert isinstance(summary.rmse_output_m.median, float)

@@ -78,9 +78,7 @@ def test_damaged_logs_replay_what_they_can() -> None:
     r = replay(broken, cfg)
     assert any("IMU gap of 0.50" in n for n in r.notes)
     assert any("not increasing" in n for n in r.notes)
-    assert (
-        r.imu.rejected_invalid == 1 and r.imu.rejected_out_of_order >= 1
-    )
+    assert r.imu.rejected_invalid == 1 and r.imu.rejected_out_of_order >= 1
     assert "gps" not in r.sources and r.sources["baro"].received <= half
     assert np.isfinite(r.p).all()
 

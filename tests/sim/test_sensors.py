@@ -7,6 +7,7 @@ from scipy.spatial.transform import Rotation
 from quadnav.errors import SimError
 from quadnav.messages import PositionSample, VehicleState
 from quadnav.sim import DelayLine, ImuSensor, PositionSensor
+from quadnav.units import GRAVITY_M_S2
 
 
 def state(
@@ -178,4 +179,4 @@ def test_imu_lever_arm_adds_the_centripetal_acceleration() -> None:
         out = imu.accumulate(_state(k * 1_000_000, [0, 0, 0], w=(0, 0, 2.0)), 1e-3, rng) or out
     assert out is not None
     # w x (w x r) = -|w|^2 r: 0.4 m/s^2 towards the centre, on top of gravity
-    np.testing.assert_allclose(out.accel_m_s2, [-0.4, 0.0, 9.81], atol=1e-9)
+    np.testing.assert_allclose(out.accel_m_s2, [-0.4, 0.0, GRAVITY_M_S2], atol=1e-9)

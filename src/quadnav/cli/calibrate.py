@@ -10,18 +10,17 @@ import typer
 from rich.table import Table
 
 from quadnav.cli.common import command_help, console, handle_errors, progress_bar
-from quadnav.errors import ConfigError, VisionError
-from quadnav.io.frames import open_frames, quiet_libraries
-from quadnav.io.opencv_yaml import write_camera_yaml
-from quadnav.vision.calibration import (
-    BoardNames,
-    Calibration,
-    calibrate_charuco,
-    charuco_board_problem,
+from quadnav.errors import ConfigError
+from quadnav.experiments.calibration import (
+    SourceCalibration,
+    calibrate_source,
+    write_source_calibration,
 )
-from quadnav.vision.markers import CharucoDetections, CharucoSpec, CharucoTarget
+from quadnav.io.frames import quiet_libraries
+from quadnav.vision.calibration import BoardNames, charuco_board_problem
+from quadnav.vision.markers import CharucoSpec
 
-__all__ = ["EXAMPLES", "calibrate_command", "calibrate_source", "check_example"]
+__all__ = ["EXAMPLES", "calibrate_command", "check_example", "print_calibration"]
 
 _OPTIONS = BoardNames(
     squares_x="--squares",
@@ -30,40 +29,6 @@ _OPTIONS = BoardNames(
     marker_m="--marker-m",
     dictionary="--dictionary",
 )
-
-
-def calibrate_source(
-    source: str, spec: CharucoSpec, *, every: int = 1, max_views: int = 60, progress: object = None
-) -> tuple[Calibration, int, list[str]]:
-    """Detect the board in every ``every``-th frame of ``source`` and calibrate from the views
-    with the most corners (at most ``max_views``). Returns the calibration, the number of
-    frames read and the frames that could not be decoded."""
-    target = CharucoTarget(spec)
-    frames = open_frames(source)
-    views: list[tuple[int, CharucoDetections]] = []
-    size: tuple[int, int] | None = None
-    skipped: list[str] = []
-    n = 0
-    for fr in frames:
-        n += 1
-        if fr.index % every:
-            continue
-        if fr.image is None:
-            skipped.append(f"frame {fr.index}: {fr.error}")
-            continue
-        if size is None:
-            size = (fr.image.shape[1], fr.image.shape[0])  # the source skips other sizes
-        views.append((fr.index, target.detect(fr.image)))
-        if callable(progress):
-            progress(fr.index + 1, frames.total or 0, f"{len(views)} views")
-    if size is None:
-        raise ConfigError(f"{source}: no readable image")
-    views.sort(key=lambda v: -len(v[1].corner_ids))
-    chosen = sorted(views[:max_views])
-    try:
-        return calibrate_charuco([d for _, d in chosen], target, size), n, skipped
-    except VisionError as exc:
-        raise VisionError(f"{source}: {exc}") from None
 
 
 def _check_options(
@@ -109,14 +74,18 @@ def calibrate_command(
     _check_options(squares, square_m, marker_m, dictionary, out)
     spec = CharucoSpec(squares[0], squares[1], square_m, marker_m, dictionary)
     with progress_bar("calibrate") as update, quiet_libraries():
-        cal, n, skipped = calibrate_source(source, spec, every=every, progress=update)
-    write_camera_yaml(
-        out, cal.camera, avg_reprojection_error=cal.rms_px, views=len(cal.per_view_rms_px)
-    )
+        result = calibrate_source(source, spec, every=every, progress=update)
+    write_source_calibration(out, result)
+    print_calibration(source, result, out)
+
+
+def print_calibration(source: str, result: SourceCalibration, out: Path) -> None:
+    """The terminal summary: frames and views used, the RMS error, the intrinsics."""
+    cal = result.calibration
     table = Table(title=f"calibration from {source}")
     table.add_column("measure")
     table.add_column("value", justify="right")
-    table.add_row("frames read / unreadable", f"{n} / {len(skipped)}")
+    table.add_row("frames read / unreadable", f"{result.frames_read} / {len(result.unreadable)}")
     table.add_row("views used / rejected", f"{len(cal.per_view_rms_px)} / {len(cal.rejected)}")
     table.add_row("RMS reprojection error (px)", f"{cal.rms_px:.3f}")
     table.add_row("fx, fy (px)", f"{cal.camera.fx:.2f}, {cal.camera.fy:.2f}")

@@ -44,7 +44,7 @@ JobsOpt = Annotated[
 
 def print_planar_summary(study: PlanarStudy) -> None:
     """The terminal summary: medians over seeds of each experiment's metrics."""
-    n = next(iter(study.summary.values()))["seeds"]
+    n = next(iter(study.summary.values())).seeds
     table = Table(title=f"Planar experiments: position RMSE (m), median over {n} seed(s)")
     table.add_column("experiment")
     for col in ("delayed", "output", "floor", "out/floor", "NEES", "GPS fused", "gated", "too old"):
@@ -52,14 +52,14 @@ def print_planar_summary(study: PlanarStudy) -> None:
     for exp, s in study.summary.items():
         table.add_row(
             exp,
-            fmt_metric(s["rmse_delayed_m"]["median"], ".4f"),
-            fmt_metric(s["rmse_output_m"]["median"], ".4f"),
-            fmt_metric(s["rmse_floor_m"]["median"], ".4f"),
-            fmt_metric(s["output_over_floor"]["median"], ".3f"),
-            fmt_metric(s["nees_mean"]["mean"], ".3g"),
-            str(s["gps_fused_total"]),
-            str(s["gps_rejected_gate_total"]),
-            str(s["gps_rejected_too_old_total"]),
+            fmt_metric(s.rmse_delayed_m.median, ".4f"),
+            fmt_metric(s.rmse_output_m.median, ".4f"),
+            fmt_metric(s.rmse_floor_m.median, ".4f"),
+            fmt_metric(s.output_over_floor.median, ".3f"),
+            fmt_metric(s.nees_mean.mean, ".3g"),
+            str(s.gps_fused_total),
+            str(s.gps_rejected_gate_total),
+            str(s.gps_rejected_too_old_total),
         )
     console.print(table)
     console.print(

@@ -25,6 +25,7 @@ import numpy as np
 from quadnav.control.base import Command, Setpoint, require_rate
 from quadnav.errors import ControlError
 from quadnav.messages import StateEstimate
+from quadnav.units import GRAVITY_M_S2
 
 __all__ = ["PlanarSetpointProfile", "ThesisPlanarController"]
 
@@ -73,7 +74,7 @@ class ThesisPlanarController:
     """Thrust and torque from the true state; gains are the thesis's."""
 
     mass_kg: float = 1.0
-    gravity_m_s2: float = 9.8
+    gravity_m_s2: float = GRAVITY_M_S2
     k_climb: float = 2.0
     k_tilt: float = 0.2
     kd_tilt: float = 0.1

@@ -39,6 +39,7 @@ from quadnav.control.base import (
 from quadnav.control.stability import routh_hurwitz_stable
 from quadnav.errors import ControlError
 from quadnav.messages import StateEstimate
+from quadnav.units import GRAVITY_M_S2
 
 __all__ = ["PD_GAIN_SETS", "NestedSaturationController", "PdController"]
 
@@ -79,7 +80,7 @@ class PdController:
     """Thesis 002 section 5.1 PD laws (gains in SI: N/m, N s/m, rad/m, rad s/m, 1/s^2, 1/s)."""
 
     mass_kg: float = 1.5
-    gravity_m_s2: float = 9.8
+    gravity_m_s2: float = GRAVITY_M_S2
     kp_z: float = 12.0
     kd_z: float = 8.0
     kp_xy: float = 0.1
@@ -142,7 +143,7 @@ class NestedSaturationController:
     checked."""
 
     mass_kg: float = 1.5
-    gravity_m_s2: float = 9.8
+    gravity_m_s2: float = GRAVITY_M_S2
     kp_z: float = 12.0
     kd_z: float = 8.0
     kp_yaw: float = 4.0

@@ -20,6 +20,7 @@ from numpy.typing import NDArray
 
 from quadnav.errors import EstimationError
 from quadnav.estimation.horizon import require_positive
+from quadnav.units import s_to_ns
 
 __all__ = ["CHECK_NAMES", "GnssCheckConfig", "GnssChecks", "run_gnss_checks"]
 
@@ -168,11 +169,11 @@ def run_gnss_checks(
                 bits |= drift.update(t, lla, v_ned, cfg)
             else:
                 drift.reset()  # moving (PX4: in the air, these checks pass)
-            need_ns = round(cfg.pass_s * 1e9)
+            need_ns = s_to_ns(cfg.pass_s)
         else:  # qualified: the coarse checks only
             bits = _fix_bits(int(gps["fix"][k]), 99, 0.0, float(gps["eph"][k]), float(gps["epv"][k]),
                              float(gps["s_var"][k]), coarse)  # fmt: skip
-            need_ns = round(max(1.0, cfg.pass_s / 10) * 1e9)
+            need_ns = s_to_ns(max(1.0, cfg.pass_s / 10))
         drift.t_prev_ns, drift.prev = t, lla
         failed[k] = bits & sel
         if failed[k]:

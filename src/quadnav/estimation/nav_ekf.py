@@ -62,6 +62,7 @@ from quadnav.messages import (
     StateEstimate,
     VelocitySample,
 )
+from quadnav.units import GRAVITY_M_S2
 
 __all__ = [
     "NavEkf",
@@ -101,7 +102,7 @@ class NavKinematics:
     flattened rotation matrix ``R_W_B`` (9,) so the output predictor's hot loop needs no
     quaternion conversions."""
 
-    gravity_m_s2: float = 9.81
+    gravity_m_s2: float = GRAVITY_M_S2
 
     def integrate(
         self,
@@ -254,7 +255,7 @@ class NavEkfConfig:
     accel_sigma_m_s2: float = 0.05
     gyro_bias_rw_rad_s_sqrt_s: float = 1e-4
     accel_bias_rw_m_s2_sqrt_s: float = 1e-3
-    gravity_m_s2: float = 9.81
+    gravity_m_s2: float = GRAVITY_M_S2
     gate_probability: float = 0.9999
     # The innovation gate in standard deviations, as PX4 sets it (``EKF2_*_GATE``); when given it
     # replaces ``gate_probability`` (which cannot express gates of 8.5 sigma and more: the

@@ -30,6 +30,7 @@ from scipy.stats import chi2
 from quadnav.errors import EstimationError
 from quadnav.estimation.horizon import FusionResult, NavState
 from quadnav.messages import ImuSample, PositionSample, Sample, StateEstimate
+from quadnav.units import GRAVITY_M_S2
 
 __all__ = [
     "AccelModel",
@@ -53,7 +54,7 @@ def _rot(theta: FloatArray) -> tuple[FloatArray, FloatArray]:
 class PlanarKinematics:
     """Strapdown integration in the x-z plane (arrays may be batched on leading axes)."""
 
-    gravity_m_s2: float = 9.8
+    gravity_m_s2: float = GRAVITY_M_S2
     accel_model: AccelModel = "specific_force"
 
     def integrate(
@@ -138,7 +139,7 @@ class PlanarEkfConfig:
 
     accel_sigma_m_s2: float = 0.25
     gyro_sigma_rad_s: float = 0.03
-    gravity_m_s2: float = 9.8
+    gravity_m_s2: float = GRAVITY_M_S2
     accel_model: AccelModel = "specific_force"
     gate_probability: float | None = 0.9999
 

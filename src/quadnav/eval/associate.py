@@ -8,6 +8,7 @@ import numpy as np
 
 from quadnav.errors import EvalError
 from quadnav.geometry.trajectory import Trajectory
+from quadnav.units import s_to_ns
 
 __all__ = ["associate"]
 
@@ -48,7 +49,7 @@ def associate(
                 f"trajectories without timestamps pair by index but have {len(ref)} and {len(est)} poses"
             )
         return ref, est
-    offset_ns = round(t_offset_s * 1e9) if math.isfinite(t_offset_s) else None
+    offset_ns = s_to_ns(t_offset_s) if math.isfinite(t_offset_s) else None
     if offset_ns is None or not (
         int(est.t_ns[0]) + offset_ns >= _INT64_MIN and int(est.t_ns[-1]) + offset_ns <= _INT64_MAX
     ):
@@ -59,7 +60,7 @@ def associate(
     shifted = est.shifted(offset_ns)
     t_e = shifted.t_ns
     t_r = ref.t_ns
-    max_diff = round(t_max_diff_s * 1e9)
+    max_diff = s_to_ns(t_max_diff_s)
     k = (
         np.clip(np.searchsorted(t_r, t_e), 1, len(t_r) - 1)
         if len(t_r) > 1

@@ -16,6 +16,7 @@ from numpy.typing import NDArray
 
 from quadnav.errors import EvalError
 from quadnav.geometry.trajectory import Trajectory
+from quadnav.units import s_to_ns
 
 __all__ = [
     "ErrorStats",
@@ -162,7 +163,7 @@ def rpe_pairs(
         if not traj.timed:
             raise EvalError("an RPE delta in seconds needs timestamps")
         # Integer nanoseconds, so 0.3 s steps are not lost to float round-off.
-        delta_ns = round(delta * 1e9)
+        delta_ns = s_to_ns(delta)
         if not all_pairs:
             return _chain_pairs(np.diff(traj.t_ns).tolist(), delta_ns)
         return _nearest_pairs(traj.t_ns - traj.t_ns[0], delta_ns, round(rel_tol * delta_ns))

@@ -4,8 +4,10 @@ figures 2.3-2.5), over arrays and per-seed metrics; the study itself is
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TypeVar
 
 import matplotlib
 
@@ -14,26 +16,69 @@ import matplotlib.pyplot as plt
 import numpy as np
 from numpy.typing import NDArray
 
-from quadnav.eval.na import median_or_na
+from quadnav.eval.na import Metric, median_or_na
 from quadnav.geometry.trajectory import Trajectory
 
 __all__ = [
-    "SUMMARY_KEYS",
+    "PlanarMetrics",
+    "PlanarSummary",
+    "SeedSpread",
     "planar_trajectory",
     "plot_monte_carlo",
     "summarize_seeds",
 ]
 
 FloatArray = NDArray[np.float64]
+Name = TypeVar("Name", bound=str)  # an experiment's name
 
-#: Per-seed metrics that the summary reports as a median over seeds.
-SUMMARY_KEYS = (
-    "rmse_delayed_m",
-    "rmse_output_m",
-    "rmse_floor_m",
-    "output_over_floor",
-    "nees_mean",
-)
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class PlanarMetrics:
+    """One planar run's metrics: position RMSE of each estimate against the truth at its own
+    horizon (delayed: at the delayed horizon; output and floor: now), the NEES of the 5-state
+    delayed estimate and the GPS counters."""
+
+    seed: int
+    rmse_delayed_m: Metric
+    rmse_output_m: Metric
+    rmse_floor_m: Metric
+    output_over_floor: Metric
+    nees_mean: Metric
+    nees_steps: int
+    gps_received: int
+    gps_fused: int
+    gps_rejected_gate: int
+    gps_rejected_too_old: int
+    gps_pending_at_end: int
+    imu_buffer_length: int
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class SeedSpread:
+    """A metric over seeds: median, mean, 10th and 90th percentile of the seeds that have a
+    number (each the first seed's reason when none has)."""
+
+    median: Metric
+    mean: Metric
+    p10: Metric
+    p90: Metric
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class PlanarSummary:
+    """One experiment over its seeds: the spread of each RMSE, the ratio and the NEES; the GPS
+    counters summed."""
+
+    seeds: int
+    rmse_delayed_m: SeedSpread
+    rmse_output_m: SeedSpread
+    rmse_floor_m: SeedSpread
+    output_over_floor: SeedSpread
+    nees_mean: SeedSpread
+    gps_received_total: int
+    gps_fused_total: int
+    gps_rejected_gate_total: int
+    gps_rejected_too_old_total: int
 
 
 def planar_trajectory(
@@ -50,42 +95,50 @@ def planar_trajectory(
     )
 
 
-def summarize_seeds(per_seed: list[dict[str, Any]]) -> dict[str, Any]:
-    """Median, mean, 10th and 90th percentile over seeds of each summary metric."""
-    out: dict[str, Any] = {"seeds": len(per_seed)}
-    for key in SUMMARY_KEYS:
-        values = [m[key] for m in per_seed]
-        finite = np.array([v for v in values if not isinstance(v, str)], dtype=np.float64)
-        finite = finite[np.isfinite(finite)]
-        if len(finite) == 0:
-            why = median_or_na(values)  # no seed has a number: the reason
-            out[key] = {"median": why, "mean": why, "p10": why, "p90": why}
-            continue
-        out[key] = {
-            "median": float(np.median(finite)),
-            "mean": float(np.mean(finite)),
-            "p10": float(np.percentile(finite, 10)),
-            "p90": float(np.percentile(finite, 90)),
-        }
-    for key in ("gps_received", "gps_fused", "gps_rejected_gate", "gps_rejected_too_old"):
-        out[f"{key}_total"] = int(sum(m[key] for m in per_seed))
-    return out
+def _spread(values: Sequence[Metric]) -> SeedSpread:
+    finite = np.array([v for v in values if not isinstance(v, str)], dtype=np.float64)
+    finite = finite[np.isfinite(finite)]
+    if len(finite) == 0:
+        why = median_or_na(values)  # no seed has a number: the reason
+        return SeedSpread(median=why, mean=why, p10=why, p90=why)
+    return SeedSpread(
+        median=float(np.median(finite)),
+        mean=float(np.mean(finite)),
+        p10=float(np.percentile(finite, 10)),
+        p90=float(np.percentile(finite, 90)),
+    )
 
 
-def plot_monte_carlo(per_experiment: dict[str, list[dict[str, Any]]], path: Path) -> None:
+def summarize_seeds(per_seed: Sequence[PlanarMetrics]) -> PlanarSummary:
+    """Each metric's spread over seeds, and the GPS counters summed."""
+    return PlanarSummary(
+        seeds=len(per_seed),
+        rmse_delayed_m=_spread([m.rmse_delayed_m for m in per_seed]),
+        rmse_output_m=_spread([m.rmse_output_m for m in per_seed]),
+        rmse_floor_m=_spread([m.rmse_floor_m for m in per_seed]),
+        output_over_floor=_spread([m.output_over_floor for m in per_seed]),
+        nees_mean=_spread([m.nees_mean for m in per_seed]),
+        gps_received_total=sum(m.gps_received for m in per_seed),
+        gps_fused_total=sum(m.gps_fused for m in per_seed),
+        gps_rejected_gate_total=sum(m.gps_rejected_gate for m in per_seed),
+        gps_rejected_too_old_total=sum(m.gps_rejected_too_old for m in per_seed),
+    )
+
+
+def plot_monte_carlo(per_experiment: Mapping[Name, Sequence[PlanarMetrics]], path: Path) -> None:
     """Distribution over seeds of each estimate's position RMSE, per experiment (log scale)."""
     fig, ax = plt.subplots(figsize=(10, 5), constrained_layout=True)
     labels, data = [], []
     for exp, per_seed in per_experiment.items():
-        for key, name in (
-            ("rmse_delayed_m", "delayed"),
-            ("rmse_output_m", "output"),
-            ("rmse_floor_m", "floor"),
-        ):
-            if exp != "handled" and name != "delayed":
-                continue
+        series = [("delayed", [m.rmse_delayed_m for m in per_seed])]
+        if exp == "handled":
+            series += [
+                ("output", [m.rmse_output_m for m in per_seed]),
+                ("floor", [m.rmse_floor_m for m in per_seed]),
+            ]
+        for name, values in series:
             labels.append(f"{exp}\n{name}")
-            data.append([m[key] for m in per_seed])
+            data.append(values)
     ax.boxplot(data, tick_labels=labels)
     ax.set_yscale("log")
     ax.set_ylabel("position RMSE (m)")

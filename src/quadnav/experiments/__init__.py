@@ -7,7 +7,6 @@ from quadnav.experiments.planar import (
     PlanarConfig,
     PlanarRun,
     run_planar,
-    s_to_ns,
 )
 
 __all__ = [
@@ -17,5 +16,4 @@ __all__ = [
     "PlanarConfig",
     "PlanarRun",
     "run_planar",
-    "s_to_ns",
 ]

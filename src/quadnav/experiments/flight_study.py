@@ -30,6 +30,7 @@ from quadnav.io.run_folder import (
     write_text,
 )
 from quadnav.io.trajectory_io import write_tum
+from quadnav.units import s_to_ns
 
 __all__ = ["FlightMetrics", "TrackingMetrics", "flight_metrics", "plot_flight", "write_flight_run"]
 
@@ -231,7 +232,7 @@ def write_flight_run(run: FlightRun, *, runs_root: Path) -> tuple[Path, FlightMe
     cfg = run.config
     run_dir = create_run_folder(runs_root, cfg.name)
     write_text(run_dir / "config.yaml", dump_config(cfg))
-    t_ns = np.round(run.t_s * 1e9).astype(np.int64)
+    t_ns = np.array([s_to_ns(t) for t in run.t_s], dtype=np.int64)
     cols: dict[str, NDArray[Any]] = {"t_ns": t_ns}
     for k, a in enumerate("xyz"):
         cols[f"{a}_m"] = run.p[:, k]

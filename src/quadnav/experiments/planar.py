@@ -33,6 +33,7 @@ from quadnav.estimation.planar_ekf import PlanarEkf, PlanarEkfConfig
 from quadnav.messages import PositionSample
 from quadnav.sim.planar import PlanarParams, PlanarQuadrotor
 from quadnav.sim.sensors import DelayLine, ImuSensor, PositionSensor
+from quadnav.units import GRAVITY_M_S2, s_to_ns
 
 __all__ = [
     "EXPERIMENTS",
@@ -40,23 +41,18 @@ __all__ = [
     "PlanarConfig",
     "PlanarRun",
     "run_planar",
-    "s_to_ns",
 ]
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 ExperimentName = Literal["no_update", "naive", "handled"]
 EXPERIMENTS: tuple[ExperimentName, ...] = ("no_update", "naive", "handled")
-
-
-def s_to_ns(t_s: float) -> int:
-    """Seconds to integer nanoseconds, rounded to the nearest nanosecond."""
-    return round(t_s * 1e9)
+T0_NS = 0  # every run starts at t = 0
 
 
 class VehicleSection(ConfigModel):
     mass_kg: float = Field(1.0, ge=0.01, description="kg, 10 g at least")
-    gravity_m_s2: float = Field(9.8, gt=0)
+    gravity_m_s2: float = Field(GRAVITY_M_S2, gt=0)
     inertia_kg_m2: float = Field(1.0 * 0.45**2 / 12.0, gt=0)
 
 
@@ -148,7 +144,9 @@ class PlanarConfig(ConfigModel):
                 f"{MAX_SIM_STEPS:g}: raise dt_s or shorten duration_s"
             )
         if self.buffer_delay_s >= self.duration_s:
-            what = "estimator.max_delay_s" if self.estimator.max_delay_s is not None else "gps.delay_s + gps.jitter_s"  # fmt: skip
+            what = "gps.delay_s + gps.jitter_s"
+            if self.estimator.max_delay_s is not None:
+                what = "estimator.max_delay_s"
             raise ValueError(
                 f"the delayed horizon runs {what} = {self.buffer_delay_s:g} s behind: "
                 f"duration_s ({self.duration_s:g} s) must be longer"
@@ -206,26 +204,58 @@ class PlanarRun:
         return np.asarray((self.t_delayed_ns - self.t_ns[0]) // dt_ns, dtype=np.int64)
 
 
-def run_planar(config: PlanarConfig, experiment: ExperimentName, seed: int) -> PlanarRun:
-    """Simulate, estimate and record one experiment with one seed."""
-    if experiment not in EXPERIMENTS:
-        raise ExperimentError(
-            f"unknown planar experiment {experiment!r}; choose from {EXPERIMENTS}"
-        )
-    dt_ns = s_to_ns(config.dt_s)
-    n_steps = round(config.duration_s / config.dt_s)
-    t0_ns = 0
-    # Independent streams: the same seed gives the same sensor noise in every experiment.
-    ss_imu, ss_gps, ss_init = np.random.SeedSequence(seed).spawn(3)
-    rng_imu, rng_gps, rng_init = (np.random.default_rng(s) for s in (ss_imu, ss_gps, ss_init))
+@dataclass(slots=True)
+class _Loop:
+    """The wired parts of one run: the vehicle and its controller, the sensors, the estimator."""
 
-    v = config.vehicle
+    sim: PlanarQuadrotor
+    controller: ThesisPlanarController
+    imu: ImuSensor
+    gps: PositionSensor
+    gps_line: DelayLine[PositionSample]
+    ekf: PlanarEkf
+    est: DelayedHorizonEstimator
+
+
+class _Recorder:
+    """Per-step arrays of one run (row ``i``: IMU step ``i``) and the GPS fixes as they arrive."""
+
+    def __init__(self, n: int, dt_s: float) -> None:
+        self.truth_p, self.out_p = np.zeros((n, 2)), np.zeros((n, 2))
+        self.truth_v, self.out_v = np.zeros((n, 2)), np.zeros((n, 2))
+        self.truth_theta, self.out_theta = np.zeros(n), np.zeros(n)
+        self.t_d = np.zeros(n, dtype=np.int64)
+        self.x_d = np.zeros((n, 5))
+        self.P_d = np.zeros((n, 5, 5))
+        self.gyro = np.zeros((n, 3))
+        self.accel = np.zeros((n, 3))
+        self.imu_dt = np.full(n, dt_s)
+        self.gps_valid: list[int] = []
+        self.gps_arrival: list[int] = []
+        self.gps_p: list[FloatArray] = []
+
+    def record(self, i: int, loop: _Loop) -> None:
+        s = loop.sim.state
+        self.truth_p[i], self.truth_v[i], self.truth_theta[i] = s.p_xz, s.v_xz, s.theta_rad
+        o = loop.est.output_nav()
+        self.out_p[i], self.out_v[i], self.out_theta[i] = o.pos, o.vel, o.att[0]
+        self.t_d[i] = loop.est.t_delayed_ns
+        self.x_d[i] = loop.ekf.x
+        self.P_d[i] = loop.ekf.P
+
+    def gps_arrived(self, arrival_ns: int, sample: PositionSample) -> None:
+        self.gps_valid.append(sample.t_ns)
+        self.gps_arrival.append(arrival_ns)
+        self.gps_p.append(sample.p_W_B[[0, 2]])
+
+
+def _vehicle(config: PlanarConfig, dt_ns: int) -> tuple[PlanarQuadrotor, ThesisPlanarController]:
+    v, c = config.vehicle, config.controller
     sim = PlanarQuadrotor(
         PlanarParams(mass_kg=v.mass_kg, gravity_m_s2=v.gravity_m_s2, inertia_kg_m2=v.inertia_kg_m2),
         dt_ns=dt_ns,
-        t0_ns=t0_ns,
+        t0_ns=T0_NS,
     )
-    c = config.controller
     controller = ThesisPlanarController(
         mass_kg=v.mass_kg,
         gravity_m_s2=v.gravity_m_s2,
@@ -239,32 +269,29 @@ def run_planar(config: PlanarConfig, experiment: ExperimentName, seed: int) -> P
             tilt_start_s=c.tilt_start_s,
             tilt_switch_s=c.tilt_switch_s,
         ),
-        t0_ns=t0_ns,
+        t0_ns=T0_NS,
     )
-    imu_sensor = ImuSensor(
-        accel_sigma_m_s2=config.imu.accel_sigma_m_s2,
-        gyro_sigma_rad_s=config.imu.gyro_sigma_rad_s,
-        gravity_m_s2=v.gravity_m_s2,
-        accel_model=config.imu.accel_model,
-    )
-    gps_sensor = PositionSensor(
-        sigma_m=config.gps.sigma_m, period_ns=s_to_ns(config.gps.period_s), t0_ns=t0_ns
-    )
-    gps_line: DelayLine[PositionSample] = DelayLine(
-        delay_ns=s_to_ns(config.gps.delay_s), jitter_ns=s_to_ns(config.gps.jitter_s)
-    )
+    return sim, controller
 
+
+def _estimator(
+    config: PlanarConfig,
+    experiment: ExperimentName,
+    x_true0: FloatArray,
+    rng_init: np.random.Generator,
+    dt_ns: int,
+) -> tuple[PlanarEkf, DelayedHorizonEstimator]:
+    """The planar EKF started one sigma-draw off the truth, and its delayed horizon (none but
+    for ``handled``: the other two fuse each fix on arrival)."""
     e = config.estimator
     sig0 = np.array(
         [e.init_sigma_pos_m] * 2 + [e.init_sigma_vel_m_s] * 2 + [e.init_sigma_theta_rad]
     )
-    s0 = sim.state
-    x_true0 = np.array([*s0.p_xz, *s0.v_xz, s0.theta_rad])
     ekf = PlanarEkf(
         PlanarEkfConfig(
             accel_sigma_m_s2=config.imu.accel_sigma_m_s2,
             gyro_sigma_rad_s=config.imu.gyro_sigma_rad_s,
-            gravity_m_s2=v.gravity_m_s2,
+            gravity_m_s2=config.vehicle.gravity_m_s2,
             accel_model=config.imu.accel_model,
             gate_probability=None if experiment == "naive" else e.gate_probability,
         ),
@@ -281,102 +308,141 @@ def run_planar(config: PlanarConfig, experiment: ExperimentName, seed: int) -> P
             tau_pos_s=e.tau_pos_s,
             propagate_velocity_correction=e.propagate_velocity_correction,
         ),
-        t0_ns=t0_ns,
+        t0_ns=T0_NS,
     )
+    return ekf, est
 
-    N = n_steps + 1
-    t_ns = t0_ns + dt_ns * np.arange(N, dtype=np.int64)
-    truth_p = np.zeros((N, 2))
-    truth_v = np.zeros((N, 2))
-    truth_theta = np.zeros(N)
-    out_p = np.zeros((N, 2))
-    out_v = np.zeros((N, 2))
-    out_theta = np.zeros(N)
-    t_d = np.zeros(N, dtype=np.int64)
-    x_d = np.zeros((N, 5))
-    P_d = np.zeros((N, 5, 5))
-    gyro = np.zeros((N, 3))
-    accel = np.zeros((N, 3))
-    imu_dt = np.full(N, config.dt_s)
-    gps_valid: list[int] = []
-    gps_arrival: list[int] = []
-    gps_p: list[FloatArray] = []
 
-    def record(i: int) -> None:
-        s = sim.state
-        truth_p[i], truth_v[i], truth_theta[i] = s.p_xz, s.v_xz, s.theta_rad
-        o = est.output_nav()
-        out_p[i], out_v[i], out_theta[i] = o.pos, o.vel, o.att[0]
-        t_d[i] = est.t_delayed_ns
-        x_d[i] = ekf.x
-        P_d[i] = ekf.P
+Rngs = tuple[np.random.Generator, np.random.Generator]
 
-    record(0)
-    truth = sim.state.to_vehicle_state()
-    for i in range(1, N):
-        t_i = int(t_ns[i])
-        cmd = controller(t_i, truth_estimate(truth), controller.setpoint(t_i))
-        try:
-            truth = sim.step(cmd.thrust_n, float(cmd.torque()[1])).to_vehicle_state()
-        except SimError as exc:
-            raise ExperimentError(
-                f"experiment {experiment}, seed {seed}: {exc}; the vehicle.* and controller.* settings "
-                f"do not hold it at dt_s = {config.dt_s:g} s"
-            ) from None
-        imu = imu_sensor.sample(truth, int(t_ns[i]), rng_imu)
-        gyro[i], accel[i] = imu.gyro_rad_s, imu.accel_m_s2
-        fix = gps_sensor.sample(truth, int(t_ns[i]), rng_gps)
+
+def _build(
+    config: PlanarConfig, experiment: ExperimentName, seed: int, dt_ns: int
+) -> tuple[_Loop, Rngs]:
+    """The loop of one run and its IMU and GPS generators.
+
+    Independent streams: the same seed gives the same sensor noise in every experiment."""
+    ss_imu, ss_gps, ss_init = np.random.SeedSequence(seed).spawn(3)
+    rng_imu, rng_gps, rng_init = (np.random.default_rng(s) for s in (ss_imu, ss_gps, ss_init))
+    sim, controller = _vehicle(config, dt_ns)
+    s0 = sim.state
+    x_true0 = np.array([*s0.p_xz, *s0.v_xz, s0.theta_rad])
+    ekf, est = _estimator(config, experiment, x_true0, rng_init, dt_ns)
+    loop = _Loop(
+        sim=sim,
+        controller=controller,
+        imu=ImuSensor(
+            accel_sigma_m_s2=config.imu.accel_sigma_m_s2,
+            gyro_sigma_rad_s=config.imu.gyro_sigma_rad_s,
+            gravity_m_s2=config.vehicle.gravity_m_s2,
+            accel_model=config.imu.accel_model,
+        ),
+        gps=PositionSensor(
+            sigma_m=config.gps.sigma_m, period_ns=s_to_ns(config.gps.period_s), t0_ns=T0_NS
+        ),
+        gps_line=DelayLine(
+            delay_ns=s_to_ns(config.gps.delay_s), jitter_ns=s_to_ns(config.gps.jitter_s)
+        ),
+        ekf=ekf,
+        est=est,
+    )
+    return loop, (rng_imu, rng_gps)
+
+
+def _simulate(
+    loop: _Loop,
+    rec: _Recorder,
+    t_ns: IntArray,
+    rngs: Rngs,
+    experiment: ExperimentName,
+) -> None:
+    """Fly, sense and estimate every step; raises SimError when the vehicle diverges."""
+    rng_imu, rng_gps = rngs
+    rec.record(0, loop)
+    truth = loop.sim.state.to_vehicle_state()
+    for i in range(1, len(t_ns)):
+        t = int(t_ns[i])
+        cmd = loop.controller(t, truth_estimate(truth), loop.controller.setpoint(t))
+        truth = loop.sim.step(cmd.thrust_n, float(cmd.torque()[1])).to_vehicle_state()
+        imu = loop.imu.sample(truth, t, rng_imu)
+        rec.gyro[i], rec.accel[i] = imu.gyro_rad_s, imu.accel_m_s2
+        fix = loop.gps.sample(truth, t, rng_gps)
         if fix is not None:
-            gps_line.push(fix, rng_gps)
+            loop.gps_line.push(fix, rng_gps)
         # Observations that arrived by now go in before the IMU sample that advances time.
-        for arrival, sample in gps_line.pop_arrived(int(t_ns[i])):
-            gps_valid.append(sample.t_ns)
-            gps_arrival.append(arrival)
-            gps_p.append(sample.p_W_B[[0, 2]])
+        for arrival, sample in loop.gps_line.pop_arrived(t):
+            rec.gps_arrived(arrival, sample)
             if experiment == "no_update":
                 continue
             if experiment == "naive":
                 sample = PositionSample(
                     t_ns=arrival, p_W_B=sample.p_W_B, sigma_m=sample.sigma_m, source=sample.source
                 )
-            est.push(sample)
-        est.push(imu)
-        record(i)
+            loop.est.push(sample)
+        loop.est.push(imu)
+        rec.record(i, loop)
 
-    # The floor: the delayed estimate re-integrated through the IMU samples buffered since.
-    start = (t_d - t0_ns) // dt_ns
+
+def run_planar(config: PlanarConfig, experiment: ExperimentName, seed: int) -> PlanarRun:
+    """Simulate, estimate and record one experiment with one seed."""
+    if experiment not in EXPERIMENTS:
+        raise ExperimentError(
+            f"unknown planar experiment {experiment!r}; choose from {EXPERIMENTS}"
+        )
+    dt_ns = s_to_ns(config.dt_s)
+    n = round(config.duration_s / config.dt_s) + 1
+    t_ns = T0_NS + dt_ns * np.arange(n, dtype=np.int64)
+    loop, rngs = _build(config, experiment, seed, dt_ns)
+    rec = _Recorder(n, config.dt_s)
+    try:
+        _simulate(loop, rec, t_ns, rngs, experiment)
+    except SimError as exc:
+        raise ExperimentError(
+            f"experiment {experiment}, seed {seed}: {exc}; the vehicle.* and controller.* settings "
+            f"do not hold it at dt_s = {config.dt_s:g} s"
+        ) from None
+    return _planar_run(experiment, seed, t_ns, rec, loop)
+
+
+def _planar_run(
+    experiment: ExperimentName, seed: int, t_ns: IntArray, rec: _Recorder, loop: _Loop
+) -> PlanarRun:
+    """The run's arrays, with the floor: the delayed estimate re-integrated through the IMU
+    samples buffered since, at every step."""
+    dt_ns = int(t_ns[1] - t_ns[0])
     floor_p, floor_v, floor_att = reintegration_floor(
-        ekf.kinematics,
-        pos_d=x_d[:, 0:2],
-        vel_d=x_d[:, 2:4],
-        att_d=x_d[:, 4:5],
-        start_idx=start,
-        end_idx=np.arange(N, dtype=np.int64),
-        gyro=gyro,
-        accel=accel,
-        dt_s=imu_dt,
+        loop.ekf.kinematics,
+        pos_d=rec.x_d[:, 0:2],
+        vel_d=rec.x_d[:, 2:4],
+        att_d=rec.x_d[:, 4:5],
+        start_idx=(rec.t_d - T0_NS) // dt_ns,
+        end_idx=np.arange(len(t_ns), dtype=np.int64),
+        gyro=rec.gyro,
+        accel=rec.accel,
+        dt_s=rec.imu_dt,
     )
+    est = loop.est
     log = est.fusion_log
     stats = est.stats("gps")
     return PlanarRun(
         experiment=experiment,
         seed=seed,
         t_ns=t_ns,
-        truth_p=truth_p,
-        truth_v=truth_v,
-        truth_theta=truth_theta,
-        output_p=out_p,
-        output_v=out_v,
-        output_theta=out_theta,
-        t_delayed_ns=t_d,
-        delayed_x=x_d,
-        delayed_P=P_d,
+        truth_p=rec.truth_p,
+        truth_v=rec.truth_v,
+        truth_theta=rec.truth_theta,
+        output_p=rec.out_p,
+        output_v=rec.out_v,
+        output_theta=rec.out_theta,
+        t_delayed_ns=rec.t_d,
+        delayed_x=rec.x_d,
+        delayed_P=rec.P_d,
         floor_p=floor_p,
         floor_v=floor_v,
         floor_theta=floor_att[:, 0],
-        gps_t_valid_ns=np.array(gps_valid, dtype=np.int64),
-        gps_t_arrival_ns=np.array(gps_arrival, dtype=np.int64),
-        gps_p=np.array(gps_p).reshape(-1, 2),
+        gps_t_valid_ns=np.array(rec.gps_valid, dtype=np.int64),
+        gps_t_arrival_ns=np.array(rec.gps_arrival, dtype=np.int64),
+        gps_p=np.array(rec.gps_p).reshape(-1, 2),
         fusion_t_obs_ns=np.array([r.t_obs_ns for r in log], dtype=np.int64),
         fusion_t_fused_ns=np.array([r.t_fused_ns for r in log], dtype=np.int64),
         fusion_innovation=np.array([r.result.innovation for r in log]).reshape(-1, 2),

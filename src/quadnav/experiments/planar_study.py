@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from dataclasses import dataclass
+from collections.abc import Callable, Mapping
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
@@ -17,7 +17,13 @@ from numpy.typing import NDArray
 from quadnav.errors import EvalError
 from quadnav.eval.metrics import ape, error_stats, nees
 from quadnav.eval.na import Metric, na
-from quadnav.eval.planar import planar_trajectory, plot_monte_carlo, summarize_seeds
+from quadnav.eval.planar import (
+    PlanarMetrics,
+    PlanarSummary,
+    planar_trajectory,
+    plot_monte_carlo,
+    summarize_seeds,
+)
 from quadnav.eval.report import ReportSection, ReportTable, write_report
 from quadnav.experiments.planar import ExperimentName, PlanarConfig, PlanarRun, run_planar
 from quadnav.experiments.seeds import run_tasks
@@ -36,6 +42,7 @@ from quadnav.io.trajectory_io import write_tum
 __all__ = [
     "PlanarStudy",
     "planar_metrics",
+    "planar_table",
     "plot_planar_run",
     "run_planar_study",
 ]
@@ -56,7 +63,7 @@ def _delayed_errors(run: PlanarRun, rows: NDArray[np.int64]) -> FloatArray:
     return err
 
 
-def planar_metrics(run: PlanarRun) -> dict[str, Any]:
+def planar_metrics(run: PlanarRun) -> PlanarMetrics:
     """Position RMSE of each estimate against the truth at its own horizon, the floor, NEES.
 
     * delayed: the filter's estimate against the truth at the delayed horizon, over the steps
@@ -93,24 +100,24 @@ def planar_metrics(run: PlanarRun) -> dict[str, Any]:
     nees_mean: Metric = na("no delayed estimate after the first fused fix")
     if len(m):
         nees_mean = float(nees(_delayed_errors(run, m), run.delayed_P[m]).mean())
-    nees_steps = len(m)
-    return {
-        "seed": run.seed,
-        "rmse_delayed_m": rmse_d,
-        "rmse_output_m": rmse_o,
-        "rmse_floor_m": rmse_f,
-        "output_over_floor": rmse_o / rmse_f
-        if isinstance(rmse_o, float) and isinstance(rmse_f, float) and rmse_f > 0
-        else na("no floor to compare with"),
-        "nees_mean": nees_mean,
-        "nees_steps": nees_steps,
-        "gps_received": run.gps_received,
-        "gps_fused": run.gps_fused,
-        "gps_rejected_gate": run.gps_rejected_gate,
-        "gps_rejected_too_old": run.gps_rejected_too_old,
-        "gps_pending_at_end": run.gps_pending,
-        "imu_buffer_length": run.buffer_length,
-    }
+    ratio: Metric = na("no floor to compare with")
+    if isinstance(rmse_o, float) and isinstance(rmse_f, float) and rmse_f > 0:
+        ratio = rmse_o / rmse_f
+    return PlanarMetrics(
+        seed=run.seed,
+        rmse_delayed_m=rmse_d,
+        rmse_output_m=rmse_o,
+        rmse_floor_m=rmse_f,
+        output_over_floor=ratio,
+        nees_mean=nees_mean,
+        nees_steps=len(m),
+        gps_received=run.gps_received,
+        gps_fused=run.gps_fused,
+        gps_rejected_gate=run.gps_rejected_gate,
+        gps_rejected_too_old=run.gps_rejected_too_old,
+        gps_pending_at_end=run.gps_pending,
+        imu_buffer_length=run.buffer_length,
+    )
 
 
 _TITLES = {
@@ -264,16 +271,17 @@ def _write_run_series(run: PlanarRun, folder: Path) -> None:
 
 @dataclass(frozen=True, slots=True)
 class PlanarStudy:
-    """Where a study was written and what it measured (``summary[experiment][metric]``)."""
+    """Where a study was written and what it measured, per experiment: the summary over seeds
+    and each seed's metrics (in seed order)."""
 
     run_dir: Path
-    summary: dict[str, dict[str, Any]]
-    per_seed: dict[str, list[dict[str, Any]]]
+    summary: Mapping[ExperimentName, PlanarSummary]
+    per_seed: Mapping[ExperimentName, tuple[PlanarMetrics, ...]]
 
 
 def _run_one(
     config: PlanarConfig, exp: ExperimentName, k: int
-) -> tuple[dict[str, Any], PlanarRun | None]:
+) -> tuple[PlanarMetrics, PlanarRun | None]:
     run = run_planar(config, exp, config.seed + k)
     return planar_metrics(run), (run if k == 0 else None)
 
@@ -292,21 +300,17 @@ def run_planar_study(
     run_dir = create_run_folder(runs_root, config.name)
     write_text(run_dir / "config.yaml", dump_config(config))
     tasks = [(exp, k) for exp in config.experiments for k in range(config.seeds)]
-    per_seed: dict[str, list[dict[str, Any]]] = {
-        exp: [{}] * config.seeds for exp in config.experiments
-    }
+    found: dict[ExperimentName, dict[int, PlanarMetrics]] = {e: {} for e in config.experiments}
     first_runs: dict[str, PlanarRun] = {}
     done = 0
 
     def collect(
-        exp: ExperimentName, k: int, result: tuple[dict[str, Any], PlanarRun | None]
+        exp: ExperimentName, k: int, result: tuple[PlanarMetrics, PlanarRun | None]
     ) -> None:
         nonlocal done
         metrics, run = result
-        per_seed[exp][k] = metrics
-        append_jsonl(
-            run_dir / "seeds.jsonl", {"experiment": exp, "seed": config.seed + k, **metrics}
-        )
+        found[exp][k] = metrics
+        append_jsonl(run_dir / "seeds.jsonl", {"experiment": exp, **asdict(metrics)})
         if run is not None:
             first_runs[exp] = run
         done += 1
@@ -319,6 +323,7 @@ def run_planar_study(
         lambda i, result: collect(*tasks[i], result),
         jobs=jobs,
     )
+    per_seed = {e: tuple(v[k] for k in range(config.seeds)) for e, v in found.items()}
     for exp in config.experiments:
         _write_run_series(first_runs[exp], run_dir / exp)
         plot_planar_run(first_runs[exp], run_dir / "plots" / f"{exp}.png")
@@ -330,28 +335,33 @@ def run_planar_study(
     return PlanarStudy(run_dir=run_dir, summary=summary, per_seed=per_seed)
 
 
-def _write_summary(
-    config: PlanarConfig,
-    run_dir: Path,
-    per_seed: dict[str, list[dict[str, Any]]],
-    summary: dict[str, dict[str, Any]],
-) -> None:
-    """metrics.json (every seed's metrics, their summary, the table) and the report."""
-    table = [
+def planar_table(summary: Mapping[ExperimentName, PlanarSummary]) -> list[dict[str, Metric]]:
+    """The rows of the study's table (``metrics.json`` and the report): one per experiment."""
+    return [
         {
             "experiment": exp,
-            "seeds": s["seeds"],
-            "RMSE delayed (m)": s["rmse_delayed_m"]["median"],
-            "RMSE output (m)": s["rmse_output_m"]["median"],
-            "floor (m)": s["rmse_floor_m"]["median"],
-            "output/floor": s["output_over_floor"]["median"],
-            "NEES mean": s["nees_mean"]["mean"],
-            "GPS fused": s["gps_fused_total"],
-            "GPS gated": s["gps_rejected_gate_total"],
-            "GPS too old": s["gps_rejected_too_old_total"],
+            "seeds": s.seeds,
+            "RMSE delayed (m)": s.rmse_delayed_m.median,
+            "RMSE output (m)": s.rmse_output_m.median,
+            "floor (m)": s.rmse_floor_m.median,
+            "output/floor": s.output_over_floor.median,
+            "NEES mean": s.nees_mean.mean,
+            "GPS fused": s.gps_fused_total,
+            "GPS gated": s.gps_rejected_gate_total,
+            "GPS too old": s.gps_rejected_too_old_total,
         }
         for exp, s in summary.items()
     ]
+
+
+def _write_summary(
+    config: PlanarConfig,
+    run_dir: Path,
+    per_seed: Mapping[ExperimentName, tuple[PlanarMetrics, ...]],
+    summary: Mapping[ExperimentName, PlanarSummary],
+) -> None:
+    """metrics.json (every seed's metrics, their summary, the table) and the report."""
+    table = planar_table(summary)
     write_json(
         run_dir / "metrics.json",
         {
@@ -359,8 +369,8 @@ def _write_summary(
             "description": "position RMSE of each estimate against the truth at its own horizon; "
             "floor = delayed estimate re-integrated through the buffered IMU samples; "
             "NEES of the 5-state delayed estimate after the first fused fix",
-            "summary": summary,
-            "per_seed": per_seed,
+            "summary": {exp: asdict(s) for exp, s in summary.items()},
+            "per_seed": {exp: [asdict(m) for m in ms] for exp, ms in per_seed.items()},
             "table": table,
         },
     )

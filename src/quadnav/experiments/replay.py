@@ -268,7 +268,7 @@ def _gps_stream(
     g = s.gps
     if not g or gnss is None:
         return out
-    d_ns = round(cfg.gps_delay_s * 1e9)
+    d_ns = s_to_ns(cfg.gps_delay_s)
     for k in np.flatnonzero(gnss.usable).tolist():
         t = int(g["t_ns"][k])
         sh = max(float(g["eph"][k]), cfg.gps_pos_noise_m)
@@ -294,7 +294,7 @@ def _stream(
     seq = len(out)
     b = s.baro
     if b:
-        d_ns = round(cfg.baro_delay_s * 1e9)
+        d_ns = s_to_ns(cfg.baro_delay_s)
         for t, a in zip(b["t_ns"], b["alt"], strict=True):
             if math.isfinite(float(a)):
                 # heights relative to the datum's altitude, as PX4's baro offset does
@@ -312,7 +312,7 @@ def _stream(
                 seq += 1
     m = s.mag
     if m:
-        d_ns = round(cfg.mag_delay_s * 1e9)
+        d_ns = s_to_ns(cfg.mag_delay_s)
         for t, f in zip(m["t_ns"], m["field_B"], strict=True):
             if np.isfinite(f).all() and np.linalg.norm(f) > 0:
                 out.append(
@@ -327,7 +327,7 @@ def _stream(
                 seq += 1
     v = s.vision
     if v:
-        d_ns = round(cfg.ev_delay_s * 1e9)
+        d_ns = s_to_ns(cfg.ev_delay_s)
         for k in range(len(v["t_ns"])):
             var = v["var"][k]
             sig = float(np.sqrt(np.nanmax(var))) if np.isfinite(var).any() else cfg.ev_pos_noise_m
@@ -340,7 +340,7 @@ def _stream(
             seq += 1
     r = s.range
     if r:
-        d_ns = round(cfg.range_delay_s * 1e9)
+        d_ns = s_to_ns(cfg.range_delay_s)
         for k in range(len(r["t_ns"])):
             try:
                 rs = RangeSample(t_ns=int(r["t_ns"][k]) - d_ns, range_m=float(r["range_m"][k]), sigma_m=cfg.range_noise_m,
@@ -561,7 +561,7 @@ def replay(s: UlogSensors, cfg: ReplayConfig, *, progress: Any = None) -> Replay
         if cfg.mag_declination_rad is not None
         else (s.earth_field_declination_rad or 0.0)
     )
-    t_align = int(t_imu[0]) + round(cfg.align_s * 1e9)
+    t_align = int(t_imu[0]) + s_to_ns(cfg.align_s)
     imu = (t_imu, gyro_all, accel_all)
     R0, p0, gps_at_start = _align(s, cfg, imu, t_align, datum, decl, gnss)
     baro_ref, baro_anchor_var = _baro_ref(s, cfg, t_align, datum[2], float(p0[2]))

@@ -36,6 +36,7 @@ from quadnav.io.mavlink import MavlinkLink, decode_vehicle_command
 from quadnav.messages import HeightSample, PoseSample
 from quadnav.sim.rigid_body import RigidBodyQuadrotor
 from quadnav.sim.sensors import BaroSensor, DelayLine, IntegratingImu, VisionPoseSensor
+from quadnav.units import s_to_ns
 from quadnav.vehicle import RigidBodyParams
 
 __all__ = ["PX4_OFFBOARD", "SitlVehicle"]
@@ -194,7 +195,7 @@ class SitlVehicle:
             p, v = enu_to_ned(o.p_W_B), enu_to_ned(o.v_W_B)
             self.link.mav.local_position_ned_send(int(t_s * 1e3), *map(float, p), *map(float, v))
             self.link._count("LOCAL_POSITION_NED")
-            self.link.send_odometry(int(t_s * 1e9), Pose(R, o.p_W_B), np.eye(6) * 1e-4, o.v_W_B)
+            self.link.send_odometry(s_to_ns(t_s), Pose(R, o.p_W_B), np.eye(6) * 1e-4, o.v_W_B)
 
     def run(self, duration_s: float | None = None) -> None:
         """Real time: one simulator step per ``sim_dt_s`` of wall time; MAVLink every step."""

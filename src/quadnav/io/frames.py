@@ -26,6 +26,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from quadnav.errors import IoError
+from quadnav.units import s_to_ns
 
 __all__ = [
     "CaptureProperty",
@@ -135,7 +136,7 @@ def _folder(path: Path, fps: float) -> FrameSource:
     )
     if not files:
         raise IoError(f"{path}: no images ({', '.join(sorted(IMAGE_SUFFIXES))}) in this folder")
-    period_ns = round(1e9 / fps)
+    period_ns = s_to_ns(1 / fps)
 
     def gen() -> Iterator[Frame]:
         for k, f in enumerate(files):
@@ -183,14 +184,14 @@ def _capture(cap: Any, kind: str, description: str, fps: float, time_base: TimeB
                     # while frames remain; a camera that stops delivering ends the stream.
                     if total is not None and k < total and misses < 5:
                         misses += 1
-                        yield Frame(k, round(k * 1e9 / fps), None, "frame cannot be decoded")
+                        yield Frame(k, s_to_ns(k / fps), None, "frame cannot be decoded")
                         k += 1
                         continue
                     return
                 misses = 0
                 t_ms = float(cap.get(cv2.CAP_PROP_POS_MSEC))
                 t_ns = (round(t_ms * 1e6) if time_base == "timestamps" and t_ms > 0
-                        else t_arrival if time_base == "clock" else round(k * 1e9 / fps))  # fmt: skip
+                        else t_arrival if time_base == "clock" else s_to_ns(k / fps))  # fmt: skip
                 yield Frame(k, t_ns, np.asarray(img, np.uint8))
                 k += 1
         finally:

@@ -15,6 +15,7 @@ import numpy as np
 
 from quadnav.errors import GeometryError, IoError
 from quadnav.geometry.trajectory import Trajectory
+from quadnav.units import NS_PER_S
 
 __all__ = ["POSE_TYPES", "read_bag_trajectory"]
 
@@ -57,7 +58,7 @@ def read_bag_trajectory(path: Path, *, topic: str | None = None) -> Trajectory:
             for conn, _, raw in reader.messages(connections=candidates):
                 msg: Any = reader.deserialize(raw, conn.msgtype)
                 pose, c = _pose_of(msg, conn.msgtype)
-                t.append(int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec))
+                t.append(int(msg.header.stamp.sec) * NS_PER_S + int(msg.header.stamp.nanosec))
                 p.append([pose.position.x, pose.position.y, pose.position.z])
                 q.append(
                     [pose.orientation.x, pose.orientation.y, pose.orientation.z, pose.orientation.w]

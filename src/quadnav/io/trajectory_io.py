@@ -19,6 +19,7 @@ from scipy.spatial.transform import Rotation
 from quadnav.errors import GeometryError, IoError
 from quadnav.geometry.trajectory import Trajectory
 from quadnav.io.run_folder import require_complete, write_text
+from quadnav.units import NS_PER_S
 
 __all__ = [
     "TrajectoryFormat",
@@ -69,7 +70,7 @@ def _seconds_to_ns(token: str, where: str) -> int:
     m = _PLAIN_SECONDS.fullmatch(token)
     if m is not None:  # the common case, without Decimal: "1403636579.763555527"
         frac = (m.group(2) or "").ljust(10, "0")
-        ns = int(m.group(1)) * 1_000_000_000 + int(frac[:9])
+        ns = int(m.group(1)) * NS_PER_S + int(frac[:9])
         if frac[9] >= "5" and (frac[9] > "5" or frac[10:].strip("0") or int(frac[8]) % 2):
             ns += 1  # round half to even, as Decimal does
         return ns
@@ -79,7 +80,7 @@ def _seconds_to_ns(token: str, where: str) -> int:
         raise IoError(f"{where}: not a timestamp: {token!r}") from None
     if not value.is_finite():
         raise IoError(f"{where}: non-finite timestamp {token!r}")
-    return int((value * 1_000_000_000).to_integral_value())
+    return int((value * NS_PER_S).to_integral_value())
 
 
 def _rows(
@@ -181,7 +182,7 @@ def _tum_fast(lines: list[str]) -> tuple[list[int], NDArray[np.int64], FloatArra
         return None
     if not np.isfinite(v).all():
         return None
-    t = np.array(whole, dtype=np.int64) * 1_000_000_000 + np.array(frac, dtype=np.int64)
+    t = np.array(whole, dtype=np.int64) * NS_PER_S + np.array(frac, dtype=np.int64)
     return numbers, t, v
 
 
@@ -340,7 +341,7 @@ def read_trajectory(path: Path, fmt: str | None = None, *, topic: str | None = N
 
 def _ns_to_seconds(t_ns: NDArray[np.int64]) -> list[str]:
     """Exact decimal seconds, ``-1.500000000`` for -1.5 s."""
-    whole, ns = np.divmod(np.abs(t_ns), 1_000_000_000)
+    whole, ns = np.divmod(np.abs(t_ns), NS_PER_S)
     sign = np.where(t_ns < 0, "-", "").tolist()
     return [
         "%s%d.%09d" % x  # noqa: UP031 - one format per line, 3x faster than an f-string

@@ -20,6 +20,7 @@ from numpy.typing import NDArray
 
 from quadnav.errors import IoError
 from quadnav.geometry.frames import frd_to_flu, ned_to_enu
+from quadnav.units import s_to_ns
 
 __all__ = ["Px4Validity", "UlogSensors", "held_flags", "read_ulog_sensors"]
 
@@ -69,7 +70,7 @@ class Px4Validity:
             if len(self.att_t_ns) == 1:
                 k = np.zeros(len(t), np.int64)
             gap = np.minimum(np.abs(self.att_t_ns[k] - t), np.abs(self.att_t_ns[k - 1] - t))
-            att = gap <= round(att_max_gap_s * 1e9)
+            att = gap <= s_to_ns(att_max_gap_s)
         return xy, z, att
 
 

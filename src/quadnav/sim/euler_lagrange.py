@@ -23,6 +23,7 @@ from numpy.typing import NDArray
 
 from quadnav.errors import SimError
 from quadnav.sim.integrate import rk4_step
+from quadnav.units import GRAVITY_M_S2
 
 __all__ = ["EulerLagrangeParams", "EulerLagrangeQuadrotor", "el_derivative"]
 
@@ -34,7 +35,7 @@ class EulerLagrangeParams:
     """Mass and gravity (the thesis gives g = 9.8 m/s^2 and no mass; 1.5 kg is its class of frame)."""
 
     mass_kg: float = 1.5
-    gravity_m_s2: float = 9.8
+    gravity_m_s2: float = GRAVITY_M_S2
 
     def __post_init__(self) -> None:
         if not (self.mass_kg > 0 and self.gravity_m_s2 > 0):

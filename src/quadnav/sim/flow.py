@@ -38,6 +38,7 @@ from numpy.typing import NDArray
 from quadnav.errors import SimError
 from quadnav.geometry.rotations import cross3, rotation_matrix_xyzw
 from quadnav.messages import FlowSample, VehicleState
+from quadnav.units import s_to_ns
 
 __all__ = ["FLOW_DELAY_S", "FlowSensor", "line_of_sight_rate"]
 
@@ -94,7 +95,7 @@ class FlowSensor:
                 "flow sensor needs 0 <= min_height_m < max_height_m and quality_max in 1..255, "
                 f"got {min_height_m}, {max_height_m}, {quality_max}"
             )
-        self.period_ns = round(1e9 / rate_hz)
+        self.period_ns = s_to_ns(1.0 / rate_hz)
         self.flow_sigma, self.gyro_sigma = float(flow_sigma_rad_s), float(gyro_sigma_rad_s)
         self.gyro_bias = np.asarray(gyro_bias_rad_s, dtype=np.float64)
         self.distance_sigma = float(distance_sigma_m)

@@ -23,6 +23,7 @@ from numpy.typing import NDArray
 
 from quadnav.errors import SimError
 from quadnav.messages import VehicleState
+from quadnav.units import GRAVITY_M_S2
 
 __all__ = ["PlanarParams", "PlanarQuadrotor", "PlanarState"]
 
@@ -34,7 +35,7 @@ class PlanarParams:
     """Physical parameters; the defaults are the thesis's (1 kg, a 0.45 m rod's inertia)."""
 
     mass_kg: float = 1.0
-    gravity_m_s2: float = 9.8
+    gravity_m_s2: float = GRAVITY_M_S2
     inertia_kg_m2: float = 1.0 * 0.45**2 / 12.0
 
     def __post_init__(self) -> None:

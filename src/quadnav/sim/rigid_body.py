@@ -23,6 +23,7 @@ from scipy.spatial.transform import Rotation
 from quadnav.errors import SimError
 from quadnav.messages import VehicleState
 from quadnav.sim.integrate import rk4_step
+from quadnav.units import s_to_ns
 from quadnav.vehicle import RigidBodyParams
 
 __all__ = ["RigidBodyQuadrotor", "Wind"]
@@ -87,7 +88,7 @@ class RigidBodyQuadrotor:
             raise SimError(f"the step must be > 0 s, got {dt_s}")
         self.params = params
         self.dt_s = float(dt_s)
-        self.dt_ns = round(dt_s * 1e9)
+        self.dt_ns = s_to_ns(dt_s)
         self.t_ns = int(t0_ns)
         self.wind = wind or Wind()
         self._wind_now = self.wind.mean.copy()

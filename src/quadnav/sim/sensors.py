@@ -30,6 +30,7 @@ from quadnav.messages import (
     Sample,
     VehicleState,
 )
+from quadnav.units import GRAVITY_M_S2
 
 __all__ = [
     "BaroSensor",
@@ -90,7 +91,7 @@ class ImuSensor:
 
     accel_sigma_m_s2: float
     gyro_sigma_rad_s: float
-    gravity_m_s2: float = 9.8
+    gravity_m_s2: float = GRAVITY_M_S2
     accel_model: Literal["specific_force", "kinematic"] = "specific_force"
 
     def __post_init__(self) -> None:
@@ -203,7 +204,7 @@ class IntegratingImu:
         accel_bias_rw_m_s2_sqrt_s: float = 0.0,
         gyro_bias0_rad_s: tuple[float, float, float] = (0.0, 0.0, 0.0),
         accel_bias0_m_s2: tuple[float, float, float] = (0.0, 0.0, 0.0),
-        gravity_m_s2: float = 9.81,
+        gravity_m_s2: float = GRAVITY_M_S2,
         t0_ns: int = 0,
         lever_arm_m: tuple[float, float, float] = (0.0, 0.0, 0.0),
     ) -> None:

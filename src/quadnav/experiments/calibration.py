@@ -1,0 +1,74 @@
+"""Camera calibration from the ChArUco views of a source (an image folder or a video): the work
+behind ``quadnav calibrate``, which only parses its options and prints the result."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+from quadnav.errors import ConfigError, VisionError
+from quadnav.io.frames import open_frames
+from quadnav.io.opencv_yaml import write_camera_yaml
+from quadnav.vision.calibration import Calibration, calibrate_charuco
+from quadnav.vision.markers import CharucoDetections, CharucoSpec, CharucoTarget
+
+__all__ = ["SourceCalibration", "calibrate_source", "write_source_calibration"]
+
+Progress = Callable[[int, int, str], None]
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class SourceCalibration:
+    """A source's calibration, the frames read from it and those that could not be decoded."""
+
+    calibration: Calibration
+    frames_read: int
+    unreadable: tuple[str, ...]
+
+
+def calibrate_source(
+    source: str,
+    spec: CharucoSpec,
+    *,
+    every: int = 1,
+    max_views: int = 60,
+    progress: Progress | None = None,
+) -> SourceCalibration:
+    """Detect the board in every ``every``-th frame of ``source`` and calibrate from the views
+    with the most corners (at most ``max_views``)."""
+    target = CharucoTarget(spec)
+    frames = open_frames(source)
+    views: list[tuple[int, CharucoDetections]] = []
+    size: tuple[int, int] | None = None
+    unreadable: list[str] = []
+    n = 0
+    for fr in frames:
+        n += 1
+        if fr.index % every:
+            continue
+        if fr.image is None:
+            unreadable.append(f"frame {fr.index}: {fr.error}")
+            continue
+        if size is None:
+            size = (fr.image.shape[1], fr.image.shape[0])  # the source skips other sizes
+        views.append((fr.index, target.detect(fr.image)))
+        if progress is not None:
+            progress(fr.index + 1, frames.total or 0, f"{len(views)} views")
+    if size is None:
+        raise ConfigError(f"{source}: no readable image")
+    views.sort(key=lambda v: -len(v[1].corner_ids))
+    chosen = sorted(views[:max_views])
+    try:
+        cal = calibrate_charuco([d for _, d in chosen], target, size)
+    except VisionError as exc:
+        raise VisionError(f"{source}: {exc}") from None
+    return SourceCalibration(calibration=cal, frames_read=n, unreadable=tuple(unreadable))
+
+
+def write_source_calibration(path: Path, result: SourceCalibration) -> None:
+    """The calibration as OpenCV YAML, with its RMS reprojection error and number of views."""
+    cal = result.calibration
+    write_camera_yaml(
+        path, cal.camera, avg_reprojection_error=cal.rms_px, views=len(cal.per_view_rms_px)
+    )
