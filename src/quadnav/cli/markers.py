@@ -80,15 +80,29 @@ def markers_command(
         note = f"note: parameters not used here: {', '.join(ignored)}"
         err_console.print(note, highlight=False, soft_wrap=True)
     with progress_bar("markers") as update:
-        stats = run_markers(cfg, source, out, progress=update, mavlink=mavlink,
-                            allow_remote=allow_remote, setpoints=setpoints)  # fmt: skip
+        stats = run_markers(
+            cfg,
+            source,
+            out,
+            progress=update,
+            mavlink=mavlink,
+            allow_remote=allow_remote,
+            setpoints=setpoints,
+        )
     for note in stats.notes:
         err_console.print(f"note: {note}", highlight=False, soft_wrap=True)
     _print_summary(stats)
 
 
-def _resolve(mavlink: str | None, allow_remote: bool, set_: list[str] | None, camera: Path | None,
-             fps: float | None, show: bool, params: Path | None) -> tuple[MarkersConfig, list[str]]:  # fmt: skip
+def _resolve(
+    mavlink: str | None,
+    allow_remote: bool,
+    set_: list[str] | None,
+    camera: Path | None,
+    fps: float | None,
+    show: bool,
+    params: Path | None,
+) -> tuple[MarkersConfig, list[str]]:
     """The validated configuration (and the thesis keys not used) of the command's options."""
     if mavlink is not None:
         check_bind(mavlink, allow_remote=allow_remote)  # before anything is read or written
@@ -105,10 +119,15 @@ def _resolve(mavlink: str | None, allow_remote: bool, set_: list[str] | None, ca
 
 def check_example(p: CommandParams) -> None:
     """Validate an example's options and configuration as the command would, reading no frame."""
-    _resolve(optional_param(p, "mavlink", str), param(p, "allow_remote", bool),
-             strings_param(p, "set_"), optional_param(p, "camera", Path),
-             optional_param(p, "fps", float), param(p, "show", bool),
-             optional_param(p, "params", Path))  # fmt: skip
+    _resolve(
+        optional_param(p, "mavlink", str),
+        param(p, "allow_remote", bool),
+        strings_param(p, "set_"),
+        optional_param(p, "camera", Path),
+        optional_param(p, "fps", float),
+        param(p, "show", bool),
+        optional_param(p, "params", Path),
+    )
 
 
 #: The examples of ``quadnav markers --help`` (each parsed and validated by the tests, from the

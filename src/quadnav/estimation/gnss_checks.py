@@ -50,8 +50,17 @@ class GnssCheckConfig:
     pass_s: float = 10.0
 
     def __post_init__(self) -> None:
-        require_positive(self, ("max_pdop", "max_eph_m", "max_epv_m", "max_sacc_m_s",
-                                "max_hdrift_m_s", "max_vdrift_m_s"))  # fmt: skip
+        require_positive(
+            self,
+            (
+                "max_pdop",
+                "max_eph_m",
+                "max_epv_m",
+                "max_sacc_m_s",
+                "max_hdrift_m_s",
+                "max_vdrift_m_s",
+            ),
+        )
         if not (math.isfinite(self.pass_s) and self.pass_s >= 0):
             raise EstimationError(f"GnssCheckConfig.pass_s must be >= 0, got {self.pass_s}")
 
@@ -112,9 +121,13 @@ class _Drift:
         dt = min(max((t_ns - self.t_prev_ns) * 1e-9, 0.001), 10.0)
         k = dt / 10.0
         lat0 = math.radians(self.prev[0])
-        d = np.array([math.radians(lla[0] - self.prev[0]) * _EARTH_RADIUS_M,
-                      math.radians(lla[1] - self.prev[1]) * _EARTH_RADIUS_M * math.cos(lat0),
-                      self.prev[2] - lla[2]])  # fmt: skip
+        d = np.array(
+            [
+                math.radians(lla[0] - self.prev[0]) * _EARTH_RADIUS_M,
+                math.radians(lla[1] - self.prev[1]) * _EARTH_RADIUS_M * math.cos(lat0),
+                self.prev[2] - lla[2],
+            ]
+        )
         lim = np.array([c.max_hdrift_m_s, c.max_hdrift_m_s, c.max_vdrift_m_s])
         self.pos_rate = np.clip(d / dt * k + self.pos_rate * (1 - k), -10 * lim, 10 * lim)
         v_ne = np.clip(v_ned[0:2], -10 * c.max_hdrift_m_s, 10 * c.max_hdrift_m_s)
@@ -155,24 +168,45 @@ def run_gnss_checks(
     sel = cfg.mask & 0x1FF | FIX_BIT
     t_fail: int | None = None
     t_qualified: int | None = None
-    coarse = GnssCheckConfig(mask=cfg.mask, min_fix=cfg.min_fix, min_sats=0, max_pdop=1e9,
-                             max_eph_m=50.0, max_epv_m=50.0, max_sacc_m_s=10.0)  # fmt: skip
+    coarse = GnssCheckConfig(
+        mask=cfg.mask,
+        min_fix=cfg.min_fix,
+        min_sats=0,
+        max_pdop=1e9,
+        max_eph_m=50.0,
+        max_epv_m=50.0,
+        max_sacc_m_s=10.0,
+    )
     for k in range(n):
         t = int(gps["t_ns"][k])
         t_fail = t if t_fail is None else t_fail  # PX4: assume failed first time through
         v_ned = np.array([gps["v_enu"][k][1], gps["v_enu"][k][0], -gps["v_enu"][k][2]])
         lla = (float(gps["lat"][k]), float(gps["lon"][k]), float(gps["alt"][k]))
         if t_qualified is None:
-            bits = _fix_bits(int(gps["fix"][k]), int(nsats[k]), float(pdop[k]), float(gps["eph"][k]),
-                             float(gps["epv"][k]), float(gps["s_var"][k]), cfg)  # fmt: skip
+            bits = _fix_bits(
+                int(gps["fix"][k]),
+                int(nsats[k]),
+                float(pdop[k]),
+                float(gps["eph"][k]),
+                float(gps["epv"][k]),
+                float(gps["s_var"][k]),
+                cfg,
+            )
             if at_rest[k]:
                 bits |= drift.update(t, lla, v_ned, cfg)
             else:
                 drift.reset()  # moving (PX4: in the air, these checks pass)
             need_ns = s_to_ns(cfg.pass_s)
         else:  # qualified: the coarse checks only
-            bits = _fix_bits(int(gps["fix"][k]), 99, 0.0, float(gps["eph"][k]), float(gps["epv"][k]),
-                             float(gps["s_var"][k]), coarse)  # fmt: skip
+            bits = _fix_bits(
+                int(gps["fix"][k]),
+                99,
+                0.0,
+                float(gps["eph"][k]),
+                float(gps["epv"][k]),
+                float(gps["s_var"][k]),
+                coarse,
+            )
             need_ns = s_to_ns(max(1.0, cfg.pass_s / 10))
         drift.t_prev_ns, drift.prev = t, lla
         failed[k] = bits & sel
@@ -181,5 +215,9 @@ def run_gnss_checks(
         elif t - t_fail > need_ns:
             usable[k] = True
             t_qualified = t if t_qualified is None else t_qualified
-    return GnssChecks(t_ns=np.asarray(gps["t_ns"], np.int64), failed=failed, usable=usable,
-                      t_qualified_ns=t_qualified)  # fmt: skip
+    return GnssChecks(
+        t_ns=np.asarray(gps["t_ns"], np.int64),
+        failed=failed,
+        usable=usable,
+        t_qualified_ns=t_qualified,
+    )

@@ -63,7 +63,9 @@ class BiasLearningGate:
     def __post_init__(self) -> None:
         require_positive(self, ("gyro_limit_rad_s", "accel_limit_m_s2", "tau_s"))
 
-    def update(self, gyro: NDArray[np.float64], accel: NDArray[np.float64], clipped: int, dt_s: float) -> NDArray[np.bool_]:  # fmt: skip
+    def update(
+        self, gyro: NDArray[np.float64], accel: NDArray[np.float64], clipped: int, dt_s: float
+    ) -> NDArray[np.bool_]:
         """The axes to inhibit after this IMU sample."""
         beta = 1.0 - min(max(dt_s / self.tau_s, 0.0), 1.0)
         self.rate_filt = max(math.sqrt(float(gyro @ gyro)), beta * self.rate_filt)
@@ -118,7 +120,9 @@ class Releveller:
             self.pending = True
         self._still_s, self._sum, self._n = 0.0, np.zeros(3), 0
 
-    def update(self, gyro: NDArray[np.float64], accel: NDArray[np.float64], dt_s: float, g: float) -> NDArray[np.float64] | None:  # fmt: skip
+    def update(
+        self, gyro: NDArray[np.float64], accel: NDArray[np.float64], dt_s: float, g: float
+    ) -> NDArray[np.float64] | None:
         if not self.pending:
             return None
         still = (

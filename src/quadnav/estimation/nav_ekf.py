@@ -300,10 +300,26 @@ class NavEkfConfig:
     flow_min_height_m: float = 0.3
 
     def __post_init__(self) -> None:
-        require_positive(self, ("gyro_sigma_rad_s", "accel_sigma_m_s2", "gyro_bias_rw_rad_s_sqrt_s",
-                                "accel_bias_rw_m_s2_sqrt_s", "gravity_m_s2"))  # fmt: skip
-        require_positive(self, ("flow_noise_min_rad_s", "flow_noise_max_rad_s", "flow_max_rate_rad_s",
-                                "flow_gate_sigma", "flow_min_height_m"))  # fmt: skip
+        require_positive(
+            self,
+            (
+                "gyro_sigma_rad_s",
+                "accel_sigma_m_s2",
+                "gyro_bias_rw_rad_s_sqrt_s",
+                "accel_bias_rw_m_s2_sqrt_s",
+                "gravity_m_s2",
+            ),
+        )
+        require_positive(
+            self,
+            (
+                "flow_noise_min_rad_s",
+                "flow_noise_max_rad_s",
+                "flow_max_rate_rad_s",
+                "flow_gate_sigma",
+                "flow_min_height_m",
+            ),
+        )
         if not 0 <= self.flow_quality_min <= 255:
             raise EstimationError(
                 f"NavEkfConfig.flow_quality_min must lie in 0..255, got {self.flow_quality_min}"
@@ -384,9 +400,15 @@ class NavEkf:
             None if nsd is None else BiasEstimator(nsd, var=config.baro_bias_var0_m2)
         )
         lim = config.accel_bias_learn_gyro_limit_rad_s
-        self.bias_gate: BiasLearningGate | None = None if lim is None else BiasLearningGate(
-            gyro_limit_rad_s=lim, accel_limit_m_s2=config.accel_bias_learn_accel_limit_m_s2,
-            tau_s=config.accel_bias_learn_tau_s)  # fmt: skip
+        self.bias_gate: BiasLearningGate | None = (
+            None
+            if lim is None
+            else BiasLearningGate(
+                gyro_limit_rad_s=lim,
+                accel_limit_m_s2=config.accel_bias_learn_accel_limit_m_s2,
+                tau_s=config.accel_bias_learn_tau_s,
+            )
+        )
         self.n_clipped = 0
         rl = config.relevel_at_rest_s
         self.releveller: Releveller | None = None if rl is None else Releveller(window_s=rl)
@@ -502,7 +524,12 @@ class NavEkf:
         P[_VEL, _VEL] = np.eye(3) * 0.1**2
         P[_BA, _BA] = np.diag(rl.bias_var_before)
         self.R, self.v, self.ba = R_new, np.zeros(3), rl.bias_before.copy()
-        self.events.append((t_ns, f"re-levelled at rest after accelerometer clipping: tilt moved {moved_deg:.1f} deg, velocity zeroed"))  # fmt: skip
+        self.events.append(
+            (
+                t_ns,
+                f"re-levelled at rest after accelerometer clipping: tilt moved {moved_deg:.1f} deg, velocity zeroed",
+            )
+        )
 
     def fuse(self, obs: Sample) -> FusionResult:
         if isinstance(obs, PositionSample):

@@ -22,7 +22,9 @@ from quadnav.vision.pose import mount_pose
 __all__ = ["MarkerCameraSensor", "marker_field"]
 
 
-def marker_field(n: int, spacing_m: float, length_m: float, origin_m: tuple[float, float] = (0.0, 0.0)) -> list[MapMarker]:  # fmt: skip
+def marker_field(
+    n: int, spacing_m: float, length_m: float, origin_m: tuple[float, float] = (0.0, 0.0)
+) -> list[MapMarker]:
     """``n x n`` markers (ids 0...) lying on the floor, face up, ``spacing_m`` apart, the first
     at ``origin_m``."""
     out = []
@@ -50,7 +52,13 @@ class MarkerCameraSensor:
         self.camera = self.camera or thesis_camera()
         d = get_dictionary("DICT_4X4_250")
         objects = [marker_object(d, m.id, m.length_m, m.T_W_M) for m in self.markers]
-        self.scene = SyntheticCamera(self.camera, objects, RenderSettings(noise_sigma=self.noise_sigma, blur_exposure_s=self.exposure_s, seed=self.seed))  # fmt: skip
+        self.scene = SyntheticCamera(
+            self.camera,
+            objects,
+            RenderSettings(
+                noise_sigma=self.noise_sigma, blur_exposure_s=self.exposure_s, seed=self.seed
+            ),
+        )
         mmap = MarkerMap("DICT_4X4_250", {m.id: m for m in self.markers})
         self.pipeline = MarkerPipeline(self.camera, mmap, self.T_B_C)
         self._ticker = Ticker(self.period_ns)

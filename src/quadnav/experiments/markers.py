@@ -64,8 +64,11 @@ def synthetic_marker_study(
     """Render ``n_views`` random views of one marker at the world origin and pose each."""
     rng = np.random.default_rng(seed)
     d = get_dictionary("DICT_4X4_250")
-    scene = SyntheticCamera(camera, [marker_object(d, 7, length_m, Pose.identity())],
-                            settings or RenderSettings(noise_sigma=3.0, seed=seed))  # fmt: skip
+    scene = SyntheticCamera(
+        camera,
+        [marker_object(d, 7, length_m, Pose.identity())],
+        settings or RenderSettings(noise_sigma=3.0, seed=seed),
+    )
     pipeline = MarkerPipeline(
         camera, MarkerMap.single_marker(7, length_m, "DICT_4X4_250"), Pose.identity()
     )
@@ -84,8 +87,12 @@ def synthetic_marker_study(
         T_W_C = look_at(dist * normal_dir, aim, rng.uniform(-math.pi, math.pi))
         px = camera.project(T_W_C.inverse() @ corners)
         margin = 0.03 * length_m / dist * camera.fx + 4  # the quiet zone must be in view too
-        if not (np.all(px[:, 0] > margin) and np.all(px[:, 0] < camera.width - margin)
-                and np.all(px[:, 1] > margin) and np.all(px[:, 1] < camera.height - margin)):  # fmt: skip
+        if not (
+            np.all(px[:, 0] > margin)
+            and np.all(px[:, 0] < camera.width - margin)
+            and np.all(px[:, 1] > margin)
+            and np.all(px[:, 1] < camera.height - margin)
+        ):
             continue
         fp = pipeline.process(scene.render(T_W_C))
         out["d"].append(float(np.linalg.norm(T_W_C.p_A_B)))

@@ -138,8 +138,15 @@ def _time_base(cfg: MarkersConfig, frames: FrameSource) -> str:
 class _Overlay:
     """Where the drawn frames go: the overlay video, a window, PNG files."""
 
-    def __init__(self, cfg: MarkersConfig, run_dir: Path, fps: float, camera: PinholeCamera,
-                 det_params: cv2.aruco.DetectorParameters, window: FrameWindow | None) -> None:  # fmt: skip
+    def __init__(
+        self,
+        cfg: MarkersConfig,
+        run_dir: Path,
+        fps: float,
+        camera: PinholeCamera,
+        det_params: cv2.aruco.DetectorParameters,
+        window: FrameWindow | None,
+    ) -> None:
         self.video = VideoOut(run_dir / "overlay.mp4", fps) if cfg.video else None
         self.images = ImagesOut(run_dir / "images") if cfg.write_images else None
         self.window, self.camera = window, camera
@@ -156,7 +163,9 @@ class _Overlay:
     def active(self) -> bool:
         return self.video is not None or self.images is not None or self.window is not None
 
-    def frame(self, index: int, image: NDArray[Any], fp: FramePose | None, probe: MarkerDetections | None) -> None:  # fmt: skip
+    def frame(
+        self, index: int, image: NDArray[Any], fp: FramePose | None, probe: MarkerDetections | None
+    ) -> None:
         if not self.active:
             return
         rejected = None
@@ -165,8 +174,9 @@ class _Overlay:
             rejected = np.asarray(cand, np.float64).reshape(-1, 4, 2)
         if fp is None:
             det = probe if probe is not None else MarkerDetections.from_opencv((), None)
-            img = draw_overlay(image, det, self.camera, None, text=f"frame {index}  no marker",
-                               rejected=rejected)  # fmt: skip
+            img = draw_overlay(
+                image, det, self.camera, None, text=f"frame {index}  no marker", rejected=rejected
+            )
         else:
             T_C_W = (fp.pose.T_W_B @ self.T_B_C).inverse() if fp.pose is not None else None
             text = f"frame {index}  markers {len(fp.detections)}" + (
@@ -174,7 +184,9 @@ class _Overlay:
                 if fp.pose is not None
                 else "  no pose"
             )
-            img = draw_overlay(image, fp.detections, self.camera, T_C_W, text=text, rejected=rejected)  # fmt: skip
+            img = draw_overlay(
+                image, fp.detections, self.camera, T_C_W, text=text, rejected=rejected
+            )
         if self.video is not None:
             self.video.write(img)
         if self.images is not None:
@@ -224,8 +236,9 @@ class _Companion:
     def close(self) -> MavlinkCounts:
         s = self.link.stats
         self.link.close()
-        return MavlinkCounts(url=self.url, sent=dict(s.sent), received=dict(s.received),
-                             bad_packets=s.bad_packets)  # fmt: skip
+        return MavlinkCounts(
+            url=self.url, sent=dict(s.sent), received=dict(s.received), bad_packets=s.bad_packets
+        )
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -295,20 +308,37 @@ class _Processed:
     stopped_by: str | None = None
 
 
-def _process(cfg: MarkersConfig, frames: FrameSource, camera: PinholeCamera, det_params: cv2.aruco.DetectorParameters,
-             overlay: _Overlay, companion: _Companion | None, progress: Progress | None,
-             poses_csv: CsvAppender) -> _Processed:  # fmt: skip
+def _process(
+    cfg: MarkersConfig,
+    frames: FrameSource,
+    camera: PinholeCamera,
+    det_params: cv2.aruco.DetectorParameters,
+    overlay: _Overlay,
+    companion: _Companion | None,
+    progress: Progress | None,
+    poses_csv: CsvAppender,
+) -> _Processed:
     """Every frame through the pipeline, the overlay and the link; each pipeline result is a
     row of ``poses_csv`` at once (flushed: a run stopped half way keeps what it made)."""
     out = _Processed(world_id=cfg.marker_id)
     pipeline: MarkerPipeline | None = None
     if cfg.target != "marker" or cfg.marker_id is not None:
-        pipeline = MarkerPipeline(camera, cfg.marker_map(), cfg.T_B_C(), params=det_params,
-                                  prior_sigma_px=cfg.prior_sigma_px, max_rms_px=cfg.max_rms_px,
-                                  charuco_min_markers=cfg.charuco.min_markers,
-                                  board_marker_fallback=cfg.charuco.marker_fallback)  # fmt: skip
+        pipeline = MarkerPipeline(
+            camera,
+            cfg.marker_map(),
+            cfg.T_B_C(),
+            params=det_params,
+            prior_sigma_px=cfg.prior_sigma_px,
+            max_rms_px=cfg.max_rms_px,
+            charuco_min_markers=cfg.charuco.min_markers,
+            board_marker_fallback=cfg.charuco.marker_fallback,
+        )
     detector = MarkerDetector(get_dictionary(cfg.dictionary), det_params)
-    total = frames.total if cfg.max_frames is None else min(frames.total or cfg.max_frames, cfg.max_frames)  # fmt: skip
+    total = (
+        frames.total
+        if cfg.max_frames is None
+        else min(frames.total or cfg.max_frames, cfg.max_frames)
+    )
     n_poses = 0
     try:
         for fr in frames:
@@ -324,8 +354,14 @@ def _process(cfg: MarkersConfig, frames: FrameSource, camera: PinholeCamera, det
                     probe = detector.detect(fr.image)
                     if len(probe):
                         out.world_id = int(probe.ids.min())
-                        pipeline = MarkerPipeline(camera, cfg.marker_map(out.world_id), cfg.T_B_C(), params=det_params,
-                                                  prior_sigma_px=cfg.prior_sigma_px, max_rms_px=cfg.max_rms_px)  # fmt: skip
+                        pipeline = MarkerPipeline(
+                            camera,
+                            cfg.marker_map(out.world_id),
+                            cfg.T_B_C(),
+                            params=det_params,
+                            prior_sigma_px=cfg.prior_sigma_px,
+                            max_rms_px=cfg.max_rms_px,
+                        )
                 fp = pipeline.process(fr.image, fr.t_ns) if pipeline is not None else None
                 if fp is not None:
                     out.results.append(fp)
@@ -362,13 +398,19 @@ def run_markers(
         raise ConfigError(
             "no camera calibration: give --camera cal.yml (OpenCV YAML) or camera_file in the parameters"
         )
-    window = FrameWindow("quadnav markers", "show (--show; the thesis's open_window)") if cfg.show else None  # fmt: skip
+    window = (
+        FrameWindow("quadnav markers", "show (--show; the thesis's open_window)")
+        if cfg.show
+        else None
+    )
     camera = read_camera_yaml(cfg.camera_file)
     values = {**(read_opencv_yaml(cfg.detector_file) if cfg.detector_file else {}), **cfg.detector}
     det_params, unknown = detector_parameters(values)
     _check_detector(cfg, det_params)
     with quiet_libraries():
-        frames = open_frames(source, fps=cfg.fps, request=_capture_request(cfg), open_camera=open_camera)  # fmt: skip
+        frames = open_frames(
+            source, fps=cfg.fps, request=_capture_request(cfg), open_camera=open_camera
+        )
         camera, cal_note = fit_calibration(camera, frames.size or (camera.width, camera.height))
         run_dir = create_run_folder(out, "markers")
         write_text(run_dir / "config.yaml", dump_config(cfg))
@@ -380,15 +422,21 @@ def run_markers(
         )
         try:
             with CsvAppender(run_dir / "poses.csv", POSE_COLUMNS) as poses_csv:
-                done = _process(cfg, frames, camera, det_params, overlay, companion, progress,
-                                poses_csv)  # fmt: skip
+                done = _process(
+                    cfg, frames, camera, det_params, overlay, companion, progress, poses_csv
+                )
         finally:
             overlay.close()
     notes = [cal_note] if cal_note else []
-    notes += [f"{frames.description} did not take {p.name}={p.requested:g} (it reports {p.got:g})"
-              for p in frames.properties if not p.accepted]  # fmt: skip
+    notes += [
+        f"{frames.description} did not take {p.name}={p.requested:g} (it reports {p.got:g})"
+        for p in frames.properties
+        if not p.accepted
+    ]
     stats = _statistics(
-        cfg, frames, done,
+        cfg,
+        frames,
+        done,
         calibration=cal_note or f"{camera.width}x{camera.height}, as calibrated",
         notes=tuple(notes),
         images_written=overlay.images.frames if overlay.images is not None else 0,
@@ -396,7 +444,7 @@ def run_markers(
         unknown_detector_parameters=tuple(unknown),
         run_dir=run_dir,
         mavlink=companion.close() if companion is not None else None,
-    )  # fmt: skip
+    )
     write_json(run_dir / "stats.json", stats.as_json())
     write_json(run_dir / "metrics.json", stats.metrics_json())
     _write_report(run_dir, cfg, frames, done, stats)
@@ -420,21 +468,36 @@ def _median(values: Any) -> float:
     return float(np.median(values)) if len(values) else math.nan
 
 
-def _statistics(cfg: MarkersConfig, frames: FrameSource, done: _Processed, *, calibration: str,
-                notes: tuple[str, ...], images_written: int, stopped_by: str | None,
-                unknown_detector_parameters: tuple[str, ...], run_dir: Path,
-                mavlink: MavlinkCounts | None) -> MarkersStats:  # fmt: skip
+def _statistics(
+    cfg: MarkersConfig,
+    frames: FrameSource,
+    done: _Processed,
+    *,
+    calibration: str,
+    notes: tuple[str, ...],
+    images_written: int,
+    stopped_by: str | None,
+    unknown_detector_parameters: tuple[str, ...],
+    run_dir: Path,
+    mavlink: MavlinkCounts | None,
+) -> MarkersStats:
     nan3 = np.full(3, np.nan)
-    pos = np.array([r.pose.T_W_B.p_A_B if r.pose is not None else nan3
-                    for r in done.results]).reshape(-1, 3)  # fmt: skip
+    pos = np.array(
+        [r.pose.T_W_B.p_A_B if r.pose is not None else nan3 for r in done.results]
+    ).reshape(-1, 3)
     steps = _jitter(pos, done.frame_idx)
     ok = [r for r in done.results if r.pose is not None]
     n_total = done.n_total
     return MarkersStats(
-        source=frames.description, time_base=_time_base(cfg, frames), fps=frames.fps,
-        frames=n_total, frames_processed=len(done.results),
-        frames_skipped=len(done.skipped), skipped=tuple(done.skipped[:50]),
-        frames_with_pose=len(ok), fraction_with_pose=len(ok) / n_total if n_total else 0.0,
+        source=frames.description,
+        time_base=_time_base(cfg, frames),
+        fps=frames.fps,
+        frames=n_total,
+        frames_processed=len(done.results),
+        frames_skipped=len(done.skipped),
+        skipped=tuple(done.skipped[:50]),
+        frames_with_pose=len(ok),
+        fraction_with_pose=len(ok) / n_total if n_total else 0.0,
         frames_rejected=sum(r.pose is None and r.reason != "no_target" for r in done.results),
         rejected_by_reason=dict(Counter(r.reason for r in done.results if r.pose is None)),
         world_marker_id=done.world_id if cfg.target == "marker" else None,
@@ -443,10 +506,15 @@ def _statistics(cfg: MarkersConfig, frames: FrameSource, done: _Processed, *, ca
         detect_ms_median=_median([r.detect_ms for r in done.results]),
         pose_ms_median=_median([r.pose_ms for r in ok]),
         rms_px_median=_median([r.rms_px for r in ok]),
-        camera_properties=frames.properties, calibration=calibration, notes=notes,
-        images_written=images_written, stopped_by=stopped_by,
-        unknown_detector_parameters=unknown_detector_parameters, run_dir=run_dir, mavlink=mavlink,
-    )  # fmt: skip
+        camera_properties=frames.properties,
+        calibration=calibration,
+        notes=notes,
+        images_written=images_written,
+        stopped_by=stopped_by,
+        unknown_detector_parameters=unknown_detector_parameters,
+        run_dir=run_dir,
+        mavlink=mavlink,
+    )
 
 
 #: The named numbers of a markers run that ``quadnav eval --table`` puts side by side.
@@ -455,22 +523,33 @@ METRICS = ("frames", "frames_processed", "frames_skipped", "frames_with_pose",
            "pose_ms_median", "rms_px_median", "fps")  # fmt: skip
 
 
-def _write_report(run_dir: Path, cfg: MarkersConfig, frames: FrameSource, done: _Processed, stats: MarkersStats) -> None:  # fmt: skip
+def _write_report(
+    run_dir: Path, cfg: MarkersConfig, frames: FrameSource, done: _Processed, stats: MarkersStats
+) -> None:
     t = np.array([r.t_ns for r in done.results], dtype=np.int64)
-    pos = np.array([r.pose.T_W_B.p_A_B if r.pose is not None else np.full(3, np.nan)
-                    for r in done.results]).reshape(-1, 3)  # fmt: skip
+    pos = np.array(
+        [r.pose.T_W_B.p_A_B if r.pose is not None else np.full(3, np.nan) for r in done.results]
+    ).reshape(-1, 3)
     det_ms = np.array([r.detect_ms for r in done.results])
     pose_ms = np.array([r.pose_ms for r in done.results if r.pose is not None])
     images = _plots(run_dir, t, pos, det_ms, pose_ms)
     hidden = ("skipped", "run_dir", "unknown_detector_parameters", "camera_properties", "mavlink", "notes")  # fmt: skip
     rows = [[k, v] for k, v in stats.as_json().items() if k not in hidden]
-    rows += [[f"camera {p.name}", f"asked {p.requested:g}, got {p.got:g}"]
-             for p in stats.camera_properties]  # fmt: skip
-    write_report(run_dir / "report.html", title=f"markers: {frames.description}", sections=[
-        ReportSection("Statistics", tables=[ReportTable("per run", ["measure", "value"], rows)]),
-        ReportSection("Plots", images=images),
-        ReportSection("Configuration", code=dump_config(cfg)),
-    ])  # fmt: skip
+    rows += [
+        [f"camera {p.name}", f"asked {p.requested:g}, got {p.got:g}"]
+        for p in stats.camera_properties
+    ]
+    write_report(
+        run_dir / "report.html",
+        title=f"markers: {frames.description}",
+        sections=[
+            ReportSection(
+                "Statistics", tables=[ReportTable("per run", ["measure", "value"], rows)]
+            ),
+            ReportSection("Plots", images=images),
+            ReportSection("Configuration", code=dump_config(cfg)),
+        ],
+    )
 
 
 def _plots(

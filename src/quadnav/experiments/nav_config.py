@@ -294,7 +294,17 @@ class NavScenario(ConfigModel):
                 f"imu.rate_hz ({self.imu.rate_hz:g} Hz) gives no IMU sample during "
                 f"estimator.align_s ({self.estimator.align_s:g} s), which levels the filter"
             )
-        rates = [(key, sec.enabled, sec.rate_hz) for key, sec in (("vision", self.vision), ("baro", self.baro), ("gps", self.gps), ("mag", self.mag), ("range", self.range), ("flow", self.flow))]  # fmt: skip
+        rates = [
+            (key, sec.enabled, sec.rate_hz)
+            for key, sec in (
+                ("vision", self.vision),
+                ("baro", self.baro),
+                ("gps", self.gps),
+                ("mag", self.mag),
+                ("range", self.range),
+                ("flow", self.flow),
+            )
+        ]
         for key, enabled, rate_hz in rates:
             if enabled and rate_hz * self.flight_s < 1.0:
                 return (

@@ -86,7 +86,9 @@ class NavMetrics:
 _COUNT_KEYS = ("received", "fused", "rejected_gate", "rejected_too_old", "rejected_unsupported")
 
 
-def _dropout_metrics(r: NavRunResult, t: FloatArray, err: FloatArray, airborne: NDArray[np.bool_]) -> tuple[NDArray[np.bool_], list[Metric], list[Metric]]:  # fmt: skip
+def _dropout_metrics(
+    r: NavRunResult, t: FloatArray, err: FloatArray, airborne: NDArray[np.bool_]
+) -> tuple[NDArray[np.bool_], list[Metric], list[Metric]]:
     """The samples in the air with vision, and per dropout the error at its end and the time
     until the error is back under 3 cm."""
     sc = r.scenario
@@ -160,16 +162,20 @@ def nav_metrics(r: NavRunResult) -> NavMetrics:
         bias_error_fraction_60s=_bias_error_fractions(r),
         dropout_end_error_m=dropout_end,
         dropout_recovery_s=recovery,
-        hold_max_horizontal_error_m=max_or_na(horiz, "no hold above the take-off point of over 1 s"),
+        hold_max_horizontal_error_m=max_or_na(
+            horiz, "no hold above the take-off point of over 1 s"
+        ),
         delayed_rmse_m=rms_or_na(np.linalg.norm(r.delayed_err[ok, 6:9], axis=1), in_air),
         attitude_rmse_deg=att_rmse if isinstance(att_rmse, str) else math.degrees(att_rmse),
-        nees_mean=mean_or_na(nees(r.delayed_err[ok_P], r.delayed_P[ok_P]) if ok_P.any() else [], no_cov),
+        nees_mean=mean_or_na(
+            nees(r.delayed_err[ok_P], r.delayed_P[ok_P]) if ok_P.any() else [], no_cov
+        ),
         nis_above_95pct_gate=_nis_ratios(r),
         sources=dict(r.sources),
         imu=r.imu,
         filter_events=[f"{t * 1e-9:.3f} s: {msg}" for t, msg in r.events],
         landed_at_m=r.truth_p[-1].tolist(),
-    )  # fmt: skip
+    )
 
 
 def _bias_error_fractions(r: NavRunResult) -> dict[str, Metric]:

@@ -156,9 +156,11 @@ class ReplayConfig(ConfigModel):
         description="fuse the GNSS altitude (PX4: EKF2_GPS_CTRL bit 1, or EKF2_HGT_MODE=1 before v1.14)",
     )
     imu_downsample: int = Field(
-        2, ge=1, le=10,
+        2,
+        ge=1,
+        le=10,
         description="average this many IMU samples into one filter step (PX4's EKF2 predicts at 100 Hz, EKF2_PREDICT_US)",
-    )  # fmt: skip
+    )
 
 
 def config_from_px4(
@@ -276,9 +278,16 @@ def _gps_stream(
         sv = max(float(g["epv"][k]), 1.5 * cfg.gps_pos_noise_m) if cfg.gps_height else 1e4
         svel = max(float(g["s_var"][k]), cfg.gps_vel_noise_m_s)
         try:
-            sample = GpsSample(t_ns=t - d_ns, lat_deg=float(g["lat"][k]), lon_deg=float(g["lon"][k]),
-                               alt_m=float(g["alt"][k]), v_enu_m_s=g["v_enu"][k], sigma_h_m=sh, sigma_v_m=sv,
-                               sigma_vel_m_s=svel)  # fmt: skip
+            sample = GpsSample(
+                t_ns=t - d_ns,
+                lat_deg=float(g["lat"][k]),
+                lon_deg=float(g["lon"][k]),
+                alt_m=float(g["alt"][k]),
+                v_enu_m_s=g["v_enu"][k],
+                sigma_h_m=sh,
+                sigma_v_m=sv,
+                sigma_vel_m_s=svel,
+            )
         except Exception:  # a corrupt record: left out (counted by the caller as missing)
             continue
         out.append((t, len(out), sample))
@@ -332,8 +341,14 @@ def _stream(
             var = v["var"][k]
             sig = float(np.sqrt(np.nanmax(var))) if np.isfinite(var).any() else cfg.ev_pos_noise_m
             try:
-                pose = PoseSample(t_ns=int(v["t_ns"][k]) - d_ns, p_W_B=v["p"][k], q_W_B_xyzw=v["q_xyzw"][k],
-                                  sigma_pos_m=max(sig, 1e-3), sigma_yaw_rad=cfg.ev_yaw_noise_rad, reset_counter=int(v["reset"][k]))  # fmt: skip
+                pose = PoseSample(
+                    t_ns=int(v["t_ns"][k]) - d_ns,
+                    p_W_B=v["p"][k],
+                    q_W_B_xyzw=v["q_xyzw"][k],
+                    sigma_pos_m=max(sig, 1e-3),
+                    sigma_yaw_rad=cfg.ev_yaw_noise_rad,
+                    reset_counter=int(v["reset"][k]),
+                )
             except Exception:
                 continue
             out.append((int(v["t_ns"][k]), seq, pose))
@@ -343,8 +358,13 @@ def _stream(
         d_ns = s_to_ns(cfg.range_delay_s)
         for k in range(len(r["t_ns"])):
             try:
-                rs = RangeSample(t_ns=int(r["t_ns"][k]) - d_ns, range_m=float(r["range_m"][k]), sigma_m=cfg.range_noise_m,
-                                 min_m=float(r["min_m"][k]), max_m=float(r["max_m"][k]))  # fmt: skip
+                rs = RangeSample(
+                    t_ns=int(r["t_ns"][k]) - d_ns,
+                    range_m=float(r["range_m"][k]),
+                    sigma_m=cfg.range_noise_m,
+                    min_m=float(r["min_m"][k]),
+                    max_m=float(r["max_m"][k]),
+                )
             except Exception:  # outside its span, or garbage: not a reading
                 continue
             out.append((int(r["t_ns"][k]), seq, rs))
@@ -352,7 +372,9 @@ def _stream(
     return out
 
 
-def _downsample(t: NDArray[np.int64], gyro: FloatArray, accel: FloatArray, clip: NDArray[np.int64], n: int) -> tuple[NDArray[np.int64], FloatArray, FloatArray, NDArray[np.int64]]:  # fmt: skip
+def _downsample(
+    t: NDArray[np.int64], gyro: FloatArray, accel: FloatArray, clip: NDArray[np.int64], n: int
+) -> tuple[NDArray[np.int64], FloatArray, FloatArray, NDArray[np.int64]]:
     """Average each run of ``n`` IMU samples into one, stamped at its last sample, its clipping
     flags ORed (what PX4's IMU down-sampler hands EKF2). A sample with a non-finite value
     spoils its group, which the estimator then refuses at its boundary and counts."""
@@ -381,10 +403,18 @@ def gnss_checks_for(s: UlogSensors, cfg: ReplayConfig) -> GnssChecks | None:
     """PX4's GNSS quality checks over the log's fixes (None without GNSS)."""
     if not s.gps:
         return None
-    c = GnssCheckConfig(mask=cfg.gps_check_mask, min_fix=cfg.min_gps_fix, min_sats=cfg.gps_min_sats,
-                        max_pdop=cfg.gps_max_pdop, max_eph_m=cfg.gps_max_eph_m, max_epv_m=cfg.gps_max_epv_m,
-                        max_sacc_m_s=cfg.gps_max_sacc_m_s, max_hdrift_m_s=cfg.gps_max_hdrift_m_s,
-                        max_vdrift_m_s=cfg.gps_max_vdrift_m_s, pass_s=cfg.gps_pass_s)  # fmt: skip
+    c = GnssCheckConfig(
+        mask=cfg.gps_check_mask,
+        min_fix=cfg.min_gps_fix,
+        min_sats=cfg.gps_min_sats,
+        max_pdop=cfg.gps_max_pdop,
+        max_eph_m=cfg.gps_max_eph_m,
+        max_epv_m=cfg.gps_max_epv_m,
+        max_sacc_m_s=cfg.gps_max_sacc_m_s,
+        max_hdrift_m_s=cfg.gps_max_hdrift_m_s,
+        max_vdrift_m_s=cfg.gps_max_vdrift_m_s,
+        pass_s=cfg.gps_pass_s,
+    )
     return run_gnss_checks(s.gps, _landed(s, s.gps["t_ns"]), c)
 
 
@@ -393,12 +423,17 @@ def _gnss_note(g: GnssChecks, t0_ns: int) -> str:
     why = ", ".join(
         f"{k} {v}" for k, v in sorted(g.refused_counts().items(), key=lambda kv: -kv[1])
     )
-    when = (f"the receiver passed PX4's checks at {(g.t_qualified_ns - t0_ns) * 1e-9:.2f} s"
-            if g.t_qualified_ns is not None else "the receiver never passed PX4's checks: GNSS not used")  # fmt: skip
+    when = (
+        f"the receiver passed PX4's checks at {(g.t_qualified_ns - t0_ns) * 1e-9:.2f} s"
+        if g.t_qualified_ns is not None
+        else "the receiver never passed PX4's checks: GNSS not used"
+    )
     return f"GNSS: {refused} of {len(g.usable)} fixes refused by PX4's quality checks ({why or 'none'}); {when}"
 
 
-def _prepare_imu(s: UlogSensors, cfg: ReplayConfig, notes: list[str]) -> tuple[NDArray[np.int64], FloatArray, FloatArray, NDArray[np.int64], int]:  # fmt: skip
+def _prepare_imu(
+    s: UlogSensors, cfg: ReplayConfig, notes: list[str]
+) -> tuple[NDArray[np.int64], FloatArray, FloatArray, NDArray[np.int64], int]:
     n_imu = len(s.imu_t_ns)
     if n_imu < 10:
         raise ExperimentError(f"{s.path}: only {n_imu} IMU samples")
@@ -416,8 +451,10 @@ def _prepare_imu(s: UlogSensors, cfg: ReplayConfig, notes: list[str]) -> tuple[N
         notes.append(f"{back} IMU timestamps not increasing: rejected and counted")
     n_clip = int(np.count_nonzero(clip & 7))
     if n_clip:
-        notes.append(f"accelerometer clipping flagged in {n_clip} filter steps: those axes carry "
-                     f"{cfg.clipped_accel_noise_m_s2:g} m/s^2 of process noise and learn no bias (PX4)")  # fmt: skip
+        notes.append(
+            f"accelerometer clipping flagged in {n_clip} filter steps: those axes carry "
+            f"{cfg.clipped_accel_noise_m_s2:g} m/s^2 of process noise and learn no bias (PX4)"
+        )
     return t_imu, gyro, accel, clip & 7, period_ns
 
 
@@ -436,19 +473,31 @@ def _datum(s: UlogSensors, gnss: GnssChecks | None, notes: list[str]) -> tuple[f
     return (0.0, 0.0, 0.0)
 
 
-def _align(s: UlogSensors, cfg: ReplayConfig, imu: tuple[NDArray[np.int64], FloatArray, FloatArray], t_align: int,
-           datum: tuple[float, float, float], decl: float, gnss: GnssChecks | None) -> tuple[Any, FloatArray, bool]:  # fmt: skip
+def _align(
+    s: UlogSensors,
+    cfg: ReplayConfig,
+    imu: tuple[NDArray[np.int64], FloatArray, FloatArray],
+    t_align: int,
+    datum: tuple[float, float, float],
+    decl: float,
+    gnss: GnssChecks | None,
+) -> tuple[Any, FloatArray, bool]:
     """Attitude and position from the first ``align_s`` of IMU and magnetometer data (and a
     usable fix near then)."""
     t_imu, gyro, accel = imu
     idx = np.flatnonzero(t_imu <= t_align).tolist()
-    align_imu = [ImuSample(t_ns=int(t_imu[i]), gyro_rad_s=gyro[i], accel_m_s2=accel[i]) for i in idx
-                 if np.isfinite(gyro[i]).all() and np.isfinite(accel[i]).all()]  # fmt: skip
+    align_imu = [
+        ImuSample(t_ns=int(t_imu[i]), gyro_rad_s=gyro[i], accel_m_s2=accel[i])
+        for i in idx
+        if np.isfinite(gyro[i]).all() and np.isfinite(accel[i]).all()
+    ]
     align_mag = []
     if s.mag:
         sel = (s.mag["t_ns"] <= t_align) & np.isfinite(s.mag["field_B"]).all(axis=1)
-        align_mag = [MagSample(t_ns=int(t), field_B=f, sigma_heading_rad=cfg.heading_noise_rad)
-                     for t, f in zip(s.mag["t_ns"][sel], s.mag["field_B"][sel], strict=True)]  # fmt: skip
+        align_mag = [
+            MagSample(t_ns=int(t), field_B=f, sigma_heading_rad=cfg.heading_noise_rad)
+            for t, f in zip(s.mag["t_ns"][sel], s.mag["field_B"][sel], strict=True)
+        ]
     gps_enu = None
     if gnss is not None:
         ok = np.flatnonzero(gnss.usable & (s.gps["t_ns"] <= t_align + 2_000_000_000))
@@ -463,28 +512,52 @@ def _align(s: UlogSensors, cfg: ReplayConfig, imu: tuple[NDArray[np.int64], Floa
     return R0, p0, gps_enu is not None
 
 
-def _filter(s: UlogSensors, cfg: ReplayConfig, period_ns: int, t_align: int, datum: tuple[float, float, float],
-            decl: float, R0: Any, p0: FloatArray, gps_at_start: bool, baro_anchor_var_m2: float) -> tuple[NavEkf, DelayedHorizonEstimator]:  # fmt: skip
+def _filter(
+    s: UlogSensors,
+    cfg: ReplayConfig,
+    period_ns: int,
+    t_align: int,
+    datum: tuple[float, float, float],
+    decl: float,
+    R0: Any,
+    p0: FloatArray,
+    gps_at_start: bool,
+    baro_anchor_var_m2: float,
+) -> tuple[NavEkf, DelayedHorizonEstimator]:
     dt = period_ns * 1e-9
     ekf_cfg = NavEkfConfig(
-        gyro_sigma_rad_s=cfg.gyro_noise_rad_s, accel_sigma_m_s2=cfg.accel_noise_m_s2,
+        gyro_sigma_rad_s=cfg.gyro_noise_rad_s,
+        accel_sigma_m_s2=cfg.accel_noise_m_s2,
         gyro_bias_rw_rad_s_sqrt_s=cfg.gyro_bias_noise_rad_s2 * math.sqrt(dt),
         accel_bias_rw_m_s2_sqrt_s=cfg.accel_bias_noise_m_s3 * math.sqrt(dt),
-        gate_sigma=cfg.gate_sigma, datum_lla=datum, mag_declination_rad=decl, reset_after_s=5.0,
-        baro_bias_nsd_m_s=cfg.baro_bias_nsd_m_s, baro_bias_var0_m2=baro_anchor_var_m2,
+        gate_sigma=cfg.gate_sigma,
+        datum_lla=datum,
+        mag_declination_rad=decl,
+        reset_after_s=5.0,
+        baro_bias_nsd_m_s=cfg.baro_bias_nsd_m_s,
+        baro_bias_var0_m2=baro_anchor_var_m2,
         clipped_accel_sigma_m_s2=cfg.clipped_accel_noise_m_s2,
         accel_bias_learn_gyro_limit_rad_s=cfg.accel_bias_learn_gyro_limit_rad_s,
-        accel_bias_learn_accel_limit_m_s2=cfg.accel_bias_learn_accel_limit_m_s2, accel_bias_learn_tau_s=cfg.accel_bias_learn_tau_s,
+        accel_bias_learn_accel_limit_m_s2=cfg.accel_bias_learn_accel_limit_m_s2,
+        accel_bias_learn_tau_s=cfg.accel_bias_learn_tau_s,
         relevel_at_rest_s=cfg.relevel_at_rest_s,
-    )  # fmt: skip
+    )
     # With a barometer bias and no GNSS height the world's height origin is where the log
     # starts: the start height is known, and the anchor's uncertainty is the bias's.
-    sig_z0 = cfg.init_height_sigma_anchored_m if cfg.baro_bias_nsd_m_s is not None and not cfg.gps_height else cfg.init_height_sigma_m  # fmt: skip
+    sig_z0 = (
+        cfg.init_height_sigma_anchored_m
+        if cfg.baro_bias_nsd_m_s is not None and not cfg.gps_height
+        else cfg.init_height_sigma_m
+    )
     sigmas = InitialSigmas(
-        tilt_rad=cfg.init_tilt_sigma_rad, yaw_rad=cfg.init_yaw_sigma_rad, vel_m_s=cfg.init_vel_sigma_m_s,
-        pos_xy_m=cfg.init_pos_sigma_gps_m if gps_at_start else cfg.init_pos_sigma_m, pos_z_m=sig_z0,
-        gyro_bias_rad_s=cfg.init_gyro_bias_sigma_rad_s, accel_bias_m_s2=cfg.init_accel_bias_sigma_m_s2,
-    )  # fmt: skip
+        tilt_rad=cfg.init_tilt_sigma_rad,
+        yaw_rad=cfg.init_yaw_sigma_rad,
+        vel_m_s=cfg.init_vel_sigma_m_s,
+        pos_xy_m=cfg.init_pos_sigma_gps_m if gps_at_start else cfg.init_pos_sigma_m,
+        pos_z_m=sig_z0,
+        gyro_bias_rad_s=cfg.init_gyro_bias_sigma_rad_s,
+        accel_bias_m_s2=cfg.init_accel_bias_sigma_m_s2,
+    )
     max_delay = max(
         cfg.gps_delay_s if s.gps else 0.0,
         cfg.baro_delay_s,
@@ -492,15 +565,21 @@ def _filter(s: UlogSensors, cfg: ReplayConfig, period_ns: int, t_align: int, dat
         cfg.ev_delay_s,
         cfg.range_delay_s,
     )
-    horizon = HorizonConfig(imu_period_ns=period_ns, max_delay_ns=s_to_ns(max_delay),
-                            tau_vel_s=cfg.tau_vel_s, tau_pos_s=cfg.tau_pos_s)  # fmt: skip
+    horizon = HorizonConfig(
+        imu_period_ns=period_ns,
+        max_delay_ns=s_to_ns(max_delay),
+        tau_vel_s=cfg.tau_vel_s,
+        tau_pos_s=cfg.tau_pos_s,
+    )
     setup = NavFilterSetup(ekf=ekf_cfg, horizon=horizon, sigmas=sigmas)
     est = build_nav_filter(setup, t0_ns=t_align, p0=p0, q0_xyzw=R0.as_quat())
     assert isinstance(est.filter, NavEkf)
     return est.filter, est
 
 
-def _baro_ref(s: UlogSensors, cfg: ReplayConfig, t_align: int, datum_alt_m: float, z0_m: float) -> tuple[float, float]:  # fmt: skip
+def _baro_ref(
+    s: UlogSensors, cfg: ReplayConfig, t_align: int, datum_alt_m: float, z0_m: float
+) -> tuple[float, float]:
     """The barometer's reading at the start height (its median over the alignment) and that
     anchor's variance by the log's barometer noise (EKF2_BARO_NOISE squared over the readings)."""
     if s.baro:
@@ -510,8 +589,16 @@ def _baro_ref(s: UlogSensors, cfg: ReplayConfig, t_align: int, datum_alt_m: floa
     return datum_alt_m, cfg.baro_noise_m**2
 
 
-def _run(est: DelayedHorizonEstimator, cfg: ReplayConfig, imu: tuple[NDArray[np.int64], FloatArray, FloatArray],
-         clip: NDArray[np.int64], start: int, obs: list[tuple[int, int, Sample]], landed_at: NDArray[np.bool_], progress: Any) -> tuple[list[int], list[FloatArray], list[FloatArray], list[FloatArray]]:  # fmt: skip
+def _run(
+    est: DelayedHorizonEstimator,
+    cfg: ReplayConfig,
+    imu: tuple[NDArray[np.int64], FloatArray, FloatArray],
+    clip: NDArray[np.int64],
+    start: int,
+    obs: list[tuple[int, int, Sample]],
+    landed_at: NDArray[np.bool_],
+    progress: Any,
+) -> tuple[list[int], list[FloatArray], list[FloatArray], list[FloatArray]]:
     """Feed the IMU and the measurements in arrival order; the output every fifth IMU step."""
     t_imu, gyro, accel = imu
     heapq.heapify(obs)
@@ -582,7 +669,16 @@ def replay(s: UlogSensors, cfg: ReplayConfig, *, progress: Any = None) -> Replay
         clipping_flagged=int(np.count_nonzero(s.imu_clipping)),
     )
     return ReplayResult(
-        t_ns=np.array(rows_t, dtype=np.int64), p=np.array(rows_p), v=np.array(rows_v), q_xyzw=np.array(rows_q),
-        datum_lla=datum, sources={src: est.stats(src) for src in est.sources}, imu=imu_counts, fusion=fusion_arrays(est.fusion_log), events=list(ekf.events), notes=notes,
-        replay_wall_s=wall, gnss_checks=gnss,
-    )  # fmt: skip
+        t_ns=np.array(rows_t, dtype=np.int64),
+        p=np.array(rows_p),
+        v=np.array(rows_v),
+        q_xyzw=np.array(rows_q),
+        datum_lla=datum,
+        sources={src: est.stats(src) for src in est.sources},
+        imu=imu_counts,
+        fusion=fusion_arrays(est.fusion_log),
+        events=list(ekf.events),
+        notes=notes,
+        replay_wall_s=wall,
+        gnss_checks=gnss,
+    )

@@ -101,15 +101,26 @@ def compare(
         full[np.flatnonzero(paired)] = mask
         not_compared += [(name, a, b) for a, b in spans_s(est.t_ns, ~full, t0_ns)]
     return Comparison(
-        n=len(t), n_horizontal=int(xy.sum()), n_vertical=int(z.sum()), n_attitude=int(att.sum()),
-        horizontal_rms_m=_rms(h[xy]), horizontal_max_m=_max(h[xy]),
-        vertical_rms_m=_rms(dz), vertical_max_m=_max(dz),
+        n=len(t),
+        n_horizontal=int(xy.sum()),
+        n_vertical=int(z.sum()),
+        n_attitude=int(att.sum()),
+        horizontal_rms_m=_rms(h[xy]),
+        horizontal_max_m=_max(h[xy]),
+        vertical_rms_m=_rms(dz),
+        vertical_max_m=_max(dz),
         position_rms_m=_rms(np.linalg.norm(d[xy & z], axis=1)),
-        attitude_rms_deg=_rms(rot[att]), tilt_rms_deg=_rms(tilt[att]), yaw_rms_deg=_rms(yaw[att]),
-        t_of_max_vertical_s=float((t[z][int(np.argmax(np.abs(dz)))] - t0_ns) * 1e-9) if len(dz) else math.nan,
-        horizontal_spans_s=spans_s(t, xy, t0_ns), vertical_spans_s=spans_s(t, z, t0_ns),
-        attitude_spans_s=spans_s(t, att, t0_ns), not_compared_s=tuple(not_compared),
-    )  # fmt: skip
+        attitude_rms_deg=_rms(rot[att]),
+        tilt_rms_deg=_rms(tilt[att]),
+        yaw_rms_deg=_rms(yaw[att]),
+        t_of_max_vertical_s=float((t[z][int(np.argmax(np.abs(dz)))] - t0_ns) * 1e-9)
+        if len(dz)
+        else math.nan,
+        horizontal_spans_s=spans_s(t, xy, t0_ns),
+        vertical_spans_s=spans_s(t, z, t0_ns),
+        attitude_spans_s=spans_s(t, att, t0_ns),
+        not_compared_s=tuple(not_compared),
+    )
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -149,6 +160,13 @@ def px4_innovations_as_ours(
             xy, z, _ = validity.at(t)
             ok = xy if src == "gps" else z
         v = sign * np.asarray(px4[key], dtype=np.float64)
-        out.append(InnovationPair(label=label, source=src, column=col,
-                                  px4_t_s=((t[ok] - t0_ns) * 1e-9).astype(np.float64), px4_m=v[ok]))  # fmt: skip
+        out.append(
+            InnovationPair(
+                label=label,
+                source=src,
+                column=col,
+                px4_t_s=((t[ok] - t0_ns) * 1e-9).astype(np.float64),
+                px4_m=v[ok],
+            )
+        )
     return tuple(out)

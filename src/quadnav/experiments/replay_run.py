@@ -115,14 +115,20 @@ def replay_log(
         pass
     pairs = _comparisons(trajs, ours, sensors)
     metrics = ReplayMetrics(
-        log=log, duration_s=sensors.duration_s, replay_wall_s=res.replay_wall_s,
+        log=log,
+        duration_s=sensors.duration_s,
+        replay_wall_s=res.replay_wall_s,
         times_faster_than_flight=sensors.duration_s / max(res.replay_wall_s, 1e-9),
-        datum_lla=res.datum_lla, counts=res.counts_json(), notes=tuple(notes),
+        datum_lla=res.datum_lla,
+        counts=res.counts_json(),
+        notes=tuple(notes),
         events=tuple(f"{ns_to_s(t - sensors.t_start_ns):.3f} s: {m}" for t, m in res.events),
-        pairs=pairs, run_dir=run_dir,
+        pairs=pairs,
+        run_dir=run_dir,
         ratio_quadnav_to_px4_vs_truth=_ratios(pairs["quadnav_vs_truth"], pairs["px4_vs_truth"])
-        if "quadnav_vs_truth" in pairs else None,
-    )  # fmt: skip
+        if "quadnav_vs_truth" in pairs
+        else None,
+    )
     write_json(run_dir / "metrics.json", metrics.as_json())
     (run_dir / "plots").mkdir(exist_ok=True)
     t0 = sensors.t_start_ns
@@ -183,14 +189,21 @@ def _write_report(
         "yaw RMS (deg)",
     ]
     config = (run_dir / "config.yaml").read_text()
-    write_report(run_dir / "report.html", title=f"replay of {log.name}", sections=[
-        ReportSection("Comparison", text=f"{sensors.duration_s:.1f} s of flight replayed in {wall_s:.2f} s. {compared}.",
-                      tables=[ReportTable("position and attitude differences", header, rows)]),
-        ReportSection("Compared spans (s from the log's start)", text=spans),
-        ReportSection("Plots", images=images),
-        ReportSection("Notes", text="\n".join(notes) or "nothing skipped"),
-        ReportSection("Configuration", code=config),
-    ])  # fmt: skip
+    write_report(
+        run_dir / "report.html",
+        title=f"replay of {log.name}",
+        sections=[
+            ReportSection(
+                "Comparison",
+                text=f"{sensors.duration_s:.1f} s of flight replayed in {wall_s:.2f} s. {compared}.",
+                tables=[ReportTable("position and attitude differences", header, rows)],
+            ),
+            ReportSection("Compared spans (s from the log's start)", text=spans),
+            ReportSection("Plots", images=images),
+            ReportSection("Notes", text="\n".join(notes) or "nothing skipped"),
+            ReportSection("Configuration", code=config),
+        ],
+    )
 
 
 def replay_cell(value: float, digits: int) -> str:
@@ -246,7 +259,14 @@ def _plot_innovations(path: Path, ours: Mapping[str, SourceFusion], s: UlogSenso
     measurement minus the prediction) and one time axis."""
     plt = _pyplot()
     pairs = px4_innovations_as_ours(s.px4_innovations, s.px4_validity, s.t_start_ns)
-    fig, axes = plt.subplots(max(len(pairs), 1), 1, figsize=(12, 3 * max(len(pairs), 1)), sharex=True, squeeze=False, constrained_layout=True)  # fmt: skip
+    fig, axes = plt.subplots(
+        max(len(pairs), 1),
+        1,
+        figsize=(12, 3 * max(len(pairs), 1)),
+        sharex=True,
+        squeeze=False,
+        constrained_layout=True,
+    )
     for ax, p in zip(axes[:, 0], pairs, strict=False):
         f = ours.get(p.source)
         if f is not None and len(f):

@@ -64,24 +64,45 @@ class SitlVehicle:
         self.params = RigidBodyParams()
         self.sim = RigidBodyQuadrotor(self.params, dt_s=self.sim_dt_s)
         self.ctrl = CascadedPid(self.params, dt_s=self.sim_dt_s)
-        self.imu = IntegratingImu(period_ns=4_000_000, gyro_sigma_rad_s=0.005, accel_sigma_m_s2=0.05,
-                                  gravity_m_s2=self.params.gravity_m_s2)  # fmt: skip
+        self.imu = IntegratingImu(
+            period_ns=4_000_000,
+            gyro_sigma_rad_s=0.005,
+            accel_sigma_m_s2=0.05,
+            gravity_m_s2=self.params.gravity_m_s2,
+        )
         self.baro = BaroSensor(period_ns=20_000_000, sigma_m=0.1)
         self.vision = VisionPoseSensor(period_ns=33_333_333, sigma_m=0.01, yaw_sigma_rad=0.01)
         self.vision_line: DelayLine[PoseSample] = DelayLine(delay_ns=100_000_000)
-        horizon = HorizonConfig(imu_period_ns=4_000_000, max_delay_ns=100_000_000, tau_vel_s=0.1,
-                                tau_pos_s=0.1, max_fusion_log=10_000)  # fmt: skip
+        horizon = HorizonConfig(
+            imu_period_ns=4_000_000,
+            max_delay_ns=100_000_000,
+            tau_vel_s=0.1,
+            tau_pos_s=0.1,
+            max_fusion_log=10_000,
+        )
         # It boots standing at the origin, level and facing east: a tight initial state.
-        sigmas = InitialSigmas(tilt_rad=0.01, yaw_rad=0.01, vel_m_s=0.01, pos_xy_m=0.01,
-                               pos_z_m=0.01, gyro_bias_rad_s=1e-3, accel_bias_m_s2=1e-3)  # fmt: skip
+        sigmas = InitialSigmas(
+            tilt_rad=0.01,
+            yaw_rad=0.01,
+            vel_m_s=0.01,
+            pos_xy_m=0.01,
+            pos_z_m=0.01,
+            gyro_bias_rad_s=1e-3,
+            accel_bias_m_s2=1e-3,
+        )
         setup = NavFilterSetup(ekf=NavEkfConfig(), horizon=horizon, sigmas=sigmas)
         self.est = build_nav_filter(
             setup, t0_ns=0, p0=np.zeros(3), q0_xyzw=np.array([0, 0, 0, 1.0])
         )
         assert isinstance(self.est.filter, NavEkf)
         self.ekf = self.est.filter
-        self.link = MavlinkLink(self.url, system=1, component=1, signing_key=self.signing_key,
-                                allow_remote=self.allow_remote)  # fmt: skip
+        self.link = MavlinkLink(
+            self.url,
+            system=1,
+            component=1,
+            signing_key=self.signing_key,
+            allow_remote=self.allow_remote,
+        )
         self.armed = False
         self.offboard = False
         self.setpoint: tuple[FloatArray, float] | None = None
@@ -122,8 +143,17 @@ class SitlVehicle:
                 else 1e-4
             )
             try:
-                self.est.push(PoseSample(t_ns=int(msg.usec) * 1000, p_W_B=p, q_W_B_xyzw=R.as_quat(), sigma_pos_m=math.sqrt(var),
-                                         sigma_yaw_rad=0.05, reset_counter=int(msg.reset_counter), source="mavlink_vision"))  # fmt: skip
+                self.est.push(
+                    PoseSample(
+                        t_ns=int(msg.usec) * 1000,
+                        p_W_B=p,
+                        q_W_B_xyzw=R.as_quat(),
+                        sigma_pos_m=math.sqrt(var),
+                        sigma_yaw_rad=0.05,
+                        reset_counter=int(msg.reset_counter),
+                        source="mavlink_vision",
+                    )
+                )
                 self.vision_received += 1
             except Exception:  # a garbage estimate is counted by the link, not flown on
                 self.link.stats.bad_packets += 1

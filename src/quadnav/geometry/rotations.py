@@ -104,11 +104,17 @@ def so3_exp(rotvec: FloatArray) -> FloatArray:
         bx, by, bz = b1 * x, b1 * y, b1 * z
         return np.array(
             [
-                1.0 - by * y - bz * z, -a1 * z + bx * y, a1 * y + bx * z,
-                a1 * z + bx * y, 1.0 - bx * x - bz * z, -a1 * x + by * z,
-                -a1 * y + bx * z, a1 * x + by * z, 1.0 - bx * x - by * y,
+                1.0 - by * y - bz * z,
+                -a1 * z + bx * y,
+                a1 * y + bx * z,
+                a1 * z + bx * y,
+                1.0 - bx * x - bz * z,
+                -a1 * x + by * z,
+                -a1 * y + bx * z,
+                a1 * x + by * z,
+                1.0 - bx * x - by * y,
             ]
-        ).reshape(3, 3)  # fmt: skip
+        ).reshape(3, 3)
     th2 = np.sum(r * r, axis=-1)[..., None, None]
     th = np.sqrt(th2)
     small = th2 < 1e-12

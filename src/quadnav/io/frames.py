@@ -84,9 +84,18 @@ class FrameSource:
     ``size`` the (width, height) in px of its first decodable frame, ``time_base`` what the frame
     times come from, ``properties`` what a camera was asked and gave."""
 
-    def __init__(self, kind: str, description: str, total: int | None, fps: float, it: Iterator[Frame], *,
-                 size: tuple[int, int] | None = None, time_base: TimeBase = "fps",
-                 properties: tuple[CaptureProperty, ...] = ()) -> None:  # fmt: skip
+    def __init__(
+        self,
+        kind: str,
+        description: str,
+        total: int | None,
+        fps: float,
+        it: Iterator[Frame],
+        *,
+        size: tuple[int, int] | None = None,
+        time_base: TimeBase = "fps",
+        properties: tuple[CaptureProperty, ...] = (),
+    ) -> None:
         self.kind, self.description, self.total, self.fps = kind, description, total, fps
         self.size, self.time_base, self.properties = size, time_base, properties
         self._it = it
@@ -95,8 +104,15 @@ class FrameSource:
         return self._it
 
 
-def _start(kind: str, description: str, total: int | None, fps: float, frames: Iterator[Frame],
-           nothing: str, **kw: Any) -> FrameSource:  # fmt: skip
+def _start(
+    kind: str,
+    description: str,
+    total: int | None,
+    fps: float,
+    frames: Iterator[Frame],
+    nothing: str,
+    **kw: Any,
+) -> FrameSource:
     """Read up to the first decodable frame (its size is the source's; none is an error that
     says ``nothing``), then hand out every frame from the start."""
     head: list[Frame] = []
@@ -146,7 +162,9 @@ def _folder(path: Path, fps: float) -> FrameSource:
             else:
                 yield Frame(k, k * period_ns, img)
 
-    what = "cannot be decoded" if path.is_file() else f"none of the {len(files)} images can be decoded"  # fmt: skip
+    what = (
+        "cannot be decoded" if path.is_file() else f"none of the {len(files)} images can be decoded"
+    )
     return _start("images", str(path), len(files), fps, gen(), what)
 
 
@@ -165,8 +183,14 @@ def is_raw_stream(path: Path) -> bool:
     return code > 0 and head[code : code + 1] != b"\xba"
 
 
-def _capture(cap: Any, kind: str, description: str, fps: float, time_base: TimeBase,
-             properties: tuple[CaptureProperty, ...] = ()) -> FrameSource:  # fmt: skip
+def _capture(
+    cap: Any,
+    kind: str,
+    description: str,
+    fps: float,
+    time_base: TimeBase,
+    properties: tuple[CaptureProperty, ...] = (),
+) -> FrameSource:
     n = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
     # a raw stream's frame count is a guess from a guessed rate
     total = n if n > 0 and kind == "video" and time_base == "timestamps" else None
@@ -190,16 +214,22 @@ def _capture(cap: Any, kind: str, description: str, fps: float, time_base: TimeB
                     return
                 misses = 0
                 t_ms = float(cap.get(cv2.CAP_PROP_POS_MSEC))
-                t_ns = (round(t_ms * 1e6) if time_base == "timestamps" and t_ms > 0
-                        else t_arrival if time_base == "clock" else s_to_ns(k / fps))  # fmt: skip
+                t_ns = (
+                    round(t_ms * 1e6)
+                    if time_base == "timestamps" and t_ms > 0
+                    else t_arrival
+                    if time_base == "clock"
+                    else s_to_ns(k / fps)
+                )
                 yield Frame(k, t_ns, np.asarray(img, np.uint8))
                 k += 1
         finally:
             cap.release()
 
     nothing = "no frame can be decoded" if kind == "video" else "gives no image"
-    return _start(kind, description, total, fps, gen(), nothing, time_base=time_base,
-                  properties=properties)  # fmt: skip
+    return _start(
+        kind, description, total, fps, gen(), nothing, time_base=time_base, properties=properties
+    )
 
 
 def apply_capture_request(cap: Any, request: CaptureRequest) -> tuple[CaptureProperty, ...]:
@@ -208,21 +238,26 @@ def apply_capture_request(cap: Any, request: CaptureRequest) -> tuple[CapturePro
     if request.frame_width_px is not None:
         wanted.append(("frame_width_px", cv2.CAP_PROP_FRAME_WIDTH, request.frame_width_px, 0.5))
     if request.frame_height_px is not None:
-        wanted.append(("frame_height_px", cv2.CAP_PROP_FRAME_HEIGHT, request.frame_height_px, 0.5))  # fmt: skip
+        wanted.append(("frame_height_px", cv2.CAP_PROP_FRAME_HEIGHT, request.frame_height_px, 0.5))
     if request.fps is not None:
         wanted.append(("fps", cv2.CAP_PROP_FPS, request.fps, 0.5))
     if request.exposure_time_100us is not None:
         # V4L2's exposure_auto: 1 manual, 3 automatic (aperture priority)
         manual = request.exposure_time_100us > 0
-        wanted.append(("auto_exposure", cv2.CAP_PROP_AUTO_EXPOSURE, 1.0 if manual else 3.0, 0.01))  # fmt: skip
+        wanted.append(("auto_exposure", cv2.CAP_PROP_AUTO_EXPOSURE, 1.0 if manual else 3.0, 0.01))
         if manual:
-            wanted.append(("exposure_time_100us", cv2.CAP_PROP_EXPOSURE, request.exposure_time_100us, 0.5))  # fmt: skip
+            wanted.append(
+                ("exposure_time_100us", cv2.CAP_PROP_EXPOSURE, request.exposure_time_100us, 0.5)
+            )
     out = []
     for name, prop, value, tol in wanted:
         ok = bool(cap.set(prop, float(value)))
         got = float(cap.get(prop))
-        out.append(CaptureProperty(name=name, requested=float(value), got=got,
-                                   accepted=ok and abs(got - value) <= tol))  # fmt: skip
+        out.append(
+            CaptureProperty(
+                name=name, requested=float(value), got=got, accepted=ok and abs(got - value) <= tol
+            )
+        )
     return tuple(out)
 
 

@@ -207,8 +207,9 @@ def _connect(mavutil: Any, url: str, system: int, component: int, *, allow_remot
             host, port = bind
             _check_port_free(host, port, url)
             mavutil.set_dialect("common")
-            conn = _peer_udp_class(mavutil)(f"{host}:{port}", input=True, source_system=system,
-                                            source_component=component)  # fmt: skip
+            conn = _peer_udp_class(mavutil)(
+                f"{host}:{port}", input=True, source_system=system, source_component=component
+            )
             # later binders conflict with us, even those that set SO_REUSEADDR themselves
             conn.port.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 0)
             return conn
@@ -396,12 +397,23 @@ class MavlinkLink:
         p = enu_to_ned(T_ENU_FLU.p_A_B)
         rpy = rotation_enu_flu_to_ned_frd(T_ENU_FLU.R_A_B).as_euler("ZYX")[::-1]
         C = covariance_enu_to_ned(cov_enu, T_ENU_FLU.R_A_B)
-        self.mav.vision_position_estimate_send(int(t_ns // 1000), *map(float, p), *map(float, rpy),
-                                               covariance=upper_triangle(C), reset_counter=int(reset_counter) % 256)  # fmt: skip
+        self.mav.vision_position_estimate_send(
+            int(t_ns // 1000),
+            *map(float, p),
+            *map(float, rpy),
+            covariance=upper_triangle(C),
+            reset_counter=int(reset_counter) % 256,
+        )
         self._count("VISION_POSITION_ESTIMATE")
 
-    def send_odometry(self, t_ns: int, T_ENU_FLU: Pose, cov_enu: FloatArray, v_enu: FloatArray | None = None,
-                      reset_counter: int = 0) -> None:  # fmt: skip
+    def send_odometry(
+        self,
+        t_ns: int,
+        T_ENU_FLU: Pose,
+        cov_enu: FloatArray,
+        v_enu: FloatArray | None = None,
+        reset_counter: int = 0,
+    ) -> None:
         """ODOMETRY in MAV_FRAME_LOCAL_FRD with the body in MAV_FRAME_BODY_FRD, quaternion w first."""
         m = self._mavutil.mavlink
         R = rotation_enu_flu_to_ned_frd(T_ENU_FLU.R_A_B)
@@ -411,22 +423,60 @@ class MavlinkLink:
             R.apply(enu_to_ned(v_enu), inverse=True) if v_enu is not None else np.full(3, np.nan)
         )
         vel_cov = [float("nan")] + [0.0] * 20  # NaN first: unknown
-        self.mav.odometry_send(int(t_ns // 1000), m.MAV_FRAME_LOCAL_FRD, m.MAV_FRAME_BODY_FRD, *map(float, p),
-                               [float(w), float(x), float(y), float(z)], *map(float, v_body), float("nan"), float("nan"), float("nan"),
-                               upper_triangle(covariance_enu_to_ned(cov_enu, T_ENU_FLU.R_A_B)), vel_cov,
-                               int(reset_counter) % 256, m.MAV_ESTIMATOR_TYPE_VISION, 100)  # fmt: skip
+        self.mav.odometry_send(
+            int(t_ns // 1000),
+            m.MAV_FRAME_LOCAL_FRD,
+            m.MAV_FRAME_BODY_FRD,
+            *map(float, p),
+            [float(w), float(x), float(y), float(z)],
+            *map(float, v_body),
+            float("nan"),
+            float("nan"),
+            float("nan"),
+            upper_triangle(covariance_enu_to_ned(cov_enu, T_ENU_FLU.R_A_B)),
+            vel_cov,
+            int(reset_counter) % 256,
+            m.MAV_ESTIMATOR_TYPE_VISION,
+            100,
+        )
         self._count("ODOMETRY")
 
-    def send_position_setpoint(self, p_enu: FloatArray, yaw_enu_rad: float, target_system: int = 1, target_component: int = 1) -> None:  # fmt: skip
+    def send_position_setpoint(
+        self,
+        p_enu: FloatArray,
+        yaw_enu_rad: float,
+        target_system: int = 1,
+        target_component: int = 1,
+    ) -> None:
         """SET_POSITION_TARGET_LOCAL_NED: position and yaw only (PX4 needs them at > 2 Hz)."""
         m = self._mavutil.mavlink
-        mask = (m.POSITION_TARGET_TYPEMASK_VX_IGNORE | m.POSITION_TARGET_TYPEMASK_VY_IGNORE | m.POSITION_TARGET_TYPEMASK_VZ_IGNORE
-                | m.POSITION_TARGET_TYPEMASK_AX_IGNORE | m.POSITION_TARGET_TYPEMASK_AY_IGNORE | m.POSITION_TARGET_TYPEMASK_AZ_IGNORE
-                | m.POSITION_TARGET_TYPEMASK_YAW_RATE_IGNORE)  # fmt: skip
+        mask = (
+            m.POSITION_TARGET_TYPEMASK_VX_IGNORE
+            | m.POSITION_TARGET_TYPEMASK_VY_IGNORE
+            | m.POSITION_TARGET_TYPEMASK_VZ_IGNORE
+            | m.POSITION_TARGET_TYPEMASK_AX_IGNORE
+            | m.POSITION_TARGET_TYPEMASK_AY_IGNORE
+            | m.POSITION_TARGET_TYPEMASK_AZ_IGNORE
+            | m.POSITION_TARGET_TYPEMASK_YAW_RATE_IGNORE
+        )
         p = enu_to_ned(np.asarray(p_enu, dtype=np.float64))
         yaw_ned = float(np.pi / 2 - yaw_enu_rad)
-        self.mav.set_position_target_local_ned_send(self.boot_ms(), target_system, target_component, m.MAV_FRAME_LOCAL_NED,
-                                                    mask, *map(float, p), 0, 0, 0, 0, 0, 0, yaw_ned, 0)  # fmt: skip
+        self.mav.set_position_target_local_ned_send(
+            self.boot_ms(),
+            target_system,
+            target_component,
+            m.MAV_FRAME_LOCAL_NED,
+            mask,
+            *map(float, p),
+            0,
+            0,
+            0,
+            0,
+            0,
+            0,
+            yaw_ned,
+            0,
+        )
         self._count("SET_POSITION_TARGET_LOCAL_NED")
 
     def ack_command(self, command: VehicleCommand) -> None:

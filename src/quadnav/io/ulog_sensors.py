@@ -210,51 +210,8 @@ def _vision(vo: dict[str, NDArray[Any]]) -> dict[str, NDArray[Any]]:
     return {}
 
 
-def read_ulog_sensors(path: Path) -> UlogSensors:
-    from pyulog import ULog  # type: ignore[import-untyped]
-
-    path = Path(path)
-    if not path.is_file():
-        raise IoError(f"ULog file not found: {path}")
-    try:
-        ulog = ULog(str(path), TOPICS)
-    except Exception as exc:  # pyulog raises bare exceptions on corrupt or truncated files
-        raise IoError(f"{path}: cannot parse the ULog: {exc}") from None
-    notes: list[str] = []
-    params = {k: float(v) for k, v in ulog.initial_parameters.items() if k.startswith("EKF2_")}
-    duration = (ulog.last_timestamp - ulog.start_timestamp) * 1e-6
-    t, gyro, accel, clip = _imu(ulog, path, notes)
-    out = UlogSensors(path, duration, t, np.asarray(gyro, float), np.asarray(accel, float), clip,
-                      params=params, notes=notes, t_start_ns=int(ulog.start_timestamp) * 1000)  # fmt: skip
-    g = _data(ulog, "vehicle_gps_position") or _data(ulog, "sensor_gps")
-    if g is not None:
-        out.gps = _gps(g)
-    else:
-        notes.append("no GNSS topic: replaying without GNSS")
-    b = _data(ulog, "vehicle_air_data")
-    if b is not None:
-        out.baro = {"t_ns": _t_ns(b), "alt": np.asarray(b["baro_alt_meter"], float)}
-    else:
-        notes.append("no vehicle_air_data: replaying without barometer")
-    m = _data(ulog, "vehicle_magnetometer")
-    if m is not None:
-        out.mag = {"t_ns": _t_ns(m), "field_B": frd_to_flu(_vec(m, "magnetometer_ga[{}]"))}
-    else:
-        notes.append("no vehicle_magnetometer: replaying without magnetometer")
-    vo = _data(ulog, "vehicle_visual_odometry")
-    if vo is not None:
-        out.vision = _vision(vo)
-    ds = _data(ulog, "distance_sensor")
-    if ds is not None and "current_distance" in ds:
-        down = np.asarray(ds.get("orientation", np.full(len(ds["current_distance"]), 25))) == 25
-        out.range = {"t_ns": _t_ns(ds)[down], "range_m": np.asarray(ds["current_distance"], float)[down],
-                     "min_m": np.asarray(ds["min_distance"], float)[down], "max_m": np.asarray(ds["max_distance"], float)[down]}  # fmt: skip
-    ld = _data(ulog, "vehicle_land_detected")
-    if ld is not None:
-        out.landed = {
-            "t_ns": np.asarray(ld["timestamp"], np.int64) * 1000,
-            "landed": np.asarray(ld["landed"], bool),
-        }
+def _px4_state(ulog: Any, out: UlogSensors, params: dict[str, float]) -> None:
+    """What PX4 itself logged: its validity flags, local origin, earth field and innovations."""
     lp = _data(ulog, "vehicle_local_position")
     out.px4_validity = _px4_validity(lp, _data(ulog, "vehicle_attitude"))
     if lp is not None and "ref_lat" in lp:
@@ -286,4 +243,61 @@ def read_ulog_sensors(path: Path) -> UlogSensors:
             if k.startswith(("gps_hpos", "gps_vpos", "baro_vpos", "heading", "mag_field"))
         }
         out.px4_innovations = {"t_ns": np.asarray(inn["timestamp"], np.int64) * 1000, **keep}
+
+
+def read_ulog_sensors(path: Path) -> UlogSensors:
+    from pyulog import ULog  # type: ignore[import-untyped]
+
+    path = Path(path)
+    if not path.is_file():
+        raise IoError(f"ULog file not found: {path}")
+    try:
+        ulog = ULog(str(path), TOPICS)
+    except Exception as exc:  # pyulog raises bare exceptions on corrupt or truncated files
+        raise IoError(f"{path}: cannot parse the ULog: {exc}") from None
+    notes: list[str] = []
+    params = {k: float(v) for k, v in ulog.initial_parameters.items() if k.startswith("EKF2_")}
+    duration = (ulog.last_timestamp - ulog.start_timestamp) * 1e-6
+    t, gyro, accel, clip = _imu(ulog, path, notes)
+    out = UlogSensors(
+        path,
+        duration,
+        t,
+        np.asarray(gyro, float),
+        np.asarray(accel, float),
+        clip,
+        params=params,
+        notes=notes,
+        t_start_ns=int(ulog.start_timestamp) * 1000,
+    )
+    g = _data(ulog, "vehicle_gps_position") or _data(ulog, "sensor_gps")
+    if g is not None:
+        out.gps = _gps(g)
+    else:
+        notes.append("no GNSS topic: replaying without GNSS")
+    b = _data(ulog, "vehicle_air_data")
+    if b is not None:
+        out.baro = {"t_ns": _t_ns(b), "alt": np.asarray(b["baro_alt_meter"], float)}
+    else:
+        notes.append("no vehicle_air_data: replaying without barometer")
+    m = _data(ulog, "vehicle_magnetometer")
+    if m is not None:
+        out.mag = {"t_ns": _t_ns(m), "field_B": frd_to_flu(_vec(m, "magnetometer_ga[{}]"))}
+    else:
+        notes.append("no vehicle_magnetometer: replaying without magnetometer")
+    vo = _data(ulog, "vehicle_visual_odometry")
+    if vo is not None:
+        out.vision = _vision(vo)
+    ds = _data(ulog, "distance_sensor")
+    if ds is not None and "current_distance" in ds:
+        down = np.asarray(ds.get("orientation", np.full(len(ds["current_distance"]), 25))) == 25
+        out.range = {"t_ns": _t_ns(ds)[down], "range_m": np.asarray(ds["current_distance"], float)[down],
+                     "min_m": np.asarray(ds["min_distance"], float)[down], "max_m": np.asarray(ds["max_distance"], float)[down]}  # fmt: skip
+    ld = _data(ulog, "vehicle_land_detected")
+    if ld is not None:
+        out.landed = {
+            "t_ns": np.asarray(ld["timestamp"], np.int64) * 1000,
+            "landed": np.asarray(ld["landed"], bool),
+        }
+    _px4_state(ulog, out, params)
     return out

@@ -75,7 +75,15 @@ def marker_object(
     return PlanarObject(tex, A, T_W_M, f"marker {marker_id}")
 
 
-def _pattern_object(board: cv2.aruco.Board, size_m: tuple[float, float], T_W_O: Pose, origin_m: tuple[float, float], px_per_m: float, margin_m: float, name: str) -> PlanarObject:  # fmt: skip
+def _pattern_object(
+    board: cv2.aruco.Board,
+    size_m: tuple[float, float],
+    T_W_O: Pose,
+    origin_m: tuple[float, float],
+    px_per_m: float,
+    margin_m: float,
+    name: str,
+) -> PlanarObject:
     """The image OpenCV prints of ``board`` (``size_m`` without the white margin), in a frame
     with x right, y up the printed image, z out of its face and the origin ``origin_m`` from
     the pattern's bottom-left corner."""
@@ -90,7 +98,14 @@ def _pattern_object(board: cv2.aruco.Board, size_m: tuple[float, float], T_W_O: 
     return PlanarObject(np.asarray(img, np.uint8), A, T_W_O, name)
 
 
-def board_object(board: cv2.aruco.Board, size_m: tuple[float, float], T_W_O: Pose, *, px_per_m: float = 1500.0, margin_m: float = 0.02) -> PlanarObject:  # fmt: skip
+def board_object(
+    board: cv2.aruco.Board,
+    size_m: tuple[float, float],
+    T_W_O: Pose,
+    *,
+    px_per_m: float = 1500.0,
+    margin_m: float = 0.02,
+) -> PlanarObject:
     """An OpenCV board (ChArUco or grid) of ``size_m`` in its face frame (origin at the
     bottom-left corner of the pattern, x right, y up, z out of the printed face, as
     :class:`~quadnav.vision.markers.CharucoTarget` poses it), with a white margin of
@@ -98,7 +113,16 @@ def board_object(board: cv2.aruco.Board, size_m: tuple[float, float], T_W_O: Pos
     return _pattern_object(board, size_m, T_W_O, (0.0, 0.0), px_per_m, margin_m, "board")
 
 
-def diamond_object(dictionary: cv2.aruco.Dictionary, ids: tuple[int, int, int, int], square_m: float, marker_m: float, T_W_D: Pose, *, px_per_m: float = 1500.0, margin_m: float = 0.02) -> PlanarObject:  # fmt: skip
+def diamond_object(
+    dictionary: cv2.aruco.Dictionary,
+    ids: tuple[int, int, int, int],
+    square_m: float,
+    marker_m: float,
+    T_W_D: Pose,
+    *,
+    px_per_m: float = 1500.0,
+    margin_m: float = 0.02,
+) -> PlanarObject:
     """A ChArUco diamond (a 3x3 ChArUco board of the markers ``ids``) centred on its frame
     (x right, y up, z out of the face), with a white margin of ``margin_m``."""
     board = cv2.aruco.CharucoBoard(
@@ -214,9 +238,19 @@ class SyntheticCamera:
             )
             shift = np.array([[1.0, 0.0, -x0], [0.0, 1.0, -y0], [0.0, 0.0, 1.0]])
             roi = np.ascontiguousarray(ideal[y0:y1, x0:x1])
-            cv2.warpPerspective(tex, shift @ H @ S, (x1 - x0, y1 - y0), dst=roi, flags=cv2.INTER_LINEAR,
-                                borderMode=cv2.BORDER_TRANSPARENT)  # fmt: skip
+            cv2.warpPerspective(
+                tex,
+                shift @ H @ S,
+                (x1 - x0, y1 - y0),
+                dst=roi,
+                flags=cv2.INTER_LINEAR,
+                borderMode=cv2.BORDER_TRANSPARENT,
+            )
             ideal[y0:y1, x0:x1] = roi
+        return self._effects(ideal, velocity_px_s)
+
+    def _effects(self, ideal: U8, velocity_px_s: tuple[float, float]) -> U8:
+        """Lens distortion, motion blur over the exposure, exposure gain and sensor noise."""
         img: NDArray[np.uint8] = ideal
         if self._distorted:
             img = np.asarray(

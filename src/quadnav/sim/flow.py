@@ -82,12 +82,19 @@ class FlowSensor:
         t0_ns: int = 0,
         source: str = "flow",
     ) -> None:
-        for name, v in (("rate_hz", rate_hz), ("max_rate_rad_s", max_rate_rad_s),
-                        ("min_illumination", min_illumination)):  # fmt: skip
+        for name, v in (
+            ("rate_hz", rate_hz),
+            ("max_rate_rad_s", max_rate_rad_s),
+            ("min_illumination", min_illumination),
+        ):
             if not (math.isfinite(v) and v > 0):
                 raise SimError(f"flow sensor {name} must be finite and > 0, got {v}")
-        for name, v in (("flow_sigma_rad_s", flow_sigma_rad_s), ("gyro_sigma_rad_s", gyro_sigma_rad_s),
-                        ("distance_sigma_m", distance_sigma_m), ("illumination", illumination)):  # fmt: skip
+        for name, v in (
+            ("flow_sigma_rad_s", flow_sigma_rad_s),
+            ("gyro_sigma_rad_s", gyro_sigma_rad_s),
+            ("distance_sigma_m", distance_sigma_m),
+            ("illumination", illumination),
+        ):
             if not (math.isfinite(v) and v >= 0):
                 raise SimError(f"flow sensor {name} must be finite and >= 0, got {v}")
         if not 0 <= min_height_m < max_height_m or not 1 <= quality_max <= 255:

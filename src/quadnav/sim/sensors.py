@@ -216,8 +216,12 @@ class IntegratingImu:
         if self.lever_arm.shape != (3,) or not np.isfinite(self.lever_arm).all():
             raise SimError(f"IMU lever_arm_m must be 3 finite numbers, got {lever_arm_m}")
         self._w_prev: np.ndarray | None = None
-        for name, v in (("gyro_sigma_rad_s", gyro_sigma_rad_s), ("accel_sigma_m_s2", accel_sigma_m_s2),
-                        ("gyro_bias_rw_rad_s_sqrt_s", gyro_bias_rw_rad_s_sqrt_s), ("accel_bias_rw_m_s2_sqrt_s", accel_bias_rw_m_s2_sqrt_s)):  # fmt: skip
+        for name, v in (
+            ("gyro_sigma_rad_s", gyro_sigma_rad_s),
+            ("accel_sigma_m_s2", accel_sigma_m_s2),
+            ("gyro_bias_rw_rad_s_sqrt_s", gyro_bias_rw_rad_s_sqrt_s),
+            ("accel_bias_rw_m_s2_sqrt_s", accel_bias_rw_m_s2_sqrt_s),
+        ):
             if not (math.isfinite(v) and v >= 0):
                 raise SimError(f"IMU {name} must be finite and >= 0, got {v}")
         self.period_ns = int(period_ns)
@@ -303,10 +307,15 @@ class GpsSensor:
         e, n, u = truth.p_W_B + rng.standard_normal(3) * np.array([self.sh, self.sh, self.sv])
         lat, lon, alt = pymap3d.enu2geodetic(e, n, u, *self.datum)
         return GpsSample(
-            t_ns=t_ns, lat_deg=float(lat), lon_deg=float(lon), alt_m=float(alt),
+            t_ns=t_ns,
+            lat_deg=float(lat),
+            lon_deg=float(lon),
+            alt_m=float(alt),
             v_enu_m_s=truth.v_W_B + self.svel * rng.standard_normal(3),
-            sigma_h_m=self.sh, sigma_v_m=self.sv, sigma_vel_m_s=self.svel,
-        )  # fmt: skip
+            sigma_h_m=self.sh,
+            sigma_v_m=self.sv,
+            sigma_vel_m_s=self.svel,
+        )
 
 
 class MagSensor:

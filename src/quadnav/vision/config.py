@@ -150,15 +150,25 @@ class MarkersConfig(ConfigModel):
             size = int(get_dictionary(self.dictionary).bytesList.shape[0])
         except VisionError as exc:
             return f"dictionary: {exc}"
-        ids = [("marker_id", self.marker_id)] + [(f"map_markers[{i}].id", m.id) for i, m in enumerate(self.map_markers)]  # fmt: skip
+        ids = [("marker_id", self.marker_id)] + [
+            (f"map_markers[{i}].id", m.id) for i, m in enumerate(self.map_markers)
+        ]
         for key, i in ids:
             if i is not None and i >= size:
                 return f"{key} ({i}) is not in {self.dictionary} (ids 0 to {size - 1})"
         boards = [("charuco", self.charuco)] if self.target == "charuco" else []
         boards += [(f"map_boards[{i}].charuco", b.charuco) for i, b in enumerate(self.map_boards)]
         for key, c in boards:
-            names = BoardNames(f"{key}.squares_x", f"{key}.squares_y", f"{key}.square_m", f"{key}.marker_m", "dictionary")  # fmt: skip
-            if problem := charuco_board_problem((c.squares_x, c.squares_y), c.square_m, c.marker_m, self.dictionary, names):  # fmt: skip
+            names = BoardNames(
+                f"{key}.squares_x",
+                f"{key}.squares_y",
+                f"{key}.square_m",
+                f"{key}.marker_m",
+                "dictionary",
+            )
+            if problem := charuco_board_problem(
+                (c.squares_x, c.squares_y), c.square_m, c.marker_m, self.dictionary, names
+            ):
                 return problem
         return None
 

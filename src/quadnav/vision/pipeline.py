@@ -268,11 +268,20 @@ class MarkerPipeline:
         if seen.n == 4 and seen.square is not None:
             # One square target: IPPE_SQUARE in its own frame, then into the world.
             side_m, corners, T_W_O = seen.square
-            pnp = solve_pnp(marker_corners_3d(side_m), corners, self.camera, square=True,
-                            prior_sigma_px=self.prior_sigma_px)  # fmt: skip
+            pnp = solve_pnp(
+                marker_corners_3d(side_m),
+                corners,
+                self.camera,
+                square=True,
+                prior_sigma_px=self.prior_sigma_px,
+            )
             return vehicle_pose(pnp, T_W_O, self.T_B_C), pnp.rms_px
-        pnp = solve_pnp(np.concatenate(seen.obj_W), np.concatenate(seen.img), self.camera,
-                        prior_sigma_px=self.prior_sigma_px)  # fmt: skip
+        pnp = solve_pnp(
+            np.concatenate(seen.obj_W),
+            np.concatenate(seen.img),
+            self.camera,
+            prior_sigma_px=self.prior_sigma_px,
+        )
         return vehicle_pose(pnp, Pose.identity(), self.T_B_C), pnp.rms_px
 
     def process(self, image: NDArray[Any], t_ns: int = 0) -> FramePose:
@@ -285,8 +294,9 @@ class MarkerPipeline:
         detect_ms = (t1 - t0) * 1e3
         n = seen.n
         if n < 4:
-            return FramePose(t_ns, markers, None, float("nan"), n, detect_ms, 0.0,
-                             "no known marker", "no_target")  # fmt: skip
+            return FramePose(
+                t_ns, markers, None, float("nan"), n, detect_ms, 0.0, "no known marker", "no_target"
+            )
         try:
             try:
                 vp, rms_px = self._solve(seen)
@@ -297,9 +307,20 @@ class MarkerPipeline:
         except (VisionError, GeometryError) as exc:
             pose_ms = (time.perf_counter() - t1) * 1e3
             reason = exc.reason if isinstance(exc, DegeneratePoseError) else "pose_error"
-            return FramePose(t_ns, markers, None, float("nan"), n, detect_ms, pose_ms, str(exc), reason)  # fmt: skip
+            return FramePose(
+                t_ns, markers, None, float("nan"), n, detect_ms, pose_ms, str(exc), reason
+            )
         pose_ms = (time.perf_counter() - t1) * 1e3
         if not rms_px <= self.max_rms_px:
-            return FramePose(t_ns, markers, None, rms_px, n, detect_ms, pose_ms,
-                             f"reprojection error {rms_px:.2f} px > {self.max_rms_px}", "reprojection")  # fmt: skip
+            return FramePose(
+                t_ns,
+                markers,
+                None,
+                rms_px,
+                n,
+                detect_ms,
+                pose_ms,
+                f"reprojection error {rms_px:.2f} px > {self.max_rms_px}",
+                "reprojection",
+            )
         return FramePose(t_ns, markers, vp, rms_px, n, detect_ms, pose_ms)
