@@ -4,12 +4,19 @@ video), with bad views rejected, written as OpenCV YAML."""
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated
 
 import typer
 from rich.table import Table
 
-from quadnav.cli.common import command_help, console, handle_errors, progress_bar
+from quadnav.cli.common import (
+    CommandParams,
+    command_help,
+    console,
+    handle_errors,
+    param,
+    progress_bar,
+)
 from quadnav.errors import ConfigError
 from quadnav.experiments.calibration import (
     SourceCalibration,
@@ -42,9 +49,16 @@ def _check_options(
         raise ConfigError(f"--out {out}: cannot write the calibration there ({why})")
 
 
-def check_example(p: dict[str, Any]) -> None:
+def check_example(p: CommandParams) -> None:
     """Validate an example's board and output as the command would, reading no image."""
-    _check_options(p["squares"], p["square_m"], p["marker_m"], p["dictionary"], p["out"])
+    squares = param(p, "squares", tuple)
+    _check_options(
+        (int(squares[0]), int(squares[1])),
+        param(p, "square_m", float),
+        param(p, "marker_m", float),
+        param(p, "dictionary", str),
+        param(p, "out", Path),
+    )
 
 
 #: The examples of ``quadnav calibrate --help`` (each parsed and validated by the tests).

@@ -4,12 +4,20 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated
 
 import typer
 from rich.table import Table
 
-from quadnav.cli.common import command_help, console, handle_errors, progress_bar
+from quadnav.cli.common import (
+    CommandParams,
+    command_help,
+    console,
+    handle_errors,
+    optional_param,
+    progress_bar,
+    strings_param,
+)
 from quadnav.eval.na import fmt_metric
 from quadnav.experiments.planar import PlanarConfig
 from quadnav.experiments.planar_study import PlanarStudy, run_planar_study
@@ -78,9 +86,13 @@ def resolve_planar_config(
     return load_config(PlanarConfig, config_path, all_overrides)
 
 
-def check_example(params: dict[str, Any]) -> None:
+def check_example(params: CommandParams) -> None:
     """Validate an example's arguments as the command would, without running it."""
-    resolve_planar_config(params["config"], params["set_"], params["seeds"])
+    resolve_planar_config(
+        optional_param(params, "config", Path),
+        strings_param(params, "set_"),
+        optional_param(params, "seeds", int),
+    )
 
 
 def run_planar_config(config: PlanarConfig, out: Path, jobs: int | None = None) -> None:

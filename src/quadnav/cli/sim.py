@@ -4,12 +4,22 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated
 
 import typer
 from rich.table import Table
 
-from quadnav.cli.common import check_range, command_help, console, err_console, handle_errors
+from quadnav.cli.common import (
+    CommandParams,
+    check_range,
+    command_help,
+    console,
+    err_console,
+    handle_errors,
+    optional_param,
+    param,
+    strings_param,
+)
 from quadnav.errors import ConfigError
 from quadnav.eval.na import fmt_metric
 from quadnav.experiments.flight import (
@@ -103,14 +113,16 @@ def sim_command(
     _print_flight(config.name, m, run_dir)
 
 
-def check_example(params: dict[str, Any]) -> None:
+def check_example(params: CommandParams) -> None:
     """Validate an example's arguments as the command would, without flying or binding."""
-    if params["mavlink"] is not None:
-        check_bind(params["mavlink"], allow_remote=params["allow_remote"])
-        if params["duration"] is not None:
-            check_range(params["duration"], "--duration", 0.0, MAX_SITL_S, "seconds", low_open=True)
-    elif not params["list_"]:
-        _load_scenario(params["scenario"], list(params["set_"] or []))
+    mavlink = optional_param(params, "mavlink", str)
+    if mavlink is not None:
+        check_bind(mavlink, allow_remote=param(params, "allow_remote", bool))
+        duration = optional_param(params, "duration", float)
+        if duration is not None:
+            check_range(duration, "--duration", 0.0, MAX_SITL_S, "seconds", low_open=True)
+    elif not param(params, "list_", bool):
+        _load_scenario(param(params, "scenario", str), strings_param(params, "set_"))
 
 
 def _load_scenario(scenario: str, overrides: list[str]) -> FlightConfig:

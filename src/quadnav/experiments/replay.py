@@ -164,7 +164,7 @@ class ReplayConfig(ConfigModel):
 
 
 def config_from_px4(
-    params: dict[str, float], overrides: dict[str, Any] | None = None
+    params: dict[str, float], overrides: Mapping[str, object] | None = None
 ) -> ReplayConfig:
     """EKF2 parameters (as logged) onto :class:`ReplayConfig`; ``overrides`` win.
 
@@ -183,7 +183,7 @@ def config_from_px4(
         "EKF2_RNG_NOISE": ("range_noise_m", 1.0), "EKF2_ABL_GYRLIM": ("accel_bias_learn_gyro_limit_rad_s", 1.0),
         "EKF2_ABL_ACCLIM": ("accel_bias_learn_accel_limit_m_s2", 1.0), "EKF2_ABL_TAU": ("accel_bias_learn_tau_s", 1.0),
     }  # fmt: skip
-    values: dict[str, Any] = {}
+    values: dict[str, object] = {}
     origin: dict[str, str] = {}
     for key, (name, scale) in mapping.items():
         if key in params and math.isfinite(params[key]) and params[key] > 0:
