@@ -32,10 +32,19 @@ def test_enabling_the_range_finder_leaves_the_vision_noise_of_a_seed_alone() -> 
 def test_every_channel_of_a_flight_keeps_its_rate() -> None:
     sc = nav_builtin(
         "indoor_vision",
-        ["vision.source=pose", "vision.rate_hz=30", "gps.enabled=true", "mag.enabled=true",
-         "range.enabled=true", "range.rate_hz=70", "baro.rate_hz=33", "vision.dropouts_s=[]",
-         "plan.square_m=1", "plan.hold_s=0.5"],
-    )  # fmt: skip
+        [
+            "vision.source=pose",
+            "vision.rate_hz=30",
+            "gps.enabled=true",
+            "mag.enabled=true",
+            "range.enabled=true",
+            "range.rate_hz=70",
+            "baro.rate_hz=33",
+            "vision.dropouts_s=[]",
+            "plan.square_m=1",
+            "plan.hold_s=0.5",
+        ],
+    )
     r = run_nav(sc, 0)
     span_s = sc.flight_s
     rates = {"vision": 30, "baro": 33, "gps": sc.gps.rate_hz, "mag": 50, "imu": 250, "range": 70}

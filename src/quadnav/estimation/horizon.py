@@ -52,6 +52,7 @@ __all__ = [
     "HorizonConfig",
     "Kinematics",
     "NavState",
+    "SourceCounters",
     "SourceFusion",
     "SourceStats",
     "fusion_arrays",
@@ -265,9 +266,10 @@ class HorizonConfig:
             raise EstimationError("HorizonConfig.max_observations_per_source must be >= 1")
 
 
-@dataclass(slots=True)
-class SourceStats:  # counters, mutated while the estimator runs (copied into a report)
-    """Counters for one observation source."""
+@dataclass(frozen=True, slots=True)
+class SourceStats:
+    """What became of one observation source's samples (a snapshot of the
+    :class:`SourceCounters` an estimator increments while it runs)."""
 
     received: int = 0
     fused: int = 0
@@ -278,10 +280,32 @@ class SourceStats:  # counters, mutated while the estimator runs (copied into a 
 
 
 @dataclass(slots=True)
+class SourceCounters:
+    """The running counters behind a :class:`SourceStats`."""
+
+    received: int = 0
+    fused: int = 0
+    rejected_gate: int = 0
+    rejected_too_old: int = 0
+    rejected_unsupported: int = 0
+    dropped_overflow: int = 0
+
+    def snapshot(self) -> SourceStats:
+        return SourceStats(
+            self.received,
+            self.fused,
+            self.rejected_gate,
+            self.rejected_too_old,
+            self.rejected_unsupported,
+            self.dropped_overflow,
+        )
+
+
+@dataclass(slots=True)
 class _Counters:
     imu_received: int = 0
     imu_rejected_out_of_order: int = 0
-    sources: dict[str, SourceStats] = field(default_factory=dict)
+    sources: dict[str, SourceCounters] = field(default_factory=dict)
     invalid: dict[str, int] = field(default_factory=dict)
 
 
@@ -387,7 +411,8 @@ class DelayedHorizonEstimator:
 
     def stats(self, source: str) -> SourceStats:
         """Counters of one observation source (zeros if it never sent anything)."""
-        return self._counters.sources.get(source, SourceStats())
+        counters = self._counters.sources.get(source)
+        return counters.snapshot() if counters is not None else SourceStats()
 
     def pending(self, source: str) -> int:
         """Observations of ``source`` buffered and not yet reached by the delayed horizon."""
@@ -429,7 +454,7 @@ class DelayedHorizonEstimator:
 
     def _push_observation(self, obs: Sample) -> None:
         source = getattr(obs, "source", type(obs).__name__)
-        stats = self._counters.sources.setdefault(source, SourceStats())
+        stats = self._counters.sources.setdefault(source, SourceCounters())
         stats.received += 1
         if not self.filter.can_fuse(obs):
             stats.rejected_unsupported += 1

@@ -27,6 +27,7 @@ from quadnav.errors import EstimationError
 from quadnav.estimation.horizon import (
     DelayedHorizonEstimator,
     HorizonConfig,
+    SourceCounters,
     SourceFusion,
     SourceStats,
     fusion_arrays,
@@ -341,7 +342,7 @@ class TruthEstimator:
 
     def __init__(self) -> None:
         self._last: TruthSample | None = None
-        self._ignored: dict[str, SourceStats] = {}
+        self._ignored: dict[str, SourceCounters] = {}
         self._imu = 0
 
     @property
@@ -356,7 +357,7 @@ class TruthEstimator:
             self._imu += 1
             return
         src = getattr(sample, "source", type(sample).__name__)
-        stats = self._ignored.setdefault(src, SourceStats())
+        stats = self._ignored.setdefault(src, SourceCounters())
         stats.received += 1
         stats.rejected_unsupported += 1
 
@@ -380,4 +381,5 @@ class TruthEstimator:
         return self.output()
 
     def report(self) -> EstimatorReport:
-        return EstimatorReport(fusion={}, sources=dict(self._ignored), imu_received=self._imu)
+        sources = {src: c.snapshot() for src, c in self._ignored.items()}
+        return EstimatorReport(fusion={}, sources=sources, imu_received=self._imu)
