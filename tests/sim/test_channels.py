@@ -22,8 +22,14 @@ STEP_NS = 2_000_000  # the main job's 2 ms simulator step
 
 
 def _state(t_ns: int, z: float = 1.0) -> VehicleState:
-    return VehicleState(t_ns=t_ns, p_W_B=np.array([0.0, 0.0, z]), v_W_B=np.zeros(3),
-                        a_W_B=np.zeros(3), q_W_B_xyzw=Rotation.identity().as_quat(), w_B=np.zeros(3))  # fmt: skip
+    return VehicleState(
+        t_ns=t_ns,
+        p_W_B=np.array([0.0, 0.0, z]),
+        v_W_B=np.zeros(3),
+        a_W_B=np.zeros(3),
+        q_W_B_xyzw=Rotation.identity().as_quat(),
+        w_B=np.zeros(3),
+    )
 
 
 def _sensors() -> dict[str, tuple[object, float]]:
