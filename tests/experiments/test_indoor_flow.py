@@ -31,6 +31,10 @@ def test_indoor_flow_dead_reckons_the_square_within_centimetres(flights: list) -
         assert (
             isinstance(m.hold_max_horizontal_error_m, float) and m.hold_max_horizontal_error_m < 0.2
         )
+        # the square's four 1.5 m sides (and the small corrections on the ground) were flown
+        assert 6.0 <= m.distance_flown_m <= 6.6
+        assert isinstance(m.drift_percent, float) and m.drift_percent < 4.0
+        assert m.drift_percent == pytest.approx(100 * m.end_horizontal_error_m / m.distance_flown_m)
         flow = r.sources["flow"]
         assert flow.fused > 0.95 * flow.received > 400
         assert "vision" not in r.sources and "gps" not in r.sources

@@ -98,6 +98,8 @@ def run_command(
         ("delayed estimate RMSE (m)", s.delayed_rmse_m),
         ("attitude RMSE (deg)", s.attitude_rmse_deg),
         ("NEES, mean (15 states)", s.nees_mean),
+        ("horizontal error at the end, landed (m)", s.end_horizontal_error_m),
+        ("  = drift in % of the distance flown", s.drift_percent),
         (
             "gyro bias error / true bias, 60 s after alignment or at the end",
             s.gyro_bias_error_fraction_median,

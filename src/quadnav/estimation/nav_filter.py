@@ -162,6 +162,7 @@ def build_nav_filter(
     q0_xyzw: FloatArray,
     v0: FloatArray | None = None,
     sigmas: InitialSigmas | None = None,
+    gyro_bias0: FloatArray | None = None,
 ) -> DelayedHorizonEstimator:
     """The navigation EKF at the initial state, behind its delayed horizon."""
     ekf = NavEkf(
@@ -170,6 +171,7 @@ def build_nav_filter(
         v0=np.zeros(3) if v0 is None else np.asarray(v0, dtype=np.float64),
         q0_xyzw=np.asarray(q0_xyzw, dtype=np.float64),
         P0=(sigmas or setup.sigmas).P0(),
+        bg0=gyro_bias0,
     )
     return DelayedHorizonEstimator(ekf, setup.horizon, t0_ns=t0_ns)
 
@@ -244,12 +246,15 @@ class AligningNavFilter:
         align_ns: int,
         alignment: AlignmentSigmas = AlignmentSigmas(),
         heading_from_pose: bool = True,
+        gyro_bias_at_rest: bool = False,
     ) -> None:
         self.setup = setup
         self.align_ns = int(align_ns)
         self.alignment = alignment
         # Rotated vision (PX4's): the heading is the magnetometer's, the origin where it stands.
         self.heading_from_pose = heading_from_pose
+        # Standing still, the mean gyro reading is its bias (a static initialisation).
+        self.gyro_bias_at_rest = gyro_bias_at_rest
         self._data = _AlignmentData()
         self.horizon: DelayedHorizonEstimator | None = None
 
@@ -298,7 +303,10 @@ class AligningNavFilter:
             gyro_bias_rad_s=s.gyro_bias_rad_s,
             accel_bias_m_s2=s.accel_bias_m_s2,
         )
-        return build_nav_filter(self.setup, t0_ns=t_ns, p0=p0, q0_xyzw=R0.as_quat(), sigmas=sigmas)
+        bg0 = np.mean([x.gyro_rad_s for x in d.imu], axis=0) if self.gyro_bias_at_rest else None
+        return build_nav_filter(
+            self.setup, t0_ns=t_ns, p0=p0, q0_xyzw=R0.as_quat(), sigmas=sigmas, gyro_bias0=bg0
+        )
 
     def _ready(self) -> DelayedHorizonEstimator:
         if self.horizon is None:

@@ -130,6 +130,7 @@ def _ekf_estimator(sc: NavScenario, gravity_m_s2: float, max_delay_ns: int) -> N
         align_ns=s_to_ns(es.align_s),
         alignment=alignment,
         heading_from_pose=es.vision_frame != "rotate",
+        gyro_bias_at_rest=es.gyro_bias_at_rest,
     )
 
 

@@ -194,6 +194,9 @@ class EstimatorSection(ConfigModel):
     init_pos_sigma_unknown_m: float = Field(
         0.1, ge=MIN_SIGMA, description="P0: position unobserved"
     )
+    gyro_bias_at_rest: bool = Field(
+        False, description="start the gyro bias at the mean gyro reading on the ground (at rest)"
+    )
     tau_vel_s: float = Field(0.1, gt=0)
     tau_pos_s: float = Field(0.1, gt=0)
     gate_probability: float = Field(0.9999, gt=0, lt=1)

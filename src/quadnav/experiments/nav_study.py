@@ -69,6 +69,9 @@ class NavMetrics:
     imu: ImuCounts
     filter_events: list[str]
     landed_at_m: list[float]
+    end_horizontal_error_m: float
+    distance_flown_m: float
+    drift_percent: Metric
 
     def to_json(self) -> dict[str, object]:
         """The flat record ``metrics.json`` and ``seeds.jsonl`` hold (``counts`` per source)."""
@@ -136,6 +139,15 @@ def _nis_ratios(r: NavRunResult) -> dict[str, float]:
     return ratios
 
 
+def _drift(r: NavRunResult) -> tuple[float, float, Metric]:
+    """The horizontal error of the output at the end of the flight (landed), the horizontal
+    distance flown and the first over the second in percent."""
+    end = float(np.linalg.norm(r.output_p[-1, :2] - r.truth_p[-1, :2]))
+    dist = float(np.sum(np.linalg.norm(np.diff(r.truth_p[:, :2], axis=0), axis=1)))
+    pct = 100.0 * end / dist if dist > 0.1 else na("flew less than 0.1 m")
+    return end, dist, pct
+
+
 def nav_metrics(r: NavRunResult) -> NavMetrics:
     """The issue-5 numbers of one flight."""
     t = _t_s(r)
@@ -153,6 +165,7 @@ def nav_metrics(r: NavRunResult) -> NavMetrics:
     in_air = "no samples in the air"
     att_rmse = rms_or_na(att_err[airborne], in_air)
     no_cov = "no covariance in the air (the estimator gives none)"
+    end, dist, drift = _drift(r)
     return NavMetrics(
         seed=r.seed,
         output_rmse_with_vision_m=rms_or_na(err[with_vision], "no samples in the air with vision")
@@ -175,6 +188,9 @@ def nav_metrics(r: NavRunResult) -> NavMetrics:
         imu=r.imu,
         filter_events=[f"{t * 1e-9:.3f} s: {msg}" for t, msg in r.events],
         landed_at_m=r.truth_p[-1].tolist(),
+        end_horizontal_error_m=end,
+        distance_flown_m=dist,
+        drift_percent=drift,
     )
 
 
@@ -410,6 +426,8 @@ class NavSummary:
     gyro_bias_error_fraction_median: Metric
     nis_above_95pct_gate: dict[str, float]
     accel_bias_error_fraction_median: Metric
+    end_horizontal_error_m: Metric
+    drift_percent: Metric
 
     def to_json(self) -> dict[str, object]:
         return {f: getattr(self, f) for f in self.__dataclass_fields__}
@@ -444,6 +462,8 @@ def _summarize(per_seed: list[NavMetrics]) -> NavSummary:
         accel_bias_error_fraction_median=median_or_na(
             m.bias_error_fraction_60s["accel"] for m in per_seed
         ),
+        end_horizontal_error_m=median_or_na(m.end_horizontal_error_m for m in per_seed),
+        drift_percent=median_or_na(m.drift_percent for m in per_seed),
     )
 
 
