@@ -70,12 +70,14 @@ _ENTRIES = (
     NavBuiltin(
         name="indoor_flow",
         description="no vision: a downward optical-flow sensor (PX4FLOW class, 50 Hz, 15 ms "
-        "late), a range finder, the barometer and the IMU; the position is dead-reckoned",
+        "late), a range finder, the barometer and the IMU; the position is dead-reckoned, the "
+        "heading held by a gyro bias levelled at rest",
         overrides=(
             "vision.enabled=false",
             "flow.enabled=true",
             "range.enabled=true",
             "estimator.init_yaw_sigma_unknown_rad=0.05",
+            "estimator.gyro_bias_at_rest=true",
         ),
     ),
     NavBuiltin(
