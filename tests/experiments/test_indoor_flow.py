@@ -11,7 +11,7 @@ from quadnav.experiments.nav import run_nav
 from quadnav.experiments.nav_study import nav_metrics
 from quadnav.experiments.scenarios import NAV_SCENARIOS, nav_builtin
 
-SHORT = ("plan.square_m=1.5", "plan.hold_s=1")
+SHORT = ("plan.square_m=1.5", "plan.hold_s=2")
 
 
 @pytest.fixture(scope="module")

@@ -104,7 +104,7 @@ def test_run_folder_of_the_main_job(tmp_path: Path) -> None:
 
 
 def test_scenario_validation() -> None:
-    with pytest.raises(ValueError, match="both disabled"):
+    with pytest.raises(ValueError, match="all disabled"):
         NavScenario.model_validate({"vision": {"enabled": False}, "baro": {"enabled": False}})
     with pytest.raises(ValueError, match="end after"):
         NavScenario.model_validate({"vision": {"dropouts_s": [[3.0, 2.0]]}})
