@@ -108,6 +108,7 @@ def _vision(sc: NavScenario, ctx: BuildContext, rng: Generator) -> Channel | Non
             markers=field,
             T_B_C=thesis_mount(),
             noise_sigma=vs.image_noise,
+            min_sigma_m=vs.min_sigma_m,
             seed=seed,
         )
     else:

@@ -54,6 +54,9 @@ class VisionSection(ConfigModel):
     marker_length_m: float = Field(0.2335, gt=0, description="camera: printed marker side")
     marker_origin_m: tuple[float, float] = Field((-0.6, -0.6), description="camera: first marker")
     image_noise: float = Field(2.0, ge=0, description="camera: grey-level noise of the images")
+    min_sigma_m: float = Field(
+        0.002, ge=0, description="camera: noise added to the pose's covariance (exposure, timing)"
+    )
     rate_hz: float = Field(30.0, gt=0, le=MAX_RATE_HZ)
     delay_s: float = Field(0.25, ge=0, le=MAX_DELAY_S)
     sigma_m: float = Field(0.01, ge=MIN_SIGMA)
