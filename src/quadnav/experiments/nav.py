@@ -309,20 +309,23 @@ def run_nav(sc: NavScenario, seed: int, *, record_stream: bool = False) -> NavRu
     imu = next(ch for ch in channels if ch.name == "imu")
     est = nav_estimator(sc, params.gravity_m_s2, channels)
     plan, log = _Plan(sc), _NavLog(record_stream=record_stream)
+    out: StateEstimate | None = None
     try:
         for i in range(plan.n_steps):
             truth = sim.state()
             t = truth.t_ns
             phase.motors_off = plan.on_ground(i, t)
-            was_ready = est.ready
+            was_ready, pushed = est.ready, False
             for ch in channels:
                 ch.step(truth, t)
             for ch in channels:
                 for smp in ch.arrived(t):
                     est.push(smp)
+                    pushed = True
                     if was_ready and log.stream is not None:
                         log.stream.append(smp)
-            out = est.output() if est.ready else None
+            if pushed or out is None:  # (an estimate changes only with what it is pushed)
+                out = est.output() if est.ready else None
             if was_ready and out is not None and imu.sampled_t_ns and imu.sampled_t_ns[-1] == t:
                 log.record(truth, _true_biases(imu), plan.p[i], out, est.delayed())
             if phase.motors_off:
