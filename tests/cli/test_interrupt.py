@@ -34,6 +34,8 @@ def test_ctrl_c_keeps_the_finished_seeds_and_marks_the_folder(tmp_path: Path, jo
         stderr=subprocess.PIPE,
         text=True,
         env={**os.environ, "COLUMNS": "120"},
+        # A shell's background job ignores SIGINT and its children inherit that: restore it.
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
     )
     try:
         seeds = _wait_for_lines(tmp_path, "*/seeds.jsonl", 3, timeout_s=90)
