@@ -17,7 +17,7 @@ SRC = Path(__file__).resolve().parents[1] / "src" / "quadnav"
 # Each top-level unit of quadnav (a subpackage or a top-level module) and the units it may import.
 # errors, config_model and units import nothing from quadnav; the root package only errors.
 _BASE = frozenset({"errors", "config_model", "units", "__init__"})
-_CORE = _BASE | {"geometry", "messages", "vehicle"}  # import only the base
+_CORE = _BASE | {"geometry", "messages", "vehicle", "rig"}  # import only the base (rig: geometry)
 _IO = _CORE | {"sim", "estimation", "vision", "control"}
 _EVAL = _IO | {"io"}
 _EXPERIMENTS = _EVAL | {"eval"}
@@ -30,6 +30,8 @@ ALLOWED: dict[str, frozenset[str]] = {
     "geometry": _BASE,
     "messages": _BASE,
     "vehicle": _BASE,
+    # A camera-IMU rig is a lens and poses: it builds on geometry.
+    "rig": _BASE | {"geometry"},
     # sim, estimation, vision and control do not import one another.
     "sim": _CORE,
     "estimation": _CORE,

@@ -57,3 +57,34 @@ def test_vehicle_state_needs_a_unit_quaternion() -> None:
             q_W_B_xyzw=[0, 0, 0, 2],
             w_B=[0, 0, 0],
         )
+
+
+def test_an_image_frame_loads_lazily_and_says_which_file_is_bad() -> None:
+    import numpy as np
+    import pytest
+
+    from quadnav.errors import SampleError
+    from quadnav.messages import ImageFrame
+
+    calls: list[int] = []
+
+    def load() -> np.ndarray:
+        calls.append(1)
+        return np.zeros((4, 5), np.uint8)
+
+    f = ImageFrame(t_ns=10, camera="cam0", load=load, origin="cam0/data/10.png")
+    assert calls == []  # nothing read until asked
+    assert f.image().shape == (4, 5)
+    assert calls == [1]
+
+    def broken() -> np.ndarray:
+        raise OSError("truncated PNG")
+
+    bad = ImageFrame(t_ns=10, camera="cam0", load=broken, origin="cam0/data/10.png")
+    with pytest.raises(SampleError, match=r"cam0/data/10.png cannot be read: truncated PNG"):
+        bad.image()
+    none = ImageFrame(t_ns=10, camera="cam0", load=lambda: None, origin="x.png")  # type: ignore[arg-type,return-value]
+    with pytest.raises(SampleError, match="not an 8-bit picture"):
+        none.image()
+    with pytest.raises(SampleError, match="exposure_s"):
+        ImageFrame(t_ns=10, camera="cam0", load=load, exposure_s=float("nan"))

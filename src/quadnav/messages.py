@@ -8,6 +8,7 @@ sensor is a :class:`~quadnav.errors.SampleError` at the boundary, not a corrupte
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -20,6 +21,7 @@ __all__ = [
     "FlowSample",
     "GpsSample",
     "HeightSample",
+    "ImageFrame",
     "ImuSample",
     "MagSample",
     "Observation",
@@ -74,6 +76,48 @@ class ImuSample:
         object.__setattr__(
             self, "accel_m_s2", _array(self.accel_m_s2, (3,), "ImuSample.accel_m_s2")
         )
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class ImageFrame:
+    """One camera image at ``t_ns`` (the time stamp its source gives, in the IMU's clock once a
+    camera-IMU offset is applied), from camera ``camera`` (``cam0``, ``cam1``...).
+
+    The pixels load lazily: ``load`` is called by :meth:`image` each time, so a long sequence of
+    frames holds file names, not images. ``exposure_s`` is the exposure time when the source
+    gives it (0 when unknown); ``origin`` says where the pixels come from (a file, a bag topic)
+    for error messages."""
+
+    t_ns: int
+    camera: str
+    load: Callable[[], NDArray[np.uint8]] = field(repr=False)
+    exposure_s: float = 0.0
+    origin: str = ""
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "t_ns", check_t_ns(self.t_ns, "ImageFrame"))
+        if not isinstance(self.camera, str) or not self.camera:
+            raise SampleError(f"ImageFrame.camera must be a non-empty name, got {self.camera!r}")
+        e = float(self.exposure_s)
+        if not np.isfinite(e) or e < 0.0:
+            raise SampleError(f"ImageFrame.exposure_s must be finite and >= 0, got {e}")
+        object.__setattr__(self, "exposure_s", e)
+
+    def image(self) -> NDArray[np.uint8]:
+        """The pixels (h, w) grey or (h, w, 3), uint8; a :class:`SampleError` naming the frame's
+        origin when they cannot be had (a missing or corrupt file)."""
+        where = self.origin or f"{self.camera} at t_ns={self.t_ns}"
+        try:
+            img = self.load()
+        except SampleError:
+            raise
+        except Exception as exc:  # a decoder's own error type: said in one line
+            raise SampleError(f"image {where} cannot be read: {exc}") from None
+        if not isinstance(img, np.ndarray) or img.dtype != np.uint8 or img.ndim not in (2, 3):
+            raise SampleError(f"image {where} cannot be read (not an 8-bit picture)")
+        if (img.ndim == 3 and img.shape[2] not in (1, 3, 4)) or min(img.shape[:2]) == 0:
+            raise SampleError(f"image {where} has an unusable shape {img.shape}")
+        return img
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

@@ -1,4 +1,6 @@
-"""A pinhole camera with OpenCV's distortion model (``k1 k2 p1 p2 [k3 [k4 k5 k6 ...]]``).
+"""A pinhole camera with a lens distortion model: OpenCV's radial-tangential one (``k1 k2 p1 p2
+[k3 [k4 k5 k6 ...]]``, Kalibr's ``radtan``) or the equidistant (Kannala-Brandt, OpenCV's fisheye,
+Kalibr's ``equidistant``: ``k1 k2 k3 k4``).
 
 Pure maths on arrays; reading and writing OpenCV YAML files is in :mod:`quadnav.io.opencv_yaml`.
 """
@@ -6,6 +8,7 @@ Pure maths on arrays; reading and writing OpenCV YAML files is in :mod:`quadnav.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Literal
 
 import cv2
 import numpy as np
@@ -13,19 +16,24 @@ from numpy.typing import NDArray
 
 from quadnav.errors import GeometryError
 
-__all__ = ["PinholeCamera", "thesis_camera"]
+__all__ = ["DISTORTION_MODELS", "DistortionModel", "PinholeCamera", "thesis_camera"]
 
 FloatArray = NDArray[np.float64]
+DistortionModel = Literal["radtan", "equidistant"]
+DISTORTION_MODELS: tuple[DistortionModel, ...] = ("radtan", "equidistant")
 
 
 @dataclass(frozen=True, slots=True)
 class PinholeCamera:
-    """Intrinsics ``K`` (3x3), distortion coefficients (OpenCV order) and image size (px)."""
+    """Intrinsics ``K`` (3x3), distortion coefficients (OpenCV order) and image size (px);
+    ``model`` says how to read the coefficients (``radtan``: OpenCV's default model, 0, 4, 5, 8,
+    12 or 14 of them; ``equidistant``: OpenCV's fisheye model, exactly 4)."""
 
     K: FloatArray
     dist: FloatArray
     width: int
     height: int
+    model: DistortionModel = "radtan"
 
     def __post_init__(self) -> None:
         K = np.asarray(self.K, dtype=np.float64)
@@ -34,7 +42,17 @@ class PinholeCamera:
             raise GeometryError(
                 f"camera matrix must be 3x3 with positive focal lengths, got {K.tolist()}"
             )
-        if d.size not in (0, 4, 5, 8, 12, 14) or not np.isfinite(d).all():
+        if self.model not in DISTORTION_MODELS:
+            raise GeometryError(
+                f"distortion model must be one of {', '.join(DISTORTION_MODELS)}, got {self.model!r}"
+            )
+        if not np.isfinite(d).all():
+            raise GeometryError(f"distortion coefficients must be finite, got {d.tolist()}")
+        if self.model == "equidistant" and d.size == 0:
+            d = np.zeros(4)
+        if self.model == "equidistant" and d.size != 4:
+            raise GeometryError(f"the equidistant model takes 4 coefficients, got {d.size}")
+        if self.model == "radtan" and d.size not in (0, 4, 5, 8, 12, 14):
             raise GeometryError(
                 f"distortion must have 0, 4, 5, 8, 12 or 14 finite coefficients, got {d.size}"
             )
@@ -54,13 +72,25 @@ class PinholeCamera:
     def project(self, p_C: FloatArray) -> FloatArray:
         """Pixels (N, 2) of points (N, 3) in the camera frame (z forward, x right, y down)."""
         p = np.asarray(p_C, dtype=np.float64).reshape(-1, 1, 3)
-        px, _ = cv2.projectPoints(p, np.zeros(3), np.zeros(3), self.K, self.dist)
+        if self.model == "equidistant":
+            px, _ = cv2.fisheye.projectPoints(p, np.zeros(3), np.zeros(3), self.K, self.dist)
+        else:
+            px, _ = cv2.projectPoints(p, np.zeros(3), np.zeros(3), self.K, self.dist)
         return np.asarray(px.reshape(-1, 2), dtype=np.float64)
+
+    @property
+    def distorted(self) -> bool:
+        """Whether any distortion coefficient is non-zero."""
+        return bool(np.any(self.dist))
 
     def undistort_pixels(self, px: FloatArray) -> FloatArray:
         """Ideal (distortion-free) pixels of distorted ones, in the same camera matrix."""
         p = np.asarray(px, dtype=np.float64).reshape(-1, 1, 2)
-        out = cv2.undistortPoints(p, self.K, self.dist, P=self.K)
+        if self.model == "equidistant":
+            crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 1e-10)
+            out = cv2.fisheye.undistortPoints(p, self.K, self.dist, P=self.K, criteria=crit)
+        else:
+            out = cv2.undistortPoints(p, self.K, self.dist, P=self.K)
         return np.asarray(out.reshape(-1, 2), dtype=np.float64)
 
     def scaled(self, width: int, height: int) -> PinholeCamera:
@@ -69,7 +99,7 @@ class PinholeCamera:
         K = self.K.copy()
         K[0] *= sx
         K[1] *= sy
-        return PinholeCamera(K, self.dist.copy(), width, height)
+        return PinholeCamera(K, self.dist.copy(), width, height, self.model)
 
 
 def thesis_camera() -> PinholeCamera:
