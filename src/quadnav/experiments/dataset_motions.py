@@ -1,0 +1,124 @@
+"""The motions of the built-in dataset sequences: a quadrotor-like flight through a box.
+
+A Lissajous path through the flight box, entered from rest (the sequences start still, as
+EuRoC's do, so a static initialization has something to work on), with the heading turning
+towards the direction of travel plus a sway, and roll and pitch those of a multirotor that
+makes the path's acceleration: the thrust axis along ``a + g e_z`` (differential flatness).
+The poses are sampled densely and go through the same spline as a recorded motion.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
+
+from quadnav.errors import ConfigError
+from quadnav.geometry.trajectory import Trajectory
+from quadnav.units import GRAVITY_M_S2, NS_PER_S
+
+__all__ = ["FlightPath", "flight_path_trajectory"]
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class FlightPath:
+    """A Lissajous flight: centre and half-extent of the box (m), the mean speed it is scaled to
+    (m/s), the sway of the heading (deg) and its period (s), the still time at the start (s),
+    the ramp from rest (s), the duration (s) and the seed of the phases."""
+
+    centre_m: tuple[float, float, float]
+    half_extent_m: tuple[float, float, float]
+    mean_speed_m_s: float
+    yaw_sway_deg: float = 20.0
+    yaw_sway_period_s: float = 6.0
+    still_s: float = 2.0
+    ramp_s: float = 3.0
+    duration_s: float = 60.0
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if not (0.0 < self.mean_speed_m_s <= 10.0):
+            raise ConfigError(f"mean_speed_m_s must be in (0, 10], got {self.mean_speed_m_s}")
+        if min(self.half_extent_m) <= 0.0:
+            raise ConfigError(f"half_extent_m must be positive, got {self.half_extent_m}")
+        if self.duration_s <= self.still_s + self.ramp_s:
+            raise ConfigError(
+                f"duration_s ({self.duration_s}) must exceed still_s + ramp_s "
+                f"({self.still_s + self.ramp_s})"
+            )
+
+
+def _smoothstep(x: FloatArray) -> FloatArray:
+    """0 -> 1 with zero first, second and third derivatives at both ends (septic)."""
+    x = np.clip(x, 0.0, 1.0)
+    return np.asarray(x**4 * (35.0 - 84.0 * x + 70.0 * x**2 - 20.0 * x**3), dtype=np.float64)
+
+
+def _lissajous(path: FlightPath, t: FloatArray, rate: float) -> FloatArray:
+    """Positions on the path at times ``t`` (s) with the frequency scale ``rate``."""
+    rng = np.random.default_rng(path.seed)
+    phase = rng.uniform(0.0, 2.0 * math.pi, 3)
+    freq = np.array([1.0, 1.0 / 1.6, 1.0 / 2.3]) * rate
+    c, a = np.asarray(path.centre_m), np.asarray(path.half_extent_m)
+    tau = np.clip(t - path.still_s, 0.0, None)
+    blend = _smoothstep(tau / path.ramp_s)[:, None]
+    wave = np.sin(freq[None, :] * tau[:, None] + phase[None, :]) - np.sin(phase)[None, :]
+    return np.asarray(c + 0.9 * a * (np.sin(phase) + blend * wave), dtype=np.float64)
+
+
+def _rate_for_speed(path: FlightPath) -> float:
+    """The frequency scale that gives the path its mean speed (speed is linear in it)."""
+    t = np.linspace(path.still_s + path.ramp_s, path.duration_s, 4000)
+    p = _lissajous(path, t, 1.0)
+    speed1 = float(np.mean(np.linalg.norm(np.diff(p, axis=0), axis=1)) / (t[1] - t[0]))
+    return path.mean_speed_m_s / speed1
+
+
+def _attitude(p: FloatArray, t: FloatArray, path: FlightPath) -> Rotation:
+    """A multirotor's attitude along positions ``p``: thrust axis along ``a + g e_z``, heading
+    towards the travel direction (smoothed) plus a sway."""
+    dt = float(t[1] - t[0])
+    v = np.gradient(p, dt, axis=0)
+    a = np.gradient(v, dt, axis=0)
+    z_B = a + np.array([0.0, 0.0, GRAVITY_M_S2])
+    z_B /= np.linalg.norm(z_B, axis=1, keepdims=True)
+    speed = np.linalg.norm(v[:, :2], axis=1)
+    heading = np.unwrap(np.arctan2(v[:, 1], v[:, 0]))
+    # Where the vehicle hardly moves, hold the heading it had when it was moving.
+    moving = speed > 0.3 * path.mean_speed_m_s
+    if moving.any():
+        idx = np.where(moving, np.arange(len(t)), -1)
+        idx = np.maximum.accumulate(idx)
+        first = int(np.flatnonzero(moving)[0])
+        idx[idx < 0] = first
+        heading = heading[idx]
+    k = max(int(2.0 / dt), 1)  # a 2 s moving average: the heading lags the path
+    kernel = np.ones(k) / k
+    heading = np.convolve(np.pad(heading, (k // 2, k - 1 - k // 2), mode="edge"), kernel, "valid")
+    sway = np.radians(path.yaw_sway_deg) * np.sin(2.0 * math.pi * t / path.yaw_sway_period_s)
+    ramp = _smoothstep((t - path.still_s) / path.ramp_s)
+    yaw = heading[0] + ramp * (heading - heading[0] + sway)
+    x_c = np.column_stack([np.cos(yaw), np.sin(yaw), np.zeros_like(yaw)])
+    y_B = np.cross(z_B, x_c)
+    y_B /= np.linalg.norm(y_B, axis=1, keepdims=True)
+    x_B = np.cross(y_B, z_B)
+    return Rotation.from_matrix(np.stack([x_B, y_B, z_B], axis=2))
+
+
+def flight_path_trajectory(path: FlightPath, *, rate_hz: float = 200.0, t0_ns: int = 0) -> Trajectory:
+    """The path's poses at ``rate_hz`` from ``t0_ns``."""
+    n = int(path.duration_s * rate_hz) + 1
+    t = np.arange(n) / rate_hz
+    p = _lissajous(path, t, _rate_for_speed(path))
+    R = _attitude(p, t, path)
+    return Trajectory(
+        t_ns=t0_ns + np.round(t * NS_PER_S).astype(np.int64),
+        p_W_B=p,
+        q_W_B_xyzw=R.as_quat(),
+        name="flight_path",
+    )

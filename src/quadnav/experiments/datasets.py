@@ -1,0 +1,431 @@
+"""``quadnav dataset make``: a visual-inertial dataset rendered in a 3-D world along a motion.
+
+A motion (a built-in sequence's flight, a trajectory file through a smooth spline, or a
+simulated flight) moves a camera-IMU rig through a textured world. Each camera is rendered at
+its own rate, with its time offset, motion blur over its exposure, lighting changes and sensor
+noise; the IMU is synthesized from the same spline with its noise and bias random walks. The
+result is an EuRoC ASL folder (``mav0/``) that VINS-Mono, OpenVINS, ORB-SLAM3 and Kimera read as
+they read EuRoC, with ``dataset.json`` (what was made and how) and ``groundtruth.tum`` (for evo).
+Everything is deterministic per seed: every stream has its own generator keyed by its name.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+import zlib
+from collections.abc import Callable, Iterable, Mapping
+from dataclasses import asdict, dataclass, replace
+from typing import TYPE_CHECKING
+from pathlib import Path
+
+import numpy as np
+from numpy.random import Generator
+from numpy.typing import NDArray
+from pydantic import Field
+
+from quadnav.config_model import ConfigModel
+from quadnav.errors import ConfigError
+from quadnav.experiments.dataset_motions import FlightPath, flight_path_trajectory
+from quadnav.geometry.rotations import Pose
+from quadnav.io.config import load_config
+from quadnav.geometry.trajectory import Trajectory
+from quadnav.io.trajectory_io import write_tum
+from quadnav.rig import CameraSpec, Rig, rig_named
+from quadnav.sim.motion import SplineMotion, synthesize_imu
+from quadnav.sim.render import RenderEffects
+from quadnav.units import NS_PER_S, s_to_ns
+
+if TYPE_CHECKING:
+    from quadnav.io.datasets import EurocWriter
+    from quadnav.sim.scene import Scene
+
+__all__ = [
+    "SEQUENCES",
+    "DatasetMade",
+    "SequenceSpec",
+    "make_dataset",
+    "sequence_spec",
+    "stream_rng",
+]
+
+FloatArray = NDArray[np.float64]
+U8 = NDArray[np.uint8]
+#: The first stamp of a built-in flight (2023-11-14, in the Unix-epoch nanoseconds EuRoC uses).
+T0_NS = 1_700_000_000 * 1_000_000_000
+
+Vec3 = tuple[float, float, float]
+Progress = Callable[[int, int, str], None]
+
+
+class SequenceSpec(ConfigModel):
+    """What a sequence is made of: the world, the rig, the motion and the image conditions.
+
+    ``motion`` is ``flight_path`` (the Lissajous flight of ``flight_*`` and ``mean_speed_m_s``),
+    a trajectory file (TUM, EuRoC ground truth...) or a ``quadnav run``/``sim`` scenario name.
+    ``exposure_s`` sets the motion blur (0: none), ``lighting`` the depth of the slow exposure
+    changes (0: constant, 0.5: from half to one and a half), ``texture_poor`` the fraction of
+    surfaces without texture, ``read_noise`` the sensor's read noise in grey levels,
+    ``shot_noise_dn`` its photon noise (variance per grey level), ``vignetting`` the light lost in
+    the corners (EuRoC's MT9M034 images darken towards them)."""
+
+    world: str
+    rig: str = "euroc"
+    motion: str = "flight_path"
+    duration_s: float = Field(default=60.0, gt=0.0, le=1800.0)
+    mean_speed_m_s: float = Field(default=0.5, gt=0.0, le=10.0)
+    yaw_sway_deg: float = Field(default=20.0, ge=0.0, le=180.0)
+    yaw_sway_period_s: float = Field(default=6.0, gt=0.5, le=600.0)
+    flight_centre_m: Vec3 = (0.0, 0.0, 1.4)
+    flight_half_extent_m: Vec3 = (2.0, 1.6, 0.5)
+    exposure_s: float = Field(default=0.002, ge=0.0, le=0.05)
+    lighting: float = Field(default=0.0, ge=0.0, le=0.9)
+    texture_poor: float = Field(default=0.0, ge=0.0, le=1.0)
+    read_noise: float = Field(default=2.0, ge=0.0, le=50.0)
+    shot_noise_dn: float = Field(default=0.3, ge=0.0, le=10.0)
+    vignetting: float = Field(default=0.15, ge=0.0, le=0.9)
+    time_offset_s: float = Field(default=0.0, ge=-0.1, le=0.1)
+    imu_noise: bool = True
+    seed: int = Field(default=0, ge=0, le=2**31 - 1)
+    description: str = ""
+
+
+def _seq(**kw: object) -> SequenceSpec:
+    return SequenceSpec.model_validate(kw)
+
+
+#: The built-in sequences, graded like EuRoC's (V1_01 easy: 0.41 m/s and 16 deg/s; V1_02
+#: medium: 0.91 m/s, 32 deg/s; V1_03 difficult: 0.75 m/s, 77 deg/s, blur and dark parts).
+SEQUENCES: Mapping[str, SequenceSpec] = {
+    "room_easy": _seq(
+        world="room", duration_s=60.0, mean_speed_m_s=0.45, yaw_sway_deg=15.0,
+        exposure_s=0.002, read_noise=1.5,
+        description="the room, slow (0.45 m/s), steady light, little blur",
+    ),
+    "room_medium": _seq(
+        world="room", duration_s=70.0, mean_speed_m_s=0.9, yaw_sway_deg=35.0,
+        yaw_sway_period_s=4.0, exposure_s=0.005, lighting=0.15,
+        description="the room at 0.9 m/s, faster turns, some blur and light changes",
+    ),
+    "room_difficult": _seq(
+        world="room", duration_s=60.0, mean_speed_m_s=1.2, yaw_sway_deg=60.0,
+        yaw_sway_period_s=3.0, exposure_s=0.01, lighting=0.4, texture_poor=0.35, read_noise=3.0,
+        description="the room at 1.2 m/s, fast turns, strong blur, dark and bright spells, bare walls",
+    ),
+    "hall_easy": _seq(
+        world="hall", duration_s=90.0, mean_speed_m_s=0.6, yaw_sway_deg=20.0,
+        flight_centre_m=(0.0, 0.0, 2.0), flight_half_extent_m=(5.0, 3.5, 1.0), exposure_s=0.003,
+        description="the machine hall, slow (0.6 m/s) through a large space",
+    ),
+    "hall_difficult": _seq(
+        world="hall", duration_s=90.0, mean_speed_m_s=1.3, yaw_sway_deg=50.0,
+        yaw_sway_period_s=4.0, flight_centre_m=(0.0, 0.0, 2.0),
+        flight_half_extent_m=(5.0, 3.5, 1.2), exposure_s=0.008, lighting=0.5, texture_poor=0.3,
+        read_noise=3.0, description="the hall at 1.3 m/s, blur, dark spells, bare surfaces",
+    ),
+    "yard": _seq(
+        world="yard", duration_s=120.0, mean_speed_m_s=1.5, yaw_sway_deg=25.0,
+        flight_centre_m=(0.0, 0.0, 4.0), flight_half_extent_m=(15.0, 10.0, 2.0),
+        exposure_s=0.002, lighting=0.2,
+        description="outdoors among buildings and trees, 1.5 m/s at 2-6 m",
+    ),
+}  # fmt: skip
+
+
+def sequence_spec(
+    name: str, fields: Mapping[str, object] | None = None, overrides: Iterable[str] = ()
+) -> SequenceSpec:
+    """A built-in sequence, or a world name with defaults; ``fields`` replace fields (the
+    command's own options), then ``overrides`` (``key=value``, the ``--set`` options)."""
+    from quadnav.sim.scene import WORLDS
+
+    if name in SEQUENCES:
+        base = SEQUENCES[name].model_dump()
+    elif name in WORLDS:
+        base = {"world": name}
+    else:
+        raise ConfigError(
+            f"unknown sequence or world {name!r}; sequences: {', '.join(SEQUENCES)}; "
+            f"worlds: {', '.join(WORLDS)}"
+        )
+    base.update(fields or {})
+    spec = load_config(SequenceSpec, None, overrides, base=base)
+    if spec.world not in WORLDS:
+        raise ConfigError(f"world must be one of {', '.join(WORLDS)}, got {spec.world!r}")
+    rig_named(spec.rig)  # an unknown rig is said now, not after the motion is built
+    return spec
+
+
+def stream_rng(seed: int, name: str) -> Generator:
+    """The generator of one stream (``imu``, ``cam0``, ``lighting``...): the child of
+    ``SeedSequence(seed)`` keyed by its name, so adding a camera changes no other stream."""
+    key = zlib.crc32(name.encode())
+    return np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(key,)))
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class DatasetMade:
+    """What ``make_dataset`` wrote: the folder, its counts, the motion's figures and the cost."""
+
+    root: Path
+    sequence: str
+    world: str
+    rig: str
+    duration_s: float
+    frames: int
+    imu_samples: int
+    distance_m: float
+    mean_speed_m_s: float
+    mean_rate_deg_s: float
+    size_bytes: int
+    seconds: float
+
+    def to_json(self) -> dict[str, object]:
+        d = asdict(self)
+        d["root"] = str(self.root)
+        return d
+
+
+def _lighting_gain(t_s: FloatArray, depth: float, rng: Generator) -> FloatArray:
+    """A slow exposure gain around 1 (three sines of 5-20 s periods), within 1 +- depth."""
+    if depth == 0.0:
+        return np.ones_like(t_s)
+    periods = rng.uniform(5.0, 20.0, 3)
+    phases = rng.uniform(0.0, 2.0 * math.pi, 3)
+    wave = sum(np.sin(2.0 * math.pi * t_s / p + f) for p, f in zip(periods, phases, strict=True))
+    return np.asarray(1.0 + depth * np.asarray(wave) / 3.0 * 1.5, dtype=np.float64).clip(
+        1.0 - depth, 1.0 + depth
+    )
+
+
+def _motion_figures(p: FloatArray, q_xyzw: FloatArray, dt_s: float) -> tuple[float, float, float]:
+    """Distance (m), mean speed (m/s) and mean rotation rate (deg/s) of sampled poses."""
+    from scipy.spatial.transform import Rotation
+
+    step = np.linalg.norm(np.diff(p, axis=0), axis=1)
+    R = Rotation.from_quat(q_xyzw)
+    ang = (R[:-1].inv() * R[1:]).magnitude()
+    span = dt_s * max(len(p) - 1, 1)
+    return float(step.sum()), float(step.sum() / span), float(np.degrees(ang.sum() / span))
+
+
+def _folder_size(root: Path) -> int:
+    return sum(f.stat().st_size for f in root.rglob("*") if f.is_file())
+
+
+def _write_manifest(root: Path, spec: SequenceSpec, name: str, made: DatasetMade) -> None:
+    doc = {"sequence": name, "spec": spec.model_dump(), "made": made.to_json()}
+    (root / "dataset.json").write_text(json.dumps(doc, indent=2) + "\n")
+
+
+def _camera_times(t0_ns: int, t1_ns: int, cam: CameraSpec) -> NDArray[np.int64]:
+    period = round(NS_PER_S / cam.rate_hz)
+    return np.arange(t0_ns, t1_ns + 1, period, dtype=np.int64)
+
+
+def _body_poses(motion: SplineMotion, t_ns: NDArray[np.int64]) -> list[Pose]:
+    p, q = motion.pose(t_ns)
+    return [Pose.from_quat_xyzw(qi, pi) for pi, qi in zip(p, q, strict=True)]
+
+
+def check_rig(rig: Rig) -> None:
+    if rig.imu is None:
+        raise ConfigError(f"--rig {rig.name}: a dataset needs an IMU")
+    if not np.allclose(rig.imu.T_B_I.matrix(), np.eye(4)):
+        raise ConfigError(f"--rig {rig.name}: the IMU must be the body frame (T_B_I identity)")
+
+
+def resolve_rig(name: str) -> Rig:
+    rig = rig_named(name)
+    check_rig(rig)
+    return rig
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class _Shot:
+    """One camera at one stamp: the IMU-time poses over its exposure and its gain."""
+
+    camera: CameraSpec
+    t_ns: int
+    poses: list[Pose]
+    gain: float
+
+
+def _blur_poses(motion: SplineMotion, cam: CameraSpec, t_mid_ns: int, depth_m: float) -> list[Pose]:
+    """Camera poses over the exposure centred on ``t_mid_ns``: one per ~1.5 px of image motion
+    (from the rotation rate and the speed over the scene's depth), at most 9."""
+    T_B_C = cam.T_B_C
+    if cam.exposure_s <= 0.0:
+        return [pose @ T_B_C for pose in _body_poses(motion, np.array([t_mid_ns]))]
+    w = np.linalg.norm(motion.angular_rate_B(np.array([t_mid_ns]))[0])
+    v = np.linalg.norm(motion.velocity(np.array([t_mid_ns]))[0])
+    f = float(cam.camera.K[0, 0])
+    blur_px = f * cam.exposure_s * (w + v / max(depth_m, 0.3))
+    n = int(min(max(math.ceil(blur_px / 1.5), 1), 9))
+    half = 0.5 * cam.exposure_s * NS_PER_S
+    ts = np.round(t_mid_ns + np.linspace(-half, half, n) if n > 1 else np.array([t_mid_ns]))
+    return [pose @ T_B_C for pose in _body_poses(motion, ts.astype(np.int64))]
+
+
+def _motion(spec: SequenceSpec) -> SplineMotion:
+    """The spline the rig follows: the built-in flight, a file's poses, or a flight's truth."""
+    from quadnav.experiments.motions import motion_from_file, motion_from_scenario, motion_scenarios
+
+    if spec.motion == "flight_path":
+        path = FlightPath(
+            centre_m=spec.flight_centre_m,
+            half_extent_m=spec.flight_half_extent_m,
+            mean_speed_m_s=spec.mean_speed_m_s,
+            yaw_sway_deg=spec.yaw_sway_deg,
+            yaw_sway_period_s=spec.yaw_sway_period_s,
+            duration_s=spec.duration_s + 1.0,
+            seed=spec.seed,
+        )
+        return SplineMotion.fit(flight_path_trajectory(path, t0_ns=T0_NS), knot_spacing_s=0.05)
+    if spec.motion in motion_scenarios():
+        return motion_from_scenario(spec.motion, spec.seed)
+    path_ = Path(spec.motion)
+    if not path_.exists():
+        raise ConfigError(
+            f"--motion {spec.motion!r} is neither flight_path, a scenario "
+            f"({', '.join(motion_scenarios())}) nor a file"
+        )
+    return motion_from_file(path_)
+
+
+def _span(spec: SequenceSpec, motion: SplineMotion) -> tuple[int, int]:
+    t0 = int(motion.t_start_ns)
+    t1 = min(int(motion.t_end_ns), t0 + s_to_ns(spec.duration_s))
+    if t1 - t0 < s_to_ns(1.0):
+        raise ConfigError(
+            f"--motion {spec.motion}: only {(t1 - t0) / NS_PER_S:.2f} s of motion; a dataset needs 1 s"
+        )
+    return t0, t1
+
+
+def _world(spec: SequenceSpec, motion: SplineMotion, t0: int, t1: int) -> Scene:
+    from quadnav.sim.scene import WORLDS, WorldPlan
+
+    t = np.arange(t0, t1, s_to_ns(0.1), dtype=np.int64)
+    p, _ = motion.pose(t)
+    plan = WorldPlan(
+        flight_min_m=tuple(p.min(axis=0)),
+        flight_max_m=tuple(p.max(axis=0)),
+        seed=spec.seed,
+        path_W=p,
+        texture_poor=spec.texture_poor,
+    )
+    return WORLDS[spec.world](plan)
+
+
+def _rig_for(spec: SequenceSpec) -> Rig:
+    """The named rig with the sequence's exposure and camera-IMU time offset."""
+    rig = resolve_rig(spec.rig)
+    td = s_to_ns(spec.time_offset_s)
+    cams = tuple(
+        replace(c, exposure_s=min(spec.exposure_s, 1.0 / c.rate_hz), time_offset_ns=td)
+        for c in rig.cameras
+    )
+    return replace(rig, cameras=cams)
+
+
+def _write_imu(
+    writer: EurocWriter, motion: SplineMotion, rig: Rig, spec: SequenceSpec, span: tuple[int, int]
+) -> int:
+    """The IMU and the ground truth at its stamps (pose, velocity, the true biases)."""
+    assert rig.imu is not None
+    noise = rig.imu.noise if spec.imu_noise else None
+    imu = synthesize_imu(
+        motion,
+        rate_hz=rig.imu.rate_hz,
+        noise=noise,
+        rng=stream_rng(spec.seed, "imu"),
+        t_start_ns=span[0],
+        t_end_ns=span[1],
+    )
+    for s in imu.samples():
+        writer.add_imu(s)
+    p, q = motion.pose(imu.t_ns)
+    v = motion.velocity(imu.t_ns)
+    for k, t in enumerate(imu.t_ns):
+        writer.add_groundtruth(
+            int(t), p[k], q[k], v[k], imu.gyro_bias_rad_s[k], imu.accel_bias_m_s2[k]
+        )
+    return len(imu)
+
+
+def _write_frames(
+    writer: EurocWriter,
+    motion: SplineMotion,
+    rig: Rig,
+    spec: SequenceSpec,
+    scene: Scene,
+    span: tuple[int, int],
+    progress: Progress | None,
+) -> int:
+    """Every camera's images, rendered at its stamps (plus its time offset), blurred over its
+    exposure, under the slow lighting changes, with its own sensor noise."""
+    from quadnav.sim.render import Renderer
+
+    renderers = {c.name: Renderer(scene, c.camera) for c in rig.cameras}
+    rngs = {c.name: stream_rng(spec.seed, c.name) for c in rig.cameras}
+    cam0 = rig.cameras[0]
+    td = cam0.time_offset_ns
+    stamps = _camera_times(span[0] + max(-td, 0), span[1] - max(td, 0), cam0)
+    gains = _lighting_gain((stamps - stamps[0]) / NS_PER_S, spec.lighting, stream_rng(spec.seed, "lighting"))
+    depth = {c.name: 2.0 for c in rig.cameras}
+    written = 0
+    for k, t_cam in enumerate(stamps):
+        for cam in rig.cameras:
+            poses = _blur_poses(motion, cam, int(t_cam) + cam.time_offset_ns, depth[cam.name])
+            frame = renderers[cam.name].render(poses[len(poses) // 2], blur_poses=poses if len(poses) > 1 else ())
+            finite = frame.depth_m[np.isfinite(frame.depth_m)]
+            depth[cam.name] = float(np.median(finite)) if finite.size else 10.0
+            effects = RenderEffects(
+                exposure_gain=float(gains[k]), read_noise_sigma=spec.read_noise,
+                shot_noise_dn=spec.shot_noise_dn, vignetting=spec.vignetting,
+            )
+            writer.add_frame(cam.name, int(t_cam), effects.apply(frame.image, rngs[cam.name]))
+            written += 1
+        if progress is not None and (k % 10 == 0 or k == len(stamps) - 1):
+            progress(k + 1, len(stamps), f"{(t_cam - stamps[0]) / NS_PER_S:.1f} s")
+    return written
+
+
+def make_dataset(
+    spec: SequenceSpec,
+    out: Path,
+    *,
+    name: str = "",
+    progress: Progress | None = None,
+    bag: bool = False,
+) -> DatasetMade:
+    """Render and synthesize ``spec`` into the EuRoC ASL folder ``out`` (see the module)."""
+    from quadnav.io.datasets import EurocWriter
+
+    start = time.perf_counter()
+    rig = _rig_for(spec)
+    motion = _motion(spec)
+    span = _span(spec, motion)
+    scene = _world(spec, motion, *span)
+    with EurocWriter(out, rig) as writer:
+        n_imu = _write_imu(writer, motion, rig, spec, span)
+        n_frames = _write_frames(writer, motion, rig, spec, scene, span, progress)
+        root = writer.close()
+    t = np.arange(span[0], span[1], s_to_ns(0.01), dtype=np.int64)
+    p, q = motion.pose(t)
+    write_tum(root / "groundtruth.tum", Trajectory(t_ns=t, p_W_B=p, q_W_B_xyzw=q, name=name))
+    if bag:
+        from quadnav.io.datasets import open_dataset, write_ros2_bag
+
+        write_ros2_bag(open_dataset(root), root / "bag")
+    dist, speed, rate = _motion_figures(p, q, 0.01)
+    made = DatasetMade(
+        root=root, sequence=name or spec.world, world=spec.world, rig=rig.name,
+        duration_s=(span[1] - span[0]) / NS_PER_S, frames=n_frames, imu_samples=n_imu,
+        distance_m=dist, mean_speed_m_s=speed, mean_rate_deg_s=rate,
+        size_bytes=_folder_size(root), seconds=time.perf_counter() - start,
+    )  # fmt: skip
+    _write_manifest(root, spec, made.sequence, made)
+    return made
