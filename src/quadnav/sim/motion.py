@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.random import Generator
@@ -209,6 +209,7 @@ class SplineMotion:
     t_end_ns: int
     knot_spacing_s: float
     name: str = ""
+    poses: Trajectory | None = None  # what it was fitted to (``fit_to(motion.poses)``)
 
     @classmethod
     def fit(
@@ -221,7 +222,7 @@ class SplineMotion:
         """Least-squares quintic splines through ``traj``'s poses. ``knot_spacing_s`` (None:
         the larger of 0.1 s and 4 pose periods) sets how much is smoothed; ``trim_s`` (None:
         two knot spacings) how much of each end is left out of the span."""
-        return cls.from_arrays(
+        motion = cls.from_arrays(
             traj.t_ns,
             traj.p_W_B,
             traj.q_W_B_xyzw,
@@ -229,6 +230,7 @@ class SplineMotion:
             trim_s=trim_s,
             name=traj.name,
         )
+        return replace(motion, poses=traj)
 
     @classmethod
     def from_arrays(
