@@ -11,7 +11,6 @@ from scipy.interpolate import make_interp_spline
 from scipy.spatial.transform import Rotation
 
 from quadnav.errors import QuadnavError, SimError
-from quadnav.geometry.rotations import so3_exp
 from quadnav.geometry.trajectory import Trajectory
 from quadnav.io.trajectory_io import read_trajectory
 from quadnav.sim.motion import ImuNoiseModel, ImuSeries, SplineMotion, synthesize_imu
@@ -47,21 +46,31 @@ def synthetic_accel(t_s: FloatArray) -> FloatArray:
     )
 
 
+def cumulative(steps: Rotation, first: Rotation) -> Rotation:
+    """``first``, ``first * steps[0]``, ``first * steps[0] * steps[1]``... (a prefix product
+    by doubling: log2(N) vectorised compositions instead of N scalar ones)."""
+    prod = Rotation.concatenate([first, steps])
+    shift = 1
+    while shift < len(prod):
+        prod = Rotation.concatenate([prod[:shift], prod[:-shift] * prod[shift:]])
+        shift *= 2
+    return prod
+
+
 def midpoint(
     imu: ImuSeries, p0: FloatArray, v0: FloatArray, q0: FloatArray
-) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """VINS-Mono's midpoint integration of IMU samples from an initial pose and velocity;
-    returns p, v and R_W_B at the last sample."""
-    p, v, R = p0.copy(), v0.copy(), Rotation.from_quat(q0).as_matrix()
-    g = GRAVITY_M_S2 * E_Z
-    dts = np.diff(imu.t_true_ns) / NS_PER_S
+) -> tuple[FloatArray, FloatArray, Rotation]:
+    """VINS-Mono's midpoint integration of IMU samples from an initial pose and velocity:
+    ``R_k+1 = R_k exp(dt (w_k + w_k+1) / 2)``, ``a = (R_k f_k + R_k+1 f_k+1) / 2 - g``,
+    ``p += v dt + a dt^2 / 2``, ``v += a dt``. Returns p, v and R_W_B at the last sample."""
+    dt = (np.diff(imu.t_true_ns) / NS_PER_S)[:, None]
     w_mid = 0.5 * (imu.gyro_rad_s[1:] + imu.gyro_rad_s[:-1])
-    f = imu.accel_m_s2
-    for k, dt in enumerate(dts):
-        R1 = R @ so3_exp(w_mid[k] * dt)
-        a = 0.5 * (R @ f[k] + R1 @ f[k + 1]) - g
-        p, v, R = p + v * dt + 0.5 * a * dt * dt, v + a * dt, R1
-    return p, v, R
+    R = cumulative(Rotation.from_rotvec(w_mid * dt), Rotation.from_quat(q0))
+    f_W = R.apply(imu.accel_m_s2)
+    a = 0.5 * (f_W[:-1] + f_W[1:]) - GRAVITY_M_S2 * E_Z
+    v = v0 + np.concatenate([np.zeros((1, 3)), np.cumsum(a * dt, axis=0)])
+    p = p0 + np.sum(v[:-1] * dt + 0.5 * a * dt**2, axis=0)
+    return p, v[-1], R[-1]
 
 
 def integration_error(motion: SplineMotion, t0_ns: int, rate_hz: float) -> tuple[float, float]:
@@ -72,7 +81,7 @@ def integration_error(motion: SplineMotion, t0_ns: int, rate_hz: float) -> tuple
     p0, q0 = motion.pose(t0_ns)
     p, _, R = midpoint(imu, p0[0], motion.velocity(t0_ns)[0], q0[0])
     p_end, q_end = motion.pose(imu.t_true_ns[-1])
-    ang = (Rotation.from_matrix(R).inv() * Rotation.from_quat(q_end[0])).magnitude()
+    ang = (R.inv() * Rotation.from_quat(q_end[0])).magnitude()
     return float(np.linalg.norm(p - p_end[0])), float(np.degrees(ang))
 
 
@@ -82,17 +91,28 @@ def window_start(motion: SplineMotion) -> int:
 
 
 @needs(MOTIONS)
-@pytest.mark.parametrize("name", REAL)
-def test_noise_free_imu_integrates_back_to_the_real_motion_within_1_cm(name: str) -> None:
+@pytest.mark.parametrize(
+    ("name", "worst_m"),
+    [("euroc_MH_01_easy", 0.01), ("euroc_V1_02_medium", 0.01), ("tumvi_corridor1", 0.05)],
+)
+def test_noise_free_imu_integrates_back_to_the_real_motion_within_1_cm(
+    name: str, worst_m: float
+) -> None:
     _, motion = real(name)
-    err_m, err_deg = integration_error(motion, window_start(motion), 200.0)
-    assert err_m < 0.01  # the issue's floor, at 200 Hz midpoint as a VIO integrates
-    assert err_deg < 0.01
-    # The 200 Hz residual is the midpoint rule's own O(dt^2): 5x the rate, ~25x smaller, so the
-    # samples themselves are consistent with the poses to well under a millimetre.
-    fine_m, _ = integration_error(motion, window_start(motion), 1000.0)
+    starts = np.arange(motion.t_start_ns, motion.t_end_ns - TEN_S, TEN_S)
+    errs = np.array([integration_error(motion, int(t0), 200.0) for t0 in starts])
+    # Every 10 s window at 200 Hz midpoint, as a VIO integrates: within the issue's 1 cm on
+    # EuRoC's MAV; on TUM-VI's hand-held rig (up to 4.3 rad/s, 29 rad/s^2) a few windows
+    # are not, from the midpoint rule's own O(dt^3) per-step attitude error (1e-3 deg
+    # tilting gravity over 10 s makes centimetres) ...
+    assert errs[:, 0].max() < worst_m and np.median(errs[:, 0]) < 0.005
+    assert errs[:, 1].max() < 0.01  # deg
+    # ... which is the integrator's, not the samples': 10x the rate, ~100x smaller, and the
+    # worst window then closes to well under a millimetre.
+    worst = int(starts[np.argmax(errs[:, 0])])
+    fine_m, _ = integration_error(motion, worst, 2000.0)
     assert fine_m < 1e-3
-    assert fine_m < err_m / 10
+    assert fine_m < errs[:, 0].max() / 30
 
 
 def test_noise_free_imu_integrates_back_to_a_synthetic_motion() -> None:

@@ -288,8 +288,12 @@ class SplineMotion:
         return np.asarray((t.astype(np.int64) - self.t0_ns) / NS_PER_S, dtype=np.float64)
 
     def _quaternion(self, t_s: FloatArray, order: int) -> list[FloatArray]:
-        s = [np.asarray(self.quaternion(t_s, nu=k), dtype=np.float64) for k in range(3)]
-        return _unit_derivatives(*s)[: order + 1]
+        """The unit quaternion and its derivatives up to ``order`` (at most 2)."""
+        s = np.asarray(self.quaternion(t_s), dtype=np.float64)
+        if order == 0:
+            return [s / np.linalg.norm(s, axis=1, keepdims=True)]
+        ds, dds = (np.asarray(self.quaternion(t_s, nu=k), dtype=np.float64) for k in (1, 2))
+        return _unit_derivatives(s, ds, dds)[: order + 1]
 
     def pose(self, t_ns: ArrayLike) -> tuple[FloatArray, FloatArray]:
         """``p_W_B`` (N, 3) and ``q_W_B_xyzw`` (N, 4) at ``t_ns``."""
