@@ -312,7 +312,7 @@ def _gap() -> None:
         (lambda: SplineMotion.from_arrays(*_traj(n=1)), "at least 2 poses"),
         (_nan, "pose 50 holds NaN"),
         (_backwards, "pose 20 is not after pose 19"),
-        (_gap, "raise knot_spacing_s"),
+        (_gap, "a gap longer than knot_spacing_s"),
         (lambda: SplineMotion.from_arrays(*_traj(), knot_spacing_s=-1.0), "knot_spacing_s"),
         (lambda: SplineMotion.from_arrays(*_traj(), trim_s=-1.0), "trim_s = -1"),
         (lambda: still_motion((0, 0, 0, 1)).pose(0), "outside its span"),

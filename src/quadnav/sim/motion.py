@@ -150,13 +150,18 @@ def _knots(t_s: FloatArray, spacing_s: float) -> FloatArray:
     n_spans = max(1, round(span / spacing_s))
     interior = np.linspace(0.0, span, n_spans + 1)[1:-1]
     counts = np.histogram(t_s, bins=np.linspace(0.0, span, n_spans + 1))[0]
-    if len(t_s) < n_spans + DEGREE + 1 or counts.min() == 0:
-        where = int(np.argmin(counts))
+    if len(t_s) < n_spans + DEGREE + 1:
         raise SimError(
             f"motion: {len(t_s)} poses over {span:.3g} s, too few for knot_spacing_s = "
-            f"{spacing_s:g} (the knot span at {where * span / n_spans:.3g} s holds "
-            f"{counts[where]}, a quintic needs {n_spans + DEGREE + 1} poses in all): "
+            f"{spacing_s:g} (a quintic on {n_spans} knot spans needs {n_spans + DEGREE + 1}): "
             "raise knot_spacing_s"
+        )
+    if counts.min() == 0:
+        where = int(np.argmin(counts))
+        raise SimError(
+            f"motion: no pose from {where * span / n_spans:.3g} s to "
+            f"{(where + 1) * span / n_spans:.3g} s, a gap longer than knot_spacing_s = "
+            f"{spacing_s:g}: raise knot_spacing_s"
         )
     return np.concatenate([np.zeros(DEGREE + 1), interior, np.full(DEGREE + 1, span)])
 
@@ -196,7 +201,7 @@ def _conj_product_vec(q: FloatArray, d: FloatArray) -> FloatArray:
     return np.asarray(2.0 * (w * dv - dw * v - np.cross(v, dv)), dtype=np.float64)
 
 
-@dataclass(frozen=True, slots=True, kw_only=True)
+@dataclass(frozen=True, slots=True, kw_only=True, eq=False)
 class SplineMotion:
     """A C2 (quintic) motion of the body in the world, evaluated at any ``t_ns`` in
     ``[t_start_ns, t_end_ns]`` (the fitted span less ``trim_s`` at each end, where a
@@ -341,7 +346,7 @@ class SplineMotion:
         )
 
 
-@dataclass(frozen=True, slots=True, kw_only=True)
+@dataclass(frozen=True, slots=True, kw_only=True, eq=False)
 class ImuSeries:
     """IMU samples as arrays (N rows): the stamp each carries (``t_ns``: the true time plus the
     IMU clock's offset), the true time it measured, gyro (rad/s, body FLU) and specific force
