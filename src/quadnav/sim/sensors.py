@@ -15,6 +15,7 @@ from typing import Generic, Literal, Protocol, TypeVar
 
 import numpy as np
 from numpy.random import Generator
+from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
 from quadnav.errors import SimError
@@ -36,6 +37,8 @@ __all__ = [
     "BaroSensor",
     "DelayLine",
     "GpsSensor",
+    "ImuErrorDraw",
+    "ImuErrors",
     "ImuSensor",
     "IntegratingImu",
     "MagSensor",
@@ -46,6 +49,7 @@ __all__ = [
     "VisionPoseSensor",
 ]
 
+FloatArray = NDArray[np.float64]
 S = TypeVar("S", bound=Sample)
 S_co = TypeVar("S_co", bound=Sample, covariant=True)
 
@@ -187,6 +191,68 @@ class DelayLine(Generic[S]):
         return out
 
 
+@dataclass(frozen=True, slots=True, kw_only=True)
+class ImuErrorDraw:
+    """What ``n`` consecutive IMU samples add to the truth, (n, 3) each: a sample reads
+    ``truth + bias + noise``. The biases are a dataset's ground truth (``bw*``, ``ba*``)."""
+
+    gyro_bias_rad_s: FloatArray
+    accel_bias_m_s2: FloatArray
+    gyro_noise_rad_s: FloatArray
+    accel_noise_m_s2: FloatArray
+
+
+class ImuErrors:
+    """An IMU's errors: white noise of a standard deviation per sample and biases that start at
+    ``*_bias0`` and random-walk (``rw * sqrt(dt)`` per sample, ``rw`` a continuous density).
+    :class:`IntegratingImu` and :func:`quadnav.sim.motion.synthesize_imu` both draw from it."""
+
+    def __init__(
+        self,
+        *,
+        gyro_sigma_rad_s: float,
+        accel_sigma_m_s2: float,
+        gyro_bias_rw_rad_s_sqrt_s: float = 0.0,
+        accel_bias_rw_m_s2_sqrt_s: float = 0.0,
+        gyro_bias0_rad_s: tuple[float, float, float] = (0.0, 0.0, 0.0),
+        accel_bias0_m_s2: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    ) -> None:
+        for name, v in (
+            ("gyro_sigma_rad_s", gyro_sigma_rad_s),
+            ("accel_sigma_m_s2", accel_sigma_m_s2),
+            ("gyro_bias_rw_rad_s_sqrt_s", gyro_bias_rw_rad_s_sqrt_s),
+            ("accel_bias_rw_m_s2_sqrt_s", accel_bias_rw_m_s2_sqrt_s),
+        ):
+            if not (math.isfinite(v) and v >= 0):
+                raise SimError(f"IMU {name} must be finite and >= 0, got {v}")
+        self.sg, self.sa = float(gyro_sigma_rad_s), float(accel_sigma_m_s2)
+        self.rw_g, self.rw_a = float(gyro_bias_rw_rad_s_sqrt_s), float(accel_bias_rw_m_s2_sqrt_s)
+        self.bias_g = np.asarray(gyro_bias0_rad_s, dtype=np.float64).copy()
+        self.bias_a = np.asarray(accel_bias0_m_s2, dtype=np.float64).copy()
+        for name, b in (("gyro_bias0_rad_s", self.bias_g), ("accel_bias0_m_s2", self.bias_a)):
+            if b.shape != (3,) or not np.isfinite(b).all():
+                raise SimError(f"IMU {name} must be 3 finite numbers, got {b.tolist()}")
+
+    def draw(self, n: int, dt_s: float, rng: Generator) -> ImuErrorDraw:
+        """The errors of the next ``n`` samples, ``dt_s`` apart; the biases move on past them.
+        (One sample draws gyro noise, accel noise, gyro step, accel step: 3 normals each.)"""
+        noise_g, noise_a = rng.standard_normal((n, 3)), rng.standard_normal((n, 3))
+        sq = math.sqrt(dt_s)
+        walk_g = self.rw_g * sq * rng.standard_normal((n, 3))
+        walk_a = self.rw_a * sq * rng.standard_normal((n, 3))
+        sum_g, sum_a = np.cumsum(walk_g, axis=0), np.cumsum(walk_a, axis=0)
+        bg = self.bias_g + np.vstack([np.zeros((1, 3)), sum_g[:-1]])
+        ba = self.bias_a + np.vstack([np.zeros((1, 3)), sum_a[:-1]])
+        self.bias_g = self.bias_g + sum_g[-1]
+        self.bias_a = self.bias_a + sum_a[-1]
+        return ImuErrorDraw(
+            gyro_bias_rad_s=bg,
+            accel_bias_m_s2=ba,
+            gyro_noise_rad_s=self.sg * noise_g,
+            accel_noise_m_s2=self.sa * noise_a,
+        )
+
+
 class IntegratingImu:
     """A 3-D IMU that averages the simulator's fine steps over its own period, as a real IMU's
     delta angle and delta velocity do, with white noise per sample and random-walk biases.
@@ -216,19 +282,15 @@ class IntegratingImu:
         if self.lever_arm.shape != (3,) or not np.isfinite(self.lever_arm).all():
             raise SimError(f"IMU lever_arm_m must be 3 finite numbers, got {lever_arm_m}")
         self._w_prev: np.ndarray | None = None
-        for name, v in (
-            ("gyro_sigma_rad_s", gyro_sigma_rad_s),
-            ("accel_sigma_m_s2", accel_sigma_m_s2),
-            ("gyro_bias_rw_rad_s_sqrt_s", gyro_bias_rw_rad_s_sqrt_s),
-            ("accel_bias_rw_m_s2_sqrt_s", accel_bias_rw_m_s2_sqrt_s),
-        ):
-            if not (math.isfinite(v) and v >= 0):
-                raise SimError(f"IMU {name} must be finite and >= 0, got {v}")
+        self.errors = ImuErrors(
+            gyro_sigma_rad_s=gyro_sigma_rad_s,
+            accel_sigma_m_s2=accel_sigma_m_s2,
+            gyro_bias_rw_rad_s_sqrt_s=gyro_bias_rw_rad_s_sqrt_s,
+            accel_bias_rw_m_s2_sqrt_s=accel_bias_rw_m_s2_sqrt_s,
+            gyro_bias0_rad_s=gyro_bias0_rad_s,
+            accel_bias0_m_s2=accel_bias0_m_s2,
+        )
         self.period_ns = int(period_ns)
-        self.sg, self.sa = float(gyro_sigma_rad_s), float(accel_sigma_m_s2)
-        self.rw_g, self.rw_a = float(gyro_bias_rw_rad_s_sqrt_s), float(accel_bias_rw_m_s2_sqrt_s)
-        self.bias_g = np.asarray(gyro_bias0_rad_s, dtype=np.float64).copy()
-        self.bias_a = np.asarray(accel_bias0_m_s2, dtype=np.float64).copy()
         self.g = float(gravity_m_s2)
         self._t_last = int(t0_ns)
         self._t_poll: int | None = None
@@ -236,6 +298,16 @@ class IntegratingImu:
         self._sum_w = np.zeros(3)
         self._sum_f = np.zeros(3)
         self._sum_dt = 0.0
+
+    @property
+    def bias_g(self) -> FloatArray:
+        """The gyro bias the next sample carries (rad/s)."""
+        return self.errors.bias_g
+
+    @property
+    def bias_a(self) -> FloatArray:
+        """The accelerometer bias the next sample carries (m/s^2)."""
+        return self.errors.bias_a
 
     def sample(self, truth: VehicleState, t_ns: int, rng: Generator) -> ImuSample | None:
         """The :class:`Sensor` form, polled every simulator step: the step integrated is the
@@ -261,13 +333,12 @@ class IntegratingImu:
         if not self._ticker.due(truth.t_ns):
             return None
         T = self._sum_dt
+        err = self.errors.draw(1, T, rng)
         sample = ImuSample(
             t_ns=truth.t_ns,
-            gyro_rad_s=self._sum_w / T + self.bias_g + self.sg * rng.standard_normal(3),
-            accel_m_s2=self._sum_f / T + self.bias_a + self.sa * rng.standard_normal(3),
+            gyro_rad_s=self._sum_w / T + err.gyro_bias_rad_s[0] + err.gyro_noise_rad_s[0],
+            accel_m_s2=self._sum_f / T + err.accel_bias_m_s2[0] + err.accel_noise_m_s2[0],
         )
-        self.bias_g += self.rw_g * math.sqrt(T) * rng.standard_normal(3)
-        self.bias_a += self.rw_a * math.sqrt(T) * rng.standard_normal(3)
         self._t_last = truth.t_ns
         self._sum_w[:] = 0.0
         self._sum_f[:] = 0.0
