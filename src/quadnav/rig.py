@@ -90,6 +90,15 @@ class ImuNoiseModel:
             accel_random_walk=3.0000e-3,
         )
 
+    def sensor_yaml(self) -> dict[str, float]:
+        """The four densities by the keys of EuRoC's and Kalibr's ``imu0/sensor.yaml``."""
+        return {
+            "gyroscope_noise_density": self.gyro_noise_density,
+            "gyroscope_random_walk": self.gyro_random_walk,
+            "accelerometer_noise_density": self.accel_noise_density,
+            "accelerometer_random_walk": self.accel_random_walk,
+        }
+
     def without_noise(self) -> ImuNoiseModel:
         return ImuNoiseModel(
             gyro_noise_density=0.0,

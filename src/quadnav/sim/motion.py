@@ -27,12 +27,14 @@ from scipy.spatial.transform import Rotation
 from quadnav.errors import SimError
 from quadnav.geometry.trajectory import Trajectory
 from quadnav.messages import ImuSample
+from quadnav.rig import ImuNoiseModel
 from quadnav.sim.sensors import ImuErrors
 from quadnav.units import GRAVITY_M_S2, NS_PER_S, s_to_ns
 
 __all__ = [
     "ImuNoiseModel",
     "ImuSeries",
+    "imu_errors",
     "MotionFit",
     "SplineMotion",
     "synthesize_imu",
@@ -48,65 +50,17 @@ MIN_KNOT_SPACING_S = 0.1
 POSES_PER_KNOT = 4
 
 
-@dataclass(frozen=True, slots=True, kw_only=True)
-class ImuNoiseModel:
-    """An IMU's noise in the continuous densities EuRoC's ``imu0/sensor.yaml`` and Kalibr give
-    (``gyroscope_noise_density`` rad/s/sqrt(Hz), ``gyroscope_random_walk`` rad/s^2/sqrt(Hz),
-    ``accelerometer_noise_density`` m/s^2/sqrt(Hz), ``accelerometer_random_walk``
-    m/s^3/sqrt(Hz)), and the biases at the start (rad/s, m/s^2)."""
-
-    gyro_noise_density: float
-    gyro_random_walk: float
-    accel_noise_density: float
-    accel_random_walk: float
-    gyro_bias0_rad_s: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    accel_bias0_m_s2: tuple[float, float, float] = (0.0, 0.0, 0.0)
-
-    def __post_init__(self) -> None:
-        for name in (
-            "gyro_noise_density",
-            "gyro_random_walk",
-            "accel_noise_density",
-            "accel_random_walk",
-        ):
-            v = getattr(self, name)
-            if not (math.isfinite(v) and v >= 0.0):
-                raise SimError(f"IMU noise {name} must be finite and >= 0, got {v}")
-        for name in ("gyro_bias0_rad_s", "accel_bias0_m_s2"):
-            b = np.asarray(getattr(self, name), dtype=np.float64)
-            if b.shape != (3,) or not np.isfinite(b).all():
-                raise SimError(f"IMU noise {name} must be 3 finite numbers, got {b.tolist()}")
-
-    @classmethod
-    def euroc_adis16448(cls) -> ImuNoiseModel:
-        """The ADIS16448 of EuRoC MAV (``mav0/imu0/sensor.yaml``), no initial bias."""
-        return cls(
-            gyro_noise_density=1.6968e-04,
-            gyro_random_walk=1.9393e-05,
-            accel_noise_density=2.0000e-3,
-            accel_random_walk=3.0000e-3,
-        )
-
-    def sensor_yaml(self) -> dict[str, float]:
-        """The four densities by the keys of EuRoC's and Kalibr's ``imu0/sensor.yaml``."""
-        return {
-            "gyroscope_noise_density": self.gyro_noise_density,
-            "gyroscope_random_walk": self.gyro_random_walk,
-            "accelerometer_noise_density": self.accel_noise_density,
-            "accelerometer_random_walk": self.accel_random_walk,
-        }
-
-    def errors(self, rate_hz: float) -> ImuErrors:
-        """The per-sample errors at ``rate_hz``: white noise ``density * sqrt(rate_hz)``."""
-        sq = math.sqrt(rate_hz)
-        return ImuErrors(
-            gyro_sigma_rad_s=self.gyro_noise_density * sq,
-            accel_sigma_m_s2=self.accel_noise_density * sq,
-            gyro_bias_rw_rad_s_sqrt_s=self.gyro_random_walk,
-            accel_bias_rw_m_s2_sqrt_s=self.accel_random_walk,
-            gyro_bias0_rad_s=self.gyro_bias0_rad_s,
-            accel_bias0_m_s2=self.accel_bias0_m_s2,
-        )
+def imu_errors(noise: ImuNoiseModel, rate_hz: float) -> ImuErrors:
+    """The per-sample errors of ``noise`` at ``rate_hz``: white noise ``density * sqrt(rate_hz)``."""
+    sq = math.sqrt(rate_hz)
+    return ImuErrors(
+        gyro_sigma_rad_s=noise.gyro_noise_density * sq,
+        accel_sigma_m_s2=noise.accel_noise_density * sq,
+        gyro_bias_rw_rad_s_sqrt_s=noise.gyro_random_walk,
+        accel_bias_rw_m_s2_sqrt_s=noise.accel_random_walk,
+        gyro_bias0_rad_s=noise.gyro_bias0_rad_s,
+        accel_bias0_m_s2=noise.accel_bias0_m_s2,
+    )
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -419,7 +373,7 @@ def synthesize_imu(
         f = f + np.cross(motion.angular_accel_B(t_true), r) + np.cross(w, np.cross(w, r))
     bg, ba = np.zeros_like(w), np.zeros_like(w)
     if noise is not None and rng is not None:
-        err = noise.errors(rate_hz).draw(len(t_true), 1.0 / rate_hz, rng)
+        err = imu_errors(noise, rate_hz).draw(len(t_true), 1.0 / rate_hz, rng)
         bg, ba = err.gyro_bias_rad_s, err.accel_bias_m_s2
         w = w + bg + err.gyro_noise_rad_s
         f = f + ba + err.accel_noise_m_s2
