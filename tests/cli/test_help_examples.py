@@ -29,6 +29,7 @@ COMMANDS = {
     ("eval",): "quadnav.cli.eval",
     ("markers",): "quadnav.cli.markers",
     ("calibrate",): "quadnav.cli.calibrate",
+    ("dataset", "make"): "quadnav.cli.dataset",
 }
 
 

@@ -3,14 +3,17 @@ measure how well features track in it."""
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
+import numpy as np
 import typer
 from rich.table import Table
 
 from quadnav.cli.common import (
     CommandParams,
+    check_range,
     command_help,
     console,
     handle_errors,
@@ -21,6 +24,9 @@ from quadnav.cli.common import (
 )
 from quadnav.errors import ConfigError
 from quadnav.experiments.datasets import SEQUENCES, SequenceSpec, make_dataset, sequence_spec
+
+if TYPE_CHECKING:
+    from quadnav.io.datasets import VisualInertialDataset
 
 __all__ = ["EXAMPLES", "check_example", "dataset_app", "resolve_make"]
 
@@ -112,3 +118,90 @@ make_command.__doc__ = command_help(
     lists=[("Built-in sequences", {n: s.description for n, s in SEQUENCES.items()})],
     examples=EXAMPLES,
 )
+
+
+DatasetArg = Annotated[
+    Path, typer.Argument(help="an EuRoC or TUM-VI folder, a KITTI sequence, or a ROS 1/2 bag")
+]
+CalibOpt = Annotated[
+    Path | None,
+    typer.Option("--calibration", help="a Kalibr camchain or EuRoC folder replacing the files' own"),
+]
+
+
+def _open(path: Path, calibration: Path | None) -> VisualInertialDataset:
+    from quadnav.io.datasets import open_dataset
+
+    return open_dataset(path, calibration=calibration)
+
+
+@dataset_app.command("info")
+@handle_errors
+def info_command(dataset: DatasetArg, calibration: CalibOpt = None) -> None:
+    """What a dataset holds: its kind, cameras and their calibration, IMU, ground truth, span,
+    and the samples refused on reading."""
+    ds = _open(dataset, calibration)
+    table = Table(title=f"{ds.name} ({ds.kind})")
+    table.add_column("what")
+    table.add_column("value")
+    for cam in ds.rig.cameras:
+        K = cam.camera.K
+        table.add_row(
+            cam.name,
+            f"{len(ds.frames_of(cam.name))} frames, {cam.rate_hz:g} Hz, "
+            f"{cam.camera.width}x{cam.camera.height}, fx {K[0, 0]:.1f} fy {K[1, 1]:.1f}, "
+            f"{cam.camera.model}, p_B_C {np.round(cam.T_B_C.p_A_B, 4).tolist()}",
+        )
+    if ds.rig.stereo:
+        table.add_row("stereo baseline", f"{ds.rig.baseline_m * 1000:.1f} mm")
+    imu = ds.rig.imu
+    table.add_row("IMU", f"{len(ds.imu)} samples at {imu.rate_hz:g} Hz" if imu else "none")
+    gt = ds.groundtruth
+    table.add_row("ground truth", f"{len(gt)} poses" if gt is not None else "none")
+    table.add_row("span", f"{ds.duration_s:.2f} s")
+    table.add_row("refused on reading", ds.issues.summary() if ds.issues else "nothing")
+    console.print(table)
+
+
+@dataset_app.command("tracks")
+@handle_errors
+def tracks_command(
+    dataset: DatasetArg,
+    camera: Annotated[str, typer.Option("--camera", help="camera to track")] = "cam0",
+    start_s: Annotated[float, typer.Option("--start", help="seconds from the first frame")] = 0.0,
+    duration_s: Annotated[
+        float | None, typer.Option("--duration", help="seconds to track [default: to the end]")
+    ] = None,
+    json_out: Annotated[
+        Path | None, typer.Option("--json", help="write the statistics to this file")
+    ] = None,
+    calibration: CalibOpt = None,
+) -> None:
+    """Track GFTT corners with pyramidal KLT (VINS-Mono's front end) through a camera's images:
+    median track length, fraction tracked frame to frame, corners, brightness and contrast."""
+    from quadnav.experiments.track_study import track_dataset
+
+    check_range(start_s, "--start", 0.0, 1e6, "s")
+    if duration_s is not None:
+        check_range(duration_s, "--duration", 0.0, 1e6, "s", low_open=True)
+    ds = _open(dataset, calibration)
+    with progress_bar("tracks"):
+        study = track_dataset(ds, camera=camera, start_s=start_s, duration_s=duration_s)
+    t, im = study.tracks, study.images
+    table = Table(title=f"{ds.name} {camera}: {t.n_frames} frames over {study.duration_s:.1f} s")
+    table.add_column("metric")
+    table.add_column("median", justify="right")
+    for k, v in (
+        ("track length (frames, all tracks)", f"{t.track_length.median:.1f}"),
+        ("track length (frames, ended tracks)", f"{t.ended_track_length.median:.1f}"),
+        ("fraction tracked frame to frame", f"{t.fraction_tracked.median:.3f}"),
+        ("features per frame", f"{t.features_per_frame.median:.0f}"),
+        ("new features per frame", f"{t.new_per_frame.median:.1f}"),
+        ("GFTT corners (q 0.01, 10 px)", f"{im.corners:.0f}"),
+        ("mean grey / contrast", f"{im.mean_grey:.0f} / {im.contrast:.1f}"),
+        ("mean gradient (grey/px)", f"{im.gradient:.2f}"),
+    ):
+        table.add_row(k, v)
+    console.print(table)
+    if json_out is not None:
+        json_out.write_text(json.dumps(study.to_json(), indent=2) + "\n")

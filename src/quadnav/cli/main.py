@@ -33,6 +33,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "calibrate": ("calibrate", "calibrate_command"),
     "replay": ("replay", "replay_command"),
     "link": ("link", "link_app"),
+    "dataset": ("dataset", "dataset_app"),
 }
 
 
