@@ -26,10 +26,11 @@ from quadnav.sim.render import RenderEffects, Renderer
 
 # A short, quiet sequence: 2.5 s of the room at the built-in flight's speed, thesis 003's camera.
 QUIET = {"read_noise": 0.0, "shot_noise_dn": 0.0, "exposure_s": 0.0, "rig": "thesis003_sim"}
+MOVING = {"still_s": 0.0}
 
 
 def _make(tmp: Path, name: str = "room", **fields: object) -> tuple[Path, object]:
-    spec = sequence_spec(name, {"duration_s": 2.5, **fields})
+    spec = sequence_spec(name, {"duration_s": 2.5, **MOVING, **fields})
     made = make_dataset(spec, tmp / "seq", name=name)
     return made.root, spec
 

@@ -46,10 +46,10 @@ class FlightPath:
             raise ConfigError(f"mean_speed_m_s must be in (0, 10], got {self.mean_speed_m_s}")
         if min(self.half_extent_m) <= 0.0:
             raise ConfigError(f"half_extent_m must be positive, got {self.half_extent_m}")
-        if self.duration_s <= self.still_s + self.ramp_s:
+        if not (self.duration_s > 0.0 and self.still_s >= 0.0 and self.ramp_s > 0.0):
             raise ConfigError(
-                f"duration_s ({self.duration_s}) must exceed still_s + ramp_s "
-                f"({self.still_s + self.ramp_s})"
+                f"duration_s ({self.duration_s}) and ramp_s ({self.ramp_s}) must be > 0 and "
+                f"still_s ({self.still_s}) >= 0"
             )
 
 
@@ -73,7 +73,8 @@ def _lissajous(path: FlightPath, t: FloatArray, rate: float) -> FloatArray:
 
 def _rate_for_speed(path: FlightPath) -> float:
     """The frequency scale that gives the path its mean speed (speed is linear in it)."""
-    t = np.linspace(path.still_s + path.ramp_s, path.duration_s, 4000)
+    t0 = path.still_s + path.ramp_s
+    t = np.linspace(t0, t0 + max(path.duration_s, 60.0), 4000)
     p = _lissajous(path, t, 1.0)
     speed1 = float(np.mean(np.linalg.norm(np.diff(p, axis=0), axis=1)) / (t[1] - t[0]))
     return path.mean_speed_m_s / speed1

@@ -62,7 +62,8 @@ Progress = Callable[[int, int, str], None]
 class SequenceSpec(ConfigModel):
     """What a sequence is made of: the world, the rig, the motion and the image conditions.
 
-    ``motion`` is ``flight_path`` (the Lissajous flight of ``flight_*`` and ``mean_speed_m_s``),
+    ``motion`` is ``flight_path`` (the Lissajous flight of ``flight_*`` and ``mean_speed_m_s``,
+    standing still for ``still_s`` first, as EuRoC's sequences do),
     a trajectory file (TUM, EuRoC ground truth...) or a ``quadnav run``/``sim`` scenario name.
     ``exposure_s`` sets the motion blur (0: none), ``lighting`` the depth of the slow exposure
     changes (0: constant, 0.5: from half to one and a half), ``texture_poor`` the fraction of
@@ -79,6 +80,7 @@ class SequenceSpec(ConfigModel):
     yaw_sway_period_s: float = Field(default=6.0, gt=0.5, le=600.0)
     flight_centre_m: Vec3 = (0.0, 0.0, 1.4)
     flight_half_extent_m: Vec3 = (2.0, 1.6, 0.5)
+    still_s: float = Field(default=2.0, ge=0.0, le=600.0)
     exposure_s: float = Field(default=0.002, ge=0.0, le=0.05)
     lighting: float = Field(default=0.0, ge=0.0, le=0.9)
     texture_poor: float = Field(default=0.0, ge=0.0, le=1.0)
@@ -279,6 +281,7 @@ def _motion(spec: SequenceSpec) -> SplineMotion:
             mean_speed_m_s=spec.mean_speed_m_s,
             yaw_sway_deg=spec.yaw_sway_deg,
             yaw_sway_period_s=spec.yaw_sway_period_s,
+            still_s=spec.still_s,
             duration_s=spec.duration_s + 1.0,
             seed=spec.seed,
         )
