@@ -60,7 +60,7 @@ def test_the_dataset_reads_back_as_the_samples_that_were_made(tmp_path: Path) ->
     assert np.array_equal(np.array([s.gyro_rad_s for s in read]), imu.gyro_rad_s)
     assert np.array_equal(np.array([s.accel_m_s2 for s in read]), imu.accel_m_s2)
     # 20 Hz stereo: both cameras at every stamp, merged with the IMU in time order
-    assert len(ds.frames_of("cam0")) == len(ds.frames_of("cam1")) == 50
+    assert len(ds.frames_of("cam0")) == len(ds.frames_of("cam1")) == 51  # 0 to 2.5 s, both ends
     stamps = [s.t_ns for s in ds.stream()]
     assert stamps == sorted(stamps)
     # ground truth at the IMU's stamps, the spline's own poses
