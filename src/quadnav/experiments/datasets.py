@@ -26,7 +26,7 @@ from numpy.typing import NDArray
 from pydantic import Field
 
 from quadnav.config_model import ConfigModel
-from quadnav.errors import ConfigError
+from quadnav.errors import ConfigError, GeometryError
 from quadnav.experiments.dataset_motions import FlightPath, flight_path_trajectory
 from quadnav.geometry.rotations import Pose
 from quadnav.io.config import load_config
@@ -155,7 +155,10 @@ def sequence_spec(
     spec = load_config(SequenceSpec, None, overrides, base=base)
     if spec.world not in WORLDS:
         raise ConfigError(f"world must be one of {', '.join(WORLDS)}, got {spec.world!r}")
-    rig_named(spec.rig)  # an unknown rig is said now, not after the motion is built
+    try:
+        rig_named(spec.rig)  # an unknown rig is said now, not after the motion is built
+    except GeometryError as exc:
+        raise ConfigError(f"--rig: {exc}") from None
     return spec
 
 
