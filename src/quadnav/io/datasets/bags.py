@@ -1,0 +1,458 @@
+"""ROS 1 and ROS 2 bags as datasets (through rosbags' ``AnyReader``), and any dataset as a
+ROS 2 bag (rosbags' ``Writer``).
+
+Read: ``sensor_msgs/Image`` (mono8, mono16, bgr8, rgb8, bgra8, rgba8), ``sensor_msgs/
+CompressedImage`` (JPEG/PNG through ``cv2.imdecode``) and ``sensor_msgs/Imu``; the stamps are
+the header stamps. Every image topic is a camera (``cam0``, ``cam1``... in the order of
+``image_topics``, or of the topic names); several IMU topics, or a raw and a compressed topic of
+one camera, need ``imu_topic`` / ``image_topics`` (a one-line error lists the candidates).
+Calibration: a file the user gives (an EuRoC folder or a Kalibr camchain, cameras in order) or
+else each camera's ``camera_info`` topic (``plumb_bob`` / ``equidistant``; extrinsics are then
+the identity, and a right camera's baseline from ``P[0, 3] = -fx * b``; the IMU's noise unknown,
+written as zeros).
+
+Lazy frames: opening a bag reads every message once to learn the stamps (an image is decoded
+only as far as its header) and keeps, per frame, its connection and bag time; a frame's
+:meth:`~quadnav.messages.ImageFrame.image` reads that one message again (a time-window query on
+a reader that stays open) and decodes it. No pixels are held.
+"""
+
+from __future__ import annotations
+
+import functools
+import weakref
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from quadnav.errors import GeometryError, IoError, SampleError
+from quadnav.geometry.camera import PinholeCamera
+from quadnav.geometry.rotations import Pose
+from quadnav.io.datasets.files import to_uint8
+from quadnav.io.datasets.kalibr import DISTORTION_NAMES
+from quadnav.io.datasets.types import ImuTable, IssueLog, VisualInertialDataset, sort_frames
+from quadnav.messages import ImageFrame
+from quadnav.rig import CameraSpec, ImuNoiseModel, ImuSpec, Rig
+from quadnav.units import NS_PER_S
+
+__all__ = ["IMAGE_TYPES", "read_bag_dataset", "write_ros2_bag"]
+
+IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
+IMU_TYPE = "sensor_msgs/msg/Imu"
+INFO_TYPE = "sensor_msgs/msg/CameraInfo"
+
+
+def _stamp_ns(msg: Any) -> int:
+    return int(msg.header.stamp.sec) * NS_PER_S + int(msg.header.stamp.nanosec)
+
+
+def decode_image(msg: Any, msgtype: str) -> NDArray[np.uint8]:
+    """The pixels of an Image or CompressedImage message (grey (h, w) or BGR (h, w, 3))."""
+    if msgtype.endswith("CompressedImage"):
+        img = cv2.imdecode(np.asarray(msg.data, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
+        if img is None:
+            raise SampleError(f"compressed image ({msg.format}) cannot be decoded")
+        return to_uint8(img)
+    h, w, step, enc = int(msg.height), int(msg.width), int(msg.step), str(msg.encoding).lower()
+    raw = np.asarray(msg.data, dtype=np.uint8)
+    if raw.size < h * step:
+        raise SampleError(f"image of {h}x{w} has {raw.size} bytes, needs {h * step}")
+    rows = raw[: h * step].reshape(h, step)
+    if enc in ("mono8", "8uc1"):
+        return np.ascontiguousarray(rows[:, :w])
+    if enc in ("mono16", "16uc1"):
+        dt = np.dtype(">u2" if msg.is_bigendian else "<u2")
+        return to_uint8(rows[:, : 2 * w].copy().view(dt).astype(np.uint16))
+    channels = {"bgr8": 3, "rgb8": 3, "bgra8": 4, "rgba8": 4, "8uc3": 3}.get(enc)
+    if channels is None:
+        raise SampleError(f"image encoding {msg.encoding!r} is not one quadnav reads")
+    px = rows[:, : channels * w].reshape(h, w, channels)
+    if enc.startswith("rgb"):
+        px = px[:, :, [2, 1, 0]]
+    return np.ascontiguousarray(px[:, :, :3])
+
+
+class _BagSource:
+    """One bag kept open for the frames' loaders (reopened if closed)."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self.reader: Any = None
+
+    def _open(self) -> Any:
+        if self.reader is None:
+            from rosbags.highlevel import AnyReader
+            from rosbags.typesys import Stores, get_typestore
+
+            self.reader = AnyReader(
+                [self.path], default_typestore=get_typestore(Stores.ROS2_HUMBLE)
+            )
+            self.reader.open()
+            weakref.finalize(self, self.reader.close)
+        return self.reader
+
+    def load(self, topic: str, bag_t: int, nth: int) -> NDArray[np.uint8]:
+        reader = self._open()
+        conns = [c for c in reader.connections if c.topic == topic]
+        hits = list(reader.messages(connections=conns, start=bag_t, stop=bag_t + 1))
+        if len(hits) <= nth:
+            raise SampleError(f"{self.path}: no message on {topic} at bag time {bag_t}")
+        conn, _, raw = hits[nth]
+        return decode_image(reader.deserialize(raw, conn.msgtype), conn.msgtype)
+
+
+def _choose_images(topics: dict[str, str], chosen: Sequence[str] | None, path: Path) -> list[str]:
+    images = sorted(t for t, k in topics.items() if k in IMAGE_TYPES)
+    if chosen:
+        missing = [t for t in chosen if topics.get(t) not in IMAGE_TYPES]
+        if missing:
+            raise IoError(
+                f"{path}: image topic {missing[0]!r} is not in the bag; its image topics: "
+                f"{', '.join(images) or 'none'}"
+            )
+        return list(chosen)
+    if not images:
+        raise IoError(f"{path}: no sensor_msgs/Image or CompressedImage topic")
+    for a in images:
+        if any(b != a and b.startswith(a + "/") for b in images):
+            raise IoError(
+                f"{path}: several image topics of one camera ({', '.join(images)}); "
+                "choose them with image_topics"
+            )
+    return images
+
+
+def _choose_imu(topics: dict[str, str], chosen: str | None, path: Path) -> str | None:
+    imus = sorted(t for t, k in topics.items() if k == IMU_TYPE)
+    if chosen is not None:
+        if chosen not in imus:
+            raise IoError(
+                f"{path}: IMU topic {chosen!r} is not in the bag; its IMU topics: {', '.join(imus) or 'none'}"
+            )
+        return chosen
+    if len(imus) > 1:
+        raise IoError(f"{path}: several IMU topics ({', '.join(imus)}); choose one with imu_topic")
+    return imus[0] if imus else None
+
+
+def _info_topic(image_topic: str) -> str:
+    base = image_topic.removesuffix("/compressed")
+    return base.rsplit("/", 1)[0] + "/camera_info"
+
+
+def _field(msg: Any, *names: str) -> Any:
+    for n in names:
+        if hasattr(msg, n):
+            return getattr(msg, n)
+    raise IoError(f"CameraInfo has none of the fields {names}")
+
+
+def _lens_of_info(msg: Any, topic: str, path: Path) -> tuple[PinholeCamera, float]:
+    """(lens, x of the camera in the first one's frame from P) of a CameraInfo message."""
+    model = DISTORTION_NAMES.get(str(msg.distortion_model).lower() or "none")
+    if model is None:
+        raise IoError(
+            f"{path}: {topic}: distortion model {msg.distortion_model!r} is not plumb_bob or equidistant"
+        )
+    K = np.asarray(_field(msg, "k", "K"), dtype=np.float64).reshape(3, 3)
+    P = np.asarray(_field(msg, "p", "P"), dtype=np.float64).reshape(3, 4)
+    d = np.asarray(_field(msg, "d", "D"), dtype=np.float64)
+    try:
+        lens = PinholeCamera(K, d, int(msg.width), int(msg.height), model=model)  # type: ignore[arg-type]
+    except GeometryError as exc:
+        raise IoError(f"{path}: {topic}: {exc}") from None
+    x = -P[0, 3] / P[0, 0] if P[0, 0] > 0 else 0.0
+    return lens, float(x)
+
+
+class _Scan:
+    """What one pass over a bag learns: frames (stamps, where), IMU rows, the first CameraInfo
+    of each topic."""
+
+    def __init__(self) -> None:
+        self.frames: dict[str, list[tuple[int, int, int]]] = {}
+        self.imu: list[tuple[int, list[float]]] = []
+        self.info: dict[str, Any] = {}
+
+
+def _scan(reader: Any, images: list[str], imu: str | None, issues: IssueLog) -> _Scan:
+    scan = _Scan()
+    seen: dict[tuple[str, int], int] = {}
+    infos = {_info_topic(t) for t in images}
+    wanted = set(images) | infos | ({imu} if imu else set())
+    conns = [c for c in reader.connections if c.topic in wanted]
+    for conn, bag_t, raw in reader.messages(connections=conns):
+        if conn.topic in infos:
+            if conn.topic not in scan.info:
+                scan.info[conn.topic] = reader.deserialize(raw, conn.msgtype)
+            continue
+        msg = reader.deserialize(raw, conn.msgtype)
+        if conn.topic == imu:
+            w, a = msg.angular_velocity, msg.linear_acceleration
+            vals = [w.x, w.y, w.z, a.x, a.y, a.z]
+            if not np.isfinite(vals).all():
+                issues.reject("IMU messages with a NaN", f"{imu} at {_stamp_ns(msg)}")
+                continue
+            scan.imu.append((_stamp_ns(msg), vals))
+            continue
+        nth = seen.get((conn.topic, bag_t), 0)
+        seen[(conn.topic, bag_t)] = nth + 1
+        scan.frames.setdefault(conn.topic, []).append((_stamp_ns(msg), bag_t, nth))
+    return scan
+
+
+def _rig_from_infos(path: Path, images: list[str], scan: _Scan, imu: ImuSpec | None) -> Rig:
+    specs = []
+    for k, topic in enumerate(images):
+        info = scan.info.get(_info_topic(topic))
+        if info is None:
+            raise IoError(
+                f"{path}: no calibration for {topic}: record {_info_topic(topic)} or give "
+                "calibration (an EuRoC folder or a Kalibr camchain)"
+            )
+        lens, x = _lens_of_info(info, topic, path)
+        T = Pose(Pose.identity().R_A_B, np.array([x, 0.0, 0.0]))
+        specs.append(
+            CameraSpec(
+                name=f"cam{k}", camera=lens, T_B_C=T, rate_hz=_rate(scan.frames.get(topic, []))
+            )
+        )
+    return Rig(name=path.stem, cameras=tuple(specs), imu=imu)
+
+
+def _rate(stamps: Sequence[tuple[int, ...]] | Sequence[int]) -> float:
+    t = np.array([s[0] if isinstance(s, tuple) else s for s in stamps], dtype=np.int64)
+    d = np.diff(np.sort(t))
+    d = d[d > 0]
+    return NS_PER_S / float(np.median(d)) if d.size else 20.0
+
+
+def _rig_from_file(calib: Path, images: list[str], scan: _Scan) -> Rig:
+    from quadnav.io.datasets.euroc import (
+        camera_folders,
+        find_mav0,
+        read_euroc_camera,
+        read_euroc_imu,
+    )
+    from quadnav.io.datasets.kalibr import read_camchain, read_kalibr_imu
+
+    rates = {f"cam{k}": _rate(scan.frames.get(t, [])) for k, t in enumerate(images)}
+    imu: ImuSpec | None = None
+    if calib.is_dir():
+        mav0 = find_mav0(calib)
+        if mav0 is None:
+            raise IoError(f"{calib}: no mav0/ folder (not an EuRoC calibration)")
+        cams = tuple(read_euroc_camera(c) for c in camera_folders(mav0))
+        if (mav0 / "imu0" / "sensor.yaml").is_file():
+            imu = read_euroc_imu(mav0 / "imu0")
+    else:
+        cams = read_camchain(calib, rates)
+        beside = calib.parent / "imu.yaml"
+        imu = read_kalibr_imu(beside) if beside.is_file() else None
+    if len(cams) != len(images):
+        raise IoError(
+            f"{calib}: {len(cams)} cameras for {len(images)} image topics ({', '.join(images)})"
+        )
+    if imu is None and scan.imu:
+        imu = ImuSpec(
+            rate_hz=_rate([t for t, _ in scan.imu]),
+            noise=ImuNoiseModel(
+                gyro_noise_density=0, gyro_random_walk=0, accel_noise_density=0, accel_random_walk=0
+            ),
+        )
+    return Rig(name=calib.stem, cameras=cams, imu=imu)
+
+
+def read_bag_dataset(
+    path: Path,
+    *,
+    calibration: Path | None = None,
+    image_topics: Sequence[str] | None = None,
+    imu_topic: str | None = None,
+) -> VisualInertialDataset:
+    """A ROS 1 or ROS 2 bag as a dataset (see the module docstring)."""
+    from rosbags.highlevel import AnyReader
+    from rosbags.typesys import Stores, get_typestore
+
+    issues = IssueLog()
+    try:
+        with AnyReader([path], default_typestore=get_typestore(Stores.ROS2_HUMBLE)) as reader:
+            topics = {c.topic: c.msgtype for c in reader.connections}
+            images = _choose_images(topics, image_topics, path)
+            imu = _choose_imu(topics, imu_topic, path)
+            scan = _scan(reader, images, imu, issues)
+    except IoError:
+        raise
+    except Exception as exc:  # rosbags raises its own error types for corrupt bags
+        raise IoError(f"{path}: cannot read the bag: {exc}") from None
+    try:
+        if calibration is not None:
+            rig = _rig_from_file(calibration, images, scan)
+        else:
+            noise0 = ImuNoiseModel(
+                gyro_noise_density=0, gyro_random_walk=0, accel_noise_density=0, accel_random_walk=0
+            )
+            imu_spec = (
+                ImuSpec(rate_hz=_rate([t for t, _ in scan.imu]), noise=noise0) if scan.imu else None
+            )
+            rig = _rig_from_infos(path, images, scan, imu_spec)
+    except GeometryError as exc:
+        raise IoError(f"{path}: {exc}") from None
+    source = _BagSource(path)
+    frames = [
+        ImageFrame(
+            t_ns=t,
+            camera=f"cam{k}",
+            load=functools.partial(source.load, topic, bag_t, nth),
+            origin=f"{path} {topic} at {t}",
+        )
+        for k, topic in enumerate(images)
+        for t, bag_t, nth in scan.frames.get(topic, [])
+    ]
+    return VisualInertialDataset(
+        name=path.stem,
+        root=path,
+        kind="bag",
+        rig=rig,
+        frames=sort_frames(frames, rig.camera_names),
+        imu=_imu_table(scan.imu),
+        issues=issues.freeze(),
+    )
+
+
+def _imu_table(rows: list[tuple[int, list[float]]]) -> ImuTable:
+    if not rows:
+        return ImuTable.empty()
+    rows = sorted(rows, key=lambda r: r[0])
+    t = np.array([r[0] for r in rows], dtype=np.int64)
+    v = np.array([r[1] for r in rows], dtype=np.float64)
+    return ImuTable(t, v[:, 0:3], v[:, 3:6])
+
+
+class _Ros2Messages:
+    """Builders of the ROS 2 messages write_ros2_bag writes."""
+
+    def __init__(self) -> None:
+        from rosbags.typesys import Stores, get_typestore
+
+        self.ts = get_typestore(Stores.ROS2_HUMBLE)
+        self.T = self.ts.types
+
+    def header(self, t_ns: int, frame: str) -> Any:
+        stamp = self.T["builtin_interfaces/msg/Time"](sec=t_ns // NS_PER_S, nanosec=t_ns % NS_PER_S)
+        return self.T["std_msgs/msg/Header"](stamp=stamp, frame_id=frame)
+
+    def image(self, t_ns: int, frame: str, img: NDArray[np.uint8]) -> Any:
+        grey = img.ndim == 2 or img.shape[2] == 1
+        px = np.ascontiguousarray(img if img.ndim == 3 and not grey else img.reshape(img.shape[:2]))
+        if px.ndim == 3 and px.shape[2] == 4:
+            px = np.ascontiguousarray(px[:, :, :3])
+        h, w = px.shape[:2]
+        return self.T["sensor_msgs/msg/Image"](
+            header=self.header(t_ns, frame),
+            height=h,
+            width=w,
+            encoding="mono8" if px.ndim == 2 else "bgr8",
+            is_bigendian=0,
+            step=w * (1 if px.ndim == 2 else 3),
+            data=px.ravel(),
+        )
+
+    def info(self, t_ns: int, frame: str, spec: CameraSpec, x0: Pose) -> Any:
+        cam = spec.camera
+        x = (x0.inverse() @ spec.T_B_C).p_A_B[0]
+        P = np.hstack([cam.K, np.array([[-cam.fx * x], [0.0], [0.0]])])
+        roi = self.T["sensor_msgs/msg/RegionOfInterest"](
+            x_offset=0, y_offset=0, height=0, width=0, do_rectify=False
+        )
+        return self.T["sensor_msgs/msg/CameraInfo"](
+            header=self.header(t_ns, frame),
+            height=cam.height,
+            width=cam.width,
+            distortion_model="equidistant" if cam.model == "equidistant" else "plumb_bob",
+            d=np.asarray(cam.dist, dtype=np.float64),
+            k=cam.K.ravel().copy(),
+            r=np.eye(3).ravel(),
+            p=P.ravel(),
+            binning_x=0,
+            binning_y=0,
+            roi=roi,
+        )
+
+    def imu(self, t_ns: int, g: NDArray[np.float64], a: NDArray[np.float64]) -> Any:
+        V, Q = self.T["geometry_msgs/msg/Vector3"], self.T["geometry_msgs/msg/Quaternion"]
+        unknown = np.zeros(9)
+        unknown[0] = -1.0  # REP 145: no orientation estimate
+        return self.T["sensor_msgs/msg/Imu"](
+            header=self.header(t_ns, "imu0"),
+            orientation=Q(x=0.0, y=0.0, z=0.0, w=1.0),
+            orientation_covariance=unknown,
+            angular_velocity=V(x=g[0], y=g[1], z=g[2]),
+            angular_velocity_covariance=np.zeros(9),
+            linear_acceleration=V(x=a[0], y=a[1], z=a[2]),
+            linear_acceleration_covariance=np.zeros(9),
+        )
+
+    def pose(self, t_ns: int, p: NDArray[np.float64], q: NDArray[np.float64]) -> Any:
+        G = self.T
+        pose = G["geometry_msgs/msg/Pose"](
+            position=G["geometry_msgs/msg/Point"](x=p[0], y=p[1], z=p[2]),
+            orientation=G["geometry_msgs/msg/Quaternion"](x=q[0], y=q[1], z=q[2], w=q[3]),
+        )
+        return G["geometry_msgs/msg/PoseStamped"](header=self.header(t_ns, "world"), pose=pose)
+
+
+def write_ros2_bag(
+    dataset: VisualInertialDataset, path: Path | str, *, camera_info: bool = True
+) -> Path:
+    """``dataset`` as a ROS 2 bag (sqlite3) at ``path``: ``/camK/image_raw`` (``Image``, mono8 for
+    grey, bgr8 for colour) with ``/camK/camera_info`` once per camera, ``/imu0`` (``Imu``) and
+    ``/groundtruth`` (``PoseStamped``); bag times are the stamps. Images are read one at a time."""
+    from rosbags.rosbag2 import Writer
+
+    out = Path(path)
+    if out.exists():
+        raise IoError(f"{out}: already exists")
+    m = _Ros2Messages()
+    try:
+        with Writer(out, version=9) as w:
+            conn = {
+                c.name: w.add_connection(f"/{c.name}/image_raw", IMAGE_TYPES[0], typestore=m.ts)
+                for c in dataset.rig.cameras
+            }
+            if camera_info:
+                x0 = dataset.rig.cameras[0].T_B_C
+                first = dataset.frames[0].t_ns if dataset.frames else 0
+                for c in dataset.rig.cameras:
+                    ic = w.add_connection(f"/{c.name}/camera_info", INFO_TYPE, typestore=m.ts)
+                    w.write(ic, first, m.ts.serialize_cdr(m.info(first, c.name, c, x0), INFO_TYPE))
+            _write_stream(w, m, dataset, conn)
+    except (IoError, SampleError):
+        raise
+    except Exception as exc:  # rosbags' own error types
+        raise IoError(f"{out}: cannot write the bag: {exc}") from None
+    return out
+
+
+def _write_stream(
+    w: Any, m: _Ros2Messages, dataset: VisualInertialDataset, conn: dict[str, Any]
+) -> None:
+    imu_conn = w.add_connection("/imu0", IMU_TYPE, typestore=m.ts) if len(dataset.imu) else None
+    for item in dataset.stream():
+        if isinstance(item, ImageFrame):
+            msg = m.image(item.t_ns, item.camera, item.image())
+            w.write(conn[item.camera], item.t_ns, m.ts.serialize_cdr(msg, IMAGE_TYPES[0]))
+        else:
+            msg = m.imu(item.t_ns, item.gyro_rad_s, item.accel_m_s2)
+            w.write(imu_conn, item.t_ns, m.ts.serialize_cdr(msg, IMU_TYPE))
+    gt = dataset.groundtruth
+    if gt is not None:
+        kind = "geometry_msgs/msg/PoseStamped"
+        gc = w.add_connection("/groundtruth", kind, typestore=m.ts)
+        tr = gt.trajectory
+        for t, p, q in zip(tr.t_ns, tr.p_W_B, tr.q_W_B_xyzw, strict=True):
+            w.write(gc, int(t), m.ts.serialize_cdr(m.pose(int(t), p, q), kind))
