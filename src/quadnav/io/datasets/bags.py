@@ -32,9 +32,15 @@ from numpy.typing import NDArray
 from quadnav.errors import GeometryError, IoError, SampleError
 from quadnav.geometry.camera import PinholeCamera
 from quadnav.geometry.rotations import Pose
-from quadnav.io.datasets.files import to_uint8
+from quadnav.io.datasets.files import rate_of_stamps, to_uint8
 from quadnav.io.datasets.kalibr import DISTORTION_NAMES
-from quadnav.io.datasets.types import ImuTable, IssueLog, VisualInertialDataset, sort_frames
+from quadnav.io.datasets.types import (
+    GroundTruth,
+    ImuTable,
+    IssueLog,
+    VisualInertialDataset,
+    sort_frames,
+)
 from quadnav.messages import ImageFrame
 from quadnav.rig import CameraSpec, ImuNoiseModel, ImuSpec, Rig
 from quadnav.units import NS_PER_S
@@ -225,10 +231,7 @@ def _rig_from_infos(path: Path, images: list[str], scan: _Scan, imu: ImuSpec | N
 
 
 def _rate(stamps: Sequence[tuple[int, ...]] | Sequence[int]) -> float:
-    t = np.array([s[0] if isinstance(s, tuple) else s for s in stamps], dtype=np.int64)
-    d = np.diff(np.sort(t))
-    d = d[d > 0]
-    return NS_PER_S / float(np.median(d)) if d.size else 20.0
+    return rate_of_stamps([s[0] if isinstance(s, tuple) else s for s in stamps])
 
 
 def _rig_from_file(calib: Path, images: list[str], scan: _Scan) -> Rig:
@@ -285,6 +288,7 @@ def read_bag_dataset(
             images = _choose_images(topics, image_topics, path)
             imu = _choose_imu(topics, imu_topic, path)
             scan = _scan(reader, images, imu, issues)
+            gt_topic = _groundtruth_topic(topics)
     except IoError:
         raise
     except Exception as exc:  # rosbags raises its own error types for corrupt bags
@@ -320,8 +324,27 @@ def read_bag_dataset(
         rig=rig,
         frames=sort_frames(frames, rig.camera_names),
         imu=_imu_table(scan.imu),
+        groundtruth=_groundtruth(path, gt_topic),
         issues=issues.freeze(),
     )
+
+
+def _groundtruth_topic(topics: dict[str, str]) -> str | None:
+    """``/groundtruth`` (what write_ros2_bag writes) or else the bag's only pose topic."""
+    from quadnav.io.rosbag import POSE_TYPES
+
+    poses = sorted(t for t, k in topics.items() if k in POSE_TYPES)
+    if "/groundtruth" in poses:
+        return "/groundtruth"
+    return poses[0] if len(poses) == 1 else None
+
+
+def _groundtruth(path: Path, topic: str | None) -> GroundTruth | None:
+    from quadnav.io.rosbag import read_bag_trajectory
+
+    if topic is None:
+        return None
+    return GroundTruth(read_bag_trajectory(path, topic=topic), source=topic)
 
 
 def _imu_table(rows: list[tuple[int, list[float]]]) -> ImuTable:

@@ -26,6 +26,7 @@ from quadnav.geometry.trajectory import Trajectory
 from quadnav.io.datasets.files import (
     load_image,
     pose_of_4x4,
+    rate_of_stamps,
     read_image_list,
     read_table,
     read_yaml,
@@ -136,12 +137,6 @@ def camera_frames(folder: Path, issues: IssueLog) -> list[ImageFrame]:
     return frames
 
 
-def median_rate_hz(frames: list[ImageFrame], fallback: float) -> float:
-    if len(frames) < 2:
-        return fallback
-    return float(1e9 / np.median(np.diff([f.t_ns for f in frames])))
-
-
 def read_imu_rows(folder: Path, issues: IssueLog) -> ImuTable:
     """``imu0/data.csv``: ``t_ns, w_x, w_y, w_z, a_x, a_y, a_z``; NaN rows rejected and counted."""
     table = read_table(folder / "data.csv", 6, issues, "IMU rows with a NaN")
@@ -207,7 +202,7 @@ def _rig(
         specs = tuple(read_euroc_camera(c) for c in camera_folders(source))
         imu = read_euroc_imu(imu_folder) if imu_folder.is_dir() else None
     elif camchain.is_file():
-        rates = {c.name: median_rate_hz(frames[c.name], 20.0) for c in cams}
+        rates = {c.name: rate_of_stamps([f.t_ns for f in frames[c.name]]) for c in cams}
         specs = read_camchain(camchain, rates)
         imu = _tumvi_imu(camchain.parent, mav0 / "imu0")
     else:

@@ -26,6 +26,7 @@ __all__ = [
     "float_text",
     "load_image",
     "pose_of_4x4",
+    "rate_of_stamps",
     "read_image_list",
     "read_table",
     "read_yaml",
@@ -186,6 +187,14 @@ def read_image_list(path: Path) -> tuple[list[int], list[int], list[str]]:
         names.append(tokens[1])
     check_increasing(np.asarray(stamps, dtype=np.int64), lines, path)
     return lines, stamps, names
+
+
+def rate_of_stamps(t_ns: Sequence[int] | NDArray[np.int64], fallback_hz: float = 20.0) -> float:
+    """A sensor's nominal rate from its stamps (the median interval, rounded to 1 mHz: stamps
+    jitter by nanoseconds); ``fallback_hz`` for fewer than two distinct stamps."""
+    d = np.diff(np.sort(np.asarray(t_ns, dtype=np.int64)))
+    d = d[d > 0]
+    return round(1e9 / float(np.median(d)), 3) if d.size else fallback_hz
 
 
 def to_uint8(img: NDArray[Any]) -> NDArray[np.uint8]:
