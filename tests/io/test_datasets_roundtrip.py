@@ -22,19 +22,40 @@ W, H = 80, 60
 
 def _rig(model: str, stereo: bool) -> Rig:
     K0 = np.array([[61.25, 0.0, 40.5], [0.0, 60.875, 29.75], [0.0, 0.0, 1.0]])
-    d = [0.0123, -0.00456, 1.7e-05, -3.3e-06] if model == "equidistant" else [-0.283, 0.0739, 0.000193, 1.76e-05]
+    d = (
+        [0.0123, -0.00456, 1.7e-05, -3.3e-06]
+        if model == "equidistant"
+        else [-0.283, 0.0739, 0.000193, 1.76e-05]
+    )
     R = Rotation.from_euler("zyx", [90.3, 0.7, -1.1], degrees=True)
-    cams = [CameraSpec(name="cam0", camera=PinholeCamera(K0, np.array(d), W, H, model=model),  # type: ignore[arg-type]
-                       T_B_C=Pose(R, np.array([-0.0216, -0.0647, 0.0098])), rate_hz=20.0,
-                       time_offset_ns=-1_234_567, exposure_s=0.004)]
+    cams = [
+        CameraSpec(
+            name="cam0",
+            camera=PinholeCamera(K0, np.array(d), W, H, model=model),  # type: ignore[arg-type]
+            T_B_C=Pose(R, np.array([-0.0216, -0.0647, 0.0098])),
+            rate_hz=20.0,
+            time_offset_ns=-1_234_567,
+            exposure_s=0.004,
+        )
+    ]
     if stereo:
         K1 = K0 + np.array([[0.3, 0, 1.1], [0, -0.2, 0.4], [0, 0, 0]])
         R1 = R * Rotation.from_euler("x", 0.2, degrees=True)
-        cams.append(CameraSpec(name="cam1", camera=PinholeCamera(K1, np.array(d) * 1.01, W, H, model=model),  # type: ignore[arg-type]
-                               T_B_C=Pose(R1, np.array([-0.0198, 0.0454, 0.0079])), rate_hz=20.0,
-                               time_offset_ns=-1_234_567))
-    noise = ImuNoiseModel(gyro_noise_density=1.6968e-04, gyro_random_walk=1.9393e-05,
-                          accel_noise_density=2.0e-3, accel_random_walk=3.0e-3)
+        cams.append(
+            CameraSpec(
+                name="cam1",
+                camera=PinholeCamera(K1, np.array(d) * 1.01, W, H, model=model),  # type: ignore[arg-type]
+                T_B_C=Pose(R1, np.array([-0.0198, 0.0454, 0.0079])),
+                rate_hz=20.0,
+                time_offset_ns=-1_234_567,
+            )
+        )
+    noise = ImuNoiseModel(
+        gyro_noise_density=1.6968e-04,
+        gyro_random_walk=1.9393e-05,
+        accel_noise_density=2.0e-3,
+        accel_random_walk=3.0e-3,
+    )
     return Rig(name="rt", cameras=tuple(cams), imu=ImuSpec(rate_hz=200.0, noise=noise))
 
 
@@ -47,7 +68,11 @@ def _write(root: Path, rig: Rig, seed: int = 0) -> dict[str, object]:
     with EurocWriter(root, rig) as w:
         for k in range(100):
             t = t0 + k * 5_000_000 + int(rng.integers(-3, 4))
-            s = ImuSample(t_ns=t, gyro_rad_s=rng.normal(0, 0.3, 3), accel_m_s2=rng.normal(0, 3, 3) + [0, 0, 9.81])
+            s = ImuSample(
+                t_ns=t,
+                gyro_rad_s=rng.normal(0, 0.3, 3),
+                accel_m_s2=rng.normal(0, 3, 3) + [0, 0, 9.81],
+            )
             w.add_imu(s)
             imu.append(s)
             if k % 10 == 0:
@@ -56,13 +81,22 @@ def _write(root: Path, rig: Rig, seed: int = 0) -> dict[str, object]:
                     w.add_frame(c, t, img)
                     images[(c, t)] = img
                 q = Rotation.random(random_state=k).as_quat()
-                row = (t, rng.normal(0, 2, 3), q, rng.normal(0, 1, 3), rng.normal(0, 1e-3, 3), rng.normal(0, 1e-2, 3))
+                row = (
+                    t,
+                    rng.normal(0, 2, 3),
+                    q,
+                    rng.normal(0, 1, 3),
+                    rng.normal(0, 1e-3, 3),
+                    rng.normal(0, 1e-2, 3),
+                )
                 w.add_groundtruth(*row)
                 gt.append(row)
     return {"images": images, "imu": imu, "gt": gt}
 
 
-def _same_samples(ds: VisualInertialDataset, written: dict[str, object], *, gt_extras: bool = True) -> None:
+def _same_samples(
+    ds: VisualInertialDataset, written: dict[str, object], *, gt_extras: bool = True
+) -> None:
     images = written["images"]
     assert isinstance(images, dict)
     assert {(f.camera, f.t_ns) for f in ds.frames} == set(images)
@@ -79,9 +113,15 @@ def _same_samples(ds: VisualInertialDataset, written: dict[str, object], *, gt_e
     assert list(tr.t_ns) == [r[0] for r in rows]
     np.testing.assert_array_equal(tr.p_W_B, [r[1] for r in rows])
     q_in = np.array([r[2] for r in rows])
-    np.testing.assert_allclose(tr.q_W_B_xyzw, q_in / np.linalg.norm(q_in, axis=1)[:, None], rtol=0, atol=1e-15)
+    np.testing.assert_allclose(
+        tr.q_W_B_xyzw, q_in / np.linalg.norm(q_in, axis=1)[:, None], rtol=0, atol=1e-15
+    )
     if gt_extras:
-        assert gt.v_W_B_m_s is not None and gt.gyro_bias_rad_s is not None and gt.accel_bias_m_s2 is not None
+        assert (
+            gt.v_W_B_m_s is not None
+            and gt.gyro_bias_rad_s is not None
+            and gt.accel_bias_m_s2 is not None
+        )
         np.testing.assert_array_equal(gt.v_W_B_m_s, [r[3] for r in rows])
         np.testing.assert_array_equal(gt.gyro_bias_rad_s, [r[4] for r in rows])
         np.testing.assert_array_equal(gt.accel_bias_m_s2, [r[5] for r in rows])
@@ -97,7 +137,7 @@ def test_euroc_writer_round_trip(tmp_path: Path, model: str, stereo: bool) -> No
     ds = open_dataset(tmp_path / "seq")
     assert ds.kind == "euroc" and not ds.issues
     assert_same_rig(ds.rig, rig, atol=1e-15)
-    assert [c.exposure_s for c in ds.rig.cameras][0] == 0.004
+    assert ds.rig.cameras[0].exposure_s == 0.004
     _same_samples(ds, written)
     # the Kalibr files beside mav0 describe the same rig (through T_cam_imu = T_B_C^-1)
     via_camchain = open_dataset(tmp_path / "seq", calibration=tmp_path / "seq" / "camchain.yaml")

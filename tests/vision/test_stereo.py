@@ -47,8 +47,10 @@ def test_euroc_micro_rectified_matches_lie_on_one_row() -> None:
         raw.append(row_offsets(a, b))
     dy, dy_raw = np.concatenate(rectified), np.concatenate(raw)
     med, p95 = np.median(dy), np.percentile(dy, 95)
-    print(f"rectified: n={dy.size} median |dy|={med:.3f} px p95={p95:.3f} px; "
-          f"unrectified: n={dy_raw.size} median={np.median(dy_raw):.2f} px")
+    print(
+        f"rectified: n={dy.size} median |dy|={med:.3f} px p95={p95:.3f} px; "
+        f"unrectified: n={dy_raw.size} median={np.median(dy_raw):.2f} px"
+    )
     assert dy.size >= 300
     assert med < 0.1 and p95 < 0.5
     assert np.median(dy_raw) > 5.0  # the raw pair is not row-aligned: the test can fail
@@ -58,11 +60,19 @@ def _fisheye_rig() -> Rig:
     K = np.array([[190.0, 0.0, 254.0], [0.0, 191.0, 256.0], [0.0, 0.0, 1.0]])
     d0 = np.array([0.0034, 0.0007, -0.0020, 0.0002])
     d1 = np.array([0.0034, 0.0017, -0.0027, 0.0003])
-    left = CameraSpec(name="cam0", camera=PinholeCamera(K, d0, 512, 512, model="equidistant"),
-                      T_B_C=Pose.identity(), rate_hz=20.0)
+    left = CameraSpec(
+        name="cam0",
+        camera=PinholeCamera(K, d0, 512, 512, model="equidistant"),
+        T_B_C=Pose.identity(),
+        rate_hz=20.0,
+    )
     R = Rotation.from_euler("xyz", [1.5, -2.0, 0.8], degrees=True)
-    right = CameraSpec(name="cam1", camera=PinholeCamera(K, d1, 512, 512, model="equidistant"),
-                       T_B_C=Pose(R, np.array([0.101, 0.002, -0.001])), rate_hz=20.0)
+    right = CameraSpec(
+        name="cam1",
+        camera=PinholeCamera(K, d1, 512, 512, model="equidistant"),
+        T_B_C=Pose(R, np.array([0.101, 0.002, -0.001])),
+        rate_hz=20.0,
+    )
     return Rig(name="fisheye", cameras=(left, right), imu=None)
 
 
@@ -90,4 +100,6 @@ def test_stereo_needs_two_cameras_apart() -> None:
         StereoRectifier.of_rig(thesis003_sim())
     rig = euroc()
     with pytest.raises(VisionError, match="image is 640x480"):
-        StereoRectifier.of_rig(rig).rectify(np.zeros((480, 640), np.uint8), np.zeros((480, 752), np.uint8))
+        StereoRectifier.of_rig(rig).rectify(
+            np.zeros((480, 640), np.uint8), np.zeros((480, 752), np.uint8)
+        )
