@@ -261,3 +261,40 @@ def test_missing_and_corrupt_images(tmp_path: Path) -> None:
         ds.frames[1].image()
     assert names[2] in str(info.value) and "corrupt" in str(info.value)
     assert isinstance(info.value, QuadnavError)
+    checked = ds.verified()  # decodes each image once: the corrupt one rejected and counted
+    assert [f.t_ns for f in checked.frames] == [ds.frames[0].t_ns, *(f.t_ns for f in ds.frames[2:])]
+    assert checked.issues.counts == {"missing images": 1, "unreadable images": 1}
+    assert names[2] in checked.issues.named[1]
+
+
+def test_vicon0_and_leica0_ground_truth(tmp_path: Path) -> None:
+    """Without state_groundtruth_estimate0: vicon0's poses of the marker body, moved to the
+    body frame by its T_BS; else leica0's prism positions (orientation unknown)."""
+    root = _tiny(tmp_path / "seq")
+    mav0 = root / "mav0"
+    shutil.rmtree(mav0 / "state_groundtruth_estimate0")
+    (mav0 / "vicon0").mkdir()
+    (mav0 / "vicon0" / "data.csv").write_text(
+        "#timestamp [ns],p_RS_R_x [m],p_RS_R_y [m],p_RS_R_z [m],q_RS_w [],q_RS_x [],q_RS_y [],q_RS_z []\n"
+        "1000000000,1.0,2.0,3.0,0.7071067811865476,0.0,0.0,0.7071067811865476\n"
+        "1050000000,1.5,2.0,3.0,1.0,0.0,0.0,0.0\n"
+    )
+    # the marker S sits 0.1 m along the body's x: T_BS translation (0.1, 0, 0)
+    (mav0 / "vicon0" / "sensor.yaml").write_text(
+        "%YAML:1.0\nsensor_type: visual\nT_BS:\n  cols: 4\n  rows: 4\n"
+        "  data: [1.0, 0.0, 0.0, 0.1, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0]\n"
+    )
+    gt = open_dataset(root).groundtruth
+    assert (
+        gt is not None and gt.source == "vicon0" and gt.orientation_known and gt.v_W_B_m_s is None
+    )
+    # yaw 90 deg: the body origin is 0.1 m behind the marker along the body x = world y
+    np.testing.assert_allclose(gt.trajectory.p_W_B, [[1.0, 1.9, 3.0], [1.4, 2.0, 3.0]], atol=1e-12)
+    shutil.rmtree(mav0 / "vicon0")
+    (mav0 / "leica0").mkdir()
+    (mav0 / "leica0" / "data.csv").write_text(
+        "#timestamp [ns],p_RS_R_x [m],p_RS_R_y [m],p_RS_R_z [m]\n1000000000,4.0,5.0,6.0\n"
+    )
+    gt = open_dataset(root).groundtruth
+    assert gt is not None and gt.source == "leica0" and not gt.orientation_known
+    np.testing.assert_array_equal(gt.trajectory.p_W_B, [[4.0, 5.0, 6.0]])

@@ -394,3 +394,62 @@ def test_bag_topic_choice_and_calibration_file(tmp_path: Path) -> None:
         match="image topic '/cam9' is not in the bag; its image topics: /cam0/image_raw, /cam1/image_raw",
     ):
         open_dataset(path, imu_topic="/imu0", image_topics=("/cam9",))
+
+
+class _Msg:
+    """A sensor_msgs Image or CompressedImage as decode_image sees it (fields only)."""
+
+    def __init__(self, **fields: Any) -> None:
+        self.__dict__.update(fields)
+
+
+@pytest.mark.parametrize("enc", ["mono8", "mono16", "bgr8", "rgb8", "bgra8", "rgba8"])
+def test_image_encodings(enc: str) -> None:
+    from quadnav.io.datasets.bags import decode_image
+
+    rng = np.random.default_rng(5)
+    channels = {"mono8": 1, "mono16": 1, "bgr8": 3, "rgb8": 3, "bgra8": 4, "rgba8": 4}[enc]
+    px = rng.integers(0, 65536 if enc == "mono16" else 256, (6, 5, channels)).squeeze()
+    raw = px.astype("<u2").view(np.uint8) if enc == "mono16" else px.astype(np.uint8)
+    pad = 3  # rows padded beyond width * channels, as step allows
+    rows = np.hstack([raw.reshape(6, -1), np.zeros((6, pad), np.uint8)])
+    msg = _Msg(
+        height=6, width=5, step=rows.shape[1], encoding=enc, is_bigendian=0, data=rows.ravel()
+    )
+    out = decode_image(msg, "sensor_msgs/msg/Image")
+    if enc == "mono16":
+        expected = (px >> 8).astype(np.uint8)
+    elif enc.startswith("rgb"):
+        expected = px[:, :, [2, 1, 0]]
+    else:
+        expected = px[:, :, :3] if channels > 1 else px
+    np.testing.assert_array_equal(out, expected)
+
+
+def test_compressed_jpeg_and_bad_encodings() -> None:
+    from quadnav.errors import SampleError
+    from quadnav.io.datasets.bags import decode_image
+
+    grey = np.tile(np.arange(0, 256, 4, dtype=np.uint8), (32, 1))
+    _, jpg = cv2.imencode(".jpg", grey, [cv2.IMWRITE_JPEG_QUALITY, 95])
+    out = decode_image(_Msg(format="jpeg", data=jpg.ravel()), "sensor_msgs/msg/CompressedImage")
+    assert out.shape == (32, 64) and np.abs(out.astype(int) - grey).max() <= 4
+    with pytest.raises(SampleError, match="cannot be decoded"):
+        decode_image(
+            _Msg(format="jpeg", data=np.zeros(10, np.uint8)), "sensor_msgs/msg/CompressedImage"
+        )
+    bayer = _Msg(
+        height=2,
+        width=2,
+        step=2,
+        encoding="bayer_rggb8",
+        is_bigendian=0,
+        data=np.zeros(4, np.uint8),
+    )
+    with pytest.raises(SampleError, match="encoding 'bayer_rggb8' is not one quadnav reads"):
+        decode_image(bayer, "sensor_msgs/msg/Image")
+    short = _Msg(
+        height=4, width=4, step=4, encoding="mono8", is_bigendian=0, data=np.zeros(10, np.uint8)
+    )
+    with pytest.raises(SampleError, match="has 10 bytes, needs 16"):
+        decode_image(short, "sensor_msgs/msg/Image")

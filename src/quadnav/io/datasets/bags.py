@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import functools
 import weakref
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -82,33 +82,50 @@ def decode_image(msg: Any, msgtype: str) -> NDArray[np.uint8]:
     return np.ascontiguousarray(px[:, :, :3])
 
 
+class _Cursor:
+    """Where one topic's reading stands: a message generator and the (bag time, rank among
+    messages of that bag time) of the last message it gave."""
+
+    def __init__(self, messages: Iterator[tuple[Any, int, bytes]]) -> None:
+        self.messages = messages
+        self.at: tuple[int, int] = (-1, -1)
+
+
 class _BagSource:
-    """One bag kept open for the frames' loaders (reopened if closed)."""
+    """One bag kept open for the frames' loaders. Per topic a cursor goes forward through the
+    messages, so frames asked for in order (a stream) cost one read each; asking for an
+    earlier frame starts a new cursor at its bag time."""
 
     def __init__(self, path: Path) -> None:
         self.path = path
         self.reader: Any = None
+        self.cursors: dict[str, _Cursor] = {}
 
     def _open(self) -> Any:
         if self.reader is None:
             from rosbags.highlevel import AnyReader
             from rosbags.typesys import Stores, get_typestore
 
-            self.reader = AnyReader(
-                [self.path], default_typestore=get_typestore(Stores.ROS2_HUMBLE)
-            )
+            store = get_typestore(Stores.ROS2_HUMBLE)
+            self.reader = AnyReader([self.path], default_typestore=store)
             self.reader.open()
             weakref.finalize(self, self.reader.close)
         return self.reader
 
     def load(self, topic: str, bag_t: int, nth: int) -> NDArray[np.uint8]:
         reader = self._open()
-        conns = [c for c in reader.connections if c.topic == topic]
-        hits = list(reader.messages(connections=conns, start=bag_t, stop=bag_t + 1))
-        if len(hits) <= nth:
-            raise SampleError(f"{self.path}: no message on {topic} at bag time {bag_t}")
-        conn, _, raw = hits[nth]
-        return decode_image(reader.deserialize(raw, conn.msgtype), conn.msgtype)
+        cur = self.cursors.get(topic)
+        if cur is None or cur.at >= (bag_t, nth):
+            conns = [c for c in reader.connections if c.topic == topic]
+            cur = self.cursors[topic] = _Cursor(reader.messages(connections=conns, start=bag_t))
+        for conn, t, raw in cur.messages:
+            cur.at = (t, cur.at[1] + 1 if t == cur.at[0] else 0)
+            if cur.at == (bag_t, nth):
+                return decode_image(reader.deserialize(raw, conn.msgtype), conn.msgtype)
+            if t > bag_t:
+                break
+        del self.cursors[topic]
+        raise SampleError(f"{self.path}: no message on {topic} at bag time {bag_t}")
 
 
 def _choose_images(topics: dict[str, str], chosen: Sequence[str] | None, path: Path) -> list[str]:
