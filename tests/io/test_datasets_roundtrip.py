@@ -190,3 +190,42 @@ def test_writer_refuses_bad_samples(tmp_path: Path) -> None:
     w.abort()
     with pytest.raises(IoError, match="already exists"):
         EurocWriter(tmp_path, _rig("radtan", False))
+
+
+def test_ros2_bag_writer_sample_by_sample(tmp_path: Path) -> None:
+    from quadnav.io.datasets import Ros2BagWriter
+
+    rig = _rig("radtan", stereo=True)
+    with pytest.raises(RuntimeError), Ros2BagWriter(tmp_path / "failed", rig) as w:
+        w.add_frame("cam0", 5, np.zeros((H, W), np.uint8))
+        raise RuntimeError("the renderer failed")
+    assert not (tmp_path / "failed").exists() and not (tmp_path / "failed.partial").exists()
+    rng = np.random.default_rng(9)
+    pics = {}
+    with Ros2BagWriter(tmp_path / "bag", rig) as w:
+        for k in range(40):
+            t = 2_000_000_000 + k * 5_000_000
+            w.add_imu(
+                ImuSample(
+                    t_ns=t,
+                    gyro_rad_s=np.array([k, 0.5, -1e-7]),
+                    accel_m_s2=np.array([0.0, 1.0 / 3.0, 9.81]),
+                )
+            )
+            if k % 10 == 0:
+                for cam in ("cam0", "cam1"):
+                    pics[(cam, t)] = rng.integers(0, 256, (H, W, 3), dtype=np.uint8)  # colour: bgr8
+                    w.add_frame(cam, t, pics[(cam, t)])
+                w.add_groundtruth(t, [k, 2.0, 3.0], [0.0, 0.0, 0.6, 0.8])
+    ds = open_dataset(tmp_path / "bag")
+    assert_same_rig(ds.rig, rig, atol=1e-15, lenses_only=True)
+    assert ds.rig.baseline_m == pytest.approx(
+        abs((rig.cameras[0].T_B_C.inverse() @ rig.cameras[1].T_B_C).p_A_B[0]), rel=1e-12
+    )
+    assert len(ds.imu) == 40
+    assert ds.imu.accel_m_s2[7, 1] == 1.0 / 3.0 and ds.imu.gyro_rad_s[3, 2] == -1e-7
+    assert {(f.camera, f.t_ns) for f in ds.frames} == set(pics)
+    for f in ds.frames:
+        np.testing.assert_array_equal(f.image(), pics[(f.camera, f.t_ns)])
+    gt = ds.groundtruth
+    assert gt is not None and gt.trajectory.p_W_B[2].tolist() == [20.0, 2.0, 3.0]

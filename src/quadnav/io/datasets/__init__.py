@@ -11,7 +11,9 @@ from __future__ import annotations
 from pathlib import Path
 
 from quadnav.errors import IoError
+from quadnav.io.datasets.bagwriter import Ros2BagWriter, write_ros2_bag
 from quadnav.io.datasets.types import DatasetIssues, GroundTruth, ImuTable, VisualInertialDataset
+from quadnav.io.datasets.writer import EurocWriter
 
 __all__ = [
     "DATASET_KINDS",
@@ -19,6 +21,7 @@ __all__ = [
     "EurocWriter",
     "GroundTruth",
     "ImuTable",
+    "Ros2BagWriter",
     "VisualInertialDataset",
     "open_dataset",
     "sniff_dataset",
@@ -80,15 +83,3 @@ def open_dataset(
     from quadnav.io.datasets.bags import read_bag_dataset
 
     return read_bag_dataset(p, calibration=calib, image_topics=image_topics, imu_topic=imu_topic)
-
-
-def __getattr__(name: str) -> object:
-    if name == "EurocWriter":
-        from quadnav.io.datasets.writer import EurocWriter
-
-        return EurocWriter
-    if name == "write_ros2_bag":
-        from quadnav.io.datasets.bags import write_ros2_bag
-
-        return write_ros2_bag
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

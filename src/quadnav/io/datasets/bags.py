@@ -1,5 +1,5 @@
-"""ROS 1 and ROS 2 bags as datasets (through rosbags' ``AnyReader``), and any dataset as a
-ROS 2 bag (rosbags' ``Writer``).
+"""ROS 1 and ROS 2 bags as datasets, through rosbags' ``AnyReader`` (the writer of ROS 2 bags
+is :mod:`quadnav.io.datasets.bagwriter`).
 
 Read: ``sensor_msgs/Image`` (mono8, mono16, bgr8, rgb8, bgra8, rgba8), ``sensor_msgs/
 CompressedImage`` (JPEG/PNG through ``cv2.imdecode``) and ``sensor_msgs/Imu``; the stamps are
@@ -45,7 +45,7 @@ from quadnav.messages import ImageFrame
 from quadnav.rig import CameraSpec, ImuNoiseModel, ImuSpec, Rig
 from quadnav.units import NS_PER_S
 
-__all__ = ["IMAGE_TYPES", "read_bag_dataset", "write_ros2_bag"]
+__all__ = ["IMAGE_TYPES", "IMU_TYPE", "INFO_TYPE", "decode_image", "read_bag_dataset"]
 
 IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
 IMU_TYPE = "sensor_msgs/msg/Imu"
@@ -371,128 +371,3 @@ def _imu_table(rows: list[tuple[int, list[float]]]) -> ImuTable:
     t = np.array([r[0] for r in rows], dtype=np.int64)
     v = np.array([r[1] for r in rows], dtype=np.float64)
     return ImuTable(t, v[:, 0:3], v[:, 3:6])
-
-
-class _Ros2Messages:
-    """Builders of the ROS 2 messages write_ros2_bag writes."""
-
-    def __init__(self) -> None:
-        from rosbags.typesys import Stores, get_typestore
-
-        self.ts = get_typestore(Stores.ROS2_HUMBLE)
-        self.T = self.ts.types
-
-    def header(self, t_ns: int, frame: str) -> Any:
-        stamp = self.T["builtin_interfaces/msg/Time"](sec=t_ns // NS_PER_S, nanosec=t_ns % NS_PER_S)
-        return self.T["std_msgs/msg/Header"](stamp=stamp, frame_id=frame)
-
-    def image(self, t_ns: int, frame: str, img: NDArray[np.uint8]) -> Any:
-        grey = img.ndim == 2 or img.shape[2] == 1
-        px = np.ascontiguousarray(img if img.ndim == 3 and not grey else img.reshape(img.shape[:2]))
-        if px.ndim == 3 and px.shape[2] == 4:
-            px = np.ascontiguousarray(px[:, :, :3])
-        h, w = px.shape[:2]
-        return self.T["sensor_msgs/msg/Image"](
-            header=self.header(t_ns, frame),
-            height=h,
-            width=w,
-            encoding="mono8" if px.ndim == 2 else "bgr8",
-            is_bigendian=0,
-            step=w * (1 if px.ndim == 2 else 3),
-            data=px.ravel(),
-        )
-
-    def info(self, t_ns: int, frame: str, spec: CameraSpec, x0: Pose) -> Any:
-        cam = spec.camera
-        x = (x0.inverse() @ spec.T_B_C).p_A_B[0]
-        P = np.hstack([cam.K, np.array([[-cam.fx * x], [0.0], [0.0]])])
-        roi = self.T["sensor_msgs/msg/RegionOfInterest"](
-            x_offset=0, y_offset=0, height=0, width=0, do_rectify=False
-        )
-        return self.T["sensor_msgs/msg/CameraInfo"](
-            header=self.header(t_ns, frame),
-            height=cam.height,
-            width=cam.width,
-            distortion_model="equidistant" if cam.model == "equidistant" else "plumb_bob",
-            d=np.asarray(cam.dist, dtype=np.float64),
-            k=cam.K.ravel().copy(),
-            r=np.eye(3).ravel(),
-            p=P.ravel(),
-            binning_x=0,
-            binning_y=0,
-            roi=roi,
-        )
-
-    def imu(self, t_ns: int, g: NDArray[np.float64], a: NDArray[np.float64]) -> Any:
-        V, Q = self.T["geometry_msgs/msg/Vector3"], self.T["geometry_msgs/msg/Quaternion"]
-        unknown = np.zeros(9)
-        unknown[0] = -1.0  # REP 145: no orientation estimate
-        return self.T["sensor_msgs/msg/Imu"](
-            header=self.header(t_ns, "imu0"),
-            orientation=Q(x=0.0, y=0.0, z=0.0, w=1.0),
-            orientation_covariance=unknown,
-            angular_velocity=V(x=g[0], y=g[1], z=g[2]),
-            angular_velocity_covariance=np.zeros(9),
-            linear_acceleration=V(x=a[0], y=a[1], z=a[2]),
-            linear_acceleration_covariance=np.zeros(9),
-        )
-
-    def pose(self, t_ns: int, p: NDArray[np.float64], q: NDArray[np.float64]) -> Any:
-        G = self.T
-        pose = G["geometry_msgs/msg/Pose"](
-            position=G["geometry_msgs/msg/Point"](x=p[0], y=p[1], z=p[2]),
-            orientation=G["geometry_msgs/msg/Quaternion"](x=q[0], y=q[1], z=q[2], w=q[3]),
-        )
-        return G["geometry_msgs/msg/PoseStamped"](header=self.header(t_ns, "world"), pose=pose)
-
-
-def write_ros2_bag(
-    dataset: VisualInertialDataset, path: Path | str, *, camera_info: bool = True
-) -> Path:
-    """``dataset`` as a ROS 2 bag (sqlite3) at ``path``: ``/camK/image_raw`` (``Image``, mono8 for
-    grey, bgr8 for colour) with ``/camK/camera_info`` once per camera, ``/imu0`` (``Imu``) and
-    ``/groundtruth`` (``PoseStamped``); bag times are the stamps. Images are read one at a time."""
-    from rosbags.rosbag2 import Writer
-
-    out = Path(path)
-    if out.exists():
-        raise IoError(f"{out}: already exists")
-    m = _Ros2Messages()
-    try:
-        with Writer(out, version=9) as w:
-            conn = {
-                c.name: w.add_connection(f"/{c.name}/image_raw", IMAGE_TYPES[0], typestore=m.ts)
-                for c in dataset.rig.cameras
-            }
-            if camera_info:
-                x0 = dataset.rig.cameras[0].T_B_C
-                first = dataset.frames[0].t_ns if dataset.frames else 0
-                for c in dataset.rig.cameras:
-                    ic = w.add_connection(f"/{c.name}/camera_info", INFO_TYPE, typestore=m.ts)
-                    w.write(ic, first, m.ts.serialize_cdr(m.info(first, c.name, c, x0), INFO_TYPE))
-            _write_stream(w, m, dataset, conn)
-    except (IoError, SampleError):
-        raise
-    except Exception as exc:  # rosbags' own error types
-        raise IoError(f"{out}: cannot write the bag: {exc}") from None
-    return out
-
-
-def _write_stream(
-    w: Any, m: _Ros2Messages, dataset: VisualInertialDataset, conn: dict[str, Any]
-) -> None:
-    imu_conn = w.add_connection("/imu0", IMU_TYPE, typestore=m.ts) if len(dataset.imu) else None
-    for item in dataset.stream():
-        if isinstance(item, ImageFrame):
-            msg = m.image(item.t_ns, item.camera, item.image())
-            w.write(conn[item.camera], item.t_ns, m.ts.serialize_cdr(msg, IMAGE_TYPES[0]))
-        else:
-            msg = m.imu(item.t_ns, item.gyro_rad_s, item.accel_m_s2)
-            w.write(imu_conn, item.t_ns, m.ts.serialize_cdr(msg, IMU_TYPE))
-    gt = dataset.groundtruth
-    if gt is not None:
-        kind = "geometry_msgs/msg/PoseStamped"
-        gc = w.add_connection("/groundtruth", kind, typestore=m.ts)
-        tr = gt.trajectory
-        for t, p, q in zip(tr.t_ns, tr.p_W_B, tr.q_W_B_xyzw, strict=True):
-            w.write(gc, int(t), m.ts.serialize_cdr(m.pose(int(t), p, q), kind))

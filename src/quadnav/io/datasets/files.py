@@ -10,7 +10,7 @@ import re
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Self
 
 import cv2
 import numpy as np
@@ -22,6 +22,7 @@ from quadnav.geometry.rotations import Pose
 from quadnav.io.datasets.types import IssueLog, check_increasing
 
 __all__ = [
+    "PartialWriter",
     "Table",
     "float_text",
     "load_image",
@@ -35,6 +36,27 @@ __all__ = [
 
 FloatArray = NDArray[np.float64]
 _INT = re.compile(r"[0-9]+")
+
+
+class PartialWriter:
+    r"""A writer that fills ``<path>.partial/`` and renames it at :meth:`close`: used as a
+    context manager it closes on success and :meth:`abort`\ s (removes the partial folder) on an
+    exception, so nothing half-written looks complete."""
+
+    def __enter__(self) -> Self:
+        return self
+
+    def close(self) -> Path:
+        raise NotImplementedError
+
+    def abort(self) -> None:
+        raise NotImplementedError
+
+    def __exit__(self, exc_type: type[BaseException] | None, *_: object) -> None:
+        if exc_type is None:
+            self.close()
+        else:
+            self.abort()
 
 
 def float_text(x: float) -> str:

@@ -9,7 +9,6 @@ lens without coefficients is written with four zeros (what EuRoC's tools expect)
 
 from __future__ import annotations
 
-import contextlib
 import shutil
 from pathlib import Path
 from typing import IO
@@ -20,7 +19,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from quadnav.errors import IoError
 from quadnav.geometry.rotations import Pose
-from quadnav.io.datasets.files import float_text
+from quadnav.io.datasets.files import PartialWriter, float_text
 from quadnav.io.datasets.kalibr import IMU_KEYS, lens_fields, write_camchain, write_kalibr_imu
 from quadnav.messages import ImuSample
 from quadnav.rig import CameraSpec, Rig
@@ -75,7 +74,7 @@ def _row(t_ns: int, values: ArrayLike) -> str:
     )
 
 
-class EurocWriter(contextlib.AbstractContextManager["EurocWriter"]):
+class EurocWriter(PartialWriter):
     """Write a rig's sequence sample by sample (see the module docstring); a context manager
     that closes on success and removes the partial folder on an exception."""
 
@@ -193,10 +192,3 @@ class EurocWriter(contextlib.AbstractContextManager["EurocWriter"]):
             fh.close()
         shutil.rmtree(self.partial, ignore_errors=True)
         self.closed = True
-
-    def __exit__(self, exc_type: type[BaseException] | None, *_: object) -> None:
-        """Close on success; on an exception remove the partial folder."""
-        if exc_type is None:
-            self.close()
-        else:
-            self.abort()
