@@ -184,6 +184,8 @@ def _error(root: Path) -> str:
 
 def test_missing_folder_and_csv(tmp_path: Path) -> None:
     assert "not found" in _error(tmp_path / "nowhere")
+    (tmp_path / "empty").mkdir()
+    assert "not a dataset quadnav reads" in _error(tmp_path / "empty")
     root = _tiny(tmp_path / "seq")
     (root / "mav0" / "imu0" / "data.csv").unlink()
     assert "imu0/data.csv: no such file" in _error(root)

@@ -103,3 +103,23 @@ def test_stereo_needs_two_cameras_apart() -> None:
         StereoRectifier.of_rig(rig).rectify(
             np.zeros((480, 640), np.uint8), np.zeros((480, 752), np.uint8)
         )
+
+
+def test_an_already_rectified_pair_stays_as_it_is(tmp_path: object) -> None:
+    """KITTI's cameras are rectified (no distortion, parallel): the rectification is the
+    identity and the baseline is P1's, 0.537 m."""
+    K = np.array([[718.856, 0.0, 607.1928], [0.0, 718.856, 185.2157], [0.0, 0.0, 1.0]])
+    lens = PinholeCamera(K, np.zeros(0), 1241, 376)
+    b = 386.1448 / 718.856
+    left = CameraSpec(name="cam0", camera=lens, T_B_C=Pose.identity(), rate_hz=10.0)
+    right = CameraSpec(
+        name="cam1", camera=lens, T_B_C=Pose(Rotation.identity(), np.array([b, 0, 0])), rate_hz=10.0
+    )
+    rect = StereoRectifier(Rig(name="kitti", cameras=(left, right), imu=None))
+    np.testing.assert_allclose(rect.R0, np.eye(3), atol=1e-12)
+    np.testing.assert_allclose(rect.K, K, atol=1e-9)
+    assert rect.baseline_m == pytest.approx(b, rel=1e-12)
+    img = np.random.default_rng(1).integers(0, 256, (376, 1241), dtype=np.uint8)
+    out, _ = rect.rectify(img, img)
+    assert np.abs(out[5:-5, 5:-5].astype(int) - img[5:-5, 5:-5]).max() <= 1
+    np.testing.assert_allclose(rect.Q[2, 3], K[0, 0], rtol=1e-6)  # Q's focal length

@@ -9,8 +9,6 @@ remaps a pair. After it a point lies on the same image row in both pictures, and
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import cv2
 import numpy as np
 from numpy.typing import NDArray
@@ -24,35 +22,16 @@ __all__ = ["StereoRectifier"]
 FloatArray = NDArray[np.float64]
 
 
-@dataclass(frozen=True, slots=True, eq=False)
 class StereoRectifier:
-    """The rectification of a stereo pair: ``R0``/``R1`` (rectified-from-original rotation of
-    each camera), ``P0``/``P1`` (3x4 projections), ``Q`` (4x4), the maps, the output size."""
+    """The rectification of ``rig``'s first two cameras: ``R0``/``R1`` (rotation of each
+    rectified camera from its original), ``P0``/``P1`` (3x4 projections), ``Q`` (4x4), the
+    maps (computed here, once) and the output ``size`` (the cameras'). ``alpha`` 0 keeps only
+    valid pixels, 1 every source pixel (for the equidistant model it is the ``balance``)."""
 
-    left: CameraSpec
-    right: CameraSpec
-    R0: FloatArray
-    R1: FloatArray
-    P0: FloatArray
-    P1: FloatArray
-    Q: FloatArray
-    maps: tuple[
-        tuple[NDArray[np.int16], NDArray[np.uint16]], tuple[NDArray[np.int16], NDArray[np.uint16]]
-    ]
-    size: tuple[int, int]
-
-    @classmethod
-    def of_rig(cls, rig: Rig, *, alpha: float = 0.0) -> StereoRectifier:
-        """The rectifier of ``rig``'s first two cameras (``alpha`` 0: only valid pixels, 1: all
-        source pixels kept; for the equidistant model it is the ``balance``)."""
+    def __init__(self, rig: Rig, *, alpha: float = 0.0) -> None:
         if not rig.stereo:
             raise VisionError(f"rig {rig.name!r} has one camera: stereo needs two")
-        return cls.of_cameras(rig.cameras[0], rig.cameras[1], alpha=alpha)
-
-    @classmethod
-    def of_cameras(
-        cls, left: CameraSpec, right: CameraSpec, *, alpha: float = 0.0
-    ) -> StereoRectifier:
+        left, right = rig.cameras[0], rig.cameras[1]
         a, b = left.camera, right.camera
         if a.model != b.model:
             raise VisionError(
@@ -63,14 +42,24 @@ class StereoRectifier:
         if not 0.0 <= alpha <= 1.0:
             raise VisionError(f"stereo alpha must be in [0, 1], got {alpha}")
         T_C1_C0 = right.T_B_C.inverse() @ left.T_B_C
-        R = T_C1_C0.R_A_B.as_matrix()
         t = T_C1_C0.p_A_B.reshape(3, 1)
         if np.linalg.norm(t) < 1e-6:
             raise VisionError(f"{left.name} and {right.name} are at the same place: no baseline")
-        size = (a.width, a.height)
-        R0, R1, P0, P1, Q = _rectify(a, b, size, R, t, alpha)
-        maps = (_map(a, R0, P0, size), _map(b, R1, P1, size))
-        return cls(left, right, R0, R1, P0, P1, Q, maps, size)
+        self.left, self.right = left, right
+        self.size = (a.width, a.height)
+        R = T_C1_C0.R_A_B.as_matrix()
+        self.R0, self.R1, self.P0, self.P1, self.Q = _rectify(a, b, self.size, R, t, alpha)
+        self.maps = (_map(a, self.R0, self.P0, self.size), _map(b, self.R1, self.P1, self.size))
+
+    @classmethod
+    def of_rig(cls, rig: Rig, *, alpha: float = 0.0) -> StereoRectifier:
+        return cls(rig, alpha=alpha)
+
+    @classmethod
+    def of_cameras(
+        cls, left: CameraSpec, right: CameraSpec, *, alpha: float = 0.0
+    ) -> StereoRectifier:
+        return cls(Rig(name="stereo", cameras=(left, right), imu=None), alpha=alpha)
 
     @property
     def K(self) -> FloatArray:
