@@ -251,6 +251,17 @@ def _rate(stamps: Sequence[tuple[int, ...]] | Sequence[int]) -> float:
     return rate_of_stamps([s[0] if isinstance(s, tuple) else s for s in stamps])
 
 
+def _unknown_imu(scan: _Scan) -> ImuSpec | None:
+    """The bag's IMU when no file calibrates it: its rate from the stamps, its noise unknown
+    (zeros)."""
+    if not scan.imu:
+        return None
+    zero = ImuNoiseModel(
+        gyro_noise_density=0, gyro_random_walk=0, accel_noise_density=0, accel_random_walk=0
+    )
+    return ImuSpec(rate_hz=_rate([t for t, _ in scan.imu]), noise=zero)
+
+
 def _rig_from_file(calib: Path, images: list[str], scan: _Scan) -> Rig:
     from quadnav.io.datasets.euroc import (
         camera_folders,
@@ -277,13 +288,8 @@ def _rig_from_file(calib: Path, images: list[str], scan: _Scan) -> Rig:
         raise IoError(
             f"{calib}: {len(cams)} cameras for {len(images)} image topics ({', '.join(images)})"
         )
-    if imu is None and scan.imu:
-        imu = ImuSpec(
-            rate_hz=_rate([t for t, _ in scan.imu]),
-            noise=ImuNoiseModel(
-                gyro_noise_density=0, gyro_random_walk=0, accel_noise_density=0, accel_random_walk=0
-            ),
-        )
+    if imu is None:
+        imu = _unknown_imu(scan)
     return Rig(name=calib.stem, cameras=cams, imu=imu)
 
 
@@ -314,13 +320,7 @@ def read_bag_dataset(
         if calibration is not None:
             rig = _rig_from_file(calibration, images, scan)
         else:
-            noise0 = ImuNoiseModel(
-                gyro_noise_density=0, gyro_random_walk=0, accel_noise_density=0, accel_random_walk=0
-            )
-            imu_spec = (
-                ImuSpec(rate_hz=_rate([t for t, _ in scan.imu]), noise=noise0) if scan.imu else None
-            )
-            rig = _rig_from_infos(path, images, scan, imu_spec)
+            rig = _rig_from_infos(path, images, scan, _unknown_imu(scan))
     except GeometryError as exc:
         raise IoError(f"{path}: {exc}") from None
     source = _BagSource(path)

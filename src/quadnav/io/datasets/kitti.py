@@ -14,6 +14,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from quadnav.errors import GeometryError, IoError
 from quadnav.geometry.camera import PinholeCamera
@@ -91,13 +92,7 @@ def _camera(
         return CameraSpec(
             name=name,
             camera=lens,
-            T_B_C=Pose.identity()
-            if x == 0
-            else Pose.from_matrix(
-                np.block(
-                    [[np.eye(3), np.array([[x], [0.0], [0.0]])], [np.array([[0.0, 0.0, 0.0, 1.0]])]]
-                )
-            ),
+            T_B_C=Pose(Rotation.identity(), np.array([x, 0.0, 0.0])),
             rate_hz=rate_hz,
         )
     except GeometryError as exc:

@@ -135,7 +135,7 @@ class DatasetIssues:
         if not self:
             return "no rejected samples"
         kinds = ", ".join(f"{n} {k}" for k, n in sorted(self.counts.items()))
-        return f"rejected {kinds} (first: {'; '.join(self.named[:MAX_NAMED])})"
+        return f"rejected {kinds}; first: {self.named[0]}" if self.named else f"rejected {kinds}"
 
 
 class IssueLog:
@@ -154,7 +154,7 @@ class IssueLog:
         return DatasetIssues(counts=dict(self.counts), named=tuple(self.named))
 
 
-@dataclass(frozen=True, slots=True, eq=False)
+@dataclass(frozen=True, slots=True, eq=False, repr=False)
 class VisualInertialDataset:
     """A camera-IMU sequence: ``rig`` (the calibration the files give), ``frames`` (every
     camera's, time ordered, cameras in rig order at equal stamps; pixels load on demand),
@@ -175,16 +175,18 @@ class VisualInertialDataset:
 
     @property
     def duration_s(self) -> float:
-        stamps = [s for s in (self._first(), self._last()) if s is not None]
-        return (stamps[1] - stamps[0]) * 1e-9 if len(stamps) == 2 else 0.0
+        """From the first to the last sample (frame or IMU), in seconds."""
+        ends = [int(t) for t in self.imu.t_ns[[0, -1]]] if len(self.imu) else []
+        ends += [self.frames[0].t_ns, self.frames[-1].t_ns] if self.frames else []
+        return (max(ends) - min(ends)) * 1e-9 if ends else 0.0
 
-    def _first(self) -> int | None:
-        c = [a for a in ([self.frames[0].t_ns] if self.frames else []) + list(self.imu.t_ns[:1])]
-        return int(min(c)) if c else None
-
-    def _last(self) -> int | None:
-        c = [a for a in ([self.frames[-1].t_ns] if self.frames else []) + list(self.imu.t_ns[-1:])]
-        return int(max(c)) if c else None
+    def __repr__(self) -> str:
+        gt = f", {len(self.groundtruth)} ground-truth poses" if self.groundtruth else ""
+        return (
+            f"VisualInertialDataset({self.kind} {self.name!r}: cameras {self.rig.camera_names}, "
+            f"{len(self.frames)} frames, {len(self.imu)} IMU samples{gt}, {self.duration_s:.1f} s; "
+            f"{self.issues.summary()})"
+        )
 
     def verified(self) -> VisualInertialDataset:
         """This dataset without the frames whose pixels cannot be had (a corrupt file, an
