@@ -229,3 +229,29 @@ def test_ros2_bag_writer_sample_by_sample(tmp_path: Path) -> None:
         np.testing.assert_array_equal(f.image(), pics[(f.camera, f.t_ns)])
     gt = ds.groundtruth
     assert gt is not None and gt.trajectory.p_W_B[2].tolist() == [20.0, 2.0, 3.0]
+
+
+def test_kalibr_and_openvins_files_beside_mav0(tmp_path: Path) -> None:
+    """Kalibr's files parse with PyYAML, OpenVINS' with OpenCV's FileStorage, and both say the
+    rig's calibration (T_cam_imu = T_B_C^-1, T_imu_cam = T_B_C)."""
+    import cv2
+    import yaml
+
+    rig = _rig("equidistant", stereo=True)
+    _write(tmp_path / "seq", rig)
+    kalibr = yaml.safe_load((tmp_path / "seq" / "camchain.yaml").read_text())
+    T_cam_imu = np.array(kalibr["cam1"]["T_cam_imu"])
+    np.testing.assert_allclose(T_cam_imu, rig.cameras[1].T_B_C.inverse().matrix(), atol=1e-15)
+    assert kalibr["cam1"]["distortion_model"] == "equidistant"
+    imu = yaml.safe_load((tmp_path / "seq" / "imu.yaml").read_text())["imu0"]
+    assert imu["gyroscope_random_walk"] == 1.9393e-05 and imu["update_rate"] == 200.0
+    fs = cv2.FileStorage(str(tmp_path / "seq" / "kalibr_imucam_chain.yaml"), cv2.FILE_STORAGE_READ)
+    node = fs.getNode("cam1").getNode("T_imu_cam")
+    T_imu_cam = np.array([[node.at(i).at(j).real() for j in range(4)] for i in range(4)])
+    np.testing.assert_allclose(T_imu_cam, rig.cameras[1].T_B_C.matrix(), atol=1e-15)
+    intr = fs.getNode("cam1").getNode("intrinsics")
+    assert [intr.at(i).real() for i in range(4)] == [61.55, 60.675, 41.6, 30.15]
+    fs_imu = cv2.FileStorage(str(tmp_path / "seq" / "kalibr_imu_chain.yaml"), cv2.FILE_STORAGE_READ)
+    assert fs_imu.getNode("imu0").getNode("accelerometer_noise_density").real() == 2.0e-3
+    ours = open_dataset(tmp_path / "seq", calibration=tmp_path / "seq" / "kalibr_imucam_chain.yaml")
+    assert_same_rig(ours.rig, rig, atol=1e-15)

@@ -1,4 +1,4 @@
-"""Kalibr's calibration files: ``camchain.yaml`` (per camera ``T_cam_imu``, ``intrinsics``,
+"""Kalibr's calibration files (and OpenVINS' variants of them): ``camchain.yaml`` (per camera ``T_cam_imu``, ``intrinsics``,
 ``distortion_model``, ``distortion_coeffs``, ``resolution``, ``timeshift_cam_imu``; ``T_cn_cnm1``
 between neighbours) and ``imu.yaml`` (noise densities, ``update_rate``; TUM-VI's
 ``imu_config.yaml`` has the same keys at the top level).
@@ -85,6 +85,8 @@ def _camchain_camera(
     )
     if "T_cam_imu" in doc:
         T_B_C = _matrix_rows(doc, "T_cam_imu", where).inverse()
+    elif "T_imu_cam" in doc:  # OpenVINS' kalibr_imucam_chain.yaml
+        T_B_C = _matrix_rows(doc, "T_imu_cam", where)
     elif prev is not None and "T_cn_cnm1" in doc:
         T_B_C = prev.T_B_C @ _matrix_rows(doc, "T_cn_cnm1", where).inverse()
     elif prev is None:
@@ -153,7 +155,7 @@ def noise_from(doc: dict[str, Any], path: Path) -> ImuNoiseModel:
 
 
 def matrix_lines(T: Pose, indent: str) -> str:
-    """A 4x4 as YAML rows of exact floats."""
+    """A 4x4 as YAML rows of exact floats (indented past their key: OpenCV's reader needs it)."""
     M = T.matrix()
     return "".join(f"{indent}- [{', '.join(float_text(x) for x in row)}]\n" for row in M)
 
@@ -169,19 +171,26 @@ def lens_fields(cam: PinholeCamera) -> tuple[str, str, str]:
     return intr, numbers_text(cam.dist), f"[{cam.width}, {cam.height}]"
 
 
-def write_camchain(path: Path, rig: Rig) -> None:
-    """Kalibr's camchain of a rig (its IMU frame is the body's when it has no IMU)."""
+def write_camchain(path: Path, rig: Rig, *, openvins: bool = False) -> None:
+    """Kalibr's camchain of a rig (its IMU frame is the body's when it has no IMU), or with
+    ``openvins`` OpenVINS' ``kalibr_imucam_chain.yaml``: ``%YAML:1.0`` first (OpenCV's
+    FileStorage reads it) and ``T_imu_cam`` (the camera's pose in the IMU) for ``T_cam_imu``."""
     T_B_I = rig.imu.T_B_I if rig.imu is not None else Pose.identity()
-    out = []
+    out = ["%YAML:1.0\n\n"] if openvins else []
     for k, spec in enumerate(rig.cameras):
         intr, dist, res = lens_fields(spec.camera)
         model = "equidistant" if spec.camera.model == "equidistant" else "radtan"
-        text = f"cam{k}:\n  T_cam_imu:\n" + matrix_lines(spec.T_B_C.inverse() @ T_B_I, "  ")
-        if k > 0:
+        T_I_C = T_B_I.inverse() @ spec.T_B_C
+        if openvins:
+            text = f"cam{k}:\n  T_imu_cam:\n" + matrix_lines(T_I_C, "    ")
+        else:
+            text = f"cam{k}:\n  T_cam_imu:\n" + matrix_lines(T_I_C.inverse(), "    ")
+        if k > 0 and not openvins:
             T_cn_cnm1 = spec.T_B_C.inverse() @ rig.cameras[k - 1].T_B_C
-            text += "  T_cn_cnm1:\n" + matrix_lines(T_cn_cnm1, "  ")
-            text += f"  cam_overlaps: [{k - 1}]\n"
+            text += "  T_cn_cnm1:\n" + matrix_lines(T_cn_cnm1, "    ")
+        overlaps = ", ".join(str(j) for j in range(len(rig.cameras)) if j != k)
         text += (
+            f"  cam_overlaps: [{overlaps}]\n"
             f"  camera_model: pinhole\n  distortion_coeffs: {dist}\n"
             f"  distortion_model: {model}\n  intrinsics: {intr}\n  resolution: {res}\n"
             f"  rostopic: /cam{k}/image_raw\n"
@@ -191,14 +200,26 @@ def write_camchain(path: Path, rig: Rig) -> None:
     path.write_text("".join(out), encoding="utf-8")
 
 
-def write_kalibr_imu(path: Path, rig: Rig) -> None:
-    """Kalibr's ``imu.yaml`` of the rig's IMU."""
+_IDENTITY_3 = "    - [1.0, 0.0, 0.0]\n    - [0.0, 1.0, 0.0]\n    - [0.0, 0.0, 1.0]\n"
+_OPENVINS_IMU_MODEL = (
+    '  model: "kalibr"\n'
+    + "".join(f"  {k}:\n{_IDENTITY_3}" for k in ("Tw", "R_IMUtoGYRO", "Ta", "R_IMUtoACC"))
+    + "  Tg:\n"
+    + "    - [0.0, 0.0, 0.0]\n" * 3
+)
+
+
+def write_kalibr_imu(path: Path, rig: Rig, *, openvins: bool = False) -> None:
+    """Kalibr's ``imu.yaml`` of the rig's IMU, or with ``openvins`` OpenVINS'
+    ``kalibr_imu_chain.yaml`` (``%YAML:1.0`` first, an ideal IMU model: identity Tw, Ta)."""
     if rig.imu is None:
         raise IoError(f"rig {rig.name!r} has no IMU to write to {path}")
     n = rig.imu.noise
-    text = "imu0:\n  T_i_b:\n" + matrix_lines(rig.imu.T_B_I.inverse(), "  ")
+    text = "%YAML:1.0\n\n" if openvins else ""
+    text += "imu0:\n  T_i_b:\n" + matrix_lines(rig.imu.T_B_I.inverse(), "    ")
     for ours, theirs in IMU_KEYS.items():
         text += f"  {theirs}: {float_text(getattr(n, ours))}\n"
-    text += "  model: calibrated\n  rostopic: /imu0\n  time_offset: 0.0\n"
+    text += "  rostopic: /imu0\n  time_offset: 0.0\n"
     text += f"  update_rate: {float_text(rig.imu.rate_hz)}\n"
+    text += _OPENVINS_IMU_MODEL if openvins else "  model: calibrated\n"
     path.write_text(text, encoding="utf-8")

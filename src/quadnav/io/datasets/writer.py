@@ -1,6 +1,7 @@
 """An incremental EuRoC ASL writer: ``mav0/cam*/data/<t_ns>.png`` + ``data.csv``, ``imu0/``,
 ``state_groundtruth_estimate0/``, a ``sensor.yaml`` per sensor and ``body.yaml``, and beside
-``mav0/`` Kalibr's ``camchain.yaml`` and ``imu.yaml`` (for OpenVINS and Kalibr users).
+``mav0/`` Kalibr's ``camchain.yaml`` and ``imu.yaml`` (PyYAML reads them) and OpenVINS'
+``kalibr_imucam_chain.yaml`` and ``kalibr_imu_chain.yaml`` (``%YAML:1.0``, for OpenCV's reader).
 
 Everything goes to ``<root>.partial/`` and is renamed to ``<root>`` by :meth:`EurocWriter.close`:
 an exception (or a writer never closed) leaves no ``<root>/mav0`` that a reader would accept.
@@ -167,11 +168,13 @@ class EurocWriter(PartialWriter):
         if self.rig.imu is not None:
             (self.mav0 / "imu0" / "sensor.yaml").write_text(imu_yaml(self.rig), encoding="utf-8")
             write_kalibr_imu(self.partial / "imu.yaml", self.rig)
+            write_kalibr_imu(self.partial / "kalibr_imu_chain.yaml", self.rig, openvins=True)
         if _GT in self._files:
             text = f"%YAML:1.0\nsensor_type: visual-inertial\n{_t_bs(Pose.identity())}"
             (self.mav0 / _GT / "sensor.yaml").write_text(text, encoding="utf-8")
         (self.mav0 / "body.yaml").write_text(f"%YAML:1.0\ncomment: {self.rig.name}\n", "utf-8")
         write_camchain(self.partial / "camchain.yaml", self.rig)
+        write_camchain(self.partial / "kalibr_imucam_chain.yaml", self.rig, openvins=True)
 
     def close(self) -> Path:
         """Finish the files and move the folder to ``root``; the root's path."""
