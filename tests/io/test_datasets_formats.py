@@ -95,7 +95,10 @@ def _tumvi(root: Path, n: int = 6) -> Path:
 
 
 def test_tumvi_folder(tmp_path: Path) -> None:
-    ds = open_dataset(_tumvi(tmp_path / "dataset-corridor1_512_16"))
+    root = _tumvi(tmp_path / "dataset-corridor1_512_16")
+    for cam in ("cam0", "cam1"):  # a sensor.yaml without calibration: dso/camchain.yaml wins
+        (root / "mav0" / cam / "sensor.yaml").write_text("%YAML:1.0\nsensor_type: camera\n")
+    ds = open_dataset(root)
     assert ds.kind == "tumvi" and ds.rig.camera_names == ["cam0", "cam1"]
     for spec in ds.rig.cameras:
         intr, dist = TUMVI_LENS[spec.name]

@@ -138,6 +138,7 @@ def test_euroc_writer_round_trip(tmp_path: Path, model: str, stereo: bool) -> No
     assert ds.kind == "euroc" and not ds.issues
     assert_same_rig(ds.rig, rig, atol=1e-15)
     assert ds.rig.cameras[0].exposure_s == 0.004
+    assert {f.exposure_s for f in ds.frames_of("cam0")} == {0.004}
     _same_samples(ds, written)
     # the Kalibr files beside mav0 describe the same rig (through T_cam_imu = T_B_C^-1)
     via_camchain = open_dataset(tmp_path / "seq", calibration=tmp_path / "seq" / "camchain.yaml")

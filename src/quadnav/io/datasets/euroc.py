@@ -14,6 +14,7 @@ asked for, naming the file.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import os
 from pathlib import Path
@@ -184,31 +185,37 @@ def read_groundtruth(mav0: Path, issues: IssueLog) -> GroundTruth | None:
         raise IoError(f"{folder / 'data.csv'}: {exc}") from None
 
 
-def _rig(
-    mav0: Path, cams: list[Path], frames: dict[str, list[ImageFrame]], calib: Path | None
-) -> Rig:
-    """The rig from the sensor.yaml files (of ``calib`` when it is an EuRoC folder), or from a
-    Kalibr camchain (``calib``, or TUM-VI's ``dso/camchain.yaml``)."""
-    root = mav0.parent
-    camchain = calib if calib is not None else root / "dso" / "camchain.yaml"
-    source = mav0
+def _calibration_source(mav0: Path, calib: Path | None) -> Path:
+    """Where the calibration is: a camchain file, or a ``mav0`` folder of sensor.yaml files
+    (``calib``'s when it is an EuRoC folder; TUM-VI's ``dso/camchain.yaml`` before the
+    folder's own sensor.yaml files)."""
     if calib is not None and calib.is_dir():
         found = find_mav0(calib)
         if found is None:
             raise IoError(f"{calib}: no mav0/ folder (not an EuRoC calibration)")
-        source = found
-    imu_folder = source / "imu0"
-    if (calib is None or calib.is_dir()) and (source / cams[0].name / "sensor.yaml").is_file():
-        specs = tuple(read_euroc_camera(c) for c in camera_folders(source))
-        imu = read_euroc_imu(imu_folder) if imu_folder.is_dir() else None
-    elif camchain.is_file():
+        return found
+    if calib is not None:
+        return calib
+    tumvi = mav0.parent / "dso" / "camchain.yaml"
+    return tumvi if tumvi.is_file() else mav0
+
+
+def _rig(
+    mav0: Path, cams: list[Path], frames: dict[str, list[ImageFrame]], calib: Path | None
+) -> Rig:
+    """The rig from sensor.yaml files or from a Kalibr camchain (see _calibration_source)."""
+    source = _calibration_source(mav0, calib)
+    if source.is_file():
         rates = {c.name: rate_of_stamps([f.t_ns for f in frames[c.name]]) for c in cams}
-        specs = read_camchain(camchain, rates)
-        imu = _tumvi_imu(camchain.parent, mav0 / "imu0")
+        specs = read_camchain(source, rates)
+        imu = _tumvi_imu(source.parent, mav0 / "imu0")
+    elif (source / cams[0].name / "sensor.yaml").is_file():
+        specs = tuple(read_euroc_camera(c) for c in camera_folders(source))
+        imu = read_euroc_imu(source / "imu0") if (source / "imu0").is_dir() else None
     else:
         raise IoError(
-            f"{mav0}: no calibration: neither {source / cams[0].name / 'sensor.yaml'} "
-            f"nor {camchain} exists"
+            f"{mav0}: no calibration: neither {source / cams[0].name / 'sensor.yaml'} nor "
+            f"{mav0.parent / 'dso' / 'camchain.yaml'} exists"
         )
     if [s.name for s in specs] != [c.name for c in cams]:
         raise IoError(
@@ -216,7 +223,7 @@ def _rig(
             f"the folder {[c.name for c in cams]}"
         )
     try:
-        return Rig(name=root.name, cameras=specs, imu=imu)
+        return Rig(name=mav0.parent.name, cameras=specs, imu=imu)
     except GeometryError as exc:
         raise IoError(f"{mav0}: {exc}") from None
 
@@ -248,7 +255,12 @@ def read_asl(
     rig = _rig(mav0, cams, frames, calibration)
     imu = read_imu_rows(mav0 / "imu0", issues) if rig.imu is not None else ImuTable.empty()
     gt = read_groundtruth(mav0, issues)
-    all_frames = [f for c in cams for f in frames[c.name]]
+    exposure = {c.name: c.exposure_s for c in rig.cameras}
+    all_frames = [
+        dataclasses.replace(f, exposure_s=exposure[f.camera]) if exposure[f.camera] else f
+        for c in cams
+        for f in frames[c.name]
+    ]
     return VisualInertialDataset(
         name=mav0.parent.name,
         root=mav0.parent,
