@@ -144,8 +144,8 @@ class Ros2BagWriter(PartialWriter):
         msg = self.m.imu(sample.t_ns, sample.gyro_rad_s, sample.accel_m_s2)
         self._write("/imu0", IMU_TYPE, sample.t_ns, msg)
 
-    def add_groundtruth(self, t_ns: int, p: ArrayLike, q_xyzw: ArrayLike) -> None:
-        msg = self.m.pose(t_ns, np.asarray(p, float), np.asarray(q_xyzw, float))
+    def add_groundtruth(self, t_ns: int, p: ArrayLike, q: ArrayLike) -> None:
+        msg = self.m.pose(t_ns, np.asarray(p, float), np.asarray(q, float))
         self._write("/groundtruth", POSE_TYPE, t_ns, msg)
 
     def close(self) -> Path:

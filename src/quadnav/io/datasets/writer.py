@@ -145,13 +145,13 @@ class EurocWriter(PartialWriter):
         self,
         t_ns: int,
         p: ArrayLike,
-        q_xyzw: ArrayLike,
+        q: ArrayLike,
         v: ArrayLike = (0.0, 0.0, 0.0),
         bg: ArrayLike = (0.0, 0.0, 0.0),
         ba: ArrayLike = (0.0, 0.0, 0.0),
     ) -> None:
         """The body's pose (``q`` x, y, z, w; written w first as EuRoC), velocity, biases."""
-        values = [np.asarray(a, dtype=np.float64).ravel() for a in (p, q_xyzw, v, bg, ba)]
+        values = [np.asarray(a, dtype=np.float64).ravel() for a in (p, q, v, bg, ba)]
         if [a.size for a in values] != [3, 4, 3, 3, 3] or not all(
             np.isfinite(a).all() for a in values
         ):
@@ -159,8 +159,8 @@ class EurocWriter(PartialWriter):
         if _GT not in self._files:
             self._open(_GT, f"{_GT}/data.csv", _GT_HEADER)
         self._stamp(_GT, t_ns)
-        p_, q, v_, bg_, ba_ = values
-        self._files[_GT].write(_row(t_ns, np.r_[p_, q[[3, 0, 1, 2]], v_, bg_, ba_]))
+        p_, q_, v_, bg_, ba_ = values
+        self._files[_GT].write(_row(t_ns, np.r_[p_, q_[[3, 0, 1, 2]], v_, bg_, ba_]))
 
     def _write_yaml(self) -> None:
         for spec in self.rig.cameras:
