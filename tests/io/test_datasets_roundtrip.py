@@ -191,6 +191,9 @@ def test_writer_refuses_bad_samples(tmp_path: Path) -> None:
     w.abort()
     with pytest.raises(IoError, match="already exists"):
         EurocWriter(tmp_path, _rig("radtan", False))
+    (tmp_path / "file").write_text("")
+    with pytest.raises(IoError, match=r"file/seq.partial: cannot be written \(Not a directory\)"):
+        EurocWriter(tmp_path / "file" / "seq", _rig("radtan", False))
 
 
 def test_ros2_bag_writer_sample_by_sample(tmp_path: Path) -> None:

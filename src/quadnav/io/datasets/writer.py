@@ -92,12 +92,16 @@ class EurocWriter(PartialWriter):
         self._files: dict[str, IO[str]] = {}
         self._last: dict[str, int] = {}
         self.counts: dict[str, int] = {}
-        for spec in rig.cameras:
-            (self.mav0 / spec.name / "data").mkdir(parents=True)
-            self._open(spec.name, f"{spec.name}/data.csv", "#timestamp [ns],filename\n")
-        if rig.imu is not None:
-            self._open("imu0", "imu0/data.csv", _IMU_HEADER)
         self.closed = False
+        try:
+            for spec in rig.cameras:
+                (self.mav0 / spec.name / "data").mkdir(parents=True)
+                self._open(spec.name, f"{spec.name}/data.csv", "#timestamp [ns],filename\n")
+            if rig.imu is not None:
+                self._open("imu0", "imu0/data.csv", _IMU_HEADER)
+        except OSError as exc:
+            self.abort()
+            raise IoError(f"{self.partial}: cannot be written ({exc.strerror})") from None
 
     def _open(self, key: str, rel: str, header: str) -> None:
         path = self.mav0 / rel
