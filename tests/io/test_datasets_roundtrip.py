@@ -145,7 +145,7 @@ def test_euroc_writer_round_trip(tmp_path: Path, model: str, stereo: bool) -> No
     assert_same_rig(via_camchain.rig, rig, atol=1e-15)
 
 
-@pytest.mark.parametrize(("model", "stereo"), [CASES[1], CASES[2]])
+@pytest.mark.parametrize(("model", "stereo"), CASES)
 def test_ros2_bag_round_trip(tmp_path: Path, model: str, stereo: bool) -> None:
     rig = _rig(model, stereo)
     written = _write(tmp_path / "seq", rig, seed=1)
