@@ -18,6 +18,7 @@ from quadnav.io.trajectory_io import (
 
 if TYPE_CHECKING:  # configs (yaml, config models) load on first use: eval needs none of them
     from quadnav.io.config import apply_override, dump_config, load_config
+    from quadnav.io.datasets import open_dataset
 
 __all__ = [
     "ConfigError",
@@ -27,6 +28,7 @@ __all__ = [
     "dump_config",
     "guess_format",
     "load_config",
+    "open_dataset",
     "read_trajectory",
     "write_csv",
     "write_euroc",
@@ -41,6 +43,10 @@ __all__ = [
 def __getattr__(name: str) -> Any:
     if name in ("apply_override", "dump_config", "load_config"):
         value = getattr(importlib.import_module("quadnav.io.config"), name)
+        globals()[name] = value
+        return value
+    if name == "open_dataset":  # datasets (cv2, rosbags) load on first use too
+        value = importlib.import_module("quadnav.io.datasets").open_dataset
         globals()[name] = value
         return value
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

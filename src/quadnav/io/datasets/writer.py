@@ -1,0 +1,201 @@
+"""An incremental EuRoC ASL writer: ``mav0/cam*/data/<t_ns>.png`` + ``data.csv``, ``imu0/``,
+``state_groundtruth_estimate0/``, a ``sensor.yaml`` per sensor and ``body.yaml``, and beside
+``mav0/`` Kalibr's ``camchain.yaml`` and ``imu.yaml`` (PyYAML reads them) and OpenVINS'
+``kalibr_imucam_chain.yaml`` and ``kalibr_imu_chain.yaml`` (``%YAML:1.0``, for OpenCV's reader).
+
+Everything goes to ``<root>.partial/`` and is renamed to ``<root>`` by :meth:`EurocWriter.close`:
+an exception (or a writer never closed) leaves no ``<root>/mav0`` that a reader would accept.
+Numbers are written as ``repr`` of the floats, so they read back exactly. A radial-tangential
+lens without coefficients is written with four zeros (what EuRoC's tools expect)."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+from typing import IO
+
+import cv2
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from quadnav.errors import IoError
+from quadnav.geometry.rotations import Pose
+from quadnav.io.datasets.files import PartialWriter, float_text
+from quadnav.io.datasets.kalibr import IMU_KEYS, lens_fields, write_camchain, write_kalibr_imu
+from quadnav.messages import ImuSample
+from quadnav.rig import CameraSpec, Rig
+
+__all__ = ["EurocWriter"]
+
+_GT = "state_groundtruth_estimate0"
+_IMU_HEADER = (
+    "#timestamp [ns],w_RS_S_x [rad s^-1],w_RS_S_y [rad s^-1],w_RS_S_z [rad s^-1],"
+    "a_RS_S_x [m s^-2],a_RS_S_y [m s^-2],a_RS_S_z [m s^-2]\n"
+)
+_GT_HEADER = (
+    "#timestamp,p_RS_R_x [m],p_RS_R_y [m],p_RS_R_z [m],q_RS_w [],q_RS_x [],q_RS_y [],q_RS_z [],"
+    "v_RS_R_x [m s^-1],v_RS_R_y [m s^-1],v_RS_R_z [m s^-1],b_w_RS_S_x [rad s^-1],"
+    "b_w_RS_S_y [rad s^-1],b_w_RS_S_z [rad s^-1],b_a_RS_S_x [m s^-2],b_a_RS_S_y [m s^-2],"
+    "b_a_RS_S_z [m s^-2]\n"
+)
+
+
+def _t_bs(T: Pose) -> str:
+    data = ", ".join(float_text(x) for x in T.matrix().ravel())
+    return f"T_BS:\n  cols: 4\n  rows: 4\n  data: [{data}]\n"
+
+
+def camera_yaml(spec: CameraSpec) -> str:
+    """A camera's EuRoC ``sensor.yaml`` (plus quadnav's ``time_offset_ns`` and ``exposure_s``)."""
+    intr, dist, res = lens_fields(spec.camera)
+    if spec.camera.model == "radtan" and spec.camera.dist.size == 0:
+        dist = "[0.0, 0.0, 0.0, 0.0]"
+    model = "equidistant" if spec.camera.model == "equidistant" else "radial-tangential"
+    return (
+        f"%YAML:1.0\nsensor_type: camera\ncomment: {spec.name}\n\n{_t_bs(spec.T_B_C)}\n"
+        f"rate_hz: {float_text(spec.rate_hz)}\nresolution: {res}\ncamera_model: pinhole\n"
+        f"intrinsics: {intr} #fu, fv, cu, cv\ndistortion_model: {model}\n"
+        f"distortion_coefficients: {dist}\n"
+        f"time_offset_ns: {int(spec.time_offset_ns)}\nexposure_s: {float_text(spec.exposure_s)}\n"
+    )
+
+
+def imu_yaml(rig: Rig) -> str:
+    assert rig.imu is not None
+    text = f"%YAML:1.0\nsensor_type: imu\ncomment: {rig.imu.name}\n\n{_t_bs(rig.imu.T_B_I)}"
+    text += f"rate_hz: {float_text(rig.imu.rate_hz)}\n\n"
+    for ours, theirs in IMU_KEYS.items():
+        text += f"{theirs}: {float_text(getattr(rig.imu.noise, ours))}\n"
+    return text
+
+
+def _row(t_ns: int, values: ArrayLike) -> str:
+    return (
+        f"{int(t_ns)}," + ",".join(float_text(x) for x in np.asarray(values, float).ravel()) + "\n"
+    )
+
+
+class EurocWriter(PartialWriter):
+    """Write a rig's sequence sample by sample (see the module docstring); a context manager
+    that closes on success and removes the partial folder on an exception."""
+
+    def __init__(self, root: Path | str, rig: Rig, *, overwrite: bool = False) -> None:
+        self.root = Path(root)
+        self.rig = rig
+        self.overwrite = overwrite
+        if self.root.exists() and not overwrite:
+            raise IoError(f"{self.root}: already exists (give overwrite=True to replace it)")
+        self.partial = self.root.with_name(self.root.name + ".partial")
+        if self.partial.exists():
+            shutil.rmtree(self.partial)
+        self.mav0 = self.partial / "mav0"
+        self._files: dict[str, IO[str]] = {}
+        self._last: dict[str, int] = {}
+        self.counts: dict[str, int] = {}
+        self.closed = False
+        try:
+            for spec in rig.cameras:
+                (self.mav0 / spec.name / "data").mkdir(parents=True)
+                self._open(spec.name, f"{spec.name}/data.csv", "#timestamp [ns],filename\n")
+            if rig.imu is not None:
+                self._open("imu0", "imu0/data.csv", _IMU_HEADER)
+        except OSError as exc:
+            self.abort()
+            raise IoError(f"{self.partial}: cannot be written ({exc.strerror})") from None
+
+    def _open(self, key: str, rel: str, header: str) -> None:
+        path = self.mav0 / rel
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fh = path.open("w", encoding="utf-8")
+        fh.write(header)
+        self._files[key] = fh
+        self.counts[key] = 0
+
+    def _stamp(self, key: str, t_ns: int) -> None:
+        if self.closed:
+            raise IoError(f"{self.root}: the writer is closed")
+        if isinstance(t_ns, bool) or not isinstance(t_ns, int | np.integer) or t_ns < 0:
+            raise IoError(f"{key}: t_ns must be a non-negative integer, got {t_ns!r}")
+        last = self._last.get(key)
+        if last is not None and t_ns <= last:
+            raise IoError(f"{key}: t_ns {t_ns} is not after the previous {last}")
+        self._last[key] = int(t_ns)
+        self.counts[key] = self.counts.get(key, 0) + 1
+
+    def add_frame(self, camera: str, t_ns: int, image: NDArray[np.uint8]) -> None:
+        """One image of ``camera`` (grey or BGR uint8, the camera's resolution) as a PNG."""
+        if camera not in self.rig.camera_names:
+            raise IoError(f"camera {camera!r} is not one of the rig's {self.rig.camera_names}")
+        lens = self.rig.camera(camera).camera
+        img = np.asarray(image)
+        if img.dtype != np.uint8 or img.shape[:2] != (lens.height, lens.width):
+            raise IoError(
+                f"{camera}: image must be uint8 {lens.height}x{lens.width}, "
+                f"got {img.dtype} {img.shape}"
+            )
+        self._stamp(camera, t_ns)
+        name = f"{int(t_ns)}.png"
+        if not cv2.imwrite(str(self.mav0 / camera / "data" / name), img):
+            raise IoError(f"{self.mav0 / camera / 'data' / name}: cannot be written")
+        self._files[camera].write(f"{int(t_ns)},{name}\n")
+
+    def add_imu(self, sample: ImuSample) -> None:
+        if self.rig.imu is None:
+            raise IoError(f"rig {self.rig.name!r} has no IMU")
+        self._stamp("imu0", sample.t_ns)
+        self._files["imu0"].write(_row(sample.t_ns, np.r_[sample.gyro_rad_s, sample.accel_m_s2]))
+
+    def add_groundtruth(
+        self,
+        t_ns: int,
+        p: ArrayLike,
+        q: ArrayLike,
+        v: ArrayLike = (0.0, 0.0, 0.0),
+        bg: ArrayLike = (0.0, 0.0, 0.0),
+        ba: ArrayLike = (0.0, 0.0, 0.0),
+    ) -> None:
+        """The body's pose (``q`` x, y, z, w; written w first as EuRoC), velocity, biases."""
+        values = [np.asarray(a, dtype=np.float64).ravel() for a in (p, q, v, bg, ba)]
+        if [a.size for a in values] != [3, 4, 3, 3, 3] or not all(
+            np.isfinite(a).all() for a in values
+        ):
+            raise IoError(f"ground truth at {t_ns}: p, v, bg, ba need 3 and q 4 finite numbers")
+        if _GT not in self._files:
+            self._open(_GT, f"{_GT}/data.csv", _GT_HEADER)
+        self._stamp(_GT, t_ns)
+        p_, q_, v_, bg_, ba_ = values
+        self._files[_GT].write(_row(t_ns, np.r_[p_, q_[[3, 0, 1, 2]], v_, bg_, ba_]))
+
+    def _write_yaml(self) -> None:
+        for spec in self.rig.cameras:
+            (self.mav0 / spec.name / "sensor.yaml").write_text(camera_yaml(spec), encoding="utf-8")
+        if self.rig.imu is not None:
+            (self.mav0 / "imu0" / "sensor.yaml").write_text(imu_yaml(self.rig), encoding="utf-8")
+            write_kalibr_imu(self.partial / "imu.yaml", self.rig)
+            write_kalibr_imu(self.partial / "kalibr_imu_chain.yaml", self.rig, openvins=True)
+        if _GT in self._files:
+            text = f"%YAML:1.0\nsensor_type: visual-inertial\n{_t_bs(Pose.identity())}"
+            (self.mav0 / _GT / "sensor.yaml").write_text(text, encoding="utf-8")
+        (self.mav0 / "body.yaml").write_text(f"%YAML:1.0\ncomment: {self.rig.name}\n", "utf-8")
+        write_camchain(self.partial / "camchain.yaml", self.rig)
+        write_camchain(self.partial / "kalibr_imucam_chain.yaml", self.rig, openvins=True)
+
+    def close(self) -> Path:
+        """Finish the files and move the folder to ``root``; the root's path."""
+        if self.closed:
+            return self.root
+        for fh in self._files.values():
+            fh.close()
+        self._write_yaml()
+        if self.root.exists():
+            shutil.rmtree(self.root)
+        self.partial.rename(self.root)
+        self.closed = True
+        return self.root
+
+    def abort(self) -> None:
+        """Drop what was written (the partial folder)."""
+        for fh in self._files.values():
+            fh.close()
+        shutil.rmtree(self.partial, ignore_errors=True)
+        self.closed = True
