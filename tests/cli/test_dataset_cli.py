@@ -1,0 +1,71 @@
+"""``quadnav dataset``: make writes a folder the readers take and says what it made; info and
+tracks read any dataset; bad requests are one-line errors that leave no folder behind."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from typer.testing import CliRunner, Result
+
+from quadnav.cli.main import app
+from tests.shared_data import SHARED, needs
+
+runner = CliRunner()
+EUROC = SHARED / "euroc_micro"
+
+
+def one_line_error(res: Result, fragment: str) -> None:
+    assert res.exit_code == 2, res.output
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1 and fragment in lines[0], res.stderr
+
+
+def test_make_writes_a_readable_folder_and_prints_its_path_last(tmp_path: Path) -> None:
+    out = tmp_path / "room"
+    res = runner.invoke(
+        app,
+        ["dataset", "make", "room", "--duration", "1.5", "--rig", "thesis003_sim", "--out", str(out)],
+    )
+    assert res.exit_code == 0, res.output
+    assert res.stdout.strip().splitlines()[-1] == str(out)
+    doc = json.loads((out / "dataset.json").read_text())
+    assert doc["made"]["frames"] == 31 and doc["spec"]["rig"] == "thesis003_sim"
+    assert (out / "groundtruth.tum").read_text().count("\n") == 150  # 100 Hz over 1.5 s
+    info = runner.invoke(app, ["dataset", "info", str(out)])
+    assert info.exit_code == 0, info.output
+    assert "31 frames, 20 Hz, 640x480" in info.stdout
+    assert "IMU" in info.stdout and "samples at 200 Hz" in info.stdout
+
+
+def test_make_refuses_bad_requests_in_one_line(tmp_path: Path) -> None:
+    (tmp_path / "full").mkdir()
+    (tmp_path / "full" / "x").write_text("x")
+    cases = [
+        (["attic", "--out", str(tmp_path / "a")], "unknown sequence or world 'attic'"),
+        (["room", "--rig", "kinect", "--out", str(tmp_path / "b")], "--rig: unknown rig 'kinect'"),
+        (["room", "--out", str(tmp_path / "full")], "exists and is not empty"),
+        (["room", "--set", "lighting=7", "--out", str(tmp_path / "c")], "lighting"),
+        (["room", "--motion", "nowhere.txt", "--out", str(tmp_path / "d")], "--motion 'nowhere.txt'"),
+    ]
+    for args, fragment in cases:
+        one_line_error(runner.invoke(app, ["dataset", "make", *args]), fragment)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["full"]  # nothing half-made
+
+
+@needs(EUROC)
+def test_tracks_on_the_real_euroc_frames_writes_its_statistics(tmp_path: Path) -> None:
+    out = tmp_path / "tracks.json"
+    res = runner.invoke(app, ["dataset", "tracks", str(EUROC), "--json", str(out)])
+    assert res.exit_code == 0, res.output
+    doc = json.loads(out.read_text())
+    assert doc["tracks"]["n_frames"] == 95
+    # the vehicle stands still: nearly every feature is kept from one frame to the next
+    assert doc["tracks"]["fraction_tracked"]["median"] > 0.95
+    assert doc["images"]["corners"] > 150
+    one_line_error(
+        runner.invoke(app, ["dataset", "tracks", str(EUROC), "--camera", "cam7"]), "cam7"
+    )
+    one_line_error(
+        runner.invoke(app, ["dataset", "tracks", str(EUROC), "--duration", "-1"]), "--duration"
+    )
