@@ -15,10 +15,12 @@ from numpy.typing import NDArray
 from quadnav.errors import VisionError
 from quadnav.vision.tracking import (
     FeatureTracker,
+    StereoGeometry,
     TrackedFrame,
     TrackerConfig,
     fundamental_inliers,
     track_sequence,
+    track_stereo,
 )
 from tests.shared_data import SHARED, needs
 from tests.vision.tracking_scenes import TwoPlanes, apply, canvas, texture, two_planes, view
@@ -322,3 +324,54 @@ def test_track_stats_of_a_known_sequence() -> None:
              zip(f.ids, f.track_lengths, strict=True) if i not in set(g.ids.tolist())]  # fmt: skip
     assert stats.track_length.median == pytest.approx(np.median(ended))
     assert stats.track_length.max == 6  # seen in all six textured frames
+
+
+def test_stereo_matches_of_a_rectified_pair_have_the_known_disparity() -> None:
+    errors, rows = [], []
+    for seed in SEEDS:
+        sc = two_planes(seed, stereo=True)
+        m = track_stereo(sc.frame0, sc.frame1)
+        assert len(m) >= 100 and m.lost_geometry <= 0.05 * len(m)
+        away = np.abs(m.left_px[:, 0] - sc.near_x_px) > 25  # not at the occluding edge
+        errors.append(np.linalg.norm(m.right_px - sc.truth(m.left_px), axis=1)[away])
+        rows.append(np.abs(m.right_px[:, 1] - m.left_px[:, 1]))
+    e = np.concatenate(errors)
+    assert np.median(e) < 0.1 and np.percentile(e, 95) < 0.2
+    assert np.concatenate(rows).max() <= 1.0
+
+
+def test_stereo_row_check_rejects_a_pair_that_is_not_rectified() -> None:
+    """The right image 3 px lower (a vertical misalignment): KLT follows, the row check drops."""
+    sc = two_planes(0, stereo=True)
+    lower = np.roll(sc.frame1, 3, axis=0)
+    m = track_stereo(sc.frame0, lower)
+    assert len(m) <= 3 and m.lost_geometry >= 100
+
+
+def _euroc_pair(k: int) -> tuple[np.ndarray, np.ndarray]:
+    names = sorted((EUROC / "cam0" / "data").glob("*.png"))
+    return tuple(  # type: ignore[return-value]
+        cv2.imread(str(EUROC / cam / "data" / names[k].name), cv2.IMREAD_GRAYSCALE)
+        for cam in ("cam0", "cam1")
+    )
+
+
+@needs(EUROC)
+def test_stereo_matches_of_euroc_lie_on_their_epipolar_lines() -> None:
+    """cam0 -> cam1 of the real, calibrated (distorted, unrectified) pair: the matches fit the
+    rig's epipolar geometry; told a wrong baseline (along y, not x), the check drops them."""
+    from quadnav.geometry.rotations import Pose
+    from quadnav.rig import euroc
+
+    c0, c1 = euroc().cameras
+    geo = StereoGeometry(left=c0.camera, right=c1.camera, T_L_R=c0.T_B_C.inverse() @ c1.T_B_C)
+    wrong = StereoGeometry(
+        left=c0.camera, right=c1.camera, T_L_R=Pose(geo.T_L_R.R_A_B, np.array([0.0, 0.11, 0.0]))
+    )
+    cfg = TrackerConfig(equalize=True)  # the two cameras' gains differ (mean grey 145 vs 130)
+    left, right = _euroc_pair(40)
+    m = track_stereo(left, right, config=cfg, geometry=geo)
+    assert len(m) >= 50  # of 150 corners; measured 68
+    assert np.median(geo.epipolar_error_px(m.left_px, m.right_px)) < 0.3
+    assert (m.left_px[:, 0] - m.right_px[:, 0]).min() > -20  # cam1 sits to the right
+    assert len(track_stereo(left, right, config=cfg, geometry=wrong)) <= 5

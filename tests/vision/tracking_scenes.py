@@ -79,12 +79,14 @@ def plane_homography(
 
 
 @cache
-def two_planes(seed: int, near_x_px: float = 300.0) -> TwoPlanes:
-    """The scene of seed ``seed`` (made once per test session: the tests only read it)."""
+def two_planes(seed: int, near_x_px: float = 300.0, *, stereo: bool = False) -> TwoPlanes:
+    """The scene of seed ``seed`` (made once per test session: the tests only read it); with
+    ``stereo`` frame 1 is the right image of a rectified pair with EuRoC's 11 cm baseline (near
+    plane disparity 22 px, far 7.3 px)."""
     rng = np.random.default_rng(seed)
-    a = np.deg2rad(1.0)
+    a = 0.0 if stereo else np.deg2rad(1.0)
     R = np.array([[np.cos(a), 0.0, np.sin(a)], [0.0, 1.0, 0.0], [-np.sin(a), 0.0, np.cos(a)]])
-    t = np.array([0.10, 0.03, 0.05])
+    t = np.array([-0.11, 0.0, 0.0]) if stereo else np.array([0.10, 0.03, 0.05])
     D_near, D_far = plane_homography(R, t, 2.0), plane_homography(R, t, 6.0)
     near_tex, far_tex = canvas(rng), canvas(rng)
     ident = np.eye(3)

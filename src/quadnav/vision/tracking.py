@@ -30,6 +30,7 @@ from pydantic import Field, field_validator
 from quadnav.config_model import ConfigModel
 from quadnav.errors import VisionError
 from quadnav.geometry.camera import PinholeCamera
+from quadnav.geometry.rotations import Pose
 from quadnav.messages import ImageFrame
 
 __all__ = [
@@ -37,6 +38,8 @@ __all__ = [
     "FrameCounts",
     "Spread",
     "StageTimes",
+    "StereoGeometry",
+    "StereoMatches",
     "TrackStats",
     "TrackStatsAccumulator",
     "TrackedFrame",
@@ -44,6 +47,7 @@ __all__ = [
     "as_grey",
     "fundamental_inliers",
     "track_sequence",
+    "track_stereo",
 ]
 
 FloatArray = NDArray[np.float64]
@@ -151,6 +155,11 @@ class _State:
     pts: FloatArray
     ids: IntArray
     lengths: IntArray
+
+
+def _clahe() -> cv2.CLAHE:
+    """VINS-Mono's equalizer: CLAHE with clip limit 3 over 8x8 tiles."""
+    return cv2.createCLAHE(clipLimit=3.0, tileGridSize=(8, 8))
 
 
 def _empty_int() -> IntArray:
@@ -309,7 +318,7 @@ class FeatureTracker:
         self.last_times = StageTimes()
         self._state: _State | None = None
         self._next_id = 0
-        self._clahe = cv2.createCLAHE(clipLimit=3.0, tileGridSize=(8, 8))
+        self._clahe = _clahe()
 
     def reset(self) -> None:
         """Forget the previous frame (ids keep counting up)."""
@@ -548,3 +557,98 @@ def track_sequence(
     for t_ns, img in _timed(images):
         acc.add(tracker.track(t_ns, img))
     return acc.result()
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class StereoGeometry:
+    """A calibrated (not rectified) stereo pair: both lenses and ``T_L_R``, the pose of the right
+    camera in the left one (``T_B_CL.inverse() @ T_B_CR`` from a rig)."""
+
+    left: PinholeCamera
+    right: PinholeCamera
+    T_L_R: Pose
+
+    def epipolar_error_px(self, left_px: FloatArray, right_px: FloatArray) -> FloatArray:
+        """Distance (left-image pixels) of each left point to the epipolar line of its match."""
+        a = _normalized(self.left, left_px)
+        b = _normalized(self.right, right_px)
+        t = self.T_L_R.p_A_B
+        tx = np.array([[0.0, -t[2], t[1]], [t[2], 0.0, -t[0]], [-t[1], t[0], 0.0]])
+        lines = b @ (tx @ self.T_L_R.R_A_B.as_matrix()).T  # E x_R, one line per row
+        d = np.abs(np.einsum("ij,ij->i", a, lines)) / np.linalg.norm(lines[:, :2], axis=1)
+        out: FloatArray = d * self.left.fx
+        return out
+
+
+def _normalized(cam: PinholeCamera, px: FloatArray) -> FloatArray:
+    """Homogeneous normalized image coordinates (N, 3) of distorted pixels."""
+    u = cam.undistort_pixels(px)
+    x = (u[:, 0] - cam.K[0, 2]) / cam.K[0, 0]
+    y = (u[:, 1] - cam.K[1, 2]) / cam.K[1, 1]
+    return np.column_stack([x, y, np.ones(len(u))])
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class StereoMatches:
+    """Left-to-right KLT matches: ``index`` into the left points, their pixels in both images,
+    and how many were lost by KLT (with the border), the forward-backward check and the
+    geometric check (the row for a rectified pair, the epipolar line for a calibrated one)."""
+
+    index: IntArray
+    left_px: FloatArray
+    right_px: FloatArray
+    lost_klt: int
+    lost_fb: int
+    lost_geometry: int
+
+    def __len__(self) -> int:
+        return int(self.index.size)
+
+
+def track_stereo(
+    left: object,
+    right: object,
+    *,
+    config: TrackerConfig | None = None,
+    left_px: FloatArray | None = None,
+    geometry: StereoGeometry | None = None,
+    max_error_px: float = 1.0,
+) -> StereoMatches:
+    """Match ``left_px`` (default: fresh corners of the left image) into the right image by KLT
+    and back. Without ``geometry`` the pair is taken as rectified: a match must lie on the same
+    row within ``max_error_px`` at a disparity >= 0; with it, within ``max_error_px`` of its
+    epipolar line."""
+    cfg = config or TrackerConfig()
+    a, b = as_grey(left, "left image"), as_grey(right, "right image")
+    if cfg.equalize:  # also evens out the two cameras' gains, which KLT does not model
+        clahe = _clahe()
+        a, b = np.asarray(clahe.apply(a), np.uint8), np.asarray(clahe.apply(b), np.uint8)
+    if a.shape != b.shape:
+        raise VisionError(f"stereo images differ in size: {a.shape[::-1]} and {b.shape[::-1]}")
+    if not math.isfinite(max_error_px) or max_error_px <= 0:
+        raise VisionError(f"max_error_px must be > 0, got {max_error_px}")
+    shape = (a.shape[0], a.shape[1])
+    pts = _detect(a, np.zeros((0, 2)), cfg.max_features, cfg) if left_px is None else left_px
+    pts = np.asarray(pts, np.float64).reshape(-1, 2)
+    s = _Survivors(pts, pts, np.arange(len(pts), dtype=np.int64), _empty_int())
+    s.lengths = np.zeros(len(pts), np.int64)
+    if len(pts):
+        cur, ok = _klt(a, b, pts, cfg)
+        s.cur = cur
+        s.keep(ok & _in_border(cur, shape), "klt")
+    if len(s.cur):
+        back, ok_b = _klt(b, a, s.cur, cfg, guess=s.prev)
+        s.keep(ok_b & (np.linalg.norm(back - s.prev, axis=1) <= cfg.fb_threshold_px), "fb")
+    if len(s.cur) and geometry is None:
+        row = np.abs(s.cur[:, 1] - s.prev[:, 1]) <= max_error_px
+        s.keep(row & (s.prev[:, 0] - s.cur[:, 0] >= -max_error_px), "geometry")
+    elif len(s.cur) and geometry is not None:
+        s.keep(geometry.epipolar_error_px(s.prev, s.cur) <= max_error_px, "geometry")
+    return StereoMatches(
+        index=s.ids,
+        left_px=s.prev,
+        right_px=s.cur,
+        lost_klt=s.losses.get("klt", 0),
+        lost_fb=s.losses.get("fb", 0),
+        lost_geometry=s.losses.get("geometry", 0),
+    )
