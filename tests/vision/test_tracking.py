@@ -375,3 +375,22 @@ def test_stereo_matches_of_euroc_lie_on_their_epipolar_lines() -> None:
     assert np.median(geo.epipolar_error_px(m.left_px, m.right_px)) < 0.3
     assert (m.left_px[:, 0] - m.right_px[:, 0]).min() > -20  # cam1 sits to the right
     assert len(track_stereo(left, right, config=cfg, geometry=wrong)) <= 5
+
+
+def test_track_video_colours_features_by_length() -> None:
+    from quadnav.vision.track_video import draw_tracks, length_colour
+
+    imgs = _pan(10, 25, step_px=1.0)
+    tr = FeatureTracker()
+    frames = [tr.track(k, img) for k, img in enumerate(imgs)]
+    last, prev = frames[-1], frames[-2]
+    out = draw_tracks(imgs[-1], last, prev)
+    assert out.shape == (480, 640, 3) and out.dtype == np.uint8
+    for px, n in zip(last.pixels, last.track_lengths, strict=True):
+        b, _, r = out[round(px[1]), round(px[0])].astype(int)
+        if n >= 20:  # long tracks red, new ones blue
+            assert r > 200 and b < 50
+        elif n <= 3:
+            assert b > 200 and r < 50
+    assert (last.track_lengths >= 20).sum() >= 50 and (last.track_lengths <= 3).any()
+    assert length_colour(1) == (255, 0, 0) and length_colour(40) == (0, 0, 255)
