@@ -394,3 +394,33 @@ def test_track_video_colours_features_by_length() -> None:
             assert b > 200 and r < 50
     assert (last.track_lengths >= 20).sum() >= 50 and (last.track_lengths <= 3).any()
     assert length_colour(1) == (255, 0, 0) and length_colour(40) == (0, 0, 255)
+
+
+def test_track_sequence_streams_its_images() -> None:
+    """Images are read one at a time and let go: when frame k+2 is read, frame k is gone (the
+    tracker keeps only the previous one). ImageFrame messages load their pixels lazily."""
+    import gc
+    import weakref
+
+    from quadnav.messages import ImageFrame
+
+    refs: list[weakref.ref[np.ndarray]] = []
+    alive_when_read: list[int] = []
+
+    tex = canvas(np.random.default_rng(11))
+
+    def frames() -> Iterator[ImageFrame]:
+        for k in range(8):
+            gc.collect()
+            alive_when_read.append(sum(r() is not None for r in refs))
+
+            def load() -> np.ndarray:
+                img = view(tex, np.eye(3))  # a new array each time it is read
+                refs.append(weakref.ref(img))
+                return img
+
+            yield ImageFrame(t_ns=k * 50_000_000, camera="cam0", load=load)
+
+    stats = track_sequence(frames())
+    assert stats.n_frames == 8 and stats.track_length.max == 8
+    assert max(alive_when_read) <= 2  # the previous frame (and the one just tracked)

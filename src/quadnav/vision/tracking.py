@@ -270,15 +270,15 @@ def _klt(
 def _spaced(pts: FloatArray, order: IntArray, min_dist: float) -> BoolArray:
     """Greedy in ``order``: keep a point when no kept one is closer than ``min_dist``."""
     keep = np.zeros(len(pts), bool)
-    kept: list[int] = []
-    d2 = min_dist * min_dist
+    if len(pts) == 0:
+        return keep
+    d = pts[:, None, :] - pts[None, :, :]
+    near = np.einsum("ijk,ijk->ij", d, d) < min_dist * min_dist
+    free = np.ones(len(pts), bool)
     for i in order:
-        if kept:
-            d = pts[kept] - pts[i]
-            if np.min(np.einsum("ij,ij->i", d, d)) < d2:
-                continue
-        keep[i] = True
-        kept.append(int(i))
+        if free[i]:
+            keep[i] = True
+            free &= ~near[i]
     return keep
 
 
