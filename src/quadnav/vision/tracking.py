@@ -568,6 +568,11 @@ class StereoGeometry:
     right: PinholeCamera
     T_L_R: Pose
 
+    def at_infinity(self, left_px: FloatArray) -> FloatArray:
+        """Where left pixels of points far away fall in the right image (KLT's first guess)."""
+        rays = _normalized(self.left, left_px) @ self.T_L_R.R_A_B.as_matrix()  # R_R_L @ ray
+        return self.right.project(rays)
+
     def epipolar_error_px(self, left_px: FloatArray, right_px: FloatArray) -> FloatArray:
         """Distance (left-image pixels) of each left point to the epipolar line of its match."""
         a = _normalized(self.left, left_px)
@@ -633,7 +638,8 @@ def track_stereo(
     s = _Survivors(pts, pts, np.arange(len(pts), dtype=np.int64), _empty_int())
     s.lengths = np.zeros(len(pts), np.int64)
     if len(pts):
-        cur, ok = _klt(a, b, pts, cfg)
+        guess = None if geometry is None else geometry.at_infinity(pts)
+        cur, ok = _klt(a, b, pts, cfg, guess=guess)
         s.cur = cur
         s.keep(ok & _in_border(cur, shape), "klt")
     if len(s.cur):
