@@ -8,7 +8,8 @@ frame seen through a homography that pans 3 px and turns 0.3 degrees a frame (VI
 features, a real image's texture, features leaving and entering). Each set is tracked
 ``--repeats`` times; a frame's time in a stage is its least over the repeats (the least
 disturbed), summed over the frames.
-Prints a table and writes ``benchmarks/results/tracking.json``.
+Also prints the track statistics of euroc_micro's cam0 and cam1 (median track length, fraction
+tracked frame to frame...) and its cam0 -> cam1 stereo matches. Prints tables and writes ``benchmarks/results/tracking.json``.
 
     python benchmarks/tracking.py [--repeats 5]
 """
@@ -27,7 +28,14 @@ import numpy as np
 
 from quadnav.geometry.camera import PinholeCamera
 from quadnav.rig import euroc
-from quadnav.vision.tracking import FeatureTracker, StageTimes, TrackerConfig
+from quadnav.vision.tracking import (
+    FeatureTracker,
+    StageTimes,
+    StereoGeometry,
+    TrackerConfig,
+    track_sequence,
+    track_stereo,
+)
 
 CAM0 = (
     Path(__file__).resolve().parents[1].parent / "shared" / "data" / "euroc_micro" / "mav0" / "cam0"
@@ -64,6 +72,47 @@ def best_stage_s(
     return {**dict(zip(STAGES, best[:-1].tolist(), strict=True)), "total_s": float(best[-1])}
 
 
+def euroc_track_stats() -> dict[str, dict[str, float]]:
+    """Track statistics of euroc_micro's cam0 and cam1 (rig calibration), plain and with CLAHE:
+    the tracker's quality on real frames, printed with its speed."""
+    out = {}
+    for spec in euroc().cameras:
+        for eq in (False, True):
+            files = sorted((CAM0.parent / spec.name / "data").glob("*.png"))
+            imgs = ((int(f.stem), cv2.imread(str(f), cv2.IMREAD_GRAYSCALE)) for f in files)
+            st = track_sequence(imgs, TrackerConfig(equalize=eq), spec.camera)
+            out[spec.name + (" equalize" if eq else "")] = {
+                "median_track_length": st.track_length.median, "mean_track_length": st.track_length.mean,
+                "fraction_tracked_mean": st.fraction_tracked.mean, "fraction_tracked_min": st.fraction_tracked.min,
+                "features_per_frame": st.features_per_frame.mean, "new_per_frame": st.new_per_frame.mean,
+            }  # fmt: skip
+    print(f"{'euroc_micro':<16}" + "".join(f" {k:>22}" for k in next(iter(out.values()))))
+    for name, r in out.items():
+        print(f"{name:<16}" + "".join(f" {v:>22.4g}" for v in r.values()))
+    return out
+
+
+def euroc_stereo_stats() -> dict[str, float]:
+    """cam0 -> cam1 matches of euroc_micro's 95 pairs with the rig's epipolar geometry (CLAHE)."""
+    c0, c1 = euroc().cameras
+    geo = StereoGeometry(left=c0.camera, right=c1.camera, T_L_R=c0.T_B_C.inverse() @ c1.T_B_C)
+    n, err = [], []
+    for f in sorted((CAM0 / "data").glob("*.png")):
+        left = cv2.imread(str(f), cv2.IMREAD_GRAYSCALE)
+        right = cv2.imread(str(CAM0.parent / "cam1" / "data" / f.name), cv2.IMREAD_GRAYSCALE)
+        m = track_stereo(left, right, config=TrackerConfig(equalize=True), geometry=geo)
+        n.append(len(m))
+        err.append(geo.epipolar_error_px(m.left_px, m.right_px))
+    e = np.concatenate(err)
+    out = {"matches_per_pair": float(np.mean(n)), "epipolar_error_median_px": float(np.median(e)),
+           "epipolar_error_p95_px": float(np.percentile(e, 95))}  # fmt: skip
+    print(
+        "euroc_micro stereo (cam0 -> cam1, equalize): "
+        + ", ".join(f"{k} {v:.3g}" for k, v in out.items())
+    )
+    return out
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description="feature tracker speed")
     parser.add_argument("--repeats", type=int, default=5)
@@ -86,13 +135,15 @@ def main() -> None:
         best = best_stage_s(frames, c, args.repeats)
         n = len(frames)
         results[name] = {"frames": n, "fps": n / best["total_s"], **{f"{s[:-2]}_ms": best[s] / n * 1e3 for s in STAGES}}  # fmt: skip
+    stats = euroc_track_stats()
+    stereo = euroc_stereo_stats()
     head = f"{'frames':<36} {'n':>4} {'fps':>7}" + "".join(f" {s[:-2] + ' ms':>11}" for s in STAGES)
     print(head)
     for name, r in results.items():
         print(f"{name:<36} {r['frames']:>4} {r['fps']:>7.0f}" + "".join(f" {r[s[:-2] + '_ms']:>11.2f}" for s in STAGES))  # fmt: skip
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps({"benchmark": "tracking", "python": platform.python_version(), "opencv": cv2.__version__,
-                                    "threads": 1, "repeats": args.repeats, "sets": results}, indent=2) + "\n")  # fmt: skip
+                                    "threads": 1, "repeats": args.repeats, "sets": results, "euroc_track_stats": stats, "euroc_stereo": stereo}, indent=2) + "\n")  # fmt: skip
     print(f"wrote {args.out}")
 
 
