@@ -424,3 +424,42 @@ def test_track_sequence_streams_its_images() -> None:
     stats = track_sequence(frames())
     assert stats.n_frames == 8 and stats.track_length.max == 8
     assert max(alive_when_read) <= 2  # the previous frame (and the one just tracked)
+
+
+@needs(EUROC)
+def test_equalize_keeps_tracking_a_dark_real_sequence() -> None:
+    """euroc_micro's frames at a tenth of their brightness (grey levels 0-25): KLT alone loses
+    about half the features a frame; with VINS' CLAHE (``equalize``) it keeps them."""
+    from quadnav.rig import euroc
+
+    cam = euroc().cameras[0].camera
+
+    def dark() -> Iterator[tuple[int, np.ndarray]]:
+        for t, img in _euroc_images("cam0", list(range(20))):
+            yield t, np.round(img * 0.1).astype(np.uint8)
+
+    plain = track_sequence(dark(), TrackerConfig(), cam)
+    equalized = track_sequence(dark(), TrackerConfig(equalize=True), cam)
+    assert equalized.fraction_tracked.mean >= MIN_FRACTION
+    assert plain.fraction_tracked.mean < 0.8
+
+
+def test_colour_images_are_tracked_as_grey_and_outputs_are_read_only() -> None:
+    grey = _pan(12, 2)
+    tr_grey, tr_bgr = FeatureTracker(), FeatureTracker()
+    for k, g in enumerate(grey):
+        a = tr_grey.track(k, g)
+        b = tr_bgr.track(k, cv2.cvtColor(g, cv2.COLOR_GRAY2BGR))
+    np.testing.assert_allclose(a.pixels, b.pixels, atol=1e-3)
+    with pytest.raises(ValueError, match="read-only"):
+        a.pixels[0, 0] = 0.0
+
+
+def test_stereo_bad_input_is_a_one_line_vision_error() -> None:
+    img = np.zeros((480, 640), np.uint8)
+    with pytest.raises(VisionError, match="differ in size"):
+        track_stereo(img, np.zeros((480, 752), np.uint8))
+    with pytest.raises(VisionError, match="left_px"):
+        track_stereo(img, img, left_px=np.array([[1.0, np.nan]]))
+    with pytest.raises(VisionError, match="right image must be 8-bit"):
+        track_stereo(img, img.astype(np.float32))

@@ -183,18 +183,21 @@ class _Survivors:
 
 
 def as_grey(image: object, what: str = "image") -> Image:
-    """An 8-bit grey (H, W) image from a grey, (H, W, 1) or BGR (H, W, 3) one; anything else is
-    a one-line :class:`VisionError`."""
+    """An 8-bit grey (H, W) image from a grey, (H, W, 1), BGR or BGRA one; anything else is a
+    one-line :class:`VisionError`."""
     if not isinstance(image, np.ndarray):
         raise VisionError(f"{what} must be a numpy array, got {type(image).__name__}")
     if image.dtype != np.uint8:
         raise VisionError(f"{what} must be 8-bit (uint8), got {image.dtype}")
     if image.ndim == 3 and image.shape[2] == 1:
         image = image[:, :, 0]
-    if image.ndim == 3 and image.shape[2] == 3:
-        image = cv2.cvtColor(np.ascontiguousarray(image), cv2.COLOR_BGR2GRAY)
+    if image.ndim == 3 and image.shape[2] in (3, 4):
+        code = cv2.COLOR_BGR2GRAY if image.shape[2] == 3 else cv2.COLOR_BGRA2GRAY
+        image = cv2.cvtColor(np.ascontiguousarray(image), code)
     if image.ndim != 2:
-        raise VisionError(f"{what} must be (H, W) grey or (H, W, 3) BGR, got shape {image.shape}")
+        raise VisionError(
+            f"{what} must be (H, W) grey or (H, W, 3) BGR or (H, W, 4) BGRA, got shape {image.shape}"
+        )
     if image.size == 0:
         raise VisionError(f"{what} is empty (shape {image.shape})")
     return np.ascontiguousarray(image)
@@ -413,6 +416,8 @@ class FeatureTracker:
             new=len(new),
         )
         und = pts if self.camera is None or not len(pts) else self.camera.undistort_pixels(pts)
+        for a in (pts, ids, lens, und):  # shared with the tracker's state: read-only
+            a.flags.writeable = False
         return TrackedFrame(
             t_ns=int(t_ns),
             ids=ids,
@@ -634,9 +639,11 @@ def track_stereo(
         raise VisionError(f"max_error_px must be > 0, got {max_error_px}")
     shape = (a.shape[0], a.shape[1])
     pts = _detect(a, np.zeros((0, 2)), cfg.max_features, cfg) if left_px is None else left_px
-    pts = np.asarray(pts, np.float64).reshape(-1, 2)
-    s = _Survivors(pts, pts, np.arange(len(pts), dtype=np.int64), _empty_int())
-    s.lengths = np.zeros(len(pts), np.int64)
+    pts = np.asarray(pts, np.float64)
+    if pts.ndim != 2 or pts.shape[1] != 2 or not np.isfinite(pts).all():
+        raise VisionError(f"left_px must be finite (N, 2) pixels, got shape {pts.shape}")
+    n = len(pts)
+    s = _Survivors(pts, pts, np.arange(n, dtype=np.int64), np.zeros(n, np.int64))
     if len(pts):
         guess = None if geometry is None else geometry.at_infinity(pts)
         cur, ok = _klt(a, b, pts, cfg, guess=guess)
