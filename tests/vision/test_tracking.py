@@ -463,3 +463,16 @@ def test_stereo_bad_input_is_a_one_line_vision_error() -> None:
         track_stereo(img, img, left_px=np.array([[1.0, np.nan]]))
     with pytest.raises(VisionError, match="right image must be 8-bit"):
         track_stereo(img, img.astype(np.float32))
+
+
+def test_a_reused_image_buffer_does_not_change_the_previous_frame() -> None:
+    """A live source may write each frame into the same array: the tracker keeps its own copy."""
+    imgs = _pan(13, 3)
+    buf = np.empty_like(imgs[0])
+    tr_buf, tr_new = FeatureTracker(), FeatureTracker()
+    for k, img in enumerate(imgs):
+        buf[...] = img
+        a = tr_buf.track(k, buf)
+        b = tr_new.track(k, img.copy())
+    np.testing.assert_array_equal(a.ids, b.ids)
+    np.testing.assert_allclose(a.pixels, b.pixels)

@@ -348,8 +348,9 @@ class FeatureTracker:
         if st is not None and t_ns <= st.t_ns:
             raise VisionError(f"frame t_ns {t_ns} is not after the previous one ({st.t_ns})")
         if self.config.equalize:
-            img = np.asarray(self._clahe.apply(img), np.uint8)
-        return img
+            return np.asarray(self._clahe.apply(img), np.uint8)
+        # kept as the next frame's previous image: a copy, should the caller reuse its buffer
+        return img.copy() if img is image else img
 
     def _carry(self, st: _State, img: Image, times: dict[str, float]) -> _Survivors:
         """The previous features through KLT, the border, the forward-backward check and RANSAC."""
