@@ -175,12 +175,15 @@ class DepthSpec:
 @dataclass(frozen=True, slots=True, kw_only=True)
 class Rig:
     """Cameras (``cam0`` first), the IMU (``None`` for a camera-only dataset such as KITTI's
-    odometry images) and an optional depth sensor."""
+    odometry images) and an optional depth sensor. ``T_V_B`` is the rig's body frame on a
+    vehicle's FLU frame, for motions of a vehicle (a simulated flight): the identity when the
+    body is FLU, EuRoC's VI-Sensor mount for its IMU frame (x up, y right, z forward)."""
 
     name: str
     cameras: tuple[CameraSpec, ...]
     imu: ImuSpec | None
     depth: DepthSpec | None = None
+    T_V_B: Pose = field(default_factory=Pose.identity)
 
     def __post_init__(self) -> None:
         if not self.cameras:
@@ -280,9 +283,20 @@ def _orthonormal(T: list[list[float]]) -> Pose:
     return Pose(Rotation.from_matrix(U @ Vt), M[:3, 3])
 
 
+def _euroc_mount(pitch_down_deg: float = 20.0) -> Pose:
+    """The VI-Sensor on a vehicle (FLU): its IMU's x up, y right, z forward, pitched down (EuRoC's
+    IMU reads gravity about 22 degrees off its x axis, towards -z, on the ground), 10 cm ahead."""
+    th = math.radians(pitch_down_deg)
+    x_I = [math.sin(th), 0.0, math.cos(th)]
+    y_I = [0.0, -1.0, 0.0]
+    z_I = [math.cos(th), 0.0, -math.sin(th)]
+    return _pose(np.column_stack([x_I, y_I, z_I]), (0.1, 0.0, -0.03))
+
+
 def euroc() -> Rig:
     """EuRoC's VI-Sensor: two MT9M034 cameras (752x480, 20 Hz, 110 mm apart) and the ADIS16448 at
-    200 Hz, with the calibration of its ``sensor.yaml`` files; the body frame is the IMU's."""
+    200 Hz, with the calibration of its ``sensor.yaml`` files; the body frame is the IMU's, mounted
+    on a vehicle looking forward, 20 degrees down."""
     cams = []
     for name in ("cam0", "cam1"):
         (fu, fv, cu, cv), dist = _EUROC_CAMERAS[name]
@@ -298,6 +312,7 @@ def euroc() -> Rig:
         name="euroc",
         cameras=tuple(cams),
         imu=ImuSpec(rate_hz=200.0, noise=ImuNoiseModel.euroc_adis16448()),
+        T_V_B=_euroc_mount(),
     )
 
 

@@ -11,11 +11,9 @@ import pytest
 from quadnav.errors import ConfigError
 from quadnav.experiments.datasets import (
     SEQUENCES,
-    _motion,
-    _rig_for,
-    _span,
     _world,
     make_dataset,
+    plan_dataset,
     sequence_spec,
     stream_rng,
 )
@@ -23,6 +21,9 @@ from quadnav.geometry.rotations import Pose
 from quadnav.io.datasets import open_dataset
 from quadnav.sim.motion import synthesize_imu
 from quadnav.sim.render import RenderEffects, Renderer
+from tests.shared_data import SHARED, needs
+
+EUROC_IMU = SHARED / "euroc_micro" / "mav0" / "imu0" / "data.csv"
 
 # A short, quiet sequence: 2.5 s of the room at the built-in flight's speed, thesis 003's camera.
 QUIET = {"read_noise": 0.0, "shot_noise_dn": 0.0, "exposure_s": 0.0, "rig": "thesis003_sim"}
@@ -38,7 +39,8 @@ def _make(tmp: Path, name: str = "room", **fields: object) -> tuple[Path, object
 def test_the_dataset_reads_back_as_the_samples_that_were_made(tmp_path: Path) -> None:
     root, spec = _make(tmp_path, mean_speed_m_s=0.8, rig="euroc")
     ds = open_dataset(root)
-    rig = _rig_for(spec)  # type: ignore[arg-type]
+    plan = plan_dataset(spec)  # type: ignore[arg-type]
+    rig, motion, span = plan.rig, plan.motion, plan.span
     # the calibration is the rig's
     for cam in rig.cameras:
         got = ds.rig.camera(cam.name)
@@ -47,8 +49,6 @@ def test_the_dataset_reads_back_as_the_samples_that_were_made(tmp_path: Path) ->
         assert np.allclose(got.T_B_C.matrix(), cam.T_B_C.matrix(), atol=1e-12)
         assert got.rate_hz == cam.rate_hz
     # the IMU is exactly what synthesize_imu gives for that seed
-    motion = _motion(spec)  # type: ignore[arg-type]
-    span = _span(spec, motion)  # type: ignore[arg-type]
     assert rig.imu is not None
     imu = synthesize_imu(
         motion, rate_hz=rig.imu.rate_hz, noise=rig.imu.noise, rng=stream_rng(0, "imu"),
@@ -73,10 +73,9 @@ def test_an_image_stamped_t_shows_the_scene_at_t_plus_the_time_offset(tmp_path: 
     td = 0.02
     root, spec = _make(tmp_path, time_offset_s=td, vignetting=0.0, mean_speed_m_s=1.0, **QUIET)
     ds = open_dataset(root)
-    motion = _motion(spec)  # type: ignore[arg-type]
-    rig = _rig_for(spec)  # type: ignore[arg-type]
-    cam = rig.cameras[0]
-    scene = _world(spec, motion, *_span(spec, motion))  # type: ignore[arg-type]
+    plan = plan_dataset(spec)  # type: ignore[arg-type]
+    motion, cam = plan.motion, plan.rig.cameras[0]
+    scene = _world(spec, motion, *plan.span)  # type: ignore[arg-type]
     renderer = Renderer(scene, cam.camera)
     frame = ds.frames_of("cam0")[30]
 
@@ -110,9 +109,10 @@ def test_the_same_seed_makes_the_same_dataset_and_another_seed_another(tmp_path:
 def test_built_in_sequences_fly_at_their_grade(tmp_path: Path) -> None:
     """The flight's mean speed is the sequence's (the figure EuRoC's grades are told by)."""
     for name in ("room_easy", "room_difficult"):
-        spec = SEQUENCES[name]
-        motion = _motion(spec)
-        t = np.arange(*_span(spec, motion), 10_000_000)
+        spec = SEQUENCES[name].model_copy(update={"rig": "thesis003_sim"})  # the body is FLU
+        plan = plan_dataset(spec)
+        motion = plan.motion
+        t = np.arange(*plan.span, 10_000_000)
         v = np.linalg.norm(motion.velocity(t), axis=1)
         assert np.mean(v) == pytest.approx(spec.mean_speed_m_s, rel=0.1)
     assert SEQUENCES["room_difficult"].mean_speed_m_s > 2 * SEQUENCES["room_easy"].mean_speed_m_s
@@ -130,3 +130,22 @@ def test_bad_requests_are_one_line_errors(tmp_path: Path) -> None:
     with pytest.raises(ConfigError, match="neither flight_path, a scenario"):
         make_dataset(sequence_spec("room", {"motion": str(tmp_path / "none.txt")}), tmp_path / "x")
     assert not (tmp_path / "x" / "mav0").exists()
+
+
+@needs(EUROC_IMU)
+def test_the_euroc_rig_on_a_vehicle_at_rest_reads_gravity_as_eurocs_own_imu() -> None:
+    """The VI-Sensor rides on the vehicle as on EuRoC's MAV: its IMU's x up, z forward and down
+    (EuRoC's ADIS16448 reads gravity 22 degrees off its x axis on the ground)."""
+    spec = sequence_spec("room", {"duration_s": 2.0, "still_s": 3.0, "imu_noise": False})
+    plan = plan_dataset(spec)
+    assert plan.rig.imu is not None
+    imu = synthesize_imu(plan.motion, rate_hz=200.0, noise=None, t_end_ns=plan.span[0] + 10**9)
+    ours = imu.accel_m_s2.mean(axis=0)
+    rows = np.loadtxt(EUROC_IMU, delimiter=",", comments="#", max_rows=200)
+    theirs = rows[:, 4:7].mean(axis=0)
+    angle = np.degrees(np.arccos(ours @ theirs / np.linalg.norm(ours) / np.linalg.norm(theirs)))
+    assert angle < 5.0
+    # and the camera looks forward: its optical axis is horizontal within the mount's pitch
+    cam = plan.rig.T_V_B @ plan.rig.cameras[0].T_B_C
+    axis = cam.R_A_B.apply([0.0, 0.0, 1.0])
+    assert axis[0] > 0.9 and -0.45 < axis[2] < -0.2

@@ -17,13 +17,14 @@ import time
 import zlib
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import asdict, dataclass, replace
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Literal
 from pathlib import Path
 
 import numpy as np
 from numpy.random import Generator
 from numpy.typing import NDArray
 from pydantic import Field
+from scipy.spatial.transform import Rotation
 
 from quadnav.config_model import ConfigModel
 from quadnav.errors import ConfigError, GeometryError
@@ -44,8 +45,10 @@ if TYPE_CHECKING:
 __all__ = [
     "SEQUENCES",
     "DatasetMade",
+    "DatasetPlan",
     "SequenceSpec",
     "make_dataset",
+    "plan_dataset",
     "sequence_spec",
     "stream_rng",
 ]
@@ -67,7 +70,10 @@ class SequenceSpec(ConfigModel):
     a trajectory file (TUM, EuRoC ground truth...) or a ``quadnav run``/``sim`` scenario name.
     ``exposure_s`` sets the motion blur (0: none), ``lighting`` the depth of the slow exposure
     changes (0: constant, 0.5: from half to one and a half), ``texture_poor`` the fraction of
-    surfaces without texture, ``read_noise`` the sensor's read noise in grey levels,
+    surfaces without texture. ``motion_frame`` says whose poses the motion gives: a vehicle's
+    (FLU; the rig rides on it at its ``T_V_B``) or the rig body's itself (a dataset's ground
+    truth); ``auto``: the vehicle's for ``flight_path`` and scenarios, the body's for files.
+    ``read_noise`` the sensor's read noise in grey levels,
     ``shot_noise_dn`` its photon noise (variance per grey level), ``vignetting`` the light lost in
     the corners (EuRoC's MT9M034 images darken towards them)."""
 
@@ -88,6 +94,7 @@ class SequenceSpec(ConfigModel):
     shot_noise_dn: float = Field(default=0.3, ge=0.0, le=10.0)
     vignetting: float = Field(default=0.15, ge=0.0, le=0.9)
     time_offset_s: float = Field(default=0.0, ge=-0.1, le=0.1)
+    motion_frame: Literal["auto", "vehicle", "body"] = "auto"
     imu_noise: bool = True
     seed: int = Field(default=0, ge=0, le=2**31 - 1)
     description: str = ""
@@ -300,6 +307,47 @@ def _motion(spec: SequenceSpec) -> SplineMotion:
     return motion_from_file(path_)
 
 
+def _vehicle_motion(spec: SequenceSpec) -> bool:
+    if spec.motion_frame != "auto":
+        return spec.motion_frame == "vehicle"
+    from quadnav.experiments.motions import motion_scenarios
+
+    return spec.motion == "flight_path" or spec.motion in motion_scenarios()
+
+
+def _rig_body_motion(motion: SplineMotion, T_V_B: Pose) -> SplineMotion:
+    """The motion of a rig carried at ``T_V_B`` by a vehicle that makes ``motion``: its poses
+    sampled at 1 kHz and fitted again (the rig's lever arm and turned axes included)."""
+    if np.allclose(T_V_B.matrix(), np.eye(4)):
+        return motion
+    t = np.arange(motion.t_start_ns, motion.t_end_ns, s_to_ns(0.001), dtype=np.int64)
+    p, q = motion.pose(t)
+    R_W_V = Rotation.from_quat(q)
+    R_W_B = R_W_V * T_V_B.R_A_B
+    p_W_B = p + R_W_V.apply(T_V_B.p_A_B)
+    traj = Trajectory(t_ns=t, p_W_B=p_W_B, q_W_B_xyzw=R_W_B.as_quat(), name=motion.name)
+    return SplineMotion.fit(traj, knot_spacing_s=motion.knot_spacing_s, trim_s=0.0)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class DatasetPlan:
+    """What a sequence is made from: the rig (with the sequence's exposure and time offset),
+    the motion of its body frame, and the span of IMU time it covers (ns)."""
+
+    rig: Rig
+    motion: SplineMotion
+    span: tuple[int, int]
+
+
+def plan_dataset(spec: SequenceSpec) -> DatasetPlan:
+    """The rig, the body's motion and the span ``make_dataset`` renders (no images)."""
+    rig = _rig_for(spec)
+    motion = _motion(spec)
+    if _vehicle_motion(spec):
+        motion = _rig_body_motion(motion, rig.T_V_B)
+    return DatasetPlan(rig=rig, motion=motion, span=_span(spec, motion))
+
+
 def _span(spec: SequenceSpec, motion: SplineMotion) -> tuple[int, int]:
     t0 = int(motion.t_start_ns)
     t1 = min(int(motion.t_end_ns), t0 + s_to_ns(spec.duration_s))
@@ -411,9 +459,7 @@ def make_dataset(
     from quadnav.io.datasets import EurocWriter
 
     start = time.perf_counter()
-    rig = _rig_for(spec)
-    motion = _motion(spec)
-    span = _span(spec, motion)
+    rig, motion, span = (plan := plan_dataset(spec)).rig, plan.motion, plan.span
     scene = _world(spec, motion, *span)
     with EurocWriter(out, rig) as writer:
         n_imu = _write_imu(writer, motion, rig, spec, span)
