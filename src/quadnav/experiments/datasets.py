@@ -74,7 +74,9 @@ class SequenceSpec(ConfigModel):
     (FLU; the rig rides on it at its ``T_V_B``) or the rig body's itself (a dataset's ground
     truth); ``auto``: the vehicle's for ``flight_path`` and scenarios, the body's for files.
     ``read_noise`` the sensor's read noise in grey levels,
-    ``shot_noise_dn`` its photon noise (variance per grey level), ``vignetting`` the light lost in
+    ``shot_noise_dn`` its photon noise (variance per grey level: 0.03 gives 2 grey levels at
+    mid-grey), ``target_grey`` and ``auto_exposure_s`` the mean its auto exposure aims at and how
+    fast it gets there (0: no auto exposure, the light as it is), ``vignetting`` the light lost in
     the corners (EuRoC's MT9M034 images darken towards them)."""
 
     world: str
@@ -91,7 +93,9 @@ class SequenceSpec(ConfigModel):
     lighting: float = Field(default=0.0, ge=0.0, le=0.9)
     texture_poor: float = Field(default=0.0, ge=0.0, le=1.0)
     read_noise: float = Field(default=2.0, ge=0.0, le=50.0)
-    shot_noise_dn: float = Field(default=0.3, ge=0.0, le=10.0)
+    shot_noise_dn: float = Field(default=0.03, ge=0.0, le=10.0)
+    target_grey: float = Field(default=120.0, gt=0.0, le=255.0)
+    auto_exposure_s: float = Field(default=1.0, ge=0.0, le=60.0)
     vignetting: float = Field(default=0.15, ge=0.0, le=0.9)
     time_offset_s: float = Field(default=0.0, ge=-0.1, le=0.1)
     motion_frame: Literal["auto", "vehicle", "body"] = "auto"
@@ -409,6 +413,49 @@ def _write_imu(
     return len(imu)
 
 
+class _CameraStream:
+    """One camera of the rig: its renderer, its noise generator, the scene depth it saw last
+    (for the blur) and its auto-exposure gain, which follows the light with a lag."""
+
+    def __init__(self, cam: CameraSpec, scene: Scene, spec: SequenceSpec) -> None:
+        from quadnav.sim.render import Renderer
+
+        self.cam = cam
+        self.spec = spec
+        self.renderer = Renderer(scene, cam.camera)
+        self.rng = stream_rng(spec.seed, cam.name)
+        self.depth_m = 2.0
+        self.ae_gain: float | None = None
+
+    def _exposure(self, scene_mean: float, light: float, dt_s: float) -> float:
+        """The gain: ``light`` times the auto-exposure, which brings the mean grey level to
+        ``target_grey`` with time constant ``auto_exposure_s`` (within 0.25-4x)."""
+        s = self.spec
+        if s.auto_exposure_s <= 0.0:
+            return light
+        want = float(np.clip(s.target_grey / max(scene_mean * light, 1.0), 0.25, 4.0))
+        if self.ae_gain is None:
+            self.ae_gain = want
+        else:
+            self.ae_gain += (want - self.ae_gain) * min(dt_s / s.auto_exposure_s, 1.0)
+        return light * self.ae_gain
+
+    def shoot(self, motion: SplineMotion, t_cam_ns: int, light: float) -> U8:
+        poses = _blur_poses(motion, self.cam, t_cam_ns + self.cam.time_offset_ns, self.depth_m)
+        blur = poses if len(poses) > 1 else ()
+        frame = self.renderer.render(poses[len(poses) // 2], blur_poses=blur)
+        finite = frame.depth_m[np.isfinite(frame.depth_m)]
+        self.depth_m = float(np.median(finite)) if finite.size else 10.0
+        gain = self._exposure(float(frame.image.mean()), light, 1.0 / self.cam.rate_hz)
+        effects = RenderEffects(
+            exposure_gain=gain,
+            read_noise_sigma=self.spec.read_noise,
+            shot_noise_dn=self.spec.shot_noise_dn,
+            vignetting=self.spec.vignetting,
+        )
+        return effects.apply(frame.image, self.rng)
+
+
 def _write_frames(
     writer: EurocWriter,
     motion: SplineMotion,
@@ -419,31 +466,19 @@ def _write_frames(
     progress: Progress | None,
 ) -> int:
     """Every camera's images, rendered at its stamps (plus its time offset), blurred over its
-    exposure, under the slow lighting changes, with its own sensor noise."""
-    from quadnav.sim.render import Renderer
-
-    renderers = {c.name: Renderer(scene, c.camera) for c in rig.cameras}
-    rngs = {c.name: stream_rng(spec.seed, c.name) for c in rig.cameras}
-    cam0 = rig.cameras[0]
-    td = cam0.time_offset_ns
-    stamps = _camera_times(span[0] + max(-td, 0), span[1] - max(td, 0), cam0)
-    gains = _lighting_gain((stamps - stamps[0]) / NS_PER_S, spec.lighting, stream_rng(spec.seed, "lighting"))
-    depth = {c.name: 2.0 for c in rig.cameras}
+    exposure, under the slow lighting changes and its auto exposure, with its own noise."""
+    cameras = [_CameraStream(c, scene, spec) for c in rig.cameras]
+    td = rig.cameras[0].time_offset_ns
+    stamps = _camera_times(span[0] + max(-td, 0), span[1] - max(td, 0), rig.cameras[0])
+    t_s = (stamps - stamps[0]) / NS_PER_S
+    light = _lighting_gain(t_s, spec.lighting, stream_rng(spec.seed, "lighting"))
     written = 0
     for k, t_cam in enumerate(stamps):
-        for cam in rig.cameras:
-            poses = _blur_poses(motion, cam, int(t_cam) + cam.time_offset_ns, depth[cam.name])
-            frame = renderers[cam.name].render(poses[len(poses) // 2], blur_poses=poses if len(poses) > 1 else ())
-            finite = frame.depth_m[np.isfinite(frame.depth_m)]
-            depth[cam.name] = float(np.median(finite)) if finite.size else 10.0
-            effects = RenderEffects(
-                exposure_gain=float(gains[k]), read_noise_sigma=spec.read_noise,
-                shot_noise_dn=spec.shot_noise_dn, vignetting=spec.vignetting,
-            )
-            writer.add_frame(cam.name, int(t_cam), effects.apply(frame.image, rngs[cam.name]))
+        for cam in cameras:
+            writer.add_frame(cam.cam.name, int(t_cam), cam.shoot(motion, int(t_cam), light[k]))
             written += 1
         if progress is not None and (k % 10 == 0 or k == len(stamps) - 1):
-            progress(k + 1, len(stamps), f"{(t_cam - stamps[0]) / NS_PER_S:.1f} s")
+            progress(k + 1, len(stamps), f"{t_s[k]:.1f} s")
     return written
 
 
