@@ -25,7 +25,17 @@ def test_make_writes_a_readable_folder_and_prints_its_path_last(tmp_path: Path) 
     out = tmp_path / "room"
     res = runner.invoke(
         app,
-        ["dataset", "make", "room", "--duration", "1.5", "--rig", "thesis003_sim", "--out", str(out)],
+        [
+            "dataset",
+            "make",
+            "room",
+            "--duration",
+            "1.5",
+            "--rig",
+            "thesis003_sim",
+            "--out",
+            str(out),
+        ],
     )
     assert res.exit_code == 0, res.output
     assert res.stdout.strip().splitlines()[-1] == str(out)
@@ -46,7 +56,10 @@ def test_make_refuses_bad_requests_in_one_line(tmp_path: Path) -> None:
         (["room", "--rig", "kinect", "--out", str(tmp_path / "b")], "--rig: unknown rig 'kinect'"),
         (["room", "--out", str(tmp_path / "full")], "exists and is not empty"),
         (["room", "--set", "lighting=7", "--out", str(tmp_path / "c")], "lighting"),
-        (["room", "--motion", "nowhere.txt", "--out", str(tmp_path / "d")], "--motion 'nowhere.txt'"),
+        (
+            ["room", "--motion", "nowhere.txt", "--out", str(tmp_path / "d")],
+            "--motion 'nowhere.txt'",
+        ),
     ]
     for args, fragment in cases:
         one_line_error(runner.invoke(app, ["dataset", "make", *args]), fragment)

@@ -92,10 +92,15 @@ def test_an_image_stamped_t_shows_the_scene_at_t_plus_the_time_offset(tmp_path: 
 
 
 def test_the_same_seed_makes_the_same_dataset_and_another_seed_another(tmp_path: Path) -> None:
-    a = make_dataset(sequence_spec("room", {"duration_s": 1.5, "rig": "thesis003_sim"}), tmp_path / "a")
-    b = make_dataset(sequence_spec("room", {"duration_s": 1.5, "rig": "thesis003_sim"}), tmp_path / "b")
+    a = make_dataset(
+        sequence_spec("room", {"duration_s": 1.5, "rig": "thesis003_sim"}), tmp_path / "a"
+    )
+    b = make_dataset(
+        sequence_spec("room", {"duration_s": 1.5, "rig": "thesis003_sim"}), tmp_path / "b"
+    )
     c = make_dataset(
-        sequence_spec("room", {"duration_s": 1.5, "rig": "thesis003_sim", "seed": 1}), tmp_path / "c"
+        sequence_spec("room", {"duration_s": 1.5, "rig": "thesis003_sim", "seed": 1}),
+        tmp_path / "c",
     )
     for rel in ("mav0/imu0/data.csv", "mav0/state_groundtruth_estimate0/data.csv"):
         assert (a.root / rel).read_bytes() == (b.root / rel).read_bytes()

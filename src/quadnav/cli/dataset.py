@@ -37,7 +37,11 @@ dataset_app = typer.Typer(
 
 
 def resolve_make(
-    name: str, motion: str | None, rig: str | None, seed: int | None, duration_s: float | None,
+    name: str,
+    motion: str | None,
+    rig: str | None,
+    seed: int | None,
+    duration_s: float | None,
     set_: list[str],
 ) -> SequenceSpec:
     """The validated sequence ``dataset make`` would write (no work, no folder)."""
@@ -125,7 +129,9 @@ DatasetArg = Annotated[
 ]
 CalibOpt = Annotated[
     Path | None,
-    typer.Option("--calibration", help="a Kalibr camchain or EuRoC folder replacing the files' own"),
+    typer.Option(
+        "--calibration", help="a Kalibr camchain or EuRoC folder replacing the files' own"
+    ),
 ]
 
 

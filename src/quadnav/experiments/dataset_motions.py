@@ -111,7 +111,9 @@ def _attitude(p: FloatArray, t: FloatArray, path: FlightPath) -> Rotation:
     return Rotation.from_matrix(np.stack([x_B, y_B, z_B], axis=2))
 
 
-def flight_path_trajectory(path: FlightPath, *, rate_hz: float = 200.0, t0_ns: int = 0) -> Trajectory:
+def flight_path_trajectory(
+    path: FlightPath, *, rate_hz: float = 200.0, t0_ns: int = 0
+) -> Trajectory:
     """The path's poses at ``rate_hz`` from ``t0_ns``."""
     n = int(path.duration_s * rate_hz) + 1
     t = np.arange(n) / rate_hz

@@ -8,20 +8,32 @@ images' brightness, contrast and gradient energy.
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass
 
 import cv2
 import numpy as np
 from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
 
 from quadnav.errors import ConfigError
+from quadnav.geometry.camera import PinholeCamera
 from quadnav.io.datasets import VisualInertialDataset
 from quadnav.messages import ImageFrame
 from quadnav.units import NS_PER_S, s_to_ns
 from quadnav.vision.tracking import TrackerConfig, TrackStats, track_sequence
 
-__all__ = ["ImageStats", "TrackStudy", "image_stats", "track_dataset"]
+__all__ = [
+    "ImageStats",
+    "RotationRow",
+    "TrackStudy",
+    "crop_camera",
+    "image_stats",
+    "rotation_study",
+    "sway",
+    "track_dataset",
+    "warped_views",
+]
 
 U8 = NDArray[np.uint8]
 
@@ -140,3 +152,98 @@ def track_dataset(
         tracks=tracks,
         images=acc.result(),
     )
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class RotationRow:
+    """Tracks of the same pure rotation (yaw and pitch swaying with a peak rate) seen in a real
+    image (warped by the rotation's homography, exact for a pure rotation) and in a world."""
+
+    peak_rate_deg_s: float
+    frames: int
+    real: TrackStats
+    synthetic: TrackStats
+
+    def to_json(self) -> dict[str, object]:
+        return {
+            "peak_rate_deg_s": self.peak_rate_deg_s,
+            "frames": self.frames,
+            "real": self.real.to_json(),
+            "synthetic": self.synthetic.to_json(),
+        }
+
+
+def sway(
+    peak_rate_deg_s: float, frames: int, rate_hz: float, amplitude_deg: float = 6.0
+) -> list[Rotation]:
+    """Rotations of a camera swaying in yaw (and half as much in pitch) with the given peak rate."""
+    f_hz = peak_rate_deg_s / (amplitude_deg * 2.0 * np.pi)
+    t = np.arange(frames) / rate_hz
+    yaw = amplitude_deg * np.sin(2.0 * np.pi * f_hz * t)
+    pitch = 0.5 * amplitude_deg * np.cos(2.0 * np.pi * f_hz * t * 0.7)
+    # camera frame: yaw turns about its y (down) axis, pitch about its x (right) axis
+    return [
+        Rotation.from_euler("YX", [y, p], degrees=True) for y, p in zip(yaw, pitch, strict=True)
+    ]
+
+
+def crop_camera(K: NDArray[np.float64], width: int, height: int) -> PinholeCamera:
+    """A pinhole camera of ``width`` x ``height`` with ``K``'s focal lengths, centred."""
+    Kc = K.copy()
+    Kc[0, 2], Kc[1, 2] = (width - 1) / 2.0, (height - 1) / 2.0
+    return PinholeCamera(Kc, np.zeros(0), width, height)
+
+
+def warped_views(
+    image: U8, K_src: NDArray[np.float64], view: PinholeCamera, rotations: list[Rotation]
+) -> Iterator[U8]:
+    """``image`` (undistorted, camera ``K_src``) as cameras turned by ``rotations`` see it."""
+    K_inv = np.linalg.inv(view.K)
+    for R in rotations:
+        H = K_src @ R.as_matrix() @ K_inv  # destination pixel -> source pixel
+        yield np.asarray(
+            cv2.warpPerspective(
+                image, H, (view.width, view.height), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP
+            ),
+            np.uint8,
+        )
+
+
+def rotation_study(
+    real: U8,
+    real_camera: PinholeCamera,
+    rendered: Callable[[Rotation], U8],
+    view: PinholeCamera,
+    rates_deg_s: tuple[float, ...] = (30.0, 60.0, 120.0),
+    *,
+    frames: int = 60,
+    rate_hz: float = 20.0,
+    seed: int = 0,
+) -> list[RotationRow]:
+    """For each peak rate, track the real image warped by the sway's rotations and the world
+    rendered by ``rendered(R)`` under the same rotations, both with the same fresh sensor noise
+    (2 grey levels) per frame."""
+    from quadnav.sim.render import RenderEffects
+
+    undistorted = np.asarray(cv2.undistort(_grey(real), real_camera.K, real_camera.dist), np.uint8)
+    noise = RenderEffects(read_noise_sigma=1.5, shot_noise_dn=0.03)
+    rows = []
+    for rate in rates_deg_s:
+        rots = sway(rate, frames, rate_hz)
+        rng_a, rng_b = np.random.default_rng(seed), np.random.default_rng(seed)
+        real_seq = (
+            (s_to_ns(k / rate_hz), noise.apply(img, rng_a))
+            for k, img in enumerate(warped_views(undistorted, real_camera.K, view, rots))
+        )
+        syn_seq = (
+            (s_to_ns(k / rate_hz), noise.apply(rendered(R), rng_b)) for k, R in enumerate(rots)
+        )
+        rows.append(
+            RotationRow(
+                peak_rate_deg_s=rate,
+                frames=frames,
+                real=track_sequence(real_seq),
+                synthetic=track_sequence(syn_seq),
+            )
+        )
+    return rows
