@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 import pytest
 
@@ -10,9 +12,7 @@ from quadnav.experiments.track_study import crop_camera, image_stats, sway, warp
 
 def test_the_sway_turns_at_its_peak_rate() -> None:
     rots = sway(60.0, 400, 200.0)
-    rates = [
-        np.degrees((a.inv() * b).magnitude()) * 200.0 for a, b in zip(rots, rots[1:], strict=False)
-    ]
+    rates = [np.degrees((a.inv() * b).magnitude()) * 200.0 for a, b in itertools.pairwise(rots)]
     assert max(rates) == pytest.approx(60.0, rel=0.15)
 
 

@@ -10,7 +10,7 @@ from numpy.typing import NDArray
 from scipy.interpolate import make_interp_spline
 from scipy.spatial.transform import Rotation
 
-from quadnav.errors import QuadnavError, SimError
+from quadnav.errors import QuadnavError
 from quadnav.geometry.trajectory import Trajectory
 from quadnav.io.trajectory_io import read_trajectory
 from quadnav.sim.motion import ImuNoiseModel, ImuSeries, SplineMotion, imu_errors, synthesize_imu

@@ -17,8 +17,8 @@ import time
 import zlib
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import asdict, dataclass, replace
-from typing import TYPE_CHECKING, Literal
 from pathlib import Path
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 from numpy.random import Generator
@@ -30,8 +30,8 @@ from quadnav.config_model import ConfigModel
 from quadnav.errors import ConfigError, GeometryError
 from quadnav.experiments.dataset_motions import FlightPath, flight_path_trajectory
 from quadnav.geometry.rotations import Pose
-from quadnav.io.config import load_config
 from quadnav.geometry.trajectory import Trajectory
+from quadnav.io.config import load_config
 from quadnav.io.trajectory_io import write_tum
 from quadnav.rig import CameraSpec, Rig, rig_named
 from quadnav.sim.motion import SplineMotion, synthesize_imu

@@ -34,9 +34,9 @@ from quadnav.units import GRAVITY_M_S2, NS_PER_S, s_to_ns
 __all__ = [
     "ImuNoiseModel",
     "ImuSeries",
-    "imu_errors",
     "MotionFit",
     "SplineMotion",
+    "imu_errors",
     "synthesize_imu",
 ]
 
