@@ -509,7 +509,7 @@ class Renderer:
             tex, border = tex[1:-1, 1:-1], cv2.BORDER_WRAP
         else:  # one tile: its padding interpolates across the edges, the rest is cut off
             border = cv2.BORDER_CONSTANT
-        h, w = mask.shape
+        h, w = int(mask.shape[0]), int(mask.shape[1])
         warped = cv2.warpPerspective(tex, G, (w, h), flags=cv2.INTER_LINEAR, borderMode=border)
         cv2.copyTo(warped, mask, img[y0 : y0 + h, x0 : x0 + w])
         cv2.copyTo(plane, mask, roi_z)
