@@ -488,7 +488,7 @@ class Renderer:
             return
         U, V = self._U[y0:y1, x0:x1], self._V[y0:y1, x0:x1]
         plane = cv2.addWeighted(U, float(a[0]), V, float(a[1]), float(a[2]), dtype=cv2.CV_32F)
-        mask = np.zeros(roi_z.shape, np.uint8)
+        mask: U8 = np.zeros(roi_z.shape, np.uint8)
         cv2.fillConvexPoly(mask, item.outline, 255, cv2.LINE_8, _SHIFT)
         G = item.G
         if z_hi > 0:  # something drawn here already: the depth test
