@@ -124,7 +124,7 @@ def _wood(rng: np.random.Generator, n: int) -> FloatArray:
     y, x = np.mgrid[0:n, 0:n] / n
     turb = _fractal(rng, n, 3.0, 8.0)
     k = int(rng.integers(6, 14))
-    rings = np.sin(2 * np.pi * (k * y + 0.35 * turb) + 2 * np.pi * 0.1 * x)
+    rings = np.sin(2 * np.pi * (k * y + 0.35 * turb + x))  # whole periods: it tiles
     return np.asarray(120.0 + 45.0 * rings + 15.0 * _fractal(rng, n, 1.0, 2.0), np.float64)
 
 
