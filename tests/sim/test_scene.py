@@ -3,6 +3,8 @@ path, seeded, texture-poor on request) and markers placed as textured quads."""
 
 from __future__ import annotations
 
+import itertools
+
 import cv2
 import numpy as np
 import pytest
@@ -41,14 +43,10 @@ def test_box_faces_face_out_or_in() -> None:
 def test_tessellation_keeps_the_area_and_the_mapping_one_tile_per_cell() -> None:
     (floor,) = [f for f in box([0, 0, 0], [2.5, 1.7, 1], _tex()) if f.normal_W[2] > 0.5]
     cells = tessellate(floor, 0.5)
-    area = (
-        lambda p: (
-            0.5
-            * np.linalg.norm(  # noqa: E731
-                np.cross(p[1:-1] - p[0], p[2:] - p[0]).sum(axis=0)
-            )
-        )
-    )
+
+    def area(p: np.ndarray) -> float:
+        return float(0.5 * np.linalg.norm(np.cross(p[1:-1] - p[0], p[2:] - p[0]).sum(axis=0)))
+
     assert sum(area(c.points_W) for c in cells) == pytest.approx(area(floor.points_W))
     assert len(cells) >= 15
     for c in cells:
@@ -116,7 +114,7 @@ def test_obstacles_keep_their_clearance_from_the_path(name: str) -> None:
         flight_min_m=base.flight_min_m, flight_max_m=base.flight_max_m, seed=5, path_W=path
     )
     t = np.linspace(0, 1, 20)[:, None]
-    dense = np.concatenate([a + t * (b - a) for a, b in zip(path[:-1], path[1:], strict=True)])
+    dense = np.concatenate([a + t * (b - a) for a, b in itertools.pairwise(path)])
     inside = 0
     for p in WORLDS[name](plan).polygons:
         if p.name.startswith("obstacle:"):
@@ -169,8 +167,10 @@ def test_markers_on_the_floor_are_found_where_they_lie() -> None:
         # ArUco's corner order: top-left, top-right, bottom-right, bottom-left of the print
         M = np.array([[-half, half, 0], [half, half, 0], [half, -half, 0], [-half, -half, 0]])
         expected = cam.project(T.inverse() @ (M + [x, y, 0.0]))
-        # the detector's corners are whole pixels: a misplaced marker is off by its side
-        assert np.abs(c.reshape(4, 2) - expected).max() < 1.5
+        # the detector's corners are whole pixels, pulled in by about one: its centre is exact
+        found = c.reshape(4, 2)
+        assert np.abs(found.mean(axis=0) - expected.mean(axis=0)).max() < 0.5
+        assert np.abs(found - expected).max() < 2.5  # and a turned marker is off by its side
 
 
 def test_markers_can_hang_on_a_wall_of_any_world() -> None:

@@ -46,7 +46,7 @@ def test_flat_texture_is_texture_poor() -> None:
 
 
 def test_unknown_texture_and_bad_size_are_clear_errors() -> None:
-    with pytest.raises(SimError, match="unknown texture 'marble'.*noise"):
+    with pytest.raises(SimError, match=r"unknown texture 'marble'.*noise"):
         make_texture("marble")
     with pytest.raises(SimError, match="unknown photo texture"):
         photo("lena")
