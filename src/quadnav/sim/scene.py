@@ -450,7 +450,7 @@ def _enclosure(
     hi = np.array([f_hi[0] + margin_m, f_hi[1] + margin_m, max(lo[2] + height_m, f_hi[2] + 1.0)])
     walls = ["bricks", "noise", "brick", "wood", "checkers", "coins", "cell", "page"]
     tex = [S.pick(walls, scale) for _ in range(4)]
-    tex += [S.pick(["gravel", "noise", "wood", "grass"], scale), S.pick(["noise", "moon"], scale)]
+    tex += [S.pick(["gravel", "noise", "grass", "bricks"], scale), S.pick(["noise", "moon"], scale)]
     faces = box(lo, hi, tex, inward=True, rng=S.rng, name="enclosure")
     return _cells(faces, cell_m), lo, hi
 
