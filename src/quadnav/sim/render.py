@@ -317,6 +317,8 @@ class Renderer:
         mx = np.where(ok, ideal[..., 0] + pl, -1.0).astype(np.float32)
         my = np.where(ok, ideal[..., 1] + pt, -1.0).astype(np.float32)
         self._maps = (mx, my)  # float maps: fixed-point ones round to 1/32 px
+        # the depth takes the nearest ideal pixel (no blend across edges): rounded integer maps
+        self._depth_map = cv2.convertMaps(mx, my, cv2.CV_16SC2, nninterpolation=True)[0]
         self._lens_scale = self._output_area(cam)
         # the remap resamples once more: half a level softer, or its bilinear taps alias edges
         self._lod_bias = 0.95
@@ -343,12 +345,13 @@ class Renderer:
         img, inv_z = self._render_ideal(T_W_C)
         with np.errstate(divide="ignore"):
             depth = np.asarray(1.0 / inv_z, np.float32)
-        image = self._to_lens(img)
+        image = self._to_lens(img) if not blur_poses else img
         if self._maps is not None:
             depth = np.asarray(
-                cv2.remap(
+                cv2.remap(  # type: ignore[call-overload]  # map2 may be None (integer map1)
                     depth,
-                    *self._maps,
+                    self._depth_map,
+                    None,
                     cv2.INTER_NEAREST,
                     borderMode=cv2.BORDER_CONSTANT,
                     borderValue=float("inf"),
