@@ -226,3 +226,11 @@ def test_bad_input_is_a_one_line_sim_error() -> None:
         polygon([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0.3]], tex)
     with pytest.raises(SimError, match="read_noise_sigma"):
         RenderEffects(read_noise_sigma=-1.0)
+
+
+def test_depth_through_the_lens_is_the_walls_distance_everywhere() -> None:
+    cam = thesis_camera().scaled(160, 120)
+    scene = Scene(tuple(_wall(2.5, 4.0, _flat(90))))
+    f = Renderer(scene, cam).render(look_at(np.zeros(3), np.array([1.0, 0.0, 0.0])))
+    np.testing.assert_allclose(f.depth_m, 2.5, rtol=1e-5)  # a wall square to the axis: z = x
+    assert f.image.shape == (120, 160) and (f.image == 90).all()

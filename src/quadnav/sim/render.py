@@ -208,6 +208,7 @@ class _Item:
     a: F32
     G: FloatArray
     level: int
+    inv_z_max: float  # the polygon's nearest point's 1/z
 
 
 def _ideal_pixels(cam: PinholeCamera, px: FloatArray, iterations: int = 4) -> FloatArray:
@@ -282,8 +283,10 @@ class Renderer:
         for p in scene.polygons:  # build the shaded pyramids now (shared through the textures)
             p.texture.padded_levels(p.shade)
         self._setup_lens()
-        self._u = np.arange(self._w, dtype=np.float32)
-        self._v = np.arange(self._h, dtype=np.float32)
+        u = np.arange(self._w, dtype=np.float32)
+        v = np.arange(self._h, dtype=np.float32)
+        self._U = np.ascontiguousarray(np.broadcast_to(u[None, :], (self._h, self._w)))
+        self._V = np.ascontiguousarray(np.broadcast_to(v[:, None], (self._h, self._w)))
 
     def _setup_lens(self) -> None:
         """The ideal pinhole image (its size, K) and the remap of the lens distortion."""
@@ -314,6 +317,8 @@ class Renderer:
         mx = np.where(ok, ideal[..., 0] + pl, -1.0).astype(np.float32)
         my = np.where(ok, ideal[..., 1] + pt, -1.0).astype(np.float32)
         self._maps = (mx, my)  # float maps: fixed-point ones round to 1/32 px
+        # the depth takes the nearest ideal pixel (no blend across edges): rounded integer maps
+        self._depth_map = cv2.convertMaps(mx, my, cv2.CV_16SC2, nninterpolation=True)[0]
         self._lens_scale = self._output_area(cam)
         # the remap resamples once more: half a level softer, or its bilinear taps alias edges
         self._lod_bias = 0.95
@@ -340,12 +345,13 @@ class Renderer:
         img, inv_z = self._render_ideal(T_W_C)
         with np.errstate(divide="ignore"):
             depth = np.asarray(1.0 / inv_z, np.float32)
-        image = self._to_lens(img)
+        image = self._to_lens(img) if not blur_poses else img
         if self._maps is not None:
             depth = np.asarray(
-                cv2.remap(
+                cv2.remap(  # type: ignore[call-overload]  # map2 may be None (integer map1)
                     depth,
-                    *self._maps,
+                    self._depth_map,
+                    None,
                     cv2.INTER_NEAREST,
                     borderMode=cv2.BORDER_CONSTANT,
                     borderValue=float("inf"),
@@ -404,6 +410,11 @@ class Renderer:
         x1 = np.clip(np.ceil(hi[:, 0]) + 1, 0, self._w).astype(np.int64)
         y1 = np.clip(np.ceil(hi[:, 1]) + 1, 0, self._h).astype(np.int64)
         drawn = (front | np.isin(np.arange(len(idx)), list(pieces))) & (x1 > x0) & (y1 > y0)
+        zmin = z.min(axis=1)
+        sel = np.flatnonzero(drawn)
+        sel = sel[np.argsort(zmin[sel])]  # nearest first
+        idx, uv, vC, area_px, area_tx = idx[sel], uv[sel], vC[sel], area_px[sel], area_tx[sel]
+        x0, y0, x1, y1, zmin = x0[sel], y0[sel], x1[sel], y1[sel], zmin[sel]
         if self._lens_scale is not None:  # texels per output pixel, not per ideal one
             g = self._lens_scale
             cen = np.clip(np.rint(uv.mean(axis=1) / 16), 0, [g.shape[1] - 1, g.shape[0] - 1])
@@ -417,13 +428,20 @@ class Renderer:
         d_C = np.einsum("ij,ij->i", n_C, vC[:, 0])
         plane = (n_C @ np.linalg.inv(K) / d_C[:, None]).astype(np.float32)
         G = self._homographies(idx, R, t, level, x0, y0)
+        corner = np.stack([x0, y0], axis=1)[:, None, :]
+        outlines = np.rint((uv - corner) * (1 << _SHIFT)).astype(np.int32)
+        inv_near = (1.0 / np.maximum(zmin, near)).tolist()  # clipped: the near plane
+        boxes = np.stack([x0, y0, x1, y1], axis=1).tolist()
+        clipped = {int(np.flatnonzero(sel == k)[0]): q for k, q in pieces.items() if k in sel}
         items = []
-        for k in np.flatnonzero(drawn)[np.argsort(z[drawn].min(axis=1))]:
-            i = int(idx[k])
-            q = pieces[k] if k in pieces else uv[k, : P.count[i]]
-            outline = np.rint((q - [x0[k], y0[k]]) * (1 << _SHIFT)).astype(np.int32)
-            box = (int(x0[k]), int(y0[k]), int(x1[k]), int(y1[k]))
-            items.append(_Item(i, box, outline, plane[k], G[k], int(level[k])))
+        for j, (i, n, lev) in enumerate(
+            zip(idx.tolist(), P.count[idx].tolist(), level.tolist(), strict=True)
+        ):
+            if j in clipped:
+                outline = np.rint((clipped[j] - corner[j]) * (1 << _SHIFT)).astype(np.int32)
+            else:
+                outline = outlines[j, :n]
+            items.append(_Item(i, tuple(boxes[j]), outline, plane[j], G[j], lev, inv_near[j]))
         return items
 
     def _homographies(
@@ -468,21 +486,33 @@ class Renderer:
         x0, y0, x1, y1 = item.box
         a = item.a
         roi_z = inv_z[y0:y1, x0:x1]
-        plane = (a[0] * self._u[x0:x1])[None, :] + (a[1] * self._v[y0:y1] + a[2])[:, None]
-        mask = np.zeros(roi_z.shape, np.uint8)
+        z_lo, z_hi, _, _ = cv2.minMaxLoc(roi_z)
+        if z_lo > item.inv_z_max:  # all of its box is nearer already
+            return
+        U, V = self._U[y0:y1, x0:x1], self._V[y0:y1, x0:x1]
+        plane = cv2.addWeighted(U, float(a[0]), V, float(a[1]), float(a[2]), dtype=cv2.CV_32F)
+        mask: U8 = np.zeros(roi_z.shape, np.uint8)
         cv2.fillConvexPoly(mask, item.outline, 255, cv2.LINE_8, _SHIFT)
-        if cv2.countNonZero(roi_z):  # something drawn here already: the depth test
+        G = item.G
+        if z_hi > 0:  # something drawn here already: the depth test
             cv2.bitwise_and(mask, cv2.compare(plane, roi_z, cv2.CMP_GT), dst=mask)
-            if not cv2.countNonZero(mask):
+            bx, by, bw, bh = cv2.boundingRect(mask)
+            if bw == 0:
                 return
+            if bw * bh < 0.8 * mask.size:  # partly hidden: warp only what shows
+                G = G.copy()
+                G[0] -= bx * G[2]
+                G[1] -= by * G[2]
+                mask, plane = mask[by : by + bh, bx : bx + bw], plane[by : by + bh, bx : bx + bw]
+                roi_z = roi_z[by : by + bh, bx : bx + bw]
+                x0, y0 = x0 + bx, y0 + by
         poly = self._polys[item.index]
         tex = poly.texture.padded_levels(poly.shade)[item.level]
         if self._packed.wraps[item.index]:  # spans tiles: the texture wraps around (slower)
             tex, border = tex[1:-1, 1:-1], cv2.BORDER_WRAP
         else:  # one tile: its padding interpolates across the edges, the rest is cut off
             border = cv2.BORDER_CONSTANT
-        warped = cv2.warpPerspective(
-            tex, item.G, (x1 - x0, y1 - y0), flags=cv2.INTER_LINEAR, borderMode=border
-        )
-        cv2.copyTo(warped, mask, img[y0:y1, x0:x1])
+        h, w = int(mask.shape[0]), int(mask.shape[1])
+        warped = cv2.warpPerspective(tex, G, (w, h), flags=cv2.INTER_LINEAR, borderMode=border)
+        cv2.copyTo(warped, mask, img[y0 : y0 + h, x0 : x0 + w])
         cv2.copyTo(plane, mask, roi_z)

@@ -450,7 +450,7 @@ def _enclosure(
     hi = np.array([f_hi[0] + margin_m, f_hi[1] + margin_m, max(lo[2] + height_m, f_hi[2] + 1.0)])
     walls = ["bricks", "noise", "brick", "wood", "checkers", "coins", "cell", "page"]
     tex = [S.pick(walls, scale) for _ in range(4)]
-    tex += [S.pick(["gravel", "noise", "wood", "grass"], scale), S.pick(["noise", "moon"], scale)]
+    tex += [S.pick(["gravel", "noise", "grass", "bricks"], scale), S.pick(["noise", "moon"], scale)]
     faces = box(lo, hi, tex, inward=True, rng=S.rng, name="enclosure")
     return _cells(faces, cell_m), lo, hi
 
@@ -491,7 +491,7 @@ def _obstacles(
     for i in range(n):
         got = placer.place(placer.rng.uniform(size_lo, size_hi))
         if got is not None:
-            tex = [S.pick(kinds, scale) for _ in range(6)]
+            tex = S.pick(kinds, scale)  # one material all round
             out += _cells(box(*got, tex, rng=S.rng, name=f"obstacle:{kind} {i}"))
     return out
 
@@ -534,11 +534,11 @@ def build_hall(plan: WorldPlan) -> Scene:
                 placer.placed.append((p_lo, p_hi))
                 polys += _cells(
                     box(
-                        p_lo, p_hi, S.pick(metal, 0.004), rng=S.rng, name=f"obstacle:pillar {i},{j}"
+                        p_lo, p_hi, S.pick(metal, 0.008), rng=S.rng, name=f"obstacle:pillar {i},{j}"
                     )
                 )
-    polys += _obstacles(placer, S, "shelf", 6, (0.6, 2.0, 2.0), (0.9, 4.0, 3.5), metal, 0.004)
-    polys += _obstacles(placer, S, "machine", 8, (0.8, 0.8, 0.8), (2.5, 3.0, 2.5), metal, 0.004)
+    polys += _obstacles(placer, S, "shelf", 6, (0.6, 2.0, 2.0), (0.9, 4.0, 3.5), metal, 0.006)
+    polys += _obstacles(placer, S, "machine", 8, (0.8, 0.8, 0.8), (2.5, 3.0, 2.5), metal, 0.006)
     polys += _obstacles(placer, S, "crate", 8, (0.4, 0.4, 0.4), (1.0, 1.0, 1.0), metal, 0.003)
     return Scene(tuple(polys), "hall")
 

@@ -123,9 +123,9 @@ def _wood(rng: np.random.Generator, n: int) -> FloatArray:
     """Wood-like grain: stripes along x whose phase wanders with low-frequency noise, knots."""
     y, x = np.mgrid[0:n, 0:n] / n
     turb = _fractal(rng, n, 3.0, 8.0)
-    k = int(rng.integers(6, 14))
-    rings = np.sin(2 * np.pi * (k * y + 0.35 * turb) + 2 * np.pi * 0.1 * x)
-    return np.asarray(120.0 + 45.0 * rings + 15.0 * _fractal(rng, n, 1.0, 2.0), np.float64)
+    k = int(rng.integers(10, 24))
+    rings = np.sin(2 * np.pi * (k * y + 0.35 * turb + x))  # whole periods: it tiles
+    return np.asarray(125.0 + 22.0 * rings + 18.0 * _fractal(rng, n, 2.0, 2.0), np.float64)
 
 
 #: Procedural texture kinds by name (each a seeded, periodic generator).
