@@ -234,3 +234,17 @@ def test_depth_through_the_lens_is_the_walls_distance_everywhere() -> None:
     f = Renderer(scene, cam).render(look_at(np.zeros(3), np.array([1.0, 0.0, 0.0])))
     np.testing.assert_allclose(f.depth_m, 2.5, rtol=1e-5)  # a wall square to the axis: z = x
     assert f.image.shape == (120, 160) and (f.image == 90).all()
+
+
+def test_motion_blur_through_a_distorting_lens_averages_the_lens_images() -> None:
+    """With a lens (the ideal image is wider than the sensor's), the blurred image has the
+    sensor's size and, with every pose the same, equals the sharp one."""
+    cam = thesis_camera().scaled(160, 120)
+    bars = (np.arange(512) // 32) % 2 * 80
+    grid = Texture((40 + bars[:, None] + bars[None, :]).astype(np.uint8), 0.01)
+    r = Renderer(Scene(tuple(_wall(3.0, 3.0, grid))), cam)
+    T = look_at(np.zeros(3), np.array([1.0, 0.0, 0.0]))
+    sharp = r.render(T).image
+    same = r.render(T, blur_poses=[T, T, T]).image
+    assert same.shape == (120, 160)
+    assert np.array_equal(same, sharp)

@@ -359,7 +359,7 @@ class Renderer:
                 np.float32,
             )
         if blur_poses:
-            acc = np.zeros(image.shape, np.float32)
+            acc = np.zeros((self.camera.height, self.camera.width), np.float32)
             for T in blur_poses:
                 acc += self._to_lens(self._render_ideal(T)[0])
             image = np.asarray(np.rint(acc / len(blur_poses)), np.uint8)
