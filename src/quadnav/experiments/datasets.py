@@ -33,9 +33,9 @@ from quadnav.geometry.rotations import Pose
 from quadnav.geometry.trajectory import Trajectory
 from quadnav.io.config import load_config
 from quadnav.io.trajectory_io import write_tum
-from quadnav.rig import CameraSpec, Rig, rig_named
+from quadnav.rig import CameraSpec, DepthSpec, Rig, rig_named
 from quadnav.sim.motion import SplineMotion, synthesize_imu
-from quadnav.sim.render import RenderEffects
+from quadnav.sim.render import RenderedFrame, RenderEffects, depth_noise
 from quadnav.units import NS_PER_S, s_to_ns
 
 if TYPE_CHECKING:
@@ -413,6 +413,20 @@ def _write_imu(
     return len(imu)
 
 
+def _depth_reading(
+    depth_m: NDArray[np.float32], spec: DepthSpec, rng: Generator
+) -> NDArray[np.float32]:
+    """What the RGB-D sensor reads of the rendered depth: its noise, nothing out of its range."""
+    return depth_noise(
+        depth_m,
+        rng,
+        sigma0_m=spec.sigma0_m,
+        sigma_per_m2=spec.sigma_per_m2,
+        min_range_m=spec.min_range_m,
+        max_range_m=spec.max_range_m,
+    )
+
+
 class _CameraStream:
     """One camera of the rig: its renderer, its noise generator, the scene depth it saw last
     (for the blur) and its auto-exposure gain, which follows the light with a lag."""
@@ -440,7 +454,8 @@ class _CameraStream:
             self.ae_gain += (want - self.ae_gain) * min(dt_s / s.auto_exposure_s, 1.0)
         return light * self.ae_gain
 
-    def shoot(self, motion: SplineMotion, t_cam_ns: int, light: float) -> U8:
+    def shoot(self, motion: SplineMotion, t_cam_ns: int, light: float) -> RenderedFrame:
+        """The image as the camera gives it, and the depth at mid-exposure (noise-free)."""
         poses = _blur_poses(motion, self.cam, t_cam_ns + self.cam.time_offset_ns, self.depth_m)
         blur = poses if len(poses) > 1 else ()
         frame = self.renderer.render(poses[len(poses) // 2], blur_poses=blur)
@@ -453,7 +468,7 @@ class _CameraStream:
             shot_noise_dn=self.spec.shot_noise_dn,
             vignetting=self.spec.vignetting,
         )
-        return effects.apply(frame.image, self.rng)
+        return RenderedFrame(effects.apply(frame.image, self.rng), frame.depth_m)
 
 
 def _write_frames(
@@ -472,11 +487,15 @@ def _write_frames(
     stamps = _camera_times(span[0] + max(-td, 0), span[1] - max(td, 0), rig.cameras[0])
     t_s = (stamps - stamps[0]) / NS_PER_S
     light = _lighting_gain(t_s, spec.lighting, stream_rng(spec.seed, "lighting"))
+    depth_rng = stream_rng(spec.seed, "depth0")
     written = 0
     for k, t_cam in enumerate(stamps):
         for cam in cameras:
-            writer.add_frame(cam.cam.name, int(t_cam), cam.shoot(motion, int(t_cam), light[k]))
+            shot = cam.shoot(motion, int(t_cam), light[k])
+            writer.add_frame(cam.cam.name, int(t_cam), shot.image)
             written += 1
+            if rig.depth is not None and rig.depth.camera == cam.cam.name:
+                writer.add_depth(int(t_cam), _depth_reading(shot.depth_m, rig.depth, depth_rng))
         if progress is not None and (k % 10 == 0 or k == len(stamps) - 1):
             progress(k + 1, len(stamps), f"{t_s[k]:.1f} s")
     return written

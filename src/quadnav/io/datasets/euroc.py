@@ -24,6 +24,7 @@ import numpy as np
 from quadnav.errors import GeometryError, IoError
 from quadnav.geometry.rotations import Pose
 from quadnav.geometry.trajectory import Trajectory
+from quadnav.io.datasets.depth import read_depth
 from quadnav.io.datasets.files import (
     load_image,
     pose_of_4x4,
@@ -223,7 +224,7 @@ def _rig(
             f"the folder {[c.name for c in cams]}"
         )
     try:
-        return Rig(name=mav0.parent.name, cameras=specs, imu=imu)
+        return Rig(name=mav0.parent.name, cameras=specs, imu=imu, depth=read_depth(mav0)[0])
     except GeometryError as exc:
         raise IoError(f"{mav0}: {exc}") from None
 
@@ -270,4 +271,5 @@ def read_asl(
         imu=imu,
         groundtruth=gt,
         issues=issues.freeze(),
+        depth=read_depth(mav0)[1],  # the sensor.yaml read again: two small files
     )

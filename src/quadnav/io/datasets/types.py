@@ -14,6 +14,7 @@ import heapq
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
@@ -22,6 +23,9 @@ from quadnav.errors import GeometryError, IoError, SampleError
 from quadnav.geometry.trajectory import Trajectory
 from quadnav.messages import ImageFrame, ImuSample
 from quadnav.rig import Rig
+
+if TYPE_CHECKING:  # depth.py reads its files through files.py, which imports this module
+    from quadnav.io.datasets.depth import DepthFrame
 
 __all__ = ["DatasetIssues", "GroundTruth", "ImuTable", "VisualInertialDataset"]
 
@@ -158,7 +162,8 @@ class IssueLog:
 class VisualInertialDataset:
     """A camera-IMU sequence: ``rig`` (the calibration the files give), ``frames`` (every
     camera's, time ordered, cameras in rig order at equal stamps; pixels load on demand),
-    ``imu`` (empty when the rig has none), ``groundtruth`` (None when absent), ``issues``."""
+    ``imu`` (empty when the rig has none), ``groundtruth`` (None when absent), ``issues``, and
+    the ``depth`` images of an RGB-D rig (empty otherwise; not part of ``stream()``)."""
 
     name: str
     root: Path
@@ -168,6 +173,7 @@ class VisualInertialDataset:
     imu: ImuTable
     groundtruth: GroundTruth | None = None
     issues: DatasetIssues = field(default_factory=DatasetIssues)
+    depth: tuple[DepthFrame, ...] = ()
 
     def frames_of(self, camera: str) -> list[ImageFrame]:
         self.rig.camera(camera)  # a one-line error for an unknown name

@@ -20,6 +20,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from quadnav.errors import IoError
 from quadnav.geometry.rotations import Pose
+from quadnav.io.datasets.depth import DEPTH_FOLDER, depth_png, depth_yaml
 from quadnav.io.datasets.files import PartialWriter, float_text
 from quadnav.io.datasets.kalibr import IMU_KEYS, lens_fields, write_camchain, write_kalibr_imu
 from quadnav.messages import ImuSample
@@ -99,6 +100,9 @@ class EurocWriter(PartialWriter):
                 self._open(spec.name, f"{spec.name}/data.csv", "#timestamp [ns],filename\n")
             if rig.imu is not None:
                 self._open("imu0", "imu0/data.csv", _IMU_HEADER)
+            if rig.depth is not None:
+                (self.mav0 / DEPTH_FOLDER / "data").mkdir(parents=True)
+                self._open(DEPTH_FOLDER, f"{DEPTH_FOLDER}/data.csv", "#timestamp [ns],filename\n")
         except OSError as exc:
             self.abort()
             raise IoError(f"{self.partial}: cannot be written ({exc.strerror})") from None
@@ -139,6 +143,22 @@ class EurocWriter(PartialWriter):
             raise IoError(f"{self.mav0 / camera / 'data' / name}: cannot be written")
         self._files[camera].write(f"{int(t_ns)},{name}\n")
 
+    def add_depth(self, t_ns: int, depth_m: NDArray[np.floating]) -> None:
+        """One depth image (metres, ``inf`` where nothing is read) of the rig's depth sensor,
+        as a 16-bit PNG of millimetres."""
+        if self.rig.depth is None:
+            raise IoError(f"rig {self.rig.name!r} has no depth sensor")
+        lens = self.rig.camera(self.rig.depth.camera).camera
+        if np.shape(depth_m) != (lens.height, lens.width):
+            raise IoError(
+                f"{DEPTH_FOLDER}: depth must be {lens.height}x{lens.width}, got {np.shape(depth_m)}"
+            )
+        self._stamp(DEPTH_FOLDER, t_ns)
+        name = f"{int(t_ns)}.png"
+        if not cv2.imwrite(str(self.mav0 / DEPTH_FOLDER / "data" / name), depth_png(depth_m)):
+            raise IoError(f"{self.mav0 / DEPTH_FOLDER / 'data' / name}: cannot be written")
+        self._files[DEPTH_FOLDER].write(f"{int(t_ns)},{name}\n")
+
     def add_imu(self, sample: ImuSample) -> None:
         if self.rig.imu is None:
             raise IoError(f"rig {self.rig.name!r} has no IMU")
@@ -176,6 +196,9 @@ class EurocWriter(PartialWriter):
         if _GT in self._files:
             text = f"%YAML:1.0\nsensor_type: visual-inertial\n{_t_bs(Pose.identity())}"
             (self.mav0 / _GT / "sensor.yaml").write_text(text, encoding="utf-8")
+        if self.rig.depth is not None:
+            text = depth_yaml(self.rig.depth)
+            (self.mav0 / DEPTH_FOLDER / "sensor.yaml").write_text(text, encoding="utf-8")
         (self.mav0 / "body.yaml").write_text(f"%YAML:1.0\ncomment: {self.rig.name}\n", "utf-8")
         write_camchain(self.partial / "camchain.yaml", self.rig)
         write_camchain(self.partial / "kalibr_imucam_chain.yaml", self.rig, openvins=True)
