@@ -26,7 +26,13 @@ from tests.shared_data import SHARED, needs
 EUROC_IMU = SHARED / "euroc_micro" / "mav0" / "imu0" / "data.csv"
 
 # A short, quiet sequence: 2.5 s of the room at the built-in flight's speed, thesis 003's camera.
-QUIET = {"read_noise": 0.0, "shot_noise_dn": 0.0, "exposure_s": 0.0, "rig": "thesis003_sim"}
+QUIET = {
+    "read_noise": 0.0,
+    "shot_noise_dn": 0.0,
+    "exposure_s": 0.0,
+    "auto_exposure_s": 0.0,
+    "rig": "thesis003_sim",
+}
 MOVING = {"still_s": 0.0}
 
 
