@@ -195,3 +195,20 @@ def test_an_rgbd_rig_writes_the_depth_with_its_noise_model(
     # sim/render's own test shows the growth over 0.5-8 m; here the two bands' model sigmas
     # differ by enough that a constant sigma would fail one of them
     assert abs(measured[1] / measured[0] - 1.0) > 0.3
+
+
+def test_auto_exposure_brings_a_dark_scene_to_its_target_with_a_lag() -> None:
+    from quadnav.experiments.datasets import _CameraStream
+    from quadnav.sim.scene import WORLDS, WorldPlan
+
+    spec = sequence_spec(
+        "room", {"target_grey": 120.0, "auto_exposure_s": 1.0, "duration_s": 2.0, **QUIET}
+    )
+    scene = WORLDS["room"](WorldPlan(flight_min_m=(-1, -1, 1), flight_max_m=(1, 1, 2)))
+    cam = _CameraStream(plan_dataset(spec).rig.cameras[0], scene, spec)
+    first = cam._exposure(60.0, 1.0, 0.05)
+    assert first == pytest.approx(2.0)  # the first frame is exposed right
+    gains = [cam._exposure(60.0, 0.5, 0.05) for _ in range(100)]  # the light halves
+    assert gains[0] == pytest.approx(0.5 * (2.0 + 0.05 * 2.0), rel=1e-6)  # 5 % of the way
+    assert gains[-1] == pytest.approx(2.0, rel=0.01)  # after 5 s the image is back at 120
+    assert cam._exposure(1.0, 1.0, 0.05) <= 4.0  # the gain has its limit
