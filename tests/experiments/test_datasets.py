@@ -202,7 +202,7 @@ def test_auto_exposure_brings_a_dark_scene_to_its_target_with_a_lag() -> None:
     from quadnav.sim.scene import WORLDS, WorldPlan
 
     spec = sequence_spec(
-        "room", {"target_grey": 120.0, "auto_exposure_s": 1.0, "duration_s": 2.0, **QUIET}
+        "room", {**QUIET, "target_grey": 120.0, "auto_exposure_s": 1.0, "duration_s": 2.0}
     )
     scene = WORLDS["room"](WorldPlan(flight_min_m=(-1, -1, 1), flight_max_m=(1, 1, 2)))
     cam = _CameraStream(plan_dataset(spec).rig.cameras[0], scene, spec)
