@@ -224,6 +224,8 @@ def test_bad_input_is_a_one_line_sim_error() -> None:
         polygon([[0, 0, 0], [1, 0, 0], [2, 0, 0]], tex)
     with pytest.raises(SimError, match="not in one plane"):
         polygon([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0.3]], tex)
+    with pytest.raises(SimError, match="not convex"):
+        polygon([[0, 0, 0], [2, 0, 0], [1, 0.2, 0], [1, 2, 0]], tex)
     with pytest.raises(SimError, match="read_noise_sigma"):
         RenderEffects(read_noise_sigma=-1.0)
 

@@ -17,6 +17,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import lru_cache
 
 import cv2
 import numpy as np
@@ -67,24 +68,30 @@ class RenderEffects:
             raise SimError(f"render effects: vignetting must be below 1, got {self.vignetting}")
 
     def apply(self, image: U8 | F32, rng: np.random.Generator) -> U8:
-        """The image as the sensor returns it (uint8), all noise drawn from ``rng``."""
+        """The image as the sensor returns it (uint8), all noise drawn from ``rng`` (one
+        Gaussian per pixel: read and shot noise add in variance)."""
         out = np.asarray(image, np.float32) * np.float32(self.exposure_gain)
         if self.vignetting > 0:
-            h, w = out.shape
-            y, x = np.ogrid[0:h, 0:w]
-            r2 = ((x - 0.5 * (w - 1)) ** 2 + (y - 0.5 * (h - 1)) ** 2) / (
-                0.25 * ((w - 1) ** 2 + (h - 1) ** 2)
-            )
-            out *= (1.0 - self.vignetting * r2).astype(np.float32)
-        out = np.minimum(out, 255.0)  # the pixel saturates before it is read out
-        if self.shot_noise_dn > 0:
-            sd = np.sqrt(np.float32(self.shot_noise_dn) * np.maximum(out, 0.0))
-            out += sd * rng.standard_normal(out.shape, dtype=np.float32)
-        if self.read_noise_sigma > 0:
-            out += np.float32(self.read_noise_sigma) * rng.standard_normal(
-                out.shape, dtype=np.float32
-            )
-        return np.asarray(np.clip(np.rint(out), 0, 255), np.uint8)
+            out *= _falloff(out.shape[0], out.shape[1], self.vignetting)
+        np.minimum(out, 255.0, out=out)  # the pixel saturates before it is read out
+        if self.shot_noise_dn > 0 or self.read_noise_sigma > 0:
+            var = np.float32(self.shot_noise_dn) * out + np.float32(self.read_noise_sigma**2)
+            out += np.sqrt(var) * rng.standard_normal(out.shape, dtype=np.float32)
+        out += 0.5
+        np.clip(out, 0.0, 255.0, out=out)
+        return out.astype(np.uint8)  # truncating x + 0.5: rounding
+
+
+@lru_cache(maxsize=16)
+def _falloff(h: int, w: int, vignetting: float) -> F32:
+    """1 - vignetting (r / r_corner)^2 over an h x w image (read-only, cached)."""
+    y, x = np.ogrid[0:h, 0:w]
+    r2 = ((x - 0.5 * (w - 1)) ** 2 + (y - 0.5 * (h - 1)) ** 2) / (
+        0.25 * ((w - 1) ** 2 + (h - 1) ** 2)
+    )
+    out = np.asarray(1.0 - vignetting * r2, np.float32)
+    out.flags.writeable = False
+    return out
 
 
 def depth_noise(

@@ -28,7 +28,7 @@ from numpy.typing import ArrayLike, NDArray
 from quadnav.errors import SimError
 from quadnav.geometry.rotations import Pose
 from quadnav.sim.camera import marker_object
-from quadnav.sim.textures import flat_texture, make_texture
+from quadnav.sim.textures import PHOTOS, flat_texture, make_texture
 
 __all__ = [
     "LIGHT_DIR_W",
@@ -375,9 +375,9 @@ class WorldPlan:
 
 
 @lru_cache(maxsize=512)
-def _texture(kind: str, seed: int, m_per_texel: float) -> Texture:
-    """One shared :class:`Texture` (and mip pyramid) per kind, seed and scale."""
-    img = flat_texture(seed) if kind == "flat" else make_texture(kind, seed)
+def _texture(kind: str, seed: int, m_per_texel: float, size_px: int = 512) -> Texture:
+    """One shared :class:`Texture` (and mip pyramid) per kind, seed, scale and size."""
+    img = flat_texture(seed) if kind == "flat" else make_texture(kind, seed, size_px)
     return Texture(img, m_per_texel, f"{kind}:{seed}")
 
 
@@ -388,12 +388,16 @@ class _Surfaces:
         self.rng = np.random.default_rng(plan.seed)
         self.poor = plan.texture_poor
 
-    def pick(self, kinds: Sequence[str], m_per_texel: float) -> Texture:
+    def pick(self, kinds: Sequence[str], m_per_texel: float, *, big: bool = False) -> Texture:
+        """A texture of ``m_per_texel``; ``big``: tiles twice as large (1024 texels when
+        procedural, photos at half the resolution), for fewer cells on large surfaces."""
         kind = kinds[int(self.rng.integers(len(kinds)))]
         seed = int(self.rng.integers(8))
         if self.rng.random() < self.poor:
-            return _texture("flat", seed, m_per_texel * 8)
-        return _texture(kind, seed, m_per_texel)
+            return _texture("flat", seed, m_per_texel * (16 if big else 8))
+        if big and kind in PHOTOS:
+            return _texture(kind, seed, 2 * m_per_texel)
+        return _texture(kind, seed, m_per_texel, 1024 if big else 512)
 
 
 def _aabb_distance(points: FloatArray, lo: FloatArray, hi: FloatArray) -> float:
@@ -442,17 +446,25 @@ class _Placer:
 
 
 def _enclosure(
-    plan: WorldPlan, S: _Surfaces, margin_m: float, height_m: float, cell_m: float, scale: float
+    plan: WorldPlan,
+    S: _Surfaces,
+    margin_m: float,
+    height_m: float,
+    cell_m: float,
+    scale: float,
+    big: bool = False,
 ) -> tuple[list[TexturedPolygon], FloatArray, FloatArray]:
-    """Walls, floor and ceiling around the flight box (facing in), cut into cells."""
+    """Walls, floor and ceiling around the flight box (facing in), cut along their textures'
+    tiles and the floor (seen from near to far at once) into cells of at most ``cell_m``."""
     f_lo, f_hi = np.asarray(plan.flight_min_m), np.asarray(plan.flight_max_m)
     lo = np.array([f_lo[0] - margin_m, f_lo[1] - margin_m, min(0.0, f_lo[2] - 0.1)])
     hi = np.array([f_hi[0] + margin_m, f_hi[1] + margin_m, max(lo[2] + height_m, f_hi[2] + 1.0)])
     walls = ["bricks", "noise", "brick", "wood", "checkers", "coins", "cell", "page"]
-    tex = [S.pick(walls, scale) for _ in range(4)]
-    tex += [S.pick(["gravel", "noise", "grass", "bricks"], scale), S.pick(["noise", "moon"], scale)]
+    tex = [S.pick(walls, scale, big=big) for _ in range(4)]
+    floor = ["gravel", "noise", "grass", "bricks"]
+    tex += [S.pick(floor, scale, big=big), S.pick(["noise", "moon"], scale, big=big)]
     faces = box(lo, hi, tex, inward=True, rng=S.rng, name="enclosure")
-    return _cells(faces, cell_m), lo, hi
+    return _cells(faces[:4]) + _cells(faces[4:5], cell_m) + _cells(faces[5:]), lo, hi
 
 
 def _posters(
@@ -523,7 +535,7 @@ def build_hall(plan: WorldPlan) -> Scene:
     """Like EuRoC's machine hall: large and tall, pillars on a grid, shelves along the walls
     and machines as boxes."""
     S = _Surfaces(plan)
-    enc, lo, hi = _enclosure(plan, S, max(plan.margin_m, 3.0), 9.0, 4.0, 0.008)
+    enc, lo, hi = _enclosure(plan, S, max(plan.margin_m, 3.0), 9.0, 4.0, 0.008, big=True)
     polys = enc + _posters(enc, S, 1, (1.5, 3.0))
     placer = _Placer(plan, _area(lo, hi, 0.05), float(lo[2]), S.rng)
     metal = ["noise", "checkers", "coins", "cell", "gravel", "page", "bricks"]
