@@ -59,3 +59,22 @@ def test_fisheye_checker_corners_land_where_the_model_projects_them(
     assert (
         np.linalg.norm(pinhole.project(T_W_C.inverse() @ corners_W) - expected, axis=1).max() > 1.0
     )
+
+
+def test_a_shrunk_ideal_image_renders_fewer_pixels_with_corners_still_in_place() -> None:
+    from quadnav.rig import rig_named
+
+    cam = rig_named("euroc").cameras[0].camera  # EuRoC's strong barrel lens
+    scene, corners_W = _checker_board()
+    full = Renderer(scene, cam)
+    fast = Renderer(scene, cam, max_ideal_pixels=1.2)
+    sensor = cam.width * cam.height
+    assert full.ideal_pixels > 1.8 * sensor
+    assert fast.ideal_pixels < 1.25 * sensor
+    T_W_C = look_at(np.array([0.5, 0.3, 1.0]), np.array([0.26, 0.26, 0.0]), np.array([0, 1, 0]))
+    expected = cam.project(T_W_C.inverse() @ corners_W)
+    start = np.round(expected).astype(np.float32).reshape(-1, 1, 2)
+    crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 100, 1e-4)
+    for r, limit in ((full, 0.1), (fast, 0.15)):
+        found = cv2.cornerSubPix(r.render(T_W_C).image, start.copy(), (4, 4), (-1, -1), crit)
+        assert np.linalg.norm(found.reshape(-1, 2) - expected, axis=1).max() < limit

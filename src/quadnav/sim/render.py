@@ -35,6 +35,7 @@ FloatArray = NDArray[np.float64]
 F32 = NDArray[np.float32]
 U8 = NDArray[np.uint8]
 
+LENS_LOD_BIAS = 0.95  # through a lens: the remap resamples once more, half a level softer
 _SHIFT = 4  # sub-pixel bits of the polygon outlines (cv2.fillConvexPoly)
 
 
@@ -272,11 +273,26 @@ def look_at(eye_W: FloatArray, target_W: FloatArray, up_W: FloatArray | None = N
 class Renderer:
     """Renders ``scene`` as ``camera`` sees it; two renderers may share one scene (its
     textures and mip pyramids are not copied). ``near_m``: the near clipping plane;
-    ``mipmaps=False`` samples the full-resolution texture only (aliased: for comparison)."""
+    ``mipmaps=False`` samples the full-resolution texture only (aliased: for comparison);
+    ``max_ideal_pixels``: through a lens, the most pixels of the ideal pinhole image rendered
+    before the remap, in sensor images. A strong barrel lens sees a wide view: EuRoC's makes the
+    full ideal image 1.9 sensor images; 1.2 shrinks it (at most to 0.8 of the focal length) for
+    about 1.5 times the speed, corners then within 0.1-0.15 px instead of 0.1."""
 
     def __init__(
-        self, scene: Scene, camera: PinholeCamera, *, near_m: float = 0.02, mipmaps: bool = True
+        self,
+        scene: Scene,
+        camera: PinholeCamera,
+        *,
+        near_m: float = 0.02,
+        mipmaps: bool = True,
+        max_ideal_pixels: float = 10.0,
     ) -> None:
+        if not 0.3 <= max_ideal_pixels <= 10.0:
+            raise SimError(
+                f"renderer max_ideal_pixels must be in [0.3, 10], got {max_ideal_pixels}"
+            )
+        self.max_ideal_pixels = max_ideal_pixels
         if not scene.polygons:
             raise SimError(f"scene {scene.name!r} is empty: it has no polygons to render")
         if not near_m > 0:
@@ -313,22 +329,40 @@ class Renderer:
         ok = np.asarray(np.isfinite(ideal).all(axis=2), bool)
         lo = np.where(ok[..., None], ideal, np.inf).reshape(-1, 2).min(axis=0)
         hi = np.where(ok[..., None], ideal, -np.inf).reshape(-1, 2).max(axis=0)
-        # widen the ideal image to what the lens sees (at most its own size on each side)
+        # widen the ideal image to what the lens sees (at most its own size on each side), and
+        # shrink it to about the sensor's pixel count: a barrel lens squeezes the wide edges, so
+        # the full-size ideal image of EuRoC's lens has 1.9 times the sensor's pixels
+        s = self._ideal_scale(lo, hi, w, h)
+        lo, hi = s * lo, s * hi
         pl = int(np.clip(math.ceil(-lo[0]) + 2, 0, w))
         pt = int(np.clip(math.ceil(-lo[1]) + 2, 0, h))
-        pr = int(np.clip(math.ceil(hi[0] - (w - 1)) + 2, 0, w))
-        pb = int(np.clip(math.ceil(hi[1] - (h - 1)) + 2, 0, h))
+        pr = int(np.clip(math.ceil(hi[0] - (s * w - 1)) + 2, 0, w))
+        pb = int(np.clip(math.ceil(hi[1] - (s * h - 1)) + 2, 0, h))
+        K[:2] *= s
         K[0, 2] += pl
         K[1, 2] += pt
-        self._K, self._w, self._h = K, w + pl + pr, h + pt + pb
-        mx = np.where(ok, ideal[..., 0] + pl, -1.0).astype(np.float32)
-        my = np.where(ok, ideal[..., 1] + pt, -1.0).astype(np.float32)
+        self._K = K
+        self._w = math.ceil(s * w) + pl + pr
+        self._h = math.ceil(s * h) + pt + pb
+        mx = np.where(ok, s * ideal[..., 0] + pl, -1.0).astype(np.float32)
+        my = np.where(ok, s * ideal[..., 1] + pt, -1.0).astype(np.float32)
         self._maps = (mx, my)  # float maps: fixed-point ones round to 1/32 px
         # the depth takes the nearest ideal pixel (no blend across edges): rounded integer maps
         self._depth_map = cv2.convertMaps(mx, my, cv2.CV_16SC2, nninterpolation=True)[0]
         self._lens_scale = self._output_area(cam)
         # the remap resamples once more: half a level softer, or its bilinear taps alias edges
-        self._lod_bias = 0.95
+        self._lod_bias = LENS_LOD_BIAS
+
+    @property
+    def ideal_pixels(self) -> int:
+        """Pixels of the ideal pinhole image rendered before the lens remap."""
+        return self._w * self._h
+
+    def _ideal_scale(self, lo: FloatArray, hi: FloatArray, w: int, h: int) -> float:
+        """The scale of the ideal image: 1, or less where the lens's full view would have more
+        than ``max_ideal_pixels`` times the sensor's pixels (never below 0.8)."""
+        full = (min(hi[0], 2 * w) - max(lo[0], -w) + 5) * (min(hi[1], 2 * h) - max(lo[1], -h) + 5)
+        return float(np.clip(math.sqrt(self.max_ideal_pixels * w * h / full), 0.8, 1.0))
 
     def _output_area(self, cam: PinholeCamera, step: int = 16) -> FloatArray:
         """Output pixels per ideal pixel (by area) on a grid every ``step`` ideal pixels: the
