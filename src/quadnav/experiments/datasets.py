@@ -56,7 +56,7 @@ __all__ = [
 FloatArray = NDArray[np.float64]
 U8 = NDArray[np.uint8]
 #: The first stamp of a built-in flight (2023-11-14, in the Unix-epoch nanoseconds EuRoC uses).
-T0_NS = 1_700_000_000 * 1_000_000_000
+T0_NS = 1_700_000_000 * NS_PER_S
 
 Vec3 = tuple[float, float, float]
 Progress = Callable[[int, int, str], None]

@@ -20,6 +20,7 @@ from numpy.typing import NDArray
 from quadnav.errors import GeometryError, IoError, SampleError
 from quadnav.geometry.rotations import Pose
 from quadnav.io.datasets.types import IssueLog, check_increasing
+from quadnav.units import NS_PER_S
 
 __all__ = [
     "PartialWriter",
@@ -216,7 +217,7 @@ def rate_of_stamps(t_ns: Sequence[int] | NDArray[np.int64], fallback_hz: float =
     jitter by nanoseconds); ``fallback_hz`` for fewer than two distinct stamps."""
     d = np.diff(np.sort(np.asarray(t_ns, dtype=np.int64)))
     d = d[d > 0]
-    return round(1e9 / float(np.median(d)), 3) if d.size else fallback_hz
+    return round(NS_PER_S / float(np.median(d)), 3) if d.size else fallback_hz
 
 
 def to_uint8(img: NDArray[Any]) -> NDArray[np.uint8]:

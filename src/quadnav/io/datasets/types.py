@@ -23,6 +23,7 @@ from quadnav.errors import GeometryError, IoError, SampleError
 from quadnav.geometry.trajectory import Trajectory
 from quadnav.messages import ImageFrame, ImuSample
 from quadnav.rig import Rig
+from quadnav.units import ns_to_s
 
 if TYPE_CHECKING:  # depth.py reads its files through files.py, which imports this module
     from quadnav.io.datasets.depth import DepthFrame
@@ -184,7 +185,7 @@ class VisualInertialDataset:
         """From the first to the last sample (frame or IMU), in seconds."""
         ends = [int(t) for t in self.imu.t_ns[[0, -1]]] if len(self.imu) else []
         ends += [self.frames[0].t_ns, self.frames[-1].t_ns] if self.frames else []
-        return (max(ends) - min(ends)) * 1e-9 if ends else 0.0
+        return ns_to_s(max(ends) - min(ends)) if ends else 0.0
 
     def __repr__(self) -> str:
         gt = f", {len(self.groundtruth)} ground-truth poses" if self.groundtruth else ""
