@@ -157,7 +157,9 @@ def test_markers_on_the_floor_are_found_where_they_lie() -> None:
     T = look_at(np.array([0.1, -0.1, 2.0]), np.array([0.1, 0.05, 0.0]), np.array([0, 1, 0]))
     img = Renderer(scene, cam).render(T).image
     d = cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_250)
-    corners, ids, _ = cv2.aruco.ArucoDetector(d).detectMarkers(img)
+    params = cv2.aruco.DetectorParameters()
+    params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_CONTOUR  # lines fitted to the edges
+    corners, ids, _ = cv2.aruco.ArucoDetector(d, params).detectMarkers(img)
     assert ids is not None and len(ids) >= 6
     # the layout: every 0.6 m from the flight box's corner less 0.6 m, 6 per row here
     xs = np.arange(-1.6, 1.6 + 1e-9, 0.6)
@@ -167,10 +169,11 @@ def test_markers_on_the_floor_are_found_where_they_lie() -> None:
         # ArUco's corner order: top-left, top-right, bottom-right, bottom-left of the print
         M = np.array([[-half, half, 0], [half, half, 0], [half, -half, 0], [-half, -half, 0]])
         expected = cam.project(T.inverse() @ (M + [x, y, 0.0]))
-        # the detector's corners are whole pixels, pulled in by about one: its centre is exact
+        # the detector's corners (straight edges fitted in a distorted image, near its border
+        # too) are within a pixel or so; their centre is exact
         found = c.reshape(4, 2)
-        assert np.abs(found.mean(axis=0) - expected.mean(axis=0)).max() < 0.5
-        assert np.abs(found - expected).max() < 2.5  # and a turned marker is off by its side
+        assert np.abs(found.mean(axis=0) - expected.mean(axis=0)).max() < 0.3
+        assert np.abs(found - expected).max() < 1.5  # and a turned marker is off by its side
 
 
 def test_markers_can_hang_on_a_wall_of_any_world() -> None:

@@ -137,19 +137,34 @@ PROCEDURAL: dict[str, Callable[[np.random.Generator, int], FloatArray]] = {
 }
 
 
+#: Depth of the large-scale albedo variation (stains, wear, uneven light) laid over every
+#: texture: without it a tracker's coarse pyramid levels see flat tiles, and fast turns were
+#: harder to track than in a real EuRoC image (examples/track_realism.py: 0.60 against 0.77 of
+#: the features kept per frame at 120 deg/s in the room; 0.75 with it).
+ALBEDO_DEPTH = 0.3
+
+
+def _albedo(img: FloatArray, seed: int, size_px: int) -> FloatArray:
+    """``img`` times a smooth periodic field of mean 1 (no detail finer than 1/8 of the tile)."""
+    rng = np.random.default_rng((seed, 0xA1BED0))
+    return np.asarray(img * (1.0 + ALBEDO_DEPTH * _fractal(rng, size_px, 3.0, size_px / 8)))
+
+
 @lru_cache(maxsize=256)
 def make_texture(kind: str, seed: int = 0, size_px: int = 512) -> U8:
-    """A photo (one of :data:`PHOTOS`, ``seed`` unused) or a procedural texture (one of
-    :data:`PROCEDURAL`, seeded)."""
+    """A photo (one of :data:`PHOTOS`) or a procedural texture (one of :data:`PROCEDURAL`),
+    with a seeded large-scale albedo variation over it (:data:`ALBEDO_DEPTH`)."""
     if kind in PHOTOS:
-        return photo(kind, size_px)
-    if kind not in PROCEDURAL:
+        base = photo(kind, size_px).astype(np.float64)
+    elif kind in PROCEDURAL:
+        _check_size(size_px)
+        base = PROCEDURAL[kind](np.random.default_rng(seed), size_px)
+    else:
         raise SimError(
             f"unknown texture {kind!r}; choose a photo ({', '.join(PHOTOS)}) "
             f"or one of {', '.join(PROCEDURAL)}"
         )
-    _check_size(size_px)
-    return _frozen(PROCEDURAL[kind](np.random.default_rng(seed), size_px))
+    return _frozen(_albedo(base, seed, size_px))
 
 
 @lru_cache(maxsize=64)
