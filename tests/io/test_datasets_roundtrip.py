@@ -259,3 +259,20 @@ def test_kalibr_and_openvins_files_beside_mav0(tmp_path: Path) -> None:
     assert fs_imu.getNode("imu0").getNode("accelerometer_noise_density").real() == 2.0e-3
     ours = open_dataset(tmp_path / "seq", calibration=tmp_path / "seq" / "kalibr_imucam_chain.yaml")
     assert_same_rig(ours.rig, rig, atol=1e-15)
+
+
+def test_a_written_bag_names_its_storage_after_itself(tmp_path: Path) -> None:
+    """ROS 2 tools find the storage through metadata.yaml, people by its name: bag.db3, not the
+    name of the folder it was made in."""
+    from quadnav.io.datasets import Ros2BagWriter
+    from quadnav.messages import ImuSample
+    from quadnav.rig import rig_named
+
+    with Ros2BagWriter(tmp_path / "flight", rig_named("thesis003_sim")) as w:
+        w.add_imu(ImuSample(t_ns=1, gyro_rad_s=np.zeros(3), accel_m_s2=np.zeros(3)))
+    assert sorted(p.name for p in (tmp_path / "flight").iterdir()) == [
+        "flight.db3",
+        "metadata.yaml",
+    ]
+    assert "flight.db3" in (tmp_path / "flight" / "metadata.yaml").read_text()
+    assert not (tmp_path / "flight.partial").exists()

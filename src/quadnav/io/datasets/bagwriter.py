@@ -120,7 +120,10 @@ class Ros2BagWriter(PartialWriter):
         self.rig = rig
         self.m = _Ros2Messages()
         self.camera_info = camera_info
-        self.writer: Any = Writer(self.partial, version=9)
+        # the bag is made inside the partial folder under its own name, so its storage file is
+        # <name>.db3 (rosbags names it after the folder), then moved out whole
+        self.partial.mkdir(parents=True)
+        self.writer: Any = Writer(self.partial / self.path.name, version=9)
         self.writer.open()
         self.conns: dict[str, Any] = {}
         self.closed = False
@@ -151,7 +154,8 @@ class Ros2BagWriter(PartialWriter):
     def close(self) -> Path:
         if not self.closed:
             self.writer.close()
-            self.partial.rename(self.path)
+            (self.partial / self.path.name).rename(self.path)
+            self.partial.rmdir()
             self.closed = True
         return self.path
 
