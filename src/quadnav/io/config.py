@@ -16,7 +16,7 @@ from pydantic import BaseModel, ValidationError
 
 from quadnav.errors import ConfigError
 
-__all__ = ["RawConfig", "apply_override", "dump_config", "load_config"]
+__all__ = ["RawConfig", "apply_override", "dump_config", "load_config", "yaml_problem"]
 
 M = TypeVar("M", bound=BaseModel)
 
@@ -24,6 +24,14 @@ M = TypeVar("M", bound=BaseModel)
 #: before a model validates it. Input, not a result: it stays inside the loaders of ``io`` and
 #: ``experiments``; what they return is the validated model.
 RawConfig = dict[str, object]
+
+
+def yaml_problem(path: Path, exc: yaml.YAMLError) -> str:
+    """A YAML parse error in one line: ``<path>: <problem> at line L, column C``."""
+    mark = getattr(exc, "problem_mark", None)
+    where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
+    problem = getattr(exc, "problem", None) or "invalid YAML"
+    return f"{path}: {problem}{where}"
 
 
 def _read_yaml(path: Path) -> RawConfig:
@@ -38,10 +46,7 @@ def _read_yaml(path: Path) -> RawConfig:
     try:
         data = yaml.safe_load(text)
     except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
-        problem = getattr(exc, "problem", None) or "invalid YAML"
-        raise ConfigError(f"{path}: {problem}{where}") from None
+        raise ConfigError(yaml_problem(path, exc)) from None
     if data is None:
         return {}
     if not isinstance(data, dict):

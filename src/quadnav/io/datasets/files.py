@@ -19,6 +19,7 @@ from numpy.typing import NDArray
 
 from quadnav.errors import GeometryError, IoError, SampleError
 from quadnav.geometry.rotations import Pose
+from quadnav.io.config import yaml_problem
 from quadnav.io.datasets.types import IssueLog, check_increasing
 from quadnav.units import NS_PER_S
 
@@ -82,10 +83,7 @@ def read_yaml(path: Path) -> dict[str, Any]:
     try:
         doc = yaml.safe_load(text)
     except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f":{mark.line + 1}" if mark is not None else ""
-        problem = getattr(exc, "problem", None) or "not valid YAML"
-        raise IoError(f"{path}{where}: {problem}") from None
+        raise IoError(yaml_problem(path, exc)) from None
     if not isinstance(doc, dict):
         raise IoError(f"{path}: expected a mapping of keys, got {type(doc).__name__}")
     return doc
