@@ -14,7 +14,6 @@ from __future__ import annotations
 import json
 import math
 import time
-import zlib
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
@@ -29,6 +28,7 @@ from scipy.spatial.transform import Rotation
 from quadnav.config_model import ConfigModel
 from quadnav.errors import ConfigError, GeometryError
 from quadnav.experiments.dataset_motions import FlightPath, flight_path_trajectory
+from quadnav.experiments.nav_channels import channel_rng
 from quadnav.geometry.rotations import Pose
 from quadnav.geometry.trajectory import Trajectory
 from quadnav.io.config import load_config
@@ -174,10 +174,10 @@ def sequence_spec(
 
 
 def stream_rng(seed: int, name: str) -> Generator:
-    """The generator of one stream (``imu``, ``cam0``, ``lighting``...): the child of
-    ``SeedSequence(seed)`` keyed by its name, so adding a camera changes no other stream."""
-    key = zlib.crc32(name.encode())
-    return np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(key,)))
+    """The generator of one stream (``imu``, ``cam0``, ``lighting``...), keyed by its name as
+    the main job's channels are (:func:`~quadnav.experiments.nav_channels.channel_rng`), so
+    adding a camera changes no other stream."""
+    return channel_rng(seed, name)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

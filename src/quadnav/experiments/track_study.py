@@ -21,7 +21,7 @@ from quadnav.geometry.camera import PinholeCamera
 from quadnav.io.datasets import VisualInertialDataset
 from quadnav.messages import ImageFrame
 from quadnav.units import NS_PER_S, s_to_ns
-from quadnav.vision.tracking import TrackerConfig, TrackStats, track_sequence
+from quadnav.vision.tracking import TrackerConfig, TrackStats, as_grey, track_sequence
 
 __all__ = [
     "ImageStats",
@@ -68,18 +68,12 @@ class TrackStudy:
         return out
 
 
-def _grey(img: U8) -> U8:
-    if img.ndim == 3:
-        return np.asarray(cv2.cvtColor(img, cv2.COLOR_BGR2GRAY), np.uint8)
-    return img
-
-
 class _ImageStatsAccumulator:
     def __init__(self) -> None:
         self.rows: list[tuple[float, float, float, float]] = []
 
     def add(self, img: U8) -> None:
-        g = _grey(img)
+        g = as_grey(img)
         gx = cv2.Sobel(g, cv2.CV_32F, 1, 0, ksize=3) / 8.0
         gy = cv2.Sobel(g, cv2.CV_32F, 0, 1, ksize=3) / 8.0
         corners = cv2.goodFeaturesToTrack(g, 1000, 0.01, 10)
@@ -139,7 +133,7 @@ def track_dataset(
 
     def images() -> Iterator[tuple[int, U8]]:
         for f in frames:
-            img = _grey(f.image())
+            img = as_grey(f.image())
             acc.add(img)
             yield f.t_ns, img
 
@@ -225,7 +219,9 @@ def rotation_study(
     (2 grey levels) per frame."""
     from quadnav.sim.render import RenderEffects
 
-    undistorted = np.asarray(cv2.undistort(_grey(real), real_camera.K, real_camera.dist), np.uint8)
+    undistorted = np.asarray(
+        cv2.undistort(as_grey(real), real_camera.K, real_camera.dist), np.uint8
+    )
     noise = RenderEffects(read_noise_sigma=1.5, shot_noise_dn=0.03)
     rows = []
     for rate in rates_deg_s:
