@@ -18,7 +18,7 @@ SRC = Path(__file__).resolve().parents[1] / "src" / "quadnav"
 # errors, config_model and units import nothing from quadnav; the root package only errors.
 _BASE = frozenset({"errors", "config_model", "units", "__init__"})
 _CORE = _BASE | {"geometry", "messages", "vehicle", "rig"}  # import only the base (rig: geometry)
-_IO = _CORE | {"sim", "estimation", "vision", "control"}
+_IO = _CORE | {"sim", "estimation", "vision", "control", "vio", "slam"}
 _EVAL = _IO | {"io"}
 _EXPERIMENTS = _EVAL | {"eval"}
 _CLI = _EXPERIMENTS | {"experiments"}
@@ -37,7 +37,7 @@ ALLOWED: dict[str, frozenset[str]] = {
     "estimation": _CORE,
     "vision": _CORE,
     "control": _CORE,
-    # Not written yet: visual-inertial odometry and SLAM build on vision and estimation.
+    # Visual-inertial odometry and SLAM build on vision and estimation.
     "vio": _CORE | {"vision", "estimation"},
     "slam": _CORE | {"vision", "estimation", "vio"},
     "io": _IO,

@@ -82,3 +82,11 @@ def test_bad_rigs_are_refused_in_one_line() -> None:
         ImuNoiseModel(
             gyro_noise_density=-1.0, gyro_random_walk=0, accel_noise_density=0, accel_random_walk=0
         )
+
+
+def test_euroc_mono_is_eurocs_left_camera_and_imu() -> None:
+    full, mono = rig_named("euroc"), rig_named("euroc_mono")
+    assert mono.camera_names == ["cam0"] and not mono.stereo
+    assert np.allclose(mono.cameras[0].T_B_C.matrix(), full.cameras[0].T_B_C.matrix())
+    assert mono.imu is not None and full.imu is not None
+    assert mono.imu.noise == full.imu.noise and mono.imu.rate_hz == full.imu.rate_hz

@@ -17,6 +17,7 @@ __all__ = [
     "QuadnavError",
     "SampleError",
     "SimError",
+    "VioError",
     "VisionError",
 ]
 
@@ -63,3 +64,7 @@ class EvalError(QuadnavError):
 
 class VisionError(QuadnavError):
     """A camera model, dictionary, marker map or image the vision code cannot use."""
+
+
+class VioError(QuadnavError):
+    """Visual-inertial odometry was misconfigured or fed a camera or IMU it cannot use."""

@@ -25,6 +25,7 @@ __all__ = [
     "ImuSample",
     "MagSample",
     "Observation",
+    "OdometrySample",
     "PoseSample",
     "PositionSample",
     "RangeSample",
@@ -395,9 +396,48 @@ class RangeScan:
         )
 
 
+@dataclass(frozen=True, slots=True, kw_only=True)
+class OdometrySample:
+    """External odometry of the body, as PX4's ``ODOMETRY`` message carries it from a companion
+    computer (VIO): the pose ``p_W_B``, ``q_W_B_xyzw`` and the velocity ``v_W_B`` (world frame)
+    in the source's own gravity-aligned frame ``W``, with covariances. ``cov_pose`` is 6x6 over
+    (x, y, z, rx, ry, rz): position in m^2, then the attitude error as a small rotation in the
+    world frame (``R_true = Exp(dtheta) R_est``) in rad^2, PX4's order. ``cov_v`` is 3x3 (m/s)^2
+    in the world frame. ``reset_counter`` changes when the source re-initialises (its frame
+    jumps); ``quality`` is 0-100 (PX4: 0 invalid, 100 best)."""
+
+    t_ns: int
+    p_W_B: FloatArray
+    q_W_B_xyzw: FloatArray
+    v_W_B: FloatArray
+    cov_pose: FloatArray
+    cov_v: FloatArray
+    reset_counter: int = 0
+    quality: int = 100
+    source: str = "vio"
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "t_ns", check_t_ns(self.t_ns, "OdometrySample"))
+        object.__setattr__(self, "p_W_B", _array(self.p_W_B, (3,), "OdometrySample.p_W_B"))
+        object.__setattr__(self, "v_W_B", _array(self.v_W_B, (3,), "OdometrySample.v_W_B"))
+        q = _array(self.q_W_B_xyzw, (4,), "OdometrySample.q_W_B_xyzw")
+        n = float(np.linalg.norm(q))
+        if abs(n - 1.0) > 1e-3:
+            raise SampleError(f"OdometrySample.q_W_B_xyzw must be a unit quaternion, got norm {n}")
+        object.__setattr__(self, "q_W_B_xyzw", q)
+        for name, shape in (("cov_pose", (6, 6)), ("cov_v", (3, 3))):
+            c = _array(getattr(self, name), shape, f"OdometrySample.{name}")
+            if not np.allclose(c, c.T, atol=1e-9) or np.min(np.linalg.eigvalsh(c)) <= 0:
+                raise SampleError(f"OdometrySample.{name} must be symmetric positive definite")
+            object.__setattr__(self, name, c)
+        if not 0 <= int(self.quality) <= 100:
+            raise SampleError(f"OdometrySample.quality must be 0-100, got {self.quality}")
+
+
 Observation = (
     PositionSample
     | PoseSample
+    | OdometrySample
     | HeightSample
     | GpsSample
     | MagSample

@@ -316,6 +316,13 @@ def euroc() -> Rig:
     )
 
 
+def euroc_mono() -> Rig:
+    """EuRoC's VI-Sensor with its left camera only (cam0 and the ADIS16448): the monocular
+    visual-inertial rig of VINS-Mono's EuRoC runs, half the images to render and store."""
+    full = euroc()
+    return Rig(name="euroc_mono", cameras=full.cameras[:1], imu=full.imu, T_V_B=full.T_V_B)
+
+
 def zed() -> Rig:
     """Thesis 002's ZED in WVGA (672x376 per eye, 60 Hz, 120 mm baseline), rectified (no
     distortion), looking forward; typical factory intrinsics of that mode (fx = fy = 350 px). The
@@ -352,6 +359,7 @@ def rgbd() -> Rig:
 RIGS: Mapping[str, Callable[[], Rig]] = {
     "thesis003_sim": thesis003_sim,
     "euroc": euroc,
+    "euroc_mono": euroc_mono,
     "zed": zed,
     "pi_camera": pi_camera,
     "rgbd": rgbd,

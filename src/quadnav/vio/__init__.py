@@ -1,0 +1,8 @@
+"""Monocular visual-inertial odometry of the VINS-Mono class (thesis 003): a KLT front end with
+keyframes chosen by parallax, GTSAM's IMU preintegration, a static or visual-inertial
+initialisation, a sliding-window smoother over explicit landmarks, failure detection and
+re-initialisation, and the camera-IMU time offset estimated online."""
+
+from quadnav.vio.types import FrameFeatures, StageTiming, VioEvent, VioState
+
+__all__ = ["FrameFeatures", "StageTiming", "VioEvent", "VioState"]
