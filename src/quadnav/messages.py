@@ -61,6 +61,23 @@ def _array(value: Any, shape: tuple[int, ...], what: str) -> FloatArray:
     return arr
 
 
+def _unit_quat(value: Any, what: str) -> FloatArray:
+    q = _array(value, (4,), f"{what}.q_W_B_xyzw")
+    n = float(np.linalg.norm(q))
+    if abs(n - 1.0) > 1e-3:
+        raise SampleError(f"{what}.q_W_B_xyzw must be a unit quaternion, got norm {n}")
+    return q
+
+
+def _spd(value: Any, shape: tuple[int, int], what: str) -> FloatArray:
+    c = _array(value, shape, what)
+    if not np.allclose(c, c.T, atol=1e-9 * max(1.0, float(np.abs(c).max()))):
+        raise SampleError(f"{what} must be symmetric positive definite")
+    if np.min(np.linalg.eigvalsh(c)) <= 0:
+        raise SampleError(f"{what} must be symmetric positive definite")
+    return c
+
+
 @dataclass(frozen=True, slots=True, kw_only=True)
 class ImuSample:
     """One IMU reading: body rate and specific force, both in the body frame (FLU)."""
@@ -162,20 +179,14 @@ class PoseSample:
     def __post_init__(self) -> None:
         object.__setattr__(self, "t_ns", check_t_ns(self.t_ns, "PoseSample"))
         object.__setattr__(self, "p_W_B", _array(self.p_W_B, (3,), "PoseSample.p_W_B"))
-        q = _array(self.q_W_B_xyzw, (4,), "PoseSample.q_W_B_xyzw")
-        n = float(np.linalg.norm(q))
-        if abs(n - 1.0) > 1e-3:
-            raise SampleError(f"PoseSample.q_W_B_xyzw must be a unit quaternion, got norm {n}")
-        object.__setattr__(self, "q_W_B_xyzw", q)
+        object.__setattr__(self, "q_W_B_xyzw", _unit_quat(self.q_W_B_xyzw, "PoseSample"))
         for name in ("sigma_pos_m", "sigma_yaw_rad"):
             v = float(getattr(self, name))
             if not np.isfinite(v) or v <= 0.0:
                 raise SampleError(f"PoseSample.{name} must be finite and > 0, got {v}")
             object.__setattr__(self, name, v)
         if self.cov_p_m2 is not None:
-            c = _array(self.cov_p_m2, (3, 3), "PoseSample.cov_p_m2")
-            if not np.allclose(c, c.T, atol=1e-12) or np.min(np.linalg.eigvalsh(c)) <= 0:
-                raise SampleError("PoseSample.cov_p_m2 must be symmetric positive definite")
+            c = _spd(self.cov_p_m2, (3, 3), "PoseSample.cov_p_m2")
             object.__setattr__(self, "cov_p_m2", c)
 
 
@@ -420,16 +431,11 @@ class OdometrySample:
         object.__setattr__(self, "t_ns", check_t_ns(self.t_ns, "OdometrySample"))
         object.__setattr__(self, "p_W_B", _array(self.p_W_B, (3,), "OdometrySample.p_W_B"))
         object.__setattr__(self, "v_W_B", _array(self.v_W_B, (3,), "OdometrySample.v_W_B"))
-        q = _array(self.q_W_B_xyzw, (4,), "OdometrySample.q_W_B_xyzw")
-        n = float(np.linalg.norm(q))
-        if abs(n - 1.0) > 1e-3:
-            raise SampleError(f"OdometrySample.q_W_B_xyzw must be a unit quaternion, got norm {n}")
-        object.__setattr__(self, "q_W_B_xyzw", q)
+        object.__setattr__(self, "q_W_B_xyzw", _unit_quat(self.q_W_B_xyzw, "OdometrySample"))
         for name, shape in (("cov_pose", (6, 6)), ("cov_v", (3, 3))):
-            c = _array(getattr(self, name), shape, f"OdometrySample.{name}")
-            if not np.allclose(c, c.T, atol=1e-9) or np.min(np.linalg.eigvalsh(c)) <= 0:
-                raise SampleError(f"OdometrySample.{name} must be symmetric positive definite")
-            object.__setattr__(self, name, c)
+            object.__setattr__(
+                self, name, _spd(getattr(self, name), shape, f"OdometrySample.{name}")
+            )
         if not 0 <= int(self.quality) <= 100:
             raise SampleError(f"OdometrySample.quality must be 0-100, got {self.quality}")
 
