@@ -3,6 +3,22 @@ keyframes chosen by parallax, GTSAM's IMU preintegration, a static or visual-ine
 initialisation, a sliding-window smoother over explicit landmarks, failure detection and
 re-initialisation, and the camera-IMU time offset estimated online."""
 
-from quadnav.vio.types import FrameFeatures, StageTiming, VioEvent, VioState
+from quadnav.vio.types import (
+    FrameFeatures,
+    InitResult,
+    InitWindow,
+    StageTiming,
+    VioEvent,
+    VioState,
+    VisualOdometry,
+)
 
-__all__ = ["FrameFeatures", "StageTiming", "VioEvent", "VioState"]
+__all__ = [
+    "FrameFeatures",
+    "InitResult",
+    "InitWindow",
+    "StageTiming",
+    "VioEvent",
+    "VioState",
+    "VisualOdometry",
+]

@@ -9,16 +9,26 @@ body frame. :meth:`VioState.odometry` turns that into PX4's world-frame order fo
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import Literal, Protocol
 
+import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
 from quadnav.geometry import Pose
-from quadnav.messages import OdometrySample
+from quadnav.messages import ImuSample, OdometrySample
 
-__all__ = ["FrameFeatures", "StageTiming", "VioEvent", "VioState"]
+__all__ = [
+    "FrameFeatures",
+    "InitResult",
+    "InitWindow",
+    "StageTiming",
+    "VioEvent",
+    "VioState",
+    "VisualOdometry",
+]
 
 FloatArray = NDArray[np.float64]
 
@@ -104,3 +114,50 @@ class StageTiming:
 
     def per_call_ms(self) -> dict[str, float]:
         return {name: 1e3 * s / max(n, 1) for name, s, n in self.stages}
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class InitWindow:
+    """What a visual-inertial initialisation works on (thesis 003 §3.2): the window's frames in
+    time order with their features, the IMU preintegrated between consecutive frames (with zero
+    bias; ``len(frames) - 1`` of them), the camera's mount ``T_B_C`` and gravity's magnitude."""
+
+    frames: tuple[FrameFeatures, ...]
+    preintegrations: tuple[gtsam.PreintegratedCombinedMeasurements, ...]
+    T_B_C: Pose
+    g_norm: float
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class InitResult:
+    """A metric, gravity-aligned start: per window frame ``T_W_B`` and ``v_W_B`` (W: z up, the
+    yaw of the first frame's body), the gyro bias, the metric scale of the vision-only
+    structure, gravity as the alignment found it (in the first camera's frame, before it was
+    rotated onto -z), the landmarks triangulated (id -> point in W) and ``detail`` (how it went,
+    for the run's events)."""
+
+    T_W_B: tuple[Pose, ...]
+    v_W_B: FloatArray
+    gyro_bias: FloatArray
+    scale: float
+    gravity_C0: FloatArray
+    landmarks_W: Mapping[int, FloatArray]
+    detail: str
+
+
+class VisualOdometry(Protocol):
+    """What a run feeds and reads: IMU samples and camera images in time order; a state back
+    once initialised (IMU-rate propagation from ``push_imu``, an optimised state from
+    ``push_image``)."""
+
+    def push_imu(self, sample: ImuSample) -> VioState | None: ...
+
+    def push_image(self, t_ns: int, image: NDArray[np.uint8]) -> VioState | None: ...
+
+    @property
+    def events(self) -> tuple[VioEvent, ...]: ...
+
+    @property
+    def last_features(self) -> FrameFeatures | None: ...
+
+    def timing(self) -> StageTiming: ...
