@@ -1,0 +1,328 @@
+"""Metrics of a visual-inertial odometry run, as VIO papers report them (pure functions).
+
+- APE after a 4-DoF (position + yaw) alignment, the four directions VIO cannot observe; SE(3)
+  and Sim(3) alignments beside it for reference (Sim(3)'s scale says how metric the run was).
+- RPE by evo's definitions (:func:`quadnav.eval.metrics.rpe`), over pairs a length of the
+  ground truth's path apart (the distance really travelled, whatever the estimate's scale).
+- Drift in % of the distance travelled, two ways, each named: ``final``: the last pose's error
+  after aligning the estimate on its first seconds only (yaw and position of the attitudes and
+  positions there, so a start at rest aligns too); ``rpe``: the mean translation RPE over pairs
+  ``d`` metres of path apart, over ``d``.
+- Gravity error: the angle between the estimate's and the truth's gravity direction in the body
+  frame, at the first estimate (yaw does not enter).
+- NEES of the 6-DoF pose covariance in GTSAM's convention (body frame, (rot, trans), ``T_true =
+  T_est Exp(xi)``) against the 4-DoF aligned truth: mean NEES / 6 (1 is consistent) with the
+  chi-square 95 % band of that mean, and the fraction of frames inside one draw's 95 % band.
+  Consecutive frames' errors are correlated, so the band of a single run is optimistic: over
+  seeds the means are the honest test.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
+from scipy.stats import chi2
+
+from quadnav.errors import EvalError
+from quadnav.eval.align import AlignMethod, align
+from quadnav.eval.metrics import ErrorStats, ape, rpe
+from quadnav.eval.na import Metric, na
+from quadnav.geometry.trajectory import Trajectory
+
+__all__ = [
+    "ApeSummary",
+    "NeesSummary",
+    "RpeSummary",
+    "RunCounts",
+    "VioMetrics",
+    "ape_summary",
+    "drift_final_pct",
+    "drift_rpe_pct",
+    "gravity_error_deg",
+    "nees_band",
+    "pose_nees",
+    "pose_nees_summary",
+    "vio_metrics",
+    "yaw_position_alignment",
+]
+
+FloatArray = NDArray[np.float64]
+
+#: Pose dimension of the NEES (rotation 3 + translation 3).
+POSE_DOF = 6
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class ApeSummary:
+    """Translation APE (m) after one alignment: the statistics VIO users compare, and the scale
+    the alignment found (1 except for Sim(3))."""
+
+    alignment: AlignMethod
+    rmse_m: float
+    mean_m: float
+    median_m: float
+    max_m: float
+    scale: float
+    poses: int
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class RpeSummary:
+    """RPE over pairs ``delta_m`` metres of the ground truth's path apart (evo's all pairs): translation (m) and
+    rotation (deg) RMSE and mean."""
+
+    delta_m: float
+    pairs: int
+    trans_rmse_m: float
+    trans_mean_m: float
+    rot_rmse_deg: float
+    rot_mean_deg: float
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class NeesSummary:
+    """Pose NEES over ``samples`` frames: ``mean_over_dof`` (1 consistent), the 95 % band of
+    that mean for independent draws, and the fraction of frames inside one draw's 95 % band
+    (0.95 consistent)."""
+
+    samples: int
+    mean_over_dof: float
+    band_low: float
+    band_high: float
+    fraction_in_band: float
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class VioMetrics:
+    """What ``metrics.json`` of a VIO run holds. A metric the run gives nothing to compute is
+    ``"n/a: why"`` (no ground truth, no estimate, too short a path)."""
+
+    frames: int
+    frames_with_estimate: int
+    fraction_with_estimate: float
+    failures: int
+    reinitializations: int
+    rejected_images: int
+    initialized_after_s: Metric
+    distance_m: Metric
+    ape_4dof: ApeSummary | str
+    ape_se3: ApeSummary | str
+    ape_sim3: ApeSummary | str
+    rpe_1m: RpeSummary | str
+    rpe_10m: RpeSummary | str
+    drift_final_pct: Metric
+    drift_rpe_pct: Metric
+    drift_definitions: str
+    gravity_error_deg: Metric
+    nees_pose: NeesSummary | str
+
+
+def ape_summary(ref: Trajectory, est: Trajectory, method: AlignMethod) -> ApeSummary:
+    """Translation APE of matched ``ref``/``est`` after aligning the estimate by ``method``."""
+    aligned, a = align(ref, est, method)
+    s = ErrorStats.of(ape(ref, aligned))
+    return ApeSummary(
+        alignment=method, rmse_m=s.rmse, mean_m=s.mean, median_m=s.median, max_m=s.max,
+        scale=a.s, poses=len(est),
+    )  # fmt: skip
+
+
+def yaw_position_alignment(
+    ref: Trajectory, est: Trajectory, first_s: float
+) -> tuple[Rotation, FloatArray]:
+    """The yaw and translation taking ``est`` onto ``ref`` from the matched poses of the first
+    ``first_s`` seconds: the circular mean of the attitudes' yaw differences, then the mean
+    position difference. Unlike a fit to positions it is defined at rest."""
+    if len(ref) != len(est) or len(est) == 0:
+        raise EvalError("the drift alignment needs matched, non-empty trajectories")
+    n = max(1, int(np.searchsorted(est.t_ns, est.t_ns[0] + round(first_s * 1e9), side="right")))
+    d = ref.R_W_B[:n] * est.R_W_B[:n].inv()
+    x = d.apply(np.array([1.0, 0.0, 0.0]))  # a yaw difference turns x about z
+    yaw = math.atan2(float(x[:, 1].sum()), float(x[:, 0].sum()))
+    R = Rotation.from_euler("z", yaw)
+    t = np.mean(ref.p_W_B[:n] - R.apply(est.p_W_B[:n]), axis=0)
+    return R, np.asarray(t, dtype=np.float64)
+
+
+def drift_final_pct(ref: Trajectory, est: Trajectory, *, first_s: float = 2.0) -> Metric:
+    """The last pose's position error after aligning on the first ``first_s`` seconds, in % of
+    the distance the reference travelled."""
+    length = ref.path_length_m()
+    if length <= 0.0:
+        return na("the ground truth does not move")
+    R, t = yaw_position_alignment(ref, est, first_s)
+    err = float(np.linalg.norm(ref.p_W_B[-1] - (R.apply(est.p_W_B[-1]) + t)))
+    return 100.0 * err / length
+
+
+def _rpe_summary(ref: Trajectory, est: Trajectory, delta_m: float) -> RpeSummary | str:
+    if ref.path_length_m() < 2.0 * delta_m:
+        return na(f"the path is shorter than {2 * delta_m:g} m")
+    try:
+        e_t, _ = rpe(
+            ref,
+            est,
+            delta=delta_m,
+            unit="metres",
+            relation="trans",
+            all_pairs=True,
+            pairs_from="reference",
+        )
+        e_r, _ = rpe(
+            ref,
+            est,
+            delta=delta_m,
+            unit="metres",
+            relation="rot",
+            all_pairs=True,
+            pairs_from="reference",
+        )
+    except EvalError as exc:
+        return na(str(exc))
+    if len(e_t) == 0:
+        return na(f"no pair of poses {delta_m:g} m of path apart")
+    st, sr = ErrorStats.of(e_t), ErrorStats.of(np.degrees(e_r))
+    return RpeSummary(
+        delta_m=delta_m, pairs=len(e_t), trans_rmse_m=st.rmse, trans_mean_m=st.mean,
+        rot_rmse_deg=sr.rmse, rot_mean_deg=sr.mean,
+    )  # fmt: skip
+
+
+def drift_rpe_pct(rpe_summary: RpeSummary | str) -> Metric:
+    """Mean translation RPE over pairs ``d`` metres apart, in % of ``d``."""
+    if isinstance(rpe_summary, str):
+        return rpe_summary
+    return 100.0 * rpe_summary.trans_mean_m / rpe_summary.delta_m
+
+
+def gravity_error_deg(R_W_B_est: Rotation, R_W_B_ref: Rotation) -> float:
+    """Angle (deg) between the up direction each attitude puts in the body frame."""
+    up = np.array([0.0, 0.0, 1.0])
+    a, b = R_W_B_est.inv().apply(up), R_W_B_ref.inv().apply(up)
+    return float(np.degrees(math.atan2(np.linalg.norm(np.cross(a, b)), float(np.dot(a, b)))))
+
+
+def pose_nees(ref: Trajectory, est: Trajectory, cov_pose: FloatArray) -> FloatArray:
+    """NEES per matched pose of the body-frame (rot, trans) covariances ``cov_pose`` (N, 6, 6):
+    ``xi = (Log(R_est^T R_ref), R_est^T (p_ref - p_est))``, GTSAM's right perturbation to first
+    order in the translation."""
+    cov = np.asarray(cov_pose, dtype=np.float64)
+    if len(ref) != len(est) or cov.shape != (len(est), POSE_DOF, POSE_DOF):
+        raise EvalError(
+            f"pose NEES needs matched poses and (N, 6, 6) covariances, got {len(ref)}, "
+            f"{len(est)} poses and {cov.shape}"
+        )
+    R_est = est.R_W_B
+    xi = np.hstack(
+        [(R_est.inv() * ref.R_W_B).as_rotvec(), R_est.inv().apply(ref.p_W_B - est.p_W_B)]
+    )
+    try:
+        sol = np.linalg.solve(cov, xi[..., None])[..., 0]
+    except np.linalg.LinAlgError:
+        raise EvalError("pose NEES: a covariance is singular") from None
+    return np.asarray(np.sum(xi * sol, axis=1), dtype=np.float64)
+
+
+def nees_band(samples: int, dof: int = POSE_DOF, confidence: float = 0.95) -> tuple[float, float]:
+    """The two-sided band of the mean of ``samples`` independent NEES draws, over ``dof``."""
+    lo, hi = chi2.ppf([(1 - confidence) / 2, (1 + confidence) / 2], dof * samples)
+    return float(lo / (dof * samples)), float(hi / (dof * samples))
+
+
+def pose_nees_summary(values: FloatArray) -> NeesSummary:
+    v = np.asarray(values, dtype=np.float64)
+    if v.ndim != 1 or len(v) == 0:
+        raise EvalError("a NEES summary needs a non-empty 1-D array")
+    lo, hi = nees_band(len(v))
+    one_lo, one_hi = chi2.ppf([0.025, 0.975], POSE_DOF)
+    inside = float(np.mean((v >= one_lo) & (v <= one_hi)))
+    return NeesSummary(
+        samples=len(v), mean_over_dof=float(np.mean(v)) / POSE_DOF, band_low=lo, band_high=hi,
+        fraction_in_band=inside,
+    )  # fmt: skip
+
+
+DRIFT_DEFINITIONS = (
+    "drift_final_pct: the last pose's position error after a yaw + position alignment on the "
+    "first {first_s:g} s, in % of the distance travelled; drift_rpe_pct: mean translation RPE "
+    "over pairs {delta:g} m of path apart (evo's all pairs), in % of {delta:g} m"
+)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class RunCounts:
+    """What the run itself counted (no ground truth needed)."""
+
+    frames: int
+    failures: int
+    reinitializations: int
+    rejected_images: int
+    initialized_after_s: Metric
+
+
+def _without_truth(est: Trajectory, counts: RunCounts, reason: str) -> VioMetrics:
+    return VioMetrics(
+        frames=counts.frames, frames_with_estimate=len(est),
+        fraction_with_estimate=len(est) / counts.frames if counts.frames else 0.0,
+        failures=counts.failures, reinitializations=counts.reinitializations,
+        rejected_images=counts.rejected_images, initialized_after_s=counts.initialized_after_s,
+        distance_m=na(reason), ape_4dof=na(reason), ape_se3=na(reason), ape_sim3=na(reason),
+        rpe_1m=na(reason), rpe_10m=na(reason), drift_final_pct=na(reason),
+        drift_rpe_pct=na(reason), drift_definitions="", gravity_error_deg=na(reason),
+        nees_pose=na(reason),
+    )  # fmt: skip
+
+
+def _aligned_or_na(ref: Trajectory, est: Trajectory, method: AlignMethod) -> ApeSummary | str:
+    try:
+        return ape_summary(ref, est, method)
+    except EvalError as exc:
+        return na(str(exc))
+
+
+def _nees_or_na(ref: Trajectory, est: Trajectory, cov: FloatArray | None) -> NeesSummary | str:
+    if cov is None:
+        return na("the estimate carries no pose covariance")
+    try:
+        aligned, _ = align(ref, est, "4dof")
+        return pose_nees_summary(pose_nees(ref, aligned, cov))
+    except EvalError as exc:
+        return na(str(exc))
+
+
+def vio_metrics(
+    ref: Trajectory | None,
+    est: Trajectory,
+    counts: RunCounts,
+    *,
+    cov_pose: FloatArray | None = None,
+    drift_first_s: float = 2.0,
+) -> VioMetrics:
+    """Every metric of a run: ``ref`` the ground truth matched to ``est`` (equal length, same
+    times; None when the dataset has none), ``cov_pose`` the estimate's (N, 6, 6)."""
+    if ref is None:
+        return _without_truth(est, counts, "the dataset has no ground truth")
+    if len(est) < 2:
+        return _without_truth(est, counts, f"{len(est)} estimated pose(s) match the ground truth")
+    if len(ref) != len(est):
+        raise EvalError("vio_metrics needs the ground truth matched to the estimate")
+    rpe_1, rpe_10 = _rpe_summary(ref, est, 1.0), _rpe_summary(ref, est, 10.0)
+    rpe_for_drift, delta = (rpe_10, 10.0) if not isinstance(rpe_10, str) else (rpe_1, 1.0)
+    return VioMetrics(
+        frames=counts.frames, frames_with_estimate=len(est),
+        fraction_with_estimate=len(est) / counts.frames if counts.frames else 0.0,
+        failures=counts.failures, reinitializations=counts.reinitializations,
+        rejected_images=counts.rejected_images, initialized_after_s=counts.initialized_after_s,
+        distance_m=ref.path_length_m(),
+        ape_4dof=_aligned_or_na(ref, est, "4dof"), ape_se3=_aligned_or_na(ref, est, "se3"),
+        ape_sim3=_aligned_or_na(ref, est, "sim3"), rpe_1m=rpe_1, rpe_10m=rpe_10,
+        drift_final_pct=drift_final_pct(ref, est, first_s=drift_first_s),
+        drift_rpe_pct=drift_rpe_pct(rpe_for_drift),
+        drift_definitions=DRIFT_DEFINITIONS.format(first_s=drift_first_s, delta=delta),
+        gravity_error_deg=gravity_error_deg(est.R_W_B[0], ref.R_W_B[0]),
+        nees_pose=_nees_or_na(ref, est, cov_pose),
+    )  # fmt: skip

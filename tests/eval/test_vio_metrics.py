@@ -1,0 +1,176 @@
+"""The VIO run's metrics on hand-made cases whose answer is known without the code."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from quadnav.eval.na import is_na
+from quadnav.eval.vio_metrics import (
+    ApeSummary,
+    NeesSummary,
+    RpeSummary,
+    RunCounts,
+    drift_final_pct,
+    gravity_error_deg,
+    nees_band,
+    pose_nees,
+    pose_nees_summary,
+    vio_metrics,
+)
+from quadnav.geometry.trajectory import Trajectory
+
+COUNTS = RunCounts(
+    frames=100, failures=1, reinitializations=1, rejected_images=0, initialized_after_s=0.5
+)
+
+
+def _loop(n: int = 200, seconds: float = 20.0) -> Trajectory:
+    """A body flying a wavy loop (x-y circle of 2 m radius, z going up and down), yawing."""
+    t = np.linspace(0.0, seconds, n)
+    p = np.column_stack([2 * np.cos(0.3 * t), 2 * np.sin(0.3 * t), 1.0 + 0.3 * np.sin(t)])
+    R = Rotation.from_euler("zyx", np.column_stack([0.3 * t, 0.05 * np.sin(t), 0.02 * t]))
+    return Trajectory(
+        t_ns=(t * 1e9).astype(np.int64), p_W_B=p, q_W_B_xyzw=R.as_quat(), name="truth"
+    )
+
+
+def _moved(tr: Trajectory, yaw_deg: float, shift: tuple[float, float, float]) -> Trajectory:
+    return tr.transformed(Rotation.from_euler("z", yaw_deg, degrees=True), np.array(shift))
+
+
+def test_yawed_and_shifted_copy_has_zero_4dof_ape() -> None:
+    truth = _loop()
+    est = _moved(truth, 70.0, (3.0, -1.0, 0.5))
+    m = vio_metrics(truth, est, COUNTS)
+    assert isinstance(m.ape_4dof, ApeSummary) and isinstance(m.ape_sim3, ApeSummary)
+    assert m.ape_4dof.rmse_m < 1e-9 and m.ape_4dof.max_m < 1e-9
+    assert m.ape_sim3.scale == pytest.approx(1.0, abs=1e-9)
+    assert isinstance(m.gravity_error_deg, float) and m.gravity_error_deg < 1e-6
+    assert m.fraction_with_estimate == pytest.approx(2.0)  # 200 poses for 100 frames counted
+    assert m.failures == 1 and m.reinitializations == 1
+
+
+def test_known_height_offset_gives_its_ape() -> None:
+    """Half the poses 5 cm too high, half 5 cm too low: no alignment can remove it (yaw and a
+    translation take the mean out), so every pose is 5 cm off."""
+    truth = _loop()
+    p = truth.p_W_B.copy()
+    p[:100, 2] += 0.05
+    p[100:, 2] -= 0.05
+    est = Trajectory(t_ns=truth.t_ns, p_W_B=p, q_W_B_xyzw=truth.q_W_B_xyzw)
+    m = vio_metrics(truth, _moved(est, -30.0, (1.0, 2.0, 0.0)), COUNTS)
+    assert isinstance(m.ape_4dof, ApeSummary)
+    np.testing.assert_allclose(
+        [m.ape_4dof.rmse_m, m.ape_4dof.mean_m, m.ape_4dof.median_m, m.ape_4dof.max_m],
+        0.05,
+        atol=1e-9,
+    )
+
+
+def _straight(seconds: float = 10.0, speed_m_s: float = 1.0, rate_hz: float = 20.0) -> Trajectory:
+    t = np.arange(0.0, seconds + 1e-9, 1.0 / rate_hz)
+    p = np.column_stack([speed_m_s * t, np.zeros_like(t), np.ones_like(t)])
+    q = np.tile([0.0, 0.0, 0.0, 1.0], (len(t), 1))
+    return Trajectory(t_ns=np.round(t * 1e9).astype(np.int64), p_W_B=p, q_W_B_xyzw=q)
+
+
+def test_final_drift_of_a_known_sideways_creep() -> None:
+    """Exact for 2 s, then creeping sideways at 5 cm/s: 0.4 m off after 10 m, 4 %."""
+    truth = _straight()
+    t_s = truth.t_s
+    p = truth.p_W_B.copy()
+    p[:, 1] += 0.05 * np.maximum(t_s - 2.0, 0.0)
+    est = _moved(Trajectory(t_ns=truth.t_ns, p_W_B=p, q_W_B_xyzw=truth.q_W_B_xyzw), 25.0, (5, 5, 0))
+    assert drift_final_pct(truth, est, first_s=2.0) == pytest.approx(4.0, abs=1e-9)
+
+
+def test_final_drift_aligns_a_start_at_rest() -> None:
+    """A vehicle at rest for 2 s: the alignment comes from the attitudes, not the positions."""
+    truth = _straight()
+    p = truth.p_W_B.copy()
+    p[:40, 0] = 0.0  # at rest for the first 2 s
+    p[40:, 0] -= p[40, 0]
+    truth = Trajectory(t_ns=truth.t_ns, p_W_B=p, q_W_B_xyzw=truth.q_W_B_xyzw)
+    est = _moved(truth, 90.0, (1.0, 1.0, 1.0))
+    assert drift_final_pct(truth, est, first_s=2.0) == pytest.approx(0.0, abs=1e-9)
+
+
+def test_rpe_drift_of_a_scale_error() -> None:
+    """2 % too long a path: every 1 m of truth is 1.02 m estimated, 2 % of RPE drift."""
+    truth = _straight(seconds=10.0)
+    est = Trajectory(t_ns=truth.t_ns, p_W_B=truth.p_W_B * [1.02, 1, 1], q_W_B_xyzw=truth.q_W_B_xyzw)
+    m = vio_metrics(truth, est, COUNTS)
+    assert isinstance(m.rpe_1m, RpeSummary)
+    # evo's all pairs keep the last starts' pairs up to 10 % short of 1 m (0.95, 0.9 m): their
+    # error is 2 % of their length, which moves the mean by under 1e-4 m
+    assert m.rpe_1m.trans_mean_m == pytest.approx(0.02, abs=1e-4)
+    assert m.rpe_1m.trans_rmse_m <= 0.02 + 1e-12 and m.rpe_1m.rot_mean_deg < 1e-9
+    assert is_na(m.rpe_10m)  # a 10 m path has no pairs 10 m apart with room to spare
+    assert m.drift_rpe_pct == pytest.approx(2.0, abs=0.01)
+    assert "1 m" in m.drift_definitions
+
+
+def test_gravity_error_is_the_tilt_not_the_yaw() -> None:
+    ref = Rotation.from_euler("z", 40.0, degrees=True)  # level: body x is horizontal
+    est = (
+        Rotation.from_euler("z", 123.0, degrees=True)
+        * ref
+        * Rotation.from_euler("x", 0.5, degrees=True)
+    )
+    assert gravity_error_deg(est, ref) == pytest.approx(0.5, abs=1e-9)
+
+
+def _random_cov(rng: np.random.Generator) -> np.ndarray:
+    A = rng.normal(size=(6, 6)) * np.array([0.02] * 3 + [0.05] * 3)
+    return A @ A.T + np.diag([1e-4] * 3 + [4e-4] * 3)
+
+
+def test_nees_of_known_gaussian_errors_is_one() -> None:
+    """Errors drawn from the covariance the estimate claims: mean NEES / 6 near 1, inside the
+    band, and 95 % of the frames inside one draw's band; a covariance 4x too small fails."""
+    rng = np.random.default_rng(7)
+    n = 4000
+    cov = _random_cov(rng)
+    xi = rng.multivariate_normal(np.zeros(6), cov, size=n)
+    est = _moved(_loop(n=n, seconds=200.0), 0.0, (0, 0, 0))
+    R_true = est.R_W_B * Rotation.from_rotvec(xi[:, :3])
+    p_true = est.p_W_B + est.R_W_B.apply(xi[:, 3:])
+    ref = Trajectory(t_ns=est.t_ns, p_W_B=p_true, q_W_B_xyzw=R_true.as_quat())
+    s = pose_nees_summary(pose_nees(ref, est, np.broadcast_to(cov, (n, 6, 6))))
+    assert s.band_low < s.mean_over_dof < s.band_high
+    assert s.mean_over_dof == pytest.approx(1.0, abs=0.05)
+    assert s.fraction_in_band == pytest.approx(0.95, abs=0.015)
+    over = pose_nees_summary(pose_nees(ref, est, np.broadcast_to(cov / 4, (n, 6, 6))))
+    assert over.mean_over_dof > over.band_high and over.mean_over_dof == pytest.approx(
+        4.0, rel=0.06
+    )
+
+
+def test_nees_band_of_one_sample_is_chi_square_6() -> None:
+    lo, hi = nees_band(1)
+    assert 6 * lo == pytest.approx(1.2373, abs=1e-3) and 6 * hi == pytest.approx(14.449, abs=1e-3)
+
+
+def test_run_metrics_carry_the_nees_through_a_4dof_alignment() -> None:
+    rng = np.random.default_rng(3)
+    truth = _loop(n=500, seconds=50.0)
+    cov = np.diag([1e-4] * 3 + [1e-3] * 3)
+    xi = rng.multivariate_normal(np.zeros(6), cov, size=500)
+    est_R = truth.R_W_B * Rotation.from_rotvec(-xi[:, :3])
+    est = Trajectory(
+        t_ns=truth.t_ns, p_W_B=truth.p_W_B - est_R.apply(xi[:, 3:]), q_W_B_xyzw=est_R.as_quat()
+    )
+    m = vio_metrics(
+        truth, _moved(est, 45.0, (2, 0, 1)), COUNTS, cov_pose=np.broadcast_to(cov, (500, 6, 6))
+    )
+    assert isinstance(m.nees_pose, NeesSummary)
+    assert 0.85 < m.nees_pose.mean_over_dof < 1.15  # 500 draws: the mean's 95 % band is +-0.1
+
+
+def test_no_ground_truth_says_why_and_keeps_the_counts() -> None:
+    m = vio_metrics(None, _loop(n=50), COUNTS)
+    assert is_na(m.ape_4dof) and "no ground truth" in str(m.ape_4dof)
+    assert is_na(m.drift_final_pct) and is_na(m.nees_pose)
+    assert m.frames_with_estimate == 50 and m.failures == 1
