@@ -1,0 +1,204 @@
+"""The VIO run's folder, its completeness and its bad inputs, driven by a test double whose
+errors are known (the ground truth plus Gaussian noise of the covariance it reports)."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from pydantic import Field
+
+from quadnav.config_model import ConfigModel
+from quadnav.errors import ConfigError, IoError
+from quadnav.eval.na import is_na
+from quadnav.eval.vio_metrics import ApeSummary, NeesSummary
+from quadnav.experiments.vio_run import (
+    VioRunOptions,
+    dataset_cache_folder,
+    resolve_dataset,
+    resolve_vio_config,
+    run_vio,
+)
+from quadnav.io.datasets import VisualInertialDataset, open_dataset
+from quadnav.io.run_folder import read_run_status, run_guard
+from quadnav.io.trajectory_io import read_tum
+from quadnav.rig import Rig
+from quadnav.vision.tracking import TrackerConfig
+from tests.experiments.vio_double import SIGMAS, TruthPlusNoise
+from tests.io.test_vins_config import EUROC_LIKE
+
+SECONDS = 3.0
+
+
+@pytest.fixture(scope="module")
+def made(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """3 s of the room, made as ``quadnav vio room_easy`` makes a built-in sequence."""
+    root = tmp_path_factory.mktemp("vio_cache")
+    ds = resolve_dataset("room_easy", seed=0, duration_s=SECONDS, cache_root=root)
+    return ds.root
+
+
+def _double(ds: VisualInertialDataset, **kw: object) -> TruthPlusNoise:
+    assert ds.groundtruth is not None
+    return TruthPlusNoise(ds.groundtruth.trajectory, **kw)  # type: ignore[arg-type]
+
+
+def _run(ds: VisualInertialDataset, out: Path, double: TruthPlusNoise, **opt: object):  # type: ignore[no-untyped-def]
+    with run_guard():
+        return run_vio(
+            ds, ds.rig, lambda rig: double, out, config_text="k: 1\n", options=VioRunOptions(**opt)
+        )  # type: ignore[arg-type]
+
+
+def _phase_counts(ds: VisualInertialDataset, init_s: float, fail_s: float, reinit_s: float) -> int:
+    t = np.array([f.t_ns for f in ds.frames_of("cam0")])
+    t_s = (t - t[0]) * 1e-9
+    return int(np.sum((t_s >= init_s) & ~((t_s >= fail_s) & (t_s < fail_s + reinit_s))))
+
+
+def test_run_folder_holds_every_output_and_is_complete(made: Path, tmp_path: Path) -> None:
+    ds = open_dataset(made)
+    run = _run(ds, tmp_path, _double(ds, fail_at_s=1.5, reinit_after_s=0.3))
+    d = run.run_dir
+    for name in ("estimate.tum", "groundtruth.tum", "metrics.json", "events.jsonl", "timing.json",
+                 "tracks.mp4", "report.html", "config.yaml", "plots/trajectory.png",
+                 "plots/error.png", "plots/timing.png"):  # fmt: skip
+        assert (d / name).is_file(), name
+    assert read_run_status(d) == "complete"
+    frames = len(ds.frames_of("cam0"))
+    m = run.metrics
+    assert m.frames == frames
+    assert m.frames_with_estimate == _phase_counts(ds, 0.5, 1.5, 0.3)
+    assert len(read_tum(d / "estimate.tum")) == m.frames_with_estimate
+    assert (m.failures, m.reinitializations, m.rejected_images) == (1, 1, 0)
+    kinds = [json.loads(line)["kind"] for line in (d / "events.jsonl").read_text().splitlines()]
+    assert kinds == ["initialized", "failure", "reinitialized"]
+    # 3 cm per axis: the error's RMS norm is 3 cm * sqrt(3); ~45 poses, so 25 % either way
+    assert isinstance(m.ape_4dof, ApeSummary)
+    assert m.ape_4dof.rmse_m == pytest.approx(SIGMAS[3] * np.sqrt(3), rel=0.25)
+    assert isinstance(m.nees_pose, NeesSummary) and 0.7 < m.nees_pose.mean_over_dof < 1.3
+    assert isinstance(m.gravity_error_deg, float) and m.gravity_error_deg < 1.0
+    assert m.initialized_after_s == pytest.approx(
+        0.5, abs=0.051
+    )  # the first frame at or after 0.5 s
+    saved = json.loads((d / "metrics.json").read_text())
+    assert saved["ape_4dof"]["rmse_m"] == pytest.approx(m.ape_4dof.rmse_m)
+    assert saved["timing"]["frames"] == frames and "track" in saved["timing"]["stage_ms_per_call"]
+    video = cv2.VideoCapture(str(d / "tracks.mp4"))
+    assert int(video.get(cv2.CAP_PROP_FRAME_COUNT)) == frames
+    video.release()
+
+
+def test_start_and_duration_choose_the_span(made: Path, tmp_path: Path) -> None:
+    ds = open_dataset(made)
+    run = _run(
+        ds, tmp_path, _double(ds, init_after_s=0.0), start_s=1.0, duration_s=1.0, video=False
+    )
+    assert run.metrics.frames == 21  # 20 Hz over a closed 1 s span
+    assert not (run.run_dir / "tracks.mp4").exists()
+    gt = read_tum(run.run_dir / "groundtruth.tum")
+    assert (gt.t_ns[-1] - gt.t_ns[0]) * 1e-9 == pytest.approx(1.0, abs=0.01)
+
+
+def _copy(made: Path, tmp_path: Path) -> Path:
+    dst = tmp_path / "copy"
+    shutil.copytree(made, dst)
+    return dst
+
+
+def test_corrupt_image_is_rejected_counted_and_the_run_goes_on(made: Path, tmp_path: Path) -> None:
+    root = _copy(made, tmp_path)
+    pngs = sorted((root / "mav0" / "cam0" / "data").glob("*.png"))
+    pngs[30].write_bytes(b"not a png")
+    ds = open_dataset(root)
+    run = _run(ds, tmp_path / "runs", _double(ds, init_after_s=0.0))
+    assert run.metrics.rejected_images == 1
+    assert run.metrics.frames == len(pngs) and run.metrics.frames_with_estimate == len(pngs) - 1
+    lines = [json.loads(x) for x in (run.run_dir / "events.jsonl").read_text().splitlines()]
+    assert [x["kind"] for x in lines].count("rejected_image") == 1
+    assert read_run_status(run.run_dir) == "complete"
+
+
+def test_no_ground_truth_gives_na_metrics_and_a_complete_run(made: Path, tmp_path: Path) -> None:
+    root = _copy(made, tmp_path)
+    ds_truth = open_dataset(root)
+    shutil.rmtree(root / "mav0" / "state_groundtruth_estimate0")
+    ds = open_dataset(root)
+    assert ds.groundtruth is None
+    double = _double(ds_truth)
+    run = _run(ds, tmp_path / "runs", double)
+    assert is_na(run.metrics.ape_4dof) and "no ground truth" in str(run.metrics.ape_4dof)
+    assert not (run.run_dir / "groundtruth.tum").exists()
+    assert (run.run_dir / "plots" / "trajectory.png").is_file()
+    assert read_run_status(run.run_dir) == "complete"
+
+
+def test_interrupted_run_is_not_marked_complete(made: Path, tmp_path: Path) -> None:
+    ds = open_dataset(made)
+    with pytest.raises(KeyboardInterrupt):
+        _run(ds, tmp_path, _double(ds, init_after_s=0.0, interrupt_at_frame=20))
+    (run_dir,) = [p for p in tmp_path.iterdir() if p.is_dir()]
+    assert read_run_status(run_dir) == "interrupted"
+    assert len(read_tum(run_dir / "estimate.tum")) == 20  # what was estimated is kept
+
+
+def test_a_built_in_sequence_is_made_once_per_seed(made: Path) -> None:
+    cache = made.parent.parent
+    assert made == dataset_cache_folder(cache, "room_easy", "euroc_mono", 0, SECONDS)
+    stamp = (made / "dataset.json").stat().st_mtime_ns
+    again = resolve_dataset("room_easy", seed=0, duration_s=SECONDS, cache_root=cache)
+    assert again.root == made and (made / "dataset.json").stat().st_mtime_ns == stamp
+
+
+def test_unknown_dataset_names_the_option() -> None:
+    with pytest.raises(IoError, match=r"DATASET 'room_eazy'.*room_easy"):
+        resolve_dataset("room_eazy")
+    with pytest.raises(IoError, match="DATASET"):
+        resolve_dataset("/no/such/folder")
+
+
+class _Settings(ConfigModel):
+    tracker: TrackerConfig = Field(default_factory=TrackerConfig)
+    g_norm: float = 9.81
+    td_s: float = 0.0
+    estimate_td: bool = False
+    window_keyframes: int = 10
+
+
+def test_vins_yaml_gives_the_rig_and_the_settings(tmp_path: Path) -> None:
+    from quadnav.rig import rig_named
+
+    path = tmp_path / "euroc_config.yaml"
+    path.write_text(EUROC_LIKE)
+    dataset_rig: Rig = rig_named("euroc_mono")
+    cfg, rig = resolve_vio_config(_Settings, path, ["window_keyframes=7"], dataset_rig)
+    assert (cfg.g_norm, cfg.td_s, cfg.estimate_td, cfg.window_keyframes) == (
+        9.81007,
+        0.004,
+        True,
+        7,
+    )
+    assert cfg.tracker.equalize and cfg.tracker.max_features == 150
+    assert rig.cameras[0].camera.K[0, 0] == pytest.approx(458.654)
+
+
+def test_own_yaml_refuses_an_unknown_key(tmp_path: Path) -> None:
+    from quadnav.rig import rig_named
+
+    path = tmp_path / "vio.yaml"
+    path.write_text("window_keyframes: 8\nwindow_size: 3\n")
+    with pytest.raises(ConfigError, match="window_size: unknown key"):
+        resolve_vio_config(_Settings, path, [], rig_named("euroc_mono"))
+    with pytest.raises(ConfigError, match="--config"):
+        resolve_vio_config(_Settings, tmp_path / "none.yaml", [], rig_named("euroc_mono"))
+
+
+def test_unknown_camera_names_the_option(made: Path, tmp_path: Path) -> None:
+    ds = open_dataset(made)
+    with pytest.raises(ConfigError, match="--camera 'cam1'"):
+        _run(ds, tmp_path, _double(ds), camera="cam1")
+    assert not any(tmp_path.iterdir())  # refused before any folder was made
