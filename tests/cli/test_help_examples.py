@@ -30,6 +30,7 @@ COMMANDS = {
     ("markers",): "quadnav.cli.markers",
     ("calibrate",): "quadnav.cli.calibrate",
     ("dataset", "make"): "quadnav.cli.dataset",
+    ("vio",): "quadnav.cli.vio",
 }
 
 

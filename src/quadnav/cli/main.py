@@ -34,6 +34,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "replay": ("replay", "replay_command"),
     "link": ("link", "link_app"),
     "dataset": ("dataset", "dataset_app"),
+    "vio": ("vio", "vio_command"),
 }
 
 

@@ -24,7 +24,7 @@ import numpy as np
 from numpy.typing import NDArray
 from pydantic import BaseModel
 
-from quadnav.errors import ConfigError, EvalError, IoError, SampleError
+from quadnav.errors import ConfigError, EvalError, GeometryError, IoError, SampleError
 from quadnav.eval.associate import associate
 from quadnav.eval.na import Metric, na
 from quadnav.eval.vio_metrics import RunCounts, VioMetrics, vio_metrics
@@ -43,13 +43,17 @@ from quadnav.vision.tracking import FrameCounts, TrackedFrame, as_grey
 
 __all__ = [
     "EstimatorFactory",
+    "VioRequest",
     "VioRun",
     "VioRunOptions",
     "VioTiming",
+    "check_request",
     "dataset_cache_folder",
     "resolve_dataset",
     "resolve_vio_config",
     "run_vio",
+    "run_vio_source",
+    "write_vio_outputs",
 ]
 
 M = TypeVar("M", bound=BaseModel)
@@ -682,3 +686,58 @@ def write_vio_outputs(
             ReportSection("Configuration", code=(run.run_dir / "config.yaml").read_text()),
         ],
     )
+
+
+# -- the command's request ----------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class VioRequest:
+    """What ``quadnav vio`` was asked: the datasets (folders, bags or built-in sequence names),
+    the estimator's configuration file and ``--set`` overrides, the span and outputs, the seed
+    (``seeds`` for a study), the rig a built-in sequence is made with, the runs' folder."""
+
+    sources: tuple[str, ...]
+    config: Path | None = None
+    overrides: tuple[str, ...] = ()
+    options: VioRunOptions = field(default_factory=VioRunOptions)
+    seed: int = 0
+    seeds: tuple[int, ...] | None = None
+    rig: str = "euroc_mono"
+    out: Path = Path("runs")
+
+
+def check_request(request: VioRequest) -> None:
+    """Refuse a bad configuration, ``--set`` or rig before any dataset is read or made."""
+    from quadnav.rig import rig_named
+    from quadnav.vio import VioConfig
+
+    try:
+        rig = rig_named(request.rig)
+    except GeometryError as exc:
+        raise ConfigError(f"--rig: {exc}") from None
+    resolve_vio_config(VioConfig, request.config, request.overrides, rig)
+
+
+def run_vio_source(
+    request: VioRequest, source: str, seed: int, out: Path, progress: Progress | None = None
+) -> VioRun:
+    """One run of ``quadnav vio``: the dataset, the configuration on its rig, VINS-Mono-class
+    :class:`quadnav.vio.VioEstimator` over it, into a run folder under ``out``."""
+    from quadnav.io.config import dump_config
+    from quadnav.vio import VioConfig, VioEstimator
+
+    opt = request.options
+    dataset = resolve_dataset(
+        source, seed=seed, rig=request.rig, duration_s=opt.duration_s, start_s=opt.start_s,
+        cache_root=request.out, progress=progress,
+    )  # fmt: skip
+    cfg, rig = resolve_vio_config(
+        VioConfig, request.config, request.overrides, dataset.rig, camera=opt.camera
+    )
+    text = f"# dataset: {dataset.root}\n# rig: {rig.name}\n{dump_config(cfg)}"
+    name = Path(source).name if Path(source).exists() else f"{source}_s{seed}"
+    return run_vio(
+        dataset, rig, lambda r: VioEstimator(r, cfg, camera=opt.camera), out,
+        config_text=text, options=opt, name=name, progress=progress,
+    )  # fmt: skip

@@ -1,0 +1,182 @@
+"""``quadnav vio DATASET ...``: monocular visual-inertial odometry over a dataset, into a run
+folder with the estimate, metrics against the ground truth, plots, the tracks' video and the
+report; over several datasets or seeds, a study with a summary table."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.table import Table
+
+from quadnav.cli.common import (
+    CommandParams,
+    check_range,
+    command_help,
+    console,
+    err_console,
+    handle_errors,
+    optional_param,
+    param,
+    progress_bar,
+    strings_param,
+)
+from quadnav.cli.planar import OutOpt, SetOpt
+from quadnav.experiments.vio_run import (
+    VioRequest,
+    VioRun,
+    VioRunOptions,
+    check_request,
+    run_vio_source,
+)
+from quadnav.experiments.vio_study import (
+    GROUP_HEADER,
+    ROW_HEADER,
+    VioStudy,
+    group_cells,
+    parse_seeds,
+    row_cells,
+    row_of,
+    run_vio_study,
+)
+
+__all__ = ["EXAMPLES", "check_example", "resolve_request", "vio_command"]
+
+
+def resolve_request(
+    datasets: list[str],
+    config: Path | None,
+    set_: list[str],
+    camera: str,
+    start_s: float,
+    duration_s: float | None,
+    seed: int,
+    seeds: str | None,
+    rig: str,
+    out: Path,
+    *,
+    video: bool,
+) -> VioRequest:
+    """The validated request (no dataset read, no folder made)."""
+    check_range(start_s, "--start", 0.0, 1e6, "s")
+    if duration_s is not None:
+        check_range(duration_s, "--duration", 0.0, 1e6, "s", low_open=True)
+    options = VioRunOptions(camera=camera, start_s=start_s, duration_s=duration_s, video=video)
+    request = VioRequest(
+        sources=tuple(datasets), config=config, overrides=tuple(set_), options=options,
+        seed=seed, seeds=parse_seeds(seeds) if seeds is not None else None, rig=rig, out=out,
+    )  # fmt: skip
+    check_request(request)
+    return request
+
+
+def check_example(params: CommandParams) -> None:
+    """Validate an example's options as the command would, without running it."""
+    resolve_request(
+        list(strings_param(params, "datasets")), optional_param(params, "config", Path),
+        strings_param(params, "set_"), param(params, "camera", str),
+        param(params, "start_s", float), optional_param(params, "duration_s", float),
+        param(params, "seed", int), optional_param(params, "seeds", str),
+        param(params, "rig", str), param(params, "out", Path), video=param(params, "video", bool),
+    )  # fmt: skip
+
+
+#: The examples of ``quadnav vio --help`` (each parsed and validated by the tests).
+EXAMPLES = (
+    "quadnav vio room_easy --duration 20",
+    "quadnav vio data/V1_01_easy --config examples/vins_euroc_config.yaml --no-video",
+    "quadnav vio ../shared/data/euroc_micro --set window_keyframes=8",
+    "quadnav vio room_easy hall_easy --seeds 0-4 --out /tmp/runs",
+)
+
+
+def _print_run(run: VioRun) -> None:
+    table = Table(title=f"VIO on {run.dataset}: {run.timing.frames} frames")
+    for c in ROW_HEADER[2:]:
+        table.add_column(c, justify="right")
+    table.add_row(*row_cells(row_of(run, run.dataset, None))[2:])
+    console.print(table)
+    m = run.metrics
+    if isinstance(m.ape_4dof, str):
+        err_console.print(f"note: metrics {m.ape_4dof}", highlight=False)
+    for n in run.notes:
+        err_console.print(f"note: {n}", highlight=False)
+    console.print(str(run.run_dir), soft_wrap=True, highlight=False)
+
+
+def _print_study(study: VioStudy) -> None:
+    for title, header, rows in (
+        ("per run", ROW_HEADER, [row_cells(r) for r in study.rows]),
+        ("per group", GROUP_HEADER, [group_cells(g) for g in study.groups]),
+    ):
+        table = Table(title=f"VIO study, {title}")
+        for c in header:
+            table.add_column(c, justify="left" if c in ("dataset", "group") else "right")
+        for r in rows:
+            table.add_row(*r)
+        console.print(table)
+    console.print(str(study.run_dir), soft_wrap=True, highlight=False)
+
+
+def _is_sequence(source: str) -> bool:
+    from quadnav.experiments.datasets import SEQUENCES
+
+    return not Path(source).exists() and source in SEQUENCES
+
+
+@handle_errors
+def vio_command(
+    datasets: Annotated[
+        list[str],
+        typer.Argument(help="EuRoC/TUM-VI folder, ROS bag, or built-in sequence (room_easy...)"),
+    ],
+    config: Annotated[
+        Path | None,
+        typer.Option("--config", help="VINS-Mono's config YAML, or ours (VioConfig's fields)"),
+    ] = None,
+    set_: SetOpt = None,
+    camera: Annotated[str, typer.Option("--camera", help="the rig's camera to use")] = "cam0",
+    start_s: Annotated[float, typer.Option("--start", help="skip this many seconds")] = 0.0,
+    duration_s: Annotated[
+        float | None, typer.Option("--duration", help="seconds to run [default: to the end]")
+    ] = None,
+    seed: Annotated[int, typer.Option("--seed", min=0, help="seed of a built-in sequence")] = 0,
+    seeds: Annotated[
+        str | None, typer.Option("--seeds", help="a study over seeds: 0-4, or 0,2,7")
+    ] = None,
+    rig: Annotated[
+        str, typer.Option("--rig", help="rig a built-in sequence is made with")
+    ] = "euroc_mono",
+    out: OutOpt = Path("runs"),
+    video: Annotated[
+        bool, typer.Option("--video/--no-video", help="write tracks.mp4 of the features")
+    ] = True,
+) -> None:
+    request = resolve_request(
+        datasets, config, list(set_ or []), camera, start_s, duration_s, seed, seeds, rig, out,
+        video=video,
+    )  # fmt: skip
+    if len(datasets) == 1 and seeds is None:
+        with progress_bar("vio") as update:
+            run = run_vio_source(request, datasets[0], seed, out, update)
+        _print_run(run)
+        return
+    with progress_bar("vio study", line_step=0) as update:
+        study = run_vio_study(
+            datasets, request.seeds,
+            lambda src, s, where: run_vio_source(request, src, s, where), out,
+            is_sequence=_is_sequence, progress=update,
+        )  # fmt: skip
+    _print_study(study)
+
+
+vio_command.__doc__ = command_help(
+    "Monocular visual-inertial odometry (VINS-Mono class) over a dataset: estimate, metrics, video, report.",
+    "DATASET is an EuRoC ASL or TUM-VI folder, a ROS 1/2 bag, or a built-in sequence, made "
+    "once per --seed and --rig under OUT/datasets. Without --config the dataset's own "
+    "calibration is used. Metrics against the ground truth: APE after a position + yaw "
+    "alignment (also SE(3) and Sim(3)), RPE, drift in % of the distance travelled, the "
+    "gravity error, the pose NEES. Several DATASETs or --seeds run a study with a summary.",
+    examples=EXAMPLES,
+)

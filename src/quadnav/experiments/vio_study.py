@@ -1,0 +1,260 @@
+"""VIO over several datasets and seeds (``quadnav vio SEQ ... --seeds 0-4``): one run folder per
+run inside a study folder, and a table of ATE, drift, failures and speed per run with the mean
+and median over the runs of each dataset (``summary.json``, ``summary.md``, printed by the CLI).
+
+A built-in sequence name is made once per seed; a dataset folder is one run whatever the seeds
+(its images are what they are), so the lead's ``v102_s0 ... v102_s4`` folders are five runs of
+one group when named ``v102_s*``: a folder's group is its name without a trailing ``_s<N>``.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from quadnav.errors import ConfigError
+from quadnav.eval.na import Metric, fmt_metric, is_na
+from quadnav.experiments.vio_run import VioRun
+from quadnav.io.run_folder import append_jsonl, create_run_folder, write_json, write_text
+
+__all__ = [
+    "GROUP_HEADER",
+    "ROW_HEADER",
+    "VioGroup",
+    "VioRow",
+    "VioStudy",
+    "group_cells",
+    "group_of",
+    "parse_seeds",
+    "row_cells",
+    "row_of",
+    "run_vio_study",
+    "summarize",
+    "summary_markdown",
+]
+
+Progress = Callable[[int, int, str], None]
+#: One run: (dataset source, seed, the folder its run folder goes in) -> the finished run.
+RunOne = Callable[[str, int, Path], VioRun]
+
+
+def parse_seeds(text: str) -> tuple[int, ...]:
+    """``--seeds``: ``0-4``, ``0,2,7`` or ``3``, each >= 0."""
+    seeds: list[int] = []
+    for part in text.split(","):
+        m = re.fullmatch(r"\s*(\d+)\s*(?:-\s*(\d+)\s*)?", part)
+        if m is None or (m.group(2) is not None and int(m.group(2)) < int(m.group(1))):
+            raise ConfigError(f"--seeds {text!r}: give seeds as 0-4, 0,2,7 or 3")
+        lo = int(m.group(1))
+        hi = int(m.group(2)) if m.group(2) is not None else lo
+        seeds.extend(range(lo, hi + 1))
+    if len(set(seeds)) != len(seeds):
+        raise ConfigError(f"--seeds {text!r}: a seed is named twice")
+    return tuple(seeds)
+
+
+def group_of(source: str) -> str:
+    """The group a run's dataset belongs to: a sequence's name, or a folder's name without a
+    trailing ``_s<N>`` (the seed of a made dataset)."""
+    name = Path(source).name or source
+    return re.sub(r"_s\d+$", "", name)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class VioRow:
+    """One run of the study."""
+
+    group: str
+    dataset: str
+    seed: int | None
+    ate_4dof_rmse_m: Metric
+    drift_final_pct: Metric
+    drift_rpe_pct: Metric
+    gravity_error_deg: Metric
+    nees_over_6: Metric
+    fraction_with_estimate: float
+    failures: int
+    reinitializations: int
+    frames_per_s: float
+    run_dir: str
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class VioGroup:
+    """Mean and median over one group's runs (runs without a number are left out and
+    counted in ``runs_without_ate``)."""
+
+    group: str
+    runs: int
+    runs_without_ate: int
+    ate_mean_m: Metric
+    ate_median_m: Metric
+    drift_final_mean_pct: Metric
+    drift_final_median_pct: Metric
+    drift_rpe_median_pct: Metric
+    nees_over_6_mean: Metric
+    failures: int
+    reinitializations: int
+    frames_per_s_median: float
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class VioStudy:
+    rows: tuple[VioRow, ...]
+    groups: tuple[VioGroup, ...]
+    run_dir: Path
+
+    def as_json(self) -> dict[str, object]:
+        return {"runs": [asdict(r) for r in self.rows], "groups": [asdict(g) for g in self.groups]}
+
+
+def _field(value: object, name: str) -> Metric:
+    return value if isinstance(value, str) else float(getattr(value, name))
+
+
+def row_of(run: VioRun, group: str, seed: int | None) -> VioRow:
+    m = run.metrics
+    return VioRow(
+        group=group, dataset=run.dataset, seed=seed,
+        ate_4dof_rmse_m=_field(m.ape_4dof, "rmse_m"), drift_final_pct=m.drift_final_pct,
+        drift_rpe_pct=m.drift_rpe_pct, gravity_error_deg=m.gravity_error_deg,
+        nees_over_6=_field(m.nees_pose, "mean_over_dof"),
+        fraction_with_estimate=m.fraction_with_estimate, failures=m.failures,
+        reinitializations=m.reinitializations, frames_per_s=run.timing.frames_per_s,
+        run_dir=str(run.run_dir),
+    )  # fmt: skip
+
+
+def _numbers(values: Sequence[Metric]) -> list[float]:
+    return [float(v) for v in values if not is_na(v) and math.isfinite(float(v))]
+
+
+def _mean(values: Sequence[Metric], what: str) -> Metric:
+    nums = _numbers(values)
+    return float(np.mean(nums)) if nums else f"n/a: no run has {what}"
+
+
+def _median(values: Sequence[Metric], what: str) -> Metric:
+    nums = _numbers(values)
+    return float(np.median(nums)) if nums else f"n/a: no run has {what}"
+
+
+def summarize(rows: Sequence[VioRow]) -> tuple[VioGroup, ...]:
+    """Per group (in the order first met): mean and median of each metric over its runs."""
+    groups: dict[str, list[VioRow]] = {}
+    for r in rows:
+        groups.setdefault(r.group, []).append(r)
+    out = []
+    for name, rs in groups.items():
+        ate = [r.ate_4dof_rmse_m for r in rs]
+        drift = [r.drift_final_pct for r in rs]
+        out.append(
+            VioGroup(
+                group=name,
+                runs=len(rs),
+                runs_without_ate=len(rs) - len(_numbers(ate)),
+                ate_mean_m=_mean(ate, "an ATE"),
+                ate_median_m=_median(ate, "an ATE"),
+                drift_final_mean_pct=_mean(drift, "a drift"),
+                drift_final_median_pct=_median(drift, "a drift"),
+                drift_rpe_median_pct=_median([r.drift_rpe_pct for r in rs], "an RPE drift"),
+                nees_over_6_mean=_mean([r.nees_over_6 for r in rs], "a NEES"),
+                failures=sum(r.failures for r in rs),
+                reinitializations=sum(r.reinitializations for r in rs),
+                frames_per_s_median=float(np.median([r.frames_per_s for r in rs])),
+            )
+        )
+    return tuple(out)
+
+
+ROW_HEADER = (
+    "dataset", "seed", "ATE 4-DoF (m)", "drift final (%)", "drift RPE (%)", "gravity (deg)",
+    "NEES/6", "with estimate", "failures", "re-inits", "frames/s",
+)  # fmt: skip
+GROUP_HEADER = (
+    "group", "runs", "ATE mean (m)", "ATE median (m)", "drift mean (%)", "drift median (%)",
+    "RPE drift median (%)", "NEES/6 mean", "failures", "re-inits", "frames/s median",
+)  # fmt: skip
+
+
+def _cell(value: Metric, spec: str) -> str:
+    """A table cell: the number, or ``n/a`` (the reason stays in ``summary.json``)."""
+    return "n/a" if is_na(value) else fmt_metric(value, spec)
+
+
+def row_cells(r: VioRow) -> list[str]:
+    return [
+        r.dataset, "-" if r.seed is None else str(r.seed), _cell(r.ate_4dof_rmse_m, ".3f"),
+        _cell(r.drift_final_pct, ".2f"), _cell(r.drift_rpe_pct, ".2f"),
+        _cell(r.gravity_error_deg, ".2f"), _cell(r.nees_over_6, ".2f"),
+        f"{100 * r.fraction_with_estimate:.0f} %", str(r.failures), str(r.reinitializations),
+        f"{r.frames_per_s:.1f}",
+    ]  # fmt: skip
+
+
+def group_cells(g: VioGroup) -> list[str]:
+    return [
+        g.group, str(g.runs), _cell(g.ate_mean_m, ".3f"), _cell(g.ate_median_m, ".3f"),
+        _cell(g.drift_final_mean_pct, ".2f"), _cell(g.drift_final_median_pct, ".2f"),
+        _cell(g.drift_rpe_median_pct, ".2f"), _cell(g.nees_over_6_mean, ".2f"),
+        str(g.failures), str(g.reinitializations), f"{g.frames_per_s_median:.1f}",
+    ]  # fmt: skip
+
+
+def _md_table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    lines += ["| " + " | ".join(r) + " |" for r in rows]
+    return "\n".join(lines)
+
+
+def summary_markdown(study: VioStudy) -> str:
+    """The study's two tables (per run, per group) as Markdown."""
+    return (
+        "## Per group (mean and median over its runs)\n\n"
+        + _md_table(GROUP_HEADER, [group_cells(g) for g in study.groups])
+        + "\n\n## Per run\n\n"
+        + _md_table(ROW_HEADER, [row_cells(r) for r in study.rows])
+        + "\n\nATE: APE translation RMSE after a position + yaw alignment. Drift final: the last"
+        " pose's error after aligning the first seconds, in % of the distance travelled; drift"
+        " RPE: mean RPE over 10 m (1 m on shorter paths) of path, in % of it.\n"
+    )
+
+
+def run_vio_study(
+    sources: Sequence[str],
+    seeds: Sequence[int] | None,
+    run_one: RunOne,
+    out: Path,
+    *,
+    is_sequence: Callable[[str], bool],
+    progress: Progress | None = None,
+) -> VioStudy:
+    """Every source (for a built-in sequence, every seed) through ``run_one``, each into its
+    own run folder inside the study's; the tables. Each finished run is appended to
+    ``runs.jsonl`` at once, so an interrupted study keeps what it did."""
+    plan: list[tuple[str, int | None]] = []
+    for src in sources:
+        if is_sequence(src):
+            plan.extend((src, s) for s in (seeds or (0,)))
+        else:
+            plan.append((src, None))
+    study_dir = create_run_folder(out, "vio_study")
+    write_text(study_dir / "config.yaml", f"sources: {list(sources)}\nseeds: {list(seeds or [])}\n")
+    rows = []
+    for k, (src, seed) in enumerate(plan):
+        if progress is not None:
+            progress(k, len(plan), f"{group_of(src)} seed {seed if seed is not None else '-'}")
+        run = run_one(src, seed or 0, study_dir / "runs")
+        rows.append(row_of(run, group_of(src), seed))
+        append_jsonl(study_dir / "runs.jsonl", asdict(rows[-1]))
+    if progress is not None:
+        progress(len(plan), len(plan), "done")
+    study = VioStudy(rows=tuple(rows), groups=summarize(rows), run_dir=study_dir)
+    write_json(study_dir / "summary.json", study.as_json())
+    write_text(study_dir / "summary.md", summary_markdown(study))
+    return study
