@@ -1,0 +1,85 @@
+"""``quadnav vio``: a short real run of the estimator on a built-in sequence made by the command,
+and every bad input as one line naming the option."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from quadnav.cli.main import app
+from quadnav.io.run_folder import read_run_status
+
+runner = CliRunner()
+
+
+@pytest.fixture(scope="module")
+def first_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+    """``quadnav vio room_easy --duration 4``: the command makes 4 s of the room (at rest for
+    2 s, then flying) under OUT/datasets and runs the real estimator over it."""
+    out = tmp_path_factory.mktemp("vio_cli")
+    result = runner.invoke(app, ["vio", "room_easy", "--duration", "4", "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    run_dir = Path(result.stdout.strip().splitlines()[-1])
+    return out, run_dir
+
+
+def test_a_short_real_run_is_metric_and_gravity_aligned(first_run: tuple[Path, Path]) -> None:
+    out, run_dir = first_run
+    assert run_dir.parent == out and read_run_status(run_dir) == "complete"
+    m = json.loads((run_dir / "metrics.json").read_text())
+    # a static start then 2 s of flight: the estimate must be metric and level; 5 cm and
+    # 1 degree are loose bounds for a VINS-class estimator on clean synthetic images
+    assert m["ape_4dof"]["rmse_m"] < 0.05
+    assert m["gravity_error_deg"] < 1.0
+    assert m["fraction_with_estimate"] > 0.5 and m["failures"] == 0
+    assert m["ape_sim3"]["scale"] == pytest.approx(1.0, abs=0.2)
+    events = [json.loads(x) for x in (run_dir / "events.jsonl").read_text().splitlines()]
+    assert events and events[0]["kind"] == "initialized"
+    assert m["timing"]["frames_per_s"] > 0 and "optimize" in m["timing"]["stage_ms_per_call"]
+
+
+def test_the_sequence_is_made_once(first_run: tuple[Path, Path]) -> None:
+    out, _ = first_run
+    (made,) = (out / "datasets").iterdir()
+    stamp = (made / "dataset.json").stat().st_mtime_ns
+    result = runner.invoke(app, ["vio", "room_easy", "--duration", "4", "--no-video",
+                                 "--out", str(out)])  # fmt: skip
+    assert result.exit_code == 0, result.output
+    assert [made] == list((out / "datasets").iterdir())
+    assert (made / "dataset.json").stat().st_mtime_ns == stamp
+    assert not (Path(result.stdout.strip().splitlines()[-1]) / "tracks.mp4").exists()
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["/no/such/folder"], "DATASET '/no/such/folder': no such file or folder"),
+        (["room_eazy"], "DATASET 'room_eazy'"),
+        (["room_easy", "--set", "window_size=3"], "window_size: unknown key"),
+        (["room_easy", "--set", "window_keyframes=1"], "window_keyframes"),
+        (["room_easy", "--seeds", "4-1"], "--seeds '4-1'"),
+        (["room_easy", "--duration", "-1"], "--duration must be"),
+        (["room_easy", "--rig", "nope"], "--rig"),
+        (["room_easy", "--config", "/no/vio.yaml"], "--config /no/vio.yaml"),
+    ],
+)
+def test_bad_input_is_one_line_naming_the_option(
+    args: list[str], message: str, tmp_path: Path
+) -> None:
+    result = runner.invoke(app, ["vio", *args, "--out", str(tmp_path)])
+    assert result.exit_code == 2, result.output
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and message in lines[0], result.stderr
+    assert "Traceback" not in result.output
+    assert not (tmp_path / "datasets").exists()  # refused before any rendering
+
+
+def test_an_unknown_camera_is_named(first_run: tuple[Path, Path], tmp_path: Path) -> None:
+    out, _ = first_run
+    (made,) = (out / "datasets").iterdir()
+    result = runner.invoke(app, ["vio", str(made), "--camera", "cam1", "--out", str(tmp_path)])
+    assert result.exit_code == 2
+    assert result.stderr.strip() == "error: --camera 'cam1': the dataset's cameras are cam0"
