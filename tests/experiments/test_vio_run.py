@@ -1,5 +1,6 @@
-"""The VIO run's folder, its completeness and its bad inputs, driven by a test double whose
-errors are known (the ground truth plus Gaussian noise of the covariance it reports)."""
+"""The VIO run's folder, its completeness and its bad inputs, and the summary over seeds and
+datasets, driven by a test double whose errors are known (the ground truth plus Gaussian noise
+of the covariance it reports)."""
 
 from __future__ import annotations
 
@@ -17,12 +18,14 @@ from quadnav.errors import ConfigError, IoError
 from quadnav.eval.na import is_na
 from quadnav.eval.vio_metrics import ApeSummary, NeesSummary
 from quadnav.experiments.vio_run import (
+    VioRun,
     VioRunOptions,
     dataset_cache_folder,
     resolve_dataset,
     resolve_vio_config,
     run_vio,
 )
+from quadnav.experiments.vio_study import group_of, parse_seeds, run_vio_study
 from quadnav.io.datasets import VisualInertialDataset, open_dataset
 from quadnav.io.run_folder import read_run_status, run_guard
 from quadnav.io.trajectory_io import read_tum
@@ -202,3 +205,61 @@ def test_unknown_camera_names_the_option(made: Path, tmp_path: Path) -> None:
     with pytest.raises(ConfigError, match="--camera 'cam1'"):
         _run(ds, tmp_path, _double(ds), camera="cam1")
     assert not any(tmp_path.iterdir())  # refused before any folder was made
+
+
+def test_seeds_parse_as_ranges_and_lists() -> None:
+    assert parse_seeds("0-4") == (0, 1, 2, 3, 4)
+    assert parse_seeds("0,2,7") == (0, 2, 7) and parse_seeds("3") == (3,)
+    for bad in ("4-1", "a", "1,1", "-2", ""):
+        with pytest.raises(ConfigError, match="--seeds"):
+            parse_seeds(bad)
+
+
+def test_a_folder_groups_by_its_name_without_the_seed() -> None:
+    assert group_of("/work/data/v102_s3") == "v102" and group_of("room_easy") == "room_easy"
+
+
+def test_study_over_seeds_and_folders(made: Path, tmp_path: Path) -> None:
+    """Two sources: a "sequence" run for seeds 0-2 (the double's seed differs, so the ATEs
+    differ) and a folder, run once whatever the seeds."""
+    ds = open_dataset(made)
+    assert ds.groundtruth is not None
+    runs: list[VioRun] = []
+
+    def run_one(source: str, seed: int, where: Path) -> VioRun:
+        double = TruthPlusNoise(ds.groundtruth.trajectory, seed=seed, init_after_s=0.0)  # type: ignore[union-attr]
+        runs.append(
+            run_vio(
+                ds,
+                ds.rig,
+                lambda rig: double,
+                where,
+                options=VioRunOptions(video=False),
+                name=f"{source}_{seed}",
+            )
+        )
+        return runs[-1]
+
+    with run_guard():
+        study = run_vio_study(
+            ["seq", str(made)], (0, 1, 2), run_one, tmp_path, is_sequence=lambda s: s == "seq"
+        )
+    assert [(r.group, r.seed) for r in study.rows] == [
+        ("seq", 0), ("seq", 1), ("seq", 2), (made.name, None),
+    ]  # fmt: skip
+    ates = [r.metrics.ape_4dof.rmse_m for r in runs if isinstance(r.metrics.ape_4dof, ApeSummary)]
+    assert len(set(ates[:3])) == 3  # three seeds, three noise draws
+    assert ates[3] == ates[0]  # a folder runs once, with the default seed 0
+    seq = study.groups[0]
+    assert seq.group == "seq" and seq.runs == 3
+    assert seq.ate_mean_m == pytest.approx(np.mean(ates[:3]))
+    assert seq.ate_median_m == pytest.approx(np.median(ates[:3]))
+    assert study.groups[1].runs == 1
+    d = study.run_dir
+    assert read_run_status(d) == "complete"
+    assert all(r.run_dir.parent == d / "runs" for r in runs)
+    saved = json.loads((d / "summary.json").read_text())
+    assert [g["runs"] for g in saved["groups"]] == [3, 1]
+    assert len((d / "runs.jsonl").read_text().splitlines()) == 4
+    md = (d / "summary.md").read_text()
+    assert f"{seq.ate_mean_m:.3f}" in md and "| seq | 3 |" in md
