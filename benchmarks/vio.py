@@ -1,0 +1,176 @@
+"""Speed of the VIO (``quadnav.vio.VioEstimator``) on one core: camera frames per second at the
+dataset's resolution (752x480 for EuRoC's cam0 and the ``euroc_mono`` rig), per stage (the
+estimator's own ``timing()``), beside the feature tracker alone on the same frames
+(``benchmarks/tracking.py``'s measurement, same run); and the whole process of
+``quadnav vio DATASET --no-video`` on those frames (interpreter start, imports, reading the
+images, metrics, plots and report included).
+
+One core: the process pins itself to ``--core`` with ``sched_setaffinity`` before anything is
+imported (GTSAM's TBB and OpenCV size their thread pools from the affinity mask they see, and a
+child process inherits it), and sets ``OMP_NUM_THREADS``/``OPENBLAS_NUM_THREADS``/
+``MKL_NUM_THREADS`` to 1 and ``cv2.setNumThreads(1)``. Each in-process figure is the best of
+``--repeats`` runs over the same frames (other sessions share the machine).
+
+The peer, VINS-Mono (C++/ROS), cannot be installed here: the tracker ratio is the comparison
+this benchmark can make (VINS-Mono's own front end is the same GFTT + KLT).
+
+    python benchmarks/vio.py [DATASET] [--frames 200] [--repeats 3] [--core 0]
+        [--out benchmarks/results/vio.json]
+
+Without DATASET: 10 s of ``room_easy`` with the ``euroc_mono`` rig, made once under
+``benchmarks/results/datasets``.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+
+# Before numpy, OpenCV or GTSAM load: their thread pools see one core.
+_ARGS = sys.argv[1:]
+_CORE = int(_ARGS[_ARGS.index("--core") + 1]) if "--core" in _ARGS[:-1] else 0
+os.sched_setaffinity(0, {_CORE})
+for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ[_v] = "1"
+
+import argparse  # noqa: E402
+import json  # noqa: E402
+import platform  # noqa: E402
+import subprocess  # noqa: E402
+import tempfile  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import cv2  # noqa: E402
+import gtsam  # noqa: E402
+import numpy as np  # noqa: E402
+
+from quadnav.experiments.vio_run import resolve_dataset  # noqa: E402
+from quadnav.io.datasets import VisualInertialDataset, open_dataset  # noqa: E402
+from quadnav.messages import ImuSample  # noqa: E402
+from quadnav.vio import VioConfig, VioEstimator  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from tracking import best_stage_s  # noqa: E402
+
+Item = tuple[int, ImuSample | np.ndarray]
+
+
+def _items(ds: VisualInertialDataset, camera: str, n_frames: int) -> tuple[list[Item], float]:
+    """The first ``n_frames`` images of ``camera`` (loaded) and the IMU samples up to the last,
+    in time order; and the span in seconds."""
+    items: list[Item] = []
+    frames = 0
+    t0 = None
+    for s in ds.stream():
+        t0 = s.t_ns if t0 is None else t0
+        if isinstance(s, ImuSample):
+            items.append((s.t_ns, s))
+        elif s.camera == camera:
+            items.append((s.t_ns, s.image()))
+            frames += 1
+            if frames == n_frames:
+                break
+    return items, (items[-1][0] - (t0 or 0)) * 1e-9
+
+
+def _one_run(ds: VisualInertialDataset, items: list[Item], camera: str) -> dict[str, object]:
+    vio = VioEstimator(ds.rig, VioConfig(), camera=camera)
+    total = 0.0
+    frames = 0
+    estimates = 0
+    for t_ns, x in items:
+        t = time.perf_counter()
+        if isinstance(x, ImuSample):
+            vio.push_imu(x)
+        else:
+            estimates += vio.push_image(t_ns, x) is not None
+            frames += 1
+        total += time.perf_counter() - t
+    stages = {name: (s, n) for name, s, n in vio.timing().stages}
+    return {"total_s": total, "frames": frames, "estimates": estimates, "stages": stages}
+
+
+def _best_in_process(
+    ds: VisualInertialDataset, items: list[Item], camera: str, repeats: int
+) -> dict[str, object]:
+    runs = [_one_run(ds, items, camera) for _ in range(repeats)]
+    best = min(runs, key=lambda r: float(r["total_s"]))  # type: ignore[arg-type]
+    frames = int(best["frames"])  # type: ignore[call-overload]
+    names = list(best["stages"])  # type: ignore[call-overload]
+    per_frame = {
+        n: 1e3 * min(r["stages"][n][0] for r in runs if n in r["stages"]) / frames
+        for n in names  # type: ignore[index,operator]
+    }
+    return {
+        "frames": frames, "estimates": best["estimates"],
+        "frames_per_s": frames / float(best["total_s"]),  # type: ignore[arg-type]
+        "all_frames_per_s": [int(r["frames"]) / float(r["total_s"]) for r in runs],  # type: ignore[call-overload,arg-type]
+        "stage_ms_per_frame": per_frame,
+        "stage_calls": {n: best["stages"][n][1] for n in names},  # type: ignore[index]
+    }  # fmt: skip
+
+
+def _whole_process(source: Path, span_s: float, repeats: int) -> float:
+    best = float("inf")
+    for _ in range(repeats):
+        with tempfile.TemporaryDirectory() as out:
+            t0 = time.perf_counter()
+            subprocess.run(
+                [sys.executable, "-m", "quadnav", "vio", str(source), "--no-video",
+                 "--duration", f"{span_s:.3f}", "--out", out],
+                check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+            )  # fmt: skip
+            best = min(best, time.perf_counter() - t0)
+    return best
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description="VIO speed on one core")
+    parser.add_argument("dataset", nargs="?", type=Path, default=None)
+    parser.add_argument("--camera", default="cam0")
+    parser.add_argument("--frames", type=int, default=200)
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--core", type=int, default=0)
+    parser.add_argument("--out", type=Path, default=Path("benchmarks/results/vio.json"))
+    args = parser.parse_args()
+    cv2.setNumThreads(1)
+    if args.dataset is None:
+        ds = resolve_dataset("room_easy", duration_s=10.0, cache_root=Path("benchmarks/results"))
+    else:
+        ds = open_dataset(args.dataset)
+    cam = ds.rig.camera(args.camera)
+    items, span_s = _items(ds, args.camera, args.frames)
+    images = [x for _, x in items if isinstance(x, np.ndarray)]
+    vio = _best_in_process(ds, items, args.camera, args.repeats)
+    tracker = best_stage_s(images, cam.camera, args.repeats)
+    tracker_fps = len(images) / tracker["total_s"]
+    process_s = _whole_process(ds.root, span_s, args.repeats)
+    w, h = cam.camera.width, cam.camera.height
+    print(f"VIO on {ds.name} ({w}x{h}), {vio['frames']} frames over {span_s:.1f} s, one core "
+          f"(affinity {sorted(os.sched_getaffinity(0))}), best of {args.repeats}")  # fmt: skip
+    print(f"{'stage':<16}{'ms/frame':>10}{'calls':>8}")
+    for n, ms in vio["stage_ms_per_frame"].items():  # type: ignore[attr-defined]
+        print(f"{n:<16}{ms:>10.2f}{vio['stage_calls'][n]:>8}")  # type: ignore[index]
+    print(f"{'VIO frames/s':<28}{vio['frames_per_s']:>10.1f}   (all repeats: "
+          + ", ".join(f"{x:.1f}" for x in vio["all_frames_per_s"]) + ")")  # type: ignore[attr-defined]  # fmt: skip
+    print(f"{'tracker alone frames/s':<28}{tracker_fps:>10.1f}")
+    print(f"{'VIO / tracker':<28}{float(vio['frames_per_s']) / tracker_fps:>10.2f}")  # type: ignore[arg-type]
+    print(
+        f"{'whole process (s)':<28}{process_s:>10.2f}   quadnav vio --no-video, start-up included"
+    )
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps({
+        "benchmark": "vio", "python": platform.python_version(), "opencv": cv2.__version__,
+        "gtsam": getattr(gtsam, "__version__", "?"), "core": args.core, "repeats": args.repeats,
+        "dataset": str(ds.root), "resolution": [w, h], "span_s": span_s, "vio": vio,
+        "tracker_alone_frames_per_s": tracker_fps,
+        "vio_over_tracker": float(vio["frames_per_s"]) / tracker_fps,  # type: ignore[arg-type]
+        "whole_process_s": process_s,
+        "peer": "VINS-Mono (C++/ROS) cannot be installed here; the tracker alone is the reference",
+    }, indent=2) + "\n")  # fmt: skip
+    print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()
