@@ -33,6 +33,7 @@ from quadnav.rig import Rig
 from quadnav.vision.tracking import TrackerConfig
 from tests.experiments.vio_double import SIGMAS, TruthPlusNoise
 from tests.io.test_vins_config import EUROC_LIKE
+from tests.shared_data import SHARED, needs
 
 SECONDS = 3.0
 
@@ -263,3 +264,24 @@ def test_study_over_seeds_and_folders(made: Path, tmp_path: Path) -> None:
     assert len((d / "runs.jsonl").read_text().splitlines()) == 4
     md = (d / "summary.md").read_text()
     assert f"{seq.ate_mean_m:.3f}" in md and "| seq | 3 |" in md
+
+
+EUROC_MICRO = SHARED / "euroc_micro"
+
+
+@needs(EUROC_MICRO)
+def test_the_run_spans_the_images_with_a_second_of_imu_before(tmp_path: Path) -> None:
+    """euroc_micro's IMU runs 146 s, its images 4.7 s of it: the run feeds the images and the
+    IMU from 1 s before the first, not the IMU of the whole sequence; its ground truth is
+    scored on the images' span."""
+    ds = open_dataset(EUROC_MICRO)
+    frames = ds.frames_of("cam0")
+    double = _double(ds, init_after_s=0.0)
+    run = _run(ds, tmp_path, double, video=False)
+    span_s = (frames[-1].t_ns - frames[0].t_ns) * 1e-9
+    imu = ds.imu.t_ns
+    fed = np.sum((imu >= frames[0].t_ns - 1_000_000_000) & (imu <= frames[-1].t_ns))
+    assert double.imu == fed and double.imu < (span_s + 1.0) * 200 + 2
+    assert run.metrics.frames == len(frames)
+    gt = read_tum(run.run_dir / "groundtruth.tum")
+    assert gt.t_ns[0] >= frames[0].t_ns and gt.t_ns[-1] <= frames[-1].t_ns

@@ -98,7 +98,7 @@ def _print_run(run: VioRun) -> None:
     table.add_row(*row_cells(row_of(run, run.dataset, None))[2:])
     console.print(table)
     m = run.metrics
-    if isinstance(m.ape_4dof, str):
+    if isinstance(m.ape_4dof, str) and m.ape_4dof.removeprefix("n/a: ") not in run.notes:
         err_console.print(f"note: metrics {m.ape_4dof}", highlight=False)
     for n in run.notes:
         err_console.print(f"note: {n}", highlight=False)

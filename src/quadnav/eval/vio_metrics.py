@@ -303,11 +303,13 @@ def vio_metrics(
     *,
     cov_pose: FloatArray | None = None,
     drift_first_s: float = 2.0,
+    unscored: str = "the dataset has no ground truth",
 ) -> VioMetrics:
     """Every metric of a run: ``ref`` the ground truth matched to ``est`` (equal length, same
-    times; None when the dataset has none), ``cov_pose`` the estimate's (N, 6, 6)."""
+    times; None when there is none to match, ``unscored`` saying why), ``cov_pose`` the
+    estimate's (N, 6, 6)."""
     if ref is None:
-        return _without_truth(est, counts, "the dataset has no ground truth")
+        return _without_truth(est, counts, unscored)
     if len(est) < 2:
         return _without_truth(est, counts, f"{len(est)} estimated pose(s) match the ground truth")
     if len(ref) != len(est):

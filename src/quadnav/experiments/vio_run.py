@@ -66,13 +66,15 @@ FloatArray = NDArray[np.float64]
 @dataclass(frozen=True, slots=True, kw_only=True)
 class VioRunOptions:
     """What part of the dataset a run covers and what it writes: ``camera`` (its name in the
-    rig), ``start_s`` and ``duration_s`` (from the dataset's first sample; None: to its end),
+    rig), ``start_s`` and ``duration_s`` (from the camera's first image; None: to its last),
+    ``imu_lead_s`` the IMU fed before the first image (a static start looks at it),
     ``video`` every ``video_every`` frames, ``drift_first_s`` the span the final drift aligns
     on, ``t_max_diff_s`` how far an estimate may be from a ground-truth sample to be scored."""
 
     camera: str = "cam0"
     start_s: float = 0.0
     duration_s: float | None = None
+    imu_lead_s: float = 1.0
     video: bool = True
     video_every: int = 1
     drift_first_s: float = 2.0
@@ -233,22 +235,24 @@ def _span_frames(
     frames = dataset.frames_of(options.camera)
     if not frames:
         raise ConfigError(f"{dataset.root}: camera {options.camera} has no images")
-    t0 = min(int(dataset.imu.t_ns[0]), frames[0].t_ns) + s_to_ns(options.start_s)
-    t1 = t0 + s_to_ns(options.duration_s) if options.duration_s is not None else 2**62
+    t0 = frames[0].t_ns + s_to_ns(options.start_s)
+    t1 = t0 + s_to_ns(options.duration_s) if options.duration_s is not None else frames[-1].t_ns
     chosen = [f for f in frames if t0 <= f.t_ns <= t1]
     if not chosen:
         raise ConfigError(
             f"--start {options.start_s:g} s / --duration: no image of {options.camera} "
             f"in that span of {dataset.duration_s:.1f} s"
         )
+    t0, t1 = chosen[0].t_ns, chosen[-1].t_ns
     return t0, t1, chosen
 
 
 def _stream(
-    dataset: VisualInertialDataset, camera: str, t0: int, t1: int
+    dataset: VisualInertialDataset, camera: str, t0: int, t1: int, imu_lead_ns: int
 ) -> Iterator[ImageFrame | ImuSample]:
+    """The camera's frames in ``[t0, t1]`` and the IMU from ``imu_lead_ns`` before ``t0``."""
     for s in dataset.stream():
-        if s.t_ns < t0:
+        if s.t_ns < t0 - imu_lead_ns or (s.t_ns < t0 and not isinstance(s, ImuSample)):
             continue
         if s.t_ns > t1:
             return
@@ -482,7 +486,7 @@ def run_vio(
     try:
         _loop(
             vio,
-            _stream(dataset, opt.camera, t0, t1),
+            _stream(dataset, opt.camera, t0, t1, s_to_ns(opt.imu_lead_s)),
             len(frames),
             run_dir,
             tracks,
@@ -515,6 +519,7 @@ def _finish(
     metrics = vio_metrics(
         scored.matched_truth, scored.matched_est if scored.matched_est is not None else est,
         _counts(rec, vio, span[0]), cov_pose=scored.matched_cov, drift_first_s=opt.drift_first_s,
+        unscored=scored.note or "the dataset has no ground truth",
     )  # fmt: skip
     notes = [n for n in (scored.note, dataset.issues.summary() if dataset.issues else "") if n]
     run = VioRun(
