@@ -35,6 +35,8 @@ FloatArray = NDArray[np.float64]
 
 #: What GTSAM raises on a singular system or a failed solve.
 GTSAM_ERRORS = (RuntimeError, IndexError, ValueError)
+#: The standard deviation of the weak prior that keeps each landmark determinate.
+LANDMARK_PRIOR_M = 10.0
 
 
 def pose3(p: Pose) -> gtsam.Pose3:
@@ -124,6 +126,10 @@ class SlidingWindow:
             gtsam.noiseModel.mEstimator.Huber.Create(config.huber_k),
             gtsam.noiseModel.Isotropic.Sigma(2, sigma),
         )
+        #: a weak prior on every landmark (metres): a point the Huber loss has all but let go
+        #: of stays determinate, and the marginals can be had
+        self._landmark_prior = gtsam.noiseModel.Isotropic.Sigma(3, LANDMARK_PRIOR_M)
+        self._factors: dict[tuple[int, int], gtsam.NonlinearFactor] = {}
         self.keyframes: list[Keyframe] = []
         self.landmarks: dict[int, FloatArray] = {}
         self.bad_tracks: set[int] = set()
@@ -132,6 +138,7 @@ class SlidingWindow:
     def start(self, kf: Keyframe, prior: StatePrior) -> None:
         self.keyframes = [kf]
         self.landmarks = {}
+        self._factors = {}
         self.prior = prior
 
     def push(self, kf: Keyframe) -> None:
@@ -246,13 +253,24 @@ class SlidingWindow:
                 self.landmarks[j] = p
                 added += 1
             values.insert(L(j), p)
+            graph.add(self._factor(j, -1, p))
             for k, xy in obs.items():
-                graph.add(
-                    gtsam.GenericProjectionFactorCal3_S2(
-                        xy, self._pixel_noise, X(k), L(j), self.K, self.T_B_C
-                    )
-                )
+                graph.add(self._factor(j, k, xy))
         return added
+
+    def _factor(self, j: int, k: int, xy: FloatArray) -> gtsam.NonlinearFactor:
+        """Landmark ``j``'s projection factor in keyframe ``k`` (``k = -1``: its weak prior at
+        ``xy``, the point), made once: the same observation makes the same factor."""
+        f = self._factors.get((j, k))
+        if f is None:
+            if k < 0:
+                f = gtsam.PriorFactorPoint3(L(j), xy, self._landmark_prior)
+            else:
+                f = gtsam.GenericProjectionFactorCal3_S2(
+                    xy, self._pixel_noise, X(k), L(j), self.K, self.T_B_C
+                )
+            self._factors[(j, k)] = f
+        return f
 
     def _read_back(self, result: gtsam.Values, features: FeatureManager) -> int:
         """New estimates in; landmarks behind a camera or far from their pixels out."""
@@ -262,19 +280,41 @@ class SlidingWindow:
             kf.bias = result.atConstantBias(B(kf.index))
         poses = {kf.index: kf.pose for kf in self.keyframes}
         P = _camera_poses(poses, self.T_B_C)
-        dropped = 0
-        for j in list(self.landmarks):
-            if not result.exists(L(j)):
-                continue
-            p = np.asarray(result.atPoint3(L(j)), np.float64)
-            obs = {k: xy for k, xy in features.observations(j).items() if k in P}
-            if self._landmark_ok(p, obs, P):
-                self.landmarks[j] = p
-            else:
-                del self.landmarks[j]
-                self.bad_tracks.add(j)
-                dropped += 1
-        return dropped
+        js = [j for j in self.landmarks if result.exists(L(j))]
+        for j in js:
+            self.landmarks[j] = np.asarray(result.atPoint3(L(j)), np.float64)
+        bad = self._bad_landmarks(js, features, P)
+        for j in bad:
+            del self.landmarks[j]
+            self.bad_tracks.add(j)
+        return len(bad)
+
+    def _bad_landmarks(
+        self, js: list[int], features: FeatureManager, P: dict[int, FloatArray]
+    ) -> list[int]:
+        """The landmarks behind or too near or far from a camera, or too far from a pixel."""
+        cfg = self.config
+        owner, cams, meas = [], [], []
+        for j in js:
+            for k, xy in features.observations(j).items():
+                if k in P:
+                    owner.append(j)
+                    cams.append(k)
+                    meas.append(xy)
+        if not owner:
+            return []
+        pts = np.array([self.landmarks[j] for j in owner])
+        Ps = np.array([P[k] for k in cams])
+        c = np.einsum("nij,nj->ni", Ps[:, :, :3], pts) + Ps[:, :, 3]
+        z = c[:, 2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            err = np.linalg.norm(c[:, :2] / z[:, None] - np.array(meas), axis=1) * self.focal_px
+        wrong = ~(
+            (z >= cfg.landmark_min_depth_m)
+            & (z <= cfg.landmark_max_depth_m)
+            & (err <= cfg.max_reprojection_px)
+        )
+        return sorted({owner[i] for i in np.flatnonzero(wrong)})
 
     def solve(self, features: FeatureManager) -> SolveResult:
         """Optimise the window; then slide it if it is over-full. Never raises GTSAM's errors."""
@@ -296,7 +336,8 @@ class SlidingWindow:
             cov_v = np.asarray(marg.marginalCovariance(V(k)))
             self._slide(marg, features)
         except GTSAM_ERRORS as exc:
-            return SolveResult(ok=False, reason=f"indeterminate optimisation: {exc}".split("\n")[0])
+            line = next((ln for ln in str(exc).splitlines() if ln.strip()), type(exc).__name__)
+            return SolveResult(ok=False, reason=f"optimisation failed: {line.strip()}")
         return SolveResult(
             ok=True,
             cov_pose=cov_pose,
@@ -327,5 +368,8 @@ class SlidingWindow:
         features.drop_keyframe(old.index)
         self.keyframes[0].pim = None
         for j in list(self.landmarks):
-            if len([k for k in features.observations(j) if k != old.index]) == 0:
+            if not features.observations(j):
                 del self.landmarks[j]
+                self._factors.pop((j, -1), None)
+        for key in [key for key in self._factors if key[1] == old.index]:
+            del self._factors[key]
