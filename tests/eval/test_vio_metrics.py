@@ -84,6 +84,8 @@ def test_final_drift_of_a_known_sideways_creep() -> None:
     p[:, 1] += 0.05 * np.maximum(t_s - 2.0, 0.0)
     est = _moved(Trajectory(t_ns=truth.t_ns, p_W_B=p, q_W_B_xyzw=truth.q_W_B_xyzw), 25.0, (5, 5, 0))
     assert drift_final_pct(truth, est, first_s=2.0) == pytest.approx(4.0, abs=1e-9)
+    m = vio_metrics(truth, est, COUNTS, drift_first_s=2.0)
+    assert m.final_error_m == pytest.approx(0.4, abs=1e-9)
 
 
 def test_final_drift_aligns_a_start_at_rest() -> None:

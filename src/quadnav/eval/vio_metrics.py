@@ -43,6 +43,7 @@ __all__ = [
     "ape_summary",
     "drift_final_pct",
     "drift_rpe_pct",
+    "final_error_m",
     "gravity_error_deg",
     "nees_band",
     "pose_nees",
@@ -115,6 +116,7 @@ class VioMetrics:
     ape_sim3: ApeSummary | str
     rpe_1m: RpeSummary | str
     rpe_10m: RpeSummary | str
+    final_error_m: Metric
     drift_final_pct: Metric
     drift_rpe_pct: Metric
     drift_definitions: str
@@ -150,15 +152,18 @@ def yaw_position_alignment(
     return R, np.asarray(t, dtype=np.float64)
 
 
+def final_error_m(ref: Trajectory, est: Trajectory, *, first_s: float = 2.0) -> float:
+    """The last pose's position error (m) after aligning on the first ``first_s`` seconds."""
+    R, t = yaw_position_alignment(ref, est, first_s)
+    return float(np.linalg.norm(ref.p_W_B[-1] - (R.apply(est.p_W_B[-1]) + t)))
+
+
 def drift_final_pct(ref: Trajectory, est: Trajectory, *, first_s: float = 2.0) -> Metric:
-    """The last pose's position error after aligning on the first ``first_s`` seconds, in % of
-    the distance the reference travelled."""
+    """:func:`final_error_m` in % of the distance the reference travelled."""
     length = ref.path_length_m()
     if length <= 0.0:
         return na("the ground truth does not move")
-    R, t = yaw_position_alignment(ref, est, first_s)
-    err = float(np.linalg.norm(ref.p_W_B[-1] - (R.apply(est.p_W_B[-1]) + t)))
-    return 100.0 * err / length
+    return 100.0 * final_error_m(ref, est, first_s=first_s) / length
 
 
 def _rpe_summary(ref: Trajectory, est: Trajectory, delta_m: float) -> RpeSummary | str:
@@ -249,7 +254,7 @@ def pose_nees_summary(values: FloatArray) -> NeesSummary:
 
 
 DRIFT_DEFINITIONS = (
-    "drift_final_pct: the last pose's position error after a yaw + position alignment on the "
+    "final_error_m, drift_final_pct: the last pose's position error after a yaw + position alignment on the "
     "first {first_s:g} s, in % of the distance travelled; drift_rpe_pct: mean translation RPE "
     "over pairs {delta:g} m of path apart (evo's all pairs), in % of {delta:g} m"
 )
@@ -273,7 +278,8 @@ def _without_truth(est: Trajectory, counts: RunCounts, reason: str) -> VioMetric
         failures=counts.failures, reinitializations=counts.reinitializations,
         rejected_images=counts.rejected_images, initialized_after_s=counts.initialized_after_s,
         distance_m=na(reason), ape_4dof=na(reason), ape_se3=na(reason), ape_sim3=na(reason),
-        rpe_1m=na(reason), rpe_10m=na(reason), drift_final_pct=na(reason),
+        rpe_1m=na(reason), rpe_10m=na(reason), final_error_m=na(reason),
+        drift_final_pct=na(reason),
         drift_rpe_pct=na(reason), drift_definitions="", gravity_error_deg=na(reason),
         nees_pose=na(reason),
     )  # fmt: skip
@@ -324,6 +330,7 @@ def vio_metrics(
         distance_m=ref.path_length_m(),
         ape_4dof=_aligned_or_na(ref, est, "4dof"), ape_se3=_aligned_or_na(ref, est, "se3"),
         ape_sim3=_aligned_or_na(ref, est, "sim3"), rpe_1m=rpe_1, rpe_10m=rpe_10,
+        final_error_m=final_error_m(ref, est, first_s=drift_first_s),
         drift_final_pct=drift_final_pct(ref, est, first_s=drift_first_s),
         drift_rpe_pct=drift_rpe_pct(rpe_for_drift),
         drift_definitions=DRIFT_DEFINITIONS.format(first_s=drift_first_s, delta=delta),

@@ -627,6 +627,7 @@ def _metric_rows(m: VioMetrics) -> list[list[object]]:
         ["APE Sim(3) RMSE (m), scale", f"{cell(m.ape_sim3, 'rmse_m')}, {cell(m.ape_sim3, 'scale')}"],
         ["RPE per 1 m: trans RMSE (m), rot RMSE (deg)", f"{cell(m.rpe_1m, 'trans_rmse_m')}, {cell(m.rpe_1m, 'rot_rmse_deg')}"],
         ["RPE per 10 m: trans RMSE (m), rot RMSE (deg)", f"{cell(m.rpe_10m, 'trans_rmse_m')}, {cell(m.rpe_10m, 'rot_rmse_deg')}"],
+        ["final position error (m)", m.final_error_m],
         ["drift, final (%)", m.drift_final_pct],
         ["drift, RPE (%)", m.drift_rpe_pct],
         ["gravity error at the start (deg)", m.gravity_error_deg],
