@@ -108,6 +108,15 @@ def test_start_and_duration_choose_the_span(made: Path, tmp_path: Path) -> None:
     assert (gt.t_ns[-1] - gt.t_ns[0]) * 1e-9 == pytest.approx(1.0, abs=0.01)
 
 
+def test_the_video_can_be_decimated(made: Path, tmp_path: Path) -> None:
+    ds = open_dataset(made)
+    run = _run(ds, tmp_path, _double(ds), start_s=1.0, duration_s=1.0, video_every=3)
+    video = cv2.VideoCapture(str(run.run_dir / "tracks.mp4"))
+    assert int(video.get(cv2.CAP_PROP_FRAME_COUNT)) == 7  # frames 0, 3, ..., 18 of 21
+    assert video.get(cv2.CAP_PROP_FPS) == pytest.approx(20.0 / 3, abs=0.01)
+    video.release()
+
+
 def _copy(made: Path, tmp_path: Path) -> Path:
     dst = tmp_path / "copy"
     shutil.copytree(made, dst)

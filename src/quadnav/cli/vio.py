@@ -57,12 +57,15 @@ def resolve_request(
     out: Path,
     *,
     video: bool,
+    video_every: int = 1,
 ) -> VioRequest:
     """The validated request (no dataset read, no folder made)."""
     check_range(start_s, "--start", 0.0, 1e6, "s")
     if duration_s is not None:
         check_range(duration_s, "--duration", 0.0, 1e6, "s", low_open=True)
-    options = VioRunOptions(camera=camera, start_s=start_s, duration_s=duration_s, video=video)
+    options = VioRunOptions(
+        camera=camera, start_s=start_s, duration_s=duration_s, video=video, video_every=video_every
+    )
     request = VioRequest(
         sources=tuple(datasets), config=config, overrides=tuple(set_), options=options,
         seed=seed, seeds=parse_seeds(seeds) if seeds is not None else None, rig=rig, out=out,
@@ -79,12 +82,13 @@ def check_example(params: CommandParams) -> None:
         param(params, "start_s", float), optional_param(params, "duration_s", float),
         param(params, "seed", int), optional_param(params, "seeds", str),
         param(params, "rig", str), param(params, "out", Path), video=param(params, "video", bool),
+        video_every=param(params, "video_every", int),
     )  # fmt: skip
 
 
 #: The examples of ``quadnav vio --help`` (each parsed and validated by the tests).
 EXAMPLES = (
-    "quadnav vio room_easy --duration 20",
+    "quadnav vio room_easy --duration 20 --video-every 2",
     "quadnav vio data/V1_01_easy --config examples/vins_euroc_config.yaml --no-video",
     "quadnav vio ../shared/data/euroc_micro --set window_keyframes=8",
     "quadnav vio room_easy hall_easy --seeds 0-4 --out /tmp/runs",
@@ -152,10 +156,13 @@ def vio_command(
     video: Annotated[
         bool, typer.Option("--video/--no-video", help="write tracks.mp4 of the features")
     ] = True,
+    video_every: Annotated[
+        int, typer.Option("--video-every", min=1, help="draw every n-th frame in the video")
+    ] = 1,
 ) -> None:
     request = resolve_request(
         datasets, config, list(set_ or []), camera, start_s, duration_s, seed, seeds, rig, out,
-        video=video,
+        video=video, video_every=video_every,
     )  # fmt: skip
     if len(datasets) == 1 and seeds is None:
         with progress_bar("vio") as update:
