@@ -176,3 +176,12 @@ def test_no_ground_truth_says_why_and_keeps_the_counts() -> None:
     assert is_na(m.ape_4dof) and "no ground truth" in str(m.ape_4dof)
     assert is_na(m.drift_final_pct) and is_na(m.nees_pose)
     assert m.frames_with_estimate == 50 and m.failures == 1
+
+
+def test_a_handful_of_poses_is_not_scored() -> None:
+    """An estimator that starts at the end of a span gives 2 poses, which any 4-DoF alignment
+    fits exactly: the run says so instead of an ATE of 0."""
+    truth = _loop(n=9)
+    m = vio_metrics(truth, _moved(truth, 10.0, (0.1, 0.2, 0.3)), COUNTS)
+    assert is_na(m.ape_4dof) and "only 9 estimated pose(s)" in str(m.ape_4dof)
+    assert is_na(m.final_error_m) and m.frames_with_estimate == 9

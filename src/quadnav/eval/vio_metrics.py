@@ -35,6 +35,7 @@ from quadnav.eval.na import Metric, na
 from quadnav.geometry.trajectory import Trajectory
 
 __all__ = [
+    "MIN_SCORED_POSES",
     "ApeSummary",
     "NeesSummary",
     "RpeSummary",
@@ -56,6 +57,8 @@ FloatArray = NDArray[np.float64]
 
 #: Pose dimension of the NEES (rotation 3 + translation 3).
 POSE_DOF = 6
+#: The fewest matched poses a run is scored on: an alignment of 2 or 3 poses fits them exactly.
+MIN_SCORED_POSES = 10
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -316,8 +319,11 @@ def vio_metrics(
     estimate's (N, 6, 6)."""
     if ref is None:
         return _without_truth(est, counts, unscored)
-    if len(est) < 2:
-        return _without_truth(est, counts, f"{len(est)} estimated pose(s) match the ground truth")
+    if len(est) < MIN_SCORED_POSES:
+        return _without_truth(
+            est, counts,
+            f"only {len(est)} estimated pose(s) match the ground truth ({MIN_SCORED_POSES} needed)",
+        )  # fmt: skip
     if len(ref) != len(est):
         raise EvalError("vio_metrics needs the ground truth matched to the estimate")
     rpe_1, rpe_10 = _rpe_summary(ref, est, 1.0), _rpe_summary(ref, est, 10.0)
