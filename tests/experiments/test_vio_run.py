@@ -197,6 +197,8 @@ def test_vins_yaml_gives_the_rig_and_the_settings(tmp_path: Path) -> None:
     )
     assert cfg.tracker.equalize and cfg.tracker.max_features == 150
     assert rig.cameras[0].camera.K[0, 0] == pytest.approx(458.654)
+    _, rig1 = resolve_vio_config(_Settings, path, [], dataset_rig, camera="cam1")
+    assert rig1.camera_names == ["cam1"]  # the file describes the camera the run uses
 
 
 def test_own_yaml_refuses_an_unknown_key(tmp_path: Path) -> None:

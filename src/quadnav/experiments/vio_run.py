@@ -170,7 +170,6 @@ def resolve_dataset(
             )
         return open_dataset(path)
     length = SEQUENCES[source].duration_s if duration_s is None else start_s + duration_s
-    length = min(length, SEQUENCES[source].duration_s) if duration_s is None else length
     folder = _make_sequence(
         source, rig=rig, seed=seed, duration_s=length, cache_root=cache_root, progress=progress
     )
@@ -208,7 +207,8 @@ def resolve_vio_config(
         vins = read_vins_config(
             config, imu_rate_hz=imu_rate, camera_rate_hz=cam.rate_hz if cam else 20.0
         )
-        rig = vins.rig
+        only = dataclasses.replace(vins.rig.cameras[0], name=camera)  # the camera it describes
+        rig = dataclasses.replace(vins.rig, cameras=(only,))
         known = model.model_fields
         values: dict[str, object] = {
             "tracker": vins.tracker.model_dump(), "g_norm": vins.g_norm_m_s2,
