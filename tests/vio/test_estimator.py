@@ -80,6 +80,13 @@ def test_static_start_on_a_still_rendered_scene() -> None:
     assert np.linalg.norm(s.gyro_bias - [0.01, -0.005, 0.0]) < 2e-3
     assert np.linalg.norm(s.v_W_B) < 0.02
     assert s.cov_pose.shape == (6, 6) and np.all(np.linalg.eigvalsh(s.cov_pose) > 0)
+    # between frames the IMU propagates the state at its own rate
+    rng = np.random.default_rng(9)
+    t = states[-1].t_ns + 5_000_000
+    prop = vio.push_imu(_rest_imu(t, rng, Rotation.from_euler("xy", [4.0, -3.0], degrees=True)))
+    assert prop is not None and prop.status == "propagated" and prop.t_ns == t
+    assert np.linalg.norm(prop.T_W_B.p_A_B - s.T_W_B.p_A_B) < 1e-3
+    assert np.trace(prop.cov_pose) >= np.trace(s.cov_pose)
 
 
 def test_bad_input_is_counted_not_raised() -> None:

@@ -287,8 +287,7 @@ class VioEstimator:
         self.window.start(kfs[0], prior)
         for kf in kfs[1:]:
             self.window.push(kf)
-        for j, p in result.landmarks_W.items():
-            self.window.landmarks[int(j)] = np.asarray(p, np.float64)
+        self.window.seed_landmarks(dict(result.landmarks_W))
         res = self.window.solve(self.features)
         if res.ok:
             self._cov_pose, self._cov_v = res.cov_pose, res.cov_v
