@@ -64,6 +64,7 @@ def test_the_sequence_is_made_once(first_run: tuple[Path, Path]) -> None:
         (["room_easy", "--duration", "-1"], "--duration must be"),
         (["room_easy", "--rig", "nope"], "--rig"),
         (["room_easy", "--config", "/no/vio.yaml"], "--config /no/vio.yaml"),
+        (["room_easy", "--calibration", "/no/cam.yaml"], "--calibration /no/cam.yaml"),
     ],
 )
 def test_bad_input_is_one_line_naming_the_option(

@@ -212,6 +212,30 @@ def test_own_yaml_refuses_an_unknown_key(tmp_path: Path) -> None:
         resolve_vio_config(_Settings, tmp_path / "none.yaml", [], rig_named("euroc_mono"))
 
 
+def test_a_rig_without_imu_noise_is_refused_naming_the_options() -> None:
+    """A bag without its calibration gives no IMU noise (and an identity extrinsic): VIO on it
+    would fail in the solver (it did: 'indeterminate linear system' three times in 3 s)."""
+    import dataclasses
+
+    from quadnav.experiments.vio_run import check_vio_rig
+    from quadnav.rig import ImuNoiseModel, rig_named
+
+    rig = rig_named("euroc_mono")
+    check_vio_rig(rig, "data/V1_01")  # EuRoC's own noise: accepted
+    assert rig.imu is not None
+    blank = dataclasses.replace(
+        rig,
+        imu=dataclasses.replace(
+            rig.imu,
+            noise=ImuNoiseModel(
+                gyro_noise_density=0, gyro_random_walk=0, accel_noise_density=0, accel_random_walk=0
+            ),
+        ),
+    )
+    with pytest.raises(ConfigError, match=r"DATASET run\.bag: .*--calibration .*--config"):
+        check_vio_rig(blank, "run.bag")
+
+
 def test_unknown_camera_names_the_option(made: Path, tmp_path: Path) -> None:
     ds = open_dataset(made)
     with pytest.raises(ConfigError, match="--camera 'cam1'"):

@@ -23,6 +23,7 @@ from quadnav.cli.common import (
     strings_param,
 )
 from quadnav.cli.planar import OutOpt, SetOpt
+from quadnav.errors import ConfigError
 from quadnav.experiments.vio_run import (
     VioRequest,
     VioRun,
@@ -58,9 +59,12 @@ def resolve_request(
     *,
     video: bool,
     video_every: int = 1,
+    calibration: Path | None = None,
 ) -> VioRequest:
     """The validated request (no dataset read, no folder made)."""
     check_range(start_s, "--start", 0.0, 1e6, "s")
+    if calibration is not None and not calibration.exists():
+        raise ConfigError(f"--calibration {calibration}: no such file or folder")
     if duration_s is not None:
         check_range(duration_s, "--duration", 0.0, 1e6, "s", low_open=True)
     options = VioRunOptions(
@@ -69,6 +73,7 @@ def resolve_request(
     request = VioRequest(
         sources=tuple(datasets), config=config, overrides=tuple(set_), options=options,
         seed=seed, seeds=parse_seeds(seeds) if seeds is not None else None, rig=rig, out=out,
+        calibration=calibration,
     )  # fmt: skip
     check_request(request)
     return request
@@ -83,6 +88,7 @@ def check_example(params: CommandParams) -> None:
         param(params, "seed", int), optional_param(params, "seeds", str),
         param(params, "rig", str), param(params, "out", Path), video=param(params, "video", bool),
         video_every=param(params, "video_every", int),
+        calibration=optional_param(params, "calibration", Path),
     )  # fmt: skip
 
 
@@ -140,6 +146,10 @@ def vio_command(
         typer.Option("--config", help="VINS-Mono's config YAML, or ours (VioConfig's fields)"),
     ] = None,
     set_: SetOpt = None,
+    calibration: Annotated[
+        Path | None,
+        typer.Option("--calibration", help="Kalibr camchain or EuRoC folder (a bag's rig)"),
+    ] = None,
     camera: Annotated[str, typer.Option("--camera", help="the rig's camera to use")] = "cam0",
     start_s: Annotated[float, typer.Option("--start", help="skip this many seconds")] = 0.0,
     duration_s: Annotated[
@@ -162,7 +172,7 @@ def vio_command(
 ) -> None:
     request = resolve_request(
         datasets, config, list(set_ or []), camera, start_s, duration_s, seed, seeds, rig, out,
-        video=video, video_every=video_every,
+        video=video, video_every=video_every, calibration=calibration,
     )  # fmt: skip
     if len(datasets) == 1 and seeds is None:
         with progress_bar("vio") as update:

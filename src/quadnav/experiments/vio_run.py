@@ -48,6 +48,7 @@ __all__ = [
     "VioRunOptions",
     "VioTiming",
     "check_request",
+    "check_vio_rig",
     "dataset_cache_folder",
     "resolve_dataset",
     "resolve_vio_config",
@@ -154,10 +155,12 @@ def resolve_dataset(
     duration_s: float | None = None,
     start_s: float = 0.0,
     cache_root: Path = Path("runs"),
+    calibration: Path | None = None,
     progress: Progress | None = None,
 ) -> VisualInertialDataset:
-    """The dataset a run reads: a folder or bag ``open_dataset`` knows, or a built-in sequence
-    made (once) for ``seed`` and ``rig`` under ``cache_root/datasets``, as long as the run needs
+    """The dataset a run reads: a folder or bag ``open_dataset`` knows (``calibration``, a
+    Kalibr camchain or an EuRoC folder, replacing its own), or a built-in sequence made (once)
+    for ``seed`` and ``rig`` under ``cache_root/datasets``, as long as the run needs
     (``start_s + duration_s``; the whole sequence without a duration)."""
     from quadnav.experiments.datasets import SEQUENCES
 
@@ -168,7 +171,7 @@ def resolve_dataset(
                 f"DATASET {source!r}: no such file or folder, and not a built-in sequence "
                 f"({', '.join(SEQUENCES)})"
             )
-        return open_dataset(path)
+        return open_dataset(path, calibration=calibration)
     length = SEQUENCES[source].duration_s if duration_s is None else start_s + duration_s
     folder = _make_sequence(
         source, rig=rig, seed=seed, duration_s=length, cache_root=cache_root, progress=progress
@@ -220,6 +223,18 @@ def resolve_vio_config(
 
 
 # -- the run ------------------------------------------------------------------------------------
+
+
+def check_vio_rig(rig: Rig, source: str) -> None:
+    """Refuse a rig VIO cannot run on: no IMU, or no IMU noise (what a bag without its
+    calibration gives, whose camera extrinsic is then unknown too)."""
+    n = rig.imu.noise if rig.imu is not None else None
+    if n is None or n.gyro_noise_density <= 0.0 or n.accel_noise_density <= 0.0:
+        raise ConfigError(
+            f"DATASET {source}: its files give no IMU noise (a bag without calibration?): "
+            "give --calibration (a Kalibr camchain or an EuRoC folder) or --config "
+            "(VINS-Mono's YAML)"
+        )
 
 
 def _span_frames(
@@ -711,6 +726,7 @@ class VioRequest:
     seeds: tuple[int, ...] | None = None
     rig: str = "euroc_mono"
     out: Path = Path("runs")
+    calibration: Path | None = None
 
 
 def check_request(request: VioRequest) -> None:
@@ -736,11 +752,12 @@ def run_vio_source(
     opt = request.options
     dataset = resolve_dataset(
         source, seed=seed, rig=request.rig, duration_s=opt.duration_s, start_s=opt.start_s,
-        cache_root=request.out, progress=progress,
+        cache_root=request.out, calibration=request.calibration, progress=progress,
     )  # fmt: skip
     cfg, rig = resolve_vio_config(
         VioConfig, request.config, request.overrides, dataset.rig, camera=opt.camera
     )
+    check_vio_rig(rig, source)
     text = f"# dataset: {dataset.root}\n# rig: {rig.name}\n{dump_config(cfg)}"
     name = Path(source).name if Path(source).exists() else f"{source}_s{seed}"
     return run_vio(
