@@ -25,6 +25,7 @@ determinate until it leaves the window).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import gtsam
 import numpy as np
