@@ -53,7 +53,7 @@ def pose3(p: Pose) -> gtsam.Pose3:
 
 
 def to_pose(p: gtsam.Pose3) -> Pose:
-    q = p.rotation().toQuaternion()
+    q: Any = p.rotation().toQuaternion()  # the stubs leave GTSAM's Quaternion unresolved
     return Pose(Rotation.from_quat([q.x(), q.y(), q.z(), q.w()]), np.asarray(p.translation()))
 
 
