@@ -80,3 +80,13 @@ def test_triangulate_recovers_a_point() -> None:
     got = triangulate(obs, {0: P0, 1: P1})
     assert got is not None
     assert np.allclose(got, p, atol=1e-9)
+
+
+def test_pose_conversion_round_trip() -> None:
+    from scipy.spatial.transform import Rotation
+
+    from quadnav.geometry import Pose
+    from quadnav.vio.window import pose3, to_pose
+
+    P = Pose(Rotation.from_rotvec([0.3, -1.2, 2.0]), np.array([1.0, 2.0, 3.0]))
+    assert np.allclose(to_pose(pose3(P)).matrix(), P.matrix(), atol=1e-12)

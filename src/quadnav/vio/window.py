@@ -25,11 +25,13 @@ determinate until it leaves the window).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import gtsam
 import numpy as np
 from gtsam.symbol_shorthand import B, L, V, X
 from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
 
 from quadnav.errors import VioError
 from quadnav.geometry import Pose
@@ -51,7 +53,8 @@ def pose3(p: Pose) -> gtsam.Pose3:
 
 
 def to_pose(p: gtsam.Pose3) -> Pose:
-    return Pose.from_matrix(p.matrix())
+    q: Any = p.rotation().toQuaternion()  # the stubs leave GTSAM's Quaternion unresolved
+    return Pose(Rotation.from_quat([q.x(), q.y(), q.z(), q.w()]), np.asarray(p.translation()))
 
 
 @dataclass(slots=True)
