@@ -3,6 +3,8 @@ keyframes chosen by parallax, GTSAM's IMU preintegration, a static or visual-ine
 initialisation, a sliding-window smoother over explicit landmarks, failure detection and
 re-initialisation, and the camera-IMU time offset estimated online."""
 
+from quadnav.vio.config import VioConfig
+from quadnav.vio.estimator import VioEstimator
 from quadnav.vio.types import (
     FrameFeatures,
     InitResult,
@@ -18,6 +20,8 @@ __all__ = [
     "InitResult",
     "InitWindow",
     "StageTiming",
+    "VioConfig",
+    "VioEstimator",
     "VioEvent",
     "VioState",
     "VisualOdometry",

@@ -1,0 +1,100 @@
+"""The visual-inertial odometry's settings (VINS-Mono's names where it has them): the window,
+the front end, the landmarks, the static start, the failure thresholds and the time offset."""
+
+from __future__ import annotations
+
+from pydantic import Field
+
+from quadnav.config_model import ConfigModel
+from quadnav.units import GRAVITY_M_S2
+from quadnav.vision.tracking import TrackerConfig
+
+__all__ = ["VioConfig"]
+
+
+def _tracker() -> TrackerConfig:
+    """VINS-Mono's EuRoC front end: 150 features, 30 px apart, F threshold 1 px."""
+    return TrackerConfig(max_features=150, min_distance_px=30.0, ransac_threshold_px=1.0)
+
+
+class VioConfig(ConfigModel):
+    """The estimator's settings. Parallax is stated in pixels at ``parallax_focal_px`` (VINS:
+    10 px at focal 460) and compared in normalised image coordinates, so it means the same
+    angle for any camera."""
+
+    window_keyframes: int = Field(10, ge=4, le=30, description="keyframes in the window")
+    tracker: TrackerConfig = Field(default_factory=_tracker, description="KLT front end")
+    keyframe_parallax_px: float = Field(
+        10.0, gt=0.0, le=100.0, description="mean parallax to the last keyframe for a new one"
+    )
+    parallax_focal_px: float = Field(
+        460.0, gt=10.0, le=5000.0, description="focal length the parallax is stated at"
+    )
+    keyframe_min_tracked: int = Field(
+        20, ge=1, le=1000, description="fewer features tracked from the last keyframe: keyframe"
+    )
+    keyframe_max_interval_s: float = Field(
+        0.5, gt=0.0, le=10.0, description="longest time between keyframes (at rest too)"
+    )
+    pixel_sigma_px: float = Field(1.0, gt=0.0, le=20.0, description="feature measurement noise")
+    huber_k: float = Field(
+        1.5, gt=0.0, le=20.0, description="Huber threshold in standard deviations"
+    )
+    landmark_min_observations: int = Field(
+        3, ge=2, le=30, description="keyframes a track needs to become a landmark"
+    )
+    landmark_min_parallax_px: float = Field(
+        15.0, gt=0.0, le=500.0, description="parallax that lets a two-view track in"
+    )
+    landmark_min_depth_m: float = Field(0.1, gt=0.0, le=10.0, description="nearest landmark")
+    landmark_max_depth_m: float = Field(60.0, gt=1.0, le=1e4, description="farthest landmark")
+    max_reprojection_px: float = Field(
+        4.0, gt=0.0, le=100.0, description="landmarks worse than this after a solve are dropped"
+    )
+    optimizer_iterations: int = Field(8, ge=1, le=100, description="Levenberg-Marquardt steps")
+    static_window_s: float = Field(
+        1.0, gt=0.1, le=30.0, description="IMU at rest this long for a static start"
+    )
+    static_gyro_std_rad_s: float = Field(
+        0.015, gt=0.0, le=1.0, description="most gyro standard deviation at rest"
+    )
+    static_accel_std_m_s2: float = Field(
+        0.12, gt=0.0, le=5.0, description="most accelerometer standard deviation at rest"
+    )
+    static_image_motion_px: float = Field(
+        0.5, gt=0.0, le=20.0, description="most mean feature motion at rest"
+    )
+    static_velocity_sigma_m_s: float = Field(
+        0.005, gt=0.0, le=1.0, description="zero-velocity constraint at rest"
+    )
+    static_pose_sigma_m: float = Field(
+        0.002, gt=0.0, le=1.0, description="no-motion constraint at rest (and rad)"
+    )
+    init_attitude_sigma_rad: float = Field(
+        0.01, gt=0.0, le=1.0, description="prior on the first state's roll and pitch"
+    )
+    init_accel_bias_sigma_m_s2: float = Field(
+        0.2, gt=0.0, le=10.0, description="prior on the accelerometer bias at the start"
+    )
+    init_gyro_bias_sigma_rad_s: float = Field(
+        0.005, gt=0.0, le=1.0, description="prior on the gyro bias of a static start"
+    )
+    fail_min_tracked: int = Field(8, ge=0, le=1000, description="fewer tracked features: failure")
+    fail_max_speed_m_s: float = Field(20.0, gt=0.0, le=1e3, description="implausible speed")
+    fail_max_velocity_jump_m_s: float = Field(
+        3.0, gt=0.0, le=1e3, description="velocity change at a solve against the prediction"
+    )
+    fail_max_position_jump_m: float = Field(
+        1.0, gt=0.0, le=1e3, description="position change at a solve against the prediction"
+    )
+    fail_max_accel_bias_m_s2: float = Field(
+        2.5, gt=0.0, le=100.0, description="implausible accelerometer bias (VINS: 2.5)"
+    )
+    fail_max_gyro_bias_rad_s: float = Field(
+        1.0, gt=0.0, le=100.0, description="implausible gyro bias (VINS: 1.0)"
+    )
+    estimate_td: bool = Field(False, description="estimate the camera-IMU time offset online")
+    td_s: float = Field(
+        0.0, ge=-0.1, le=0.1, description="camera-IMU offset: image taken at stamp + td_s"
+    )
+    g_norm: float = Field(GRAVITY_M_S2, ge=9.0, le=10.5, description="gravity (m/s^2)")

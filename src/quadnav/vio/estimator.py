@@ -1,0 +1,462 @@
+"""``VioEstimator``: the monocular visual-inertial odometry (thesis 003, VINS-Mono class) a run
+drives through the :class:`~quadnav.vio.types.VisualOdometry` protocol.
+
+IMU samples go into a buffer (and, once initialised, propagate the last optimised keyframe at
+the IMU's rate: status ``propagated``). Each image is tracked; before the start the estimator
+waits for the vehicle at rest (the static start) or, moving, calls the visual-inertial
+initialisation over a window of keyframes; then each frame is predicted by the IMU from the
+newest keyframe, and a keyframe (by parallax, few tracks or time) is added to the sliding
+window and optimised. A failure (too few tracks, an implausible state, a solve that did not go
+through) resets the window and re-initialises, with ``reset_counter`` + 1. Bad input (a
+non-finite IMU sample, time going backwards, an image the tracker cannot use) is rejected and
+counted in :attr:`VioEstimator.rejected`, never raised.
+"""
+
+from __future__ import annotations
+
+import bisect
+import itertools
+import time
+from collections import deque
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from typing import Any
+
+import gtsam
+import numpy as np
+from numpy.typing import NDArray
+
+from quadnav.errors import VioError, VisionError
+from quadnav.messages import ImuSample
+from quadnav.rig import Rig
+from quadnav.vio.config import VioConfig
+from quadnav.vio.failure import InputLog, SolvedState, state_failure, tracking_failure
+from quadnav.vio.frontend import FeatureManager, Frontend, mean_parallax
+from quadnav.vio.preintegration import imu_params, preintegrate
+from quadnav.vio.static_init import StaticStart, imu_stillness, is_still, static_start
+from quadnav.vio.types import FrameFeatures, InitResult, InitWindow, StageTiming, VioEvent, VioState
+from quadnav.vio.window import Keyframe, SlidingWindow, StatePrior, pose3, to_pose
+
+__all__ = ["VioEstimator"]
+
+FloatArray = NDArray[np.float64]
+_VisualInit = Callable[[InitWindow], "InitResult | None"]
+
+
+def _visual_init() -> _VisualInit | None:
+    """H2's visual-inertial initialisation when it is there (it is merged separately)."""
+    try:
+        from quadnav.vio import initialization  # type: ignore[attr-defined, unused-ignore]
+    except ImportError:
+        return None
+    fn: _VisualInit | None = getattr(initialization, "visual_inertial_init", None)
+    return fn
+
+
+def _time_offset_estimator() -> Any:
+    """H2's online time-offset estimator when it is there."""
+    try:
+        from quadnav.vio import time_offset  # type: ignore[attr-defined, unused-ignore]
+    except ImportError:
+        return None
+    cls = getattr(time_offset, "TimeOffsetEstimator", None)
+    return None if cls is None else cls()
+
+
+class VioEstimator:
+    """Monocular VIO on a rig's camera (``cam0``) and IMU; see the module."""
+
+    def __init__(self, rig: Rig, config: VioConfig | None = None, *, camera: str = "cam0") -> None:
+        if rig.imu is None:
+            raise VioError(f"rig {rig.name!r} has no IMU: visual-inertial odometry needs one")
+        self.config = cfg = config or VioConfig()
+        spec = rig.camera(camera)
+        self.camera_spec = spec
+        self._params = imu_params(rig.imu.noise, g_norm=cfg.g_norm)
+        self.frontend = Frontend(spec.camera, cfg)
+        self.features = FeatureManager()
+        self.window = SlidingWindow(cfg, spec.T_B_C, spec.camera.fx)
+        self.input = InputLog()
+        self._imu: list[ImuSample] = []
+        self._imu_t: list[int] = []
+        self._events: list[VioEvent] = []
+        self._stages: dict[str, list[float]] = {}
+        self._recent: deque[FrameFeatures] = deque()
+        self._init_frames: list[FrameFeatures] = []
+        self._last_features: FrameFeatures | None = None
+        self._initialized = False
+        self._failures = 0
+        self._reset_counter = 0
+        self._next_kf = 0
+        self._cov_pose = np.eye(6) * 1e-6
+        self._cov_v = np.eye(3) * 1e-6
+        self._prop: gtsam.PreintegratedCombinedMeasurements | None = None
+        self._last_p = np.zeros(3)
+        self._td_s = cfg.td_s
+        self._td = _time_offset_estimator() if cfg.estimate_td else None
+
+    # -- the protocol -----------------------------------------------------------------------
+    @property
+    def events(self) -> tuple[VioEvent, ...]:
+        return tuple(self._events)
+
+    @property
+    def last_features(self) -> FrameFeatures | None:
+        return self._last_features
+
+    @property
+    def rejected(self) -> dict[str, int]:
+        """Input rejected so far, by kind."""
+        return dict(self.input.counts)
+
+    @property
+    def initialized(self) -> bool:
+        return self._initialized
+
+    def timing(self) -> StageTiming:
+        return StageTiming(stages=tuple((k, v[0], int(v[1])) for k, v in self._stages.items()))
+
+    @contextmanager
+    def _stage(self, name: str) -> Iterator[None]:
+        t0 = time.perf_counter()
+        try:
+            yield
+        finally:
+            acc = self._stages.setdefault(name, [0.0, 0.0])
+            acc[0] += time.perf_counter() - t0
+            acc[1] += 1
+
+    def push_imu(self, sample: ImuSample) -> VioState | None:
+        """Buffer an IMU sample; once initialised, the state propagated to its time."""
+        if not self.input.imu_ok(sample):
+            return None
+        prev = self._imu[-1] if self._imu else None
+        self._imu.append(sample)
+        self._imu_t.append(sample.t_ns)
+        if self._td is not None:  # TD-HOOK (lead): H2's TimeOffsetEstimator gets the gyro here
+            self._td.push_gyro(sample.t_ns, np.asarray(sample.gyro_rad_s))
+        if not self._initialized or self._prop is None or prev is None:
+            return None
+        kf = self.window.newest
+        a = max(prev.t_ns, kf.t_ns)
+        if sample.t_ns > a:
+            self._prop.integrateMeasurement(
+                prev.accel_m_s2, prev.gyro_rad_s, (sample.t_ns - a) * 1e-9
+            )
+        return self._predicted_state(sample.t_ns, self._prop, "propagated", tracked=0)
+
+    def push_image(self, t_ns: int, image: NDArray[np.uint8]) -> VioState | None:
+        """Track an image stamped ``t_ns`` (camera clock; ``td_s`` moves it to the IMU's)."""
+        if not self.input.image_time_ok(t_ns):
+            return None
+        t = int(t_ns) + round(self._td_s * 1e9)
+        try:
+            with self._stage("track"):
+                frame = self.frontend.track(t, image)
+        except VisionError:
+            self.input.counts["image"] += 1
+            return None
+        self._last_features = frame
+        self._recent.append(frame)
+        while self._recent and self._recent[0].t_ns < t - int(self.config.static_window_s * 1e9):
+            self._recent.popleft()
+        if not self._initialized:
+            with self._stage("initialize"):
+                return self._try_init(frame)
+        return self._track(frame)
+
+    # -- starting ---------------------------------------------------------------------------
+    def _image_still(self, frame: FrameFeatures, since_ns: int) -> bool:
+        """Features moved less than ``static_image_motion_px`` since ``since_ns``."""
+        ref = next((f for f in self._recent if f.t_ns >= since_ns), None)
+        if ref is None or ref is frame:
+            return False
+        par, n = mean_parallax(ref.ids, ref.uv_px, frame.ids, frame.uv_px)
+        return n >= 10 and par < self.config.static_image_motion_px
+
+    def _try_init(self, frame: FrameFeatures) -> VioState | None:
+        cfg = self.config
+        span_ns = int(cfg.static_window_s * 1e9)
+        if tracking_failure(len(frame.ids), cfg) is not None:
+            return None
+        start = static_start(self._imu, frame.t_ns, cfg)
+        if start is not None and self._image_still(frame, frame.t_ns - span_ns // 2):
+            return self._start_static(frame, start)
+        return self._try_visual_init(frame)
+
+    def _start_static(self, frame: FrameFeatures, start: StaticStart) -> VioState:
+        cfg = self.config
+        k = self._new_kf_index()
+        pose = gtsam.Pose3(gtsam.Rot3(start.R_W_B.as_matrix()), self._last_p)
+        bias = gtsam.imuBias.ConstantBias(np.zeros(3), start.gyro_bias)
+        kf = Keyframe(index=k, t_ns=frame.t_ns, pose=pose, velocity=np.zeros(3), bias=bias)
+        s_att, s_p = cfg.init_attitude_sigma_rad, 1e-3
+        prior = StatePrior(
+            cov_pose=np.diag([s_att**2] * 3 + [s_p**2] * 3),
+            cov_v=np.eye(3) * cfg.static_velocity_sigma_m_s**2,
+            cov_bias=np.diag(
+                [cfg.init_accel_bias_sigma_m_s2**2] * 3 + [cfg.init_gyro_bias_sigma_rad_s**2] * 3
+            ),
+        )
+        self.window.start(kf, prior)
+        self._cov_pose, self._cov_v = prior.cov_pose, prior.cov_v
+        self.features.add(k, frame)
+        self._begin(frame, "static")
+        return self._keyframe_state(frame)
+
+    def _begin(self, frame: FrameFeatures, how: str) -> None:
+        """Tracking from the window just started; the run's event (a re-start is counted)."""
+        self.frontend.mark_keyframe(frame)
+        self._initialized = True
+        self._init_frames = []
+        self._prop = self._span(self.window.newest, self._imu_t[-1])
+        if self._failures:
+            self._reset_counter += 1
+            detail = f"{how} (reset {self._reset_counter})"
+            self._events.append(VioEvent(t_ns=frame.t_ns, kind="reinitialized", detail=detail))
+        else:
+            self._events.append(VioEvent(t_ns=frame.t_ns, kind="initialized", detail=how))
+
+    def _new_kf_index(self) -> int:
+        k = self._next_kf
+        self._next_kf += 1
+        return k
+
+    def _try_visual_init(self, frame: FrameFeatures) -> VioState | None:
+        """The visual-inertial initialisation over the keyframes collected while moving."""
+        init = _visual_init()
+        if init is None:
+            return None
+        dec = self.frontend.decide(frame)
+        if not dec.keyframe:
+            return None
+        self.frontend.mark_keyframe(frame)
+        self._init_frames = (self._init_frames + [frame])[-self.config.window_keyframes :]
+        if len(self._init_frames) < self.config.window_keyframes:
+            return None
+        frames = tuple(self._init_frames)
+        try:
+            pims = tuple(
+                preintegrate(self._params, self._imu, a.t_ns, b.t_ns)
+                for a, b in itertools.pairwise(frames)
+            )
+        except VioError:
+            return None
+        window = InitWindow(
+            frames=frames,
+            preintegrations=pims,
+            T_B_C=self.camera_spec.T_B_C,
+            g_norm=self.config.g_norm,
+        )
+        result = init(window)
+        if result is None:
+            return None
+        return self._start_visual(frames, pims, result)
+
+    def _start_visual(
+        self,
+        frames: tuple[FrameFeatures, ...],
+        pims: tuple[gtsam.PreintegratedCombinedMeasurements, ...],
+        result: InitResult,
+    ) -> VioState:
+        cfg = self.config
+        bias = gtsam.imuBias.ConstantBias(np.zeros(3), np.asarray(result.gyro_bias))
+        self.features.clear()
+        kfs = []
+        for i, f in enumerate(frames):
+            k = self._new_kf_index()
+            kfs.append(
+                Keyframe(
+                    index=k,
+                    t_ns=f.t_ns,
+                    pose=pose3(result.T_W_B[i]),
+                    velocity=np.asarray(result.v_W_B[i], np.float64),
+                    bias=bias,
+                    pim=None if i == 0 else pims[i - 1],
+                )
+            )
+            self.features.add(k, f)
+        prior = StatePrior(
+            cov_pose=np.diag([cfg.init_attitude_sigma_rad**2] * 3 + [1e-6] * 3),
+            cov_v=np.eye(3) * 0.1**2,
+            cov_bias=np.diag([cfg.init_accel_bias_sigma_m_s2**2] * 3 + [0.01**2] * 3),
+        )
+        self.window.start(kfs[0], prior)
+        for kf in kfs[1:]:
+            self.window.push(kf)
+        for j, p in result.landmarks_W.items():
+            self.window.landmarks[int(j)] = np.asarray(p, np.float64)
+        res = self.window.solve(self.features)
+        if res.ok:
+            self._cov_pose, self._cov_v = res.cov_pose, res.cov_v
+        self._begin(frames[-1], "visual")
+        return self._keyframe_state(frames[-1])
+
+    # -- tracking ---------------------------------------------------------------------------
+    def _span(self, kf: Keyframe, t1_ns: int) -> gtsam.PreintegratedCombinedMeasurements:
+        """The IMU from keyframe ``kf`` to ``t1_ns`` with its bias (empty for no span)."""
+        if t1_ns <= kf.t_ns:
+            return gtsam.PreintegratedCombinedMeasurements(self._params, kf.bias)
+        i = max(bisect.bisect_right(self._imu_t, kf.t_ns) - 1, 0)
+        return preintegrate(self._params, self._imu[i:], kf.t_ns, t1_ns, kf.bias)
+
+    def _predicted_state(
+        self,
+        t_ns: int,
+        pim: gtsam.PreintegratedCombinedMeasurements,
+        status: str,
+        *,
+        tracked: int,
+    ) -> VioState:
+        """The newest keyframe carried to ``t_ns`` by ``pim``; its covariance grown by the
+        preintegration's (rotation, position; velocity in the world)."""
+        kf = self.window.newest
+        nav = pim.predict(gtsam.NavState(kf.pose, kf.velocity), kf.bias)
+        Q = np.asarray(pim.preintMeasCov())
+        R = nav.pose().rotation().matrix()
+        cov_pose = self._cov_pose + Q[0:6, 0:6]
+        cov_v = self._cov_v + R @ Q[6:9, 6:9] @ R.T
+        return self._state(
+            t_ns, nav.pose(), nav.velocity(), kf.bias, cov_pose, cov_v, status, False, tracked
+        )
+
+    def _state(
+        self,
+        t_ns: int,
+        pose: gtsam.Pose3,
+        v: FloatArray,
+        bias: gtsam.imuBias.ConstantBias,
+        cov_pose: FloatArray,
+        cov_v: FloatArray,
+        status: str,
+        keyframe: bool,
+        tracked: int,
+    ) -> VioState:
+        return VioState(
+            t_ns=int(t_ns),
+            T_W_B=to_pose(pose),
+            v_W_B=np.asarray(v, np.float64),
+            gyro_bias=np.asarray(bias.gyroscope(), np.float64),
+            accel_bias=np.asarray(bias.accelerometer(), np.float64),
+            cov_pose=0.5 * (cov_pose + cov_pose.T),
+            cov_v=0.5 * (cov_v + cov_v.T),
+            status="propagated" if status == "propagated" else "tracking",
+            keyframe=keyframe,
+            reset_counter=self._reset_counter,
+            td_s=self._td_s,
+            tracked=tracked,
+        )
+
+    def _keyframe_state(self, frame: FrameFeatures) -> VioState:
+        kf = self.window.newest
+        self._last_p = np.asarray(kf.pose.translation(), np.float64)
+        return self._state(
+            kf.t_ns, kf.pose, kf.velocity, kf.bias, self._cov_pose, self._cov_v,
+            "tracking", True, len(frame.ids),
+        )  # fmt: skip
+
+    def _still_since(self, kf: Keyframe, frame: FrameFeatures) -> bool:
+        """At rest from keyframe ``kf`` to this frame: a quiet IMU and features that stood."""
+        cfg = self.config
+        st = imu_stillness(self._imu, kf.t_ns, frame.t_ns)
+        span = (frame.t_ns - kf.t_ns) * 1e-9
+        if not is_still(st, cfg, span):
+            return False
+        ref = self.frontend.last_keyframe
+        if ref is None:
+            return False
+        par, n = mean_parallax(ref.ids, ref.uv_px, frame.ids, frame.uv_px)
+        return n >= 10 and par < cfg.static_image_motion_px
+
+    def _track(self, frame: FrameFeatures) -> VioState | None:
+        cfg = self.config
+        reason = tracking_failure(len(frame.ids), cfg)
+        if reason is not None:
+            return self._fail(frame.t_ns, reason)
+        kf = self.window.newest
+        try:
+            with self._stage("preintegrate"):
+                pim = self._span(kf, frame.t_ns)
+        except VioError:
+            self.input.counts["imu_gap"] += 1
+            return None
+        with self._stage("keyframe"):
+            R_B = pim.deltaRij().matrix()
+            R_BC = self.camera_spec.T_B_C.R_A_B.as_matrix()
+            dec = self.frontend.decide(frame, R_BC.T @ R_B @ R_BC)
+        if not dec.keyframe:
+            return self._predicted_state(frame.t_ns, pim, "tracking", tracked=len(frame.ids))
+        return self._add_keyframe(frame, kf, pim)
+
+    def _add_keyframe(
+        self, frame: FrameFeatures, prev: Keyframe, pim: gtsam.PreintegratedCombinedMeasurements
+    ) -> VioState | None:
+        cfg = self.config
+        nav = pim.predict(gtsam.NavState(prev.pose, prev.velocity), prev.bias)
+        still = self._still_since(prev, frame)
+        k = self._new_kf_index()
+        kf = Keyframe(
+            index=k, t_ns=frame.t_ns, pose=nav.pose(), velocity=np.asarray(nav.velocity()),
+            bias=prev.bias, pim=pim, still=still,
+        )  # fmt: skip
+        self.window.push(kf)
+        self.features.add(k, frame)
+        self.frontend.mark_keyframe(frame)
+        with self._stage("optimize"):
+            res = self.window.solve(self.features)
+        if not res.ok:
+            return self._fail(frame.t_ns, res.reason)
+        new = self.window.newest
+        solved = SolvedState(
+            p_W=np.asarray(new.pose.translation()), v_W=new.velocity,
+            p_pred_W=np.asarray(nav.pose().translation()), v_pred_W=np.asarray(nav.velocity()),
+            accel_bias=np.asarray(new.bias.accelerometer()),
+            gyro_bias=np.asarray(new.bias.gyroscope()),
+        )  # fmt: skip
+        reason = state_failure(solved, cfg)
+        if reason is not None:
+            return self._fail(frame.t_ns, reason)
+        self._cov_pose, self._cov_v = res.cov_pose, res.cov_v
+        self._prop = self._span(new, self._imu_t[-1])
+        self._feed_time_offset(prev, new)
+        self._prune_imu()
+        return self._keyframe_state(frame)
+
+    def _feed_time_offset(self, a: Keyframe, b: Keyframe) -> None:
+        """TD-HOOK (lead): the rotation of consecutive optimised camera poses goes to H2's
+        ``TimeOffsetEstimator``; its estimate, once it has one, moves later image stamps."""
+        if self._td is None:
+            return
+        T_B_C = self.window.T_B_C
+        R_C0_C1 = a.pose.compose(T_B_C).rotation().between(b.pose.compose(T_B_C).rotation())
+        self._td.push_rotation(a.t_ns, b.t_ns, R_C0_C1.matrix())
+        est = self._td.estimate()
+        td = getattr(est, "td_s", None) if est is not None else None
+        if td is not None and np.isfinite(td) and abs(float(td)) <= 0.1:
+            self._td_s = float(td)
+
+    def _prune_imu(self) -> None:
+        """Keep the IMU the window and a static start may still need."""
+        keep_ns = min(
+            self.window.keyframes[0].t_ns,
+            self._imu_t[-1] - int((self.config.static_window_s + 0.5) * 1e9),
+        )
+        i = max(bisect.bisect_right(self._imu_t, keep_ns) - 2, 0)
+        if i > 1000:
+            del self._imu[:i]
+            del self._imu_t[:i]
+
+    def _fail(self, t_ns: int, reason: str) -> VioState | None:
+        """A failure: reported, the window reset; the next frames re-initialise."""
+        self._events.append(VioEvent(t_ns=int(t_ns), kind="failure", detail=reason))
+        self._failures += 1
+        if self.window.keyframes:
+            self._last_p = np.asarray(self.window.keyframes[-1].pose.translation(), np.float64)
+        self.window = SlidingWindow(self.config, self.camera_spec.T_B_C, self.camera_spec.camera.fx)
+        self.features.clear()
+        self.frontend.reset()
+        self._recent.clear()
+        self._init_frames = []
+        self._initialized = False
+        self._prop = None
+        return None

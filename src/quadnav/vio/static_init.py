@@ -1,0 +1,98 @@
+"""The static start (EuRoC's sequences and our flights begin at rest): from at least
+``static_window_s`` of quiet IMU, gravity's direction in the body gives roll and pitch (the
+smallest rotation taking the measured "up" onto the world's z, so yaw is that of the body),
+the mean gyro is its bias, the velocity is zero. The accelerometer bias cannot be told from a
+tilt at rest; it starts at zero and the window estimates it once the vehicle moves."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
+
+from quadnav.messages import ImuSample
+from quadnav.vio.config import VioConfig
+
+__all__ = ["ImuStillness", "StaticStart", "gravity_rotation", "imu_stillness", "static_start"]
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class ImuStillness:
+    """The IMU over a span: sample count, mean and standard deviation (norm over axes)."""
+
+    n: int
+    span_s: float
+    gyro_mean: FloatArray
+    accel_mean: FloatArray
+    gyro_std: float
+    accel_std: float
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class StaticStart:
+    t_ns: int
+    R_W_B: Rotation
+    gyro_bias: FloatArray
+    stillness: ImuStillness
+
+
+def imu_stillness(samples: Sequence[ImuSample], t0_ns: int, t1_ns: int) -> ImuStillness | None:
+    """The statistics of the samples stamped in ``[t0_ns, t1_ns]`` (None with fewer than 10)."""
+    sel = [s for s in samples if t0_ns <= s.t_ns <= t1_ns]
+    if len(sel) < 10:
+        return None
+    g = np.array([s.gyro_rad_s for s in sel])
+    a = np.array([s.accel_m_s2 for s in sel])
+    return ImuStillness(
+        n=len(sel),
+        span_s=(sel[-1].t_ns - sel[0].t_ns) * 1e-9,
+        gyro_mean=g.mean(axis=0),
+        accel_mean=a.mean(axis=0),
+        gyro_std=float(np.linalg.norm(g.std(axis=0))),
+        accel_std=float(np.linalg.norm(a.std(axis=0))),
+    )
+
+
+def is_still(st: ImuStillness | None, config: VioConfig, span_s: float) -> bool:
+    return (
+        st is not None
+        and st.span_s >= 0.9 * span_s
+        and st.gyro_std <= config.static_gyro_std_rad_s
+        and st.accel_std <= config.static_accel_std_m_s2
+    )
+
+
+def gravity_rotation(accel_mean_B: FloatArray) -> Rotation:
+    """``R_W_B`` taking the specific force measured at rest (pointing up) onto ``+z``."""
+    a = np.asarray(accel_mean_B, dtype=np.float64)
+    up = a / np.linalg.norm(a)
+    ez = np.array([0.0, 0.0, 1.0])
+    axis = np.cross(up, ez)
+    s, c = float(np.linalg.norm(axis)), float(up @ ez)
+    if s < 1e-12:
+        return Rotation.identity() if c > 0 else Rotation.from_rotvec([np.pi, 0.0, 0.0])
+    return Rotation.from_rotvec(axis / s * np.arctan2(s, c))
+
+
+def static_start(
+    samples: Sequence[ImuSample], t_ns: int, config: VioConfig, g_tolerance: float = 0.5
+) -> StaticStart | None:
+    """A start at ``t_ns`` when the IMU has been still for the last ``static_window_s`` and
+    reads gravity's magnitude (within ``g_tolerance`` m/s^2); None otherwise."""
+    span = config.static_window_s
+    st = imu_stillness(samples, t_ns - int(span * 1e9), t_ns)
+    if st is None or not is_still(st, config, span):
+        return None
+    if abs(float(np.linalg.norm(st.accel_mean)) - config.g_norm) > g_tolerance:
+        return None
+    return StaticStart(
+        t_ns=int(t_ns),
+        R_W_B=gravity_rotation(st.accel_mean),
+        gyro_bias=st.gyro_mean.copy(),
+        stillness=st,
+    )
