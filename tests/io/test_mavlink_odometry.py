@@ -4,10 +4,13 @@ listener, pose, velocity, covariances, reset counter, quality and estimator type
 from __future__ import annotations
 
 import time
+from pathlib import Path
 
 import numpy as np
 from scipy.spatial.transform import Rotation
+from typer.testing import CliRunner
 
+from quadnav.cli.main import app
 from quadnav.geometry.frames import enu_to_ned, rotation_enu_flu_to_ned_frd
 from quadnav.io.mavlink import MavlinkLink, decode_odometry, from_upper_triangle
 from quadnav.messages import OdometrySample
@@ -78,3 +81,36 @@ def test_vio_odometry_round_trips_over_loopback(no_remote_bind: list[object]) ->
     assert all(a[0] == "127.0.0.1" for a in no_remote_bind if isinstance(a, tuple))
     px4.close()
     companion.close()
+
+
+def test_quadnav_run_mavlink_sends_the_flight_s_odometry(
+    tmp_path: Path, no_remote_bind: list[object]
+) -> None:
+    """``quadnav run indoor_vio_odometry --mavlink``: a listener (the autopilot) gets a heartbeat
+    a second and every odometry sample of the flight, as the VIO's, in the vehicle's FRD."""
+    port = free_port()
+    px4 = MavlinkLink(f"udpin:127.0.0.1:{port}", system=1, component=1)
+    args = ["run", "indoor_vio_odometry", "--mavlink", f"udpout:127.0.0.1:{port}",
+            "--out", str(tmp_path), "--set", "plan.takeoff_s=1", "--set", "plan.duration_s=2"]  # fmt: skip
+    result = CliRunner().invoke(app, args)
+    assert result.exit_code == 0, result.output
+    msgs = px4.poll(timeout_s=1.0)
+    odo = [m for m in msgs if m.get_type() == "ODOMETRY"]
+    # 3.5 s of 20 Hz odometry, the last 50 ms (its latency) not yet delivered
+    assert 65 <= len(odo) <= 70
+    assert px4.state.heartbeats >= 3
+    m = px4._mavutil.mavlink
+    assert {x.estimator_type for x in odo} == {m.MAV_ESTIMATOR_TYPE_VIO}
+    assert all(abs(x.z) < 0.2 for x in odo[:10])  # on the ground, NED z = -height
+    assert f"{len(odo)} ODOMETRY" in result.output.replace("\n", " ")
+    px4.close()
+
+
+def test_mavlink_needs_a_scenario_with_a_vio(tmp_path: Path) -> None:
+    result = CliRunner().invoke(
+        app,
+        ["run", "indoor_vision_pose", "--mavlink", "udpout:127.0.0.1:9", "--out", str(tmp_path)],
+    )
+    assert result.exit_code == 2
+    assert "--mavlink sends the VIO's odometry" in result.stderr
+    assert "Traceback" not in result.output
