@@ -48,21 +48,27 @@ class VioConfig(ConfigModel):
     )
     landmark_min_depth_m: float = Field(0.1, gt=0.0, le=10.0, description="nearest landmark")
     landmark_max_depth_m: float = Field(60.0, gt=1.0, le=1e4, description="farthest landmark")
+    landmark_carry_sigma: float = Field(
+        0.2, gt=0.0, le=10.0, description="a track's point carried over, per metre of range"
+    )
     max_reprojection_px: float = Field(
         4.0, gt=0.0, le=100.0, description="landmarks worse than this after a solve are dropped"
     )
-    optimizer_iterations: int = Field(8, ge=1, le=100, description="Levenberg-Marquardt steps")
+    optimizer_iterations: int = Field(4, ge=1, le=100, description="Levenberg-Marquardt steps")
     static_window_s: float = Field(
         1.0, gt=0.1, le=30.0, description="IMU at rest this long for a static start"
     )
+    static_lowpass_s: float = Field(
+        0.1, gt=0.0, le=1.0, description="IMU averaged over bins this long (motor vibration)"
+    )
     static_gyro_std_rad_s: float = Field(
-        0.015, gt=0.0, le=1.0, description="most gyro standard deviation at rest"
+        0.03, gt=0.0, le=1.0, description="most spread of the binned gyro at rest"
     )
     static_accel_std_m_s2: float = Field(
-        0.12, gt=0.0, le=5.0, description="most accelerometer standard deviation at rest"
+        0.3, gt=0.0, le=5.0, description="most spread of the binned accelerometer at rest"
     )
     static_image_motion_px: float = Field(
-        0.5, gt=0.0, le=20.0, description="most mean feature motion at rest"
+        1.5, gt=0.0, le=20.0, description="most median feature motion at rest"
     )
     static_velocity_sigma_m_s: float = Field(
         0.005, gt=0.0, le=1.0, description="zero-velocity constraint at rest"

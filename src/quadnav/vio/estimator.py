@@ -31,7 +31,7 @@ from quadnav.messages import ImuSample
 from quadnav.rig import Rig
 from quadnav.vio.config import VioConfig
 from quadnav.vio.failure import InputLog, SolvedState, state_failure, tracking_failure
-from quadnav.vio.frontend import FeatureManager, Frontend, mean_parallax
+from quadnav.vio.frontend import FeatureManager, Frontend, median_motion_px
 from quadnav.vio.preintegration import imu_params, preintegrate
 from quadnav.vio.static_init import StaticStart, imu_stillness, is_still, static_start
 from quadnav.vio.types import FrameFeatures, InitResult, InitWindow, StageTiming, VioEvent, VioState
@@ -161,6 +161,7 @@ class VioEstimator:
         while self._recent and self._recent[0].t_ns < t - int(self.config.static_window_s * 1e9):
             self._recent.popleft()
         if not self._initialized:
+            self._prune_imu()
             with self._stage("initialize"):
                 return self._try_init(frame)
         return self._track(frame)
@@ -169,10 +170,12 @@ class VioEstimator:
     def _image_still(self, frame: FrameFeatures, since_ns: int) -> bool:
         """Features moved less than ``static_image_motion_px`` since ``since_ns``."""
         ref = next((f for f in self._recent if f.t_ns >= since_ns), None)
-        if ref is None or ref is frame:
-            return False
-        par, n = mean_parallax(ref.ids, ref.uv_px, frame.ids, frame.uv_px)
-        return n >= 10 and par < self.config.static_image_motion_px
+        return ref is not None and ref is not frame and self._stood(ref, frame)
+
+    def _stood(self, ref: FrameFeatures, frame: FrameFeatures) -> bool:
+        """The features of ``frame`` are where they were in ``ref`` (median, >= 10 of them)."""
+        motion, n = median_motion_px(ref, frame)
+        return n >= 10 and motion < self.config.static_image_motion_px
 
     def _try_init(self, frame: FrameFeatures) -> VioState | None:
         cfg = self.config
@@ -284,8 +287,7 @@ class VioEstimator:
         self.window.start(kfs[0], prior)
         for kf in kfs[1:]:
             self.window.push(kf)
-        for j, p in result.landmarks_W.items():
-            self.window.landmarks[int(j)] = np.asarray(p, np.float64)
+        self.window.seed_landmarks(dict(result.landmarks_W))
         res = self.window.solve(self.features)
         if res.ok:
             self._cov_pose, self._cov_v = res.cov_pose, res.cov_v
@@ -358,15 +360,12 @@ class VioEstimator:
     def _still_since(self, kf: Keyframe, frame: FrameFeatures) -> bool:
         """At rest from keyframe ``kf`` to this frame: a quiet IMU and features that stood."""
         cfg = self.config
-        st = imu_stillness(self._imu, kf.t_ns, frame.t_ns)
+        st = imu_stillness(self._imu, kf.t_ns, frame.t_ns, cfg.static_lowpass_s)
         span = (frame.t_ns - kf.t_ns) * 1e-9
         if not is_still(st, cfg, span):
             return False
         ref = self.frontend.last_keyframe
-        if ref is None:
-            return False
-        par, n = mean_parallax(ref.ids, ref.uv_px, frame.ids, frame.uv_px)
-        return n >= 10 and par < cfg.static_image_motion_px
+        return ref is not None and self._stood(ref, frame)
 
     def _track(self, frame: FrameFeatures) -> VioState | None:
         cfg = self.config
@@ -437,10 +436,11 @@ class VioEstimator:
 
     def _prune_imu(self) -> None:
         """Keep the IMU the window and a static start may still need."""
-        keep_ns = min(
-            self.window.keyframes[0].t_ns,
-            self._imu_t[-1] - int((self.config.static_window_s + 0.5) * 1e9),
-        )
+        if not self._imu_t:
+            return
+        keep_ns = self._imu_t[-1] - int((self.config.static_window_s + 0.5) * 1e9)
+        if self.window.keyframes:
+            keep_ns = min(keep_ns, self.window.keyframes[0].t_ns)
         i = max(bisect.bisect_right(self._imu_t, keep_ns) - 2, 0)
         if i > 1000:
             del self._imu[:i]

@@ -19,7 +19,14 @@ from quadnav.vio.config import VioConfig
 from quadnav.vio.types import FrameFeatures
 from quadnav.vision.tracking import FeatureTracker, TrackedFrame
 
-__all__ = ["FeatureManager", "Frontend", "KeyframeDecision", "mean_parallax", "normalised"]
+__all__ = [
+    "FeatureManager",
+    "Frontend",
+    "KeyframeDecision",
+    "mean_parallax",
+    "median_motion_px",
+    "normalised",
+]
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -60,6 +67,14 @@ def mean_parallax(
         cur = np.where(ok[:, None], f[:, :2] / np.maximum(f[:, 2:3], 1e-6), cur)
     d = np.linalg.norm(cur - xy_ref[ia], axis=1)
     return float(d.mean()), int(ia.size)
+
+
+def median_motion_px(ref: FrameFeatures, frame: FrameFeatures) -> tuple[float, int]:
+    """The median pixel displacement of the features common to two frames, and their count."""
+    ia, ib = _common(ref.ids, frame.ids)
+    if ia.size == 0:
+        return float("inf"), 0
+    return float(np.median(np.linalg.norm(frame.uv_px[ib] - ref.uv_px[ia], axis=1))), int(ia.size)
 
 
 @dataclass(frozen=True, slots=True)

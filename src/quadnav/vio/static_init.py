@@ -6,6 +6,7 @@ tilt at rest; it starts at zero and the window estimates it once the vehicle mov
 
 from __future__ import annotations
 
+import bisect
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -23,7 +24,8 @@ FloatArray = NDArray[np.float64]
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class ImuStillness:
-    """The IMU over a span: sample count, mean and standard deviation (norm over axes)."""
+    """The IMU over a span: sample count, mean, and the standard deviation (norm over axes) of
+    its low-passed values (means over short bins)."""
 
     n: int
     span_s: float
@@ -41,20 +43,43 @@ class StaticStart:
     stillness: ImuStillness
 
 
-def imu_stillness(samples: Sequence[ImuSample], t0_ns: int, t1_ns: int) -> ImuStillness | None:
-    """The statistics of the samples stamped in ``[t0_ns, t1_ns]`` (None with fewer than 10)."""
-    sel = [s for s in samples if t0_ns <= s.t_ns <= t1_ns]
+def _stamp(s: ImuSample) -> int:
+    return s.t_ns
+
+
+def _binned_std(t_ns: NDArray[np.int64], x: FloatArray, bin_ns: int) -> float:
+    """The standard deviation (norm over axes) of ``x``'s means over time bins of ``bin_ns``:
+    a vehicle standing with its motors on vibrates, and the vibration averages out."""
+    b = (t_ns - t_ns[0]) // max(bin_ns, 1)
+    _, inv, cnt = np.unique(b, return_inverse=True, return_counts=True)
+    sums = np.zeros((len(cnt), x.shape[1]))
+    np.add.at(sums, inv, x)
+    means = sums / cnt[:, None]
+    return float(np.linalg.norm(means.std(axis=0))) if len(cnt) >= 3 else float("inf")
+
+
+def imu_stillness(
+    samples: Sequence[ImuSample], t0_ns: int, t1_ns: int, lowpass_s: float = 0.1
+) -> ImuStillness | None:
+    """The statistics of the samples (in time order) stamped in ``[t0_ns, t1_ns]`` (None with
+    fewer than 10):
+    the mean, and the spread of the means over ``lowpass_s`` bins."""
+    i0 = bisect.bisect_left(samples, t0_ns, key=_stamp)
+    i1 = bisect.bisect_right(samples, t1_ns, key=_stamp)
+    sel = samples[i0:i1]
     if len(sel) < 10:
         return None
+    t = np.array([s.t_ns for s in sel], np.int64)
     g = np.array([s.gyro_rad_s for s in sel])
     a = np.array([s.accel_m_s2 for s in sel])
+    bin_ns = int(lowpass_s * 1e9)
     return ImuStillness(
         n=len(sel),
         span_s=(sel[-1].t_ns - sel[0].t_ns) * 1e-9,
         gyro_mean=g.mean(axis=0),
         accel_mean=a.mean(axis=0),
-        gyro_std=float(np.linalg.norm(g.std(axis=0))),
-        accel_std=float(np.linalg.norm(a.std(axis=0))),
+        gyro_std=_binned_std(t, g, bin_ns),
+        accel_std=_binned_std(t, a, bin_ns),
     )
 
 
@@ -85,7 +110,7 @@ def static_start(
     """A start at ``t_ns`` when the IMU has been still for the last ``static_window_s`` and
     reads gravity's magnitude (within ``g_tolerance`` m/s^2); None otherwise."""
     span = config.static_window_s
-    st = imu_stillness(samples, t_ns - int(span * 1e9), t_ns)
+    st = imu_stillness(samples, t_ns - int(span * 1e9), t_ns, config.static_lowpass_s)
     if st is None or not is_still(st, config, span):
         return None
     if abs(float(np.linalg.norm(st.accel_mean)) - config.g_norm) > g_tolerance:

@@ -5,14 +5,21 @@ points) seen through ``GenericProjectionFactorCal3_S2`` on undistorted normalise
 ``body_P_sensor``) under a Huber loss; zero-velocity and no-motion constraints between
 keyframes taken at rest.
 
-Each keyframe the graph of the window is rebuilt and solved by Levenberg-Marquardt from the
-previous estimates (robust where Gauss-Newton flips low-parallax points behind a camera). When
-the window is full, its oldest keyframe leaves: the next one's marginal covariance (pose,
-velocity, bias) becomes the window's prior, a tight Gaussian prior (no ``NonlinearEquality``).
+GTSAM's ``BatchFixedLagSmoother`` (Levenberg-Marquardt: robust where Gauss-Newton flips
+low-parallax points behind a camera) keeps the last ``window_keyframes`` keyframes and
+marginalises the older ones (their information stays as a linear factor). Its clock is the
+keyframe number: a state has its keyframe's, a landmark that of the first keyframe it was made
+with, so it is marginalised with that keyframe, as VINS-Mono marginalises the features anchored
+in its oldest frame: the marginal factor then ties states only (a prior renewed with each
+landmark would tie every landmark together and grow dense). A track still seen goes on as a
+new landmark from the old one's estimate, with the observations the prior does not hold yet
+(none is counted twice). The first state has a
+tight Gaussian prior (no ``NonlinearEquality``: it forces a slow QR path).
 Landmarks enter once seen in ``landmark_min_observations`` keyframes (or two with enough
 parallax), triangulated (DLT) from the current estimates, only with a positive depth in every
 view, a sane range and a small reprojection error; after each solve those behind a camera or
-with a large error are dropped for good.
+with a large error lose their projection factors for good (a weak prior keeps each landmark
+determinate until it leaves the window).
 """
 
 from __future__ import annotations
@@ -35,6 +42,8 @@ FloatArray = NDArray[np.float64]
 
 #: What GTSAM raises on a singular system or a failed solve.
 GTSAM_ERRORS = (RuntimeError, IndexError, ValueError)
+#: The standard deviation of the weak prior that keeps each landmark determinate.
+LANDMARK_PRIOR_M = 10.0
 
 
 def pose3(p: Pose) -> gtsam.Pose3:
@@ -106,13 +115,8 @@ def triangulate(obs: dict[int, FloatArray], P: dict[int, FloatArray]) -> FloatAr
     return np.asarray(h[:3] / h[3], np.float64)
 
 
-def _project(p_W: FloatArray, Pk: FloatArray) -> tuple[float, FloatArray]:
-    c = Pk[:, :3] @ p_W + Pk[:, 3]
-    return float(c[2]), c[:2] / c[2] if abs(c[2]) > 1e-9 else np.full(2, np.inf)
-
-
 class SlidingWindow:
-    """Keyframes, landmarks and the prior of a fixed-size window (see the module)."""
+    """Keyframes and landmarks of a fixed-lag window (see the module)."""
 
     def __init__(self, config: VioConfig, T_B_C: Pose, focal_px: float) -> None:
         self.config = config
@@ -124,67 +128,78 @@ class SlidingWindow:
             gtsam.noiseModel.mEstimator.Huber.Create(config.huber_k),
             gtsam.noiseModel.Isotropic.Sigma(2, sigma),
         )
+        #: a weak prior on every landmark (metres): a point the Huber loss has all but let go
+        #: of, or whose projections were taken out, stays determinate
+        self._landmark_prior = gtsam.noiseModel.Isotropic.Sigma(3, LANDMARK_PRIOR_M)
         self.keyframes: list[Keyframe] = []
         self.landmarks: dict[int, FloatArray] = {}
         self.bad_tracks: set[int] = set()
-        self.prior: StatePrior | None = None
+        self._seen: dict[int, set[int]] = {}  # track -> keyframes with its factor in
+        self._key: dict[int, int] = {}  # track -> the number of its landmark's key L(n)
+        self._used: dict[
+            int, set[int]
+        ] = {}  # track -> keyframes already marginalised into the prior
+        self._next_key = 0
+        self._seed: dict[int, FloatArray] = {}
+        self._remove: list[int] = []
+        self._smoother: gtsam.BatchFixedLagSmoother | None = None
+        self._new = self._pending()
+
+    @staticmethod
+    def _pending() -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values, dict[int, float]]:
+        return gtsam.NonlinearFactorGraph(), gtsam.Values(), {}
 
     def start(self, kf: Keyframe, prior: StatePrior) -> None:
-        self.keyframes = [kf]
-        self.landmarks = {}
-        self.prior = prior
+        """A new window from ``kf`` with a Gaussian ``prior`` on its state."""
+        params = gtsam.LevenbergMarquardtParams()
+        params.setMaxIterations(self.config.optimizer_iterations)
+        params.setRelativeErrorTol(1e-3)
+        params.setlambdaUpperBound(1e6)
+        self._smoother = gtsam.BatchFixedLagSmoother(self.config.window_keyframes - 0.5, params)
+        self.keyframes, self.landmarks, self._remove = [kf], {}, []
+        self._seen, self._key, self._used = {}, {}, {}
+        self._new = graph, _, _ = self._pending()
+        k = kf.index
+        gauss = gtsam.noiseModel.Gaussian.Covariance
+        graph.add(gtsam.PriorFactorPose3(X(k), kf.pose, gauss(prior.cov_pose)))
+        graph.add(gtsam.PriorFactorVector(V(k), kf.velocity, gauss(prior.cov_v)))
+        graph.add(gtsam.PriorFactorConstantBias(B(k), kf.bias, gauss(prior.cov_bias)))
+        self._insert_state(kf)
+
+    def seed_landmarks(self, points_W: dict[int, FloatArray]) -> None:
+        """Points (an initialisation's) to start tracks from instead of triangulating them."""
+        self._seed.update({int(j): np.asarray(p, np.float64) for j, p in points_W.items()})
+
+    def _insert_state(self, kf: Keyframe) -> None:
+        _, values, ts = self._new
+        for key, value in ((X(kf.index), kf.pose), (V(kf.index), kf.velocity)):
+            values.insert(key, value)
+            ts[key] = float(kf.index)
+        values.insert(B(kf.index), kf.bias)
+        ts[B(kf.index)] = float(kf.index)
 
     def push(self, kf: Keyframe) -> None:
+        """The next keyframe, joined to the newest by its preintegrated IMU (and, at rest, by
+        zero-velocity and no-motion constraints)."""
         if not self.keyframes or kf.pim is None:
             raise VioError("a keyframe after the first needs its preintegration")
+        prev = self.keyframes[-1]
+        graph = self._new[0]
+        j, k = prev.index, kf.index
+        graph.add(gtsam.CombinedImuFactor(X(j), V(j), X(k), V(k), B(j), B(k), kf.pim))
+        if kf.still:
+            cfg = self.config
+            still_pose = gtsam.noiseModel.Isotropic.Sigma(6, cfg.static_pose_sigma_m)
+            still_v = gtsam.noiseModel.Isotropic.Sigma(3, cfg.static_velocity_sigma_m_s)
+            graph.add(gtsam.BetweenFactorPose3(X(j), X(k), gtsam.Pose3(), still_pose))
+            graph.add(gtsam.PriorFactorVector(V(j), np.zeros(3), still_v))
+            graph.add(gtsam.PriorFactorVector(V(k), np.zeros(3), still_v))
         self.keyframes.append(kf)
+        self._insert_state(kf)
 
     @property
     def newest(self) -> Keyframe:
         return self.keyframes[-1]
-
-    def _add_states(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> None:
-        cfg = self.config
-        first = self.keyframes[0]
-        assert self.prior is not None
-        graph.add(
-            gtsam.PriorFactorPose3(
-                X(first.index),
-                first.pose,
-                gtsam.noiseModel.Gaussian.Covariance(self.prior.cov_pose),
-            )
-        )
-        graph.add(
-            gtsam.PriorFactorVector(
-                V(first.index),
-                first.velocity,
-                gtsam.noiseModel.Gaussian.Covariance(self.prior.cov_v),
-            )
-        )
-        graph.add(
-            gtsam.PriorFactorConstantBias(
-                B(first.index),
-                first.bias,
-                gtsam.noiseModel.Gaussian.Covariance(self.prior.cov_bias),
-            )
-        )
-        s_p, s_v = cfg.static_pose_sigma_m, cfg.static_velocity_sigma_m_s
-        still_pose = gtsam.noiseModel.Isotropic.Sigma(6, s_p)
-        still_v = gtsam.noiseModel.Isotropic.Sigma(3, s_v)
-        prev = None
-        for kf in self.keyframes:
-            k = kf.index
-            values.insert(X(k), kf.pose)
-            values.insert(V(k), kf.velocity)
-            values.insert(B(k), kf.bias)
-            if prev is not None and kf.pim is not None:
-                j = prev.index
-                graph.add(gtsam.CombinedImuFactor(X(j), V(j), X(k), V(k), B(j), B(k), kf.pim))
-                if kf.still:
-                    graph.add(gtsam.BetweenFactorPose3(X(j), X(k), gtsam.Pose3(), still_pose))
-                    graph.add(gtsam.PriorFactorVector(V(j), np.zeros(3), still_v))
-                    graph.add(gtsam.PriorFactorVector(V(k), np.zeros(3), still_v))
-            prev = kf
 
     def _new_landmark(
         self, obs: dict[int, FloatArray], P: dict[int, FloatArray], centres: dict[int, FloatArray]
@@ -216,18 +231,29 @@ class SlidingWindow:
     def _landmark_ok(
         self, p: FloatArray, obs: dict[int, FloatArray], P: dict[int, FloatArray]
     ) -> bool:
+        """In front of every camera at a sane range and near every pixel it was seen at."""
         cfg = self.config
-        for k, xy in obs.items():
-            z, uv = _project(p, P[k])
-            if not cfg.landmark_min_depth_m <= z <= cfg.landmark_max_depth_m:
-                return False
-            if float(np.linalg.norm(uv - xy)) * self.focal_px > cfg.max_reprojection_px:
-                return False
-        return True
+        Ps = np.array([P[k] for k in obs])
+        c = Ps[:, :, :3] @ p + Ps[:, :, 3]
+        z = c[:, 2]
+        if not (np.all(z >= cfg.landmark_min_depth_m) and np.all(z <= cfg.landmark_max_depth_m)):
+            return False
+        err = np.linalg.norm(c[:, :2] / z[:, None] - np.array(list(obs.values())), axis=1)
+        return bool(np.all(err * self.focal_px <= cfg.max_reprojection_px))
 
-    def _add_landmarks(
-        self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, features: FeatureManager
-    ) -> int:
+    def _point_prior(self, p: FloatArray, used: set[int]) -> gtsam.noiseModel.Base:
+        """A new landmark's weak prior; a track going on after its landmark was marginalised
+        keeps its point within ``landmark_carry_sigma`` of its range from the newest camera
+        (its depth would be free with one new view)."""
+        if not used:
+            return self._landmark_prior
+        c = self.newest.pose.compose(self.T_B_C).translation()
+        r = float(np.linalg.norm(p - np.asarray(c)))
+        return gtsam.noiseModel.Isotropic.Sigma(3, max(0.01, self.config.landmark_carry_sigma * r))
+
+    def _add_landmarks(self, features: FeatureManager) -> int:
+        """Projection factors of the new observations of landmarks, and new landmarks."""
+        graph, values, ts = self._new
         poses = {kf.index: kf.pose for kf in self.keyframes}
         P = _camera_poses(poses, self.T_B_C)
         centres = {k: -Pk[:, :3].T @ Pk[:, 3] for k, Pk in P.items()}
@@ -236,96 +262,129 @@ class SlidingWindow:
             if j in self.bad_tracks:
                 continue
             obs = {k: xy for k, xy in obs_all.items() if k in P}
-            if len(obs) < 2:
-                continue
-            p = self.landmarks.get(j)
-            if p is None:
-                p = self._new_landmark(obs, P, centres)
+            if j not in self.landmarks:
+                if len(obs) < 2:
+                    continue
+                p = self._seed.pop(j, None)
+                if p is None or not self._landmark_ok(p, obs, P):
+                    p = self._new_landmark(obs, P, centres)
                 if p is None:
                     continue
                 self.landmarks[j] = p
+                used = self._used.get(j, set())
+                self._seen[j] = set(used)  # already in the prior: not again
+                self._key[j] = self._next_key
+                self._next_key += 1
+                values.insert(L(self._key[j]), p)
+                fresh = [k for k in obs if k not in used] or [self.keyframes[-1].index]
+                ts[L(self._key[j])] = float(min(fresh))  # it leaves with its first keyframe
+                graph.add(gtsam.PriorFactorPoint3(L(self._key[j]), p, self._point_prior(p, used)))
                 added += 1
-            values.insert(L(j), p)
+            seen, key = self._seen[j], L(self._key[j])
             for k, xy in obs.items():
-                graph.add(
-                    gtsam.GenericProjectionFactorCal3_S2(
-                        xy, self._pixel_noise, X(k), L(j), self.K, self.T_B_C
+                if k not in seen:
+                    graph.add(
+                        gtsam.GenericProjectionFactorCal3_S2(
+                            xy, self._pixel_noise, X(k), key, self.K, self.T_B_C
+                        )
                     )
-                )
+                    seen.add(k)
         return added
 
-    def _read_back(self, result: gtsam.Values, features: FeatureManager) -> int:
-        """New estimates in; landmarks behind a camera or far from their pixels out."""
+    def _read_back(self, est: gtsam.Values, features: FeatureManager) -> int:
+        """The smoother's estimates in; marginalised keyframes and landmarks out; landmarks
+        behind a camera or far from their pixels lose their projections."""
+        gone = [kf for kf in self.keyframes if not est.exists(X(kf.index))]
+        for kf in gone:
+            features.drop_keyframe(kf.index)
+        self.keyframes = [kf for kf in self.keyframes if est.exists(X(kf.index))]
         for kf in self.keyframes:
-            kf.pose = result.atPose3(X(kf.index))
-            kf.velocity = np.asarray(result.atVector(V(kf.index)), np.float64)
-            kf.bias = result.atConstantBias(B(kf.index))
-        poses = {kf.index: kf.pose for kf in self.keyframes}
-        P = _camera_poses(poses, self.T_B_C)
-        dropped = 0
+            kf.pose = est.atPose3(X(kf.index))
+            kf.velocity = np.asarray(est.atVector(V(kf.index)), np.float64)
+            kf.bias = est.atConstantBias(B(kf.index))
         for j in list(self.landmarks):
-            if not result.exists(L(j)):
+            key = L(self._key[j])
+            if est.exists(key):
+                self.landmarks[j] = np.asarray(est.atPoint3(key), np.float64)
                 continue
-            p = np.asarray(result.atPoint3(L(j)), np.float64)
-            obs = {k: xy for k, xy in features.observations(j).items() if k in P}
-            if self._landmark_ok(p, obs, P):
-                self.landmarks[j] = p
-            else:
-                del self.landmarks[j]
-                self.bad_tracks.add(j)
-                dropped += 1
-        return dropped
+            # marginalised with its first keyframe: the track goes on as a new landmark, from
+            # the observations the prior does not hold yet
+            self._seed[j] = self.landmarks.pop(j)
+            self._used[j] = self._seen.pop(j)
+            del self._key[j]
+        for j in [j for j in self._used if j not in features.tracks]:
+            del self._used[j]
+        P = _camera_poses({kf.index: kf.pose for kf in self.keyframes}, self.T_B_C)
+        live = [j for j in self.landmarks if j not in self.bad_tracks]
+        bad = self._bad_landmarks(live, features, P)
+        if bad:
+            self.bad_tracks.update(bad)
+            self._remove = self._projection_slots({L(self._key[j]) for j in bad})
+        return len(bad)
+
+    def _projection_slots(self, keys: set[int]) -> list[int]:
+        """Where in the smoother the projection factors of these landmarks are."""
+        assert self._smoother is not None
+        fs = self._smoother.getFactors()
+        out = []
+        for i in range(fs.size()):
+            f = fs.at(i)
+            if isinstance(f, gtsam.GenericProjectionFactorCal3_S2) and f.keys()[1] in keys:
+                out.append(i)
+        return out
+
+    def _bad_landmarks(
+        self, js: list[int], features: FeatureManager, P: dict[int, FloatArray]
+    ) -> list[int]:
+        """The landmarks behind or too near or far from a camera, or too far from a pixel."""
+        cfg = self.config
+        owner, cams, meas = [], [], []
+        for j in js:
+            for k, xy in features.observations(j).items():
+                if k in P:
+                    owner.append(j)
+                    cams.append(k)
+                    meas.append(xy)
+        if not owner:
+            return []
+        pts = np.array([self.landmarks[j] for j in owner])
+        Ps = np.array([P[k] for k in cams])
+        c = np.einsum("nij,nj->ni", Ps[:, :, :3], pts) + Ps[:, :, 3]
+        z = c[:, 2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            err = np.linalg.norm(c[:, :2] / z[:, None] - np.array(meas), axis=1) * self.focal_px
+        wrong = ~(
+            (z >= cfg.landmark_min_depth_m)
+            & (z <= cfg.landmark_max_depth_m)
+            & (err <= cfg.max_reprojection_px)
+        )
+        return sorted({owner[i] for i in np.flatnonzero(wrong)})
 
     def solve(self, features: FeatureManager) -> SolveResult:
-        """Optimise the window; then slide it if it is over-full. Never raises GTSAM's errors."""
-        graph = gtsam.NonlinearFactorGraph()
-        values = gtsam.Values()
-        self._add_states(graph, values)
-        added = self._add_landmarks(graph, values, features)
-        params = gtsam.LevenbergMarquardtParams()
-        params.setMaxIterations(self.config.optimizer_iterations)
+        """Add what is new and let the smoother optimise and marginalise. Never raises
+        GTSAM's errors: a failed solve is a result that says why."""
+        if self._smoother is None:
+            raise VioError("the window has not been started")
+        added = self._add_landmarks(features)
+        graph, values, ts = self._new
+        self._new = self._pending()
+        remove, self._remove = self._remove, []
         try:
-            result = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
-            err = float(graph.error(result))
+            self._smoother.update(graph, values, dict(ts.items()), remove)
+            est = self._smoother.calculateEstimate()
+            dropped = self._read_back(est, features)
+            factors = self._smoother.getFactors()
+            err = float(factors.error(est))
             if not np.isfinite(err):
                 return SolveResult(ok=False, reason="the optimisation diverged (non-finite error)")
-            dropped = self._read_back(result, features)
-            marg = gtsam.Marginals(graph, result)
+            marg = gtsam.Marginals(factors, est)
             k = self.newest.index
             cov_pose = np.asarray(marg.marginalCovariance(X(k)))
             cov_v = np.asarray(marg.marginalCovariance(V(k)))
-            self._slide(marg, features)
         except GTSAM_ERRORS as exc:
-            return SolveResult(ok=False, reason=f"indeterminate optimisation: {exc}".split("\n")[0])
+            line = next((ln for ln in str(exc).splitlines() if ln.strip()), type(exc).__name__)
+            return SolveResult(ok=False, reason=f"optimisation failed: {line.strip()}")
         return SolveResult(
-            ok=True,
-            cov_pose=cov_pose,
-            cov_v=cov_v,
-            landmarks=len(self.landmarks),
-            added=added,
-            dropped=dropped,
-            error=err,
-        )
-
-    def _slide(self, marg: gtsam.Marginals, features: FeatureManager) -> None:
-        """Drop the oldest keyframe when the window is over-full; its successor's marginal is
-        the new prior (symmetrised)."""
-        if len(self.keyframes) <= self.config.window_keyframes:
-            return
-        nxt = self.keyframes[1].index
-
-        def sym(c: FloatArray) -> FloatArray:
-            c = np.asarray(c, np.float64)
-            return 0.5 * (c + c.T) + 1e-12 * np.eye(len(c))
-
-        self.prior = StatePrior(
-            cov_pose=sym(marg.marginalCovariance(X(nxt))),
-            cov_v=sym(marg.marginalCovariance(V(nxt))),
-            cov_bias=sym(marg.marginalCovariance(B(nxt))),
-        )
-        old = self.keyframes.pop(0)
-        features.drop_keyframe(old.index)
-        self.keyframes[0].pim = None
-        for j in list(self.landmarks):
-            if len([k for k in features.observations(j) if k != old.index]) == 0:
-                del self.landmarks[j]
+            ok=True, cov_pose=cov_pose, cov_v=cov_v, landmarks=len(self.landmarks),
+            added=added, dropped=dropped, error=err,
+        )  # fmt: skip
