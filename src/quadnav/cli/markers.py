@@ -21,7 +21,7 @@ from quadnav.cli.common import (
     progress_bar,
     strings_param,
 )
-from quadnav.cli.planar import OutOpt, SetOpt
+from quadnav.cli.planar import AllowRemoteOpt, OutOpt, SetOpt
 from quadnav.errors import IoError
 from quadnav.experiments.markers_run import MarkersStats, load_markers_config, run_markers
 from quadnav.io.mavlink import check_bind
@@ -52,12 +52,7 @@ def markers_command(
             "--mavlink", help="send the poses to an autopilot, e.g. udpout:127.0.0.1:14540"
         ),
     ] = None,
-    allow_remote: Annotated[
-        bool,
-        typer.Option(
-            "--allow-remote", help="with --mavlink: let udpin bind a non-loopback address"
-        ),
-    ] = False,
+    allow_remote: AllowRemoteOpt = False,
     setpoints: Annotated[
         Path | None,
         typer.Option(

@@ -48,6 +48,10 @@ JobsOpt = Annotated[
     int | None,
     typer.Option("--jobs", min=1, help="processes for Monte Carlo runs [default: CPU count]"),
 ]
+AllowRemoteOpt = Annotated[
+    bool,
+    typer.Option("--allow-remote", help="with --mavlink: let udpin bind a non-loopback address"),
+]
 
 
 def print_planar_summary(study: PlanarStudy) -> None:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, TypeVar
 
 import typer
 from rich.table import Table
@@ -18,16 +18,26 @@ from quadnav.cli.common import (
     progress_bar,
     strings_param,
 )
-from quadnav.cli.planar import JobsOpt, OutOpt, SeedsOpt, SetOpt, run_planar_config
+from quadnav.cli.planar import (
+    AllowRemoteOpt,
+    JobsOpt,
+    OutOpt,
+    SeedsOpt,
+    SetOpt,
+    run_planar_config,
+)
 from quadnav.errors import ConfigError
 from quadnav.eval.na import fmt_metric
 from quadnav.experiments.nav import NavScenario
-from quadnav.experiments.nav_study import run_nav_study
+from quadnav.experiments.nav_study import reports_in_flight, run_nav_study
 from quadnav.experiments.planar import PlanarConfig
 from quadnav.experiments.scenarios import NAV_SCENARIOS, nav_builtin
 from quadnav.io.config import load_config
+from quadnav.io.mavlink import check_bind
 
 __all__ = ["EXAMPLES", "check_example", "resolve_run_config", "run_command"]
+
+T = TypeVar("T")
 
 
 def resolve_run_config(
@@ -49,11 +59,29 @@ def resolve_run_config(
 
 def check_example(params: CommandParams) -> None:
     """Validate an example's arguments as the command would, without running it."""
-    resolve_run_config(
+    config = resolve_run_config(
         optional_param(params, "scenario", str),
-        strings_param(params, "set_"),
+        [*strings_param(params, "set_"), *_seed_override(_given(params, "seed", int))],
         optional_param(params, "seeds", int),
     )
+    mavlink = _given(params, "mavlink", str)
+    if mavlink is not None:
+        _check_mavlink(config, mavlink, allow_remote=bool(params.get("allow_remote")))
+
+
+def _given(params: CommandParams, name: str, kind: type[T]) -> T | None:
+    """An optional parameter an example may leave out altogether."""
+    return optional_param(params, name, kind) if name in params else None
+
+
+def _check_mavlink(config: NavScenario | PlanarConfig, url: str, *, allow_remote: bool) -> None:
+    """``--mavlink`` sends a VIO's odometry: a scenario with one, a URL that may be bound."""
+    if not isinstance(config, NavScenario) or not config.vio.enabled:
+        raise ConfigError(
+            "--mavlink sends the VIO's odometry: choose a scenario with vio.enabled=true "
+            "(indoor_vio, indoor_vio_odometry)"
+        )
+    check_bind(url, allow_remote=allow_remote)
 
 
 #: The examples of ``quadnav run --help`` (each parsed and validated by the tests).
@@ -63,6 +91,8 @@ EXAMPLES = (
     "quadnav run indoor_vision_pose --set vision.delay_s=0.1 --set plan.square_m=4",
     "quadnav run outdoor_gps --set gps.outages_s=[[20,25]]",
     "quadnav run planar --seeds 20",
+    "quadnav run indoor_vio --seed 3",
+    "quadnav run indoor_vio_odometry --mavlink udpout:127.0.0.1:14540",
 )
 
 
@@ -76,14 +106,34 @@ def run_command(
     seeds: SeedsOpt = None,
     out: OutOpt = Path("runs"),
     jobs: JobsOpt = None,
+    seed: Annotated[
+        int | None, typer.Option("--seed", help="the first seed (as --set seed=N)")
+    ] = None,
+    mavlink: Annotated[
+        str | None,
+        typer.Option(
+            "--mavlink",
+            help="send the VIO's odometry (ODOMETRY, as a companion computer) to an autopilot, "
+            "e.g. udpout:127.0.0.1:14540; the first seed's",
+        ),
+    ] = None,
+    allow_remote: AllowRemoteOpt = False,
 ) -> None:
-    config = resolve_run_config(scenario, set_, seeds)
+    config = resolve_run_config(scenario, [*(set_ or []), *_seed_override(seed)], seeds)
     if isinstance(config, PlanarConfig):
         run_planar_config(config, out, jobs)
         return
-    with progress_bar(config.name, line_step=0) as update:
+    if mavlink is not None:
+        _check_mavlink(config, mavlink, allow_remote=allow_remote)
+    step = 0.05 if reports_in_flight(config) else 0  # (a line per seed, or per 5 %)
+    with progress_bar(config.name, line_step=step) as update:
         study = run_nav_study(
-            config, runs_root=out, progress=update, jobs=jobs or os.cpu_count() or 1
+            config,
+            runs_root=out,
+            progress=update,
+            jobs=jobs or os.cpu_count() or 1,
+            mavlink=mavlink,
+            allow_remote=allow_remote,
         )
     s = study.summary
     table = Table(title=f"{config.name}: {s.seeds} seed(s) (median; worst case where marked)")
@@ -99,6 +149,7 @@ def run_command(
         ("attitude RMSE (deg)", s.attitude_rmse_deg),
         ("NEES, mean (15 states)", s.nees_mean),
         ("horizontal error at the end, landed (m)", s.end_horizontal_error_m),
+        ("position error at the end (3-D) (m)", s.end_position_error_m),
         ("  = drift in % of the distance flown", s.drift_percent),
         (
             "gyro bias error / true bias, 60 s after alignment or at the end",
@@ -114,7 +165,14 @@ def run_command(
     for src, frac in s.nis_above_95pct_gate.items():
         table.add_row(f"{src}: innovations beyond the 95 % gate", f"{frac:.1%}")
     console.print(table)
+    if mavlink is not None:
+        sent = ", ".join(f"{n} {k}" for k, n in study.mavlink_sent.items()) or "nothing"
+        console.print(f"MAVLink to {mavlink}: sent {sent}", highlight=False)
     console.print(str(study.run_dir), soft_wrap=True, highlight=False)
+
+
+def _seed_override(seed: int | None) -> list[str]:
+    return [] if seed is None else [f"seed={seed}"]
 
 
 run_command.__doc__ = command_help(

@@ -10,8 +10,10 @@ same semi-implicit step as the planar filter::
 
     R' = R Exp(w dt);  v' = v + dt (R' f + g_W);  p' = p + dt v'
 
-Observations: world position, external pose (position and yaw), height, range, heading,
-velocity, optical flow (PX4's model, :mod:`quadnav.estimation.flow_model`). Each update is gated
+Observations: world position, external pose (position and yaw), external odometry (PX4's
+``ODOMETRY`` from a VIO: position, world velocity and yaw with the message's covariance),
+height, range, heading, velocity, optical flow (PX4's model,
+:mod:`quadnav.estimation.flow_model`). Each update is gated
 with a chi-square test on its innovation, applied in Joseph form and injected into the nominal
 state with the covariance reset ``P <- G P G^T``.
 """
@@ -55,6 +57,7 @@ from quadnav.messages import (
     ImuSample,
     MagSample,
     Observation,
+    OdometrySample,
     PoseSample,
     PositionSample,
     RangeSample,
@@ -65,6 +68,7 @@ from quadnav.messages import (
 from quadnav.units import GRAVITY_M_S2
 
 __all__ = [
+    "ODOMETRY_PARTS",
     "NavEkf",
     "NavEkfConfig",
     "NavKinematics",
@@ -73,6 +77,7 @@ __all__ = [
     "nav_jacobians",
     "range_jacobian",
     "skew",
+    "world_yaw_jacobian",
     "yaw_jacobian",
 ]
 
@@ -89,6 +94,8 @@ _N_G, _N_A, _N_BG, _N_BA = (NAV_NOISE[b] for b in ("gyro", "accel", "gyro_bias",
 
 
 _I3 = np.eye(3)
+# An odometry observation's rows (position, velocity, yaw) by part
+_ODO_ROWS = {"pos": np.arange(0, 3), "vel": np.arange(3, 6), "yaw": np.arange(6, 7)}
 _VAR_COLS = np.r_[_ATT, _BG, _BA]  # columns of F's velocity/position rows that change every step
 
 
@@ -204,6 +211,18 @@ def gate_thresholds(gate_sigma: float, dims: tuple[int, ...]) -> dict[int, float
     return out
 
 
+#: What of an :class:`~quadnav.messages.OdometrySample` the filter can fuse (PX4's
+#: ``EKF2_EV_CTRL`` bits): its position, its world velocity, its yaw.
+ODOMETRY_PARTS = ("pos", "vel", "yaw")
+
+
+def world_yaw_jacobian(R: FloatArray) -> FloatArray:
+    """d yaw / d dtheta (3,) for a world-frame perturbation ``Exp(dtheta) R`` (how an
+    odometry message's attitude covariance carries to its yaw)."""
+    den = R[0, 0] ** 2 + R[1, 0] ** 2
+    return np.array([-R[2, 0] * R[0, 0] / den, -R[2, 0] * R[1, 0] / den, 1.0])
+
+
 def yaw_of(R: FloatArray) -> float:
     return math.atan2(R[1, 0], R[0, 0])
 
@@ -298,6 +317,17 @@ class NavEkfConfig:
     flow_max_rate_rad_s: float = 8.0
     flow_gate_sigma: float = 3.0
     flow_min_height_m: float = 0.3
+    # External odometry (PX4's external vision ODOMETRY): the parts fused (EKF2_EV_CTRL), the
+    # floors under the message's own variances (EKF2_EVP_NOISE, EKF2_EVV_NOISE,
+    # EKF2_EVA_NOISE: each variance is at least the floor squared), the innovation gate in
+    # standard deviations over the fused parts together (EKF2_EVP_GATE) and the least quality
+    # taken (EKF2_EV_QMIN). Its frame is anchored as an external pose's (``vision_frame``).
+    odometry_fuse: tuple[str, ...] = ODOMETRY_PARTS
+    odometry_pos_noise_m: float = 0.1
+    odometry_vel_noise_m_s: float = 0.1
+    odometry_yaw_noise_rad: float = 0.05
+    odometry_gate_sigma: float = 5.0
+    odometry_quality_min: int = 0
 
     def __post_init__(self) -> None:
         require_positive(
@@ -337,6 +367,28 @@ class NavEkfConfig:
             raise EstimationError("NavEkfConfig.vision_anchor_samples must be >= 1")
         if not 0 < self.vision_rotation_gain <= 1:
             raise EstimationError("NavEkfConfig.vision_rotation_gain must lie in (0, 1]")
+        self._check_odometry()
+
+    def _check_odometry(self) -> None:
+        unknown = [p for p in self.odometry_fuse if p not in ODOMETRY_PARTS]
+        if (
+            unknown
+            or not self.odometry_fuse
+            or len(set(self.odometry_fuse)) != len(self.odometry_fuse)
+        ):
+            raise EstimationError(
+                f"NavEkfConfig.odometry_fuse must name some of {', '.join(ODOMETRY_PARTS)} "
+                f"once each, got {list(self.odometry_fuse)}"
+            )
+        require_positive(
+            self,
+            ("odometry_pos_noise_m", "odometry_vel_noise_m_s", "odometry_yaw_noise_rad",
+             "odometry_gate_sigma"),
+        )  # fmt: skip
+        if not 0 <= self.odometry_quality_min <= 100:
+            raise EstimationError(
+                f"NavEkfConfig.odometry_quality_min must lie in 0..100, got {self.odometry_quality_min}"
+            )
 
 
 class NavEkf:
@@ -380,6 +432,7 @@ class NavEkf:
             else gate_thresholds(config.gate_sigma, (1, 2, 3, 4, 6))
         )
         self._flow_gate = gate_thresholds(config.flow_gate_sigma, (2,))[2]
+        self._odometry_gates = gate_thresholds(config.odometry_gate_sigma, tuple(range(1, 8)))
         self._flow_gyro_bias = np.zeros(3)  # the flow sensor's gyro against ours (PX4's LPF)
         self._w_B = np.zeros(3)  # the body rate (bias removed) of the last prediction
         self._datum = config.datum_lla
@@ -432,11 +485,14 @@ class NavEkf:
 
     def can_fuse(self, obs: Sample) -> bool:
         """Every observation type there is; a flow sample only when its quality reaches
-        ``flow_quality_min`` and its rate is within ``flow_max_rate_rad_s`` (PX4's checks)."""
+        ``flow_quality_min`` and its rate is within ``flow_max_rate_rad_s`` (PX4's checks), an
+        odometry sample only from ``odometry_quality_min``."""
         if isinstance(obs, FlowSample):
             c = self.config
             rate = float(np.linalg.norm(obs.flow_rate_rad_s))
             return obs.quality >= c.flow_quality_min and rate <= c.flow_max_rate_rad_s
+        if isinstance(obs, OdometrySample):
+            return obs.quality >= self.config.odometry_quality_min
         return isinstance(obs, Observation)
 
     def imu_biases(self) -> tuple[FloatArray, FloatArray]:
@@ -538,6 +594,8 @@ class NavEkf:
             return self._gated(obs, obs.p_W_B - self.p, H, np.eye(3) * obs.sigma_m**2, obs.p_W_B)
         if isinstance(obs, PoseSample):
             return self._fuse_pose(obs)
+        if isinstance(obs, OdometrySample):
+            return self._fuse_odometry(obs)
         if isinstance(obs, HeightSample) and obs.source == "baro" and self.baro_bias is not None:
             return self._fuse_baro_with_bias(obs, self.baro_bias)
         if isinstance(obs, HeightSample):
@@ -655,8 +713,9 @@ class NavEkf:
         anchor = self._ev_anchor.get(source)
         return None if anchor is None else anchor.yaw
 
-    def _vision_anchor(self, obs: PoseSample, R_meas: FloatArray) -> _FrameAnchor:
-        """The transform from the source's frame to the filter's, re-anchored on a reset."""
+    def _vision_anchor(self, obs: PoseSample | OdometrySample, R_meas: FloatArray) -> _FrameAnchor:
+        """The transform from the source's frame to the filter's, re-anchored on a reset (an
+        external pose's and an external odometry's alike)."""
         src = obs.source
         rotate = self.config.vision_frame == "rotate"
         anchor = self._ev_anchor.get(src)
@@ -688,6 +747,13 @@ class NavEkf:
             )
         return anchor
 
+    def _frame_yaw_spread(self, d_W: FloatArray, sigma_yaw_rad: float) -> FloatArray:
+        """Rotated external vision: the frame's yaw is only as good as the filter's heading and
+        the source's yaw; its error turns a vector ``d_W`` of the source (the displacement from
+        the anchor, a velocity), which the noise must cover (3x3)."""
+        J = np.array([-d_W[1], d_W[0], 0.0])
+        return (float(self._P[_YAW, _YAW]) + sigma_yaw_rad**2) * np.outer(J, J)
+
     def _fuse_pose(self, obs: PoseSample) -> FusionResult:
         """External vision. ``world``: its position and yaw, in its frame (the navigation frame
         until a reset re-anchors it). ``rotate``: PX4's rotated external vision (thesis 000 eq.
@@ -697,36 +763,85 @@ class NavEkf:
         first pose and at every reset, so a jump flagged by the reset counter is not motion."""
         R_meas = rotation_matrix_xyzw(obs.q_W_B_xyzw)
         anchor = self._vision_anchor(obs, R_meas)
-        d_W = so3_exp(np.array([0.0, 0.0, anchor.yaw])) @ (obs.p_W_B - anchor.p_V0)
+        Rz = so3_exp(np.array([0.0, 0.0, anchor.yaw]))
+        d_W = Rz @ (obs.p_W_B - anchor.p_V0)
         p_W = anchor.p_W0 + d_W
+        C = np.eye(3) * obs.sigma_pos_m**2 if obs.cov_p_m2 is None else obs.cov_p_m2
         if self.config.vision_frame == "rotate":
             H = np.zeros((3, _N))
             H[:, _POS] = np.eye(3)
-            # The frame's yaw is only as good as the filter's heading and the vision yaw: its
-            # error turns the displacement from the anchor, which the noise must cover.
-            J = np.array([-d_W[1], d_W[0], 0.0])
-            var_yaw = float(self._P[_YAW, _YAW]) + obs.sigma_yaw_rad**2
-            Rz = so3_exp(np.array([0.0, 0.0, anchor.yaw]))
-            C = np.eye(3) * obs.sigma_pos_m**2 if obs.cov_p_m2 is None else obs.cov_p_m2
-            Rn = Rz @ C @ Rz.T + var_yaw * np.outer(J, J)
+            Rn = Rz @ C @ Rz.T + self._frame_yaw_spread(d_W, obs.sigma_yaw_rad)
             return self._gated(obs, p_W - self.p, H, Rn, p_W)
         H = np.zeros((4, _N))
         H[0:3, _POS] = np.eye(3)
         H[3, _ATT] = yaw_jacobian(self.R)
         r_yaw = math.remainder(yaw_of(R_meas) + anchor.yaw - yaw_of(self.R), 2 * math.pi)
         r = np.concatenate([p_W - self.p, [r_yaw]])
-        Rn = np.diag([obs.sigma_pos_m**2] * 3 + [obs.sigma_yaw_rad**2])
-        if obs.cov_p_m2 is not None:  # a full covariance (a marker pose's), into the world
-            Rz = so3_exp(np.array([0.0, 0.0, anchor.yaw]))
-            Rn[0:3, 0:3] = Rz @ obs.cov_p_m2 @ Rz.T
-        return self._gated(obs, r, H, Rn, p_W)
+        Rn = np.zeros((4, 4))
+        Rn[0:3, 0:3] = Rz @ C @ Rz.T  # (a full covariance, a marker pose's, into the world)
+        Rn[3, 3] = obs.sigma_yaw_rad**2
+        return self._gated(obs, r, H, Rn, p_W, yaw_row=3)
+
+    def _fuse_odometry(self, obs: OdometrySample) -> FusionResult:
+        """External odometry (PX4's external vision ``ODOMETRY``): the parts of
+        ``odometry_fuse`` (position, world velocity, yaw) as one observation with the message's
+        covariance (its position-yaw correlation kept), each variance raised to its floor, and
+        one gate over them. The frame is anchored as an external pose's: the navigation frame
+        (``world``) or rotated onto it (``rotate``: no yaw fused, the frame's yaw error in the
+        noise), re-anchored when ``reset_counter`` changes."""
+        c = self.config
+        R_meas = rotation_matrix_xyzw(obs.q_W_B_xyzw)
+        anchor = self._vision_anchor(obs, R_meas)
+        Rz = so3_exp(np.array([0.0, 0.0, anchor.yaw]))
+        d_W = Rz @ (obs.p_W_B - anchor.p_V0)
+        v_W = Rz @ obs.v_W_B
+        r_yaw = math.remainder(yaw_of(R_meas) + anchor.yaw - yaw_of(self.R), 2 * math.pi)
+        r = np.concatenate([anchor.p_W0 + d_W - self.p, v_W - self.v, [r_yaw]])
+        H = np.zeros((7, _N))
+        H[0:3, _POS] = np.eye(3)
+        H[3:6, _VEL] = np.eye(3)
+        H[6, _ATT] = yaw_jacobian(self.R)
+        j = world_yaw_jacobian(R_meas)
+        Rn = np.zeros((7, 7))
+        Rn[0:3, 0:3] = Rz @ obs.cov_pose[0:3, 0:3] @ Rz.T
+        Rn[0:3, 6] = Rn[6, 0:3] = Rz @ obs.cov_pose[0:3, 3:6] @ j
+        Rn[3:6, 3:6] = Rz @ obs.cov_v @ Rz.T
+        Rn[6, 6] = float(j @ obs.cov_pose[3:6, 3:6] @ j)
+        floors = [c.odometry_pos_noise_m] * 3 + [c.odometry_vel_noise_m_s] * 3
+        Rn += np.diag(np.maximum(np.square(floors + [c.odometry_yaw_noise_rad]) - np.diag(Rn), 0))
+        rotate = c.vision_frame == "rotate"
+        parts = [p for p in ODOMETRY_PARTS if p in c.odometry_fuse and not (p == "yaw" and rotate)]
+        if rotate:
+            sigma_yaw = math.sqrt(Rn[6, 6])
+            Rn[0:3, 0:3] += self._frame_yaw_spread(d_W, sigma_yaw)
+            Rn[3:6, 3:6] += self._frame_yaw_spread(v_W, sigma_yaw)
+        rows = np.concatenate([_ODO_ROWS[p] for p in parts])
+        Rn = Rn[np.ix_(rows, rows)]
+        yaw_row = len(rows) - 1 if "yaw" in parts else None  # (the parts in their order)
+        p_meas = anchor.p_W0 + d_W if "pos" in parts else None
+        v_meas = v_W if "vel" in parts and p_meas is None else None
+        gate = self._odometry_gates[len(rows)]
+        return self._gated(
+            obs, r[rows], H[rows], Rn, p_meas, yaw_row=yaw_row, v_meas=v_meas, gate=gate
+        )
 
     def _gated(
-        self, obs: Sample, r: FloatArray, H: FloatArray, Rn: FloatArray, p_meas: FloatArray | None
+        self,
+        obs: Sample,
+        r: FloatArray,
+        H: FloatArray,
+        Rn: FloatArray,
+        p_meas: FloatArray | None,
+        *,
+        yaw_row: int | None = None,
+        v_meas: FloatArray | None = None,
+        gate: float | None = None,
     ) -> FusionResult:
-        """Update, and reset the observed position if the source has been rejected too long."""
+        """Update, and reset the observed position (with ``yaw_row``, the heading: a pose in
+        the navigation frame; with ``v_meas`` and no position, the velocity) if the source has
+        been rejected too long."""
         src = getattr(obs, "source", type(obs).__name__)
-        res = self._update(r, H, Rn)
+        res = self._update(r, H, Rn, gate=gate)
         if res.accepted:
             self._last_accepted_ns[src] = obs.t_ns
             return res
@@ -734,26 +849,7 @@ class NavEkf:
         if (obs.t_ns - since) * 1e-9 >= self.config.reset_after_s:
             # Persistently rejected: trust the sensor again. Reset what it observes to the
             # measurement, with the measurement's uncertainty, and say so.
-            if p_meas is not None:
-                self.p = p_meas.copy()
-                self._reset_entries(_POS, np.diag(Rn)[0:3])
-                what = "position"
-                if isinstance(obs, PoseSample) and self.config.vision_frame == "world":
-                    # a pose in the navigation frame: its heading too (its 4th row), turning the
-                    # attitude about world z
-                    self.R = so3_exp(np.array([0.0, 0.0, float(r[3])])) @ self.R
-                    self._reset_entries(slice(_YAW, _YAW + 1), Rn[3, 3:4])
-                    what = "position and heading"
-            elif isinstance(obs, MagSample):
-                self.R = so3_exp(np.array([0.0, 0.0, float(r[0])])) @ self.R
-                self._reset_entries(slice(_YAW, _YAW + 1), Rn[0, 0:1])
-                what = "heading"
-            else:
-                # a range is measured along the tilted body axis: its height is range x R22
-                scale = float(self.R[2, 2]) if isinstance(obs, RangeSample) else 1.0
-                self.p[2] += float(r[0]) * scale
-                self._reset_entries(slice(_Z, _Z + 1), Rn[0, 0:1] * scale**2)
-                what = "height"
+            what = self._reset_to(obs, r, Rn, p_meas, yaw_row, v_meas)
             self._last_accepted_ns[src] = obs.t_ns
             self.events.append(
                 (
@@ -762,6 +858,39 @@ class NavEkf:
                 )
             )
         return res
+
+    def _reset_to(
+        self,
+        obs: Sample,
+        r: FloatArray,
+        Rn: FloatArray,
+        p_meas: FloatArray | None,
+        yaw_row: int | None,
+        v_meas: FloatArray | None,
+    ) -> str:
+        """Reset the states a persistently rejected source observes; what was reset."""
+        if p_meas is not None:
+            self.p = p_meas.copy()
+            self._reset_entries(_POS, np.diag(Rn)[0:3])
+            if yaw_row is None:
+                return "position"
+            # a pose in the navigation frame: its heading too, turning the attitude about z
+            self.R = so3_exp(np.array([0.0, 0.0, float(r[yaw_row])])) @ self.R
+            self._reset_entries(slice(_YAW, _YAW + 1), Rn[yaw_row, yaw_row : yaw_row + 1])
+            return "position and heading"
+        if v_meas is not None:
+            self.v = v_meas.copy()
+            self._reset_entries(_VEL, np.diag(Rn)[0:3])
+            return "velocity"
+        if isinstance(obs, MagSample):
+            self.R = so3_exp(np.array([0.0, 0.0, float(r[0])])) @ self.R
+            self._reset_entries(slice(_YAW, _YAW + 1), Rn[0, 0:1])
+            return "heading"
+        # a range is measured along the tilted body axis: its height is range x R22
+        scale = float(self.R[2, 2]) if isinstance(obs, RangeSample) else 1.0
+        self.p[2] += float(r[0]) * scale
+        self._reset_entries(slice(_Z, _Z + 1), Rn[0, 0:1] * scale**2)
+        return "height"
 
     def _reset_entries(self, block: slice, var: FloatArray) -> None:
         """Forget the covariance of a block of the error state and set its variances."""

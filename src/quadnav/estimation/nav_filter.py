@@ -32,11 +32,12 @@ from quadnav.estimation.horizon import (
     SourceStats,
     fusion_arrays,
 )
-from quadnav.estimation.nav_ekf import NavEkf, NavEkfConfig
+from quadnav.estimation.nav_ekf import NavEkf, NavEkfConfig, world_yaw_jacobian
 from quadnav.messages import (
     GpsSample,
     ImuSample,
     MagSample,
+    OdometrySample,
     PoseSample,
     Sample,
     StateEstimate,
@@ -55,6 +56,7 @@ __all__ = [
     "build_nav_filter",
     "counts_json",
     "ground_alignment",
+    "pose_sigmas",
 ]
 
 FloatArray = NDArray[np.float64]
@@ -176,16 +178,30 @@ def build_nav_filter(
     return DelayedHorizonEstimator(ekf, setup.horizon, t0_ns=t0_ns)
 
 
+ExternalPose = PoseSample | OdometrySample
+
+
+def pose_sigmas(pose: ExternalPose) -> tuple[float, float]:
+    """An external pose's one-sigma heading (rad) and position (m, the largest axis): a
+    pose's own sigmas, or from an odometry sample's covariance."""
+    if isinstance(pose, PoseSample):
+        return pose.sigma_yaw_rad, pose.sigma_pos_m
+    R = Rotation.from_quat(pose.q_W_B_xyzw).as_matrix()
+    j = world_yaw_jacobian(R)
+    var_pos = float(np.max(np.diag(pose.cov_pose)[0:3]))
+    return math.sqrt(float(j @ pose.cov_pose[3:6, 3:6] @ j)), math.sqrt(var_pos)
+
+
 def ground_alignment(
     imu: Sequence[ImuSample],
-    pose: PoseSample | None,
+    pose: ExternalPose | None,
     *,
     mag: Sequence[MagSample] | None = None,
     declination_rad: float = 0.0,
     gps_enu_m: FloatArray | None = None,
 ) -> tuple[Rotation, FloatArray]:
     """Initial attitude and position on the ground: roll and pitch from the mean specific
-    force (gravity); heading from the external pose, else from the magnetometer; position from
+    force (gravity); heading from the external pose (or odometry), else from the magnetometer; position from
     the external pose, else from a GNSS fix (already in ENU), else the origin."""
     if not imu:
         raise EstimationError("alignment needs IMU samples on the ground")
@@ -226,7 +242,7 @@ class AlignmentSigmas:
 class _AlignmentData:
     imu: list[ImuSample] = field(default_factory=list)
     mag: list[MagSample] = field(default_factory=list)
-    last_pose: PoseSample | None = None
+    last_pose: ExternalPose | None = None
     first_fix: GpsSample | None = None
 
 
@@ -269,7 +285,7 @@ class AligningNavFilter:
         d = self._data
         if isinstance(sample, ImuSample):
             d.imu.append(sample)
-        elif isinstance(sample, PoseSample):
+        elif isinstance(sample, PoseSample | OdometrySample):
             d.last_pose = sample
         elif isinstance(sample, MagSample):
             d.mag.append(sample)
@@ -288,7 +304,7 @@ class AligningNavFilter:
             d.imu, pose, mag=d.mag, declination_rad=cfg.mag_declination_rad, gps_enu_m=gps_enu
         )
         if pose is not None:
-            yaw, pos = a.pose_factor * pose.sigma_yaw_rad, a.pose_factor * pose.sigma_pos_m
+            yaw, pos = (a.pose_factor * s for s in pose_sigmas(pose))
         else:
             yaw = a.yaw_from_mag_rad if d.mag else a.yaw_unknown_rad
             fix = d.first_fix

@@ -19,12 +19,14 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
+from typing import Protocol
 
 import numpy as np
 from numpy.typing import NDArray
 
-from quadnav.control.base import Setpoint, truth_estimate
+from quadnav.control.base import Controller, Setpoint, SetpointSource, truth_estimate
 from quadnav.control.cascaded_pid import CascadedPid
+from quadnav.control.thesis003 import OuterLoopController, TakeoffForward, Thesis003Gains
 from quadnav.errors import ExperimentError, SimError
 from quadnav.estimation.horizon import HorizonConfig, SourceFusion, SourceStats
 from quadnav.estimation.nav_ekf import NavEkfConfig
@@ -41,6 +43,12 @@ from quadnav.estimation.nav_filter import (
 )
 from quadnav.experiments.nav_channels import FlightPhase, build_channels
 from quadnav.experiments.nav_config import NavScenario
+from quadnav.experiments.vio_flight import (
+    OdometryShortcut,
+    OdometrySink,
+    VioCameraSensor,
+    VioRecord,
+)
 from quadnav.geometry.rotations import rotation_matrix_xyzw, so3_log
 from quadnav.messages import Sample, StateEstimate, VehicleState
 from quadnav.sim.channels import Channel
@@ -88,6 +96,9 @@ class NavRunResult:
     events: list[tuple[int, str]] = field(default_factory=list)  # the filter's own log
     stream: list[Sample] | None = None  # every sample the estimator got, in arrival order
     sample_times_ns: Mapping[str, NDArray[np.int64]] = field(default_factory=dict)
+    # Per logged step, whether the plan hovers there (None: the square's holds, from ref_p)
+    hover: NDArray[np.bool_] | None = None
+    vio: VioRecord | None = None  # what the VIO did (vio.enabled)
 
 
 def _ekf_estimator(sc: NavScenario, gravity_m_s2: float, max_delay_ns: int) -> NavEstimator:
@@ -103,6 +114,11 @@ def _ekf_estimator(sc: NavScenario, gravity_m_s2: float, max_delay_ns: int) -> N
         mag_declination_rad=sc.mag.declination_rad,
         vision_frame=es.vision_frame,
         reset_after_s=es.reset_after_s,
+        odometry_fuse=tuple(sc.vio.fuse),
+        odometry_pos_noise_m=sc.vio.pos_noise_m,
+        odometry_vel_noise_m_s=sc.vio.vel_noise_m_s,
+        odometry_yaw_noise_rad=sc.vio.yaw_noise_rad,
+        odometry_gate_sigma=sc.vio.gate_sigma,
     )
     horizon = HorizonConfig(
         imu_period_ns=s_to_ns(1.0 / ic.rate_hz),
@@ -198,6 +214,88 @@ class _Plan:
         self.landed = self.landed or (self._down(i, first_half=False) and z_m < 0.05)
         return self.landed
 
+    def ref_p(self, i: int) -> FloatArray:
+        return np.asarray(self.p[i], dtype=np.float64)
+
+    def hovering(self, t_ns: int) -> bool | None:
+        del t_ns  # (the square's holds are found from its reference)
+        return None
+
+
+class FlightPlan(Protocol):
+    """What the loop asks its plan each step."""
+
+    n_steps: int
+
+    def on_ground(self, i: int, t_ns: int) -> bool: ...
+
+    def setpoint(self, i: int) -> Setpoint: ...
+
+    def touch_down(self, i: int, z_m: float) -> bool: ...
+
+    def ref_p(self, i: int) -> FloatArray: ...
+
+    def hovering(self, t_ns: int) -> bool | None: ...
+
+
+class _Recorded:
+    """A setpoint source whose last setpoint can be read (the hover point it holds)."""
+
+    def __init__(self, inner: SetpointSource) -> None:
+        self.inner = inner
+        self.last: Setpoint | None = None
+
+    def __call__(self, t_ns: int, est: StateEstimate, ref: Setpoint) -> Setpoint:
+        self.last = self.inner(t_ns, est, ref)
+        return self.last
+
+
+class _TakeoffPlan:
+    """Thesis 003's section 6.3: on the ground for ``plan.takeoff_s`` after alignment (the VIO
+    starts at rest), then :class:`~quadnav.control.thesis003.TakeoffForward` climbs to
+    ``height_m`` and goes ``forward_m`` ahead, then holds where it stopped: a hover, counted
+    from a second after it began. No landing."""
+
+    def __init__(self, sc: NavScenario, outer: _Recorded, takeoff: TakeoffForward) -> None:
+        self.n_steps = round(sc.flight_s / sc.sim_dt_s)
+        self.takeoff_ns = s_to_ns(sc.estimator.align_s + sc.plan.takeoff_s)
+        self.target = np.array([sc.plan.forward_m, 0.0, sc.plan.height_m])
+        self.outer, self.takeoff = outer, takeoff
+        self._done_ns: int | None = None
+
+    def on_ground(self, i: int, t_ns: int) -> bool:
+        return t_ns < self.takeoff_ns
+
+    def setpoint(self, i: int) -> Setpoint:
+        return Setpoint(p=self.target)
+
+    def touch_down(self, i: int, z_m: float) -> bool:
+        return False
+
+    def ref_p(self, i: int) -> FloatArray:
+        last: Setpoint | None = self.outer.last
+        return (
+            last.p if self.takeoff.phase == "done" and last and last.p is not None else self.target
+        )
+
+    def hovering(self, t_ns: int) -> bool | None:
+        if self.takeoff.phase != "done":
+            return False
+        self._done_ns = t_ns if self._done_ns is None else self._done_ns
+        return t_ns - self._done_ns >= 1_000_000_000
+
+
+def flight_plan(sc: NavScenario, params: RigidBodyParams) -> tuple[Controller, FlightPlan]:
+    """The controller and plan of ``plan.kind``: the cascaded PID on the square's trajectory,
+    or thesis 003's take-off-and-forward velocity commands (10 Hz) over its velocity mode."""
+    pid = CascadedPid(params, dt_s=sc.sim_dt_s)
+    if sc.plan.kind == "square":
+        return pid, _Plan(sc)
+    gains = Thesis003Gains()
+    takeoff = TakeoffForward(gains=gains)
+    outer = _Recorded(takeoff)
+    return OuterLoopController(outer, pid, rate_hz=gains.rate_hz), _TakeoffPlan(sc, outer, takeoff)
+
 
 _BIAS_NAMES = ("bgx", "bgy", "bgz", "bax", "bay", "baz")
 
@@ -218,6 +316,7 @@ class _NavLog:
         self.out: list[StateEstimate] = []
         self.delayed: list[StateEstimate] = []
         self.err: list[FloatArray] = []
+        self.hover: list[bool | None] = []
         self._truth_at: dict[int, tuple[VehicleState, FloatArray]] = {}
         self.stream: list[Sample] | None = [] if record_stream else None
 
@@ -228,8 +327,10 @@ class _NavLog:
         ref_p: FloatArray,
         out: StateEstimate,
         dl: StateEstimate,
+        hover: bool | None = None,
     ) -> None:
         self._truth_at[truth.t_ns] = (truth, true_bias)
+        self.hover.append(hover)
         self.t.append(truth.t_ns)
         self.truth.append(truth)
         self.ref_p.append(ref_p)
@@ -264,11 +365,19 @@ class _NavLog:
         }
 
 
+def _vio_record(channels: list[Channel]) -> VioRecord | None:
+    for ch in channels:
+        if isinstance(ch.sensor, VioCameraSensor | OdometryShortcut):
+            return ch.sensor.record()
+    return None
+
+
 def _result(
     sc: NavScenario, seed: int, log: _NavLog, channels: list[Channel], report: EstimatorReport
 ) -> NavRunResult:
     by_name = {ch.name: ch for ch in channels}
     imu = by_name["imu"]
+    hover = None if any(h is None for h in log.hover) else np.array(log.hover, dtype=bool)
     times = {ch.name: np.array(ch.sampled_t_ns, dtype=np.int64) for ch in channels}
     return NavRunResult(
         scenario=sc,
@@ -287,6 +396,8 @@ def _result(
         events=list(report.events),
         stream=log.stream,
         sample_times_ns=times,
+        hover=hover,
+        vio=_vio_record(channels),
         **log.arrays(),
     )
 
@@ -299,16 +410,26 @@ def _true_biases(imu: Channel) -> FloatArray:
     return np.concatenate([bg, ba])
 
 
-def run_nav(sc: NavScenario, seed: int, *, record_stream: bool = False) -> NavRunResult:
-    """Align on the ground, fly the plan, and log truth, estimates and fusions."""
+def run_nav(
+    sc: NavScenario,
+    seed: int,
+    *,
+    record_stream: bool = False,
+    odometry_sink: OdometrySink | None = None,
+    progress: Callable[[float], None] | None = None,
+) -> NavRunResult:
+    """Align on the ground, fly the plan, and log truth, estimates and fusions. The VIO's
+    odometry also goes to ``odometry_sink``; ``progress`` gets the fraction flown (each 1 %)."""
     params = RigidBodyParams()
     sim = RigidBodyQuadrotor(params, dt_s=sc.sim_dt_s)
-    ctrl = CascadedPid(params, dt_s=sc.sim_dt_s)
     phase = FlightPhase()
-    channels = build_channels(sc, seed, phase, gravity_m_s2=params.gravity_m_s2)
+    channels = build_channels(
+        sc, seed, phase, gravity_m_s2=params.gravity_m_s2, odometry_sink=odometry_sink
+    )
     imu = next(ch for ch in channels if ch.name == "imu")
     est = nav_estimator(sc, params.gravity_m_s2, channels)
-    plan, log = _Plan(sc), _NavLog(record_stream=record_stream)
+    (ctrl, plan), log = flight_plan(sc, params), _NavLog(record_stream=record_stream)
+    every = max(1, plan.n_steps // 100)
     out: StateEstimate | None = None
     try:
         for i in range(plan.n_steps):
@@ -327,7 +448,8 @@ def run_nav(sc: NavScenario, seed: int, *, record_stream: bool = False) -> NavRu
             if pushed or out is None:  # (an estimate changes only with what it is pushed)
                 out = est.output() if est.ready else None
             if was_ready and out is not None and imu.sampled_t_ns and imu.sampled_t_ns[-1] == t:
-                log.record(truth, _true_biases(imu), plan.p[i], out, est.delayed())
+                dl, hover = est.delayed(), plan.hovering(t)
+                log.record(truth, _true_biases(imu), plan.ref_p(i), out, dl, hover)
             if phase.motors_off:
                 cmd = np.zeros(4)
             else:
@@ -336,6 +458,8 @@ def run_nav(sc: NavScenario, seed: int, *, record_stream: bool = False) -> NavRu
                 if plan.touch_down(i, float(fly_on.p_W_B[2])):
                     cmd = np.zeros(4)
             sim.step(cmd)
+            if progress is not None and i % every == 0:
+                progress(i / plan.n_steps)
     except SimError as exc:
         raise ExperimentError(f"scenario {sc.name!r} seed {seed}: {exc}") from None
     if not est.ready or not log.t:

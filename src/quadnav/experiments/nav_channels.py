@@ -24,6 +24,7 @@ from numpy.random import Generator
 
 from quadnav.experiments.marker_camera import MarkerCameraSensor, marker_field, thesis_mount
 from quadnav.experiments.nav_config import RANGE_MIN_M, NavScenario
+from quadnav.experiments.vio_flight import OdometrySink, build_vio_sensor
 from quadnav.messages import TruthSample, VehicleState, VelocitySample
 from quadnav.sim.channels import (
     Channel,
@@ -74,6 +75,7 @@ class BuildContext:
     phase: FlightPhase
     gravity_m_s2: float
     bias_rng: Generator
+    odometry_sink: OdometrySink | None = None  # where the VIO's odometry also goes (MAVLink)
 
 
 Builder = Callable[[NavScenario, BuildContext, Generator], Channel | None]
@@ -130,6 +132,14 @@ def _vision(sc: NavScenario, ctx: BuildContext, rng: Generator) -> Channel | Non
     late = [(s_to_ns(t), s_to_ns(d)) for t, d in sc.faults.vision_late_s]
     faults: tuple[DeliveryFault, ...] = (LateAt(late),) if late else ()
     return Channel("vision", sensor, rng, delay_ns=s_to_ns(vs.delay_s), faults=faults)
+
+
+def _vio(sc: NavScenario, ctx: BuildContext, rng: Generator) -> Channel | None:
+    if not sc.vio.enabled:
+        return None
+    bias_rng = channel_rng(ctx.seed, "vio_turn_on_bias")
+    sensor = build_vio_sensor(sc, rng, bias_rng, ctx.gravity_m_s2, ctx.odometry_sink)
+    return Channel("vio", sensor, rng, delay_ns=s_to_ns(sc.vio.delay_s))
 
 
 def _baro(sc: NavScenario, ctx: BuildContext, rng: Generator) -> Channel | None:
@@ -267,6 +277,7 @@ def _imu(sc: NavScenario, ctx: BuildContext, rng: Generator) -> Channel:
 #: the estimator's clock on once the step's observations are in).
 CHANNELS: tuple[ChannelEntry, ...] = (
     ChannelEntry("vision", _vision, "external pose: marker camera or the pose shortcut"),
+    ChannelEntry("vio", _vio, "external odometry: a VIO on rendered images, or its shortcut"),
     ChannelEntry("baro", _baro, "barometric height with a drifting offset"),
     ChannelEntry("gps", _gps, "GNSS fixes and velocity"),
     ChannelEntry("range", _range, "downward range finder"),
@@ -288,10 +299,16 @@ def is_pseudo_source(source: str) -> bool:
 
 
 def build_channels(
-    sc: NavScenario, seed: int, phase: FlightPhase, *, gravity_m_s2: float
+    sc: NavScenario,
+    seed: int,
+    phase: FlightPhase,
+    *,
+    gravity_m_s2: float,
+    odometry_sink: OdometrySink | None = None,
 ) -> list[Channel]:
     """The scenario's enabled channels, each with its own random stream."""
-    ctx = BuildContext(seed, phase, gravity_m_s2, channel_rng(seed, "imu_turn_on_bias"))
+    bias_rng = channel_rng(seed, "imu_turn_on_bias")
+    ctx = BuildContext(seed, phase, gravity_m_s2, bias_rng, odometry_sink)
     out = []
     for entry in CHANNELS:
         ch = entry.build(sc, ctx, channel_rng(seed, entry.name))

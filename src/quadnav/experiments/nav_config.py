@@ -73,6 +73,55 @@ class VisionSection(ConfigModel):
     )
 
 
+OdometryPart = Literal["pos", "vel", "yaw"]
+_ODOMETRY_PARTS: tuple[OdometryPart, ...] = ("pos", "vel", "yaw")
+
+
+class VioSection(ConfigModel):
+    """Visual-inertial odometry as an external-odometry source (PX4's ODOMETRY): the rig's
+    camera rendered in a 3-D world and its IMU, fed to the VIO, whose estimate (converted to
+    the vehicle's body) the EKF fuses; or the shortcut of the true pose and velocity plus noise
+    and a slow drift."""
+
+    enabled: bool = False
+    source: Literal["camera", "odometry"] = Field(
+        "camera",
+        description="camera: rendered images and the rig's IMU into the VIO; odometry: the true "
+        "pose and velocity plus noise and drift (the fast shortcut, no images)",
+    )
+    rig: Literal["thesis003_sim", "euroc_mono"] = Field(
+        "thesis003_sim", description="camera: the camera-IMU rig (its camera, IMU and mount)"
+    )
+    world: Literal["hall", "room", "yard"] = Field("hall", description="camera: the 3-D world")
+    world_seed: int = Field(0, ge=0, description="camera: the world's layout and textures")
+    image_noise: float = Field(2.0, ge=0, description="camera: grey-level read noise")
+    delay_s: float = Field(
+        0.05, ge=0, le=MAX_DELAY_S, description="processing latency of the odometry"
+    )
+    rate_hz: float = Field(20.0, gt=0, le=MAX_RATE_HZ, description="odometry: its rate")
+    sigma_m: float = Field(0.02, ge=MIN_SIGMA, description="odometry: position noise")
+    sigma_vel_m_s: float = Field(0.02, ge=MIN_SIGMA, description="odometry: velocity noise")
+    yaw_sigma_rad: float = Field(0.01, ge=MIN_SIGMA, description="odometry: attitude noise")
+    drift_m_sqrt_s: float = Field(
+        0.005, ge=0, description="odometry: random-walk drift of the frame's origin"
+    )
+    pos_noise_m: float = Field(
+        0.05, ge=MIN_SIGMA, description="EKF: floor of the position sigma (EKF2_EVP_NOISE)"
+    )
+    vel_noise_m_s: float = Field(
+        0.05, ge=MIN_SIGMA, description="EKF: floor of the velocity sigma (EKF2_EVV_NOISE)"
+    )
+    yaw_noise_rad: float = Field(
+        0.02, ge=MIN_SIGMA, description="EKF: floor of the yaw sigma (EKF2_EVA_NOISE)"
+    )
+    gate_sigma: float = Field(5.0, gt=0, description="EKF: innovation gate (EKF2_EVP_GATE)")
+    fuse: list[OdometryPart] = Field(
+        default_factory=lambda: list(_ODOMETRY_PARTS),
+        min_length=1,
+        description="EKF: what is fused (EKF2_EV_CTRL)",
+    )
+
+
 class BaroSection(ConfigModel):
     enabled: bool = True
     rate_hz: float = Field(50.0, gt=0, le=MAX_RATE_HZ)
@@ -157,6 +206,19 @@ class MagSection(ConfigModel):
 
 
 class PlanSection(ConfigModel):
+    kind: Literal["square", "takeoff_forward"] = Field(
+        "square",
+        description="square: take off, hold, a square, hold, land (cascaded PID on a "
+        "trajectory); takeoff_forward: thesis 003's take-off P controller to height_m, then "
+        "forward_m ahead, then hover (10 Hz velocity commands)",
+    )
+    forward_m: float = Field(5.0, gt=0, description="takeoff_forward: distance ahead")
+    takeoff_s: float = Field(
+        3.0, ge=0, le=MAX_DURATION_S, description="takeoff_forward: on the ground after alignment"
+    )
+    duration_s: float = Field(
+        40.0, gt=0, le=MAX_DURATION_S, description="takeoff_forward: flight after take-off"
+    )
     height_m: float = Field(1.5, gt=0)
     square_m: float = Field(2.0, gt=0)
     speed_m_s: float = Field(1.0, gt=0)
@@ -236,6 +298,7 @@ class NavScenario(ConfigModel):
     seeds: int = Field(1, ge=1, le=1000)
     imu: ImuSection = ImuSection()
     vision: VisionSection = VisionSection()
+    vio: VioSection = VioSection()
     baro: BaroSection = BaroSection()
     gps: GpsSection = GpsSection()
     mag: MagSection = MagSection()
@@ -252,10 +315,10 @@ class NavScenario(ConfigModel):
                 f"imu.rate_hz ({self.imu.rate_hz:g} Hz) is faster than the simulation step "
                 f"(sim_dt_s = {self.sim_dt_s:g} s: at most {1.0 / self.sim_dt_s:g} Hz)"
             )
-        if not (self.vision.enabled or self.gps.enabled or self.flow.enabled):
+        if not (self.vision.enabled or self.gps.enabled or self.flow.enabled or self.vio.enabled):
             raise ValueError(
-                "vision, gps and flow are all disabled: nothing bounds the horizontal position "
-                "or velocity"
+                "vision, vio, gps and flow are all disabled: nothing bounds the horizontal "
+                "position or velocity"
             )
         frame_moved = self.vision.frame_yaw_deg != 0 or any(self.vision.frame_offset_m)
         if self.estimator.vision_frame == "world" and frame_moved:
@@ -304,6 +367,7 @@ class NavScenario(ConfigModel):
             (key, sec.enabled, sec.rate_hz)
             for key, sec in (
                 ("vision", self.vision),
+                ("vio", self.vio),
                 ("baro", self.baro),
                 ("gps", self.gps),
                 ("mag", self.mag),
@@ -339,4 +403,6 @@ class NavScenario(ConfigModel):
 
     @property
     def flight_s(self) -> float:
+        if self.plan.kind == "takeoff_forward":
+            return self.estimator.align_s + self.plan.takeoff_s + self.plan.duration_s
         return self.estimator.align_s + self.waypoints().duration_s + 1.0

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -20,6 +20,7 @@ from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
+from quadnav.errors import ConfigError
 from quadnav.estimation.horizon import SourceStats
 from quadnav.estimation.nav_filter import ImuCounts
 from quadnav.eval.metrics import nees
@@ -30,6 +31,7 @@ from quadnav.experiments.nav_channels import is_pseudo_source
 from quadnav.experiments.seeds import run_tasks
 from quadnav.geometry.trajectory import Trajectory
 from quadnav.io.config import dump_config
+from quadnav.io.mavlink import MavlinkLink
 from quadnav.io.run_folder import (
     append_jsonl,
     create_run_folder,
@@ -39,8 +41,17 @@ from quadnav.io.run_folder import (
     write_text,
 )
 from quadnav.io.trajectory_io import write_tum
+from quadnav.messages import OdometrySample
 
-__all__ = ["NavMetrics", "NavStudy", "nav_metrics", "plot_nav_run", "run_nav_study"]
+__all__ = [
+    "NavMetrics",
+    "NavStudy",
+    "OdometryLink",
+    "nav_metrics",
+    "plot_nav_run",
+    "reports_in_flight",
+    "run_nav_study",
+]
 
 FloatArray = NDArray[np.float64]
 Progress = Callable[[int, int, str], None]
@@ -72,6 +83,9 @@ class NavMetrics:
     end_horizontal_error_m: float
     distance_flown_m: float
     drift_percent: Metric
+    end_position_error_m: float = math.nan  # 3-D, output predictor against the truth
+    vio_counts: dict[str, int] = field(default_factory=dict)  # frames, states, resets...
+    vio_events: list[str] = field(default_factory=list)
 
     def to_json(self) -> dict[str, object]:
         """The flat record ``metrics.json`` and ``seeds.jsonl`` hold (``counts`` per source)."""
@@ -111,7 +125,10 @@ def _dropout_metrics(
 
 def _hold_mask(r: NavRunResult, t: FloatArray) -> NDArray[np.bool_]:
     """The holds at flight height above the take-off point (after the climb and before the
-    descent), from their first second on. The corner stops of the square are not hovers."""
+    descent), from their first second on. The corner stops of the square are not hovers. A
+    plan that says where it hovers (thesis 003's take-off and forward) says so itself."""
+    if r.hover is not None:
+        return r.hover
     above_start = np.all(np.abs(r.ref_p[:, 0:2] - r.ref_p[0, 0:2]) < 1e-9, axis=1)
     still = (
         np.concatenate([[False], np.all(np.diff(r.ref_p, axis=0) == 0, axis=1)])
@@ -191,7 +208,24 @@ def nav_metrics(r: NavRunResult) -> NavMetrics:
         end_horizontal_error_m=end,
         distance_flown_m=dist,
         drift_percent=drift,
+        end_position_error_m=float(np.linalg.norm(r.output_p[-1] - r.truth_p[-1])),
+        **_vio_metrics(r),
     )
+
+
+def _vio_metrics(r: NavRunResult) -> dict[str, Any]:
+    """What the VIO did: frames given, states returned, re-initialisations (its reset counter
+    at the end), odometry refused at the boundary, its events."""
+    v = r.vio
+    if v is None:
+        return {}
+    resets = int(v.reset_counter[-1]) if len(v.reset_counter) else 0
+    counts = {"frames": v.frames, "states": v.states, "resets": resets,
+              "rejected_invalid": v.rejected_invalid}  # fmt: skip
+    return {
+        "vio_counts": counts,
+        "vio_events": [f"{t * 1e-9:.3f} s: {msg}" for t, msg in v.events],
+    }
 
 
 def _bias_error_fractions(r: NavRunResult) -> dict[str, Metric]:
@@ -368,6 +402,12 @@ def _write_series(r: NavRunResult, folder: Path) -> None:
     write_tum(
         folder / "output.tum", Trajectory(t_ns=r.t_ns, p_W_B=r.output_p, q_W_B_xyzw=r.output_q)
     )
+    if r.vio is not None and len(r.vio.t_ns):
+        # the VIO's own estimate: the rig's body in the VIO's world, at its optimised frames
+        v = r.vio
+        write_tum(
+            folder / "vio.tum", Trajectory(t_ns=v.t_ns, p_W_B=v.p_W_B, q_W_B_xyzw=v.q_W_B_xyzw)
+        )
 
 
 def _write_sensor_streams(r: NavRunResult, folder: Path) -> None:
@@ -381,6 +421,7 @@ def _write_sensor_streams(r: NavRunResult, folder: Path) -> None:
     fields = {
         "ImuSample": ("imu", [("gyro", "gyro_rad_s", "xyz"), ("accel", "accel_m_s2", "xyz")]),
         "PoseSample": ("vision", [("p", "p_W_B", "xyz"), ("q", "q_W_B_xyzw", "xyzw")]),
+        "OdometrySample": ("vio", [("p", "p_W_B", "xyz"), ("q", "q_W_B_xyzw", "xyzw"), ("v", "v_W_B", "xyz"), ("reset_counter", "reset_counter", "")]),
         "HeightSample": ("baro", [("z_m", "z_m", "")]),
         "GpsSample": ("gps", [("lat_deg", "lat_deg", ""), ("lon_deg", "lon_deg", ""), ("alt_m", "alt_m", ""), ("v", "v_enu_m_s", "xyz")]),
         "MagSample": ("mag", [("field", "field_B", "xyz")]),
@@ -428,6 +469,7 @@ class NavSummary:
     accel_bias_error_fraction_median: Metric
     end_horizontal_error_m: Metric
     drift_percent: Metric
+    end_position_error_m: Metric
 
     def to_json(self) -> dict[str, object]:
         return {f: getattr(self, f) for f in self.__dataclass_fields__}
@@ -464,6 +506,7 @@ def _summarize(per_seed: list[NavMetrics]) -> NavSummary:
         ),
         end_horizontal_error_m=median_or_na(m.end_horizontal_error_m for m in per_seed),
         drift_percent=median_or_na(m.drift_percent for m in per_seed),
+        end_position_error_m=median_or_na(m.end_position_error_m for m in per_seed),
     )
 
 
@@ -472,6 +515,7 @@ class NavStudy:
     run_dir: Path
     per_seed: list[NavMetrics]
     summary: NavSummary
+    mavlink_sent: dict[str, int] = field(default_factory=dict)  # messages sent, by name
 
 
 def _one(sc: NavScenario, seed: int) -> NavRunResult:
@@ -479,35 +523,57 @@ def _one(sc: NavScenario, seed: int) -> NavRunResult:
     return run_nav(sc, seed, record_stream=seed == sc.seed)
 
 
-def run_nav_study(
-    sc: NavScenario, *, runs_root: Path, progress: Progress | None = None, jobs: int = 1
-) -> NavStudy:
-    """Fly ``sc.seeds`` seeds; write the first seed's series and plots, every seed's metrics."""
-    run_dir = create_run_folder(runs_root, sc.name)
-    write_text(run_dir / "config.yaml", dump_config(sc))
-    seeds = [sc.seed + k for k in range(sc.seeds)]
-    results: dict[int, NavMetrics] = {}
-    firsts: list[NavRunResult] = []
+class OdometryLink:
+    """The VIO's odometry to an autopilot as a companion computer sends it: a heartbeat every
+    second of flight, and each odometry sample as it is made (ODOMETRY, MAV_ESTIMATOR_TYPE_VIO)."""
 
-    def collect(k: int, res: NavRunResult) -> None:
-        results[res.seed] = nav_metrics(res)
-        append_jsonl(run_dir / "seeds.jsonl", results[res.seed].to_json())
-        if k == 0:
-            firsts.append(res)
-        if progress:
-            progress(len(results), len(seeds), f"seed {res.seed}")
+    def __init__(self, link: MavlinkLink) -> None:
+        self.link = link
+        self._next_heartbeat_ns: int | None = None
 
-    run_tasks(_one, [(sc, seed) for seed in seeds], collect, jobs=jobs)
-    first = firsts[0] if firsts else None
-    assert first is not None
+    def __call__(self, odo: OdometrySample) -> None:
+        if self._next_heartbeat_ns is None or odo.t_ns >= self._next_heartbeat_ns:
+            self.link.heartbeat()
+            self._next_heartbeat_ns = odo.t_ns + 1_000_000_000
+        self.link.send_odometry_sample(odo)
+
+
+def _in_process(
+    sc: NavScenario, progress: Progress | None, n_seeds: int, sink: OdometryLink | None
+) -> Callable[[NavScenario, int], NavRunResult]:
+    """One seed flown here, reporting its progress through the flight (in hundredths of
+    seeds); the first seed's odometry also to ``sink``."""
+
+    def one(scenario: NavScenario, seed: int) -> NavRunResult:
+        k = seed - sc.seed
+
+        def flown(frac: float) -> None:
+            if progress is not None:
+                progress(100 * k + int(100 * frac), 100 * n_seeds, f"seed {seed}")
+
+        first = seed == sc.seed
+        return run_nav(
+            scenario,
+            seed,
+            record_stream=first,
+            odometry_sink=sink if first else None,
+            progress=flown,
+        )
+
+    return one
+
+
+def _write_study(
+    sc: NavScenario, run_dir: Path, first: NavRunResult, per_seed: list[NavMetrics]
+) -> NavSummary:
+    """The run folder's series, streams and plots (the first seed's), metrics and report."""
     _write_series(first, run_dir)
     _write_sensor_streams(first, run_dir)
     images = plot_nav_run(first, run_dir / "plots")
-    per_seed = [results[s] for s in seeds]
 
     summary = _summarize(per_seed)
     table = [{
-        "scenario": sc.name, "seeds": len(seeds),
+        "scenario": sc.name, "seeds": len(per_seed),
         "output RMSE in the air (m)": summary.output_rmse_m,
         "output RMSE w/ vision (m)": summary.output_rmse_with_vision_m,
         "dropout end max (m)": summary.dropout_end_error_max_m,
@@ -527,7 +593,7 @@ def run_nav_study(
     )
     write_report(
         run_dir / "report.html",
-        title=f"{sc.name}: navigation flight ({len(seeds)} seed(s))",
+        title=f"{sc.name}: navigation flight ({len(per_seed)} seed(s))",
         sections=[
             ReportSection(
                 heading="Metrics",
@@ -544,4 +610,59 @@ def run_nav_study(
         ],
     )
     finish_run_folder(run_dir)
-    return NavStudy(run_dir=run_dir, per_seed=per_seed, summary=summary)
+    return summary
+
+
+def reports_in_flight(sc: NavScenario) -> bool:
+    """Whether a flight is long enough to report its progress as it flies (the VIO on
+    rendered images: minutes a flight)."""
+    return sc.vio.enabled and sc.vio.source == "camera"
+
+
+def run_nav_study(
+    sc: NavScenario,
+    *,
+    runs_root: Path,
+    progress: Progress | None = None,
+    jobs: int = 1,
+    mavlink: str | None = None,
+    allow_remote: bool = False,
+) -> NavStudy:
+    """Fly ``sc.seeds`` seeds; write the first seed's series and plots, every seed's metrics.
+    With ``mavlink`` (a URL) the first seed's VIO odometry goes to an autopilot there (the
+    seeds then fly in this process, one after the other)."""
+    if mavlink is not None and not sc.vio.enabled:
+        raise ConfigError("--mavlink sends the VIO's odometry: this scenario has vio.enabled=false")
+    run_dir = create_run_folder(runs_root, sc.name)
+    write_text(run_dir / "config.yaml", dump_config(sc))
+    seeds = [sc.seed + k for k in range(sc.seeds)]
+    results: dict[int, NavMetrics] = {}
+    firsts: list[NavRunResult] = []
+    link = None if mavlink is None else MavlinkLink(mavlink, allow_remote=allow_remote)
+    jobs = 1 if link is not None else jobs
+    in_flight = reports_in_flight(sc) and (jobs <= 1 or len(seeds) <= 1)
+    scale = 100 if in_flight else 1  # (in hundredths of seeds: progress within the flight)
+
+    def collect(k: int, res: NavRunResult) -> None:
+        results[res.seed] = nav_metrics(res)
+        append_jsonl(run_dir / "seeds.jsonl", results[res.seed].to_json())
+        if k == 0:
+            firsts.append(res)
+        if progress:
+            progress(scale * len(results), scale * len(seeds), f"seed {res.seed}")
+
+    tasks = [(sc, seed) for seed in seeds]
+    try:
+        sink = None if link is None else OdometryLink(link)
+        flown = progress if in_flight else None
+        fn = _in_process(sc, flown, len(seeds), sink) if in_flight or sink else _one
+        run_tasks(fn, tasks, collect, jobs=jobs)
+    finally:
+        if link is not None:
+            link.close()
+    first = firsts[0] if firsts else None
+    assert first is not None
+    per_seed = [results[s] for s in seeds]
+    summary = _write_study(sc, run_dir, first, per_seed)
+    sent = dict(link.stats.sent) if link is not None else {}
+    return NavStudy(run_dir=run_dir, per_seed=per_seed, summary=summary, mavlink_sent=sent)

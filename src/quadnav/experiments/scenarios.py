@@ -33,6 +33,17 @@ _OUTDOOR = (
     "plan.yaw=along_track",
 )
 
+_VIO = (
+    "vision.enabled=false",
+    "baro.enabled=false",
+    "vio.enabled=true",
+    "plan.kind=takeoff_forward",
+    "plan.height_m=5",
+    "plan.forward_m=5",
+    "plan.duration_s=32",
+    "sim_dt_s=0.001",
+)
+
 _ENTRIES = (
     NavBuiltin(
         name="indoor_vision",
@@ -79,6 +90,20 @@ _ENTRIES = (
             "estimator.init_yaw_sigma_unknown_rad=0.05",
             "estimator.gyro_bias_at_rest=true",
         ),
+    ),
+    NavBuiltin(
+        name="indoor_vio",
+        description="thesis 003's flight on visual-inertial odometry: its forward camera "
+        "(640x480, 20 Hz) rendered in a 9 m high hall and its IMU (200 Hz) into the VIO, whose "
+        "odometry (50 ms late) and the IMU feed the EKF (no markers, GPS or barometer); take off "
+        "to 5 m, 5 m forward, hover",
+        overrides=_VIO,
+    ),
+    NavBuiltin(
+        name="indoor_vio_odometry",
+        description="the same flight on the odometry shortcut (the truth + 2 cm, its frame "
+        "drifting 5 mm/sqrt(s)): no images, no VIO",
+        overrides=(*_VIO, "vio.source=odometry"),
     ),
     NavBuiltin(
         name="outdoor_gps",

@@ -40,6 +40,7 @@ from quadnav.geometry.frames import (
     rotation_ned_frd_to_enu_flu,
 )
 from quadnav.geometry.rotations import Pose
+from quadnav.messages import OdometrySample
 
 __all__ = [
     "SIGNING_KEY_ENV",
@@ -48,10 +49,13 @@ __all__ = [
     "VehicleCommand",
     "check_bind",
     "covariance_enu_to_ned",
+    "covariance_ned_to_enu",
+    "decode_odometry",
     "decode_vehicle_command",
     "parse_url",
     "read_signing_key",
     "upper_triangle",
+    "velocity_covariance_enu_to_frd",
 ]
 
 FloatArray = NDArray[np.float64]
@@ -178,24 +182,86 @@ def from_upper_triangle(v: list[float]) -> FloatArray:
     return C + np.triu(C, 1).T
 
 
-def covariance_enu_to_ned(C_enu: FloatArray, R_ENU_FLU: Rotation) -> FloatArray:
-    """A pose covariance [position ENU, attitude error] to MAVLink's [x, y, z NED, roll, pitch,
-    yaw]: the position block through ENU->NED, the attitude (a small rotation in the world,
-    ``R_true = Exp(dtheta) R``) through the derivative of the NED/FRD Euler angles."""
-    R0 = rotation_enu_flu_to_ned_frd(R_ENU_FLU)
-    e0 = R0.as_euler("ZYX")[::-1]
+def _mavlink_dialect() -> Any:
+    """pymavlink's common dialect (its constants), imported when first needed."""
+    from pymavlink import mavutil  # type: ignore[import-untyped]
+
+    return mavutil.mavlink
+
+
+def _symmetric(C: FloatArray) -> FloatArray:
+    return np.asarray(0.5 * (C + C.T), dtype=np.float64)
+
+
+def _pose_covariance_map(R_ENU_FLU: Rotation) -> FloatArray:
+    """The linear map (6x6) of a pose error [position ENU, attitude error in the world] onto
+    MAVLink's [x, y, z NED, roll, pitch, yaw of the FRD body] (the attitude part the derivative
+    of the NED/FRD Euler angles, by central differences)."""
     J = np.zeros((3, 3))
     for k in range(3):
         d = np.zeros(3)
         d[k] = 1e-6
-        ep = rotation_enu_flu_to_ned_frd(Rotation.from_rotvec(d) * R_ENU_FLU).as_euler("ZYX")[::-1]
-        J[:, k] = np.remainder(ep - e0 + np.pi, 2 * np.pi) - np.pi
-    J /= 1e-6
+        ep = rotation_enu_flu_to_ned_frd(Rotation.from_rotvec(d) * R_ENU_FLU).as_euler("ZYX")
+        em = rotation_enu_flu_to_ned_frd(Rotation.from_rotvec(-d) * R_ENU_FLU).as_euler("ZYX")
+        J[:, k] = (np.remainder(ep - em + np.pi, 2 * np.pi) - np.pi)[::-1]
+    J /= 2e-6
     T = np.zeros((6, 6))
     T[0:3, 0:3] = _M
     T[3:6, 3:6] = J
-    C = T @ np.asarray(C_enu, dtype=np.float64) @ T.T
-    return 0.5 * (C + C.T)
+    return T
+
+
+def covariance_enu_to_ned(C_enu: FloatArray, R_ENU_FLU: Rotation) -> FloatArray:
+    """A pose covariance [position ENU, attitude error] to MAVLink's [x, y, z NED, roll, pitch,
+    yaw]: the position block through ENU->NED, the attitude (a small rotation in the world,
+    ``R_true = Exp(dtheta) R``) through the derivative of the NED/FRD Euler angles."""
+    T = _pose_covariance_map(R_ENU_FLU)
+    return _symmetric(T @ np.asarray(C_enu, dtype=np.float64) @ T.T)
+
+
+def covariance_ned_to_enu(C_ned: FloatArray, R_ENU_FLU: Rotation) -> FloatArray:
+    """The inverse of :func:`covariance_enu_to_ned` (what a receiver of ODOMETRY recovers)."""
+    T_inv = np.linalg.inv(_pose_covariance_map(R_ENU_FLU))
+    return _symmetric(T_inv @ np.asarray(C_ned, dtype=np.float64) @ T_inv.T)
+
+
+def velocity_covariance_enu_to_frd(C_enu: FloatArray, R_ENU_FLU: Rotation) -> FloatArray:
+    """A world (ENU) velocity covariance (3x3) in the FRD body's axes, ODOMETRY's velocity
+    frame: ``C_FRD = R_NED_FRD^T M C M^T R_NED_FRD``."""
+    A = rotation_enu_flu_to_ned_frd(R_ENU_FLU).as_matrix().T @ _M
+    return _symmetric(A @ np.asarray(C_enu, dtype=np.float64) @ A.T)
+
+
+def decode_odometry(msg: Any, *, source: str = "vio") -> OdometrySample:
+    """An ODOMETRY message (MAV_FRAME_LOCAL_FRD, body MAV_FRAME_BODY_FRD) back in quadnav's
+    frames: pose ENU/FLU, world velocity, the covariances (pose as [position, world attitude
+    error], velocity in the world), reset counter and quality. A message another frame or with
+    no covariance is an :class:`~quadnav.errors.IoError`."""
+    m = _mavlink_dialect()
+    if (msg.frame_id, msg.child_frame_id) != (m.MAV_FRAME_LOCAL_FRD, m.MAV_FRAME_BODY_FRD):
+        raise IoError(
+            f"ODOMETRY in frames {msg.frame_id}/{msg.child_frame_id}: only LOCAL_FRD/BODY_FRD"
+        )
+    w, x, y, z = msg.q
+    R_ned = Rotation.from_quat([x, y, z, w])
+    R = rotation_ned_frd_to_enu_flu(R_ned)
+    cov = np.array(msg.pose_covariance, dtype=np.float64)
+    vcov = np.array(msg.velocity_covariance, dtype=np.float64)
+    if not (np.isfinite(cov).all() and np.isfinite(vcov[[0, 1, 2, 6, 7, 11]]).all()):
+        raise IoError("ODOMETRY without a pose or velocity covariance")
+    C_v_frd = from_upper_triangle(list(vcov))[0:3, 0:3]
+    to_enu = _M @ R_ned.as_matrix()  # FRD body axes -> NED -> ENU
+    return OdometrySample(
+        t_ns=int(msg.time_usec) * 1000,
+        p_W_B=ned_to_enu(np.array([msg.x, msg.y, msg.z], dtype=np.float64)),
+        q_W_B_xyzw=R.as_quat(),
+        v_W_B=to_enu @ np.array([msg.vx, msg.vy, msg.vz], dtype=np.float64),
+        cov_pose=covariance_ned_to_enu(from_upper_triangle(list(cov)), R),
+        cov_v=_symmetric(to_enu @ C_v_frd @ to_enu.T),
+        reset_counter=int(msg.reset_counter),
+        quality=max(0, int(msg.quality)),
+        source=source,
+    )
 
 
 def _connect(mavutil: Any, url: str, system: int, component: int, *, allow_remote: bool) -> Any:
@@ -286,9 +352,7 @@ class VehicleCommand:
 def decode_vehicle_command(msg: Any) -> VehicleCommand | None:
     """What a vehicle is told to do by ``msg``; None for a message that is not a command.
     MAV_CMD_DO_SET_MODE carries PX4's custom main mode in ``param2`` (bits 16-23 of the mode)."""
-    from pymavlink import mavutil  # type: ignore[import-untyped]
-
-    m = mavutil.mavlink
+    m = _mavlink_dialect()
     name = msg.get_type()
     if name == "SET_MODE":
         return VehicleCommand(kind="set_mode", custom_mode=int(msg.custom_mode))
@@ -413,8 +477,16 @@ class MavlinkLink:
         cov_enu: FloatArray,
         v_enu: FloatArray | None = None,
         reset_counter: int = 0,
+        *,
+        cov_v_enu: FloatArray | None = None,
+        quality: int = 100,
+        estimator: Literal["vision", "vio"] = "vision",
     ) -> None:
-        """ODOMETRY in MAV_FRAME_LOCAL_FRD with the body in MAV_FRAME_BODY_FRD, quaternion w first."""
+        """ODOMETRY in MAV_FRAME_LOCAL_FRD with the body in MAV_FRAME_BODY_FRD, quaternion w
+        first, the velocity in the body's FRD axes. Covariances as MAVLink's 21-element upper
+        triangles: the pose's [x, y, z, roll, pitch, yaw] (:func:`covariance_enu_to_ned`), the
+        velocity's [vx, vy, vz, rates] with the rates unknown (NaN; the whole of it NaN first
+        without ``cov_v_enu``). ``estimator``: MAV_ESTIMATOR_TYPE_VISION or _VIO."""
         m = self._mavutil.mavlink
         R = rotation_enu_flu_to_ned_frd(T_ENU_FLU.R_A_B)
         x, y, z, w = R.as_quat()
@@ -423,6 +495,12 @@ class MavlinkLink:
             R.apply(enu_to_ned(v_enu), inverse=True) if v_enu is not None else np.full(3, np.nan)
         )
         vel_cov = [float("nan")] + [0.0] * 20  # NaN first: unknown
+        if cov_v_enu is not None:
+            C6 = np.zeros((6, 6))
+            C6[0:3, 0:3] = velocity_covariance_enu_to_frd(cov_v_enu, T_ENU_FLU.R_A_B)
+            C6[3:6, 3:6] = np.diag([np.nan] * 3)
+            vel_cov = upper_triangle(C6)
+        kind = m.MAV_ESTIMATOR_TYPE_VIO if estimator == "vio" else m.MAV_ESTIMATOR_TYPE_VISION
         self.mav.odometry_send(
             int(t_ns // 1000),
             m.MAV_FRAME_LOCAL_FRD,
@@ -436,10 +514,24 @@ class MavlinkLink:
             upper_triangle(covariance_enu_to_ned(cov_enu, T_ENU_FLU.R_A_B)),
             vel_cov,
             int(reset_counter) % 256,
-            m.MAV_ESTIMATOR_TYPE_VISION,
-            100,
+            kind,
+            int(quality),
         )
         self._count("ODOMETRY")
+
+    def send_odometry_sample(self, odo: OdometrySample) -> None:
+        """An external-odometry sample (a VIO's) as PX4 takes it from a companion computer:
+        ODOMETRY with its covariances, reset counter and quality, MAV_ESTIMATOR_TYPE_VIO."""
+        self.send_odometry(
+            odo.t_ns,
+            Pose(Rotation.from_quat(odo.q_W_B_xyzw), odo.p_W_B),
+            odo.cov_pose,
+            odo.v_W_B,
+            odo.reset_counter,
+            cov_v_enu=odo.cov_v,
+            quality=odo.quality,
+            estimator="vio",
+        )
 
     def send_position_setpoint(
         self,

@@ -1,0 +1,292 @@
+"""Visual-inertial odometry in the main job's closed loop (``quadnav run indoor_vio``, thesis 003
+section 6.3: take off to 5 m and fly forward on VINS odometry).
+
+The ``vio`` channel of :mod:`quadnav.experiments.nav_channels` is built here. With
+``vio.source=camera`` it is a companion computer: the rig's IMU (in the rig's body, at its rate)
+and its camera, rendered at the camera's rate in a 3-D world (:mod:`quadnav.sim.scene`,
+:class:`~quadnav.sim.render.Renderer`), go into the :class:`~quadnav.vio.VioEstimator`; each
+optimised state, converted to the vehicle's body (:func:`vehicle_odometry`), is an
+:class:`~quadnav.messages.OdometrySample` (PX4's ODOMETRY) for the navigation EKF, delivered
+``vio.delay_s`` later (the processing latency), and handed to an optional sink (``--mavlink``).
+With ``vio.source=odometry`` it is the shortcut: the true pose and velocity plus noise, the
+frame's origin drifting as a random walk.
+
+The loop itself is :func:`quadnav.experiments.nav.run_nav`; what the VIO did (its own
+estimate, events, frames, timing) comes back as a :class:`VioRecord`.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.random import Generator
+from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
+
+from quadnav.errors import SampleError
+from quadnav.estimation.nav_ekf import skew
+from quadnav.experiments.nav_config import NavScenario
+from quadnav.geometry.rotations import Pose
+from quadnav.messages import ImuSample, OdometrySample, VehicleState
+from quadnav.rig import Rig, rig_named
+from quadnav.sim.render import RenderEffects, Renderer
+from quadnav.sim.scene import WORLDS, Scene, WorldPlan
+from quadnav.sim.sensors import IntegratingImu, Ticker
+from quadnav.units import s_to_ns
+from quadnav.vio.types import VioState, VisualOdometry
+
+__all__ = [
+    "OdometryShortcut",
+    "OdometrySink",
+    "VioCameraSensor",
+    "VioRecord",
+    "build_vio_sensor",
+    "flight_world",
+    "vehicle_odometry",
+    "vio_imu",
+]
+
+FloatArray = NDArray[np.float64]
+OdometrySink = Callable[[OdometrySample], None]
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class VioRecord:
+    """What the VIO did in one flight: its own estimate at each optimised camera frame (the
+    rig's body ``B`` in the VIO's world), with its reset counter; its events ``(t_ns, text)``;
+    the frames it was given and the states it returned; the odometry refused at the boundary
+    (non-finite); its wall time per stage (ms per call)."""
+
+    t_ns: NDArray[np.int64]
+    p_W_B: FloatArray
+    q_W_B_xyzw: FloatArray
+    reset_counter: NDArray[np.int64]
+    events: tuple[tuple[int, str], ...] = ()
+    frames: int = 0
+    states: int = 0
+    rejected_invalid: int = 0
+    stage_ms: dict[str, float] = field(default_factory=dict)
+
+
+_TrackRow = tuple[int, FloatArray, FloatArray, int]  # t_ns, p_W_B, q_W_B_xyzw, reset counter
+
+
+def _record(track: list[_TrackRow], **counts: Any) -> VioRecord:
+    return VioRecord(
+        t_ns=np.array([x[0] for x in track], dtype=np.int64),
+        p_W_B=np.array([x[1] for x in track]).reshape(-1, 3),
+        q_W_B_xyzw=np.array([x[2] for x in track]).reshape(-1, 4),
+        reset_counter=np.array([x[3] for x in track], dtype=np.int64),
+        **counts,
+    )
+
+
+def vehicle_odometry(
+    state: VioState, T_V_B: Pose, w_B_rad_s: FloatArray, *, source: str = "vio"
+) -> OdometrySample:
+    """A VIO state of the rig's body ``B`` as odometry of the vehicle ``V`` (FLU, its centre):
+    ``T_W_V = T_W_B T_V_B^-1``, the velocity of V's origin ``v_B - R_W_V (w_V x p_V_B)``, the
+    position covariance moved with the lever arm (``dp_V = [R_W_V p_V_B]x dtheta``). A state
+    holding a non-finite value is a :class:`~quadnav.errors.SampleError`."""
+    odo = state.odometry(source=source)
+    R_V_B, p_V_B = T_V_B.R_A_B, T_V_B.p_A_B
+    R_W_V = Rotation.from_quat(odo.q_W_B_xyzw) * R_V_B.inv()
+    r_W = R_W_V.apply(p_V_B)
+    w_V = R_V_B.apply(np.asarray(w_B_rad_s, dtype=np.float64))
+    J = np.eye(6)
+    J[0:3, 3:6] = skew(r_W)
+    return OdometrySample(
+        t_ns=odo.t_ns,
+        p_W_B=odo.p_W_B - r_W,
+        q_W_B_xyzw=R_W_V.as_quat(),
+        v_W_B=odo.v_W_B - R_W_V.apply(np.cross(w_V, p_V_B)),
+        cov_pose=J @ odo.cov_pose @ J.T,
+        cov_v=odo.cov_v,
+        reset_counter=odo.reset_counter,
+        quality=odo.quality,
+        source=source,
+    )
+
+
+def vio_imu(rig: Rig, bias_rng: Generator, gravity_m_s2: float) -> IntegratingImu:
+    """The rig's IMU on the vehicle: its noise densities at its rate, its turn-on biases drawn
+    from ``bias_rng`` (a tenth of the random walk's 100-s spread), mounted at the rig's body
+    origin (read in the vehicle's axes; :class:`VioCameraSensor` turns them into the rig's)."""
+    assert rig.imu is not None  # (the rigs vio.rig offers all have one)
+    n, f = rig.imu.noise, rig.imu.rate_hz
+    return IntegratingImu(
+        period_ns=s_to_ns(1.0 / f),
+        gyro_sigma_rad_s=n.gyro_noise_density * math.sqrt(f),
+        accel_sigma_m_s2=n.accel_noise_density * math.sqrt(f),
+        gyro_bias_rw_rad_s_sqrt_s=n.gyro_random_walk,
+        accel_bias_rw_m_s2_sqrt_s=n.accel_random_walk,
+        gyro_bias0_rad_s=tuple(10 * n.gyro_random_walk * bias_rng.standard_normal(3)),
+        accel_bias0_m_s2=tuple(10 * n.accel_random_walk * bias_rng.standard_normal(3)),
+        gravity_m_s2=gravity_m_s2,
+        lever_arm_m=tuple(rig.T_V_B.p_A_B),
+    )
+
+
+def flight_world(sc: NavScenario) -> Scene:
+    """The world of the flight: built around the take-off-and-forward route (obstacles kept
+    a metre from it) and a margin of a metre about it."""
+    h, fwd = sc.plan.height_m, sc.plan.forward_m
+    path = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, h], [fwd, 0.0, h]])
+    plan = WorldPlan(
+        flight_min_m=(-1.0, -1.0, 0.0),
+        flight_max_m=(fwd + 1.0, 1.0, h + 0.5),
+        seed=sc.vio.world_seed,
+        path_W=path,
+        clearance_m=1.0,
+    )
+    return WORLDS[sc.vio.world](plan)
+
+
+class VioCameraSensor:
+    """A companion computer with a camera-IMU rig: IMU samples in the rig's body at the IMU's
+    rate and images rendered at the camera's rate into a :class:`VisualOdometry`; each state it
+    returns at an image is the vehicle's :class:`OdometrySample` (and goes to ``sink``)."""
+
+    def __init__(
+        self,
+        *,
+        rig: Rig,
+        vio: VisualOdometry,
+        renderer: Renderer,
+        imu: IntegratingImu,
+        image_rng: Generator,
+        effects: RenderEffects,
+        camera: str = "cam0",
+        sink: OdometrySink | None = None,
+    ) -> None:
+        spec = rig.camera(camera)
+        self.vio, self.renderer, self.imu, self.effects = vio, renderer, imu, effects
+        self.T_V_B, self.T_V_C = rig.T_V_B, rig.T_V_B @ spec.T_B_C
+        self._R_B_V = rig.T_V_B.R_A_B.inv().as_matrix()
+        period = s_to_ns(1.0 / spec.rate_hz)
+        self._camera = Ticker(period, first_ns=period)
+        self._image_rng, self.sink = image_rng, sink
+        self._w_B = np.zeros(3)
+        self._track: list[_TrackRow] = []
+        self.frames = self.states = self.rejected_invalid = 0
+
+    def sample(self, truth: VehicleState, t_ns: int, rng: Generator) -> OdometrySample | None:
+        s = self.imu.sample(truth, t_ns, rng)
+        if s is not None:  # (read in the vehicle's axes at the rig's origin: into the rig's)
+            imu_B = ImuSample(
+                t_ns=s.t_ns, gyro_rad_s=self._R_B_V @ s.gyro_rad_s, accel_m_s2=self._R_B_V @ s.accel_m_s2
+            )  # fmt: skip
+            self._w_B = imu_B.gyro_rad_s
+            self.vio.push_imu(imu_B)
+        if not self._camera.due(t_ns):
+            return None
+        T_W_C = Pose.from_quat_xyzw(truth.q_W_B_xyzw, truth.p_W_B) @ self.T_V_C
+        image = self.effects.apply(self.renderer.render(T_W_C).image, self._image_rng)
+        self.frames += 1
+        state = self.vio.push_image(t_ns, image)
+        if state is None:
+            return None
+        self.states += 1
+        try:
+            odo = vehicle_odometry(state, self.T_V_B, self._w_B - state.gyro_bias)
+        except SampleError:  # a non-finite state: refused at the boundary, counted
+            self.rejected_invalid += 1
+            return None
+        T = state.T_W_B
+        self._track.append((state.t_ns, T.p_A_B, T.R_A_B.as_quat(), state.reset_counter))
+        if self.sink is not None:
+            self.sink(odo)
+        return odo
+
+    def record(self) -> VioRecord:
+        return _record(
+            self._track,
+            events=tuple((e.t_ns, f"{e.kind}: {e.detail}") for e in self.vio.events),
+            frames=self.frames,
+            states=self.states,
+            rejected_invalid=self.rejected_invalid,
+            stage_ms=self.vio.timing().per_call_ms(),
+        )
+
+
+@dataclass
+class OdometryShortcut:
+    """The VIO's shortcut: the true pose and world velocity of the vehicle at ``period_ns``,
+    plus white noise of the sigmas and a frame origin drifting as a random walk
+    (``drift_m_sqrt_s``), with the covariance of the white noise."""
+
+    period_ns: int
+    sigma_m: float
+    sigma_vel_m_s: float
+    sigma_att_rad: float
+    drift_m_sqrt_s: float = 0.0
+    sink: OdometrySink | None = None
+
+    def __post_init__(self) -> None:
+        self._ticker = Ticker(self.period_ns, first_ns=self.period_ns)
+        self._drift = np.zeros(3)
+        self._t_last: int | None = None
+        self._track: list[_TrackRow] = []
+
+    def sample(self, truth: VehicleState, t_ns: int, rng: Generator) -> OdometrySample | None:
+        if not self._ticker.due(t_ns):
+            return None
+        if self._t_last is not None:
+            dt = (t_ns - self._t_last) * 1e-9
+            self._drift = self._drift + rng.normal(0.0, self.drift_m_sqrt_s * math.sqrt(dt), 3)
+        self._t_last = t_ns
+        R = Rotation.from_rotvec(rng.normal(0.0, self.sigma_att_rad, 3)) * Rotation.from_quat(
+            truth.q_W_B_xyzw
+        )
+        odo = OdometrySample(
+            t_ns=t_ns,
+            p_W_B=truth.p_W_B + self._drift + rng.normal(0.0, self.sigma_m, 3),
+            q_W_B_xyzw=R.as_quat(),
+            v_W_B=truth.v_W_B + rng.normal(0.0, self.sigma_vel_m_s, 3),
+            cov_pose=np.diag([self.sigma_m**2] * 3 + [self.sigma_att_rad**2] * 3),
+            cov_v=np.eye(3) * self.sigma_vel_m_s**2,
+        )
+        self._track.append((t_ns, odo.p_W_B, odo.q_W_B_xyzw, 0))
+        if self.sink is not None:
+            self.sink(odo)
+        return odo
+
+    def record(self) -> VioRecord:
+        return _record(self._track, states=len(self._track))
+
+
+def build_vio_sensor(
+    sc: NavScenario,
+    rng: Generator,
+    bias_rng: Generator,
+    gravity_m_s2: float,
+    sink: OdometrySink | None,
+) -> VioCameraSensor | OdometryShortcut:
+    """The ``vio`` section's sensor: the rendered camera and the VIO, or the shortcut."""
+    v = sc.vio
+    if v.source == "odometry":
+        return OdometryShortcut(
+            period_ns=s_to_ns(1.0 / v.rate_hz),
+            sigma_m=v.sigma_m,
+            sigma_vel_m_s=v.sigma_vel_m_s,
+            sigma_att_rad=v.yaw_sigma_rad,
+            drift_m_sqrt_s=v.drift_m_sqrt_s,
+            sink=sink,
+        )
+    from quadnav.vio import VioEstimator  # (GTSAM and the front end only when flying on it)
+
+    rig = rig_named(v.rig)
+    renderer = Renderer(flight_world(sc), rig.camera("cam0").camera)
+    return VioCameraSensor(
+        rig=rig,
+        vio=VioEstimator(rig),
+        renderer=renderer,
+        imu=vio_imu(rig, bias_rng, gravity_m_s2),
+        image_rng=np.random.default_rng(int(rng.integers(2**31))),
+        effects=RenderEffects(read_noise_sigma=v.image_noise),
+        sink=sink,
+    )
