@@ -395,6 +395,7 @@ class VioEstimator:
     ) -> VioState | None:
         cfg = self.config
         nav = pim.predict(gtsam.NavState(prev.pose, prev.velocity), prev.bias)
+        bias0 = prev.bias
         still = self._still_since(prev, frame)
         k = self._new_kf_index()
         kf = Keyframe(
@@ -414,6 +415,8 @@ class VioEstimator:
             p_pred_W=np.asarray(nav.pose().translation()), v_pred_W=np.asarray(nav.velocity()),
             accel_bias=np.asarray(new.bias.accelerometer()),
             gyro_bias=np.asarray(new.bias.gyroscope()),
+            accel_bias_before=np.asarray(bias0.accelerometer()),
+            gyro_bias_before=np.asarray(bias0.gyroscope()),
         )  # fmt: skip
         reason = state_failure(solved, cfg)
         if reason is not None:
