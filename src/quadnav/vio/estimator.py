@@ -97,6 +97,8 @@ class VioEstimator:
         self._last_p = np.zeros(3)
         self._td_s = cfg.td_s
         self._td = _time_offset_estimator() if cfg.estimate_td else None
+        # H2's visual-inertial initialisation (a start or re-start while moving), if merged
+        self._visual_init = _visual_init()
 
     # -- the protocol -----------------------------------------------------------------------
     @property
@@ -230,7 +232,7 @@ class VioEstimator:
 
     def _try_visual_init(self, frame: FrameFeatures) -> VioState | None:
         """The visual-inertial initialisation over the keyframes collected while moving."""
-        init = _visual_init()
+        init = self._visual_init
         if init is None:
             return None
         dec = self.frontend.decide(frame)
