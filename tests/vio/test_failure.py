@@ -42,6 +42,17 @@ def test_velocity_jump_against_the_prediction() -> None:
     assert reason is not None and "velocity jump" in reason
 
 
+def test_bias_jumps_in_one_keyframe() -> None:
+    z = np.zeros(3)
+    jump_a = _state(accel_bias=np.array([0.8, 0.0, 0.0]), accel_bias_before=z, gyro_bias_before=z)
+    jump_g = _state(gyro_bias=np.array([0.0, 0.0, 0.2]), accel_bias_before=z, gyro_bias_before=z)
+    slow = _state(accel_bias=np.array([0.8, 0.0, 0.0]), accel_bias_before=np.array([0.7, 0, 0]),
+                  gyro_bias_before=z)  # fmt: skip
+    assert "accel bias jump" in (state_failure(jump_a, VioConfig()) or "")
+    assert "gyro bias jump" in (state_failure(jump_g, VioConfig()) or "")
+    assert state_failure(slow, VioConfig()) is None
+
+
 def test_too_few_tracks() -> None:
     assert tracking_failure(3, VioConfig()) is not None
     assert tracking_failure(50, VioConfig()) is None

@@ -99,6 +99,12 @@ class VioConfig(ConfigModel):
     fail_max_gyro_bias_rad_s: float = Field(
         1.0, gt=0.0, le=100.0, description="implausible gyro bias (VINS: 1.0)"
     )
+    fail_max_accel_bias_jump_m_s2: float = Field(
+        0.5, gt=0.0, le=100.0, description="accelerometer bias change in one keyframe"
+    )
+    fail_max_gyro_bias_jump_rad_s: float = Field(
+        0.1, gt=0.0, le=100.0, description="gyro bias change in one keyframe"
+    )
     estimate_td: bool = Field(False, description="estimate the camera-IMU time offset online")
     td_s: float = Field(
         0.0, ge=-0.1, le=0.1, description="camera-IMU offset: image taken at stamp + td_s"

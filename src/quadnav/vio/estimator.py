@@ -60,7 +60,10 @@ def _time_offset_estimator() -> Any:
     except ImportError:
         return None
     cls = getattr(time_offset, "TimeOffsetEstimator", None)
-    return None if cls is None else cls()
+    try:
+        return None if cls is None else cls()
+    except TypeError:  # TD-HOOK (lead): its constructor wants settings this call does not give
+        return None
 
 
 class VioEstimator:
@@ -94,6 +97,8 @@ class VioEstimator:
         self._last_p = np.zeros(3)
         self._td_s = cfg.td_s
         self._td = _time_offset_estimator() if cfg.estimate_td else None
+        # H2's visual-inertial initialisation (a start or re-start while moving), if merged
+        self._visual_init = _visual_init()
 
     # -- the protocol -----------------------------------------------------------------------
     @property
@@ -227,7 +232,7 @@ class VioEstimator:
 
     def _try_visual_init(self, frame: FrameFeatures) -> VioState | None:
         """The visual-inertial initialisation over the keyframes collected while moving."""
-        init = _visual_init()
+        init = self._visual_init
         if init is None:
             return None
         dec = self.frontend.decide(frame)
@@ -392,6 +397,7 @@ class VioEstimator:
     ) -> VioState | None:
         cfg = self.config
         nav = pim.predict(gtsam.NavState(prev.pose, prev.velocity), prev.bias)
+        bias0 = prev.bias
         still = self._still_since(prev, frame)
         k = self._new_kf_index()
         kf = Keyframe(
@@ -411,6 +417,8 @@ class VioEstimator:
             p_pred_W=np.asarray(nav.pose().translation()), v_pred_W=np.asarray(nav.velocity()),
             accel_bias=np.asarray(new.bias.accelerometer()),
             gyro_bias=np.asarray(new.bias.gyroscope()),
+            accel_bias_before=np.asarray(bias0.accelerometer()),
+            gyro_bias_before=np.asarray(bias0.gyroscope()),
         )  # fmt: skip
         reason = state_failure(solved, cfg)
         if reason is not None:

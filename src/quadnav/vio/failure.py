@@ -29,6 +29,8 @@ class SolvedState:
     v_pred_W: FloatArray
     accel_bias: FloatArray
     gyro_bias: FloatArray
+    accel_bias_before: FloatArray | None = None
+    gyro_bias_before: FloatArray | None = None
 
 
 def tracking_failure(n_features: int, config: VioConfig) -> str | None:
@@ -39,7 +41,7 @@ def tracking_failure(n_features: int, config: VioConfig) -> str | None:
 
 def state_failure(s: SolvedState, config: VioConfig) -> str | None:
     """The first implausible thing about a solved state, or None."""
-    checks = (
+    checks: tuple[tuple[float, float, str], ...] = (
         (float(np.linalg.norm(s.accel_bias)), config.fail_max_accel_bias_m_s2, "accel bias m/s^2"),
         (float(np.linalg.norm(s.gyro_bias)), config.fail_max_gyro_bias_rad_s, "gyro bias rad/s"),
         (float(np.linalg.norm(s.v_W)), config.fail_max_speed_m_s, "speed m/s"),
@@ -54,6 +56,19 @@ def state_failure(s: SolvedState, config: VioConfig) -> str | None:
             "position jump m",
         ),
     )
+    if s.accel_bias_before is not None and s.gyro_bias_before is not None:
+        checks += (
+            (
+                float(np.linalg.norm(s.accel_bias - s.accel_bias_before)),
+                config.fail_max_accel_bias_jump_m_s2,
+                "accel bias jump m/s^2",
+            ),
+            (
+                float(np.linalg.norm(s.gyro_bias - s.gyro_bias_before)),
+                config.fail_max_gyro_bias_jump_rad_s,
+                "gyro bias jump rad/s",
+            ),
+        )
     for value, limit, what in checks:
         if not np.isfinite(value) or value > limit:
             return f"implausible {what}: {value:.3g} > {limit:g}"

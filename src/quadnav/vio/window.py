@@ -118,6 +118,15 @@ def triangulate(obs: dict[int, FloatArray], P: dict[int, FloatArray]) -> FloatAr
     return np.asarray(h[:3] / h[3], np.float64)
 
 
+def _bearing_angle(obs: dict[int, FloatArray], P: dict[int, FloatArray]) -> float:
+    """The angle (rad) between the world bearings of a track's first and last observations."""
+    k0, k1 = min(obs), max(obs)
+    b0 = P[k0][:, :3].T @ np.array([obs[k0][0], obs[k0][1], 1.0])
+    b1 = P[k1][:, :3].T @ np.array([obs[k1][0], obs[k1][1], 1.0])
+    c = float(b0 @ b1) / float(np.linalg.norm(b0) * np.linalg.norm(b1))
+    return float(np.arccos(min(1.0, max(-1.0, c))))
+
+
 class SlidingWindow:
     """Keyframes and landmarks of a fixed-lag window (see the module)."""
 
@@ -211,6 +220,13 @@ class SlidingWindow:
         cfg = self.config
         if len(obs) < 2:
             return None
+        need = (
+            3.0 / cfg.parallax_focal_px
+            if len(obs) >= cfg.landmark_min_observations
+            else cfg.landmark_min_parallax_px / cfg.parallax_focal_px
+        )
+        if _bearing_angle(obs, P) < need:  # too little parallax: not worth a triangulation
+            return None
         p = triangulate(obs, P)
         if p is None or not np.isfinite(p).all():
             return None
@@ -222,11 +238,6 @@ class SlidingWindow:
             float(rays[0] @ r) / (norms[0] * n) for r, n in zip(rays[1:], norms[1:], strict=True)
         )
         angle = float(np.arccos(np.clip(cosang, -1.0, 1.0)))
-        need = (
-            3.0 / cfg.parallax_focal_px
-            if len(obs) >= cfg.landmark_min_observations
-            else cfg.landmark_min_parallax_px / cfg.parallax_focal_px
-        )
         if angle < need:
             return None
         return p if self._landmark_ok(p, obs, P) else None
