@@ -1,0 +1,204 @@
+"""Online camera-IMU time offset (VINS-Mono's ``estimate_td``, here on its own): the camera's
+angular rate from frame-to-frame rotations, rotated into the body, fitted against the gyro
+over a sliding buffer of the last seconds.
+
+Convention (VINS'): ``t_imu = t_image + td``. A rotation ``R_C0_C1`` between image stamps
+``t0`` and ``t1`` is the gyro's motion over ``[t0 + td, t1 + td]``: its mean rate
+``R_B_C Log(R_C0_C1) / (t1 - t0)`` is compared with the gyro's mean over that shifted span
+(read off the gyro's running integral), less one constant (the gyro bias, a nuisance). The cost
+is scanned on a 1 ms grid over ``±max_td_s`` and its minimum refined to a fraction of a
+millisecond (bounded Brent); ``sigma_s`` comes from its curvature and the residual's spread.
+
+A constant rate says nothing about a shift: while the camera's rate varies by less than
+``min_rate_change_rad_s`` (RMS about its mean), or fewer than ``min_rotations`` spans are
+buffered, :meth:`TimeOffsetEstimator.estimate` answers None.
+
+Bad input: a non-finite or malformed rate or rotation, or a span with ``t1 <= t0``, is refused
+with a :class:`~quadnav.errors.VioError` naming it; a sample whose stamp is not after the last
+one of its kind is ignored and counted in :attr:`TimeOffsetEstimator.rejected`.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.optimize import minimize_scalar
+from scipy.spatial.transform import Rotation
+
+from quadnav.errors import VioError
+from quadnav.units import NS_PER_S
+
+__all__ = ["TdEstimate", "TimeOffsetEstimator"]
+
+FloatArray = NDArray[np.float64]
+
+#: The coarse scan's step (s) and the curvature's finite-difference step (s).
+_GRID_S = 1e-3
+_CURV_S = 2e-4
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class TdEstimate:
+    """The time offset ``td_s`` (``t_imu = t_image + td``), its standard deviation, whether it
+    has settled (``sigma_s`` under the estimator's threshold) and how many spans it used."""
+
+    td_s: float
+    sigma_s: float
+    converged: bool
+    n_rotations: int
+
+
+def _rotation_matrix(R: Rotation | ArrayLike) -> Rotation:
+    if isinstance(R, Rotation):
+        if not R.single or not np.isfinite(R.as_quat()).all():
+            raise VioError("push_rotation: R_C0_C1 must be one finite rotation")
+        return R
+    M = np.asarray(R, dtype=np.float64)
+    if M.shape != (3, 3) or not np.isfinite(M).all():
+        raise VioError(f"push_rotation: R_C0_C1 must be a finite 3x3 matrix, got shape {M.shape}")
+    if not np.allclose(M @ M.T, np.eye(3), atol=1e-6) or np.linalg.det(M) <= 0.0:
+        raise VioError("push_rotation: R_C0_C1 is not a rotation matrix")
+    return Rotation.from_matrix(M)
+
+
+class TimeOffsetEstimator:
+    """The camera-IMU time offset from gyro readings and vision's frame-to-frame rotations.
+
+    ``R_B_C`` is the camera's mount; ``window_s`` the buffer kept; ``max_td_s`` the search's
+    half range; ``converged_sigma_s`` the standard deviation under which an estimate counts as
+    settled."""
+
+    def __init__(
+        self,
+        R_B_C: Rotation,
+        *,
+        window_s: float = 6.0,
+        max_td_s: float = 0.1,
+        min_rotations: int = 20,
+        min_rate_change_rad_s: float = 0.05,
+        converged_sigma_s: float = 5e-4,
+    ) -> None:
+        if not (0.0 < max_td_s < window_s / 4):
+            raise VioError(f"max_td_s must be in (0, window_s / 4), got {max_td_s}")
+        self._R_B_C = R_B_C
+        self._window_ns = int(window_s * NS_PER_S)
+        self._max_td_s = float(max_td_s)
+        self._min_rotations = int(min_rotations)
+        self._min_change = float(min_rate_change_rad_s)
+        self._converged_sigma_s = float(converged_sigma_s)
+        self._gyro: deque[tuple[int, FloatArray]] = deque()
+        self._spans: deque[tuple[int, int, FloatArray]] = deque()
+        self._rejected = {"gyro_out_of_order": 0, "rotation_out_of_order": 0}
+
+    @property
+    def rejected(self) -> dict[str, int]:
+        """Samples ignored for a stamp not after the last of their kind, per kind."""
+        return dict(self._rejected)
+
+    def push_gyro(self, t_ns: int, w_B: ArrayLike) -> None:
+        """One gyro reading (rad/s, body) at IMU time ``t_ns``."""
+        w = np.asarray(w_B, dtype=np.float64)
+        if w.shape != (3,) or not np.isfinite(w).all():
+            raise VioError(f"push_gyro: w_B must be 3 finite rates (rad/s), got {w.tolist()}")
+        if self._gyro and int(t_ns) <= self._gyro[-1][0]:
+            self._rejected["gyro_out_of_order"] += 1
+            return
+        self._gyro.append((int(t_ns), w))
+        self._trim()
+
+    def push_rotation(self, t0_ns: int, t1_ns: int, R_C0_C1: Rotation | ArrayLike) -> None:
+        """Vision's rotation of the camera from the image at ``t0_ns`` to the one at ``t1_ns``
+        (``R_C0_C1``: camera 1's attitude in camera 0)."""
+        if int(t1_ns) <= int(t0_ns):
+            raise VioError(f"push_rotation: t1_ns ({t1_ns}) must be after t0_ns ({t0_ns})")
+        R = _rotation_matrix(R_C0_C1)
+        if self._spans and int(t0_ns) < self._spans[-1][0]:
+            self._rejected["rotation_out_of_order"] += 1
+            return
+        dt_s = (int(t1_ns) - int(t0_ns)) / NS_PER_S
+        self._spans.append((int(t0_ns), int(t1_ns), self._R_B_C.apply(R.as_rotvec()) / dt_s))
+        self._trim()
+
+    def _trim(self) -> None:
+        newest = max(
+            self._gyro[-1][0] if self._gyro else 0, self._spans[-1][1] if self._spans else 0
+        )
+        while self._spans and self._spans[0][0] < newest - self._window_ns:
+            self._spans.popleft()
+        margin = int(2 * self._max_td_s * NS_PER_S)
+        while len(self._gyro) > 2 and self._gyro[1][0] < newest - self._window_ns - margin:
+            self._gyro.popleft()
+
+    def _usable(self) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray] | None:
+        """Gyro times (s) and running integral, and the spans the whole search range keeps
+        inside the gyro's cover: their starts and ends (s) and camera rates in the body."""
+        if len(self._gyro) < 3:
+            return None
+        base = self._gyro[0][0]
+        tg = np.array([(t - base) / NS_PER_S for t, _ in self._gyro])
+        wg = np.array([w for _, w in self._gyro])
+        G = np.vstack(
+            [np.zeros(3), np.cumsum(0.5 * (wg[1:] + wg[:-1]) * np.diff(tg)[:, None], axis=0)]
+        )
+        spans = [
+            ((a - base) / NS_PER_S, (b - base) / NS_PER_S, w)
+            for a, b, w in self._spans
+            if (a - base) / NS_PER_S - self._max_td_s >= tg[0]
+            and (b - base) / NS_PER_S + self._max_td_s <= tg[-1]
+        ]
+        if len(spans) < self._min_rotations:
+            return None
+        t0 = np.array([s[0] for s in spans])
+        t1 = np.array([s[1] for s in spans])
+        return tg, G, t0, t1, np.array([s[2] for s in spans])
+
+    def estimate(self) -> TdEstimate | None:
+        """The offset over the buffer, or None while it holds too few spans or too little
+        change of rotation rate."""
+        data = self._usable()
+        if data is None:
+            return None
+        tg, G, t0, t1, w_cam = data
+        if np.sqrt(np.mean(np.sum((w_cam - w_cam.mean(axis=0)) ** 2, axis=1))) < self._min_change:
+            return None
+
+        def costs(td: FloatArray) -> FloatArray:
+            """The cost at each offset of ``td`` (m,): the squared residuals, bias removed."""
+            ta, tb = (t0[None, :] + td[:, None]).ravel(), (t1[None, :] + td[:, None]).ravel()
+            shape = (len(td), len(t0))
+            mean = (
+                np.stack(
+                    [
+                        (np.interp(tb, tg, G[:, k]) - np.interp(ta, tg, G[:, k])).reshape(shape)
+                        for k in range(3)
+                    ],
+                    axis=-1,
+                )
+                / (t1 - t0)[None, :, None]
+            )
+            r = w_cam[None] - mean
+            r = r - r.mean(axis=1, keepdims=True)
+            return np.asarray(np.sum(r**2, axis=(1, 2)), dtype=np.float64)
+
+        def cost(td: float) -> float:
+            return float(costs(np.array([td]))[0])
+
+        grid = np.arange(-self._max_td_s, self._max_td_s + 0.5 * _GRID_S, _GRID_S)
+        coarse = float(grid[int(np.argmin(costs(grid)))])
+        fine = minimize_scalar(
+            cost,
+            bounds=(coarse - _GRID_S, coarse + _GRID_S),
+            method="bounded",
+            options={"xatol": 1e-6},
+        )
+        td = float(fine.x)
+        n = len(t0)
+        curvature = (cost(td + _CURV_S) - 2.0 * cost(td) + cost(td - _CURV_S)) / _CURV_S**2
+        var_r = cost(td) / max(3 * n - 4, 1)
+        sigma = float(np.sqrt(2.0 * var_r / curvature)) if curvature > 0 else float("inf")
+        return TdEstimate(
+            td_s=td, sigma_s=sigma, converged=sigma < self._converged_sigma_s, n_rotations=n
+        )
