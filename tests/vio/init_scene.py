@@ -30,11 +30,14 @@ class Scene:
     points_W: np.ndarray  # the true points, by feature id
 
 
-def _path(t_s: np.ndarray, speed: float, spin: bool) -> tuple[np.ndarray, np.ndarray]:
+def _path(t_s: np.ndarray, speed: float, spin: bool, cruise: bool) -> tuple[np.ndarray, np.ndarray]:
     """Positions and body attitudes: a lateral figure with height changes, accelerating, and a
-    yaw/pitch/roll wobble (or, ``spin``, a pure rotation at a fixed point)."""
+    yaw/pitch/roll wobble (or, ``spin``, a pure rotation at a fixed point; ``cruise``, a
+    constant velocity)."""
     if spin:
         p = np.zeros((len(t_s), 3))
+    elif cruise:
+        p = speed * np.outer(t_s, [0.5, 0.6, 0.1])
     else:
         p = speed * np.column_stack(
             [0.6 * np.sin(1.3 * t_s), 0.5 * t_s + 0.2 * np.sin(2.1 * t_s), 0.3 * np.sin(1.7 * t_s)]
@@ -54,6 +57,7 @@ def make_scene(
     gyro_bias: tuple[float, float, float] = (0.01, -0.01, 0.01),
     speed: float = 1.0,
     spin: bool = False,
+    cruise: bool = False,
     n_points: int = 300,
     imu_rate_hz: float = 200.0,
 ) -> Scene:
@@ -61,7 +65,7 @@ def make_scene(
     cam = euroc_mono().cameras[0]
     T_B_C = cam.T_B_C
     t_s = np.arange(0.0, 3.0, 0.005)
-    p, q = _path(t_s, speed, spin)
+    p, q = _path(t_s, speed, spin, cruise)
     motion = SplineMotion.from_arrays((t_s * NS_PER_S).astype(np.int64), p, q, knot_spacing_s=0.1)
     noise = ImuNoiseModel.euroc_adis16448()
     imu = synthesize_imu(motion, rate_hz=imu_rate_hz, noise=noise, rng=rng)

@@ -97,6 +97,16 @@ def test_a_pure_rotation_does_not_initialise() -> None:
     assert isinstance(out, InitFailure) and out.stage == "sfm" and "parallax" in out.reason
 
 
+def test_a_constant_velocity_leaves_the_scale_unobservable() -> None:
+    # the IMU then measures gravity alone: any scale fits, so the alignment must refuse
+    for seed in range(3):
+        scene = make_scene(seed, pixel_sigma=0.5, cruise=True, speed=1.5)
+        out = try_visual_inertial_init(scene.window)
+        assert isinstance(out, InitFailure) and out.stage == "alignment", out
+    # the same motion with the accelerations of the figure path initialises
+    assert visual_inertial_init(make_scene(0, pixel_sigma=0.5, speed=1.5).window) is not None
+
+
 def test_too_few_features_do_not_initialise() -> None:
     scene = make_scene(0, n_points=15)
     out = try_visual_inertial_init(scene.window)

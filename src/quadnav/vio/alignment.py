@@ -64,6 +64,7 @@ class AlignmentResult:
     v_B: FloatArray
     gravity_C0: FloatArray
     scale: float
+    scale_sigma: float
     residual: float
 
 
@@ -134,9 +135,10 @@ def _solve(
     p_B_C: FloatArray,
     g_fixed: FloatArray,
     basis: FloatArray,
-) -> tuple[FloatArray, float]:
+) -> tuple[FloatArray, float, float]:
     """The stacked linear system with gravity ``g_fixed + basis @ w``: unknowns ``[v_0..v_n, w,
-    s]``; returns them and the RMS residual."""
+    s]``; returns them, the RMS residual and the scale's standard deviation (the residual's
+    spread through the normal equations)."""
     n, m = len(R_C0_B), basis.shape[1]
     A = np.zeros((6 * (n - 1), 3 * n + m + 1))
     y = np.zeros(6 * (n - 1))
@@ -156,7 +158,10 @@ def _solve(
         y[6 * i : 6 * i + 3] = d.dP - p_B_C + R_Bi_Bj @ p_B_C + 0.5 * dt**2 * R_Bi_C0 @ g_fixed
         y[6 * i + 3 : 6 * i + 6] = d.dV + dt * R_Bi_C0 @ g_fixed
     x = np.asarray(np.linalg.lstsq(A, y, rcond=None)[0], dtype=np.float64)
-    return x, float(np.sqrt(np.mean((A @ x - y) ** 2)))
+    r = A @ x - y
+    dof = max(A.shape[0] - A.shape[1], 1)
+    cov_ss = float(np.linalg.pinv(A.T @ A)[-1, -1])
+    return x, float(np.sqrt(np.mean(r**2))), float(np.sqrt(max(cov_ss, 0.0) * (r @ r) / dof))
 
 
 def _tangent_basis(g: FloatArray) -> FloatArray:
@@ -176,13 +181,16 @@ def linear_alignment(
     *,
     g_norm: float,
     max_gravity_error_m_s2: float = 1.0,
+    max_scale_sigma: float = 0.1,
     refine_iterations: int = 4,
 ) -> AlignmentResult | str:
     """Velocities, gravity and scale (eqs 3.7-3.9), then gravity refined with ``|g| = g_norm``;
-    or why not (a gravity whose magnitude is off by more than ``max_gravity_error_m_s2``, a
-    scale that is not positive)."""
+    or why not: a gravity whose magnitude is off by more than ``max_gravity_error_m_s2``, a
+    scale that is not positive, or one whose standard deviation exceeds ``max_scale_sigma`` of
+    itself (too little acceleration in the window: at constant velocity the IMU sees only
+    gravity and any scale fits, the vision's small errors then pull it towards zero)."""
     n = len(R_C0_B)
-    x, res = _solve(p_C0_C, R_C0_B, deltas, p_B_C, np.zeros(3), np.eye(3))
+    x, res, sigma = _solve(p_C0_C, R_C0_B, deltas, p_B_C, np.zeros(3), np.eye(3))
     g = x[3 * n : 3 * n + 3]
     if not np.isfinite(x).all() or abs(np.linalg.norm(g) - g_norm) > max_gravity_error_m_s2:
         return f"the linear alignment's gravity is {np.linalg.norm(g):.2f} m/s^2, not {g_norm:g}"
@@ -191,11 +199,20 @@ def linear_alignment(
     g = g / np.linalg.norm(g) * g_norm
     for _ in range(refine_iterations):
         B = _tangent_basis(g)
-        x, res = _solve(p_C0_C, R_C0_B, deltas, p_B_C, g, B)
+        x, res, sigma = _solve(p_C0_C, R_C0_B, deltas, p_B_C, g, B)
         g = g + B @ x[3 * n : 3 * n + 2]
         g = g / np.linalg.norm(g) * g_norm
     if not np.isfinite(x).all() or x[-1] <= 0.0:
         return f"the refined alignment's scale is not positive ({x[-1]:.3g})"
+    if sigma > max_scale_sigma * x[-1]:
+        return (
+            f"the scale is not observable in this window ({x[-1]:.3g} +- {sigma / x[-1]:.0%}: "
+            "too little acceleration)"
+        )
     return AlignmentResult(
-        v_B=x[: 3 * n].reshape(n, 3), gravity_C0=g, scale=float(x[-1]), residual=res
+        v_B=x[: 3 * n].reshape(n, 3),
+        gravity_C0=g,
+        scale=float(x[-1]),
+        scale_sigma=sigma,
+        residual=res,
     )

@@ -111,7 +111,8 @@ class InitSettings:
     at ``focal_px`` 460, 20 common features); ``min_translation_px`` the parallax a pure
     rotation cannot make; ``max_rotation_residual_deg`` the largest RMS disagreement of
     vision's and the gyro's relative rotations after the bias; ``max_gravity_error_m_s2`` how
-    far the unconstrained gravity may miss ``g_norm``; ``estimate_gyro_bias=False`` keeps the
+    far the unconstrained gravity may miss ``g_norm``; ``max_scale_sigma`` the largest standard
+    deviation of the scale, relative to it, the alignment may leave; ``estimate_gyro_bias=False`` keeps the
     bias at zero (to measure what the step is worth)."""
 
     min_parallax_px: float = 30.0
@@ -120,6 +121,7 @@ class InitSettings:
     min_translation_px: float = 5.0
     max_rotation_residual_deg: float = 3.0
     max_gravity_error_m_s2: float = 1.0
+    max_scale_sigma: float = 0.1
     estimate_gyro_bias: bool = True
 
 
@@ -155,13 +157,14 @@ def try_visual_inertial_init(
         window.T_B_C.p_A_B,
         g_norm=window.g_norm,
         max_gravity_error_m_s2=cfg.max_gravity_error_m_s2,
+        max_scale_sigma=cfg.max_scale_sigma,
     )
     if isinstance(al, str):
         return InitFailure(stage="alignment", reason=al)
     detail = (
         f"visual: reference frame {sfm.reference} ({sfm.parallax_px:.0f} px parallax), "
         f"{len(sfm.points_C0)} landmarks, reprojection {sfm.reprojection_px:.2f} px, "
-        f"scale {al.scale:.3f}, gyro bias {np.round(bias, 4).tolist()} rad/s"
+        f"scale {al.scale:.3f} (sigma {al.scale_sigma / al.scale:.1%}), gyro bias {np.round(bias, 4).tolist()} rad/s"
     )
     return _to_world(window, sfm, al, bias, detail)
 
