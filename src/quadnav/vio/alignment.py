@@ -158,10 +158,10 @@ def _solve(
         y[6 * i : 6 * i + 3] = d.dP - p_B_C + R_Bi_Bj @ p_B_C + 0.5 * dt**2 * R_Bi_C0 @ g_fixed
         y[6 * i + 3 : 6 * i + 6] = d.dV + dt * R_Bi_C0 @ g_fixed
     x = np.asarray(np.linalg.lstsq(A, y, rcond=None)[0], dtype=np.float64)
-    r = A @ x - y
+    e = A @ x - y
     dof = max(A.shape[0] - A.shape[1], 1)
     cov_ss = float(np.linalg.pinv(A.T @ A)[-1, -1])
-    return x, float(np.sqrt(np.mean(r**2))), float(np.sqrt(max(cov_ss, 0.0) * (r @ r) / dof))
+    return x, float(np.sqrt(np.mean(e**2))), float(np.sqrt(max(cov_ss, 0.0) * (e @ e) / dof))
 
 
 def _tangent_basis(g: FloatArray) -> FloatArray:
