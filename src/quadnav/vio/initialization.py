@@ -32,7 +32,7 @@ from quadnav.vio.alignment import (
     linear_alignment,
     rotation_residual_deg,
 )
-from quadnav.vio.sfm import SfmResult, vision_sfm
+from quadnav.vio.sfm import SfmResult, refine_with_rotations, vision_sfm
 from quadnav.vio.types import InitResult, InitWindow
 
 __all__ = ["InitFailure", "InitSettings", "try_visual_inertial_init", "visual_inertial_init"]
@@ -112,7 +112,9 @@ class InitSettings:
     rotation cannot make; ``max_rotation_residual_deg`` the largest RMS disagreement of
     vision's and the gyro's relative rotations after the bias; ``max_gravity_error_m_s2`` how
     far the unconstrained gravity may miss ``g_norm``; ``max_scale_sigma`` the largest standard
-    deviation of the scale, relative to it, the alignment may leave; ``estimate_gyro_bias=False`` keeps the
+    deviation of the scale, relative to it, the alignment may leave; ``gyro_rotation_sigma_deg``
+    how firmly the gyro's rotations (after the bias) hold a second bundle adjustment (0: no
+    second adjustment, VINS' vision-only structure); ``estimate_gyro_bias=False`` keeps the
     bias at zero (to measure what the step is worth)."""
 
     min_parallax_px: float = 30.0
@@ -122,6 +124,7 @@ class InitSettings:
     max_rotation_residual_deg: float = 3.0
     max_gravity_error_m_s2: float = 1.0
     max_scale_sigma: float = 0.1
+    gyro_rotation_sigma_deg: float = 0.05
     estimate_gyro_bias: bool = True
 
 
@@ -150,10 +153,22 @@ def try_visual_inertial_init(
             stage="gyro_bias",
             reason=f"vision and gyro rotations disagree by {rot_err:.2f} deg RMS after the bias",
         )
+    deltas = [corrected_deltas(p, bias) for p in pims]
+    if cfg.gyro_rotation_sigma_deg > 0.0:
+        R_B_C = window.T_B_C.R_A_B
+        gyro = [R_C_B * d.dR * R_B_C for d in deltas]
+        sigma = float(np.radians(cfg.gyro_rotation_sigma_deg))
+        refined = refine_with_rotations(
+            window.frames, sfm, gyro, sigma_rad=sigma, focal_px=cfg.focal_px
+        )
+        if isinstance(refined, str):
+            return InitFailure(stage="sfm", reason=refined)
+        sfm = refined
+        R_C0_B = [T.R_A_B * R_C_B for T in sfm.T_C0_C]
     al = linear_alignment(
         np.array([T.p_A_B for T in sfm.T_C0_C]),
         R_C0_B,
-        [corrected_deltas(p, bias) for p in pims],
+        deltas,
         window.T_B_C.p_A_B,
         g_norm=window.g_norm,
         max_gravity_error_m_s2=cfg.max_gravity_error_m_s2,

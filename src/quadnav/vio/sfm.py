@@ -31,6 +31,7 @@ from quadnav.vio.types import FrameFeatures
 __all__ = [
     "SfmResult",
     "average_parallax_px",
+    "refine_with_rotations",
     "relative_pose",
     "rotation_only_parallax_px",
     "vision_sfm",
@@ -248,10 +249,13 @@ def _bundle_adjust(
     ref: int,
     focal_px: float,
     iterations: int,
+    rotations: tuple[Sequence[Rotation], float] | None = None,
 ) -> tuple[dict[int, Pose], dict[int, FloatArray], float]:
     """GTSAM LM over all cameras and points (normalised coordinates, sigma one pixel, Huber);
     the reference camera held by a tight prior and the newest's position by another (the
-    gauge: origin, orientation and scale)."""
+    gauge: origin, orientation and scale). ``rotations``: consecutive cameras' relative
+    rotations ``R_Ck_Ck1`` from the gyro and their sigma (rad), as between-factors that leave
+    the translations free."""
     n = len(obs) - 1
     K = gtsam.Cal3_S2(1.0, 1.0, 0.0, 0.0, 0.0)
     pixel = gtsam.noiseModel.Isotropic.Sigma(2, 1.0 / focal_px)
@@ -272,6 +276,11 @@ def _bundle_adjust(
             _X(n), gtsam.Pose3(poses[n].matrix()), gtsam.noiseModel.Isotropic.Sigma(3, 1e-6)
         )
     )
+    if rotations is not None:
+        free = gtsam.noiseModel.Diagonal.Sigmas(np.array([rotations[1]] * 3 + [1e4] * 3))
+        for k, R in enumerate(rotations[0]):
+            between = gtsam.Pose3(gtsam.Rot3(R.as_matrix()), np.zeros(3))
+            graph.add(gtsam.BetweenFactorPose3(_X(k), _X(k + 1), between, free))
     params = gtsam.LevenbergMarquardtParams()
     params.setMaxIterations(iterations)
     result = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
@@ -294,6 +303,43 @@ def _rms_px(
         err.extend(np.linalg.norm(proj - np.array([o[i] for i in ids]), axis=1).tolist())
     e = np.asarray(err)
     return float(np.sqrt(np.mean(e**2)) * focal_px) if len(e) and np.isfinite(e).all() else np.inf
+
+
+def refine_with_rotations(
+    frames: Sequence[FrameFeatures],
+    sfm: SfmResult,
+    R_Ck_Ck1: Sequence[Rotation],
+    *,
+    sigma_rad: float,
+    focal_px: float = 460.0,
+    ba_iterations: int = 30,
+) -> SfmResult | str:
+    """``sfm`` adjusted again with the gyro's relative rotations between consecutive frames
+    (``R_Ck_Ck1``, sigma ``sigma_rad``): a short window's rotation and translation trade off
+    against each other under pixel noise (the bas-relief ambiguity); the gyro pins the
+    rotations. The first camera stays the origin and the newest's position the scale."""
+    obs = _observations(frames)
+    poses = dict(enumerate(sfm.T_C0_C))
+    points = dict(sfm.points_C0)
+    poses, points, rms = _bundle_adjust(
+        obs,
+        poses,
+        points,
+        ref=0,
+        focal_px=focal_px,
+        iterations=ba_iterations,
+        rotations=(R_Ck_Ck1, sigma_rad),
+    )
+    if not np.isfinite(rms):
+        return "the gyro-aided bundle adjustment put points behind a camera"
+    T_C0_W = poses[0].inverse()
+    return SfmResult(
+        T_C0_C=tuple(T_C0_W @ poses[k] for k in range(len(frames))),
+        points_C0={i: T_C0_W @ P for i, P in points.items()},
+        reference=sfm.reference,
+        parallax_px=sfm.parallax_px,
+        reprojection_px=rms,
+    )
 
 
 def vision_sfm(
