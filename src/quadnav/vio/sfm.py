@@ -305,6 +305,24 @@ def _rms_px(
     return float(np.sqrt(np.mean(e**2)) * focal_px) if len(e) and np.isfinite(e).all() else np.inf
 
 
+def _in_first_camera(
+    poses: dict[int, Pose],
+    points: dict[int, FloatArray],
+    ref: int,
+    parallax_px: float,
+    rms_px: float,
+) -> SfmResult:
+    """The adjusted cameras and points re-expressed in the first frame's camera."""
+    T_C0_W = poses[0].inverse()
+    return SfmResult(
+        T_C0_C=tuple(T_C0_W @ poses[k] for k in range(len(poses))),
+        points_C0={i: T_C0_W @ P for i, P in points.items()},
+        reference=ref,
+        parallax_px=parallax_px,
+        reprojection_px=rms_px,
+    )
+
+
 def refine_with_rotations(
     frames: Sequence[FrameFeatures],
     sfm: SfmResult,
@@ -332,14 +350,7 @@ def refine_with_rotations(
     )
     if not np.isfinite(rms):
         return "the gyro-aided bundle adjustment put points behind a camera"
-    T_C0_W = poses[0].inverse()
-    return SfmResult(
-        T_C0_C=tuple(T_C0_W @ poses[k] for k in range(len(frames))),
-        points_C0={i: T_C0_W @ P for i, P in points.items()},
-        reference=sfm.reference,
-        parallax_px=sfm.parallax_px,
-        reprojection_px=rms,
-    )
+    return _in_first_camera(poses, points, sfm.reference, sfm.parallax_px, rms)
 
 
 def vision_sfm(
@@ -374,11 +385,4 @@ def vision_sfm(
     )
     if not np.isfinite(rms):
         return "the bundle adjustment put points behind a camera"
-    T_C0_L = poses[0].inverse()
-    return SfmResult(
-        T_C0_C=tuple(T_C0_L @ poses[k] for k in range(len(frames))),
-        points_C0={i: T_C0_L @ P for i, P in points.items()},
-        reference=ref,
-        parallax_px=parallax,
-        reprojection_px=rms,
-    )
+    return _in_first_camera(poses, points, ref, parallax, rms)
