@@ -34,7 +34,10 @@ def _feed(
     *,
     spin_only: bool = False,
     duration_s: float = 8.0,
+    keyframes: bool = False,
 ) -> None:
+    """Gyro and camera rotations into ``est``: between consecutive 20 Hz images, or
+    (``keyframes``) between images 2 to 6 frames apart, as a keyframe window makes them."""
     rng = np.random.default_rng(seed)
     tg = np.arange(0.0, duration_s, 0.005)
     if spin_only:  # a constant rate about one axis: nothing to align
@@ -47,14 +50,15 @@ def _feed(
     tc = np.arange(0.2, duration_s - 0.2, 0.05)  # the true times of the images
     R_W_B = attitude(tc)
     stamps_ns = np.rint((tc - td_s) * 1e9).astype(np.int64)
-    g = 0
-    for k in range(1, len(tc)):
+    g, prev, k = 0, 0, 1
+    while k < len(tc):
         while g < len(tg) and tg[g] <= tc[k] + 0.12:
             est.push_gyro(int(np.rint(tg[g] * 1e9)), w[g])
             g += 1
-        R_C0_C1 = R_B_C.inv() * (R_W_B[k - 1].inv() * R_W_B[k]) * R_B_C
+        R_C0_C1 = R_B_C.inv() * (R_W_B[prev].inv() * R_W_B[k]) * R_B_C
         noise = Rotation.from_rotvec(rng.normal(0.0, np.radians(0.03), 3))
-        est.push_rotation(int(stamps_ns[k - 1]), int(stamps_ns[k]), R_C0_C1 * noise)
+        est.push_rotation(int(stamps_ns[prev]), int(stamps_ns[k]), R_C0_C1 * noise)
+        prev, k = k, k + (int(rng.integers(2, 7)) if keyframes else 1)
 
 
 @pytest.mark.parametrize("td_s", [0.005, -0.010, 0.020])
@@ -68,6 +72,18 @@ def test_a_known_offset_is_found_within_a_millisecond(td_s: float) -> None:
         assert e.converged and e.sigma_s < 5e-4
         # the buffer keeps the last 6 s of 20 Hz spans, less the search margin
         assert 90 < e.n_rotations <= 121
+
+
+def test_keyframe_spans_and_an_unknown_mount_work_too() -> None:
+    for seed in range(5):
+        est = TimeOffsetEstimator(R_B_C, min_rotations=10)
+        _feed(est, -0.010, seed, keyframes=True)
+        e = est.estimate()
+        assert isinstance(e, TdEstimate) and abs(e.td_s + 0.010) < 1e-3
+        free = TimeOffsetEstimator()  # the mount fitted from the rates
+        _feed(free, 0.020, seed)
+        f = free.estimate()
+        assert isinstance(f, TdEstimate) and abs(f.td_s - 0.020) < 1e-3 and f.converged
 
 
 def test_no_rotation_change_or_too_little_data_gives_none() -> None:

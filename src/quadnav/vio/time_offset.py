@@ -1,21 +1,24 @@
-"""Online camera-IMU time offset (VINS-Mono's ``estimate_td``, here on its own): the camera's
-angular rate from frame-to-frame rotations, rotated into the body, fitted against the gyro
-over a sliding buffer of the last seconds.
+"""Online camera-IMU time offset (VINS-Mono's ``estimate_td``, here on its own): vision's
+rotations between image pairs against the gyro's over a sliding buffer of the last seconds.
 
 Convention (VINS'): ``t_imu = t_image + td``. A rotation ``R_C0_C1`` between image stamps
-``t0`` and ``t1`` is the gyro's motion over ``[t0 + td, t1 + td]``: its mean rate
-``R_B_C Log(R_C0_C1) / (t1 - t0)`` is compared with the gyro's mean over that shifted span
-(read off the gyro's running integral), less one constant (the gyro bias, a nuisance). The cost
-is scanned on a 1 ms grid over ``±max_td_s`` and its minimum refined to a fraction of a
-millisecond (bounded Brent); ``sigma_s`` comes from its curvature and the residual's spread.
+``t0`` and ``t1`` is the gyro's motion over ``[t0 + td, t1 + td]``. Each span is compared as a
+mean rate: the camera's ``Log(R_C0_C1) / (t1 - t0)`` turned into the body by ``R_B_C``, the
+gyro's ``Log(Q(t0 + td)^T Q(t1 + td)) / (t1 - t0)`` with ``Q`` the gyro's attitude integrated
+with the rate linear between samples (so spans of any length, consecutive frames or keyframes, compare exactly),
+less one constant (the gyro bias, a nuisance). Without ``R_B_C`` the rotation between the two
+is fitted too (Kabsch on the centred rates, per candidate offset). The cost is scanned on a
+1 ms grid over ``±max_td_s`` and its minimum refined to a fraction of a millisecond (bounded
+Brent); ``sigma_s`` comes from its curvature and the residual's spread.
 
 A constant rate says nothing about a shift: while the camera's rate varies by less than
-``min_rate_change_rad_s`` (RMS about its mean), or fewer than ``min_rotations`` spans are
-buffered, :meth:`TimeOffsetEstimator.estimate` answers None.
+``min_rate_change_rad_s`` (RMS about its mean; without ``R_B_C``, on every axis), or fewer
+than ``min_rotations`` spans are buffered, :meth:`TimeOffsetEstimator.estimate` answers None.
 
 Bad input: a non-finite or malformed rate or rotation, or a span with ``t1 <= t0``, is refused
 with a :class:`~quadnav.errors.VioError` naming it; a sample whose stamp is not after the last
-one of its kind is ignored and counted in :attr:`TimeOffsetEstimator.rejected`.
+one of its kind is ignored and counted in :attr:`TimeOffsetEstimator.rejected`. Push the
+images' own stamps: an estimate is the whole offset, not a correction to one already applied.
 """
 
 from __future__ import annotations
@@ -51,7 +54,21 @@ class TdEstimate:
     n_rotations: int
 
 
-def _rotation_matrix(R: Rotation | ArrayLike) -> Rotation:
+@dataclass(frozen=True, slots=True)
+class _Buffer:
+    """The gyro (times in s from the first sample, rates, their slopes, attitudes) and the spans
+    the whole search range keeps inside its cover (starts, ends in s; camera rates)."""
+
+    tg: FloatArray
+    wg: FloatArray
+    dw: FloatArray
+    Q: Rotation
+    t0: FloatArray
+    t1: FloatArray
+    w_cam: FloatArray
+
+
+def _rotation(R: Rotation | ArrayLike) -> Rotation:
     if isinstance(R, Rotation):
         if not R.single or not np.isfinite(R.as_quat()).all():
             raise VioError("push_rotation: R_C0_C1 must be one finite rotation")
@@ -64,16 +81,63 @@ def _rotation_matrix(R: Rotation | ArrayLike) -> Rotation:
     return Rotation.from_matrix(M)
 
 
-class TimeOffsetEstimator:
-    """The camera-IMU time offset from gyro readings and vision's frame-to-frame rotations.
+def _slopes(tg: FloatArray, wg: FloatArray) -> FloatArray:
+    """The rate's change per second after each sample (the last one holds)."""
+    out = np.zeros_like(wg)
+    out[:-1] = np.diff(wg, axis=0) / np.diff(tg)[:, None]
+    return out
 
-    ``R_B_C`` is the camera's mount; ``window_s`` the buffer kept; ``max_td_s`` the search's
-    half range; ``converged_sigma_s`` the standard deviation under which an estimate counts as
-    settled."""
+
+def _attitudes(tg: FloatArray, wg: FloatArray) -> Rotation:
+    """The gyro's attitude at each sample, the rate linear between samples (a sample is the
+    rate at its instant: holding it would shift the gyro by half a period)."""
+    steps = Rotation.from_rotvec(0.5 * (wg[:-1] + wg[1:]) * np.diff(tg)[:, None])
+    q = np.empty((len(tg), 4))
+    cur = Rotation.identity()
+    q[0] = cur.as_quat()
+    for k in range(len(steps)):
+        cur = cur * steps[k]
+        q[k + 1] = cur.as_quat()
+    return Rotation.from_quat(q)
+
+
+def _gyro_rates(buf: _Buffer, td: FloatArray) -> FloatArray:
+    """The gyro's mean rate over each span shifted by each offset: (len(td), spans, 3)."""
+    a = (buf.t0[None, :] + td[:, None]).ravel()
+    b = (buf.t1[None, :] + td[:, None]).ravel()
+
+    def at(t: FloatArray) -> Rotation:
+        k = np.clip(np.searchsorted(buf.tg, t, side="right") - 1, 0, len(buf.tg) - 1)
+        u = (t - buf.tg[k])[:, None]
+        return buf.Q[k] * Rotation.from_rotvec((buf.wg[k] + 0.5 * buf.dw[k] * u) * u)
+
+    rel = (at(a).inv() * at(b)).as_rotvec() / (b - a)[:, None]
+    return np.asarray(rel.reshape(len(td), len(buf.t0), 3), dtype=np.float64)
+
+
+def _kabsch(c: FloatArray, g: FloatArray) -> FloatArray:
+    """Per leading index, the rotation taking the centred rates ``c`` onto ``g``: (m, 3, 3)."""
+    H = np.einsum("mni,mnj->mij", c, g)
+    U, _, Vt = np.linalg.svd(H)
+    d = np.sign(
+        np.linalg.det(np.einsum("mij,mjk->mik", Vt.transpose(0, 2, 1), U.transpose(0, 2, 1)))
+    )
+    D = np.zeros_like(H)
+    D[:, 0, 0] = D[:, 1, 1] = 1.0
+    D[:, 2, 2] = d
+    return np.asarray(Vt.transpose(0, 2, 1) @ D @ U.transpose(0, 2, 1), dtype=np.float64)
+
+
+class TimeOffsetEstimator:
+    """The camera-IMU time offset from gyro readings and vision's rotations between images.
+
+    ``R_B_C`` is the camera's mount (None: fitted from the data, which then needs rotation
+    about every axis); ``window_s`` the buffer kept; ``max_td_s`` the search's half range;
+    ``converged_sigma_s`` the standard deviation under which an estimate counts as settled."""
 
     def __init__(
         self,
-        R_B_C: Rotation,
+        R_B_C: Rotation | None = None,
         *,
         window_s: float = 6.0,
         max_td_s: float = 0.1,
@@ -111,15 +175,15 @@ class TimeOffsetEstimator:
 
     def push_rotation(self, t0_ns: int, t1_ns: int, R_C0_C1: Rotation | ArrayLike) -> None:
         """Vision's rotation of the camera from the image at ``t0_ns`` to the one at ``t1_ns``
-        (``R_C0_C1``: camera 1's attitude in camera 0)."""
+        (``R_C0_C1``: camera 1's attitude in camera 0), the images' own stamps."""
         if int(t1_ns) <= int(t0_ns):
             raise VioError(f"push_rotation: t1_ns ({t1_ns}) must be after t0_ns ({t0_ns})")
-        R = _rotation_matrix(R_C0_C1)
+        R = _rotation(R_C0_C1)
         if self._spans and int(t0_ns) < self._spans[-1][0]:
             self._rejected["rotation_out_of_order"] += 1
             return
         dt_s = (int(t1_ns) - int(t0_ns)) / NS_PER_S
-        self._spans.append((int(t0_ns), int(t1_ns), self._R_B_C.apply(R.as_rotvec()) / dt_s))
+        self._spans.append((int(t0_ns), int(t1_ns), R.as_rotvec() / dt_s))
         self._trim()
 
     def _trim(self) -> None:
@@ -132,62 +196,61 @@ class TimeOffsetEstimator:
         while len(self._gyro) > 2 and self._gyro[1][0] < newest - self._window_ns - margin:
             self._gyro.popleft()
 
-    def _usable(self) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray] | None:
-        """Gyro times (s) and running integral, and the spans the whole search range keeps
-        inside the gyro's cover: their starts and ends (s) and camera rates in the body."""
+    def _usable(self) -> _Buffer | None:
         if len(self._gyro) < 3:
             return None
         base = self._gyro[0][0]
         tg = np.array([(t - base) / NS_PER_S for t, _ in self._gyro])
         wg = np.array([w for _, w in self._gyro])
-        G = np.vstack(
-            [np.zeros(3), np.cumsum(0.5 * (wg[1:] + wg[:-1]) * np.diff(tg)[:, None], axis=0)]
-        )
+        m = self._max_td_s
         spans = [
             ((a - base) / NS_PER_S, (b - base) / NS_PER_S, w)
             for a, b, w in self._spans
-            if (a - base) / NS_PER_S - self._max_td_s >= tg[0]
-            and (b - base) / NS_PER_S + self._max_td_s <= tg[-1]
+            if (a - base) / NS_PER_S - m >= tg[0] and (b - base) / NS_PER_S + m <= tg[-1]
         ]
         if len(spans) < self._min_rotations:
             return None
-        t0 = np.array([s[0] for s in spans])
-        t1 = np.array([s[1] for s in spans])
-        return tg, G, t0, t1, np.array([s[2] for s in spans])
+        w_cam = np.array([s[2] for s in spans])
+        if self._R_B_C is not None:
+            w_cam = self._R_B_C.apply(w_cam)
+        return _Buffer(
+            tg=tg,
+            wg=wg,
+            dw=_slopes(tg, wg),
+            Q=_attitudes(tg, wg),
+            t0=np.array([s[0] for s in spans]),
+            t1=np.array([s[1] for s in spans]),
+            w_cam=w_cam,
+        )
+
+    def _costs(self, buf: _Buffer, td: FloatArray) -> FloatArray:
+        """The cost at each offset of ``td``: squared residuals, bias (and mount) removed."""
+        g = _gyro_rates(buf, td)
+        g = g - g.mean(axis=1, keepdims=True)
+        c = np.broadcast_to(buf.w_cam - buf.w_cam.mean(axis=0), g.shape)
+        if self._R_B_C is None:
+            c = np.einsum("mij,mnj->mni", _kabsch(c, g), c)
+        return np.asarray(np.sum((g - c) ** 2, axis=(1, 2)), dtype=np.float64)
+
+    def _excited(self, w_cam: FloatArray) -> bool:
+        centred = w_cam - w_cam.mean(axis=0)
+        if self._R_B_C is not None:
+            return bool(np.sqrt(np.mean(np.sum(centred**2, axis=1))) >= self._min_change)
+        weakest = np.linalg.svd(centred, compute_uv=False)[-1] / np.sqrt(len(centred))
+        return bool(weakest >= self._min_change / np.sqrt(3.0))
 
     def estimate(self) -> TdEstimate | None:
         """The offset over the buffer, or None while it holds too few spans or too little
         change of rotation rate."""
-        data = self._usable()
-        if data is None:
+        buf = self._usable()
+        if buf is None or not self._excited(buf.w_cam):
             return None
-        tg, G, t0, t1, w_cam = data
-        if np.sqrt(np.mean(np.sum((w_cam - w_cam.mean(axis=0)) ** 2, axis=1))) < self._min_change:
-            return None
-
-        def costs(td: FloatArray) -> FloatArray:
-            """The cost at each offset of ``td`` (m,): the squared residuals, bias removed."""
-            ta, tb = (t0[None, :] + td[:, None]).ravel(), (t1[None, :] + td[:, None]).ravel()
-            shape = (len(td), len(t0))
-            mean = (
-                np.stack(
-                    [
-                        (np.interp(tb, tg, G[:, k]) - np.interp(ta, tg, G[:, k])).reshape(shape)
-                        for k in range(3)
-                    ],
-                    axis=-1,
-                )
-                / (t1 - t0)[None, :, None]
-            )
-            r = w_cam[None] - mean
-            r = r - r.mean(axis=1, keepdims=True)
-            return np.asarray(np.sum(r**2, axis=(1, 2)), dtype=np.float64)
 
         def cost(td: float) -> float:
-            return float(costs(np.array([td]))[0])
+            return float(self._costs(buf, np.array([td]))[0])
 
         grid = np.arange(-self._max_td_s, self._max_td_s + 0.5 * _GRID_S, _GRID_S)
-        coarse = float(grid[int(np.argmin(costs(grid)))])
+        coarse = float(grid[int(np.argmin(self._costs(buf, grid)))])
         fine = minimize_scalar(
             cost,
             bounds=(coarse - _GRID_S, coarse + _GRID_S),
@@ -195,9 +258,12 @@ class TimeOffsetEstimator:
             options={"xatol": 1e-6},
         )
         td = float(fine.x)
-        n = len(t0)
-        curvature = (cost(td + _CURV_S) - 2.0 * cost(td) + cost(td - _CURV_S)) / _CURV_S**2
-        var_r = cost(td) / max(3 * n - 4, 1)
+        n = len(buf.t0)
+        h = np.array([td - _CURV_S, td, td + _CURV_S])
+        c_minus, c0, c_plus = self._costs(buf, h)
+        curvature = (c_plus - 2.0 * c0 + c_minus) / _CURV_S**2
+        unknowns = 2 if self._R_B_C is not None else 5
+        var_r = c0 / max(3 * n - unknowns - 3, 1)
         sigma = float(np.sqrt(2.0 * var_r / curvature)) if curvature > 0 else float("inf")
         return TdEstimate(
             td_s=td, sigma_s=sigma, converged=sigma < self._converged_sigma_s, n_rotations=n
