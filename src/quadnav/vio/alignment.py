@@ -181,7 +181,7 @@ def linear_alignment(
     *,
     g_norm: float,
     max_gravity_error_m_s2: float = 1.0,
-    max_scale_sigma: float = 0.1,
+    max_scale_sigma: float = 0.05,
     refine_iterations: int = 4,
 ) -> AlignmentResult | str:
     """Velocities, gravity and scale (eqs 3.7-3.9), then gravity refined with ``|g| = g_norm``;

@@ -123,7 +123,7 @@ class InitSettings:
     min_translation_px: float = 5.0
     max_rotation_residual_deg: float = 3.0
     max_gravity_error_m_s2: float = 1.0
-    max_scale_sigma: float = 0.1
+    max_scale_sigma: float = 0.05
     gyro_rotation_sigma_deg: float = 0.05
     estimate_gyro_bias: bool = True
 
