@@ -1,0 +1,287 @@
+"""Online camera-IMU time offset (VINS-Mono's ``estimate_td``, here on its own): vision's
+rotations between image pairs against the gyro's over a sliding buffer of the last seconds.
+
+Convention (VINS'): ``t_imu = t_image + td``. A rotation ``R_C0_C1`` between image stamps
+``t0`` and ``t1`` is the gyro's motion over ``[t0 + td, t1 + td]``. Each span is compared as a
+mean rate: the camera's ``Log(R_C0_C1) / (t1 - t0)`` turned into the body by ``R_B_C``, the
+gyro's ``Log(Q(t0 + td)^T Q(t1 + td)) / (t1 - t0)`` with ``Q`` the gyro's attitude integrated
+with the rate linear between samples (so spans of any length, consecutive frames or keyframes, compare exactly),
+less one constant (the gyro bias, a nuisance). Without ``R_B_C`` the rotation between the two
+is fitted too (Kabsch on the centred rates, per candidate offset). The cost is scanned on a
+5 ms grid over ``±max_td_s`` (or, once settled, near the last estimate), then at 1 ms and at
+0.1 ms around its minimum, where a parabola gives the offset and the curvature; ``sigma_s`` comes from that curvature and the residual's
+spread.
+
+A constant rate says nothing about a shift: while the camera's rate varies by less than
+``min_rate_change_rad_s`` (RMS about its mean; without ``R_B_C``, on every axis), or fewer
+than ``min_rotations`` spans are buffered, :meth:`TimeOffsetEstimator.estimate` answers None.
+
+Bad input: a non-finite or malformed rate or rotation, or a span with ``t1 <= t0``, is refused
+with a :class:`~quadnav.errors.VioError` naming it; a sample whose stamp is not after the last
+one of its kind is ignored and counted in :attr:`TimeOffsetEstimator.rejected`. Push the
+images' own stamps: an estimate is the whole offset, not a correction to one already applied.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.spatial.transform import Rotation
+
+from quadnav.errors import VioError
+from quadnav.units import NS_PER_S
+
+__all__ = ["TdEstimate", "TimeOffsetEstimator"]
+
+FloatArray = NDArray[np.float64]
+
+#: The middle scan's step (s): the wide one is 5 times coarser, the fine one 10 times finer.
+_GRID_S = 1e-3
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class TdEstimate:
+    """The time offset ``td_s`` (``t_imu = t_image + td``), its standard deviation, whether it
+    has settled (``sigma_s`` under the estimator's threshold) and how many spans it used."""
+
+    td_s: float
+    sigma_s: float
+    converged: bool
+    n_rotations: int
+
+
+@dataclass(frozen=True, slots=True)
+class _Buffer:
+    """The gyro (times in s from the first sample, rates, their slopes, attitudes) and the spans
+    the whole search range keeps inside its cover (starts, ends in s; camera rates)."""
+
+    tg: FloatArray
+    wg: FloatArray
+    dw: FloatArray
+    Q: Rotation
+    t0: FloatArray
+    t1: FloatArray
+    w_cam: FloatArray
+
+
+def _rotation(R: Rotation | ArrayLike) -> Rotation:
+    if isinstance(R, Rotation):
+        if not R.single or not np.isfinite(R.as_quat()).all():
+            raise VioError("push_rotation: R_C0_C1 must be one finite rotation")
+        return R
+    M = np.asarray(R, dtype=np.float64)
+    if M.shape != (3, 3) or not np.isfinite(M).all():
+        raise VioError(f"push_rotation: R_C0_C1 must be a finite 3x3 matrix, got shape {M.shape}")
+    if not np.allclose(M @ M.T, np.eye(3), atol=1e-6) or np.linalg.det(M) <= 0.0:
+        raise VioError("push_rotation: R_C0_C1 is not a rotation matrix")
+    return Rotation.from_matrix(M)
+
+
+def _slopes(tg: FloatArray, wg: FloatArray) -> FloatArray:
+    """The rate's change per second after each sample (the last one holds)."""
+    out = np.zeros_like(wg)
+    out[:-1] = np.diff(wg, axis=0) / np.diff(tg)[:, None]
+    return out
+
+
+def _attitudes(tg: FloatArray, wg: FloatArray) -> Rotation:
+    """The gyro's attitude at each sample, the rate linear between samples (a sample is the
+    rate at its instant: holding it would shift the gyro by half a period). The running product
+    of the steps by a prefix scan: log2(n) vectorised compositions, not n single ones."""
+    q = np.empty((len(tg), 4))
+    q[0] = [0.0, 0.0, 0.0, 1.0]
+    q[1:] = Rotation.from_rotvec(0.5 * (wg[:-1] + wg[1:]) * np.diff(tg)[:, None]).as_quat()
+    d = 1
+    while d < len(q):
+        q[d:] = (Rotation.from_quat(q[:-d]) * Rotation.from_quat(q[d:])).as_quat()
+        d *= 2
+    return Rotation.from_quat(q)
+
+
+def _gyro_rates(buf: _Buffer, td: FloatArray) -> FloatArray:
+    """The gyro's mean rate over each span shifted by each offset: (len(td), spans, 3)."""
+    a = (buf.t0[None, :] + td[:, None]).ravel()
+    b = (buf.t1[None, :] + td[:, None]).ravel()
+
+    def at(t: FloatArray) -> Rotation:
+        k = np.clip(np.searchsorted(buf.tg, t, side="right") - 1, 0, len(buf.tg) - 1)
+        u = (t - buf.tg[k])[:, None]
+        return buf.Q[k] * Rotation.from_rotvec((buf.wg[k] + 0.5 * buf.dw[k] * u) * u)
+
+    rel = (at(a).inv() * at(b)).as_rotvec() / (b - a)[:, None]
+    return np.asarray(rel.reshape(len(td), len(buf.t0), 3), dtype=np.float64)
+
+
+def _kabsch(c: FloatArray, g: FloatArray) -> FloatArray:
+    """Per leading index, the rotation taking the centred rates ``c`` onto ``g``: (m, 3, 3)."""
+    H = np.einsum("mni,mnj->mij", c, g)
+    U, _, Vt = np.linalg.svd(H)
+    d = np.sign(
+        np.linalg.det(np.einsum("mij,mjk->mik", Vt.transpose(0, 2, 1), U.transpose(0, 2, 1)))
+    )
+    D = np.zeros_like(H)
+    D[:, 0, 0] = D[:, 1, 1] = 1.0
+    D[:, 2, 2] = d
+    return np.asarray(Vt.transpose(0, 2, 1) @ D @ U.transpose(0, 2, 1), dtype=np.float64)
+
+
+class TimeOffsetEstimator:
+    """The camera-IMU time offset from gyro readings and vision's rotations between images.
+
+    ``R_B_C`` is the camera's mount (None: fitted from the data, which then needs rotation
+    about every axis); ``window_s`` the buffer kept; ``max_td_s`` the search's half range;
+    ``converged_sigma_s`` the standard deviation under which an estimate counts as settled;
+    ``refresh_spans`` how many new spans make :meth:`estimate` search again."""
+
+    def __init__(
+        self,
+        R_B_C: Rotation | None = None,
+        *,
+        window_s: float = 6.0,
+        max_td_s: float = 0.1,
+        min_rotations: int = 20,
+        min_rate_change_rad_s: float = 0.05,
+        converged_sigma_s: float = 5e-4,
+        refresh_spans: int = 10,
+    ) -> None:
+        if not (0.0 < max_td_s < window_s / 4):
+            raise VioError(f"max_td_s must be in (0, window_s / 4), got {max_td_s}")
+        self._R_B_C = R_B_C
+        self._window_ns = int(window_s * NS_PER_S)
+        self._max_td_s = float(max_td_s)
+        self._min_rotations = int(min_rotations)
+        self._min_change = float(min_rate_change_rad_s)
+        self._converged_sigma_s = float(converged_sigma_s)
+        self._gyro: deque[tuple[int, FloatArray]] = deque()
+        self._spans: deque[tuple[int, int, FloatArray]] = deque()
+        self._rejected = {"gyro_out_of_order": 0, "rotation_out_of_order": 0}
+        self._refresh_spans = max(int(refresh_spans), 1)
+        self._new_spans = 0
+        self._last: TdEstimate | None = None
+
+    @property
+    def rejected(self) -> dict[str, int]:
+        """Samples ignored for a stamp not after the last of their kind, per kind."""
+        return dict(self._rejected)
+
+    def push_gyro(self, t_ns: int, w_B: ArrayLike) -> None:
+        """One gyro reading (rad/s, body) at IMU time ``t_ns``."""
+        w = np.asarray(w_B, dtype=np.float64)
+        if w.shape != (3,) or not np.isfinite(w).all():
+            raise VioError(f"push_gyro: w_B must be 3 finite rates (rad/s), got {w.tolist()}")
+        if self._gyro and int(t_ns) <= self._gyro[-1][0]:
+            self._rejected["gyro_out_of_order"] += 1
+            return
+        self._gyro.append((int(t_ns), w))
+        self._trim()
+
+    def push_rotation(self, t0_ns: int, t1_ns: int, R_C0_C1: Rotation | ArrayLike) -> None:
+        """Vision's rotation of the camera from the image at ``t0_ns`` to the one at ``t1_ns``
+        (``R_C0_C1``: camera 1's attitude in camera 0), the images' own stamps."""
+        if int(t1_ns) <= int(t0_ns):
+            raise VioError(f"push_rotation: t1_ns ({t1_ns}) must be after t0_ns ({t0_ns})")
+        R = _rotation(R_C0_C1)
+        if self._spans and int(t0_ns) < self._spans[-1][0]:
+            self._rejected["rotation_out_of_order"] += 1
+            return
+        dt_s = (int(t1_ns) - int(t0_ns)) / NS_PER_S
+        self._spans.append((int(t0_ns), int(t1_ns), R.as_rotvec() / dt_s))
+        self._new_spans += 1
+        self._trim()
+
+    def _trim(self) -> None:
+        newest = max(
+            self._gyro[-1][0] if self._gyro else 0, self._spans[-1][1] if self._spans else 0
+        )
+        while self._spans and self._spans[0][0] < newest - self._window_ns:
+            self._spans.popleft()
+        margin = int(2 * self._max_td_s * NS_PER_S)
+        while len(self._gyro) > 2 and self._gyro[1][0] < newest - self._window_ns - margin:
+            self._gyro.popleft()
+
+    def _usable(self) -> _Buffer | None:
+        if len(self._gyro) < 3:
+            return None
+        base = self._gyro[0][0]
+        tg = np.array([(t - base) / NS_PER_S for t, _ in self._gyro])
+        wg = np.array([w for _, w in self._gyro])
+        m = self._max_td_s
+        spans = [
+            ((a - base) / NS_PER_S, (b - base) / NS_PER_S, w)
+            for a, b, w in self._spans
+            if (a - base) / NS_PER_S - m >= tg[0] and (b - base) / NS_PER_S + m <= tg[-1]
+        ]
+        if len(spans) < self._min_rotations:
+            return None
+        w_cam = np.array([s[2] for s in spans])
+        if self._R_B_C is not None:
+            w_cam = self._R_B_C.apply(w_cam)
+        return _Buffer(
+            tg=tg,
+            wg=wg,
+            dw=_slopes(tg, wg),
+            Q=_attitudes(tg, wg),
+            t0=np.array([s[0] for s in spans]),
+            t1=np.array([s[1] for s in spans]),
+            w_cam=w_cam,
+        )
+
+    def _costs(self, buf: _Buffer, td: FloatArray) -> FloatArray:
+        """The cost at each offset of ``td``: squared residuals, bias (and mount) removed."""
+        g = _gyro_rates(buf, td)
+        g = g - g.mean(axis=1, keepdims=True)
+        c = np.broadcast_to(buf.w_cam - buf.w_cam.mean(axis=0), g.shape)
+        if self._R_B_C is None:
+            c = np.einsum("mij,mnj->mni", _kabsch(c, g), c)
+        return np.asarray(np.sum((g - c) ** 2, axis=(1, 2)), dtype=np.float64)
+
+    def _excited(self, w_cam: FloatArray) -> bool:
+        centred = w_cam - w_cam.mean(axis=0)
+        if self._R_B_C is not None:
+            return bool(np.sqrt(np.mean(np.sum(centred**2, axis=1))) >= self._min_change)
+        weakest = np.linalg.svd(centred, compute_uv=False)[-1] / np.sqrt(len(centred))
+        return bool(weakest >= self._min_change / np.sqrt(3.0))
+
+    def _search(self, buf: _Buffer) -> float:
+        """The coarse minimum: a 5 ms scan over the whole range then 1 ms around its best, or,
+        once an estimate has settled, 1 ms steps within 5 ms of it."""
+        last = self._last
+        if last is not None and last.converged:
+            centre = last.td_s
+        else:
+            wide = np.arange(-self._max_td_s, self._max_td_s + 1e-9, 5 * _GRID_S)
+            centre = float(wide[int(np.argmin(self._costs(buf, wide)))])
+        near = np.asarray(
+            np.clip(centre + np.arange(-5, 6) * _GRID_S, -self._max_td_s, self._max_td_s),
+            dtype=np.float64,
+        )
+        return float(near[int(np.argmin(self._costs(buf, near)))])
+
+    def estimate(self) -> TdEstimate | None:
+        """The offset over the buffer, or None while it holds too few spans or too little
+        change of rotation rate. Recomputed once ``refresh_spans`` new spans have come in
+        (the search costs tens of milliseconds), the last answer returned in between."""
+        if self._last is not None and self._new_spans < self._refresh_spans:
+            return self._last
+        buf = self._usable()
+        if buf is None or not self._excited(buf.w_cam):
+            return None
+        self._new_spans = 0
+        fine = np.asarray(self._search(buf) + np.arange(-10, 11) * (_GRID_S / 10), dtype=np.float64)
+        costs = self._costs(buf, fine)
+        k = int(np.clip(np.argmin(costs), 3, len(fine) - 4))
+        a2, a1, a0 = np.polyfit(fine[k - 3 : k + 4] - fine[k], costs[k - 3 : k + 4], 2)
+        if a2 <= 0.0:
+            return None
+        td = float(fine[k] - a1 / (2.0 * a2))
+        n = len(buf.t0)
+        unknowns = 2 if self._R_B_C is not None else 5
+        var_r = float(a0 - a1**2 / (4.0 * a2)) / max(3 * n - unknowns - 3, 1)
+        sigma = float(np.sqrt(max(var_r, 0.0) / a2))  # cost'' = 2 a2; var = 2 var_r / cost''
+        self._last = TdEstimate(
+            td_s=td, sigma_s=sigma, converged=sigma < self._converged_sigma_s, n_rotations=n
+        )
+        return self._last
