@@ -24,8 +24,10 @@ class VioConfig(ConfigModel):
 
     window_keyframes: int = Field(10, ge=4, le=30, description="keyframes in the window")
     tracker: TrackerConfig = Field(default_factory=_tracker, description="KLT front end")
+    # VINS-Mono uses 10 px (at focal 460); 16 px measured better here on V1_02's motion (40 s:
+    # ATE 0.032 against 0.036 m) and on room_medium, with 30 % fewer solves
     keyframe_parallax_px: float = Field(
-        10.0, gt=0.0, le=100.0, description="mean parallax to the last keyframe for a new one"
+        16.0, gt=0.0, le=100.0, description="mean parallax to the last keyframe for a new one"
     )
     parallax_focal_px: float = Field(
         460.0, gt=10.0, le=5000.0, description="focal length the parallax is stated at"

@@ -20,11 +20,12 @@ import time
 from collections import deque
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from typing import Any
 
+import cv2
 import gtsam
 import numpy as np
 from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
 
 from quadnav.errors import VioError, VisionError
 from quadnav.messages import ImuSample
@@ -32,38 +33,21 @@ from quadnav.rig import Rig
 from quadnav.vio.config import VioConfig
 from quadnav.vio.failure import InputLog, SolvedState, state_failure, tracking_failure
 from quadnav.vio.frontend import FeatureManager, Frontend, median_motion_px
+from quadnav.vio.initialization import visual_inertial_init
 from quadnav.vio.preintegration import imu_params, preintegrate
 from quadnav.vio.static_init import StaticStart, imu_stillness, is_still, static_start
+from quadnav.vio.time_offset import TimeOffsetEstimator
 from quadnav.vio.types import FrameFeatures, InitResult, InitWindow, StageTiming, VioEvent, VioState
 from quadnav.vio.window import Keyframe, SlidingWindow, StatePrior, pose3, to_pose
 
 __all__ = ["VioEstimator"]
 
 FloatArray = NDArray[np.float64]
-_VisualInit = Callable[[InitWindow], "InitResult | None"]
 
 
-def _visual_init() -> _VisualInit | None:
-    """H2's visual-inertial initialisation when it is there (it is merged separately)."""
-    try:
-        from quadnav.vio import initialization  # type: ignore[attr-defined, unused-ignore]
-    except ImportError:
-        return None
-    fn: _VisualInit | None = getattr(initialization, "visual_inertial_init", None)
-    return fn
-
-
-def _time_offset_estimator() -> Any:
-    """H2's online time-offset estimator when it is there."""
-    try:
-        from quadnav.vio import time_offset  # type: ignore[attr-defined, unused-ignore]
-    except ImportError:
-        return None
-    cls = getattr(time_offset, "TimeOffsetEstimator", None)
-    try:
-        return None if cls is None else cls()
-    except TypeError:  # TD-HOOK (lead): its constructor wants settings this call does not give
-        return None
+def _time_offset_estimator(R_B_C: Rotation) -> TimeOffsetEstimator:
+    """The online camera-IMU time-offset estimator, told the camera's mount."""
+    return TimeOffsetEstimator(R_B_C=R_B_C)
 
 
 class VioEstimator:
@@ -96,9 +80,13 @@ class VioEstimator:
         self._prop: gtsam.PreintegratedCombinedMeasurements | None = None
         self._last_p = np.zeros(3)
         self._td_s = cfg.td_s
-        self._td = _time_offset_estimator() if cfg.estimate_td else None
-        # H2's visual-inertial initialisation (a start or re-start while moving), if merged
-        self._visual_init = _visual_init()
+        self._td = (
+            _time_offset_estimator(rig.camera(camera).T_B_C.R_A_B) if cfg.estimate_td else None
+        )
+        self._td_applied_ns: dict[int, int] = {}  # keyframe stamp -> the offset it was given
+        self._td_settled = False
+        # the visual-inertial initialisation (a start or re-start while moving)
+        self._visual_init: Callable[[InitWindow], InitResult | None] = visual_inertial_init
 
     # -- the protocol -----------------------------------------------------------------------
     @property
@@ -138,7 +126,7 @@ class VioEstimator:
         prev = self._imu[-1] if self._imu else None
         self._imu.append(sample)
         self._imu_t.append(sample.t_ns)
-        if self._td is not None:  # TD-HOOK (lead): H2's TimeOffsetEstimator gets the gyro here
+        if self._td is not None:  # the online time offset compares the gyro with vision
             self._td.push_gyro(sample.t_ns, np.asarray(sample.gyro_rad_s))
         if not self._initialized or self._prop is None or prev is None:
             return None
@@ -155,6 +143,8 @@ class VioEstimator:
         if not self.input.image_time_ok(t_ns):
             return None
         t = int(t_ns) + round(self._td_s * 1e9)
+        if self._td is not None:
+            self._td_applied_ns[t] = t - int(t_ns)
         try:
             with self._stage("track"):
                 frame = self.frontend.track(t, image)
@@ -233,8 +223,6 @@ class VioEstimator:
     def _try_visual_init(self, frame: FrameFeatures) -> VioState | None:
         """The visual-inertial initialisation over the keyframes collected while moving."""
         init = self._visual_init
-        if init is None:
-            return None
         dec = self.frontend.decide(frame)
         if not dec.keyframe:
             return None
@@ -305,7 +293,9 @@ class VioEstimator:
         if t1_ns <= kf.t_ns:
             return gtsam.PreintegratedCombinedMeasurements(self._params, kf.bias)
         i = max(bisect.bisect_right(self._imu_t, kf.t_ns) - 1, 0)
-        return preintegrate(self._params, self._imu[i:], kf.t_ns, t1_ns, kf.bias)
+        # an image the time offset moves ahead of the newest IMU: its last sample holds
+        hold = max(round(self._td_s * 1e9), 0) + (2_000_000 if self._td is not None else 0)
+        return preintegrate(self._params, self._imu[i:], kf.t_ns, t1_ns, kf.bias, hold_ns=hold)
 
     def _predicted_state(
         self,
@@ -430,17 +420,45 @@ class VioEstimator:
         return self._keyframe_state(frame)
 
     def _feed_time_offset(self, a: Keyframe, b: Keyframe) -> None:
-        """TD-HOOK (lead): the rotation of consecutive optimised camera poses goes to H2's
-        ``TimeOffsetEstimator``; its estimate, once it has one, moves later image stamps."""
+        """The rotation of consecutive optimised camera poses, at the images' own stamps (the
+        offset each was given taken back off), goes to the online time-offset estimator; its
+        estimate, once it has one, is the offset later images get (VINS' ``estimate_td``)."""
         if self._td is None:
             return
-        T_B_C = self.window.T_B_C
-        R_C0_C1 = a.pose.compose(T_B_C).rotation().between(b.pose.compose(T_B_C).rotation())
-        self._td.push_rotation(a.t_ns, b.t_ns, R_C0_C1.matrix())
+        R_C0_C1 = self._vision_rotation(a.index, b.index)
+        applied = self._td_applied_ns
+        t0 = a.t_ns - applied.get(a.t_ns, round(self._td_s * 1e9))
+        t1 = b.t_ns - applied.get(b.t_ns, round(self._td_s * 1e9))
+        for t in [t for t in applied if t < a.t_ns]:
+            del applied[t]
+        if t1 <= t0 or R_C0_C1 is None:
+            return
+        self._td.push_rotation(t0, t1, R_C0_C1)
         est = self._td.estimate()
-        td = getattr(est, "td_s", None) if est is not None else None
-        if td is not None and np.isfinite(td) and abs(float(td)) <= 0.1:
-            self._td_s = float(td)
+        if est is None or not np.isfinite(est.td_s) or abs(est.td_s) > 0.1:
+            return
+        self._td_s = float(est.td_s)
+        if est.converged and not self._td_settled:
+            self._td_settled = True
+            detail = f"camera-IMU offset {1e3 * est.td_s:.2f} ms (sigma {1e3 * est.sigma_s:.2f} ms)"
+            self._events.append(VioEvent(t_ns=b.t_ns, kind="td", detail=detail))
+
+    def _vision_rotation(self, ka: int, kb: int) -> FloatArray | None:
+        """The camera's rotation from keyframe ``ka`` to ``kb`` by vision alone (the essential
+        matrix of their common tracks): the optimised poses follow the gyro, which would hide
+        the offset."""
+        tracks = self.features.tracks.values()
+        pairs = [(obs[ka], obs[kb]) for obs in tracks if ka in obs and kb in obs]
+        if len(pairs) < 15:
+            return None
+        x0 = np.array([p[0] for p in pairs], np.float64).reshape(-1, 1, 2)
+        x1 = np.array([p[1] for p in pairs], np.float64).reshape(-1, 1, 2)
+        thr = 1.0 / self.window.focal_px
+        E, mask = cv2.findEssentialMat(x0, x1, np.eye(3), cv2.RANSAC, 0.999, thr)
+        if E is None or E.shape != (3, 3) or mask is None or int(mask.sum()) < 12:
+            return None
+        n, R_C1_C0, _, _ = cv2.recoverPose(E, x0, x1, np.eye(3), mask=mask)
+        return None if n < 12 else np.asarray(R_C1_C0, np.float64).T
 
     def _prune_imu(self) -> None:
         """Keep the IMU the window and a static start may still need."""

@@ -57,13 +57,17 @@ def preintegrate(
     t0_ns: int,
     t1_ns: int,
     bias: gtsam.imuBias.ConstantBias | None = None,
+    *,
+    hold_ns: int = 0,
 ) -> gtsam.PreintegratedCombinedMeasurements:
     """The IMU from ``t0_ns`` to ``t1_ns``: ``samples`` in time order, the last one at or
-    before ``t0_ns`` included (it holds until the next one). A :class:`VioError` when the
-    samples do not cover the span."""
+    before ``t0_ns`` included (it holds until the next one). The last sample may hold past its
+    spacing by ``hold_ns`` more (an image whose time offset puts it ahead of the IMU). A
+    :class:`VioError` when the samples do not cover the span."""
     if t1_ns <= t0_ns:
         raise VioError(f"preintegration span must be positive, got {t0_ns}..{t1_ns} ns")
-    if not samples or samples[0].t_ns > t0_ns or samples[-1].t_ns < t1_ns - s_gap(samples):
+    reach = s_gap(samples) + max(int(hold_ns), 0)
+    if not samples or samples[0].t_ns > t0_ns or samples[-1].t_ns < t1_ns - reach:
         raise VioError(f"the IMU does not cover {t0_ns}..{t1_ns} ns")
     pim = gtsam.PreintegratedCombinedMeasurements(params, bias or zero_bias())
     n = len(samples)
