@@ -33,6 +33,7 @@ from quadnav.eval.align import AlignMethod, align
 from quadnav.eval.metrics import ErrorStats, ape, rpe
 from quadnav.eval.na import Metric, na
 from quadnav.geometry.trajectory import Trajectory
+from quadnav.units import s_to_ns
 
 __all__ = [
     "MIN_SCORED_POSES",
@@ -145,7 +146,7 @@ def yaw_position_alignment(
     position difference. Unlike a fit to positions it is defined at rest."""
     if len(ref) != len(est) or len(est) == 0:
         raise EvalError("the drift alignment needs matched, non-empty trajectories")
-    end = est.t_ns[0] + round(first_s * 1e9) if math.isfinite(first_s) else est.t_ns[-1]
+    end = est.t_ns[0] + s_to_ns(first_s) if math.isfinite(first_s) else est.t_ns[-1]
     n = max(1, int(np.searchsorted(est.t_ns, end, side="right")))
     d = ref.R_W_B[:n] * est.R_W_B[:n].inv()
     x = d.apply(np.array([1.0, 0.0, 0.0]))  # a yaw difference turns x about z

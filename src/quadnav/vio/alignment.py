@@ -180,19 +180,19 @@ def linear_alignment(
     p_B_C: FloatArray,
     *,
     g_norm: float,
-    max_gravity_error_m_s2: float = 1.0,
+    max_g_norm_error_m_s2: float = 1.0,
     max_scale_sigma: float = 0.05,
     refine_iterations: int = 4,
 ) -> AlignmentResult | str:
     """Velocities, gravity and scale (eqs 3.7-3.9), then gravity refined with ``|g| = g_norm``;
-    or why not: a gravity whose magnitude is off by more than ``max_gravity_error_m_s2``, a
+    or why not: a gravity whose magnitude is off by more than ``max_g_norm_error_m_s2``, a
     scale that is not positive, or one whose standard deviation exceeds ``max_scale_sigma`` of
     itself (too little acceleration in the window: at constant velocity the IMU sees only
     gravity and any scale fits, the vision's small errors then pull it towards zero)."""
     n = len(R_C0_B)
     x, res, sigma = _solve(p_C0_C, R_C0_B, deltas, p_B_C, np.zeros(3), np.eye(3))
     g = x[3 * n : 3 * n + 3]
-    if not np.isfinite(x).all() or abs(np.linalg.norm(g) - g_norm) > max_gravity_error_m_s2:
+    if not np.isfinite(x).all() or abs(np.linalg.norm(g) - g_norm) > max_g_norm_error_m_s2:
         return f"the linear alignment's gravity is {np.linalg.norm(g):.2f} m/s^2, not {g_norm:g}"
     if x[-1] <= 0.0:
         return f"the linear alignment's scale is not positive ({x[-1]:.3g})"

@@ -30,6 +30,7 @@ from scipy.spatial.transform import Rotation
 from quadnav.errors import VioError, VisionError
 from quadnav.messages import ImuSample
 from quadnav.rig import Rig
+from quadnav.units import s_to_ns
 from quadnav.vio.config import VioConfig
 from quadnav.vio.failure import InputLog, SolvedState, state_failure, tracking_failure
 from quadnav.vio.frontend import FeatureManager, Frontend, median_motion_px
@@ -142,7 +143,7 @@ class VioEstimator:
         """Track an image stamped ``t_ns`` (camera clock; ``td_s`` moves it to the IMU's)."""
         if not self.input.image_time_ok(t_ns):
             return None
-        t = int(t_ns) + round(self._td_s * 1e9)
+        t = int(t_ns) + s_to_ns(self._td_s)
         if self._td is not None:
             self._td_applied_ns[t] = t - int(t_ns)
         try:
@@ -153,7 +154,7 @@ class VioEstimator:
             return None
         self._last_features = frame
         self._recent.append(frame)
-        while self._recent and self._recent[0].t_ns < t - int(self.config.static_window_s * 1e9):
+        while self._recent and self._recent[0].t_ns < t - s_to_ns(self.config.static_window_s):
             self._recent.popleft()
         if not self._initialized:
             self._prune_imu()
@@ -174,7 +175,7 @@ class VioEstimator:
 
     def _try_init(self, frame: FrameFeatures) -> VioState | None:
         cfg = self.config
-        span_ns = int(cfg.static_window_s * 1e9)
+        span_ns = s_to_ns(cfg.static_window_s)
         if tracking_failure(len(frame.ids), cfg) is not None:
             return None
         start = static_start(self._imu, frame.t_ns, cfg)
@@ -294,7 +295,7 @@ class VioEstimator:
             return gtsam.PreintegratedCombinedMeasurements(self._params, kf.bias)
         i = max(bisect.bisect_right(self._imu_t, kf.t_ns) - 1, 0)
         # an image the time offset moves ahead of the newest IMU: its last sample holds
-        hold = max(round(self._td_s * 1e9), 0) + (2_000_000 if self._td is not None else 0)
+        hold = max(s_to_ns(self._td_s), 0) + (2_000_000 if self._td is not None else 0)
         return preintegrate(self._params, self._imu[i:], kf.t_ns, t1_ns, kf.bias, hold_ns=hold)
 
     def _predicted_state(
@@ -427,8 +428,8 @@ class VioEstimator:
             return
         R_C0_C1 = self._vision_rotation(a.index, b.index)
         applied = self._td_applied_ns
-        t0 = a.t_ns - applied.get(a.t_ns, round(self._td_s * 1e9))
-        t1 = b.t_ns - applied.get(b.t_ns, round(self._td_s * 1e9))
+        t0 = a.t_ns - applied.get(a.t_ns, s_to_ns(self._td_s))
+        t1 = b.t_ns - applied.get(b.t_ns, s_to_ns(self._td_s))
         for t in [t for t in applied if t < a.t_ns]:
             del applied[t]
         if t1 <= t0 or R_C0_C1 is None:
@@ -464,7 +465,7 @@ class VioEstimator:
         """Keep the IMU the window and a static start may still need."""
         if not self._imu_t:
             return
-        keep_ns = self._imu_t[-1] - int((self.config.static_window_s + 0.5) * 1e9)
+        keep_ns = self._imu_t[-1] - s_to_ns(self.config.static_window_s + 0.5)
         if self.window.keyframes:
             keep_ns = min(keep_ns, self.window.keyframes[0].t_ns)
         i = max(bisect.bisect_right(self._imu_t, keep_ns) - 2, 0)

@@ -110,7 +110,7 @@ class InitSettings:
     """The initialisation's thresholds. ``min_parallax_px`` and ``min_features`` are VINS' (30 px
     at ``focal_px`` 460, 20 common features); ``min_translation_px`` the parallax a pure
     rotation cannot make; ``max_rotation_residual_deg`` the largest RMS disagreement of
-    vision's and the gyro's relative rotations after the bias; ``max_gravity_error_m_s2`` how
+    vision's and the gyro's relative rotations after the bias; ``max_g_norm_error_m_s2`` how
     far the unconstrained gravity may miss ``g_norm``; ``max_scale_sigma`` the largest standard
     deviation of the scale, relative to it, the alignment may leave; ``gyro_rotation_sigma_deg``
     how firmly the gyro's rotations (after the bias) hold a second bundle adjustment (0: no
@@ -122,7 +122,7 @@ class InitSettings:
     min_features: int = 20
     min_translation_px: float = 5.0
     max_rotation_residual_deg: float = 3.0
-    max_gravity_error_m_s2: float = 1.0
+    max_g_norm_error_m_s2: float = 1.0
     max_scale_sigma: float = 0.05
     gyro_rotation_sigma_deg: float = 0.05
     estimate_gyro_bias: bool = True
@@ -171,7 +171,7 @@ def try_visual_inertial_init(
         deltas,
         window.T_B_C.p_A_B,
         g_norm=window.g_norm,
-        max_gravity_error_m_s2=cfg.max_gravity_error_m_s2,
+        max_g_norm_error_m_s2=cfg.max_g_norm_error_m_s2,
         max_scale_sigma=cfg.max_scale_sigma,
     )
     if isinstance(al, str):

@@ -15,6 +15,7 @@ from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
 from quadnav.messages import ImuSample
+from quadnav.units import s_to_ns
 from quadnav.vio.config import VioConfig
 
 __all__ = ["ImuStillness", "StaticStart", "gravity_rotation", "imu_stillness", "static_start"]
@@ -72,7 +73,7 @@ def imu_stillness(
     t = np.array([s.t_ns for s in sel], np.int64)
     g = np.array([s.gyro_rad_s for s in sel])
     a = np.array([s.accel_m_s2 for s in sel])
-    bin_ns = int(lowpass_s * 1e9)
+    bin_ns = s_to_ns(lowpass_s)
     return ImuStillness(
         n=len(sel),
         span_s=(sel[-1].t_ns - sel[0].t_ns) * 1e-9,
@@ -110,7 +111,7 @@ def static_start(
     """A start at ``t_ns`` when the IMU has been still for the last ``static_window_s`` and
     reads gravity's magnitude (within ``g_tolerance`` m/s^2); None otherwise."""
     span = config.static_window_s
-    st = imu_stillness(samples, t_ns - int(span * 1e9), t_ns, config.static_lowpass_s)
+    st = imu_stillness(samples, t_ns - s_to_ns(span), t_ns, config.static_lowpass_s)
     if st is None or not is_still(st, config, span):
         return None
     if abs(float(np.linalg.norm(st.accel_mean)) - config.g_norm) > g_tolerance:
