@@ -238,15 +238,20 @@ def _default(field: FieldInfo) -> Any:
     return PydanticUndefined
 
 
-def config_keys(model: type[ConfigModel], prefix: str = "") -> Iterator[ConfigKey]:
-    """Every key of ``model``, nested models' keys dotted (``gps.delay_s``), in field order."""
+def config_keys(
+    model: type[ConfigModel], prefix: str = "", defaults: BaseModel | None = None
+) -> Iterator[ConfigKey]:
+    """Every key of ``model``, nested models' keys dotted (``gps.delay_s``), in field order.
+    A nested section's defaults are those of its parent's default (``defaults``), which may
+    differ from the section's own."""
     for name, field in model.model_fields.items():
         key = f"{prefix}{name}"
         inner, is_seq = _nested(field.annotation)
+        default = getattr(defaults, name) if defaults is not None else _default(field)
         if inner is not None and not is_seq:
-            yield from config_keys(inner, f"{key}.")
+            section = default if isinstance(default, BaseModel) else None
+            yield from config_keys(inner, f"{key}.", section)
             continue
-        default = _default(field)
         description = field.description or ""
         if inner is not None:  # a list of entries: the entry's own keys follow, key[].name
             description = description or f"a list of {inner.__name__} entries"
@@ -504,9 +509,31 @@ def run_folders_page() -> str:
 # ----------------------------------------------------------------------------- API and index
 
 
+def submodules(package: str) -> list[str]:
+    """The public modules of a package (their names not starting with ``_``), sorted."""
+    module = importlib.import_module(f"quadnav.{package}")
+    if not hasattr(module, "__path__"):
+        return []
+    return sorted(
+        info.name
+        for info in pkgutil.walk_packages(module.__path__, f"quadnav.{package}.")
+        if not any(part.startswith("_") for part in info.name.split("."))
+    )
+
+
 def api_page(package: str) -> str:
-    """A package's API page: mkdocstrings renders its public names from the source."""
-    return f"# `quadnav.{package}`\n\n::: quadnav.{package}\n"
+    """A package's API page: mkdocstrings renders the package's own names, then each public
+    module's, from the source."""
+    lines = [f"# `quadnav.{package}`", "", f"::: quadnav.{package}", ""]
+    for name in submodules(package):
+        lines += [
+            f"::: {name}",
+            "    options:",
+            "      heading_level: 2",
+            "      show_root_heading: true",
+            "",
+        ]
+    return "\n".join(lines)
 
 
 #: The generated pages under ``docs/`` and what makes each (the nav test reads the names).
