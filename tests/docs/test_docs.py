@@ -69,6 +69,8 @@ def test_the_site_builds_strict(tmp_path: Path) -> None:
     for page in reference.PAGES:
         built = site / page.removesuffix(".md") / "index.html"
         assert built.is_file(), f"{page} was not generated"
+    for nav in ("SUMMARY", "reference/SUMMARY"):
+        assert not (site / nav).exists(), f"the navigation file {nav}.md is published as a page"
     text = (site / "reference" / "configuration" / "index.html").read_text(encoding="utf-8")
     assert "gps.delay_s" in text and "vision.min_sigma_m" in text
 
