@@ -151,3 +151,28 @@ def test_a_bad_signing_key_is_one_line_naming_where_it_came_from(tmp_path: Path)
     ):
         res = runner.invoke(app, ["sim", "--mavlink", url, "--duration", "1", *args], env=env)
         one_line_error(res, fragment)  # (no warning line before the error either)
+
+
+def test_a_mavlink_port_out_of_range_is_one_line_naming_mavlink(
+    frames: tuple[Path, Path, list[object]], tmp_path: Path
+) -> None:
+    """Issue 21, item 4: `markers --mavlink udpout:127.0.0.1:99999` was pymavlink's
+    OverflowError traceback after the first frame, and port 0 "sent" 82 messages to nowhere.
+    Every endpoint's port is checked where endpoints are parsed, before anything runs: markers
+    and run (a VIO scenario) refuse it naming --mavlink, and write no run folder."""
+    folder, cal, _ = frames
+    out = tmp_path / "runs"
+    for url in ("udpout:127.0.0.1:99999", "udpout:127.0.0.1:0", "tcp:127.0.0.1:65536",
+                "udpin:127.0.0.1:0", "udpout::14540", "udpout:127.0.0.1:port"):  # fmt: skip
+        res = runner.invoke(app, ["markers", str(folder), "--camera", str(cal), "--out", str(out),
+                                  "--mavlink", url])  # fmt: skip
+        one_line_error(res, f"--mavlink {url!r}: ")
+        assert "PORT from 1 to 65535" in res.stderr
+        res = runner.invoke(
+            app, ["run", "indoor_vio_odometry", "--out", str(out), "--mavlink", url]
+        )
+        one_line_error(res, f"--mavlink {url!r}: ")
+    assert not out.exists()
+    ok = runner.invoke(app, ["markers", str(folder), "--camera", str(cal), "--out", str(out),
+                             "--mavlink", f"udpout:127.0.0.1:{free_port()}"])  # fmt: skip
+    assert ok.exit_code == 0, ok.output

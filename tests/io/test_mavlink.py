@@ -144,9 +144,14 @@ def test_listening_beyond_loopback_is_refused_without_binding(no_remote_bind: li
     for url in ("udpin:127.0.0.1:14550", "udpin:127.3.2.1:14550", "udpin:localhost:14550"):
         assert check_bind(url, allow_remote=False) is not None
     assert check_bind("udpout:0.0.0.0:14550", allow_remote=False) is None  # sends, binds nothing
-    for url in ("udpin:127.0.0.1:99999", "udpin:14550", "tcpin:127.0.0.1:port"):
-        with pytest.raises(IoError, match="HOST:PORT"):
+    for url in ("udpin:127.0.0.1:99999", "udpin:14550", "tcpin:127.0.0.1:port",
+                "udpin:127.0.0.1:0", "udpout:127.0.0.1:0", "udpout:127.0.0.1:65536",
+                "tcp:127.0.0.1:99999", "udpout::14550"):  # fmt: skip
+        with pytest.raises(IoError, match=r"--mavlink .*HOST:PORT, PORT from 1 to 65535"):
             check_bind(url, allow_remote=False)
+    with pytest.raises(IoError, match="serial:/dev/DEVICE:BAUD"):
+        check_bind("serial:/dev/ttyUSB0:0", allow_remote=False)
+    assert check_bind("udpout:127.0.0.1:65535", allow_remote=False) is None
     assert no_remote_bind == []
 
 
