@@ -278,3 +278,30 @@ def test_vehicle_commands_decode_from_their_messages() -> None:
         kind="unsupported", command_id=takeoff
     )
     assert decode_vehicle_command(m.MAVLink_heartbeat_message(2, 12, 0, 0, 4, 3)) is None
+
+
+def test_a_listener_counts_as_sent_only_what_went_to_a_peer() -> None:
+    """Issue 21, item 14: a UDP listener writes nothing until a peer speaks, so those messages
+    are "not sent", not "sent"; a sender that heard nothing back says "(no peer heard)"."""
+    from quadnav.io.mavlink import describe_traffic
+
+    port = free_port()
+    rx = MavlinkLink(f"udpin:127.0.0.1:{port}", system=1, component=1)
+    tx = MavlinkLink(f"udpout:127.0.0.1:{port}", system=255, component=190)
+    try:
+        rx.heartbeat(vehicle=True)
+        rx.heartbeat(vehicle=True)
+        assert rx.stats.sent == {} and rx.stats.unsent_no_peer == 2
+        assert rx.describe() == "sent 0 (2 not sent: no peer connected), received 0"
+        tx.heartbeat()
+        assert tx.describe() == "sent 1 (no peer heard), received 0"
+        assert rx.poll(timeout_s=1.0)  # the peer spoke: from now on the listener sends to it
+        rx.heartbeat(vehicle=True)
+        assert rx.stats.sent == {"HEARTBEAT": 1}
+        assert rx.describe() == "sent 1 (2 not sent: before a peer connected), received 1"
+        assert tx.poll(timeout_s=1.0)
+        assert tx.describe() == "sent 1, received 1"
+    finally:
+        rx.close()
+        tx.close()
+    assert describe_traffic({}, {}) == "sent 0, received 0"

@@ -52,8 +52,10 @@ __all__ = [
     "covariance_ned_to_enu",
     "decode_odometry",
     "decode_vehicle_command",
+    "describe_traffic",
     "parse_url",
     "read_signing_key",
+    "signing_key_file_warning",
     "upper_triangle",
     "velocity_covariance_enu_to_frd",
 ]
@@ -172,6 +174,22 @@ def read_signing_key(
     if SIGNING_KEY_ENV in environ:
         return _key_from_hex(environ[SIGNING_KEY_ENV], SIGNING_KEY_ENV)
     return None
+
+
+def signing_key_file_warning(key_file: Path) -> str | None:
+    """As ssh does for a private key: a one-line warning when the signing key file may be read
+    or written by other users (any group or other permission bit), naming the file and its
+    mode; ``None`` for a file only its owner can use."""
+    try:
+        mode = key_file.stat().st_mode & 0o777
+    except OSError:
+        return None  # reading it fails with its own message
+    if not mode & 0o077:
+        return None
+    return (
+        f"warning: UNPROTECTED KEY FILE: --signing-key-file {key_file} has mode {mode:04o}, "
+        f"other users may read the key that signs commands to the vehicle; chmod 600 {key_file}"
+    )
 
 
 def _key_from_hex(text: str, what: str) -> bytes:
@@ -398,10 +416,31 @@ class ReceivedState:
 
 @dataclass
 class LinkStats:
+    """What a link did: ``sent`` counts the messages written towards a peer (a UDP sender's
+    address, a serial port, a connected TCP client); ``unsent_no_peer`` a listener's messages
+    while no peer had spoken to it (written nowhere)."""
+
     sent: dict[str, int] = field(default_factory=dict)
     received: dict[str, int] = field(default_factory=dict)
     refused_unsigned: int = 0
     bad_packets: int = 0
+    unsent_no_peer: int = 0
+
+
+def describe_traffic(
+    sent: Mapping[str, int], received: Mapping[str, int], *, unsent_no_peer: int = 0
+) -> str:
+    """The terminal's words for a link's traffic, honest about UDP: a datagram "sent" to an
+    address nobody listens on is lost without a word, so a link that heard nothing back says
+    so ("sent 82 (no peer heard)"), and a listener's messages with no peer are not "sent"."""
+    n_sent, n_received = sum(sent.values()), sum(received.values())
+    text = f"sent {n_sent}"
+    if unsent_no_peer:
+        when = "no peer connected" if n_sent == 0 else "before a peer connected"
+        text += f" ({unsent_no_peer} not sent: {when})"
+    elif n_sent and not n_received:
+        text += " (no peer heard)"
+    return f"{text}, received {n_received}"
 
 
 class MavlinkLink:
@@ -447,7 +486,24 @@ class MavlinkLink:
         return frozenset()
 
     def _count(self, name: str) -> None:
-        self.stats.sent[name] = self.stats.sent.get(name, 0) + 1
+        if self._has_peer():
+            self.stats.sent[name] = self.stats.sent.get(name, 0) + 1
+        else:
+            self.stats.unsent_no_peer += 1
+
+    def _has_peer(self) -> bool:
+        """Whether a message written now goes anywhere: a listener writes only to its peers
+        (UDP) or its connected client (TCP); a sender and a serial port always write."""
+        if isinstance(self.conn, _peer_udp_class(self._mavutil)):
+            return bool(self.conn.clients)
+        if isinstance(self.conn, self._mavutil.mavtcpin):
+            return self.conn.port is not None
+        return True
+
+    def describe(self) -> str:
+        """:func:`describe_traffic` of this link's counts."""
+        s = self.stats
+        return describe_traffic(s.sent, s.received, unsent_no_peer=s.unsent_no_peer)
 
     def boot_ms(self) -> int:
         return int((time.monotonic() - self.t0) * 1e3)
