@@ -3,6 +3,7 @@ behind ``quadnav calibrate``, which only parses its options and prints the resul
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -20,7 +21,8 @@ Progress = Callable[[int, int, str], None]
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class SourceCalibration:
-    """A source's calibration, the frames read from it and those that could not be decoded."""
+    """A source's calibration (its views keyed by the source's frame numbers), the frames read
+    from it and those that could not be decoded."""
 
     calibration: Calibration
     frames_read: int
@@ -36,7 +38,8 @@ def calibrate_source(
     progress: Progress | None = None,
 ) -> SourceCalibration:
     """Detect the board in every ``every``-th frame of ``source`` and calibrate from the views
-    with the most corners (at most ``max_views``)."""
+    with the most corners (at most ``max_views``); refused as :func:`calibrate_charuco` refuses,
+    the source named."""
     target = CharucoTarget(spec)
     frames = open_frames(source)
     views: list[tuple[int, CharucoDetections]] = []
@@ -63,6 +66,12 @@ def calibrate_source(
         cal = calibrate_charuco([d for _, d in chosen], target, size)
     except VisionError as exc:
         raise VisionError(f"{source}: {exc}") from None
+    frame = [index for index, _ in chosen]  # view k of the calibration is frame[k]
+    cal = dataclasses.replace(
+        cal,
+        per_view_rms_px={frame[k]: e for k, e in cal.per_view_rms_px.items()},
+        rejected={frame[k]: why for k, why in cal.rejected.items()},
+    )
     return SourceCalibration(calibration=cal, frames_read=n, unreadable=tuple(unreadable))
 
 
