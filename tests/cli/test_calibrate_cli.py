@@ -69,18 +69,21 @@ def test_calibrate_writes_a_weak_calibration_with_its_warnings_on_stderr(tmp_pat
 
 @needs(VIDEO)
 def test_calibrate_refuses_what_the_thesis_video_gives_with_the_reasons(tmp_path: Path) -> None:
-    """Every third frame of the thesis's flight over its 12x17 board: 8 views with 8 or 9
-    corners each gave fx 1421 px (the camera's is 499), k3 = -16294, exit 0 and no warning.
-    Its distortion folds back inside the image: refused, one line, with the 52 rejections
-    counted by reason, and nothing written."""
+    """The issue's case: every fifth frame of the thesis's flight over its 12x17 board left 4
+    views of 8 corners, which gave k3 = -5439 and fx/fy 1499/1334 px (the camera's fx is 499)
+    with exit 0 and no warning. Its distortion folds back inside the image and its pixels are
+    12 % from square: refused, one line, with the 56 rejections counted by reason, and
+    nothing written."""
     out = tmp_path / "cam.yml"
     res = runner.invoke(app, ["calibrate", str(VIDEO), "--squares", "12", "17", "--square-m", "0.066",
-                              "--marker-m", "0.0397", "--dictionary", "DICT_4X4_250", "--every", "3",
+                              "--marker-m", "0.0397", "--dictionary", "DICT_4X4_250", "--every", "5",
                               "--out", str(out)])  # fmt: skip
     assert res.exit_code == 2, res.output
     lines = [line for line in res.stderr.splitlines() if not line.startswith("calibrate: ")]
     assert len(lines) == 1 and "calibration refused: the radial distortion" in lines[0], lines
-    assert "folds back" in lines[0] and "52 rejected: 52 too few corners" in lines[0]
+    assert "-5439) folds back" in lines[0]
+    assert "fx and fy differ by 12% (1499 and 1334 px)" in lines[0]
+    assert "4 views used, 56 rejected: 56 too few corners" in lines[0]
     assert "Traceback" not in res.output and not out.exists()
 
 
