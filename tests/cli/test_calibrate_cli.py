@@ -4,6 +4,8 @@ cannot determine is refused with its reasons; the minimum of views is said."""
 
 from __future__ import annotations
 
+import importlib
+import shlex
 import subprocess
 import sys
 from pathlib import Path
@@ -92,3 +94,23 @@ def test_the_help_says_how_many_views_a_calibration_needs() -> None:
     text = " ".join(res.stdout.split())
     assert "At least 3 good views from distinct poses are needed" in text
     assert "refused" in text and "warnings" in text
+
+
+@needs(ARUCO)
+def test_the_first_help_example_calibrates_the_tutorial_views(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """`quadnav calibrate ../shared/data/aruco/img_00.jpg img_02.jpg img_03.jpg`, as --help
+    shows it (several SOURCEs), run from the project folder: OpenCV's fit, within 4 %."""
+    example = importlib.import_module("quadnav.cli.calibrate").EXAMPLES[0]
+    argv = shlex.split(example)
+    assert argv[:2] == ["quadnav", "calibrate"] and "../shared/data/aruco/img_02.jpg" in argv
+    out = tmp_path / "camera.yml"
+    argv[argv.index("--out") + 1] = str(out)
+    monkeypatch.chdir(ROOT)
+    res = runner.invoke(app, argv[1:])
+    assert res.exit_code == 0, res.output
+    assert "3 / 0" in res.stdout  # 3 frames read, none unreadable; 3 views used, none rejected
+    (fx, fy, _, _), rms = _read(out)
+    (rfx, rfy, _, _), _ = _read(ARUCO / "tutorial_camera_charuco.yml")
+    assert rms < 0.25 and abs(fx / rfx - 1) < 0.04 and abs(fy / rfy - 1) < 0.04

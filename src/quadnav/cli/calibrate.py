@@ -69,6 +69,7 @@ def check_example(p: CommandParams) -> None:
 
 #: The examples of ``quadnav calibrate --help`` (each parsed and validated by the tests).
 EXAMPLES = (
+    "quadnav calibrate ../shared/data/aruco/img_00.jpg ../shared/data/aruco/img_02.jpg ../shared/data/aruco/img_03.jpg --out camera.yml",
     "quadnav calibrate calibration_images/ --out camera.yml",
     "quadnav calibrate board.mp4 --squares 5 7 --square-m 0.04 --marker-m 0.02 --every 10",
     "quadnav calibrate views/ --squares 12 17 --square-m 0.066 --marker-m 0.0397 --dictionary DICT_4X4_250",
@@ -77,7 +78,9 @@ EXAMPLES = (
 
 @handle_errors
 def calibrate_command(
-    source: Annotated[str, typer.Argument(help="folder of ChArUco images, or a video")],
+    source: Annotated[
+        list[str], typer.Argument(help="folder of ChArUco images, a video, or image files")
+    ],
     squares: Annotated[
         tuple[int, int], typer.Option("--squares", help="squares across and down")
     ] = (5, 7),
@@ -96,7 +99,7 @@ def calibrate_command(
     with progress_bar("calibrate") as update, quiet_libraries():
         result = calibrate_source(source, spec, every=every, progress=update)
     write_source_calibration(out, result)
-    print_calibration(source, result, out)
+    print_calibration(" ".join(source), result, out)
 
 
 SHOWN_REJECTIONS = 10  # the first rejected frames listed by name (all are counted by reason)
@@ -134,7 +137,8 @@ def print_calibration(source: str, result: SourceCalibration, out: Path) -> None
 
 calibrate_command.__doc__ = command_help(
     "Calibrate a camera from views of a ChArUco board; write OpenCV YAML.",
-    "SOURCE is a folder of images or a video. The defaults are OpenCV's tutorial board (5x7 "
+    "SOURCE is a folder of images, a video, or image files (several SOURCEs are taken in "
+    "turn). The defaults are OpenCV's tutorial board (5x7 "
     "squares of 4 cm, markers of 2 cm, DICT_6X6_250). Views with too few or collinear corners "
     "or a reprojection error far above the others' are rejected, counted by reason and listed. "
     f"At least {MIN_VIEWS} good views from distinct poses are needed; 10 or more, with the board "
