@@ -9,10 +9,9 @@ solver's 1-sigma, and how well each calibration fits each view (PnP reprojection
 
     python examples/calibrate_opencv_tutorial.py [../shared/data/aruco] [--out camera.yml]
 
-The same from the command line, with the three views in a folder of their own:
+The same from the command line (several image files are several SOURCEs):
 
-    mkdir views && cp ../shared/data/aruco/img_0[023].jpg views/
-    quadnav calibrate views --out camera.yml
+    quadnav calibrate ../shared/data/aruco/img_0[023].jpg --out camera.yml
 
 Three views are the least a calibration takes; these three show the board at nearly one angle
 and reach a third of the image, so the focal length is known to about 3 % and the command
