@@ -7,8 +7,11 @@ import numpy as np
 import pytest
 
 from quadnav.errors import VisionError
-from quadnav.geometry.camera import PinholeCamera
+from quadnav.experiments.markers import look_at
+from quadnav.geometry.camera import PinholeCamera, thesis_camera
+from quadnav.geometry.rotations import Pose
 from quadnav.io.opencv_yaml import read_camera_yaml
+from quadnav.sim.camera import RenderSettings, SyntheticCamera, board_object
 from quadnav.vision.calibration import calibrate_charuco, judge_calibration
 from quadnav.vision.markers import CharucoDetections, CharucoSpec, CharucoTarget
 from quadnav.vision.pose import solve_pnp
@@ -141,3 +144,41 @@ def test_an_impossible_camera_is_refused_and_a_weak_one_warned() -> None:
     assert "principal point (-120, 240) px is outside the 640x480 image" in said
     assert "do not determine fx 500 +- 80 px" in said
     assert any("RMS reprojection error 2.50 px" in w and "3.10 px" in w for w in j.warnings)
+
+
+TUTORIAL_BOARD = CharucoSpec(5, 7, 0.04, 0.02, "DICT_6X6_250")
+BOARD_CENTRE = np.array([0.1, 0.14, 0.0])  # of the 0.2 x 0.28 m board, in its face frame
+
+
+def _render(eye: np.ndarray, aim: np.ndarray, roll_rad: float, seed: int = 0) -> np.ndarray:
+    """The thesis camera's image of the tutorial board (the project's board renderer)."""
+    board = board_object(CharucoTarget(TUTORIAL_BOARD).board, (0.2, 0.28), Pose.identity())
+    scene = SyntheticCamera(thesis_camera(), [board], RenderSettings(noise_sigma=2.0, seed=seed))
+    return scene.render(look_at(eye, aim, roll_rad))
+
+
+def test_renders_from_twelve_poses_calibrate_the_thesis_camera_without_a_warning() -> None:
+    """Twelve renders, 0.3 m away, tilted 20-32 deg in twelve directions, aimed round the
+    board so its corners reach most of the image: the thesis camera's intrinsics to 0.2 %,
+    nothing to warn about."""
+    target, views = CharucoTarget(TUTORIAL_BOARD), []
+    for k in range(12):
+        a, tilt = 2 * np.pi * k / 12, 0.35 + 0.1 * (k % 3)
+        direction = [np.sin(tilt) * np.cos(a), np.sin(tilt) * np.sin(a), np.cos(tilt)]
+        eye = BOARD_CENTRE + 0.3 * np.array(direction)
+        aim = BOARD_CENTRE + 0.07 * np.array([np.cos(3 * a), np.sin(3 * a), 0.0])
+        views.append(target.detect(_render(eye, aim, 0.3 * k)))
+    cal = calibrate_charuco(views, target, (640, 480))
+    truth = thesis_camera()
+    assert abs(cal.camera.fx / truth.fx - 1) < 0.002 and abs(cal.camera.fy / truth.fy - 1) < 0.002
+    assert np.allclose(cal.camera.K[:2, 2], truth.K[:2, 2], atol=1.0)
+    assert cal.warnings == () and not cal.rejected and cal.coverage > 0.5
+
+
+def test_renders_from_one_pose_are_refused_as_one_pose() -> None:
+    """Three frames from one pose (fresh sensor noise in each): one pose, refused."""
+    target = CharucoTarget(TUTORIAL_BOARD)
+    eye = BOARD_CENTRE + np.array([0.1, 0.05, 0.4])
+    views = [target.detect(_render(eye, BOARD_CENTRE, 0.2, seed)) for seed in range(3)]
+    with pytest.raises(VisionError, match="from only 1 distinct pose"):
+        calibrate_charuco(views, target, (640, 480))
