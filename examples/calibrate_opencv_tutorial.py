@@ -3,9 +3,9 @@ the calibration OpenCV computed from them (``tutorial_camera_charuco.yml``, 0.18
 
 The views (``img_00.jpg``, ``img_02.jpg``, ``img_03.jpg`` of ../shared/data/aruco) show the
 tutorial board: 5x7 squares of 4 cm, markers of 2 cm, DICT_6X6_250 (``quadnav calibrate``'s
-defaults). They are gathered in a folder of links, calibrated as ``quadnav calibrate FOLDER``
-does, written as OpenCV YAML, and compared with OpenCV's result: the intrinsics with the
-solver's 1-sigma, and how well each calibration fits each view (PnP reprojection error).
+defaults). They are calibrated as ``quadnav calibrate`` does, written as OpenCV YAML, and
+compared with OpenCV's result: the intrinsics with the solver's 1-sigma, and how well each
+calibration fits each view (PnP reprojection error).
 
     python examples/calibrate_opencv_tutorial.py [../shared/data/aruco] [--out camera.yml]
 
@@ -21,7 +21,6 @@ says so (its warnings); OpenCV's own result used a fourth view that is not shipp
 from __future__ import annotations
 
 import argparse
-import tempfile
 from pathlib import Path
 
 import cv2
@@ -42,10 +41,7 @@ def main() -> None:
     ap.add_argument("--out", type=Path, default=Path("camera.yml"))
     args = ap.parse_args()
     data: Path = args.data
-    with tempfile.TemporaryDirectory() as tmp:
-        for name in VIEWS:
-            (Path(tmp) / name).symlink_to((data / name).resolve())
-        result = calibrate_source(tmp, BOARD)
+    result = calibrate_source([str(data / name) for name in VIEWS], BOARD)
     write_source_calibration(args.out, result)
     ref_file = data / "tutorial_camera_charuco.yml"
     cal, ref = result.calibration, read_camera_yaml(ref_file)
