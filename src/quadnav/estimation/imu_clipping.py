@@ -99,9 +99,11 @@ class Releveller:
     trusted, nor what the accelerometer bias learnt from them. Once the IMU shows the vehicle
     at rest for ``window_s`` (body rate under ``gyro_max_rad_s``, specific force within
     ``accel_tol_m_s2`` of gravity), :meth:`update` returns the mean specific force to
-    re-level on, as the ground alignment does, with the bias from before the clipping."""
+    re-level on, as the ground alignment does, with the bias from before the clipping. The
+    window is short (0.2 s, 20 filter steps at 100 Hz): until the re-levelling the tilt carries
+    whatever the tumble left in it (issue 21: a second at more than 1 degree with 1 s)."""
 
-    window_s: float = 1.0
+    window_s: float = 0.2
     gyro_max_rad_s: float = 0.1
     accel_tol_m_s2: float = 0.5
     pending: bool = False

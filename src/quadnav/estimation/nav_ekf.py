@@ -569,7 +569,9 @@ class NavEkf:
         f = f_mean - rl.bias_before
         roll, pitch = math.atan2(f[1], f[2]), math.atan2(-f[0], math.hypot(f[1], f[2]))
         R_new = Rotation.from_euler("ZYX", [yaw_of(self.R), pitch, roll]).as_matrix()
-        moved_deg = math.degrees(math.acos(min(1.0, float(self.R[:, 2] @ R_new[:, 2]))))
+        # how far gravity's direction in the body moved (not the body's z axis in the world,
+        # which also turns with the heading kept at a large tilt)
+        moved_deg = math.degrees(math.acos(min(1.0, float(self.R[2, :] @ R_new[2, :]))))
         j = yaw_jacobian(self.R)
         var_yaw = float(j @ self._P[_ATT, _ATT] @ j)
         P = self._P
