@@ -184,6 +184,28 @@ def test_comparison_only_where_px4_called_its_estimate_valid() -> None:
     assert r.tilt_rms_deg == pytest.approx(2.0, abs=1e-6) and r.yaw_rms_deg < 1e-6
 
 
+def test_zero_length_spans_are_not_listed_as_not_compared() -> None:
+    """Issue 21 item 14: a single sample left out (PX4's z_valid false at one instant, or the
+    estimate's last sample past the reference's end) is a span of no duration: not listed."""
+    from quadnav.experiments.replay_compare import compare
+    from quadnav.io.ulog_sensors import Px4Validity
+
+    ref = _still(100)  # 2.0 to 11.9 s
+    est = _still(101)  # one sample more, at 12.0 s: past the reference's end
+    t_blip = int(est.t_ns[40])  # z invalid at that sample only
+    v = Px4Validity(t_ns=np.array([0, t_blip, t_blip + 1], dtype=np.int64),
+                    xy_valid=np.array([True, True, True]), z_valid=np.array([True, False, True]),
+                    att_t_ns=ref.t_ns)  # fmt: skip
+    c = compare(ref, est, t0_ns=1_000_000_000, validity=v)
+    assert c.n_vertical == 99  # the blip and the unpaired last sample are not compared
+    assert all(b > a for _, a, b in c.not_compared_s), c.not_compared_s
+    assert c.not_compared_s == ()  # nothing of any duration was left out
+    # a real gap is still listed: z invalid over 1 s (ten samples, 0.9 s from first to last)
+    v_gap = dataclasses.replace(v, t_ns=np.array([0, t_blip, t_blip + 950_000_000], dtype=np.int64))
+    g = compare(ref, est, t0_ns=1_000_000_000, validity=v_gap)
+    assert g.not_compared_s == (("vertical", 5.0, 5.9),)
+
+
 @needs_data
 def test_px4_innovations_are_plotted_in_our_convention() -> None:
     """Our north beside PX4's north (not its east), with PX4's prediction-minus-measurement sign
