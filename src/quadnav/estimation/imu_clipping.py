@@ -13,8 +13,9 @@
   ``EKF2_ABL_ACCLIM``, decaying with ``EKF2_ABL_TAU``). An inhibited bias keeps its value; its
   variance is set aside and given back when learning resumes.
 * :class:`Releveller` (our addition; PX4 relies on its velocity aiding): after clipping, once
-  the vehicle is at rest, the tilt is set from the accelerometer, the velocity to zero and the
-  accelerometer bias back to what it was before the clipping.
+  the vehicle is at rest (0.2 s), the tilt is set from the accelerometer, the velocity to
+  zero, the position back to where the rest began and the accelerometer bias back to what it
+  was before the clipping.
 """
 
 from __future__ import annotations
