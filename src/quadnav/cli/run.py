@@ -147,7 +147,7 @@ def run_command(
         ("hover horizontal error, worst (m)", s.hold_max_horizontal_error_m),
         ("delayed estimate RMSE (m)", s.delayed_rmse_m),
         ("attitude RMSE (deg)", s.attitude_rmse_deg),
-        ("NEES, mean (15 states)", s.nees_mean),
+        ("NEES (15 states), mean over a flight", s.nees_mean),
         ("horizontal error at the end, landed (m)", s.end_horizontal_error_m),
         ("position error at the end (3-D) (m)", s.end_position_error_m),
         ("  = drift in % of the distance flown", s.drift_percent),

@@ -51,6 +51,7 @@ __all__ = [
     "plot_nav_run",
     "reports_in_flight",
     "run_nav_study",
+    "summarize_nav_seeds",
 ]
 
 FloatArray = NDArray[np.float64]
@@ -475,12 +476,22 @@ class NavSummary:
         return {f: getattr(self, f) for f in self.__dataclass_fields__}
 
 
-def _summarize(per_seed: list[NavMetrics]) -> NavSummary:
-    """Medians over seeds (worst cases where marked); metrics no seed has say why."""
+def _nis_medians(per_seed: list[NavMetrics]) -> dict[str, float]:
+    """Per source, the median over the seeds that fused it of its share of innovations beyond
+    the 95 % gate."""
+    sources = dict.fromkeys(src for m in per_seed for src in m.nis_above_95pct_gate)
+    return {
+        src: float(np.median([m.nis_above_95pct_gate[src] for m in per_seed
+                              if src in m.nis_above_95pct_gate]))
+        for src in sources
+    }  # fmt: skip
+
+
+def summarize_nav_seeds(per_seed: list[NavMetrics]) -> NavSummary:
+    """Medians over seeds (the maximum for the worst cases); metrics no seed has say why."""
     no_dropout = "no dropout ended during the flight"
     ends: list[Metric] = [x for m in per_seed for x in m.dropout_end_error_m]
     recs: list[Metric] = [x for m in per_seed for x in m.dropout_recovery_s]
-    nees_means = [m.nees_mean for m in per_seed if not isinstance(m.nees_mean, str)]
     return NavSummary(
         seeds=len(per_seed),
         output_rmse_m=median_or_na(m.output_rmse_m for m in per_seed),
@@ -492,15 +503,12 @@ def _summarize(per_seed: list[NavMetrics]) -> NavSummary:
         ),
         delayed_rmse_m=median_or_na(m.delayed_rmse_m for m in per_seed),
         attitude_rmse_deg=median_or_na(m.attitude_rmse_deg for m in per_seed),
-        nees_mean=float(np.mean(nees_means)) if nees_means else per_seed[0].nees_mean,
+        nees_mean=median_or_na(m.nees_mean for m in per_seed),
         nees_state_dim=15,
         gyro_bias_error_fraction_median=median_or_na(
             m.bias_error_fraction_60s["gyro"] for m in per_seed
         ),
-        nis_above_95pct_gate={
-            src: float(np.mean([m.nis_above_95pct_gate.get(src, np.nan) for m in per_seed]))
-            for src in per_seed[0].nis_above_95pct_gate
-        },
+        nis_above_95pct_gate=_nis_medians(per_seed),
         accel_bias_error_fraction_median=median_or_na(
             m.bias_error_fraction_60s["accel"] for m in per_seed
         ),
@@ -571,7 +579,7 @@ def _write_study(
     _write_sensor_streams(first, run_dir)
     images = plot_nav_run(first, run_dir / "plots")
 
-    summary = _summarize(per_seed)
+    summary = summarize_nav_seeds(per_seed)
     table = [{
         "scenario": sc.name, "seeds": len(per_seed),
         "output RMSE in the air (m)": summary.output_rmse_m,
