@@ -125,7 +125,8 @@ def run_command(
         return
     if mavlink is not None:
         _check_mavlink(config, mavlink, allow_remote=allow_remote)
-    step = 0.05 if reports_in_flight(config) else 0  # (a line per seed, or per 5 %)
+    # piped: a line per seed, or per quarter of a flight on the VIO (a few a run at most)
+    step = 0.25 if reports_in_flight(config) else 0
     with progress_bar(config.name, line_step=step) as update:
         study = run_nav_study(
             config,
