@@ -46,9 +46,11 @@ from quadnav.messages import OdometrySample
 __all__ = [
     "NavMetrics",
     "NavStudy",
+    "NavSummary",
     "OdometryLink",
     "nav_metrics",
     "plot_nav_run",
+    "refusal_counts",
     "reports_in_flight",
     "run_nav_study",
     "summarize_nav_seeds",
@@ -471,9 +473,43 @@ class NavSummary:
     end_horizontal_error_m: Metric
     drift_percent: Metric
     end_position_error_m: Metric
+    # what was refused and reset, summed over the seeds (non-zero counts only), and the
+    # filter's own log of each seed ("seed N, t s: what")
+    refused: dict[str, int] = field(default_factory=dict)
+    filter_events: list[str] = field(default_factory=list)
 
     def to_json(self) -> dict[str, object]:
         return {f: getattr(self, f) for f in self.__dataclass_fields__}
+
+
+#: Each refusal of a source's samples, as the terminal and the report name it.
+_REFUSALS = (
+    ("rejected_gate", "refused by the innovation gate"),
+    ("rejected_too_old", "refused as older than the buffer"),
+    ("rejected_unsupported", "refused as unsupported"),
+    ("dropped_overflow", "dropped, the buffer full"),
+)
+
+
+def refusal_counts(per_seed: list[NavMetrics]) -> dict[str, int]:
+    """What became of the samples the filter did not fuse, and how often it reset, summed over
+    the seeds; the counts that are not zero, named for a reader (``"gps: refused by the
+    innovation gate"``)."""
+    out: dict[str, int] = {}
+
+    def add(label: str, n: int) -> None:
+        out[label] = out.get(label, 0) + n
+
+    for m in per_seed:
+        for src, st in m.sources.items():
+            for key, what in _REFUSALS:
+                add(f"{src}: {what}", getattr(st, key))
+        add("imu: refused out of order (repeated or late)", m.imu.rejected_out_of_order)
+        add("imu: refused as invalid (NaN, out of range)", m.imu.rejected_invalid)
+        add("filter: resets, re-anchorings and re-levellings", len(m.filter_events))
+        add("vio: re-initialisations", m.vio_counts.get("resets", 0))
+        add("vio: odometry refused as non-finite", m.vio_counts.get("rejected_invalid", 0))
+    return {k: n for k, n in out.items() if n}
 
 
 def _nis_medians(per_seed: list[NavMetrics]) -> dict[str, float]:
@@ -515,6 +551,8 @@ def summarize_nav_seeds(per_seed: list[NavMetrics]) -> NavSummary:
         end_horizontal_error_m=median_or_na(m.end_horizontal_error_m for m in per_seed),
         drift_percent=median_or_na(m.drift_percent for m in per_seed),
         end_position_error_m=median_or_na(m.end_position_error_m for m in per_seed),
+        refused=refusal_counts(per_seed),
+        filter_events=[f"seed {m.seed}, {e}" for m in per_seed for e in m.filter_events],
     )
 
 
@@ -613,12 +651,26 @@ def _write_study(
                     )
                 ],
             ),
+            _refusal_section(summary),
             ReportSection(heading="Plots (first seed)", images=images),
             ReportSection(heading="Configuration", code=dump_config(sc)),
         ],
     )
     finish_run_folder(run_dir)
     return summary
+
+
+def _refusal_section(summary: NavSummary) -> ReportSection:
+    """The samples refused and the filter's resets (the fault scenarios' point)."""
+    rows = [[what, n] for what, n in summary.refused.items()]
+    return ReportSection(
+        heading="Refused samples and resets",
+        text="" if rows else "Every sample was fused or not due; the filter never reset.",
+        tables=[ReportTable(f"total over {summary.seeds} seed(s)", ["what", "count"], rows)]
+        if rows
+        else [],
+        code="\n".join(summary.filter_events),
+    )
 
 
 def reports_in_flight(sc: NavScenario) -> bool:
