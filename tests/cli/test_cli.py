@@ -34,7 +34,7 @@ def test_planar_writes_a_run_folder_and_prints_its_path_last(tmp_path: Path) -> 
         f"{s['rmse_output_m']['median']:.4f}",
         f"{s['rmse_floor_m']['median']:.4f}",
         f"{s['output_over_floor']['median']:.3f}",
-        f"{s['nees_mean']['mean']:.3g}",
+        f"{s['nees_mean']['median']:.3g}",
         str(s["gps_fused_total"]),
         str(s["gps_rejected_gate_total"]),
         str(s["gps_rejected_too_old_total"]),

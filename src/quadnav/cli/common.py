@@ -117,8 +117,7 @@ def progress_bar(
     description: str, *, line_step: float = 0.1
 ) -> Iterator[Callable[[int, int, str], None]]:
     """A progress bar on stderr; yields ``update(done, total, what)``. When stderr is not a
-    terminal (CI logs, pipes), a plain line instead, each time another ``line_step`` of the
-    work is done (0: every item, a seed say) or 30 s have passed, and at the end."""
+    terminal (CI logs, pipes), a few plain lines instead (:func:`_progress_lines`)."""
     if not err_console.is_terminal:
         yield _progress_lines(description, line_step)
         return
@@ -147,16 +146,29 @@ def progress_bar(
         yield update
 
 
+#: Piped progress: at most this many lines for the work's progress (and one at its end)...
+PIPED_PROGRESS_LINES = 4
+#: ...and, while nothing else is said, one after this long, then after twice as long, ...
+PIPED_QUIET_S = 60.0
+
+
 def _progress_lines(description: str, line_step: float) -> Callable[[int, int, str], None]:
+    """A line each time another ``line_step`` of the work is done (0: every item, a seed say),
+    but no more than :data:`PIPED_PROGRESS_LINES` over the work and one at its end; a long
+    silence is broken after :data:`PIPED_QUIET_S`, then after twice as long each time, so that
+    a log of any length gets a few lines."""
     start = time.monotonic()
-    last = {"done": 0, "t": start}
+    last = {"done": 0, "t": start, "quiet": PIPED_QUIET_S}
 
     def update(done: int, total: int, what: str) -> None:
         now = time.monotonic()
-        step = max(1.0, line_step * total) if total else 1.0
-        due = done >= total > 0 or done - last["done"] >= step or now - last["t"] >= 30.0
+        step = max(1.0, line_step * total, total / PIPED_PROGRESS_LINES) if total else 1.0
+        quiet = now - last["t"] >= last["quiet"]
+        due = done >= total > 0 or done - last["done"] >= step or quiet
         if done <= last["done"] or not due:
             return
+        if quiet and not done - last["done"] >= step:
+            last["quiet"] *= 2
         last.update(done=done, t=now)
         of = f"/{total}" if total else ""
         print(

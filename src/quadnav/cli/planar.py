@@ -20,7 +20,7 @@ from quadnav.cli.common import (
 )
 from quadnav.eval.na import fmt_metric
 from quadnav.experiments.planar import PlanarConfig
-from quadnav.experiments.planar_study import PlanarStudy, run_planar_study
+from quadnav.experiments.planar_study import PlanarStudy, planar_table, run_planar_study
 from quadnav.io.config import load_config
 
 __all__ = [
@@ -59,20 +59,22 @@ def print_planar_summary(study: PlanarStudy) -> None:
     n = next(iter(study.summary.values())).seeds
     table = Table(title=f"Planar experiments: position RMSE (m), median over {n} seed(s)")
     table.add_column("experiment")
-    for col in ("delayed", "output", "floor", "out/floor", "NEES", "GPS fused", "gated", "too old"):
+    # The study's own table (metrics.json, the report): the same statistic under each header
+    columns = {
+        "delayed": ("RMSE delayed (m)", ".4f"),
+        "output": ("RMSE output (m)", ".4f"),
+        "floor": ("floor (m)", ".4f"),
+        "out/floor": ("output/floor", ".3f"),
+        "NEES": ("NEES mean", ".3g"),
+        "GPS fused": ("GPS fused", ""),
+        "gated": ("GPS gated", ""),
+        "too old": ("GPS too old", ""),
+    }
+    for col in columns:
         table.add_column(col, justify="right")
-    for exp, s in study.summary.items():
-        table.add_row(
-            exp,
-            fmt_metric(s.rmse_delayed_m.median, ".4f"),
-            fmt_metric(s.rmse_output_m.median, ".4f"),
-            fmt_metric(s.rmse_floor_m.median, ".4f"),
-            fmt_metric(s.output_over_floor.median, ".3f"),
-            fmt_metric(s.nees_mean.mean, ".3g"),
-            str(s.gps_fused_total),
-            str(s.gps_rejected_gate_total),
-            str(s.gps_rejected_too_old_total),
-        )
+    for row in planar_table(study.summary):
+        cells = (fmt_metric(row[key], spec) for key, spec in columns.values())
+        table.add_row(str(row["experiment"]), *cells)
     console.print(table)
     console.print(
         "delayed: vs truth at the delayed horizon; output, floor: vs truth now; "

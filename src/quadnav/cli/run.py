@@ -29,7 +29,7 @@ from quadnav.cli.planar import (
 from quadnav.errors import ConfigError
 from quadnav.eval.na import fmt_metric
 from quadnav.experiments.nav import NavScenario
-from quadnav.experiments.nav_study import reports_in_flight, run_nav_study
+from quadnav.experiments.nav_study import NavSummary, reports_in_flight, run_nav_study
 from quadnav.experiments.planar import PlanarConfig
 from quadnav.experiments.scenarios import NAV_SCENARIOS, nav_builtin
 from quadnav.io.config import load_config
@@ -125,7 +125,8 @@ def run_command(
         return
     if mavlink is not None:
         _check_mavlink(config, mavlink, allow_remote=allow_remote)
-    step = 0.05 if reports_in_flight(config) else 0  # (a line per seed, or per 5 %)
+    # piped: a line per seed, or per quarter of a flight on the VIO (a few a run at most)
+    step = 0.25 if reports_in_flight(config) else 0
     with progress_bar(config.name, line_step=step) as update:
         study = run_nav_study(
             config,
@@ -147,7 +148,7 @@ def run_command(
         ("hover horizontal error, worst (m)", s.hold_max_horizontal_error_m),
         ("delayed estimate RMSE (m)", s.delayed_rmse_m),
         ("attitude RMSE (deg)", s.attitude_rmse_deg),
-        ("NEES, mean (15 states)", s.nees_mean),
+        ("NEES (15 states), mean over a flight", s.nees_mean),
         ("horizontal error at the end, landed (m)", s.end_horizontal_error_m),
         ("position error at the end (3-D) (m)", s.end_position_error_m),
         ("  = drift in % of the distance flown", s.drift_percent),
@@ -165,10 +166,32 @@ def run_command(
     for src, frac in s.nis_above_95pct_gate.items():
         table.add_row(f"{src}: innovations beyond the 95 % gate", f"{frac:.1%}")
     console.print(table)
+    _print_refusals(s)
     if mavlink is not None:
         sent = ", ".join(f"{n} {k}" for k, n in study.mavlink_sent.items()) or "nothing"
         console.print(f"MAVLink to {mavlink}: sent {sent}", highlight=False)
     console.print(str(study.run_dir), soft_wrap=True, highlight=False)
+
+
+#: The filter's events printed at most (all of them are in metrics.json and report.html).
+MAX_EVENT_LINES = 10
+
+
+def _print_refusals(s: NavSummary) -> None:
+    """The samples refused and the filter's resets, totals over the seeds, and its events."""
+    if not s.refused:
+        console.print("Refused samples: none; filter resets: none.", highlight=False)
+        return
+    table = Table(title=f"Refused and reset: total over {s.seeds} seed(s)")
+    table.add_column("what")
+    table.add_column("count", justify="right")
+    for what, n in s.refused.items():
+        table.add_row(what, str(n))
+    console.print(table)
+    for line in s.filter_events[:MAX_EVENT_LINES]:
+        console.print(f"  {line}", highlight=False, soft_wrap=True)
+    if (more := len(s.filter_events) - MAX_EVENT_LINES) > 0:
+        console.print(f"  ... and {more} more (report.html, metrics.json)", highlight=False)
 
 
 def _seed_override(seed: int | None) -> list[str]:

@@ -22,7 +22,6 @@ from typing import Any
 import numpy as np
 from numpy.random import Generator
 
-from quadnav.experiments.marker_camera import MarkerCameraSensor, marker_field, thesis_mount
 from quadnav.experiments.nav_config import RANGE_MIN_M, NavScenario
 from quadnav.experiments.vio_flight import OdometrySink, build_vio_sensor
 from quadnav.messages import TruthSample, VehicleState, VelocitySample
@@ -101,6 +100,9 @@ def _vision(sc: NavScenario, ctx: BuildContext, rng: Generator) -> Channel | Non
     period = s_to_ns(1.0 / vs.rate_hz)
     sensor: Sensor[Any]
     if vs.source == "camera":
+        # (the marker camera renders and detects with OpenCV: loaded only for a camera)
+        from quadnav.experiments.marker_camera import MarkerCameraSensor, marker_field, thesis_mount
+
         field = marker_field(
             vs.marker_grid, vs.marker_spacing_m, vs.marker_length_m, vs.marker_origin_m
         )

@@ -20,6 +20,7 @@ from quadnav.config_model import (
     ConfigModel,
 )
 from quadnav.control.trajectories import Waypoints
+from quadnav.vio.config import VioConfig
 
 __all__ = ["RANGE_MIN_M", "NavScenario"]
 
@@ -77,11 +78,17 @@ OdometryPart = Literal["pos", "vel", "yaw"]
 _ODOMETRY_PARTS: tuple[OdometryPart, ...] = ("pos", "vel", "yaw")
 
 
-class VioSection(ConfigModel):
+class VioSection(VioConfig):
     """Visual-inertial odometry as an external-odometry source (PX4's ODOMETRY): the rig's
     camera rendered in a 3-D world and its IMU, fed to the VIO, whose estimate (converted to
     the vehicle's body) the EKF fuses; or the shortcut of the true pose and velocity plus noise
-    and a slow drift."""
+    and a slow drift.
+
+    The section holds the VIO's own settings too, :class:`~quadnav.vio.config.VioConfig`'s
+    fields under their names (``vio.keyframe_parallax_px``, ``vio.tracker.max_features``),
+    validated as there and given to the estimator with ``source=camera``
+    (:meth:`estimator_config`). A scenario that runs no VIO refuses them (see
+    :meth:`NavScenario.unused_vio_key`)."""
 
     enabled: bool = False
     source: Literal["camera", "odometry"] = Field(
@@ -120,6 +127,10 @@ class VioSection(ConfigModel):
         min_length=1,
         description="EKF: what is fused (EKF2_EV_CTRL)",
     )
+
+    def estimator_config(self) -> VioConfig:
+        """The VIO's own settings, as the estimator takes them."""
+        return VioConfig.model_validate(self.model_dump(include=set(VioConfig.model_fields)))
 
 
 class BaroSection(ConfigModel):
@@ -348,7 +359,28 @@ class NavScenario(ConfigModel):
             )
         if problem := self._timing_problem():
             raise ValueError(problem)
+        if unused := self.unused_vio_key():
+            raise ValueError(unused)
         return self
+
+    def unused_vio_key(self) -> str | None:
+        """A ``vio`` setting changed from its default that nothing would read: any of the
+        section's without ``vio.enabled``; the VIO's own (``VioConfig``'s) with
+        ``vio.source=odometry``, which runs no VIO. Refused rather than silently ignored."""
+        v, default = self.vio, VioSection()
+        changed = [k for k in VioSection.model_fields if getattr(v, k) != getattr(default, k)]
+        if not v.enabled and changed:
+            return (
+                f"vio.{changed[0]} is set, but this scenario runs no VIO (vio.enabled=false): "
+                "set vio.enabled=true or leave the vio section out"
+            )
+        own = [k for k in changed if k in VioConfig.model_fields]
+        if v.source == "odometry" and own:
+            return (
+                f"vio.{own[0]} is a setting of the VIO, which vio.source=odometry does not run "
+                "(the shortcut): set vio.source=camera or leave it out"
+            )
+        return None
 
     def _timing_problem(self) -> str | None:
         """A step count too large for memory, or a sensor too slow to give a sample."""

@@ -46,11 +46,14 @@ from quadnav.messages import OdometrySample
 __all__ = [
     "NavMetrics",
     "NavStudy",
+    "NavSummary",
     "OdometryLink",
     "nav_metrics",
     "plot_nav_run",
+    "refusal_counts",
     "reports_in_flight",
     "run_nav_study",
+    "summarize_nav_seeds",
 ]
 
 FloatArray = NDArray[np.float64]
@@ -470,17 +473,61 @@ class NavSummary:
     end_horizontal_error_m: Metric
     drift_percent: Metric
     end_position_error_m: Metric
+    # what was refused and reset, summed over the seeds (non-zero counts only), and the
+    # filter's own log of each seed ("seed N, t s: what")
+    refused: dict[str, int] = field(default_factory=dict)
+    filter_events: list[str] = field(default_factory=list)
 
     def to_json(self) -> dict[str, object]:
         return {f: getattr(self, f) for f in self.__dataclass_fields__}
 
 
-def _summarize(per_seed: list[NavMetrics]) -> NavSummary:
-    """Medians over seeds (worst cases where marked); metrics no seed has say why."""
+#: Each refusal of a source's samples, as the terminal and the report name it.
+_REFUSALS = (
+    ("rejected_gate", "refused by the innovation gate"),
+    ("rejected_too_old", "refused as older than the buffer"),
+    ("rejected_unsupported", "refused as unsupported"),
+    ("dropped_overflow", "dropped, the buffer full"),
+)
+
+
+def refusal_counts(per_seed: list[NavMetrics]) -> dict[str, int]:
+    """What became of the samples the filter did not fuse, and how often it reset, summed over
+    the seeds; the counts that are not zero, named for a reader (``"gps: refused by the
+    innovation gate"``)."""
+    out: dict[str, int] = {}
+
+    def add(label: str, n: int) -> None:
+        out[label] = out.get(label, 0) + n
+
+    for m in per_seed:
+        for src, st in m.sources.items():
+            for key, what in _REFUSALS:
+                add(f"{src}: {what}", getattr(st, key))
+        add("imu: refused out of order (repeated or late)", m.imu.rejected_out_of_order)
+        add("imu: refused as invalid (NaN, out of range)", m.imu.rejected_invalid)
+        add("filter: resets, re-anchorings and re-levellings", len(m.filter_events))
+        add("vio: re-initialisations", m.vio_counts.get("resets", 0))
+        add("vio: odometry refused as non-finite", m.vio_counts.get("rejected_invalid", 0))
+    return {k: n for k, n in out.items() if n}
+
+
+def _nis_medians(per_seed: list[NavMetrics]) -> dict[str, float]:
+    """Per source, the median over the seeds that fused it of its share of innovations beyond
+    the 95 % gate."""
+    sources = dict.fromkeys(src for m in per_seed for src in m.nis_above_95pct_gate)
+    return {
+        src: float(np.median([m.nis_above_95pct_gate[src] for m in per_seed
+                              if src in m.nis_above_95pct_gate]))
+        for src in sources
+    }  # fmt: skip
+
+
+def summarize_nav_seeds(per_seed: list[NavMetrics]) -> NavSummary:
+    """Medians over seeds (the maximum for the worst cases); metrics no seed has say why."""
     no_dropout = "no dropout ended during the flight"
     ends: list[Metric] = [x for m in per_seed for x in m.dropout_end_error_m]
     recs: list[Metric] = [x for m in per_seed for x in m.dropout_recovery_s]
-    nees_means = [m.nees_mean for m in per_seed if not isinstance(m.nees_mean, str)]
     return NavSummary(
         seeds=len(per_seed),
         output_rmse_m=median_or_na(m.output_rmse_m for m in per_seed),
@@ -492,21 +539,20 @@ def _summarize(per_seed: list[NavMetrics]) -> NavSummary:
         ),
         delayed_rmse_m=median_or_na(m.delayed_rmse_m for m in per_seed),
         attitude_rmse_deg=median_or_na(m.attitude_rmse_deg for m in per_seed),
-        nees_mean=float(np.mean(nees_means)) if nees_means else per_seed[0].nees_mean,
+        nees_mean=median_or_na(m.nees_mean for m in per_seed),
         nees_state_dim=15,
         gyro_bias_error_fraction_median=median_or_na(
             m.bias_error_fraction_60s["gyro"] for m in per_seed
         ),
-        nis_above_95pct_gate={
-            src: float(np.mean([m.nis_above_95pct_gate.get(src, np.nan) for m in per_seed]))
-            for src in per_seed[0].nis_above_95pct_gate
-        },
+        nis_above_95pct_gate=_nis_medians(per_seed),
         accel_bias_error_fraction_median=median_or_na(
             m.bias_error_fraction_60s["accel"] for m in per_seed
         ),
         end_horizontal_error_m=median_or_na(m.end_horizontal_error_m for m in per_seed),
         drift_percent=median_or_na(m.drift_percent for m in per_seed),
         end_position_error_m=median_or_na(m.end_position_error_m for m in per_seed),
+        refused=refusal_counts(per_seed),
+        filter_events=[f"seed {m.seed}, {e}" for m in per_seed for e in m.filter_events],
     )
 
 
@@ -571,7 +617,7 @@ def _write_study(
     _write_sensor_streams(first, run_dir)
     images = plot_nav_run(first, run_dir / "plots")
 
-    summary = _summarize(per_seed)
+    summary = summarize_nav_seeds(per_seed)
     table = [{
         "scenario": sc.name, "seeds": len(per_seed),
         "output RMSE in the air (m)": summary.output_rmse_m,
@@ -605,12 +651,26 @@ def _write_study(
                     )
                 ],
             ),
+            _refusal_section(summary),
             ReportSection(heading="Plots (first seed)", images=images),
             ReportSection(heading="Configuration", code=dump_config(sc)),
         ],
     )
     finish_run_folder(run_dir)
     return summary
+
+
+def _refusal_section(summary: NavSummary) -> ReportSection:
+    """The samples refused and the filter's resets (the fault scenarios' point)."""
+    rows = [[what, n] for what, n in summary.refused.items()]
+    return ReportSection(
+        heading="Refused samples and resets",
+        text="" if rows else "Every sample was fused or not due; the filter never reset.",
+        tables=[ReportTable(f"total over {summary.seeds} seed(s)", ["what", "count"], rows)]
+        if rows
+        else [],
+        code="\n".join(summary.filter_events),
+    )
 
 
 def reports_in_flight(sc: NavScenario) -> bool:

@@ -345,7 +345,7 @@ def planar_table(summary: Mapping[ExperimentName, PlanarSummary]) -> list[dict[s
             "RMSE output (m)": s.rmse_output_m.median,
             "floor (m)": s.rmse_floor_m.median,
             "output/floor": s.output_over_floor.median,
-            "NEES mean": s.nees_mean.mean,
+            "NEES mean": s.nees_mean.median,
             "GPS fused": s.gps_fused_total,
             "GPS gated": s.gps_rejected_gate_total,
             "GPS too old": s.gps_rejected_too_old_total,

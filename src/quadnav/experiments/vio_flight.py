@@ -20,7 +20,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.random import Generator
@@ -32,12 +32,14 @@ from quadnav.estimation.nav_ekf import skew
 from quadnav.experiments.nav_config import NavScenario
 from quadnav.geometry.rotations import Pose
 from quadnav.messages import ImuSample, OdometrySample, VehicleState
-from quadnav.rig import Rig, rig_named
-from quadnav.sim.render import RenderEffects, Renderer
-from quadnav.sim.scene import WORLDS, Scene, WorldPlan
 from quadnav.sim.sensors import IntegratingImu, Ticker
 from quadnav.units import s_to_ns
-from quadnav.vio.types import VioState, VisualOdometry
+
+if TYPE_CHECKING:  # (the rig, the renderer and the VIO load OpenCV and GTSAM: only when used)
+    from quadnav.rig import Rig
+    from quadnav.sim.render import RenderEffects, Renderer
+    from quadnav.sim.scene import Scene
+    from quadnav.vio.types import VioState, VisualOdometry
 
 __all__ = [
     "OdometryShortcut",
@@ -134,6 +136,8 @@ def vio_imu(rig: Rig, bias_rng: Generator, gravity_m_s2: float) -> IntegratingIm
 def flight_world(sc: NavScenario) -> Scene:
     """The world of the flight: built around the take-off-and-forward route (obstacles kept
     a metre from it) and a margin of a metre about it."""
+    from quadnav.sim.scene import WORLDS, WorldPlan
+
     h, fwd = sc.plan.height_m, sc.plan.forward_m
     path = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, h], [fwd, 0.0, h]])
     plan = WorldPlan(
@@ -277,13 +281,16 @@ def build_vio_sensor(
             drift_m_sqrt_s=v.drift_m_sqrt_s,
             sink=sink,
         )
-    from quadnav.vio import VioEstimator  # (GTSAM and the front end only when flying on it)
+    # (OpenCV, the renderer, GTSAM and the front end only when flying on rendered images)
+    from quadnav.rig import rig_named
+    from quadnav.sim.render import RenderEffects, Renderer
+    from quadnav.vio.estimator import VioEstimator
 
     rig = rig_named(v.rig)
     renderer = Renderer(flight_world(sc), rig.camera("cam0").camera)
     return VioCameraSensor(
         rig=rig,
-        vio=VioEstimator(rig),
+        vio=VioEstimator(rig, v.estimator_config()),
         renderer=renderer,
         imu=vio_imu(rig, bias_rng, gravity_m_s2),
         image_rng=np.random.default_rng(int(rng.integers(2**31))),

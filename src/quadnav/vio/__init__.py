@@ -1,19 +1,28 @@
 """Monocular visual-inertial odometry of the VINS-Mono class (thesis 003): a KLT front end with
 keyframes chosen by parallax, GTSAM's IMU preintegration, a static or visual-inertial
 initialisation, a sliding-window smoother over explicit landmarks, failure detection and
-re-initialisation, and the camera-IMU time offset estimated online."""
+re-initialisation, and the camera-IMU time offset estimated online.
 
-from quadnav.vio.config import VioConfig
-from quadnav.vio.estimator import VioEstimator
-from quadnav.vio.types import (
-    FrameFeatures,
-    InitResult,
-    InitWindow,
-    StageTiming,
-    VioEvent,
-    VioState,
-    VisualOdometry,
-)
+Every name loads on first use: importing a submodule (``quadnav.vio.config``, which a scenario's
+``vio`` section is validated by) does not import GTSAM or OpenCV."""
+
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from quadnav.vio.config import VioConfig
+    from quadnav.vio.estimator import VioEstimator
+    from quadnav.vio.types import (
+        FrameFeatures,
+        InitResult,
+        InitWindow,
+        StageTiming,
+        VioEvent,
+        VioState,
+        VisualOdometry,
+    )
 
 __all__ = [
     "FrameFeatures",
@@ -26,3 +35,28 @@ __all__ = [
     "VioState",
     "VisualOdometry",
 ]
+
+# The module of each name (GTSAM behind the estimator and the types, OpenCV behind the front end).
+_WHERE: dict[str, str] = {
+    "FrameFeatures": "quadnav.vio.types",
+    "InitResult": "quadnav.vio.types",
+    "InitWindow": "quadnav.vio.types",
+    "StageTiming": "quadnav.vio.types",
+    "VioConfig": "quadnav.vio.config",
+    "VioEstimator": "quadnav.vio.estimator",
+    "VioEvent": "quadnav.vio.types",
+    "VioState": "quadnav.vio.types",
+    "VisualOdometry": "quadnav.vio.types",
+}
+
+
+def __getattr__(name: str) -> Any:
+    if name not in _WHERE:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(_WHERE[name]), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(__all__)

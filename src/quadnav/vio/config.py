@@ -7,7 +7,7 @@ from pydantic import Field
 
 from quadnav.config_model import ConfigModel
 from quadnav.units import GRAVITY_M_S2
-from quadnav.vision.tracking import TrackerConfig
+from quadnav.vision.tracker_config import TrackerConfig
 
 __all__ = ["VioConfig"]
 

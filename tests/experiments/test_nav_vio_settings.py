@@ -1,0 +1,73 @@
+"""Issue 21, item 10: ``quadnav run indoor_vio`` takes the VIO's own settings in its ``vio``
+section (``--set vio.keyframe_parallax_px=...``), validated as ``VioConfig``; a scenario that
+runs no VIO refuses them, as it refuses the rest of a ``vio`` section it would not read."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from typer.testing import CliRunner
+
+from quadnav.cli.main import app
+from quadnav.errors import ConfigError
+from quadnav.experiments.nav_config import NavScenario
+from quadnav.experiments.scenarios import nav_builtin
+from quadnav.experiments.vio_flight import VioCameraSensor, build_vio_sensor
+from quadnav.io.config import dump_config, load_config
+from quadnav.vio.config import VioConfig
+from quadnav.vio.estimator import VioEstimator
+
+
+def test_the_vio_settings_reach_the_estimator() -> None:
+    sc = nav_builtin("indoor_vio", ["vio.keyframe_parallax_px=24.5", "vio.tracker.max_features=90"])
+    rng = np.random.default_rng(0)
+    sensor = build_vio_sensor(sc, rng, rng, 9.81, None)
+    assert isinstance(sensor, VioCameraSensor) and isinstance(sensor.vio, VioEstimator)
+    cfg = sensor.vio.config
+    assert cfg.keyframe_parallax_px == 24.5 and cfg.tracker.max_features == 90
+    # the rest is VioConfig's defaults (the estimator was given the section's VIO part)
+    assert cfg.window_keyframes == VioConfig().window_keyframes
+
+
+@pytest.mark.parametrize(
+    ("scenario", "override", "named"),
+    [
+        ("indoor_vio", "vio.keyframe_parallax_px=-1", "vio.keyframe_parallax_px"),
+        ("indoor_vio", "vio.keyframe_parallax=16", "vio.keyframe_parallax: unknown key"),
+        ("indoor_vio", "vio.tracker.max_features=abc", "vio.tracker.max_features"),
+        # no VIO: its settings, and any other of the vio section, are refused, not ignored
+        ("indoor_vision_pose", "vio.keyframe_parallax_px=20", "vio.keyframe_parallax_px is set"),
+        ("outdoor_gps", "vio.sigma_m=0.1", "vio.sigma_m is set"),
+        # the odometry shortcut runs no VIO: the VIO's own settings are refused
+        ("indoor_vio_odometry", "vio.window_keyframes=12", "vio.window_keyframes is a setting"),
+    ],
+)
+def test_a_bad_or_unused_vio_setting_is_one_line_naming_it(
+    tmp_path: Path, scenario: str, override: str, named: str
+) -> None:
+    result = CliRunner().invoke(app, ["run", scenario, "--set", override, "--out", str(tmp_path)])
+    assert result.exit_code == 2, result.output
+    out = result.output.strip()
+    assert "Traceback" not in out and len(out.splitlines()) == 1
+    assert named in out
+    assert not any(tmp_path.iterdir())  # refused before any run folder
+
+
+def test_the_shortcut_keeps_its_own_vio_settings() -> None:
+    sc = nav_builtin("indoor_vio_odometry", ["vio.sigma_m=0.05", "vio.world=room"])
+    assert sc.vio.sigma_m == 0.05
+    with pytest.raises(ConfigError, match=r"vio\.keyframe_parallax_px is a setting"):
+        nav_builtin("indoor_vio_odometry", ["vio.keyframe_parallax_px=20"])
+
+
+@pytest.mark.parametrize("scenario", ["indoor_vision", "indoor_vio", "indoor_vio_odometry"])
+def test_a_resolved_config_loads_back(tmp_path: Path, scenario: str) -> None:
+    """A run folder's config.yaml holds every key, the vio section's defaults too: it loads."""
+    sc = nav_builtin(scenario, ["vio.keyframe_parallax_px=20"] if scenario == "indoor_vio" else [])
+    path = tmp_path / "config.yaml"
+    path.write_text(dump_config(sc))
+    assert "keyframe_parallax_px" in yaml.safe_load(path.read_text())["vio"]
+    assert load_config(NavScenario, path) == sc
