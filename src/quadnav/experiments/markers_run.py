@@ -373,8 +373,10 @@ def _process(
                 overlay.frame(fr.index, fr.image, fp, probe)
             if progress:
                 progress(fr.index + 1, total or 0, f"{n_poses} poses")
-    except KeyboardInterrupt:  # Ctrl-C ends a live run; what came so far is written
-        out.stopped_by = "interrupt (Ctrl-C)"
+    except KeyboardInterrupt:
+        if frames.kind != "camera":
+            raise  # a file stopped half way: the run folder says interrupted, its rows kept
+        out.stopped_by = "interrupt (Ctrl-C)"  # how a live camera's run ends: it is complete
     if overlay.stopped:
         out.stopped_by = "window (q or Esc)"
     return out
@@ -425,6 +427,10 @@ def run_markers(
                 done = _process(
                     cfg, frames, camera, det_params, overlay, companion, progress, poses_csv
                 )
+        except BaseException:
+            if companion is not None:
+                companion.close()
+            raise
         finally:
             overlay.close()
     notes = [cal_note] if cal_note else []
