@@ -70,4 +70,3 @@ def test_ctrl_c_on_a_video_file_is_an_interrupted_run(frames, tmp_path: Path) ->
     assert all(np.isfinite(float(r["z_m"])) for r in rows)  # each row whole
     assert not (run / "metrics.json").exists()  # no summary that looks complete
     assert cv2.VideoCapture(str(run / "overlay.mp4")).isOpened()  # the video closed, readable
-

@@ -23,7 +23,12 @@ from quadnav.cli.common import (
 )
 from quadnav.cli.planar import AllowRemoteOpt, OutOpt, SetOpt
 from quadnav.errors import IoError
-from quadnav.experiments.markers_run import MarkersStats, load_markers_config, run_markers
+from quadnav.experiments.markers_run import (
+    MarkersStats,
+    load_markers_config,
+    run_markers,
+    window_or_not,
+)
 from quadnav.io.mavlink import check_bind
 from quadnav.vision.config import MarkersConfig
 
@@ -67,13 +72,17 @@ def markers_command(
         ),
     ] = None,
     show: Annotated[
-        bool, typer.Option("--show", help="show the overlay in a window (q or Esc stops)")
-    ] = False,
+        bool | None,
+        typer.Option(
+            "--show/--no-show",
+            help="show the overlay in a window (q or Esc stops); default: the parameters' "
+            "show (the thesis's open_window), left off where there is no display",
+        ),
+    ] = None,
 ) -> None:
-    cfg, ignored = _resolve(mavlink, allow_remote, set_, camera, fps, show, params)
-    if ignored:
-        note = f"note: parameters not used here: {', '.join(ignored)}"
-        err_console.print(note, highlight=False, soft_wrap=True)
+    cfg, notes = _resolve(mavlink, allow_remote, set_, camera, fps, show, params)
+    for note in notes:
+        err_console.print(f"note: {note}", highlight=False, soft_wrap=True)
     with progress_bar("markers") as update:
         stats = run_markers(
             cfg,
@@ -95,10 +104,11 @@ def _resolve(
     set_: list[str] | None,
     camera: Path | None,
     fps: float | None,
-    show: bool,
+    show: bool | None,
     params: Path | None,
 ) -> tuple[MarkersConfig, list[str]]:
-    """The validated configuration (and the thesis keys not used) of the command's options."""
+    """The validated configuration of the command's options, and notes for the user (the
+    thesis keys not used, a window the parameters ask for where none can open)."""
     if mavlink is not None:
         check_bind(mavlink, allow_remote=allow_remote)  # before anything is read or written
     overrides = list(set_ or [])
@@ -108,8 +118,12 @@ def _resolve(
             raise IoError(f"--camera {camera}: {why}")
         overrides.append(f"camera_file={camera}")
     overrides += [f"fps={fps}"] if fps is not None else []
-    overrides += ["show=true"] if show else []
-    return load_markers_config(params, overrides)
+    overrides += [f"show={str(show).lower()}"] if show is not None else []
+    cfg, ignored = load_markers_config(params, overrides)
+    asked = any(o.replace(" ", "").startswith("show=") for o in overrides)
+    cfg, window_note = window_or_not(cfg, asked=asked)
+    notes = [f"parameters not used here: {', '.join(ignored)}"] if ignored else []
+    return cfg, notes + ([window_note] if window_note else [])
 
 
 def check_example(p: CommandParams) -> None:
@@ -120,7 +134,7 @@ def check_example(p: CommandParams) -> None:
         strings_param(p, "set_"),
         optional_param(p, "camera", Path),
         optional_param(p, "fps", float),
-        param(p, "show", bool),
+        optional_param(p, "show", bool),
         optional_param(p, "params", Path),
     )
 

@@ -27,6 +27,7 @@ from quadnav.io.frames import (
     FrameWindow,
     ImagesOut,
     VideoOut,
+    display_missing,
     open_frames,
     quiet_libraries,
 )
@@ -50,6 +51,7 @@ __all__ = [
     "fit_calibration",
     "load_markers_config",
     "run_markers",
+    "window_or_not",
 ]
 
 
@@ -70,6 +72,25 @@ def load_markers_config(
             base["camera_file"] = str(camera_file)
         return load_config(MarkersConfig, None, overrides, base=base), ignored
     return load_config(MarkersConfig, params, overrides), []
+
+
+def window_or_not(
+    cfg: MarkersConfig, *, asked: bool, display: Callable[[], str] = display_missing
+) -> tuple[MarkersConfig, str]:
+    """The configuration without its window, and a note saying why, when a parameter file asks
+    for one (``show``, the thesis's ``open_window``) on a machine with no display (``display``
+    says why not, '' when there is one). A window ``asked`` for on the command line (``--show``,
+    ``--set show=true``) stays: opening it is then an error."""
+    if not cfg.show or asked:
+        return cfg, ""
+    why = display()
+    if not why:
+        return cfg, ""
+    note = (
+        f"no window: the parameters ask for one (show / the thesis's open_window) but {why}; "
+        "running without it (--show insists, --no-show skips this note)"
+    )
+    return cfg.model_copy(update={"show": False}), note
 
 
 #: Called after each frame with (frames done, frames in all or 0 when unknown, a short text).
