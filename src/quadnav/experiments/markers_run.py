@@ -353,6 +353,7 @@ def _process(
             max_rms_px=cfg.max_rms_px,
             charuco_min_markers=cfg.charuco.min_markers,
             board_marker_fallback=cfg.charuco.marker_fallback,
+            fallback_gate=cfg.charuco.fallback_gate(),
         )
     detector = MarkerDetector(get_dictionary(cfg.dictionary), det_params)
     total = (
