@@ -118,9 +118,12 @@ def progress_bar(
 ) -> Iterator[Callable[[int, int, str], None]]:
     """A progress bar on stderr; yields ``update(done, total, what)``. When stderr is not a
     terminal (CI logs, pipes), a plain line instead, each time another ``line_step`` of the
-    work is done (0: every item, a seed say) or 30 s have passed, and at the end."""
+    work is done (0: every item, a seed say) or 30 s have passed (10 s when the total is
+    unknown: a raw stream, a camera), and at the end."""
     if not err_console.is_terminal:
-        yield _progress_lines(description, line_step)
+        lines = _ProgressLines(description, line_step)
+        yield lines.update
+        lines.finish()
         return
     from rich.progress import (  # 70 ms of start-up for commands that do not need it
         BarColumn,
@@ -147,23 +150,42 @@ def progress_bar(
         yield update
 
 
-def _progress_lines(description: str, line_step: float) -> Callable[[int, int, str], None]:
-    start = time.monotonic()
-    last = {"done": 0, "t": start}
+class _ProgressLines:
+    """:func:`progress_bar`'s plain lines."""
 
-    def update(done: int, total: int, what: str) -> None:
+    def __init__(self, description: str, line_step: float) -> None:
+        self.description, self.line_step = description, line_step
+        self.start = self.t_last = time.monotonic()
+        self.done_last = 0
+        self.pending: tuple[int, int, str] | None = None  # the last update not printed
+
+    def update(self, done: int, total: int, what: str) -> None:
         now = time.monotonic()
-        step = max(1.0, line_step * total) if total else 1.0
-        due = done >= total > 0 or done - last["done"] >= step or now - last["t"] >= 30.0
-        if done <= last["done"] or not due:
+        if total:
+            step = max(1.0, self.line_step * total)
+            due = done >= total or done - self.done_last >= step or now - self.t_last >= 30.0
+        else:  # no total: every item only when asked (line_step 0), else by the clock
+            due = self.line_step == 0 or now - self.t_last >= 10.0
+        if done <= self.done_last:
             return
-        last.update(done=done, t=now)
+        if not due:
+            self.pending = (done, total, what)
+            return
+        self._print(done, total, what, now)
+
+    def _print(self, done: int, total: int, what: str, now: float) -> None:
+        self.done_last, self.t_last, self.pending = done, now, None
         of = f"/{total}" if total else ""
         print(
-            f"{description}: {done}{of} {what} ({now - start:.1f} s)", file=sys.stderr, flush=True
+            f"{self.description}: {done}{of} {what} ({now - self.start:.1f} s)",
+            file=sys.stderr,
+            flush=True,
         )
 
-    return update
+    def finish(self) -> None:
+        """The last update, if it was not printed (the end of a stream of unknown length)."""
+        if self.pending is not None:
+            self._print(*self.pending, time.monotonic())
 
 
 def check_range(

@@ -145,6 +145,9 @@ class MarkersConfig(ConfigModel):
     show: bool = Field(False, description="show the overlay in a window (needs a display)")
     show_rejected: bool = Field(False, description="draw the rejected marker candidates")
     write_images: bool = Field(False, description="save every overlay frame to images/")
+    max_images_mb: float = Field(
+        200.0, gt=0, le=1e7, description="write_images stops before images/ passes this (MB)"
+    )
     max_rms_px: float = Field(
         3.0, gt=0, description="poses with a larger reprojection error are refused"
     )

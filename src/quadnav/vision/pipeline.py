@@ -21,6 +21,7 @@ from numpy.typing import NDArray
 from quadnav.errors import GeometryError, VisionError
 from quadnav.geometry.camera import PinholeCamera
 from quadnav.geometry.rotations import Pose
+from quadnav.units import ns_to_s, s_to_ns
 from quadnav.vision.markers import (
     CharucoSpec,
     CharucoTarget,
@@ -367,8 +368,8 @@ class MarkerPipeline:
         gate = self.fallback_gate
         last = self._last
         pick = vp
-        if last is not None and 0 <= t_ns - last[0] <= gate.memory_s * 1e9:
-            dt_s = (t_ns - last[0]) * 1e-9
+        if last is not None and 0 <= t_ns - last[0] <= s_to_ns(gate.memory_s):
+            dt_s = ns_to_s(t_ns - last[0])
             fits = [(gate.misfit(last[1], dt_s, c.T_W_B), k, c) for k, c in enumerate((vp, other)) if c]  # fmt: skip
             misfit, _, pick = min(fits, key=lambda x: (x[0], x[1]))
             if misfit > 1.0:
