@@ -2,8 +2,9 @@
 a pose, with the fallback as configured and without it, on
 
 - renders of a 5x7 ChArUco board (DICT_6X6_250, 0.0475 m squares, as the thesis's third board)
-  with part of it covered by a grey sheet, seen by the thesis camera and mount moving and
-  turning 0.25 to 0.5 m above it: a sequence with known truth (position error against it too);
+  seen by the thesis camera and mount moving and turning above it, with its left half covered
+  by a grey sheet (0.25 to 0.5 m up), or all of it but one marker (0.3 to 0.9 m up):
+  sequences with known truth (position error against it too);
 - the thesis's own video of the 12x17 board, when ../shared/data is present.
 
 Jitter is what ``quadnav markers`` reports (stats.json ``jitter_rms_mm``: the second difference of
@@ -46,20 +47,35 @@ def cover(x0_m: float, x1_m: float, y0_m: float, y1_m: float) -> PlanarObject:
     return PlanarObject(tex, A, Pose(Rotation.identity(), np.array([0.0, 0.0, 0.001])), "cover")
 
 
-def occluded_sequence(n: int, seed: int = 0) -> tuple[list[np.ndarray], list[Pose]]:
-    """``n`` renders of the 5x7 board with its left 70 % covered, the vehicle (thesis mount)
-    drifting over the uncovered strip and beyond, turning; and the true ``T_W_B``."""
+def _window(w_m: float, h_m: float) -> list[PlanarObject]:
+    """Sheets over all of the board but the square of one marker (column 2, row 3)."""
+    sq = SPEC.square_m
+    x0, x1, y0, y1 = 2 * sq - 0.002, 3 * sq + 0.002, 3 * sq - 0.002, 4 * sq + 0.002
+    return [cover(-0.05, x0, -0.05, h_m + 0.05), cover(x1, w_m + 0.05, -0.05, h_m + 0.05),
+            cover(x0, x1, -0.05, y0), cover(x0, x1, y1, h_m + 0.05)]  # fmt: skip
+
+
+def occluded_sequence(n: int, kind: str, seed: int = 0) -> tuple[list[np.ndarray], list[Pose]]:
+    """``n`` renders of the 5x7 board and the true ``T_W_B`` of the vehicle (thesis mount)
+    turning as it goes. ``half``: the board's left half covered, the vehicle 0.25 to 0.5 m up
+    drifting across the covered edge; ``one marker``: all of it covered but one marker, the
+    vehicle circling over it 0.3 to 0.9 m up."""
     w_m, h_m = SPEC.squares_x * SPEC.square_m, SPEC.squares_y * SPEC.square_m
     board = board_object(CharucoTarget(SPEC).board, (w_m, h_m), Pose.identity(), px_per_m=2000)
-    scene = SyntheticCamera(thesis_camera(), [board, cover(-0.05, 0.7 * w_m, -0.05, h_m + 0.05)],
+    sheets = [cover(-0.05, 0.5 * w_m, -0.05, h_m + 0.05)] if kind == "half" else _window(w_m, h_m)
+    scene = SyntheticCamera(thesis_camera(), [board, *sheets],
                             RenderSettings(noise_sigma=2.0, seed=seed))  # fmt: skip
     rng = np.random.default_rng(seed)
     images, truth = [], []
     for k in range(n):
-        s = k / max(n - 1, 1)
-        a = 2 * np.pi * s
-        p = np.array([w_m * (0.8 + 0.25 * np.sin(3 * a)), h_m * (0.5 + 0.4 * np.sin(a)),
-                      0.25 + 0.25 * (0.5 - 0.5 * np.cos(2 * a))])  # fmt: skip
+        a = 2 * np.pi * k / max(n - 1, 1)
+        if kind == "half":
+            p = np.array([w_m * (0.55 + 0.3 * np.sin(3 * a)), h_m * (0.5 + 0.4 * np.sin(a)),
+                          0.25 + 0.25 * (0.5 - 0.5 * np.cos(2 * a))])  # fmt: skip
+        else:
+            sq = SPEC.square_m
+            p = np.array([2.5 * sq + 0.08 * np.sin(3 * a), 3.5 * sq + 0.08 * np.cos(2 * a),
+                          0.3 + 0.6 * (0.5 - 0.5 * np.cos(2 * a))])  # fmt: skip
         R = Rotation.from_euler("ZYX", [0.6 * np.sin(a), 0.12 * np.sin(5 * a), 0.12 * np.cos(4 * a)])  # fmt: skip
         T_W_B = Pose(R, p + rng.normal(0, 0.0005, 3))
         truth.append(T_W_B)
@@ -107,16 +123,21 @@ def main() -> None:
     results: dict[str, dict[str, dict[str, float]]] = {}
     with tempfile.TemporaryDirectory() as tmp_:
         tmp = Path(tmp_)
-        images, truth = occluded_sequence(args.frames)
-        (tmp / "frames").mkdir()
-        for k, im in enumerate(images):
-            cv2.imwrite(str(tmp / "frames" / f"{k:05d}.png"), im)
         cal = tmp / "cal.yml"
         write_camera_yaml(cal, thesis_camera())
         synth = MarkersConfig(target="charuco", dictionary="DICT_6X6_250", camera_file=str(cal),
                               video=False, fps=40.0,
                               charuco={"squares_x": 5, "squares_y": 7, "square_m": 0.0475, "marker_m": 0.0285})  # fmt: skip
-        sources = [("rendered 5x7, 70 % covered", synth, str(tmp / "frames"), truth)]
+        sources = []
+        for kind, name in (
+            ("half", "rendered 5x7, half covered"),
+            ("one", "rendered 5x7, 1 marker"),
+        ):
+            images, truth = occluded_sequence(args.frames, kind)
+            (tmp / kind).mkdir()
+            for k, im in enumerate(images):
+                cv2.imwrite(str(tmp / kind / f"{k:05d}.png"), im)
+            sources.append((name, synth, str(tmp / kind), truth))
         if args.video_frames > 0 and (DATA / "board12_17.mp4").exists():
             thesis = MarkersConfig(target="charuco", dictionary=2, camera_file=str(DATA / "cal.yml"),
                                    video=False, max_frames=args.video_frames)  # fmt: skip
@@ -126,11 +147,11 @@ def main() -> None:
             for label, fallback in (("fallback", True), ("no fallback", False)):
                 c = cfg.model_copy(update={"charuco": cfg.charuco.model_copy(update={"marker_fallback": fallback})})  # fmt: skip
                 results[name][label] = measure(c, source, tmp / f"{name}-{label}", tr)
-    print(f"{'source':28s} {'':12s} {'jitter rms/med mm':>18s} {'with pose':>10s} "
+    print(f"{'source':26s} {'':12s} {'jitter rms/med mm':>18s} {'with pose':>10s} "
           f"{'step rms mm':>12s} {'step max m':>11s} {'err rms mm':>11s} {'err max m':>10s}")  # fmt: skip
     for name, by in results.items():
         for label, r in by.items():
-            print(f"{name:28s} {label:12s} {r['jitter_rms_mm']:8.2f} / {r['jitter_median_mm']:6.2f}"
+            print(f"{name:26s} {label:12s} {r['jitter_rms_mm']:8.2f} / {r['jitter_median_mm']:6.2f}"
                   f" {r['fraction_with_pose']:10.1%} {r['step_rms_mm']:12.1f} {r['step_max_m']:11.3f}"
                   f" {r.get('error_rms_mm', float('nan')):11.1f} {r.get('error_max_m', float('nan')):10.3f}")  # fmt: skip
     args.out.parent.mkdir(parents=True, exist_ok=True)
