@@ -21,9 +21,9 @@ METRICS_KEYS = ["frames", "frames_processed", "frames_skipped", "frames_with_pos
                 "detect_ms_median", "pose_ms_median", "rms_px_median", "fps"]  # fmt: skip
 STATS_KEYS = ["source", "time_base", "fps", "frames", "frames_processed", "frames_skipped",
               "skipped", "frames_with_pose", "fraction_with_pose", "frames_rejected",
-              "rejected_by_reason", "world_marker_id", "jitter_rms_mm", "jitter_median_mm",
+              "rejected_by_reason", "frames_marker_fallback", "world_marker_id", "jitter_rms_mm", "jitter_median_mm",
               "detect_ms_median", "pose_ms_median", "rms_px_median", "camera_properties",
-              "calibration", "notes", "images_written", "stopped_by",
+              "calibration", "notes", "images_written", "images_mb", "images_not_written", "stopped_by",
               "unknown_detector_parameters", "run_dir"]  # fmt: skip
 
 

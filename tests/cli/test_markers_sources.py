@@ -284,12 +284,44 @@ def test_show_without_a_display_is_one_line(frames, tmp_path: Path, monkeypatch:
     folder, cal, _ = frames
     monkeypatch.delenv("DISPLAY", raising=False)
     monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
-    params = _thesis_params(tmp_path / "vision_params.yml", open_window="true")
-    for extra in (["--show"], ["--params", str(params)]):
+    quiet = _thesis_params(tmp_path / "quiet.yml", open_window="false")
+    for extra in (["--show"], ["--params", str(quiet), "--show"], ["--set", "show=true"]):
         res, run = _markers([str(folder), "--camera", str(cal), *extra], tmp_path / "out")
         assert res.exit_code == 2 and run is None, res.output
         assert "--show" in res.output and "no display (DISPLAY" in res.output
         assert "Traceback" not in res.output and len(res.output.strip().splitlines()) == 1
+
+
+def test_a_parameter_file_window_without_a_display_runs_on_and_says_so(frames, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:  # fmt: skip
+    """Issue 21, item 2: 4 of the thesis's 5 parameter files say open_window: true; CI and a
+    companion computer have no display. The run goes on without a window, in one line."""
+    folder, cal, _ = frames
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    params = _thesis_params(tmp_path / "vision_params.yml", open_window="true")
+    common = [str(folder), "--camera", str(cal), "--params", str(params), *IDENTITY_MOUNT]
+    res, run = _markers(common, tmp_path / "file")
+    assert res.exit_code == 0 and run is not None, res.output
+    said = [ln for ln in res.output.splitlines() if "no window" in ln]
+    assert len(said) == 1 and "open_window" in said[0] and "no display" in said[0], said
+    assert json.loads((run / "status.json").read_text())["status"] == "complete"
+    res, run = _markers([*common, "--no-show"], tmp_path / "no-show")
+    assert res.exit_code == 0 and run is not None and "no window" not in res.output
+
+
+def test_no_show_overrides_the_file_where_there_is_a_display(frames, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:  # fmt: skip
+    folder, cal, _ = frames
+    monkeypatch.setenv("DISPLAY", ":99")
+    shown: list[np.ndarray] = []
+    monkeypatch.setattr(cv2, "imshow", lambda title, img: shown.append(img))
+    monkeypatch.setattr(cv2, "waitKey", lambda ms: -1)
+    monkeypatch.setattr(cv2, "destroyWindow", lambda title: None)
+    params = _thesis_params(tmp_path / "vision_params.yml", open_window="true")
+    common = [str(folder), "--camera", str(cal), "--params", str(params), *IDENTITY_MOUNT]
+    res, _ = _markers([*common, "--no-show"], tmp_path / "no-show")
+    assert res.exit_code == 0 and not shown, res.output
+    res, _ = _markers(common, tmp_path / "file")  # a display: the file's window opens
+    assert res.exit_code == 0 and len(shown) == 9, res.output
 
 
 def test_show_puts_each_frame_in_a_window_and_q_stops(frames, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:  # fmt: skip

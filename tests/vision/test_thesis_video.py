@@ -29,7 +29,7 @@ def test_board_pose_in_more_frames_than_opencvs_defaults(tmp_path: Path) -> None
         stats[name] = run_markers(cfg, str(DATA / "board12_17.mp4"), tmp_path / name)
     assert stats["opencv"].frames == stats["quadnav"].frames == 250
     # OpenCV's defaults find too few chessboard corners close up; the board's marker corners
-    # still give a pose (measured on all 1,086 frames: 20 % -> 71 %)
+    # still give a pose (measured on all 1,086 frames: 20 % -> 70 %, the fallback gated)
     assert stats["quadnav"].fraction_with_pose >= 1.5 * stats["opencv"].fraction_with_pose
     assert stats["quadnav"].jitter_median_mm < 5.0
 

@@ -117,9 +117,11 @@ def progress_bar(
     description: str, *, line_step: float = 0.1
 ) -> Iterator[Callable[[int, int, str], None]]:
     """A progress bar on stderr; yields ``update(done, total, what)``. When stderr is not a
-    terminal (CI logs, pipes), a few plain lines instead (:func:`_progress_lines`)."""
+    terminal (CI logs, pipes), a few plain lines instead (:class:`_ProgressLines`)."""
     if not err_console.is_terminal:
-        yield _progress_lines(description, line_step)
+        lines = _ProgressLines(description, line_step)
+        yield lines.update
+        lines.finish()
         return
     from rich.progress import (  # 70 ms of start-up for commands that do not need it
         BarColumn,
@@ -150,32 +152,55 @@ def progress_bar(
 PIPED_PROGRESS_LINES = 4
 #: ...and, while nothing else is said, one after this long, then after twice as long, ...
 PIPED_QUIET_S = 60.0
+#: ...and for work of unknown length (a raw stream, a camera), a line this often.
+PIPED_UNKNOWN_TOTAL_S = 10.0
 
 
-def _progress_lines(description: str, line_step: float) -> Callable[[int, int, str], None]:
-    """A line each time another ``line_step`` of the work is done (0: every item, a seed say),
-    but no more than :data:`PIPED_PROGRESS_LINES` over the work and one at its end; a long
-    silence is broken after :data:`PIPED_QUIET_S`, then after twice as long each time, so that
-    a log of any length gets a few lines."""
-    start = time.monotonic()
-    last = {"done": 0, "t": start, "quiet": PIPED_QUIET_S}
+class _ProgressLines:
+    """:func:`progress_bar`'s plain lines: a line each time another ``line_step`` of the work is
+    done (0: every item, a seed say), but no more than :data:`PIPED_PROGRESS_LINES` over the work
+    and one at its end; a long silence is broken after :data:`PIPED_QUIET_S`, then after twice as
+    long each time, so that a log of any length gets a few lines. Work of unknown length gets a
+    line every :data:`PIPED_UNKNOWN_TOTAL_S` and its last update at the end."""
 
-    def update(done: int, total: int, what: str) -> None:
+    def __init__(self, description: str, line_step: float) -> None:
+        self.description, self.line_step = description, line_step
+        self.start = self.t_last = time.monotonic()
+        self.done_last = 0
+        self.quiet_s = PIPED_QUIET_S
+        self.pending: tuple[int, int, str] | None = None  # the last update not printed
+
+    def update(self, done: int, total: int, what: str) -> None:
         now = time.monotonic()
-        step = max(1.0, line_step * total, total / PIPED_PROGRESS_LINES) if total else 1.0
-        quiet = now - last["t"] >= last["quiet"]
-        due = done >= total > 0 or done - last["done"] >= step or quiet
-        if done <= last["done"] or not due:
+        if done <= self.done_last:
             return
-        if quiet and not done - last["done"] >= step:
-            last["quiet"] *= 2
-        last.update(done=done, t=now)
+        if total:
+            step = max(1.0, self.line_step * total, total / PIPED_PROGRESS_LINES)
+            by_work = done >= total or done - self.done_last >= step
+            quiet = now - self.t_last >= self.quiet_s
+            if quiet and not by_work:
+                self.quiet_s *= 2
+            due = by_work or quiet
+        else:  # no total: every item only when asked (line_step 0), else by the clock
+            due = self.line_step == 0 or now - self.t_last >= PIPED_UNKNOWN_TOTAL_S
+        if not due:
+            self.pending = (done, total, what)
+            return
+        self._print(done, total, what, now)
+
+    def _print(self, done: int, total: int, what: str, now: float) -> None:
+        self.done_last, self.t_last, self.pending = done, now, None
         of = f"/{total}" if total else ""
         print(
-            f"{description}: {done}{of} {what} ({now - start:.1f} s)", file=sys.stderr, flush=True
+            f"{self.description}: {done}{of} {what} ({now - self.start:.1f} s)",
+            file=sys.stderr,
+            flush=True,
         )
 
-    return update
+    def finish(self) -> None:
+        """The last update, if it was not printed (the end of a stream of unknown length)."""
+        if self.pending is not None:
+            self._print(*self.pending, time.monotonic())
 
 
 def check_range(

@@ -4,6 +4,7 @@ frames with a pose."""
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Annotated
 
@@ -12,6 +13,7 @@ from rich.table import Table
 
 from quadnav.cli.common import (
     CommandParams,
+    check_range,
     command_help,
     console,
     err_console,
@@ -23,7 +25,12 @@ from quadnav.cli.common import (
 )
 from quadnav.cli.planar import AllowRemoteOpt, OutOpt, SetOpt
 from quadnav.errors import IoError
-from quadnav.experiments.markers_run import MarkersStats, load_markers_config, run_markers
+from quadnav.experiments.markers_run import (
+    MarkersStats,
+    load_markers_config,
+    run_markers,
+    window_or_not,
+)
 from quadnav.io.mavlink import check_bind, describe_traffic
 from quadnav.vision.config import MarkersConfig
 
@@ -67,13 +74,25 @@ def markers_command(
         ),
     ] = None,
     show: Annotated[
-        bool, typer.Option("--show", help="show the overlay in a window (q or Esc stops)")
-    ] = False,
+        bool | None,
+        typer.Option(
+            "--show/--no-show",
+            help="show the overlay in a window (q or Esc stops); default: the parameters' "
+            "show (the thesis's open_window), left off where there is no display",
+        ),
+    ] = None,
+    max_images_mb: Annotated[
+        float | None,
+        typer.Option(
+            "--max-images-mb",
+            help="with write_images (the thesis's): stop writing images past this many MB "
+            "(default 200)",
+        ),
+    ] = None,
 ) -> None:
-    cfg, ignored = _resolve(mavlink, allow_remote, set_, camera, fps, show, params)
-    if ignored:
-        note = f"note: parameters not used here: {', '.join(ignored)}"
-        err_console.print(note, highlight=False, soft_wrap=True)
+    cfg, notes = _resolve(mavlink, allow_remote, set_, camera, fps, show, params, max_images_mb)
+    for note in notes:
+        _note(note)
     with progress_bar("markers") as update:
         stats = run_markers(
             cfg,
@@ -83,10 +102,15 @@ def markers_command(
             mavlink=mavlink,
             allow_remote=allow_remote,
             setpoints=setpoints,
+            notify=_note,
         )
     for note in stats.notes:
         err_console.print(f"note: {note}", highlight=False, soft_wrap=True)
     _print_summary(stats)
+
+
+def _note(text: str) -> None:
+    err_console.print(f"note: {text}", highlight=False, soft_wrap=True)
 
 
 def _resolve(
@@ -95,10 +119,12 @@ def _resolve(
     set_: list[str] | None,
     camera: Path | None,
     fps: float | None,
-    show: bool,
+    show: bool | None,
     params: Path | None,
+    max_images_mb: float | None = None,
 ) -> tuple[MarkersConfig, list[str]]:
-    """The validated configuration (and the thesis keys not used) of the command's options."""
+    """The validated configuration of the command's options, and notes for the user (the
+    thesis keys not used, a window the parameters ask for where none can open)."""
     if mavlink is not None:
         check_bind(mavlink, allow_remote=allow_remote)  # before anything is read or written
     overrides = list(set_ or [])
@@ -108,8 +134,15 @@ def _resolve(
             raise IoError(f"--camera {camera}: {why}")
         overrides.append(f"camera_file={camera}")
     overrides += [f"fps={fps}"] if fps is not None else []
-    overrides += ["show=true"] if show else []
-    return load_markers_config(params, overrides)
+    if max_images_mb is not None:
+        check_range(max_images_mb, "--max-images-mb", 0.0, 1e7, "MB", low_open=True)
+        overrides.append(f"max_images_mb={max_images_mb}")
+    overrides += [f"show={str(show).lower()}"] if show is not None else []
+    cfg, ignored = load_markers_config(params, overrides)
+    asked = any(o.replace(" ", "").startswith("show=") for o in overrides)
+    cfg, window_note = window_or_not(cfg, asked=asked)
+    notes = [f"parameters not used here: {', '.join(ignored)}"] if ignored else []
+    return cfg, notes + ([window_note] if window_note else [])
 
 
 def check_example(p: CommandParams) -> None:
@@ -120,8 +153,9 @@ def check_example(p: CommandParams) -> None:
         strings_param(p, "set_"),
         optional_param(p, "camera", Path),
         optional_param(p, "fps", float),
-        param(p, "show", bool),
+        optional_param(p, "show", bool),
         optional_param(p, "params", Path),
+        optional_param(p, "max_images_mb", float),
     )
 
 
@@ -134,6 +168,11 @@ EXAMPLES = (
     "quadnav markers frames.h264 --camera ../shared/data/thesis_rig/cal.yml --fps 40 --set target=charuco",
     "quadnav markers 0 --camera ../shared/data/thesis_rig/cal.yml --mavlink udpout:127.0.0.1:14540",
 )
+
+
+def _value(x: float, spec: str, why: str) -> str:
+    """A number of the summary, or ``n/a`` and why it has none."""
+    return format(x, spec) if math.isfinite(x) else f"n/a ({why})"
 
 
 def _print_summary(stats: MarkersStats) -> None:
@@ -149,16 +188,25 @@ def _print_summary(stats: MarkersStats) -> None:
     table.add_row(
         "frames with a pose", f"{stats.frames_with_pose} ({stats.fraction_with_pose:.1%})"
     )
+    if stats.frames_marker_fallback:
+        table.add_row("  of them from a board's marker corners", str(stats.frames_marker_fallback))
     table.add_row("frames rejected (degenerate view, bad fit)", str(stats.frames_rejected))
-    table.add_row(
-        "frame-to-frame jitter, RMS / median (mm)",
-        f"{stats.jitter_rms_mm:.2f} / {stats.jitter_median_mm:.2f}",
+    jitter = (
+        f"{stats.jitter_rms_mm:.2f} / {stats.jitter_median_mm:.2f}"
+        if math.isfinite(stats.jitter_rms_mm)
+        else "n/a (no 3 consecutive frames with a pose)"
     )
-    table.add_row("detection, median (ms)", f"{stats.detect_ms_median:.2f}")
-    table.add_row("pose, median (ms)", f"{stats.pose_ms_median:.2f}")
-    table.add_row("reprojection error, median (px)", f"{stats.rms_px_median:.3f}")
-    if stats.images_written:
-        table.add_row("overlay images written", str(stats.images_written))
+    table.add_row("frame-to-frame jitter, RMS / median (mm)", jitter)
+    table.add_row(
+        "detection, median (ms)", _value(stats.detect_ms_median, ".2f", "no frame processed")
+    )
+    table.add_row("pose, median (ms)", _value(stats.pose_ms_median, ".2f", "no pose"))
+    table.add_row("reprojection error, median (px)", _value(stats.rms_px_median, ".3f", "no pose"))
+    if stats.images_written or stats.images_not_written:
+        images = f"{stats.images_written} ({stats.images_mb:.1f} MB)"
+        if stats.images_not_written:
+            images += f"; {stats.images_not_written} not written (past --max-images-mb)"
+        table.add_row("overlay images in images/", images)
     if stats.mavlink is not None:
         m = stats.mavlink
         by_name = ", ".join(f"{k} {v}" for k, v in m.sent.items())

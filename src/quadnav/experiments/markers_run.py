@@ -27,6 +27,7 @@ from quadnav.io.frames import (
     FrameWindow,
     ImagesOut,
     VideoOut,
+    display_missing,
     open_frames,
     quiet_libraries,
 )
@@ -50,6 +51,7 @@ __all__ = [
     "fit_calibration",
     "load_markers_config",
     "run_markers",
+    "window_or_not",
 ]
 
 
@@ -72,8 +74,29 @@ def load_markers_config(
     return load_config(MarkersConfig, params, overrides), []
 
 
+def window_or_not(
+    cfg: MarkersConfig, *, asked: bool, display: Callable[[], str] = display_missing
+) -> tuple[MarkersConfig, str]:
+    """The configuration without its window, and a note saying why, when a parameter file asks
+    for one (``show``, the thesis's ``open_window``) on a machine with no display (``display``
+    says why not, '' when there is one). A window ``asked`` for on the command line (``--show``,
+    ``--set show=true``) stays: opening it is then an error."""
+    if not cfg.show or asked:
+        return cfg, ""
+    why = display()
+    if not why:
+        return cfg, ""
+    note = (
+        f"no window: the parameters ask for one (show / the thesis's open_window) but {why}; "
+        "running without it (--show insists, --no-show skips this note)"
+    )
+    return cfg.model_copy(update={"show": False}), note
+
+
 #: Called after each frame with (frames done, frames in all or 0 when unknown, a short text).
 Progress = Callable[[int, int, str], None]
+#: Called with a one-line note for the user while the run goes on.
+Notify = Callable[[str], None]
 
 _COV_INDEX = np.triu_indices(6)
 _COV_NAMES = ["x", "y", "z", "rx", "ry", "rz"]
@@ -146,9 +169,18 @@ class _Overlay:
         camera: PinholeCamera,
         det_params: cv2.aruco.DetectorParameters,
         window: FrameWindow | None,
+        *,
+        expected_frames: int | None = None,
+        notify: Notify | None = None,
     ) -> None:
         self.video = VideoOut(run_dir / "overlay.mp4", fps) if cfg.video else None
-        self.images = ImagesOut(run_dir / "images") if cfg.write_images else None
+        self.images = (
+            ImagesOut(run_dir / "images", max_bytes=round(cfg.max_images_mb * 1e6))
+            if cfg.write_images
+            else None
+        )
+        self.max_images_mb, self.expected_frames = cfg.max_images_mb, expected_frames
+        self.notify: Notify = notify if notify is not None else (lambda text: None)
         self.window, self.camera = window, camera
         # the candidates the detector turned down (a ChArUco detection does not return them)
         self.rejected = (
@@ -190,9 +222,31 @@ class _Overlay:
         if self.video is not None:
             self.video.write(img)
         if self.images is not None:
-            self.images.write(index, img)
+            self._write_image(index, img)
         if self.window is not None and not self.window.show(img):
             self.stopped = True
+
+    def _write_image(self, index: int, img: NDArray[Any]) -> None:
+        """One overlay frame to images/; where and how much when the first is written, and
+        once when the cap (``max_images_mb``) stops them."""
+        images = self.images
+        assert images is not None
+        first = images.frames == 0 and images.refused == 0
+        if not images.write(index, img):
+            if images.refused == 1:
+                self.notify(
+                    f"images: stopped at {images.bytes / 1e6:.1f} MB in {images.folder} "
+                    f"(max_images_mb / --max-images-mb {self.max_images_mb:g}); "
+                    "the frames after it are not written"
+                )
+            return
+        if first:
+            each_mb, n = images.bytes / 1e6, self.expected_frames
+            est = f"about {each_mb * n:.0f} MB for {n} frames" if n else "the frame count unknown"
+            self.notify(
+                f"images: each overlay frame to {images.folder}, {each_mb:.2f} MB each, {est}; "
+                f"stops at {self.max_images_mb:g} MB (max_images_mb / --max-images-mb)"
+            )
 
     def close(self) -> None:
         if self.video is not None:
@@ -266,6 +320,7 @@ class MarkersStats:
     fraction_with_pose: float
     frames_rejected: int
     rejected_by_reason: Mapping[str, int]
+    frames_marker_fallback: int  # poses from a board's marker corners (charuco.marker_fallback)
     world_marker_id: int | None
     jitter_rms_mm: float
     jitter_median_mm: float
@@ -276,6 +331,8 @@ class MarkersStats:
     calibration: str
     notes: tuple[str, ...]
     images_written: int
+    images_mb: float
+    images_not_written: int  # past max_images_mb
     stopped_by: str | None
     unknown_detector_parameters: tuple[str, ...]
     run_dir: Path
@@ -308,6 +365,13 @@ class _Processed:
     stopped_by: str | None = None
 
 
+def _expected_frames(cfg: MarkersConfig, frames: FrameSource) -> int | None:
+    """How many frames the run will take, when the source knows (or ``max_frames`` says)."""
+    if cfg.max_frames is None:
+        return frames.total
+    return min(frames.total or cfg.max_frames, cfg.max_frames)
+
+
 def _process(
     cfg: MarkersConfig,
     frames: FrameSource,
@@ -332,13 +396,10 @@ def _process(
             max_rms_px=cfg.max_rms_px,
             charuco_min_markers=cfg.charuco.min_markers,
             board_marker_fallback=cfg.charuco.marker_fallback,
+            fallback_gate=cfg.charuco.fallback_gate(),
         )
     detector = MarkerDetector(get_dictionary(cfg.dictionary), det_params)
-    total = (
-        frames.total
-        if cfg.max_frames is None
-        else min(frames.total or cfg.max_frames, cfg.max_frames)
-    )
+    total = _expected_frames(cfg, frames)
     n_poses = 0
     try:
         for fr in frames:
@@ -373,8 +434,10 @@ def _process(
                 overlay.frame(fr.index, fr.image, fp, probe)
             if progress:
                 progress(fr.index + 1, total or 0, f"{n_poses} poses")
-    except KeyboardInterrupt:  # Ctrl-C ends a live run; what came so far is written
-        out.stopped_by = "interrupt (Ctrl-C)"
+    except KeyboardInterrupt:
+        if frames.kind != "camera":
+            raise  # a file stopped half way: the run folder says interrupted, its rows kept
+        out.stopped_by = "interrupt (Ctrl-C)"  # how a live camera's run ends: it is complete
     if overlay.stopped:
         out.stopped_by = "window (q or Esc)"
     return out
@@ -390,10 +453,13 @@ def run_markers(
     allow_remote: bool = False,
     setpoints: Path | None = None,
     open_camera: Callable[[int], Any] = cv2.VideoCapture,
+    notify: Notify | None = None,
 ) -> MarkersStats:
     """Process every frame of ``source``; write the run folder; return the statistics. With
     ``mavlink``, be thesis 000's companion computer (see :class:`_Companion`). A live camera
-    is opened by ``open_camera`` and asked for the configured fps, size and exposure."""
+    is opened by ``open_camera`` and asked for the configured fps, size and exposure.
+    ``notify`` gets the notes for the user during the run (where the images go, and how
+    much)."""
     if cfg.camera_file is None:
         raise ConfigError(
             "no camera calibration: give --camera cal.yml (OpenCV YAML) or camera_file in the parameters"
@@ -414,7 +480,8 @@ def run_markers(
         camera, cal_note = fit_calibration(camera, frames.size or (camera.width, camera.height))
         run_dir = create_run_folder(out, "markers")
         write_text(run_dir / "config.yaml", dump_config(cfg))
-        overlay = _Overlay(cfg, run_dir, frames.fps, camera, det_params, window)
+        overlay = _Overlay(cfg, run_dir, frames.fps, camera, det_params, window,
+                           expected_frames=_expected_frames(cfg, frames), notify=notify)  # fmt: skip
         companion = (
             _Companion(mavlink, setpoints, allow_remote=allow_remote)
             if mavlink is not None
@@ -425,6 +492,10 @@ def run_markers(
                 done = _process(
                     cfg, frames, camera, det_params, overlay, companion, progress, poses_csv
                 )
+        except BaseException:
+            if companion is not None:
+                companion.close()
+            raise
         finally:
             overlay.close()
     notes = [cal_note] if cal_note else []
@@ -439,7 +510,7 @@ def run_markers(
         done,
         calibration=cal_note or f"{camera.width}x{camera.height}, as calibrated",
         notes=tuple(notes),
-        images_written=overlay.images.frames if overlay.images is not None else 0,
+        images=overlay.images,
         stopped_by=done.stopped_by,
         unknown_detector_parameters=tuple(unknown),
         run_dir=run_dir,
@@ -475,7 +546,7 @@ def _statistics(
     *,
     calibration: str,
     notes: tuple[str, ...],
-    images_written: int,
+    images: ImagesOut | None,
     stopped_by: str | None,
     unknown_detector_parameters: tuple[str, ...],
     run_dir: Path,
@@ -500,6 +571,7 @@ def _statistics(
         fraction_with_pose=len(ok) / n_total if n_total else 0.0,
         frames_rejected=sum(r.pose is None and r.reason != "no_target" for r in done.results),
         rejected_by_reason=dict(Counter(r.reason for r in done.results if r.pose is None)),
+        frames_marker_fallback=sum(r.fallback for r in ok),
         world_marker_id=done.world_id if cfg.target == "marker" else None,
         jitter_rms_mm=float(np.sqrt(np.mean(steps**2)) * 1e3) if len(steps) else math.nan,
         jitter_median_mm=_median(steps) * 1e3,
@@ -509,7 +581,9 @@ def _statistics(
         camera_properties=frames.properties,
         calibration=calibration,
         notes=notes,
-        images_written=images_written,
+        images_written=images.frames if images is not None else 0,
+        images_mb=images.bytes / 1e6 if images is not None else 0.0,
+        images_not_written=images.refused if images is not None else 0,
         stopped_by=stopped_by,
         unknown_detector_parameters=unknown_detector_parameters,
         run_dir=run_dir,

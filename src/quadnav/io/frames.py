@@ -331,21 +331,42 @@ class VideoOut:
 
 
 class ImagesOut:
-    """Every frame as ``frame_<index>.png`` in a folder (the thesis's ``write_images``)."""
+    """Every frame as ``frame_<index>.png`` in a folder (the thesis's ``write_images``), up to
+    ``max_bytes`` in all: a frame that would take the folder past it is not written (counted
+    in ``refused``)."""
 
-    def __init__(self, folder: Path) -> None:
+    def __init__(self, folder: Path, max_bytes: int | None = None) -> None:
         self.folder = folder
+        self.max_bytes = max_bytes
         self.frames = 0
+        self.bytes = 0
+        self.refused = 0
+        self._last_bytes = 0
         try:
             folder.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
             raise IoError(f"cannot create {folder}: {exc.strerror}") from None
 
-    def write(self, index: int, image: NDArray[np.uint8]) -> None:
+    @property
+    def full(self) -> bool:
+        """The next frame (about the size of the last) would take the folder past the cap."""
+        return self.max_bytes is not None and self.bytes + self._last_bytes > self.max_bytes
+
+    def write(self, index: int, image: NDArray[np.uint8]) -> bool:
+        """Write the frame; False when the cap keeps it out."""
+        if self.full:
+            self.refused += 1
+            return False
         path = self.folder / f"frame_{index:06d}.png"
         if not cv2.imwrite(str(path), image):
             raise IoError(f"{path}: cannot be written")
+        try:
+            self._last_bytes = path.stat().st_size
+        except OSError as exc:
+            raise IoError(f"{path}: {exc.strerror}") from None
+        self.bytes += self._last_bytes
         self.frames += 1
+        return True
 
 
 def display_missing() -> str:

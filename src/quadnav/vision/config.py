@@ -14,7 +14,7 @@ from quadnav.errors import VisionError
 from quadnav.geometry.rotations import Pose
 from quadnav.vision.calibration import BoardNames, charuco_board_problem
 from quadnav.vision.markers import CharucoSpec, DiamondSpec, get_dictionary
-from quadnav.vision.pipeline import MapBoard, MapDiamond, MapMarker, MarkerMap
+from quadnav.vision.pipeline import FallbackGate, MapBoard, MapDiamond, MapMarker, MarkerMap
 from quadnav.vision.pose import mount_pose
 
 __all__ = ["MarkersConfig", "from_thesis_vision_params"]
@@ -34,6 +34,26 @@ class CharucoSection(ConfigModel):
     marker_fallback: bool = Field(
         True, description="with < 4 chessboard corners, the pose from the board's marker corners"
     )
+    fallback_max_sigma_m: float = Field(
+        0.05,
+        gt=0,
+        le=10,
+        description="a marker fallback's pose is used only with a position sigma up to this "
+        "(an ambiguous one's spans both solutions)",
+    )
+    fallback_max_speed_m_s: float = Field(
+        1.0, ge=0, le=100, description="and only within this speed of the run's last pose"
+    )
+    fallback_max_rate_deg_s: float = Field(
+        90.0, ge=0, le=3600, description="and only within this turn rate of the run's last pose"
+    )
+
+    def fallback_gate(self) -> FallbackGate:
+        return FallbackGate(
+            max_sigma_m=self.fallback_max_sigma_m,
+            max_speed_m_s=self.fallback_max_speed_m_s,
+            max_rate_deg_s=self.fallback_max_rate_deg_s,
+        )
 
 
 class DiamondSection(ConfigModel):
@@ -125,6 +145,9 @@ class MarkersConfig(ConfigModel):
     show: bool = Field(False, description="show the overlay in a window (needs a display)")
     show_rejected: bool = Field(False, description="draw the rejected marker candidates")
     write_images: bool = Field(False, description="save every overlay frame to images/")
+    max_images_mb: float = Field(
+        200.0, gt=0, le=1e7, description="write_images stops before images/ passes this (MB)"
+    )
     max_rms_px: float = Field(
         3.0, gt=0, description="poses with a larger reprojection error are refused"
     )

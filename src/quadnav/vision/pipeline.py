@@ -9,6 +9,7 @@ navigating over a field of markers); :class:`MarkerPipeline` turns a frame into 
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, field
 from typing import Any
@@ -20,6 +21,7 @@ from numpy.typing import NDArray
 from quadnav.errors import GeometryError, VisionError
 from quadnav.geometry.camera import PinholeCamera
 from quadnav.geometry.rotations import Pose
+from quadnav.units import ns_to_s, s_to_ns
 from quadnav.vision.markers import (
     CharucoSpec,
     CharucoTarget,
@@ -32,14 +34,24 @@ from quadnav.vision.markers import (
 )
 from quadnav.vision.pose import (
     DegeneratePoseError,
+    PnpResult,
     VehiclePose,
     check_point_set,
     marker_corners_3d,
+    refine_pnp,
     solve_pnp,
     vehicle_pose,
 )
 
-__all__ = ["FramePose", "MapBoard", "MapDiamond", "MapMarker", "MarkerMap", "MarkerPipeline"]
+__all__ = [
+    "FallbackGate",
+    "FramePose",
+    "MapBoard",
+    "MapDiamond",
+    "MapMarker",
+    "MarkerMap",
+    "MarkerPipeline",
+]
 
 FloatArray = NDArray[np.float64]
 
@@ -108,6 +120,44 @@ class FramePose:
     pose_ms: float
     note: str = ""
     reason: str = ""
+    fallback: bool = False  # the pose is from a board's marker corners, not its chessboard's
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class FallbackGate:
+    """When a board's marker corners stand in for its chessboard corners (close up, a partial
+    view), a pose from them is used only if
+
+    - its position's standard deviation (the largest of the PnP covariance, which for an
+      ambiguous planar pose spans both solutions: a marker seen small or head-on fits a tilted
+      mirror image almost as well) is at most ``max_sigma_m``, and
+    - it agrees with the run's last pose, if that is no older than ``memory_s``: within
+      ``max_speed_m_s`` and ``max_rate_deg_s`` of it over the time between them, plus
+      ``slack_m`` and ``slack_deg``. Of an ambiguous pose's two solutions, the one that
+      agrees is taken."""
+
+    max_sigma_m: float = 0.05
+    max_speed_m_s: float = 1.0
+    max_rate_deg_s: float = 90.0
+    slack_m: float = 0.03
+    slack_deg: float = 5.0
+    memory_s: float = 0.25
+
+    def __post_init__(self) -> None:
+        values = (self.max_sigma_m, self.max_speed_m_s, self.max_rate_deg_s, self.slack_m,
+                  self.slack_deg, self.memory_s)  # fmt: skip
+        if not all(math.isfinite(v) and v >= 0 for v in values):
+            raise VisionError(f"fallback gate: every bound must be finite and >= 0, got {values}")
+
+    def misfit(self, T_last: Pose, dt_s: float, T: Pose) -> float:
+        """How far ``T`` is from ``T_last`` (``dt_s`` earlier) in units of the bounds: at
+        most 1 agrees."""
+        d_m = float(np.linalg.norm(T.p_A_B - T_last.p_A_B))
+        d_deg = math.degrees((T_last.R_A_B.inv() * T.R_A_B).magnitude())
+        return max(
+            d_m / (self.max_speed_m_s * dt_s + self.slack_m + 1e-12),
+            d_deg / (self.max_rate_deg_s * dt_s + self.slack_deg + 1e-12),
+        )
 
 
 @dataclass(slots=True)
@@ -121,12 +171,13 @@ class _Observed:
     # a board's marker corners to use instead of its chessboard corners (entry k) if those
     # give no pose
     instead: dict[int, tuple[FloatArray, FloatArray]] = field(default_factory=dict)
+    fallback: bool = False  # a board's marker corners are in, for its chessboard corners
 
     def with_markers_instead(self) -> _Observed:
         obj_W, img = list(self.obj_W), list(self.img)
         for k, (o, i) in self.instead.items():
             obj_W[k], img[k] = o, i
-        return _Observed(obj_W, img, self.square)
+        return _Observed(obj_W, img, self.square, fallback=True)
 
     def add(self, obj_W: FloatArray, img: FloatArray) -> None:
         self.obj_W.append(obj_W)
@@ -165,6 +216,7 @@ class MarkerPipeline:
         min_charuco_corners: int = 4,
         board_marker_fallback: bool = True,
         charuco_min_markers: int = 2,
+        fallback_gate: FallbackGate | None = None,
     ) -> None:
         self.camera = camera
         self.map = marker_map
@@ -198,6 +250,8 @@ class MarkerPipeline:
         self.board_marker_fallback = board_marker_fallback
         self.prior_sigma_px = prior_sigma_px
         self.max_rms_px = max_rms_px
+        self.fallback_gate = fallback_gate if fallback_gate is not None else FallbackGate()
+        self._last: tuple[int, Pose] | None = None  # the last pose given: t_ns, T_W_B
 
     def _board_marker_points(
         self, target: CharucoTarget, T_W_O: Pose, markers: MarkerDetections
@@ -226,6 +280,7 @@ class MarkerPipeline:
                 # Too few chessboard corners (close up, partial view) or all on one line (one
                 # column in view): the board's marker corners still fix its pose, less precisely.
                 seen.add(*marker_pts)
+                seen.fallback = True
             elif len(det.corner_ids) >= self.min_charuco_corners:
                 seen.add(T_W_O @ obj, det.corners)  # for the PnP to refuse, with its reason
         return markers
@@ -264,7 +319,9 @@ class MarkerPipeline:
                     seen.add_square(m.length_m, corners, m.T_W_M)
         return markers, seen
 
-    def _solve(self, seen: _Observed) -> tuple[VehiclePose, float]:
+    def _solve(self, seen: _Observed) -> tuple[VehiclePose, float, VehiclePose | None]:
+        """The pose, its RMS reprojection error and, for an ambiguous planar pose of a marker
+        fallback, the other solution refined (None otherwise)."""
         if seen.n == 4 and seen.square is not None:
             # One square target: IPPE_SQUARE in its own frame, then into the world.
             side_m, corners, T_W_O = seen.square
@@ -275,14 +332,55 @@ class MarkerPipeline:
                 square=True,
                 prior_sigma_px=self.prior_sigma_px,
             )
-            return vehicle_pose(pnp, T_W_O, self.T_B_C), pnp.rms_px
-        pnp = solve_pnp(
-            np.concatenate(seen.obj_W),
-            np.concatenate(seen.img),
-            self.camera,
-            prior_sigma_px=self.prior_sigma_px,
-        )
-        return vehicle_pose(pnp, Pose.identity(), self.T_B_C), pnp.rms_px
+            return vehicle_pose(pnp, T_W_O, self.T_B_C), pnp.rms_px, None
+        obj, img = np.concatenate(seen.obj_W), np.concatenate(seen.img)
+        pnp = solve_pnp(obj, img, self.camera, prior_sigma_px=self.prior_sigma_px)
+        vp = vehicle_pose(pnp, Pose.identity(), self.T_B_C)
+        return vp, pnp.rms_px, self._other_solution(obj, img, pnp) if seen.fallback else None
+
+    def _other_solution(
+        self, obj: FloatArray, img: FloatArray, pnp: PnpResult
+    ) -> VehiclePose | None:
+        if pnp.alternative is None:
+            return None
+        mine = np.concatenate([pnp.rvec, pnp.tvec])
+        try:
+            alt = refine_pnp(
+                obj,
+                img,
+                self.camera,
+                pnp.alternative[0:3],
+                pnp.alternative[3:6],
+                prior_sigma_px=self.prior_sigma_px,
+                alternative=mine,
+            )
+        except (VisionError, GeometryError):
+            return None
+        if not alt.rms_px <= self.max_rms_px:
+            return None
+        return vehicle_pose(alt, Pose.identity(), self.T_B_C)
+
+    def _gate(
+        self, t_ns: int, vp: VehiclePose, other: VehiclePose | None
+    ) -> tuple[VehiclePose | None, str, str]:
+        """A marker fallback's pose (or its other solution) that passes the
+        :class:`FallbackGate`, or None with the reason key and the message."""
+        gate = self.fallback_gate
+        last = self._last
+        pick = vp
+        if last is not None and 0 <= t_ns - last[0] <= s_to_ns(gate.memory_s):
+            dt_s = ns_to_s(t_ns - last[0])
+            fits = [(gate.misfit(last[1], dt_s, c.T_W_B), k, c) for k, c in enumerate((vp, other)) if c]  # fmt: skip
+            misfit, _, pick = min(fits, key=lambda x: (x[0], x[1]))
+            if misfit > 1.0:
+                jump = float(np.linalg.norm(vp.T_W_B.p_A_B - last[1].p_A_B))
+                msg = f"marker fallback: {jump:.3f} m from the last pose, {dt_s:.3f} s before"
+                return None, "fallback_jump", msg
+        sigma_m = math.sqrt(max(float(np.linalg.eigvalsh(pick.cov_position)[-1]), 0.0))
+        if not sigma_m <= gate.max_sigma_m:
+            msg = f"marker fallback: position sigma {sigma_m:.3f} m > {gate.max_sigma_m:g} m"
+            return None, "fallback_uncertain", msg
+        return pick, "", ""
 
     def process(self, image: NDArray[Any], t_ns: int = 0) -> FramePose:
         """One frame's pose, or the reason there is none; a degenerate view (too few points,
@@ -299,11 +397,12 @@ class MarkerPipeline:
             )
         try:
             try:
-                vp, rms_px = self._solve(seen)
+                vp, rms_px, other = self._solve(seen)
             except DegeneratePoseError:
                 if not seen.instead:
                     raise
-                vp, rms_px = self._solve(seen.with_markers_instead())
+                seen = seen.with_markers_instead()
+                vp, rms_px, other = self._solve(seen)
         except (VisionError, GeometryError) as exc:
             pose_ms = (time.perf_counter() - t1) * 1e3
             reason = exc.reason if isinstance(exc, DegeneratePoseError) else "pose_error"
@@ -323,4 +422,12 @@ class MarkerPipeline:
                 f"reprojection error {rms_px:.2f} px > {self.max_rms_px}",
                 "reprojection",
             )
-        return FramePose(t_ns, markers, vp, rms_px, n, detect_ms, pose_ms)
+        if seen.fallback:
+            picked, reason, note = self._gate(t_ns, vp, other)
+            if picked is None:
+                return FramePose(
+                    t_ns, markers, None, rms_px, n, detect_ms, pose_ms, note, reason, True
+                )
+            vp = picked
+        self._last = (t_ns, vp.T_W_B)
+        return FramePose(t_ns, markers, vp, rms_px, n, detect_ms, pose_ms, fallback=seen.fallback)

@@ -34,6 +34,7 @@ __all__ = [
     "check_point_set",
     "marker_corners_3d",
     "mount_pose",
+    "refine_pnp",
     "solve_pnp",
     "vehicle_pose",
 ]
@@ -153,7 +154,6 @@ def solve_pnp(
     """
     obj = np.asarray(obj_pts, dtype=np.float64).reshape(-1, 3)
     img = np.asarray(img_pts, dtype=np.float64).reshape(-1, 2)
-    n = len(obj)
     check_point_set(obj, img)
     if square:
         flag = cv2.SOLVEPNP_IPPE_SQUARE
@@ -180,10 +180,42 @@ def solve_pnp(
             alternative = np.concatenate([np.ravel(rvecs[order[1]]), np.ravel(tvecs[order[1]])])
             alternative = alternative if np.isfinite(alternative).all() else None
     _check_result(np.ravel(rvec), np.ravel(tvec), None, "pose")
-    if refine:
-        rvec, tvec = cv2.solvePnPRefineLM(obj, img, camera.K, camera.dist, rvec, tvec)
-    rvec = np.asarray(rvec, dtype=np.float64).ravel()
-    tvec = np.asarray(tvec, dtype=np.float64).ravel()
+    return refine_pnp(
+        obj,
+        img,
+        camera,
+        np.ravel(rvec),
+        np.ravel(tvec),
+        prior_sigma_px=prior_sigma_px,
+        prior_dof=prior_dof,
+        refine=refine,
+        alternative=alternative,
+    )
+
+
+def refine_pnp(
+    obj: FloatArray,
+    img: FloatArray,
+    camera: PinholeCamera,
+    rvec: FloatArray,
+    tvec: FloatArray,
+    *,
+    prior_sigma_px: float = 0.5,
+    prior_dof: float = 4.0,
+    refine: bool = True,
+    alternative: FloatArray | None = None,
+) -> PnpResult:
+    """The pose ``(rvec, tvec)`` of the object points (N, 3) seen at ``img`` (N, 2), refined
+    with Levenberg-Marquardt, with its covariance (see :func:`solve_pnp`); ``alternative``: the
+    other solution of an ambiguous planar pose, to keep with it."""
+    obj = np.asarray(obj, dtype=np.float64).reshape(-1, 3)
+    img = np.asarray(img, dtype=np.float64).reshape(-1, 2)
+    n = len(obj)
+    r0 = np.asarray(rvec, dtype=np.float64).reshape(3, 1)
+    t0 = np.asarray(tvec, dtype=np.float64).reshape(3, 1)
+    rt = cv2.solvePnPRefineLM(obj, img, camera.K, camera.dist, r0, t0) if refine else (r0, t0)
+    rvec = np.asarray(rt[0], dtype=np.float64).ravel()
+    tvec = np.asarray(rt[1], dtype=np.float64).ravel()
     _check_result(rvec, tvec, obj, "refined pose")
     proj, jac = cv2.projectPoints(obj, rvec, tvec, camera.K, camera.dist)
     res = (proj.reshape(-1, 2) - img).ravel()
