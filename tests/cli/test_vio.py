@@ -61,6 +61,7 @@ def test_the_sequence_is_made_once(first_run: tuple[Path, Path]) -> None:
         (["room_easy", "--set", "window_size=3"], "window_size: unknown key"),
         (["room_easy", "--set", "window_keyframes=1"], "window_keyframes"),
         (["room_easy", "--seeds", "4-1"], "--seeds '4-1'"),
+        (["room_easy", "--seeds", "0-100000000"], "--seeds '0-100000000': at most 10,000 seeds"),
         (["room_easy", "--duration", "-1"], "--duration must be"),
         (["room_easy", "--rig", "nope"], "--rig"),
         (["room_easy", "--config", "/no/vio.yaml"], "--config /no/vio.yaml"),

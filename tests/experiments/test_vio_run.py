@@ -17,6 +17,7 @@ from quadnav.config_model import ConfigModel
 from quadnav.errors import ConfigError, IoError
 from quadnav.eval.na import is_na
 from quadnav.eval.vio_metrics import ApeSummary, NeesSummary
+from quadnav.experiments.seeds import parse_seeds
 from quadnav.experiments.vio_run import (
     VioRun,
     VioRunOptions,
@@ -25,7 +26,7 @@ from quadnav.experiments.vio_run import (
     resolve_vio_config,
     run_vio,
 )
-from quadnav.experiments.vio_study import group_of, parse_seeds, run_vio_study
+from quadnav.experiments.vio_study import group_of, run_vio_study
 from quadnav.io.datasets import VisualInertialDataset, open_dataset
 from quadnav.io.run_folder import read_run_status, run_guard
 from quadnav.io.trajectory_io import read_tum

@@ -24,6 +24,7 @@ from quadnav.cli.common import (
 )
 from quadnav.cli.planar import OutOpt, SetOpt
 from quadnav.errors import ConfigError
+from quadnav.experiments.seeds import parse_seeds
 from quadnav.experiments.vio_run import (
     VioRequest,
     VioRun,
@@ -36,7 +37,6 @@ from quadnav.experiments.vio_study import (
     ROW_HEADER,
     VioStudy,
     group_cells,
-    parse_seeds,
     row_cells,
     row_of,
     run_vio_study,
