@@ -3,14 +3,18 @@ and every bad input as one line naming the option."""
 
 from __future__ import annotations
 
+import errno
 import json
+import os
 from pathlib import Path
+from typing import Any
 
 import pytest
 from typer.testing import CliRunner
 
 from quadnav.cli.main import app
 from quadnav.io.run_folder import read_run_status
+from tests.shared_data import SHARED, needs
 
 runner = CliRunner()
 
@@ -85,3 +89,36 @@ def test_an_unknown_camera_is_named(first_run: tuple[Path, Path], tmp_path: Path
     result = runner.invoke(app, ["vio", str(made), "--camera", "cam1", "--out", str(tmp_path)])
     assert result.exit_code == 2
     assert result.stderr.strip() == "error: --camera 'cam1': the dataset's cameras are cam0"
+
+
+EUROC_MICRO = SHARED / "euroc_micro"
+
+
+@needs(EUROC_MICRO)
+def test_a_full_disk_is_one_error_and_the_run_is_marked_failed(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Issue 21, item 8: the disk fills up as the estimate is written. The status file (the
+    last one written) cannot be made anew either; it left ``running`` and its own error."""
+    real = Path.write_text
+    full = {"now": False}
+
+    def write_text(self: Path, *a: Any, **kw: Any) -> int:
+        full["now"] = full["now"] or self.name == ".estimate.tum.partial"
+        if full["now"]:
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(self))
+        return real(self, *a, **kw)
+
+    monkeypatch.setattr(Path, "write_text", write_text)
+    result = runner.invoke(
+        app, ["vio", str(EUROC_MICRO), "--no-video", "--duration", "1", "--out", str(tmp_path)]
+    )
+    assert result.exit_code == 2, result.output
+    lines = result.stderr.strip().splitlines()
+    (run_dir,) = tmp_path.iterdir()
+    assert lines[-2:] == [
+        f"error: cannot write {run_dir / 'estimate.tum'}: No space left on device",
+        f"partial results (marked failed): {run_dir}",
+    ]
+    assert not any(line.startswith("error:") for line in lines[:-2])
+    assert read_run_status(run_dir) == "failed"

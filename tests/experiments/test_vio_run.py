@@ -4,7 +4,9 @@ of the covariance it reports)."""
 
 from __future__ import annotations
 
+import errno
 import json
+import os
 import shutil
 from pathlib import Path
 
@@ -158,6 +160,23 @@ def test_interrupted_run_is_not_marked_complete(made: Path, tmp_path: Path) -> N
     (run_dir,) = [p for p in tmp_path.iterdir() if p.is_dir()]
     assert read_run_status(run_dir) == "interrupted"
     assert len(read_tum(run_dir / "estimate.tum")) == 20  # what was estimated is kept
+
+
+def test_a_plot_on_a_full_disk_is_one_error_and_the_run_failed(
+    made: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Issue 21, item 8: matplotlib's (PIL's) OSError escaped as a traceback."""
+    from matplotlib.figure import Figure
+
+    def full(self: Figure, *a: object, **kw: object) -> None:
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    monkeypatch.setattr(Figure, "savefig", full)
+    ds = open_dataset(made)
+    with pytest.raises(IoError, match=r"cannot write .*plots: No space left on device"):
+        _run(ds, tmp_path, _double(ds), video=False)
+    (run_dir,) = [p for p in tmp_path.iterdir() if p.is_dir()]
+    assert read_run_status(run_dir) == "failed"
 
 
 def test_a_built_in_sequence_is_made_once_per_seed(made: Path) -> None:

@@ -662,7 +662,11 @@ def write_vio_outputs(
     """The plots and ``report.html`` of a finished run."""
     from quadnav.eval.report import ReportSection, ReportTable, write_report
 
-    images = _write_plots(run, ref, est_m, truth, est)
+    try:
+        images = _write_plots(run, ref, est_m, truth, est)
+    except OSError as exc:  # matplotlib and PIL raise it as it is (a full disk, say)
+        where = exc.filename or run.run_dir / "plots"
+        raise IoError(f"cannot write {where}: {exc.strerror or exc}") from None
     t = run.timing
     events = [
         [f"{ns_to_s(e.t_ns - (int(est.t_ns[0]) if len(est) else e.t_ns)):.2f}", e.kind, e.detail]
