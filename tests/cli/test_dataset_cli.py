@@ -108,3 +108,16 @@ def test_make_on_a_full_disk_is_one_line_naming_the_file(
     one_line_error(res, "No space left on device")
     assert f"cannot write {out}.partial/mav0/cam0/data/" in res.stderr
     assert list(tmp_path.iterdir()) == []  # the partial folder removed
+
+
+def test_info_counts_bad_imu_rows_instead_of_refusing_the_dataset(tmp_path: Path) -> None:
+    """Issue 21, item 7: one out-of-order IMU row refused the whole dataset."""
+    from tests.io.test_datasets_euroc import _edit, _tiny
+
+    root = _tiny(tmp_path / "seq")
+    imu = root / "mav0" / "imu0" / "data.csv"
+    _edit(imu, 8, imu.read_text().splitlines()[2])  # back to line 3's stamp
+    res = runner.invoke(app, ["dataset", "info", str(root)])
+    assert res.exit_code == 0, res.output
+    assert "49 samples at 200 Hz" in res.stdout
+    assert "rejected 1 IMU rows out of order" in " ".join(res.stdout.split())

@@ -340,3 +340,29 @@ def test_the_run_spans_the_images_with_a_second_of_imu_before(tmp_path: Path) ->
     assert run.metrics.frames == len(frames)
     gt = read_tum(run.run_dir / "groundtruth.tum")
     assert gt.t_ns[0] >= frames[0].t_ns and gt.t_ns[-1] <= frames[-1].t_ns
+
+
+@needs(EUROC_MICRO)
+def test_only_the_used_cameras_rejected_images_are_noted(tmp_path: Path) -> None:
+    """Issue 21, item 14: euroc_micro lacks 4 images of cam1; a run on cam0 noted them."""
+    ds = open_dataset(EUROC_MICRO)
+    assert ds.issues.counts == {"missing images": 4}
+    run = _run(ds, tmp_path, _double(ds, init_after_s=0.0), video=False)
+    assert not any("missing images" in n for n in run.notes)
+    saved = json.loads((run.run_dir / "metrics.json").read_text())
+    assert not any("missing images" in n for n in saved["notes"])
+
+
+def test_bad_imu_rows_are_noted_and_the_run_goes_on(made: Path, tmp_path: Path) -> None:
+    """Issue 21, item 7: one bad IMU row refused the whole dataset."""
+    root = _copy(made, tmp_path)
+    imu = root / "mav0" / "imu0" / "data.csv"
+    lines = imu.read_text().splitlines()
+    lines[100] = lines[99]  # a repeated row
+    lines[200] = "not,a,row"
+    imu.write_text("\n".join(lines) + "\n")
+    ds = open_dataset(root)
+    run = _run(ds, tmp_path / "runs", _double(ds, init_after_s=0.0), video=False)
+    assert read_run_status(run.run_dir) == "complete"
+    (note,) = run.notes
+    assert "1 IMU rows repeated" in note and "1 IMU rows unreadable" in note

@@ -536,7 +536,8 @@ def _finish(
         _counts(rec, vio, span[0]), cov_pose=scored.matched_cov, drift_first_s=opt.drift_first_s,
         unscored=scored.note or "the dataset has no ground truth",
     )  # fmt: skip
-    notes = [n for n in (scored.note, dataset.issues.summary() if dataset.issues else "") if n]
+    issues = dataset.issues.for_cameras([opt.camera])  # not those of a camera left unused
+    notes = [n for n in (scored.note, issues.summary() if issues else "") if n]
     run = VioRun(
         run_dir=run_dir, dataset=dataset.name, camera=opt.camera, metrics=metrics,
         timing=_timing(vio, rec, wall_s), events=vio.events, notes=tuple(notes),
