@@ -7,6 +7,7 @@ from __future__ import annotations
 import errno
 import json
 import os
+import re
 import shutil
 from pathlib import Path
 
@@ -98,6 +99,20 @@ def test_run_folder_holds_every_output_and_is_complete(made: Path, tmp_path: Pat
     video = cv2.VideoCapture(str(d / "tracks.mp4"))
     assert int(video.get(cv2.CAP_PROP_FRAME_COUNT)) == frames
     video.release()
+
+
+def test_the_report_rounds_its_numbers_and_the_json_keeps_them(made: Path, tmp_path: Path) -> None:
+    """Issue 21, item 14: the report printed metrics with 15 digits."""
+    ds = open_dataset(made)
+    run = _run(ds, tmp_path, _double(ds), video=False)
+    html = (run.run_dir / "report.html").read_text()
+    metrics = html.split("<h2>Metrics</h2>")[1].split("<h2>Events</h2>")[0]
+    cells = re.findall(r"<td>([^<]*)</td>", metrics)
+    numbers = [x for c in cells for x in re.findall(r"\d+\.\d+(?:e-?\d+)?", c)]
+    assert numbers and all(len(re.sub(r"\D|e.*", "", x).lstrip("0")) <= 4 for x in numbers), numbers
+    saved = json.loads((run.run_dir / "metrics.json").read_text())
+    assert isinstance(run.metrics.ape_4dof, ApeSummary)
+    assert saved["ape_4dof"]["median_m"] == run.metrics.ape_4dof.median_m  # every digit
 
 
 def test_start_and_duration_choose_the_span(made: Path, tmp_path: Path) -> None:

@@ -22,7 +22,7 @@ from quadnav.cli.common import (
     progress_bar,
     strings_param,
 )
-from quadnav.cli.planar import OutOpt, SetOpt
+from quadnav.cli.planar import OutOpt
 from quadnav.errors import ConfigError
 from quadnav.experiments.seeds import parse_seeds
 from quadnav.experiments.vio_run import (
@@ -43,6 +43,15 @@ from quadnav.experiments.vio_study import (
 )
 
 __all__ = ["EXAMPLES", "check_example", "resolve_request", "vio_command"]
+
+
+#: ``--set`` of the VIO: its example is one of VioConfig's keys (the tests validate it).
+VioSetOpt = Annotated[
+    list[str] | None,
+    typer.Option(
+        "--set", help="override one VioConfig field, e.g. --set window_keyframes=8 (repeatable)"
+    ),
+]
 
 
 def resolve_request(
@@ -145,7 +154,7 @@ def vio_command(
         Path | None,
         typer.Option("--config", help="VINS-Mono's config YAML, or ours (VioConfig's fields)"),
     ] = None,
-    set_: SetOpt = None,
+    set_: VioSetOpt = None,
     calibration: Annotated[
         Path | None,
         typer.Option("--calibration", help="Kalibr camchain or EuRoC folder (a bag's rig)"),
@@ -193,7 +202,8 @@ vio_command.__doc__ = command_help(
     "DATASET is an EuRoC ASL or TUM-VI folder, a ROS 1/2 bag, or a built-in sequence, made "
     "once per --seed and --rig under OUT/datasets. Without --config the dataset's own "
     "calibration is used. Metrics against the ground truth: APE after a position + yaw "
-    "alignment (also SE(3) and Sim(3)), RPE, drift in % of the distance travelled, the "
+    "alignment (also SE(3) and Sim(3)), RPE, drift in % of the distance travelled (n/a "
+    "under 1 m travelled), the "
     "gravity error, the pose NEES. Several DATASETs or --seeds run a study with a summary.",
     examples=EXAMPLES,
 )

@@ -26,7 +26,7 @@ from pydantic import BaseModel
 
 from quadnav.errors import ConfigError, EvalError, GeometryError, IoError, SampleError
 from quadnav.eval.associate import associate
-from quadnav.eval.na import Metric, na
+from quadnav.eval.na import Metric, fmt_metric, na
 from quadnav.eval.vio_metrics import RunCounts, VioMetrics, vio_metrics
 from quadnav.geometry.trajectory import Trajectory
 from quadnav.io.config import load_config
@@ -633,8 +633,11 @@ def _write_plots(
 
 
 def _metric_rows(m: VioMetrics) -> list[list[object]]:
-    def cell(v: object, key: str) -> object:
-        return getattr(v, key) if not isinstance(v, str) else v
+    """The report's metrics, numbers to 4 significant digits (``metrics.json`` keeps them all)."""
+
+    def cell(v: object, key: str | None = None) -> str:
+        value = getattr(v, key) if key is not None and not isinstance(v, str) else v
+        return fmt_metric(value, ".4g")
 
     return [
         ["APE 4-DoF RMSE (m)", cell(m.ape_4dof, "rmse_m")],
@@ -643,14 +646,14 @@ def _metric_rows(m: VioMetrics) -> list[list[object]]:
         ["APE Sim(3) RMSE (m), scale", f"{cell(m.ape_sim3, 'rmse_m')}, {cell(m.ape_sim3, 'scale')}"],
         ["RPE per 1 m: trans RMSE (m), rot RMSE (deg)", f"{cell(m.rpe_1m, 'trans_rmse_m')}, {cell(m.rpe_1m, 'rot_rmse_deg')}"],
         ["RPE per 10 m: trans RMSE (m), rot RMSE (deg)", f"{cell(m.rpe_10m, 'trans_rmse_m')}, {cell(m.rpe_10m, 'rot_rmse_deg')}"],
-        ["final position error (m)", m.final_error_m],
-        ["drift, final (%)", m.drift_final_pct],
-        ["drift, RPE (%)", m.drift_rpe_pct],
-        ["gravity error at the start (deg)", m.gravity_error_deg],
+        ["final position error (m)", cell(m.final_error_m)],
+        ["drift, final (%)", cell(m.drift_final_pct)],
+        ["drift, RPE (%)", cell(m.drift_rpe_pct)],
+        ["gravity error at the start (deg)", cell(m.gravity_error_deg)],
         ["pose NEES / 6 (1: consistent)", cell(m.nees_pose, "mean_over_dof")],
-        ["distance travelled (m)", m.distance_m],
+        ["distance travelled (m)", cell(m.distance_m)],
         ["frames with an estimate", f"{m.frames_with_estimate} of {m.frames} ({100 * m.fraction_with_estimate:.1f} %)"],
-        ["initialised after (s)", m.initialized_after_s],
+        ["initialised after (s)", cell(m.initialized_after_s)],
         ["failures, re-initialisations", f"{m.failures}, {m.reinitializations}"],
         ["rejected images", m.rejected_images],
     ]  # fmt: skip

@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from quadnav.eval.na import Metric, fmt_metric, is_na
+from quadnav.eval.vio_metrics import MIN_DRIFT_DISTANCE_M
 from quadnav.experiments.vio_run import VioRun
 from quadnav.io.run_folder import append_jsonl, create_run_folder, write_json, write_text
 
@@ -206,8 +207,9 @@ def summary_markdown(study: VioStudy) -> str:
         + "\n\n## Per run\n\n"
         + _md_table(ROW_HEADER, [row_cells(r) for r in study.rows])
         + "\n\nATE: APE translation RMSE after a position + yaw alignment. Drift final: the last"
-        " pose's error after aligning the first seconds, in % of the distance travelled; drift"
-        " RPE: mean RPE over 10 m (1 m on shorter paths) of path, in % of it.\n"
+        " pose's error after aligning the first seconds, in % of the distance travelled (n/a"
+        f" under {MIN_DRIFT_DISTANCE_M:g} m travelled); drift RPE: mean RPE over 10 m (1 m on"
+        " shorter paths, n/a under 2 m) of path, in % of it.\n"
     )
 
 
