@@ -117,8 +117,14 @@ def _print_run(run: VioRun) -> None:
     table.add_row(*row_cells(row_of(run, run.dataset, None))[2:])
     console.print(table)
     m = run.metrics
-    if isinstance(m.ape_4dof, str) and m.ape_4dof.removeprefix("n/a: ") not in run.notes:
-        err_console.print(f"note: metrics {m.ape_4dof}", highlight=False)
+    said = set(run.notes)  # each reason a column is n/a, once (no ground truth: all of them)
+    for label, value in (
+        ("metrics", m.ape_4dof), ("drift final (%)", m.drift_final_pct),
+        ("drift RPE (%)", m.drift_rpe_pct), ("NEES/6", m.nees_pose),
+    ):  # fmt: skip
+        if isinstance(value, str) and value.removeprefix("n/a: ") not in said:
+            said.add(value.removeprefix("n/a: "))
+            err_console.print(f"note: {label} {value}", highlight=False, soft_wrap=True)
     for n in run.notes:
         err_console.print(f"note: {n}", highlight=False)
     console.print(str(run.run_dir), soft_wrap=True, highlight=False)
