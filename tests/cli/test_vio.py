@@ -138,3 +138,11 @@ def test_a_run_at_rest_gives_no_drift_in_percent_and_no_unused_cameras_notes(
     (row,) = [ln for ln in result.stdout.splitlines() if ln.startswith("│")]
     cells = [c.strip() for c in row.strip("│").split("│")]
     assert cells[2:4] == ["n/a", "n/a"]  # drift final and RPE (%), after ATE and final error
+
+
+def test_an_out_that_is_a_file_is_named(tmp_path: Path) -> None:
+    """Issue 21, item 5's twin: ``--out`` naming a file."""
+    (tmp_path / "file").write_text("x")
+    result = runner.invoke(app, ["vio", "room_easy", "--out", str(tmp_path / "file")])
+    assert result.exit_code == 2
+    assert result.stderr.strip() == f"error: --out {tmp_path / 'file'}: is a file, not a folder"

@@ -738,10 +738,13 @@ class VioRequest:
 
 
 def check_request(request: VioRequest) -> None:
-    """Refuse a bad configuration, ``--set`` or rig before any dataset is read or made."""
+    """Refuse a bad configuration, ``--set``, rig or ``--out`` before any dataset is read or
+    made."""
     from quadnav.rig import rig_named
     from quadnav.vio import VioConfig
 
+    if request.out.exists() and not request.out.is_dir():
+        raise ConfigError(f"--out {request.out}: is a file, not a folder")
     try:
         rig = rig_named(request.rig)
     except GeometryError as exc:
