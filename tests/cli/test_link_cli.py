@@ -5,6 +5,7 @@ signing key from a file or the environment (the command line shows it in `ps`)."
 from __future__ import annotations
 
 import os
+import re
 import socket
 import threading
 import time
@@ -100,6 +101,7 @@ def test_sim_reads_the_signing_key_from_a_file_or_the_environment(tmp_path: Path
     key = bytes(range(50, 82))
     f = tmp_path / "mavlink.key"
     f.write_text(key.hex() + "\n")
+    f.chmod(0o600)
     for args, env in (
         (["--signing-key-file", str(f)], None),
         ([], {"QUADNAV_SIGNING_KEY": key.hex()}),
@@ -108,6 +110,7 @@ def test_sim_reads_the_signing_key_from_a_file_or_the_environment(tmp_path: Path
         assert res.exit_code == 0, res.output
         assert "(signed)" in res.stdout and "refused unsigned 0" in res.stdout
         assert key.hex() not in " ".join(args) and res.stderr == ""  # nothing to warn about
+        assert "no peer heard" not in res.stdout and "no peer connected" not in res.stdout
     res = run_signed_sitl(["--signing-key", key.hex()], key)  # still works, with a warning
     assert res.exit_code == 0, res.output
     assert (
@@ -151,3 +154,54 @@ def test_a_bad_signing_key_is_one_line_naming_where_it_came_from(tmp_path: Path)
     ):
         res = runner.invoke(app, ["sim", "--mavlink", url, "--duration", "1", *args], env=env)
         one_line_error(res, fragment)  # (no warning line before the error either)
+
+
+def test_a_mavlink_port_out_of_range_is_one_line_naming_mavlink(
+    frames: tuple[Path, Path, list[object]], tmp_path: Path
+) -> None:
+    """Issue 21, item 4: `markers --mavlink udpout:127.0.0.1:99999` was pymavlink's
+    OverflowError traceback after the first frame, and port 0 "sent" 82 messages to nowhere.
+    Every endpoint's port is checked where endpoints are parsed, before anything runs: markers
+    and run (a VIO scenario) refuse it naming --mavlink, and write no run folder."""
+    folder, cal, _ = frames
+    out = tmp_path / "runs"
+    for url in ("udpout:127.0.0.1:99999", "udpout:127.0.0.1:0", "tcp:127.0.0.1:65536",
+                "udpin:127.0.0.1:0", "udpout::14540", "udpout:127.0.0.1:port"):  # fmt: skip
+        res = runner.invoke(app, ["markers", str(folder), "--camera", str(cal), "--out", str(out),
+                                  "--mavlink", url])  # fmt: skip
+        one_line_error(res, f"--mavlink {url!r}: ")
+        assert "PORT from 1 to 65535" in res.stderr
+        res = runner.invoke(
+            app, ["run", "indoor_vio_odometry", "--out", str(out), "--mavlink", url]
+        )
+        one_line_error(res, f"--mavlink {url!r}: ")
+    assert not out.exists()
+    ok = runner.invoke(app, ["markers", str(folder), "--camera", str(cal), "--out", str(out),
+                             "--mavlink", f"udpout:127.0.0.1:{free_port()}"])  # fmt: skip
+    assert ok.exit_code == 0, ok.output
+
+
+def test_a_key_file_other_users_may_read_is_used_with_an_ssh_style_warning(tmp_path: Path) -> None:
+    """Issue 21, item 14: a world-readable signing key file was taken silently. As ssh does
+    for a private key, one line on stderr names the file and its mode (mode 0600: none)."""
+    key = bytes(range(90, 122))
+    f = tmp_path / "shared.key"
+    f.write_text(key.hex() + "\n")
+    f.chmod(0o644)
+    res = run_signed_sitl(["--signing-key-file", str(f)], key)
+    assert res.exit_code == 0, res.output
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1 and "UNPROTECTED KEY FILE" in lines[0], res.stderr
+    assert f"{f} has mode 0644" in lines[0] and "chmod 600" in lines[0]
+
+
+def test_sim_says_when_no_peer_heard_what_it_sent() -> None:
+    """Issue 21, item 14: `sim --mavlink` said "sent 1500" with nobody there. A listener with
+    no peer sends nothing (and says how many it could not send); a UDP sender that hears
+    nothing back says "(no peer heard)"."""
+    res = runner.invoke(app, ["sim", "--mavlink", f"udpin:127.0.0.1:{free_port()}", "--duration", "0.5"])  # fmt: skip
+    assert res.exit_code == 0, res.output
+    assert re.search(r"sent 0 \(\d+ not sent: no peer connected\), received 0", res.stdout)
+    res = runner.invoke(app, ["sim", "--mavlink", f"udpout:127.0.0.1:{free_port()}", "--duration", "0.5"])  # fmt: skip
+    assert res.exit_code == 0, res.output
+    assert "(no peer heard), received 0" in res.stdout and "sent 0" not in res.stdout

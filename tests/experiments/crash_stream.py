@@ -36,10 +36,16 @@ def _attitudes(
 
 
 def crash_sensors(
-    *, seed: int = 0, duration_s: float = 25.0, t_crash_s: float = 6.0
+    *,
+    seed: int = 0,
+    duration_s: float = 25.0,
+    t_crash_s: float = 6.0,
+    gyro_scale_error: float = 0.0,
 ) -> tuple[UlogSensors, Rotation]:
     """The sensor streams (IMU 200 Hz, magnetometer and barometer 50 Hz, land detector) and
-    the true final attitude (ENU/FLU)."""
+    the true final attitude (ENU/FLU). ``gyro_scale_error`` scales the gyro's x, y, z axes by
+    1 + e, 1 - e, 1 + e (a MEMS gyro's sensitivity is within some 1-3 % of nominal): over the
+    tumble's turns the integrated attitude then ends degrees off, as on a real crash."""
     rng = np.random.default_rng(seed)
     t_fine = np.arange(0.0, duration_s, 0.001)
     R_fine, w_fine = _attitudes(t_fine, t_crash_s, rng)
@@ -59,6 +65,7 @@ def crash_sensors(
     gyro = w_fine[: n * step].reshape(n, step, 3).mean(axis=1)
     accel_true = f_fine[: n * step].reshape(n, step, 3).mean(axis=1)
     accel = np.clip(accel_true + rng.normal(0, 0.05, (n, 3)), -RANGE_M_S2, RANGE_M_S2)
+    gyro = gyro * (1.0 + gyro_scale_error * np.array([1.0, -1.0, 1.0]))
     gyro = gyro + rng.normal(0, 0.003, (n, 3))
     clip_axes = (np.abs(accel) >= RANGE_M_S2).astype(np.int64) @ np.array([1, 2, 4])
     t_ns = np.round(t_imu_s * 1e9).astype(np.int64) + 1_000_000_000

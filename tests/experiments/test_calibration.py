@@ -63,3 +63,20 @@ def test_a_source_with_no_readable_image_is_refused_by_name(tmp_path: Path) -> N
     (folder / "broken.jpg").write_bytes(b"not a jpeg")
     with pytest.raises(IoError, match=re.escape(f"{folder}: none of the 1 images can be decoded")):
         calibrate_source(str(folder), BOARD)
+
+
+@needs(ARUCO)
+def test_several_sources_are_read_in_turn_and_an_image_of_another_size_set_aside(
+    tmp_path: Path,
+) -> None:
+    """Image files as sources (the shell's img_0*.jpg): numbered on across the sources, the
+    rejected and used views keyed by those numbers; a frame of another size is not mixed in."""
+    small = tmp_path / "small.jpg"
+    cv2.imwrite(str(small), cv2.resize(cv2.imread(str(ARUCO / "img_00.jpg")), (320, 240)))
+    first, *rest = (str(ARUCO / f) for f in ("img_00.jpg", "img_02.jpg", "img_03.jpg"))
+    sources = [first, str(small), *rest]
+    res = calibrate_source(sources, BOARD)
+    assert res.frames_read == 4
+    assert res.unreadable == (f"frame 1 of {small}: 320x240, not 640x480",)
+    assert sorted(res.calibration.per_view_rms_px) == [0, 2, 3]
+    assert res.calibration.camera.width == 640 and 440 < res.calibration.camera.fx < 480

@@ -184,6 +184,28 @@ def test_comparison_only_where_px4_called_its_estimate_valid() -> None:
     assert r.tilt_rms_deg == pytest.approx(2.0, abs=1e-6) and r.yaw_rms_deg < 1e-6
 
 
+def test_zero_length_spans_are_not_listed_as_not_compared() -> None:
+    """Issue 21 item 14: a single sample left out (PX4's z_valid false at one instant, or the
+    estimate's last sample past the reference's end) is a span of no duration: not listed."""
+    from quadnav.experiments.replay_compare import compare
+    from quadnav.io.ulog_sensors import Px4Validity
+
+    ref = _still(100)  # 2.0 to 11.9 s
+    est = _still(101)  # one sample more, at 12.0 s: past the reference's end
+    t_blip = int(est.t_ns[40])  # z invalid at that sample only
+    v = Px4Validity(t_ns=np.array([0, t_blip, t_blip + 1], dtype=np.int64),
+                    xy_valid=np.array([True, True, True]), z_valid=np.array([True, False, True]),
+                    att_t_ns=ref.t_ns)  # fmt: skip
+    c = compare(ref, est, t0_ns=1_000_000_000, validity=v)
+    assert c.n_vertical == 99  # the blip and the unpaired last sample are not compared
+    assert all(b > a for _, a, b in c.not_compared_s), c.not_compared_s
+    assert c.not_compared_s == ()  # nothing of any duration was left out
+    # a real gap is still listed: z invalid over 1 s (ten samples, 0.9 s from first to last)
+    v_gap = dataclasses.replace(v, t_ns=np.array([0, t_blip, t_blip + 950_000_000], dtype=np.int64))
+    g = compare(ref, est, t0_ns=1_000_000_000, validity=v_gap)
+    assert g.not_compared_s == (("vertical", 5.0, 5.9),)
+
+
 @needs_data
 def test_px4_innovations_are_plotted_in_our_convention() -> None:
     """Our north beside PX4's north (not its east), with PX4's prediction-minus-measurement sign
@@ -338,6 +360,50 @@ def test_tilt_after_a_crash_agrees_with_the_accelerometer_at_rest() -> None:
         assert any("clipping flagged" in n for n in r.notes)
         r0 = replay(s, config_from_px4({}, plain))  # clipped samples taken at face value
         assert _tilt_error_deg(r0, R_true, after) > 2.0, seed
+
+
+def test_tilt_is_relevelled_soon_after_a_crash_comes_to_rest() -> None:
+    """Issue 21 item 9: after a real crash the tilt stayed more than 1 degree off the
+    accelerometer for a second at rest, until the re-levelling. The simulated crash with a
+    gyro 1 % off its nominal sensitivity ends the tumble 1.5-1.7 degrees off; from 0.3 s after
+    the vehicle comes to rest (the tumble's end, 6.5 s) the tilt must agree with the
+    accelerometer's gravity direction at rest within 1 degree. Seeded over the sensor noise."""
+    from tests.experiments.crash_stream import crash_sensors
+
+    for seed in range(3):
+        s, _ = crash_sensors(seed=seed, gyro_scale_error=0.01)
+        t_rest_ns = s.t_start_ns + 6_500_000_000  # t_crash_s 6 + the 0.5 s tumble
+        at_rest = s.imu_t_ns >= t_rest_ns
+        up_B = s.accel_m_s2[at_rest].mean(axis=0)  # gravity as the accelerometer reads it
+        up_B /= np.linalg.norm(up_B)
+        r = replay(s, config_from_px4({}))
+        world_up_in_B = Rotation.from_quat(r.q_xyzw).as_matrix()[:, 2, :]
+        err_deg = np.degrees(np.arccos(np.clip(world_up_in_B @ up_B, -1.0, 1.0)))
+        soon = r.t_ns >= t_rest_ns + 300_000_000
+        assert err_deg[(r.t_ns >= t_rest_ns) & ~soon].max() > 1.0, seed  # the case at hand
+        assert err_deg[soon].max() < 1.0, (seed, float(err_deg[soon].max()))
+        assert any("re-levelled at rest" in m for _, m in r.events)
+
+
+def test_the_estimate_stays_put_while_the_crashed_vehicle_rests() -> None:
+    """Issue 21 item 9, the height: the clipped impacts leave ~1.8 m/s of vertical velocity
+    error; until the re-levelling zeroes it, it ran into the position (1 s: 1.1 m of height,
+    kept to the end by the barometer's bias). The vehicle rests from 6.5 s, so from 1 s later
+    the estimate must stay within 0.15 m of where it was when the rest began (the output
+    predictor takes the re-levelling's step through its PI loop: ~0.11 m of overshoot at
+    8.1 s), and within 0.03 m over the last 5 s."""
+    from tests.experiments.crash_stream import crash_sensors
+
+    for seed in range(3):
+        s, _ = crash_sensors(seed=seed)
+        r = replay(s, config_from_px4({}))
+        t_rest_ns = s.t_start_ns + 6_500_000_000
+        p_rest = r.p[np.searchsorted(r.t_ns, t_rest_ns)]
+        later = r.t_ns >= t_rest_ns + 1_000_000_000
+        moved = np.linalg.norm(r.p[later] - p_rest, axis=1)
+        assert moved.max() < 0.15, (seed, float(moved.max()))
+        assert moved[r.t_ns[later] > r.t_ns[-1] - 5_000_000_000].max() < 0.03, seed
+        assert any("position moved back" in m for _, m in r.events)
 
 
 def test_clipping_alone_does_not_relevel_a_healthy_flight() -> None:

@@ -144,9 +144,14 @@ def test_listening_beyond_loopback_is_refused_without_binding(no_remote_bind: li
     for url in ("udpin:127.0.0.1:14550", "udpin:127.3.2.1:14550", "udpin:localhost:14550"):
         assert check_bind(url, allow_remote=False) is not None
     assert check_bind("udpout:0.0.0.0:14550", allow_remote=False) is None  # sends, binds nothing
-    for url in ("udpin:127.0.0.1:99999", "udpin:14550", "tcpin:127.0.0.1:port"):
-        with pytest.raises(IoError, match="HOST:PORT"):
+    for url in ("udpin:127.0.0.1:99999", "udpin:14550", "tcpin:127.0.0.1:port",
+                "udpin:127.0.0.1:0", "udpout:127.0.0.1:0", "udpout:127.0.0.1:65536",
+                "tcp:127.0.0.1:99999", "udpout::14550"):  # fmt: skip
+        with pytest.raises(IoError, match=r"--mavlink .*HOST:PORT, PORT from 1 to 65535"):
             check_bind(url, allow_remote=False)
+    with pytest.raises(IoError, match="serial:/dev/DEVICE:BAUD"):
+        check_bind("serial:/dev/ttyUSB0:0", allow_remote=False)
+    assert check_bind("udpout:127.0.0.1:65535", allow_remote=False) is None
     assert no_remote_bind == []
 
 
@@ -273,3 +278,30 @@ def test_vehicle_commands_decode_from_their_messages() -> None:
         kind="unsupported", command_id=takeoff
     )
     assert decode_vehicle_command(m.MAVLink_heartbeat_message(2, 12, 0, 0, 4, 3)) is None
+
+
+def test_a_listener_counts_as_sent_only_what_went_to_a_peer() -> None:
+    """Issue 21, item 14: a UDP listener writes nothing until a peer speaks, so those messages
+    are "not sent", not "sent"; a sender that heard nothing back says "(no peer heard)"."""
+    from quadnav.io.mavlink import describe_traffic
+
+    port = free_port()
+    rx = MavlinkLink(f"udpin:127.0.0.1:{port}", system=1, component=1)
+    tx = MavlinkLink(f"udpout:127.0.0.1:{port}", system=255, component=190)
+    try:
+        rx.heartbeat(vehicle=True)
+        rx.heartbeat(vehicle=True)
+        assert rx.stats.sent == {} and rx.stats.unsent_no_peer == 2
+        assert rx.describe() == "sent 0 (2 not sent: no peer connected), received 0"
+        tx.heartbeat()
+        assert tx.describe() == "sent 1 (no peer heard), received 0"
+        assert rx.poll(timeout_s=1.0)  # the peer spoke: from now on the listener sends to it
+        rx.heartbeat(vehicle=True)
+        assert rx.stats.sent == {"HEARTBEAT": 1}
+        assert rx.describe() == "sent 1 (2 not sent: before a peer connected), received 1"
+        assert tx.poll(timeout_s=1.0)
+        assert tx.describe() == "sent 1, received 1"
+    finally:
+        rx.close()
+        tx.close()
+    assert describe_traffic({}, {}) == "sent 0, received 0"

@@ -13,6 +13,7 @@ from quadnav.cli.common import (
     CommandParams,
     command_help,
     console,
+    err_console,
     handle_errors,
     param,
     progress_bar,
@@ -24,7 +25,12 @@ from quadnav.experiments.calibration import (
     write_source_calibration,
 )
 from quadnav.io.frames import quiet_libraries
-from quadnav.vision.calibration import BoardNames, charuco_board_problem
+from quadnav.vision.calibration import (
+    MIN_VIEWS,
+    BoardNames,
+    charuco_board_problem,
+    rejection_summary,
+)
 from quadnav.vision.markers import CharucoSpec
 
 __all__ = ["EXAMPLES", "calibrate_command", "check_example", "print_calibration"]
@@ -63,6 +69,7 @@ def check_example(p: CommandParams) -> None:
 
 #: The examples of ``quadnav calibrate --help`` (each parsed and validated by the tests).
 EXAMPLES = (
+    "quadnav calibrate ../shared/data/aruco/img_00.jpg ../shared/data/aruco/img_02.jpg ../shared/data/aruco/img_03.jpg --out camera.yml",
     "quadnav calibrate calibration_images/ --out camera.yml",
     "quadnav calibrate board.mp4 --squares 5 7 --square-m 0.04 --marker-m 0.02 --every 10",
     "quadnav calibrate views/ --squares 12 17 --square-m 0.066 --marker-m 0.0397 --dictionary DICT_4X4_250",
@@ -71,7 +78,9 @@ EXAMPLES = (
 
 @handle_errors
 def calibrate_command(
-    source: Annotated[str, typer.Argument(help="folder of ChArUco images, or a video")],
+    source: Annotated[
+        list[str], typer.Argument(help="folder of ChArUco images, a video, or image files")
+    ],
     squares: Annotated[
         tuple[int, int], typer.Option("--squares", help="squares across and down")
     ] = (5, 7),
@@ -90,12 +99,17 @@ def calibrate_command(
     with progress_bar("calibrate") as update, quiet_libraries():
         result = calibrate_source(source, spec, every=every, progress=update)
     write_source_calibration(out, result)
-    print_calibration(source, result, out)
+    print_calibration(" ".join(source), result, out)
+
+
+SHOWN_REJECTIONS = 10  # the first rejected frames listed by name (all are counted by reason)
 
 
 def print_calibration(source: str, result: SourceCalibration, out: Path) -> None:
-    """The terminal summary: frames and views used, the RMS error, the intrinsics."""
+    """The terminal summary: frames and views used, the RMS error, the intrinsics with the
+    solver's 1-sigma, the image covered, the rejections by reason; the warnings on stderr."""
     cal = result.calibration
+    sd = cal.std_intrinsics
     table = Table(title=f"calibration from {source}")
     table.add_column("measure")
     table.add_column("value", justify="right")
@@ -105,16 +119,34 @@ def print_calibration(source: str, result: SourceCalibration, out: Path) -> None
     table.add_row("fx, fy (px)", f"{cal.camera.fx:.2f}, {cal.camera.fy:.2f}")
     table.add_row("cx, cy (px)", f"{cal.camera.K[0, 2]:.2f}, {cal.camera.K[1, 2]:.2f}")
     table.add_row("distortion", " ".join(f"{d:.4g}" for d in cal.camera.dist))
+    if sd:
+        table.add_row(
+            "1-sigma of fx, fy, cx, cy (px)",
+            ", ".join(f"{sd[n]:.2f}" for n in ("fx", "fy", "cx", "cy")),
+        )
+    table.add_row("image reached by the corners", f"{cal.coverage:.0%}")
     console.print(table)
-    for k, why in sorted(cal.rejected.items()):
-        console.print(f"rejected view {k}: {why}", highlight=False)
+    if cal.rejected:
+        console.print(f"views {rejection_summary(cal.rejected)}", highlight=False)
+    for k, why in sorted(cal.rejected.items())[:SHOWN_REJECTIONS]:
+        console.print(f"rejected frame {k}: {why}", highlight=False)
+    for text in cal.warnings:
+        err_console.print(f"warning: {text}", highlight=False, soft_wrap=True)
     console.print(str(out), highlight=False)
 
 
 calibrate_command.__doc__ = command_help(
     "Calibrate a camera from views of a ChArUco board; write OpenCV YAML.",
-    "SOURCE is a folder of images or a video. The defaults are OpenCV's tutorial board (5x7 "
+    "SOURCE is a folder of images, a video, or image files (several SOURCEs are taken in "
+    "turn). The defaults are OpenCV's tutorial board (5x7 "
     "squares of 4 cm, markers of 2 cm, DICT_6X6_250). Views with too few or collinear corners "
-    "or a reprojection error far above the others' are rejected and listed.",
+    "or a reprojection error far above the others' are rejected, counted by reason and listed. "
+    f"At least {MIN_VIEWS} good views from distinct poses are needed; 10 or more, with the board "
+    "tilted 20-40 degrees in different directions and reaching the image's edges and corners, "
+    "make a good calibration. It is refused, with the reasons, when the views do not determine "
+    "the camera (a focal length or principal point known worse than 10 %, the principal point "
+    "outside the image, fx and fy more than 10 % apart, a distortion that folds back inside the "
+    "image), and written with warnings when it is weak (RMS error above 1 px, corners reaching "
+    "less than half the image, a focal length known worse than 2 %, one viewing angle).",
     examples=EXAMPLES,
 )

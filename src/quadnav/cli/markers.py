@@ -24,7 +24,7 @@ from quadnav.cli.common import (
 from quadnav.cli.planar import AllowRemoteOpt, OutOpt, SetOpt
 from quadnav.errors import IoError
 from quadnav.experiments.markers_run import MarkersStats, load_markers_config, run_markers
-from quadnav.io.mavlink import check_bind
+from quadnav.io.mavlink import check_bind, describe_traffic
 from quadnav.vision.config import MarkersConfig
 
 __all__ = [
@@ -160,8 +160,9 @@ def _print_summary(stats: MarkersStats) -> None:
     if stats.images_written:
         table.add_row("overlay images written", str(stats.images_written))
     if stats.mavlink is not None:
-        sent = stats.mavlink.sent
-        table.add_row("MAVLink messages sent", ", ".join(f"{k} {v}" for k, v in sent.items()))
+        m = stats.mavlink
+        by_name = ", ".join(f"{k} {v}" for k, v in m.sent.items())
+        table.add_row("MAVLink messages sent", f"{by_name}; {describe_traffic(m.sent, m.received)}")
     console.print(table)
     console.print(str(stats.run_dir), soft_wrap=True, highlight=False)
 

@@ -31,7 +31,12 @@ from quadnav.experiments.flight import (
 )
 from quadnav.experiments.flight_study import FlightMetrics, write_flight_run
 from quadnav.io.config import load_config
-from quadnav.io.mavlink import SIGNING_KEY_ENV, check_bind, read_signing_key
+from quadnav.io.mavlink import (
+    SIGNING_KEY_ENV,
+    check_bind,
+    read_signing_key,
+    signing_key_file_warning,
+)
 
 __all__ = ["EXAMPLES", "check_example", "sim_command"]
 
@@ -196,6 +201,9 @@ def _run_sitl(
     if duration is not None:
         check_range(duration, "--duration", 0.0, MAX_SITL_S, "seconds", low_open=True)
     key = read_signing_key(key_hex=key_hex, key_file=key_file, environ=os.environ)
+    unprotected = signing_key_file_warning(key_file) if key_file is not None else None
+    if unprotected:
+        err_console.print(unprotected, highlight=False, soft_wrap=True)
     if key_hex is not None:
         err_console.print(
             f"warning: --signing-key shows the key to every user of this machine (ps); use --signing-key-file or {SIGNING_KEY_ENV}",
@@ -214,7 +222,7 @@ def _run_sitl(
         vehicle.stop()
     st = vehicle.link.stats
     console.print(
-        f"sent {sum(st.sent.values())}, received {sum(st.received.values())}, refused unsigned "
+        f"{vehicle.link.describe()}, refused unsigned "
         f"{st.refused_unsigned}, bad packets {st.bad_packets}, vision estimates fused from the link "
         f"{vehicle.est.stats('mavlink_vision').fused}",
         highlight=False,

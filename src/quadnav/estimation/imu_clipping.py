@@ -13,8 +13,9 @@
   ``EKF2_ABL_ACCLIM``, decaying with ``EKF2_ABL_TAU``). An inhibited bias keeps its value; its
   variance is set aside and given back when learning resumes.
 * :class:`Releveller` (our addition; PX4 relies on its velocity aiding): after clipping, once
-  the vehicle is at rest, the tilt is set from the accelerometer, the velocity to zero and the
-  accelerometer bias back to what it was before the clipping.
+  the vehicle is at rest (0.2 s), the tilt is set from the accelerometer, the velocity to
+  zero, the position back to where the rest began and the accelerometer bias back to what it
+  was before the clipping.
 """
 
 from __future__ import annotations
@@ -99,14 +100,19 @@ class Releveller:
     trusted, nor what the accelerometer bias learnt from them. Once the IMU shows the vehicle
     at rest for ``window_s`` (body rate under ``gyro_max_rad_s``, specific force within
     ``accel_tol_m_s2`` of gravity), :meth:`update` returns the mean specific force to
-    re-level on, as the ground alignment does, with the bias from before the clipping."""
+    re-level on, as the ground alignment does, with the bias from before the clipping, and
+    ``p_rest``, the position when the rest began: the vehicle has not moved since, so what the
+    position moved meanwhile is the velocity error the clipping left, to be undone. The window
+    is short (0.2 s, 20 filter steps at 100 Hz): until the re-levelling the tilt and that
+    velocity error stay (issue 21: a second at more than 1 degree with 1 s)."""
 
-    window_s: float = 1.0
+    window_s: float = 0.2
     gyro_max_rad_s: float = 0.1
     accel_tol_m_s2: float = 0.5
     pending: bool = False
     bias_before: NDArray[np.float64] = field(default_factory=lambda: np.zeros(3))
     bias_var_before: NDArray[np.float64] = field(default_factory=lambda: np.zeros(3))
+    p_rest: NDArray[np.float64] = field(default_factory=lambda: np.zeros(3))
     _still_s: float = 0.0
     _sum: NDArray[np.float64] = field(default_factory=lambda: np.zeros(3))
     _n: int = 0
@@ -121,8 +127,14 @@ class Releveller:
         self._still_s, self._sum, self._n = 0.0, np.zeros(3), 0
 
     def update(
-        self, gyro: NDArray[np.float64], accel: NDArray[np.float64], dt_s: float, g: float
+        self,
+        gyro: NDArray[np.float64],
+        accel: NDArray[np.float64],
+        dt_s: float,
+        g: float,
+        p: NDArray[np.float64],
     ) -> NDArray[np.float64] | None:
+        """One IMU sample (bias-free rate, raw specific force) and the position after it."""
         if not self.pending:
             return None
         still = (
@@ -132,6 +144,8 @@ class Releveller:
         if not still:
             self._still_s, self._sum, self._n = 0.0, np.zeros(3), 0
             return None
+        if self._n == 0:
+            self.p_rest = p.copy()
         self._still_s += dt_s
         self._sum += accel
         self._n += 1

@@ -557,7 +557,9 @@ class NavEkf:
         if self.releveller is not None:
             if clipped:
                 self.releveller.on_clip(self.ba, np.diag(P)[_BA].copy())
-            f_rest = self.releveller.update(w, imu.accel_m_s2, dt_s, self.config.gravity_m_s2)
+            f_rest = self.releveller.update(
+                w, imu.accel_m_s2, dt_s, self.config.gravity_m_s2, self.p
+            )
             if f_rest is not None:
                 self._relevel(imu.t_ns, f_rest, self.releveller)
         if self.baro_bias is not None:
@@ -565,11 +567,14 @@ class NavEkf:
 
     def _relevel(self, t_ns: int, f_mean: FloatArray, rl: Releveller) -> None:
         """Roll and pitch from the mean specific force at rest (less the bias from before the
-        clipping), the heading kept; velocity zero; the bias back; their covariances reset."""
+        clipping), the heading kept; velocity zero; the bias back; their covariances reset; the
+        position back to where the rest began (what it moved since was velocity error)."""
         f = f_mean - rl.bias_before
         roll, pitch = math.atan2(f[1], f[2]), math.atan2(-f[0], math.hypot(f[1], f[2]))
         R_new = Rotation.from_euler("ZYX", [yaw_of(self.R), pitch, roll]).as_matrix()
-        moved_deg = math.degrees(math.acos(min(1.0, float(self.R[:, 2] @ R_new[:, 2]))))
+        # how far gravity's direction in the body moved (not the body's z axis in the world,
+        # which also turns with the heading kept at a large tilt)
+        moved_deg = math.degrees(math.acos(min(1.0, float(self.R[2, :] @ R_new[2, :]))))
         j = yaw_jacobian(self.R)
         var_yaw = float(j @ self._P[_ATT, _ATT] @ j)
         P = self._P
@@ -579,11 +584,14 @@ class NavEkf:
         P[_ATT, _ATT] = R_new.T @ np.diag([0.02**2, 0.02**2, var_yaw]) @ R_new  # world tilt, yaw
         P[_VEL, _VEL] = np.eye(3) * 0.1**2
         P[_BA, _BA] = np.diag(rl.bias_var_before)
+        back_m = float(np.linalg.norm(self.p - rl.p_rest))
         self.R, self.v, self.ba = R_new, np.zeros(3), rl.bias_before.copy()
+        self.p = rl.p_rest.copy()
         self.events.append(
             (
                 t_ns,
-                f"re-levelled at rest after accelerometer clipping: tilt moved {moved_deg:.1f} deg, velocity zeroed",
+                f"re-levelled at rest after accelerometer clipping: tilt moved {moved_deg:.1f} deg, "
+                f"velocity zeroed, position moved back {back_m:.2f} m to where the rest began",
             )
         )
 

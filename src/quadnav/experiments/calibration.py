@@ -3,7 +3,8 @@ behind ``quadnav calibrate``, which only parses its options and prints the resul
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import dataclasses
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -20,7 +21,8 @@ Progress = Callable[[int, int, str], None]
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class SourceCalibration:
-    """A source's calibration, the frames read from it and those that could not be decoded."""
+    """A source's calibration (its views keyed by the source's frame numbers), the frames read
+    from it and those that could not be decoded."""
 
     calibration: Calibration
     frames_read: int
@@ -28,42 +30,71 @@ class SourceCalibration:
 
 
 def calibrate_source(
-    source: str,
+    source: str | Sequence[str],
     spec: CharucoSpec,
     *,
     every: int = 1,
     max_views: int = 60,
     progress: Progress | None = None,
 ) -> SourceCalibration:
-    """Detect the board in every ``every``-th frame of ``source`` and calibrate from the views
-    with the most corners (at most ``max_views``)."""
+    """Detect the board in every ``every``-th frame of ``source`` (a folder of images, a video,
+    an image, or several of them, their frames numbered on from one to the next) and calibrate
+    from the views with the most corners (at most ``max_views``); refused as
+    :func:`calibrate_charuco` refuses, the source named."""
+    sources = [source] if isinstance(source, str) else list(source)
+    if not sources:
+        raise ConfigError("no source: give a folder of images, a video or image files")
+    name = sources[0] if len(sources) == 1 else f"{sources[0]} (and {len(sources) - 1} more)"
     target = CharucoTarget(spec)
-    frames = open_frames(source)
+    views, size, unreadable, n = _detect_views(sources, target, every, progress)
+    if size is None:
+        raise ConfigError(f"{name}: no readable image")
+    views.sort(key=lambda v: -len(v[1].corner_ids))
+    chosen = sorted(views[:max_views], key=lambda v: v[0])
+    try:
+        cal = calibrate_charuco([d for _, d in chosen], target, size)
+    except VisionError as exc:
+        raise VisionError(f"{name}: {exc}") from None
+    frame = [index for index, _ in chosen]  # view k of the calibration is frame[k]
+    cal = dataclasses.replace(
+        cal,
+        per_view_rms_px={frame[k]: e for k, e in cal.per_view_rms_px.items()},
+        rejected={frame[k]: why for k, why in cal.rejected.items()},
+    )
+    return SourceCalibration(calibration=cal, frames_read=n, unreadable=tuple(unreadable))
+
+
+def _detect_views(
+    sources: list[str], target: CharucoTarget, every: int, progress: Progress | None
+) -> tuple[list[tuple[int, CharucoDetections]], tuple[int, int] | None, list[str], int]:
+    """The board's detections in every ``every``-th frame (numbered across the sources), the
+    image size (the first readable frame's; frames of another size are set aside), the frames
+    that could not be used and the number of frames read."""
     views: list[tuple[int, CharucoDetections]] = []
     size: tuple[int, int] | None = None
     unreadable: list[str] = []
     n = 0
-    for fr in frames:
-        n += 1
-        if fr.index % every:
-            continue
-        if fr.image is None:
-            unreadable.append(f"frame {fr.index}: {fr.error}")
-            continue
-        if size is None:
-            size = (fr.image.shape[1], fr.image.shape[0])  # the source skips other sizes
-        views.append((fr.index, target.detect(fr.image)))
-        if progress is not None:
-            progress(fr.index + 1, frames.total or 0, f"{len(views)} views")
-    if size is None:
-        raise ConfigError(f"{source}: no readable image")
-    views.sort(key=lambda v: -len(v[1].corner_ids))
-    chosen = sorted(views[:max_views])
-    try:
-        cal = calibrate_charuco([d for _, d in chosen], target, size)
-    except VisionError as exc:
-        raise VisionError(f"{source}: {exc}") from None
-    return SourceCalibration(calibration=cal, frames_read=n, unreadable=tuple(unreadable))
+    for source in sources:
+        frames = open_frames(source)
+        first = n
+        for fr in frames:
+            n += 1
+            k = first + fr.index
+            if k % every:
+                continue
+            if fr.image is None:
+                unreadable.append(f"frame {k}: {fr.error}")
+                continue
+            shape = (fr.image.shape[1], fr.image.shape[0])
+            size = size or shape
+            if shape != size:
+                other = f"{shape[0]}x{shape[1]}, not {size[0]}x{size[1]}"
+                unreadable.append(f"frame {k} of {source}: {other}")
+                continue
+            views.append((k, target.detect(fr.image)))
+            if progress is not None:
+                progress(k + 1, first + (frames.total or 0), f"{len(views)} views")
+    return views, size, unreadable, n
 
 
 def write_source_calibration(path: Path, result: SourceCalibration) -> None:

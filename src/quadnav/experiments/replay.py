@@ -135,7 +135,7 @@ class ReplayConfig(ConfigModel):
         0.5, gt=0, description="decay of those peak detectors (EKF2_ABL_TAU)"
     )
     relevel_at_rest_s: float | None = Field(
-        1.0,
+        0.2,
         gt=0,
         description="after accelerometer clipping, re-level once the IMU shows rest this long; null: never",
     )

@@ -29,7 +29,8 @@ Span = tuple[float, float]
 class Comparison:
     """Differences of an estimate from a reference over the spans PX4 called valid. Each
     ``*_spans_s`` lists the compared (start, end) spans in seconds from the log's start;
-    ``not_compared_s`` the (quantity, start, end) spans of the estimate that were left out."""
+    ``not_compared_s`` the (quantity, start, end) spans of the estimate that were left out,
+    those of some duration (a single sample left out is counted in ``n_*``, not listed)."""
 
     n: int
     n_horizontal: int
@@ -99,7 +100,9 @@ def compare(
     for name, mask in (("horizontal", xy), ("vertical", z), ("attitude", att)):
         full = np.zeros(len(est.t_ns), bool)
         full[np.flatnonzero(paired)] = mask
-        not_compared += [(name, a, b) for a, b in spans_s(est.t_ns, ~full, t0_ns)]
+        # a single sample left out (a flag that flickers for one message, the estimate's last
+        # sample past the reference's end) is a span of no duration: not a span
+        not_compared += [(name, a, b) for a, b in spans_s(est.t_ns, ~full, t0_ns) if b > a]
     return Comparison(
         n=len(t),
         n_horizontal=int(xy.sum()),

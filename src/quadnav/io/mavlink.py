@@ -52,8 +52,10 @@ __all__ = [
     "covariance_ned_to_enu",
     "decode_odometry",
     "decode_vehicle_command",
+    "describe_traffic",
     "parse_url",
     "read_signing_key",
+    "signing_key_file_warning",
     "upper_triangle",
     "velocity_covariance_enu_to_frd",
 ]
@@ -62,42 +64,60 @@ FloatArray = NDArray[np.float64]
 _M = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])  # ENU <-> NED (its own inverse)
 
 
-def parse_url(url: str) -> str:
-    """pymavlink's connection string for ``url`` (``serial:/dev/x:baud`` -> ``/dev/x,baud``)."""
-    if url.startswith("serial:"):
-        rest = url[len("serial:") :]
-        dev, _, baud = rest.rpartition(":")
-        if not dev or not baud.isdigit():
-            raise IoError(f"MAVLink URL {url!r}: expected serial:/dev/DEVICE:BAUD")
-        return f"{dev},{baud}"
-    if url.startswith(("udpin:", "udpout:", "udp:", "tcp:", "tcpin:")) or url.startswith("/dev/"):
-        return url
-    raise IoError(
-        f"MAVLink URL {url!r}: use udpin:HOST:PORT, udpout:HOST:PORT, tcp:HOST:PORT or serial:DEV:BAUD"
-    )
-
-
+NETWORK_SCHEMES = ("udpin:", "udpout:", "udp:", "tcpin:", "tcp:")
 LISTENERS = ("udpin:", "udp:", "tcpin:")  # the schemes that bind a local port
 SIGNING_KEY_ENV = "QUADNAV_SIGNING_KEY"
+_URL_FORMS = "udpin:HOST:PORT, udpout:HOST:PORT, tcp:HOST:PORT or serial:DEV:BAUD"
+
+
+def parse_url(url: str) -> str:
+    """pymavlink's connection string for ``url`` (``serial:/dev/x:baud`` -> ``/dev/x,baud``),
+    after checking it: the one place a ``--mavlink`` endpoint is parsed. A network URL needs a
+    port from 1 to 65535 (and a host, but for a listener, where none means every interface);
+    a serial one a device and a positive baud rate. A bad one is a one-line
+    :class:`~quadnav.errors.IoError` naming ``--mavlink``."""
+    if url.startswith("serial:"):
+        dev, _, baud = url[len("serial:") :].rpartition(":")
+        if not dev or not baud.isdigit() or int(baud) == 0:
+            raise IoError(f"--mavlink {url!r}: expected serial:/dev/DEVICE:BAUD, BAUD above 0")
+        return f"{dev},{baud}"
+    if url.startswith("/dev/"):
+        return url
+    scheme = next((s for s in NETWORK_SCHEMES if url.startswith(s)), None)
+    if scheme is None:
+        raise IoError(f"--mavlink {url!r}: use {_URL_FORMS}")
+    _host_port(url, scheme)
+    return url
+
+
+def _host_port(url: str, scheme: str) -> tuple[str, int]:
+    """The host and port of a network URL, the port from 1 to 65535."""
+    host, sep, port_s = url[len(scheme) :].rpartition(":")
+    form = f"expected {scheme}HOST:PORT, PORT from 1 to 65535"
+    if not sep or not port_s.isdigit() or ":" in host or (not host and scheme not in LISTENERS):
+        raise IoError(f"--mavlink {url!r}: {form}")
+    port = int(port_s)
+    if not 1 <= port <= 65535:
+        raise IoError(f"--mavlink {url!r}: port {port} is out of range; {form}")
+    return host, port
 
 
 def check_bind(url: str, *, allow_remote: bool) -> tuple[str, int] | None:
-    """The ``(host, port)`` a listening URL binds, after checking it: a port number, and a
-    loopback host unless ``allow_remote`` (an empty host or ``0.0.0.0`` is every interface).
-    ``None`` for a URL that does not listen. Nothing is bound here."""
+    """Check any endpoint (:func:`parse_url`); for a listening URL, the ``(host, port)`` it
+    binds, a loopback host unless ``allow_remote`` (an empty host or ``0.0.0.0`` is every
+    interface). ``None`` for a URL that does not listen. Nothing is bound here."""
+    parse_url(url)
     scheme = next((s for s in LISTENERS if url.startswith(s)), None)
     if scheme is None:
         return None
-    host, sep, port_s = url[len(scheme) :].rpartition(":")
-    if not sep or not port_s.isdigit() or int(port_s) > 65535 or ":" in host:
-        raise IoError(f"MAVLink URL {url!r}: expected {scheme}HOST:PORT, PORT from 0 to 65535")
+    host, port = _host_port(url, scheme)
     if not allow_remote and not _is_loopback(host, url):
         where = f"host {host!r}" if host else "an empty host (every interface)"
         raise IoError(
-            f"MAVLink URL {url!r}: {where} is not loopback, anyone on the network could "
+            f"--mavlink {url!r}: {where} is not loopback, anyone on the network could "
             "command the vehicle; bind 127.0.0.1, or pass --allow-remote to mean it"
         )
-    return host, int(port_s)
+    return host, port
 
 
 def _is_loopback(host: str, url: str) -> bool:
@@ -109,15 +129,13 @@ def _is_loopback(host: str, url: str) -> bool:
         try:
             infos = socket.getaddrinfo(host, None, socket.AF_INET)
         except OSError:
-            raise IoError(f"MAVLink URL {url!r}: cannot resolve host {host!r}") from None
+            raise IoError(f"--mavlink {url!r}: cannot resolve host {host!r}") from None
         return all(ipaddress.ip_address(str(i[4][0])).is_loopback for i in infos)
 
 
 def _check_port_free(host: str, port: int, url: str) -> None:
     """Refuse a UDP port another socket holds (pymavlink sets SO_REUSEADDR and would share it:
     two vehicles on one port each get some of the datagrams)."""
-    if port == 0:
-        return
     probe = socket.socket(
         socket.AF_INET, socket.SOCK_DGRAM
     )  # no SO_REUSEADDR: any holder conflicts
@@ -156,6 +174,22 @@ def read_signing_key(
     if SIGNING_KEY_ENV in environ:
         return _key_from_hex(environ[SIGNING_KEY_ENV], SIGNING_KEY_ENV)
     return None
+
+
+def signing_key_file_warning(key_file: Path) -> str | None:
+    """As ssh does for a private key: a one-line warning when the signing key file may be read
+    or written by other users (any group or other permission bit), naming the file and its
+    mode; ``None`` for a file only its owner can use."""
+    try:
+        mode = key_file.stat().st_mode & 0o777
+    except OSError:
+        return None  # reading it fails with its own message
+    if not mode & 0o077:
+        return None
+    return (
+        f"warning: UNPROTECTED KEY FILE: --signing-key-file {key_file} has mode {mode:04o}, "
+        f"other users may read the key that signs commands to the vehicle; chmod 600 {key_file}"
+    )
 
 
 def _key_from_hex(text: str, what: str) -> bytes:
@@ -382,10 +416,31 @@ class ReceivedState:
 
 @dataclass
 class LinkStats:
+    """What a link did: ``sent`` counts the messages written towards a peer (a UDP sender's
+    address, a serial port, a connected TCP client); ``unsent_no_peer`` a listener's messages
+    while no peer had spoken to it (written nowhere)."""
+
     sent: dict[str, int] = field(default_factory=dict)
     received: dict[str, int] = field(default_factory=dict)
     refused_unsigned: int = 0
     bad_packets: int = 0
+    unsent_no_peer: int = 0
+
+
+def describe_traffic(
+    sent: Mapping[str, int], received: Mapping[str, int], *, unsent_no_peer: int = 0
+) -> str:
+    """The terminal's words for a link's traffic, honest about UDP: a datagram "sent" to an
+    address nobody listens on is lost without a word, so a link that heard nothing back says
+    so ("sent 82 (no peer heard)"), and a listener's messages with no peer are not "sent"."""
+    n_sent, n_received = sum(sent.values()), sum(received.values())
+    text = f"sent {n_sent}"
+    if unsent_no_peer:
+        when = "no peer connected" if n_sent == 0 else "before a peer connected"
+        text += f" ({unsent_no_peer} not sent: {when})"
+    elif n_sent and not n_received:
+        text += " (no peer heard)"
+    return f"{text}, received {n_received}"
 
 
 class MavlinkLink:
@@ -431,7 +486,24 @@ class MavlinkLink:
         return frozenset()
 
     def _count(self, name: str) -> None:
-        self.stats.sent[name] = self.stats.sent.get(name, 0) + 1
+        if self._has_peer():
+            self.stats.sent[name] = self.stats.sent.get(name, 0) + 1
+        else:
+            self.stats.unsent_no_peer += 1
+
+    def _has_peer(self) -> bool:
+        """Whether a message written now goes anywhere: a listener writes only to its peers
+        (UDP) or its connected client (TCP); a sender and a serial port always write."""
+        if isinstance(self.conn, _peer_udp_class(self._mavutil)):
+            return bool(self.conn.clients)
+        if isinstance(self.conn, self._mavutil.mavtcpin):
+            return self.conn.port is not None
+        return True
+
+    def describe(self) -> str:
+        """:func:`describe_traffic` of this link's counts."""
+        s = self.stats
+        return describe_traffic(s.sent, s.received, unsent_no_peer=s.unsent_no_peer)
 
     def boot_ms(self) -> int:
         return int((time.monotonic() - self.t0) * 1e3)
