@@ -26,10 +26,21 @@ from __future__ import annotations
 import os
 import sys
 
+
+def _fail(message: str) -> None:
+    """A bad input: one line naming the option or path, exit code 2 (as the CLI does)."""
+    print(f"error: {message}", file=sys.stderr)
+    raise SystemExit(2)
+
+
 # Before numpy, OpenCV or GTSAM load: their thread pools see one core.
 _ARGS = sys.argv[1:]
-_CORE = int(_ARGS[_ARGS.index("--core") + 1]) if "--core" in _ARGS[:-1] else 0
-os.sched_setaffinity(0, {_CORE})
+_CORE_ARG = _ARGS[_ARGS.index("--core") + 1] if "--core" in _ARGS[:-1] else "0"
+try:
+    _CORE = int(_CORE_ARG)
+    os.sched_setaffinity(0, {_CORE})
+except (ValueError, OSError):
+    _fail(f"--core {_CORE_ARG}: not one of this machine's cores {sorted(os.sched_getaffinity(0))}")
 for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ[_v] = "1"
 
@@ -45,8 +56,10 @@ import cv2  # noqa: E402
 import gtsam  # noqa: E402
 import numpy as np  # noqa: E402
 
+from quadnav.errors import QuadnavError  # noqa: E402
 from quadnav.experiments.vio_run import resolve_dataset  # noqa: E402
 from quadnav.io.datasets import VisualInertialDataset, open_dataset  # noqa: E402
+from quadnav.io.run_folder import write_text  # noqa: E402
 from quadnav.messages import ImuSample  # noqa: E402
 from quadnav.vio import VioConfig, VioEstimator  # noqa: E402
 
@@ -134,7 +147,19 @@ def main() -> None:
     parser.add_argument("--core", type=int, default=0)
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results/vio.json"))
     args = parser.parse_args()
+    if args.dataset is not None and not args.dataset.exists():
+        _fail(f"DATASET {args.dataset}: no such file or folder")
+    for option, value in (("--frames", args.frames), ("--repeats", args.repeats)):
+        if value < 1:
+            _fail(f"{option} must be at least 1, got {value}")
     cv2.setNumThreads(1)
+    try:
+        _measure(args)
+    except QuadnavError as exc:
+        _fail(str(exc))
+
+
+def _measure(args: argparse.Namespace) -> None:
     if args.dataset is None:
         ds = resolve_dataset("room_easy", duration_s=10.0, cache_root=Path("benchmarks/results"))
     else:
@@ -159,8 +184,7 @@ def main() -> None:
     print(
         f"{'whole process (s)':<28}{process_s:>10.2f}   quadnav vio --no-video, start-up included"
     )
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps({
+    write_text(args.out, json.dumps({
         "benchmark": "vio", "python": platform.python_version(), "opencv": cv2.__version__,
         "gtsam": getattr(gtsam, "__version__", "?"), "core": args.core, "repeats": args.repeats,
         "dataset": str(ds.root), "resolution": [w, h], "span_s": span_s, "vio": vio,

@@ -3,9 +3,13 @@ tracks read any dataset; bad requests are one-line errors that leave no folder b
 
 from __future__ import annotations
 
+import errno
 import json
+import os
 from pathlib import Path
+from typing import Any
 
+import pytest
 from typer.testing import CliRunner, Result
 
 from quadnav.cli.main import app
@@ -51,10 +55,13 @@ def test_make_writes_a_readable_folder_and_prints_its_path_last(tmp_path: Path) 
 def test_make_refuses_bad_requests_in_one_line(tmp_path: Path) -> None:
     (tmp_path / "full").mkdir()
     (tmp_path / "full" / "x").write_text("x")
+    (tmp_path / "file").write_text("x")
     cases = [
         (["attic", "--out", str(tmp_path / "a")], "unknown sequence or world 'attic'"),
         (["room", "--rig", "kinect", "--out", str(tmp_path / "b")], "--rig: unknown rig 'kinect'"),
         (["room", "--out", str(tmp_path / "full")], "exists and is not empty"),
+        (["room", "--out", str(tmp_path / "file")], f"--out {tmp_path / 'file'}: is a file"),
+        (["room", "--out", str(tmp_path / "file" / "sub")], f"{tmp_path / 'file'}"),
         (["room", "--set", "lighting=7", "--out", str(tmp_path / "c")], "lighting"),
         (
             ["room", "--motion", "nowhere.txt", "--out", str(tmp_path / "d")],
@@ -63,7 +70,7 @@ def test_make_refuses_bad_requests_in_one_line(tmp_path: Path) -> None:
     ]
     for args, fragment in cases:
         one_line_error(runner.invoke(app, ["dataset", "make", *args]), fragment)
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["full"]  # nothing half-made
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["file", "full"]  # nothing half-made
 
 
 @needs(EUROC)
@@ -82,3 +89,35 @@ def test_tracks_on_the_real_euroc_frames_writes_its_statistics(tmp_path: Path) -
     one_line_error(
         runner.invoke(app, ["dataset", "tracks", str(EUROC), "--duration", "-1"]), "--duration"
     )
+
+
+def test_make_on_a_full_disk_is_one_line_naming_the_file(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Issue 21, item 8: the images' writes find the disk full; libpng's "Write Error" leaked."""
+    real = Path.write_bytes
+
+    def full(self: Path, data: Any) -> int:
+        if self.suffix == ".png":
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(self))
+        return real(self, data)
+
+    monkeypatch.setattr(Path, "write_bytes", full)
+    out = tmp_path / "room"
+    res = runner.invoke(app, ["dataset", "make", "room", "--duration", "1", "--out", str(out)])
+    one_line_error(res, "No space left on device")
+    assert f"cannot write {out}.partial/mav0/cam0/data/" in res.stderr
+    assert list(tmp_path.iterdir()) == []  # the partial folder removed
+
+
+def test_info_counts_bad_imu_rows_instead_of_refusing_the_dataset(tmp_path: Path) -> None:
+    """Issue 21, item 7: one out-of-order IMU row refused the whole dataset."""
+    from tests.io.test_datasets_euroc import _edit, _tiny
+
+    root = _tiny(tmp_path / "seq")
+    imu = root / "mav0" / "imu0" / "data.csv"
+    _edit(imu, 8, imu.read_text().splitlines()[2])  # back to line 3's stamp
+    res = runner.invoke(app, ["dataset", "info", str(root)])
+    assert res.exit_code == 0, res.output
+    assert "49 samples at 200 Hz" in res.stdout
+    assert "rejected 1 IMU rows out of order" in " ".join(res.stdout.split())

@@ -4,6 +4,7 @@ parses and validates (issue 12, item 23)."""
 from __future__ import annotations
 
 import importlib
+import re
 import shlex
 from pathlib import Path
 from typing import Any
@@ -62,6 +63,26 @@ def test_every_example_parses_and_validates(
     cmd = _command(path)
     ctx = cmd.make_context(" ".join(path), argv[1 + len(path) :])  # a bad option raises here
     importlib.import_module(COMMANDS[path]).check_example(ctx.params)
+
+
+@pytest.mark.parametrize("path", list(COMMANDS), ids=" ".join)
+def test_the_set_options_own_example_names_a_real_key(
+    path: tuple[str, ...], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Issue 21, item 14: ``vio --help`` offered ``--set gps.delay_s=0.5``, a key of the
+    navigation filter's. An example in the help of ``--set`` itself is validated as the
+    command's examples are: after the command's first example."""
+    cmd = _command(path)
+    helps = [p.help or "" for p in cmd.params if "--set" in getattr(p, "opts", ())]
+    shown = [m for h in helps for m in re.findall(r"e\.g\. (--set \S+)", h)]
+    if not shown:
+        pytest.skip("its --set help names no key")
+    monkeypatch.chdir(ROOT)
+    module = importlib.import_module(COMMANDS[path])
+    argv = shlex.split(module.EXAMPLES[0])[1 + len(path) :] + shlex.split(shown[0])
+    if any("../shared/data" in a for a in argv) and not SHARED.is_dir():
+        pytest.skip(f"shared test data not found at {SHARED}")
+    module.check_example(cmd.make_context(" ".join(path), argv).params)
 
 
 def test_every_command_has_examples() -> None:

@@ -99,6 +99,30 @@ def test_final_drift_aligns_a_start_at_rest() -> None:
     assert drift_final_pct(truth, est, first_s=2.0) == pytest.approx(0.0, abs=1e-9)
 
 
+@pytest.mark.parametrize("distance_m", [0.00003, 0.014, 0.99])
+def test_no_drift_in_percent_under_a_metre_travelled(distance_m: float) -> None:
+    """Issue 21, item 14: 297.94 % for a 0.03 mm path, 67 % for 1.4 cm at rest."""
+    truth = _straight(seconds=10.0, speed_m_s=distance_m / 10.0)
+    p = truth.p_W_B.copy()
+    p[:, 1] += 0.001 * truth.t_s  # 1 cm off at the end
+    m = vio_metrics(
+        truth, Trajectory(t_ns=truth.t_ns, p_W_B=p, q_W_B_xyzw=truth.q_W_B_xyzw), COUNTS
+    )
+    assert is_na(m.drift_final_pct) and "1 m" in str(m.drift_final_pct)
+    assert m.final_error_m == pytest.approx(0.01 - 0.001 * 1.0, abs=1e-3)  # still given, in m
+    assert "n/a under 1 m travelled" in m.drift_definitions
+
+
+def test_drift_in_percent_from_a_metre_travelled() -> None:
+    truth = _straight(seconds=10.0, speed_m_s=0.11)  # 1.1 m
+    p = truth.p_W_B.copy()
+    p[-1, 1] += 0.022
+    m = vio_metrics(
+        truth, Trajectory(t_ns=truth.t_ns, p_W_B=p, q_W_B_xyzw=truth.q_W_B_xyzw), COUNTS
+    )
+    assert m.drift_final_pct == pytest.approx(2.0, abs=1e-6)
+
+
 def test_rpe_drift_of_a_scale_error() -> None:
     """2 % too long a path: every 1 m of truth is 1.02 m estimated, 2 % of RPE drift."""
     truth = _straight(seconds=10.0)

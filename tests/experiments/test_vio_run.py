@@ -4,7 +4,10 @@ of the covariance it reports)."""
 
 from __future__ import annotations
 
+import errno
 import json
+import os
+import re
 import shutil
 from pathlib import Path
 
@@ -17,6 +20,7 @@ from quadnav.config_model import ConfigModel
 from quadnav.errors import ConfigError, IoError
 from quadnav.eval.na import is_na
 from quadnav.eval.vio_metrics import ApeSummary, NeesSummary
+from quadnav.experiments.seeds import parse_seeds
 from quadnav.experiments.vio_run import (
     VioRun,
     VioRunOptions,
@@ -25,7 +29,7 @@ from quadnav.experiments.vio_run import (
     resolve_vio_config,
     run_vio,
 )
-from quadnav.experiments.vio_study import group_of, parse_seeds, run_vio_study
+from quadnav.experiments.vio_study import group_of, run_vio_study
 from quadnav.io.datasets import VisualInertialDataset, open_dataset
 from quadnav.io.run_folder import read_run_status, run_guard
 from quadnav.io.trajectory_io import read_tum
@@ -97,6 +101,20 @@ def test_run_folder_holds_every_output_and_is_complete(made: Path, tmp_path: Pat
     video.release()
 
 
+def test_the_report_rounds_its_numbers_and_the_json_keeps_them(made: Path, tmp_path: Path) -> None:
+    """Issue 21, item 14: the report printed metrics with 15 digits."""
+    ds = open_dataset(made)
+    run = _run(ds, tmp_path, _double(ds), video=False)
+    html = (run.run_dir / "report.html").read_text()
+    metrics = html.split("<h2>Metrics</h2>")[1].split("<h2>Events</h2>")[0]
+    cells = re.findall(r"<td>([^<]*)</td>", metrics)
+    numbers = [x for c in cells for x in re.findall(r"\d+\.\d+(?:e-?\d+)?", c)]
+    assert numbers and all(len(re.sub(r"\D|e.*", "", x).lstrip("0")) <= 4 for x in numbers), numbers
+    saved = json.loads((run.run_dir / "metrics.json").read_text())
+    assert isinstance(run.metrics.ape_4dof, ApeSummary)
+    assert saved["ape_4dof"]["median_m"] == run.metrics.ape_4dof.median_m  # every digit
+
+
 def test_start_and_duration_choose_the_span(made: Path, tmp_path: Path) -> None:
     ds = open_dataset(made)
     run = _run(
@@ -157,6 +175,23 @@ def test_interrupted_run_is_not_marked_complete(made: Path, tmp_path: Path) -> N
     (run_dir,) = [p for p in tmp_path.iterdir() if p.is_dir()]
     assert read_run_status(run_dir) == "interrupted"
     assert len(read_tum(run_dir / "estimate.tum")) == 20  # what was estimated is kept
+
+
+def test_a_plot_on_a_full_disk_is_one_error_and_the_run_failed(
+    made: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Issue 21, item 8: matplotlib's (PIL's) OSError escaped as a traceback."""
+    from matplotlib.figure import Figure
+
+    def full(self: Figure, *a: object, **kw: object) -> None:
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    monkeypatch.setattr(Figure, "savefig", full)
+    ds = open_dataset(made)
+    with pytest.raises(IoError, match=r"cannot write .*plots: No space left on device"):
+        _run(ds, tmp_path, _double(ds), video=False)
+    (run_dir,) = [p for p in tmp_path.iterdir() if p.is_dir()]
+    assert read_run_status(run_dir) == "failed"
 
 
 def test_a_built_in_sequence_is_made_once_per_seed(made: Path) -> None:
@@ -320,3 +355,29 @@ def test_the_run_spans_the_images_with_a_second_of_imu_before(tmp_path: Path) ->
     assert run.metrics.frames == len(frames)
     gt = read_tum(run.run_dir / "groundtruth.tum")
     assert gt.t_ns[0] >= frames[0].t_ns and gt.t_ns[-1] <= frames[-1].t_ns
+
+
+@needs(EUROC_MICRO)
+def test_only_the_used_cameras_rejected_images_are_noted(tmp_path: Path) -> None:
+    """Issue 21, item 14: euroc_micro lacks 4 images of cam1; a run on cam0 noted them."""
+    ds = open_dataset(EUROC_MICRO)
+    assert ds.issues.counts == {"missing images": 4}
+    run = _run(ds, tmp_path, _double(ds, init_after_s=0.0), video=False)
+    assert not any("missing images" in n for n in run.notes)
+    saved = json.loads((run.run_dir / "metrics.json").read_text())
+    assert not any("missing images" in n for n in saved["notes"])
+
+
+def test_bad_imu_rows_are_noted_and_the_run_goes_on(made: Path, tmp_path: Path) -> None:
+    """Issue 21, item 7: one bad IMU row refused the whole dataset."""
+    root = _copy(made, tmp_path)
+    imu = root / "mav0" / "imu0" / "data.csv"
+    lines = imu.read_text().splitlines()
+    lines[100] = lines[99]  # a repeated row
+    lines[200] = "not,a,row"
+    imu.write_text("\n".join(lines) + "\n")
+    ds = open_dataset(root)
+    run = _run(ds, tmp_path / "runs", _double(ds, init_after_s=0.0), video=False)
+    assert read_run_status(run.run_dir) == "complete"
+    (note,) = run.notes
+    assert "1 IMU rows repeated" in note and "1 IMU rows unreadable" in note

@@ -220,23 +220,71 @@ def test_malformed_sensor_yaml(tmp_path: Path, key: str, new: str | None, expect
     assert "sensor.yaml" in msg and expected in msg
 
 
-def test_csv_rows_too_few_columns_out_of_order_repeated(tmp_path: Path) -> None:
+IMU0 = 1_000_000_000  # the first IMU stamp of _tiny; its rows 5 ms apart, row r on line r + 2
+
+
+def test_bad_imu_rows_are_rejected_and_counted(tmp_path: Path) -> None:
+    """Issue 21, item 7: one bad row refused the whole dataset. Each kind of damage costs its
+    own row, a stamp far in the future included, and is counted."""
     root = _tiny(tmp_path / "seq")
     imu = root / "mav0" / "imu0" / "data.csv"
-    good = imu.read_text()
-    _edit(imu, 4, "1000010000000,0.1,0.2")
-    assert _error(root).endswith("imu0/data.csv:4: expected 7 columns, got 3")
-    imu.write_text(good)
-    rows = good.splitlines()
-    _edit(imu, 4, rows[2])  # line 4 repeats line 3
-    assert _error(root).endswith("imu0/data.csv:4: timestamp 1005000000 repeats")
-    imu.write_text(good)
-    _edit(imu, 4, rows[1])  # line 4 goes back to line 2's stamp
-    assert "imu0/data.csv:4: timestamp 1000000000 goes back in time" in _error(root)
-    imu.write_text(good)
+    rows = imu.read_text().splitlines()
+    _edit(imu, 4, f"{IMU0 + 10_000_000},0.1,0.2")  # too few columns
+    _edit(imu, 6, rows[4])  # line 6 repeats line 5
+    _edit(imu, 8, rows[2])  # line 8 goes back to line 3's stamp
+    _edit(imu, 10, "12x4,0,0,0,0,0,9.81")  # not integer nanoseconds
+    _edit(imu, 12, f"{IMU0 + 10**12},0,0,0,0,0,9.81")  # 1000 s ahead of its neighbours
+    ds = open_dataset(root)
+    assert ds.issues.counts == {
+        "IMU rows unreadable": 2, "IMU rows repeated": 1, "IMU rows out of order": 2,
+    }  # fmt: skip
+    assert ds.issues.named[0] == "imu0/data.csv:4: IMU rows unreadable"
+    lost = {IMU0 + 5_000_000 * r for r in (2, 4, 6, 8, 10)}  # rows of lines 4, 6, 8, 10, 12
+    assert ds.imu.t_ns.tolist() == [
+        IMU0 + 5_000_000 * r for r in range(50) if IMU0 + 5_000_000 * r not in lost
+    ]
+    assert "rejected" in repr(ds) and "IMU rows out of order" in ds.issues.summary()
+
+
+@pytest.mark.parametrize(
+    ("stamps", "faults"),
+    [
+        ([1, 2, 3], [0, 0, 0]),
+        ([1, 2, 2, 3], [0, 0, 1, 0]),  # the repeat is the second
+        ([1, 2, 9, 3, 4], [0, 0, 2, 0, 0]),  # a jump ahead costs itself, not the rest
+        ([9, 1, 2], [2, 0, 0]),  # even as the first row
+        ([1, 3, 0, 4], [0, 0, 2, 0]),  # a step back before the last kept row
+        ([1, 2, 3, 3, 3, 1, 4], [0, 0, 0, 1, 1, 2, 0]),
+    ],
+)
+def test_order_faults_cost_one_row_per_bad_row(stamps: list[int], faults: list[int]) -> None:
+    from quadnav.io.datasets.types import order_faults
+
+    assert order_faults(np.array(stamps, dtype=np.int64)).tolist() == faults
+
+
+def test_bad_image_rows_are_rejected_and_counted_as_the_cameras(tmp_path: Path) -> None:
+    root = _tiny(tmp_path / "seq")
     cams = root / "mav0" / "cam0" / "data.csv"
+    rows = cams.read_text().splitlines()
     _edit(cams, 3, "12x4,foo.png")
-    assert "cam0/data.csv:3: timestamp must be integer nanoseconds" in _error(root)
+    _edit(cams, 5, rows[3])  # repeats line 4
+    ds = open_dataset(root)
+    assert ds.issues.counts == {"image rows unreadable": 1, "image rows repeated": 1}
+    assert ds.issues.camera_counts == {"cam0": ds.issues.counts}
+    assert len(ds.frames) == 5 - 2
+    assert not ds.issues.for_cameras(["cam1"]) and ds.issues.for_cameras(["cam0"]) == ds.issues
+
+
+def test_without_an_issue_log_a_bad_row_is_a_one_line_error(tmp_path: Path) -> None:
+    from quadnav.io.datasets.files import read_table
+
+    root = _tiny(tmp_path / "seq")
+    imu = root / "mav0" / "imu0" / "data.csv"
+    rows = imu.read_text().splitlines()
+    _edit(imu, 4, rows[2])
+    with pytest.raises(IoError, match=r"imu0/data.csv:4: timestamp 1005000000 repeats"):
+        read_table(imu, 6, None, "IMU rows")
 
 
 def test_nan_imu_rows_are_rejected_and_counted(tmp_path: Path) -> None:
@@ -247,7 +295,7 @@ def test_nan_imu_rows_are_rejected_and_counted(tmp_path: Path) -> None:
     ds = open_dataset(root)
     assert len(ds.imu) == 50 - 2 and 1015000000 not in ds.imu.t_ns
     assert ds.issues.counts == {"IMU rows with a NaN": 2}
-    assert ds.issues.named[0] == "data.csv:5: IMU rows with a NaN"
+    assert ds.issues.named[0] == "imu0/data.csv:5: IMU rows with a NaN"
 
 
 def test_missing_and_corrupt_images(tmp_path: Path) -> None:

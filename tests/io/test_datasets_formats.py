@@ -151,6 +151,25 @@ Tr: 4.276802385584e-04 -9.999672484946e-01 -8.084491683471e-03 -1.198459927713e-
 KITTI_TIMES = [0.0, 0.1036610, 0.2073220, 0.3109820, 0.4146430]
 
 
+def test_tumvi_bad_imu_and_mocap_rows_are_rejected_and_counted(tmp_path: Path) -> None:
+    """Issue 21, item 7: TUM-VI's IMU rows are read as EuRoC's; one bad row refused the folder."""
+    root = _tumvi(tmp_path / "dataset-corridor1_512_16")
+    imu = root / "mav0" / "imu0" / "data.csv"
+    rows = imu.read_text().splitlines()
+    rows[10] = rows[9]  # repeated
+    rows[20] = rows[20].replace(",", ";")  # one column
+    imu.write_text("\n".join(rows) + "\n")
+    mocap = root / "mav0" / "mocap0" / "data.csv"
+    rows = mocap.read_text().splitlines()
+    rows[5] = rows[2]  # back in time
+    mocap.write_text("\n".join(rows) + "\n")
+    ds = open_dataset(root)
+    assert len(ds.imu) == 60 - 2 and ds.groundtruth is not None and len(ds.groundtruth) == 30 - 1
+    assert ds.issues.counts == {
+        "IMU rows repeated": 1, "IMU rows unreadable": 1, "ground-truth rows out of order": 1,
+    }  # fmt: skip
+
+
 def _kitti(root: Path) -> Path:
     for cam in ("image_0", "image_1"):
         (root / cam).mkdir(parents=True)

@@ -276,3 +276,21 @@ def test_a_written_bag_names_its_storage_after_itself(tmp_path: Path) -> None:
     ]
     assert "flight.db3" in (tmp_path / "flight" / "metadata.yaml").read_text()
     assert not (tmp_path / "flight.partial").exists()
+
+
+def test_a_bags_repeated_and_out_of_order_imu_messages_are_rejected_and_counted(
+    tmp_path: Path,
+) -> None:
+    """Issue 21, item 7, in the bag reader: messages in the bag's order, as a csv's rows."""
+    from quadnav.io.datasets import Ros2BagWriter
+
+    rig = _rig("radtan", stereo=False)
+    stamps = [1_000, 2_000, 2_000, 3_000, 1_500, 4_000, 10**15, 5_000]
+    with Ros2BagWriter(tmp_path / "bag", rig) as w:
+        w.add_frame("cam0", 1_000, np.zeros((H, W), np.uint8))
+        for k, t in enumerate(stamps):  # received in this order, stamped out of it
+            msg = w.m.imu(t, np.zeros(3), np.zeros(3))
+            w._write("/imu0", "sensor_msgs/msg/Imu", 2_000 + k, msg)
+    ds = open_dataset(tmp_path / "bag")
+    assert ds.imu.t_ns.tolist() == [1_000, 2_000, 3_000, 4_000, 5_000]
+    assert ds.issues.counts == {"IMU messages repeated": 1, "IMU messages out of order": 2}

@@ -24,6 +24,7 @@ from quadnav.cli.common import (
 )
 from quadnav.errors import ConfigError
 from quadnav.experiments.datasets import SEQUENCES, SequenceSpec, make_dataset, sequence_spec
+from quadnav.io.run_folder import write_text
 
 if TYPE_CHECKING:
     from quadnav.io.datasets import VisualInertialDataset
@@ -93,6 +94,8 @@ def make_command(
     bag: Annotated[bool, typer.Option("--bag", help="also write a ROS 2 bag (out/bag)")] = False,
 ) -> None:
     spec = resolve_make(name, motion, rig, seed, duration_s, set_ or [])
+    if out.exists() and not out.is_dir():
+        raise ConfigError(f"--out {out}: is a file, not a folder")
     if out.exists() and any(out.iterdir()):
         raise ConfigError(f"--out {out}: the folder exists and is not empty")
     with progress_bar(f"dataset {name}") as update:
@@ -210,4 +213,4 @@ def tracks_command(
         table.add_row(k, v)
     console.print(table)
     if json_out is not None:
-        json_out.write_text(json.dumps(study.to_json(), indent=2) + "\n")
+        write_text(json_out, json.dumps(study.to_json(), indent=2) + "\n")

@@ -37,7 +37,7 @@ ConfigArg = Annotated[
 ]
 SetOpt = Annotated[
     list[str] | None,
-    typer.Option("--set", help="override one field, e.g. --set gps.delay_s=0.5 (repeatable)"),
+    typer.Option("--set", help="override one field of the configuration: key=value (repeatable)"),
 ]
 SeedsOpt = Annotated[
     int | None,

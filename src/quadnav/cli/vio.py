@@ -22,8 +22,9 @@ from quadnav.cli.common import (
     progress_bar,
     strings_param,
 )
-from quadnav.cli.planar import OutOpt, SetOpt
+from quadnav.cli.planar import OutOpt
 from quadnav.errors import ConfigError
+from quadnav.experiments.seeds import parse_seeds
 from quadnav.experiments.vio_run import (
     VioRequest,
     VioRun,
@@ -36,13 +37,21 @@ from quadnav.experiments.vio_study import (
     ROW_HEADER,
     VioStudy,
     group_cells,
-    parse_seeds,
     row_cells,
     row_of,
     run_vio_study,
 )
 
 __all__ = ["EXAMPLES", "check_example", "resolve_request", "vio_command"]
+
+
+#: ``--set`` of the VIO: its example is one of VioConfig's keys (the tests validate it).
+VioSetOpt = Annotated[
+    list[str] | None,
+    typer.Option(
+        "--set", help="override one VioConfig field, e.g. --set window_keyframes=8 (repeatable)"
+    ),
+]
 
 
 def resolve_request(
@@ -108,8 +117,14 @@ def _print_run(run: VioRun) -> None:
     table.add_row(*row_cells(row_of(run, run.dataset, None))[2:])
     console.print(table)
     m = run.metrics
-    if isinstance(m.ape_4dof, str) and m.ape_4dof.removeprefix("n/a: ") not in run.notes:
-        err_console.print(f"note: metrics {m.ape_4dof}", highlight=False)
+    said = set(run.notes)  # each reason a column is n/a, once (no ground truth: all of them)
+    for label, value in (
+        ("metrics", m.ape_4dof), ("drift final (%)", m.drift_final_pct),
+        ("drift RPE (%)", m.drift_rpe_pct), ("NEES/6", m.nees_pose),
+    ):  # fmt: skip
+        if isinstance(value, str) and value.removeprefix("n/a: ") not in said:
+            said.add(value.removeprefix("n/a: "))
+            err_console.print(f"note: {label} {value}", highlight=False, soft_wrap=True)
     for n in run.notes:
         err_console.print(f"note: {n}", highlight=False)
     console.print(str(run.run_dir), soft_wrap=True, highlight=False)
@@ -145,7 +160,7 @@ def vio_command(
         Path | None,
         typer.Option("--config", help="VINS-Mono's config YAML, or ours (VioConfig's fields)"),
     ] = None,
-    set_: SetOpt = None,
+    set_: VioSetOpt = None,
     calibration: Annotated[
         Path | None,
         typer.Option("--calibration", help="Kalibr camchain or EuRoC folder (a bag's rig)"),
@@ -193,7 +208,8 @@ vio_command.__doc__ = command_help(
     "DATASET is an EuRoC ASL or TUM-VI folder, a ROS 1/2 bag, or a built-in sequence, made "
     "once per --seed and --rig under OUT/datasets. Without --config the dataset's own "
     "calibration is used. Metrics against the ground truth: APE after a position + yaw "
-    "alignment (also SE(3) and Sim(3)), RPE, drift in % of the distance travelled, the "
+    "alignment (also SE(3) and Sim(3)), RPE, drift in % of the distance travelled (n/a "
+    "under 1 m travelled), the "
     "gravity error, the pose NEES. Several DATASETs or --seeds run a study with a summary.",
     examples=EXAMPLES,
 )

@@ -36,6 +36,7 @@ from quadnav.geometry.trajectory import Trajectory
 from quadnav.units import s_to_ns
 
 __all__ = [
+    "MIN_DRIFT_DISTANCE_M",
     "MIN_SCORED_POSES",
     "ApeSummary",
     "NeesSummary",
@@ -60,6 +61,9 @@ FloatArray = NDArray[np.float64]
 POSE_DOF = 6
 #: The fewest matched poses a run is scored on: an alignment of 2 or 3 poses fits them exactly.
 MIN_SCORED_POSES = 10
+#: The shortest path a drift in % of the distance travelled is given for: over millimetres (a
+#: vehicle at rest) any error is a huge percentage of nothing.
+MIN_DRIFT_DISTANCE_M = 1.0
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -163,10 +167,14 @@ def final_error_m(ref: Trajectory, est: Trajectory, *, first_s: float = 2.0) -> 
 
 
 def drift_final_pct(ref: Trajectory, est: Trajectory, *, first_s: float = 2.0) -> Metric:
-    """:func:`final_error_m` in % of the distance the reference travelled."""
+    """:func:`final_error_m` in % of the distance the reference travelled; ``n/a`` for a path
+    under :data:`MIN_DRIFT_DISTANCE_M`."""
     length = ref.path_length_m()
-    if length <= 0.0:
-        return na("the ground truth does not move")
+    if length < MIN_DRIFT_DISTANCE_M:
+        return na(
+            f"the ground truth travels {length:.2g} m, under the {MIN_DRIFT_DISTANCE_M:g} m a "
+            "drift in % of the distance needs"
+        )
     return 100.0 * final_error_m(ref, est, first_s=first_s) / length
 
 
@@ -259,7 +267,8 @@ def pose_nees_summary(values: FloatArray) -> NeesSummary:
 
 DRIFT_DEFINITIONS = (
     "final_error_m, drift_final_pct: the last pose's position error after a yaw + position alignment on the "
-    "first {first_s:g} s, in % of the distance travelled; drift_rpe_pct: mean translation RPE "
+    "first {first_s:g} s, in % of the distance travelled (n/a under {min_m:g} m travelled); "
+    "drift_rpe_pct: mean translation RPE "
     "over pairs {delta:g} m of path apart (evo's all pairs), in % of {delta:g} m"
 )
 
@@ -340,7 +349,9 @@ def vio_metrics(
         final_error_m=final_error_m(ref, est, first_s=drift_first_s),
         drift_final_pct=drift_final_pct(ref, est, first_s=drift_first_s),
         drift_rpe_pct=drift_rpe_pct(rpe_for_drift),
-        drift_definitions=DRIFT_DEFINITIONS.format(first_s=drift_first_s, delta=delta),
+        drift_definitions=DRIFT_DEFINITIONS.format(
+            first_s=drift_first_s, delta=delta, min_m=MIN_DRIFT_DISTANCE_M
+        ),
         gravity_error_deg=gravity_error_deg(est.R_W_B[0], ref.R_W_B[0]),
         nees_pose=_nees_or_na(ref, est, cov_pose),
     )  # fmt: skip

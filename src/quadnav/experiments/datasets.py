@@ -32,6 +32,7 @@ from quadnav.experiments.nav_channels import channel_rng
 from quadnav.geometry.rotations import Pose
 from quadnav.geometry.trajectory import Trajectory
 from quadnav.io.config import load_config
+from quadnav.io.run_folder import write_text
 from quadnav.io.trajectory_io import write_tum
 from quadnav.rig import CameraSpec, DepthSpec, Rig, rig_named
 from quadnav.sim.motion import SplineMotion, synthesize_imu
@@ -232,7 +233,7 @@ def _folder_size(root: Path) -> int:
 
 def _write_manifest(root: Path, spec: SequenceSpec, name: str, made: DatasetMade) -> None:
     doc = {"sequence": name, "spec": spec.model_dump(), "made": made.to_json()}
-    (root / "dataset.json").write_text(json.dumps(doc, indent=2) + "\n")
+    write_text(root / "dataset.json", json.dumps(doc, indent=2) + "\n")
 
 
 def _camera_times(t0_ns: int, t1_ns: int, cam: CameraSpec) -> NDArray[np.int64]:

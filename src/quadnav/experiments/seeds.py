@@ -1,4 +1,5 @@
-"""Running the seeds of a Monte Carlo study, in this process or in a pool of processes.
+"""The seeds of a Monte Carlo study: ``--seeds`` ranges parsed (bounded), and the seeds run in
+this process or in a pool of processes.
 
 Ctrl-C stops a study cleanly: the workers ignore the interrupt (no traceback from each of them),
 the parent terminates them, and every result delivered before the interrupt has already been
@@ -7,14 +8,50 @@ handed to the caller, who keeps it (an append-only ``seeds.jsonl`` in the run fo
 
 from __future__ import annotations
 
+import re
 import signal
 from collections.abc import Callable, Sequence
 from concurrent.futures import Future, ProcessPoolExecutor, as_completed
 from typing import Any, TypeVar
 
-__all__ = ["run_tasks"]
+from quadnav.errors import ConfigError
+
+__all__ = ["MAX_SEED", "MAX_SEEDS", "parse_seeds", "run_tasks"]
 
 T = TypeVar("T")
+
+#: The most seeds one ``--seeds`` may name (a study of more is not run from one command line).
+MAX_SEEDS = 10_000
+#: The largest seed (an unsigned 32-bit integer, what every generator takes).
+MAX_SEED = 2**32 - 1
+_PART = re.compile(r"\s*(\d+)\s*(?:-\s*(\d+)\s*)?")
+
+
+def parse_seeds(text: str, option: str = "--seeds") -> tuple[int, ...]:
+    """``--seeds``: ``0-4``, ``0,2,7`` or ``3``, each in ``[0, MAX_SEED]``, at most
+    ``MAX_SEEDS`` of them, none twice. The count is checked from the ranges' bounds before any
+    seed is listed, so ``0-100000000`` is refused at once, not after building it."""
+    shown = f"{option} {text if len(text) <= 40 else text[:37] + '...'!r}"
+    bounds: list[tuple[int, int]] = []
+    total = 0
+    for part in text.split(","):
+        m = _PART.fullmatch(part)
+        if m is None:
+            raise ConfigError(f"{shown}: give seeds as 0-4, 0,2,7 or 3")
+        ends = [g for g in m.groups() if g is not None]
+        if any(len(g) > len(str(MAX_SEED)) or int(g) > MAX_SEED for g in ends):
+            raise ConfigError(f"{shown}: a seed must be at most {MAX_SEED:,}")
+        lo, hi = int(ends[0]), int(ends[-1])
+        if hi < lo:
+            raise ConfigError(f"{shown}: the range {lo}-{hi} goes down")
+        total += hi - lo + 1
+        if total > MAX_SEEDS:
+            raise ConfigError(f"{shown}: at most {MAX_SEEDS:,} seeds in one study")
+        bounds.append((lo, hi))
+    seeds = [s for lo, hi in bounds for s in range(lo, hi + 1)]
+    if len(set(seeds)) != len(seeds):
+        raise ConfigError(f"{shown}: a seed is named twice")
+    return tuple(seeds)
 
 
 def _ignore_sigint() -> None:

@@ -26,7 +26,7 @@ from pydantic import BaseModel
 
 from quadnav.errors import ConfigError, EvalError, GeometryError, IoError, SampleError
 from quadnav.eval.associate import associate
-from quadnav.eval.na import Metric, na
+from quadnav.eval.na import Metric, fmt_metric, na
 from quadnav.eval.vio_metrics import RunCounts, VioMetrics, vio_metrics
 from quadnav.geometry.trajectory import Trajectory
 from quadnav.io.config import load_config
@@ -536,7 +536,8 @@ def _finish(
         _counts(rec, vio, span[0]), cov_pose=scored.matched_cov, drift_first_s=opt.drift_first_s,
         unscored=scored.note or "the dataset has no ground truth",
     )  # fmt: skip
-    notes = [n for n in (scored.note, dataset.issues.summary() if dataset.issues else "") if n]
+    issues = dataset.issues.for_cameras([opt.camera])  # not those of a camera left unused
+    notes = [n for n in (scored.note, issues.summary() if issues else "") if n]
     run = VioRun(
         run_dir=run_dir, dataset=dataset.name, camera=opt.camera, metrics=metrics,
         timing=_timing(vio, rec, wall_s), events=vio.events, notes=tuple(notes),
@@ -632,8 +633,11 @@ def _write_plots(
 
 
 def _metric_rows(m: VioMetrics) -> list[list[object]]:
-    def cell(v: object, key: str) -> object:
-        return getattr(v, key) if not isinstance(v, str) else v
+    """The report's metrics, numbers to 4 significant digits (``metrics.json`` keeps them all)."""
+
+    def cell(v: object, key: str | None = None) -> str:
+        value = getattr(v, key) if key is not None and not isinstance(v, str) else v
+        return fmt_metric(value, ".4g")
 
     return [
         ["APE 4-DoF RMSE (m)", cell(m.ape_4dof, "rmse_m")],
@@ -642,14 +646,14 @@ def _metric_rows(m: VioMetrics) -> list[list[object]]:
         ["APE Sim(3) RMSE (m), scale", f"{cell(m.ape_sim3, 'rmse_m')}, {cell(m.ape_sim3, 'scale')}"],
         ["RPE per 1 m: trans RMSE (m), rot RMSE (deg)", f"{cell(m.rpe_1m, 'trans_rmse_m')}, {cell(m.rpe_1m, 'rot_rmse_deg')}"],
         ["RPE per 10 m: trans RMSE (m), rot RMSE (deg)", f"{cell(m.rpe_10m, 'trans_rmse_m')}, {cell(m.rpe_10m, 'rot_rmse_deg')}"],
-        ["final position error (m)", m.final_error_m],
-        ["drift, final (%)", m.drift_final_pct],
-        ["drift, RPE (%)", m.drift_rpe_pct],
-        ["gravity error at the start (deg)", m.gravity_error_deg],
+        ["final position error (m)", cell(m.final_error_m)],
+        ["drift, final (%)", cell(m.drift_final_pct)],
+        ["drift, RPE (%)", cell(m.drift_rpe_pct)],
+        ["gravity error at the start (deg)", cell(m.gravity_error_deg)],
         ["pose NEES / 6 (1: consistent)", cell(m.nees_pose, "mean_over_dof")],
-        ["distance travelled (m)", m.distance_m],
+        ["distance travelled (m)", cell(m.distance_m)],
         ["frames with an estimate", f"{m.frames_with_estimate} of {m.frames} ({100 * m.fraction_with_estimate:.1f} %)"],
-        ["initialised after (s)", m.initialized_after_s],
+        ["initialised after (s)", cell(m.initialized_after_s)],
         ["failures, re-initialisations", f"{m.failures}, {m.reinitializations}"],
         ["rejected images", m.rejected_images],
     ]  # fmt: skip
@@ -662,7 +666,11 @@ def write_vio_outputs(
     """The plots and ``report.html`` of a finished run."""
     from quadnav.eval.report import ReportSection, ReportTable, write_report
 
-    images = _write_plots(run, ref, est_m, truth, est)
+    try:
+        images = _write_plots(run, ref, est_m, truth, est)
+    except OSError as exc:  # matplotlib and PIL raise it as it is (a full disk, say)
+        where = exc.filename or run.run_dir / "plots"
+        raise IoError(f"cannot write {where}: {exc.strerror or exc}") from None
     t = run.timing
     events = [
         [f"{ns_to_s(e.t_ns - (int(est.t_ns[0]) if len(est) else e.t_ns)):.2f}", e.kind, e.detail]
@@ -730,10 +738,13 @@ class VioRequest:
 
 
 def check_request(request: VioRequest) -> None:
-    """Refuse a bad configuration, ``--set`` or rig before any dataset is read or made."""
+    """Refuse a bad configuration, ``--set``, rig or ``--out`` before any dataset is read or
+    made."""
     from quadnav.rig import rig_named
     from quadnav.vio import VioConfig
 
+    if request.out.exists() and not request.out.is_dir():
+        raise ConfigError(f"--out {request.out}: is a file, not a folder")
     try:
         rig = rig_named(request.rig)
     except GeometryError as exc:

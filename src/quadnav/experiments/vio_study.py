@@ -17,8 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
-from quadnav.errors import ConfigError
 from quadnav.eval.na import Metric, fmt_metric, is_na
+from quadnav.eval.vio_metrics import MIN_DRIFT_DISTANCE_M
 from quadnav.experiments.vio_run import VioRun
 from quadnav.io.run_folder import append_jsonl, create_run_folder, write_json, write_text
 
@@ -30,7 +30,6 @@ __all__ = [
     "VioStudy",
     "group_cells",
     "group_of",
-    "parse_seeds",
     "row_cells",
     "row_of",
     "run_vio_study",
@@ -41,21 +40,6 @@ __all__ = [
 Progress = Callable[[int, int, str], None]
 #: One run: (dataset source, seed, the folder its run folder goes in) -> the finished run.
 RunOne = Callable[[str, int, Path], VioRun]
-
-
-def parse_seeds(text: str) -> tuple[int, ...]:
-    """``--seeds``: ``0-4``, ``0,2,7`` or ``3``, each >= 0."""
-    seeds: list[int] = []
-    for part in text.split(","):
-        m = re.fullmatch(r"\s*(\d+)\s*(?:-\s*(\d+)\s*)?", part)
-        if m is None or (m.group(2) is not None and int(m.group(2)) < int(m.group(1))):
-            raise ConfigError(f"--seeds {text!r}: give seeds as 0-4, 0,2,7 or 3")
-        lo = int(m.group(1))
-        hi = int(m.group(2)) if m.group(2) is not None else lo
-        seeds.extend(range(lo, hi + 1))
-    if len(set(seeds)) != len(seeds):
-        raise ConfigError(f"--seeds {text!r}: a seed is named twice")
-    return tuple(seeds)
 
 
 def group_of(source: str) -> str:
@@ -223,8 +207,9 @@ def summary_markdown(study: VioStudy) -> str:
         + "\n\n## Per run\n\n"
         + _md_table(ROW_HEADER, [row_cells(r) for r in study.rows])
         + "\n\nATE: APE translation RMSE after a position + yaw alignment. Drift final: the last"
-        " pose's error after aligning the first seconds, in % of the distance travelled; drift"
-        " RPE: mean RPE over 10 m (1 m on shorter paths) of path, in % of it.\n"
+        " pose's error after aligning the first seconds, in % of the distance travelled (n/a"
+        f" under {MIN_DRIFT_DISTANCE_M:g} m travelled); drift RPE: mean RPE over 10 m (1 m on"
+        " shorter paths, n/a under 2 m) of path, in % of it.\n"
     )
 
 

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import itertools
 import os
+import shutil
 import sys
 import time
 from collections.abc import Callable, Iterator
@@ -306,15 +307,31 @@ def quiet_libraries() -> Iterator[None]:
 
 
 class VideoOut:
-    """An MP4 (``mp4v``) writer that opens on the first frame."""
+    """An MP4 (``mp4v``) writer that opens on the first frame. OpenCV's FFmpeg writer tells no
+    caller that the disk is full (it prints a warning per frame and goes on), so a frame is
+    written only with room for it and a margin, or a one-line error naming the file."""
+
+    #: Free space kept beyond a raw frame's size (FFmpeg buffers, the index written at close).
+    MARGIN_BYTES = 1 << 20
 
     def __init__(self, path: Path, fps: float) -> None:
         self.path, self.fps = path, fps
         self._w: Any = None
         self.frames = 0
 
+    def _check_room(self, nbytes: int) -> None:
+        try:
+            free = shutil.disk_usage(self.path.parent).free
+        except OSError:
+            return  # the writer reports what it cannot open
+        if free < nbytes + self.MARGIN_BYTES:
+            raise IoError(
+                f"cannot write {self.path}: no space left on device ({free:,} bytes free)"
+            )
+
     def write(self, image: NDArray[np.uint8]) -> None:
         img = image if image.ndim == 3 else cv2.cvtColor(image, cv2.COLOR_GRAY2BGR)
+        self._check_room(img.nbytes)
         if self._w is None:
             h, w = img.shape[:2]
             self._w = cv2.VideoWriter(

@@ -78,7 +78,26 @@ def _write_status(run_dir: Path, status: RunStatus, reason: str = "") -> None:
     record = {"status": status, "updated": _now()}
     if reason:
         record["reason"] = reason
-    write_json(run_dir / STATUS_FILE, record)
+    path = run_dir / STATUS_FILE
+    try:
+        write_json(path, record)
+    except IoError:
+        if not _overwrite_in_place(path, record):
+            raise
+
+
+def _overwrite_in_place(path: Path, record: dict[str, str]) -> bool:
+    """Rewrite an existing status file where it lies, for a full disk: its first block is
+    already allocated, where the atomic write's new file needs one (the reason is shortened to
+    stay in it). True when it was written."""
+    short = {**record, "reason": record["reason"][:500]} if "reason" in record else record
+    try:
+        with path.open("r+b") as f:
+            f.write((json.dumps(short, indent=2) + "\n").encode())
+            f.truncate()
+    except OSError:
+        return False
+    return True
 
 
 def finish_run_folder(run_dir: Path, status: RunStatus = "complete", reason: str = "") -> None:

@@ -35,10 +35,13 @@ from quadnav.geometry.rotations import Pose
 from quadnav.io.datasets.files import rate_of_stamps, to_uint8
 from quadnav.io.datasets.kalibr import DISTORTION_NAMES
 from quadnav.io.datasets.types import (
+    IN_ORDER,
+    REPEATED,
     GroundTruth,
     ImuTable,
     IssueLog,
     VisualInertialDataset,
+    order_faults,
     sort_frames,
 )
 from quadnav.messages import ImageFrame
@@ -340,7 +343,7 @@ def read_bag_dataset(
         kind="bag",
         rig=rig,
         frames=sort_frames(frames, rig.camera_names),
-        imu=_imu_table(scan.imu),
+        imu=_imu_table(scan.imu, issues, imu or ""),
         groundtruth=_groundtruth(path, gt_topic),
         issues=issues.freeze(),
     )
@@ -364,10 +367,16 @@ def _groundtruth(path: Path, topic: str | None) -> GroundTruth | None:
     return GroundTruth(read_bag_trajectory(path, topic=topic), source=topic)
 
 
-def _imu_table(rows: list[tuple[int, list[float]]]) -> ImuTable:
+def _imu_table(rows: list[tuple[int, list[float]]], issues: IssueLog, topic: str) -> ImuTable:
+    """The IMU messages in the bag's order; those whose stamp repeats or goes out of order
+    rejected and counted, as the rows of a csv are."""
     if not rows:
         return ImuTable.empty()
-    rows = sorted(rows, key=lambda r: r[0])
     t = np.array([r[0] for r in rows], dtype=np.int64)
     v = np.array([r[1] for r in rows], dtype=np.float64)
-    return ImuTable(t, v[:, 0:3], v[:, 3:6])
+    faults = order_faults(t)
+    for i in np.flatnonzero(faults):
+        fault = "repeated" if faults[i] == REPEATED else "out of order"
+        issues.reject(f"IMU messages {fault}", f"{topic} at {int(t[i])}")
+    keep = faults == IN_ORDER
+    return ImuTable(t[keep], v[keep, 0:3], v[keep, 3:6])

@@ -117,7 +117,7 @@ def read_euroc_imu(folder: Path) -> ImuSpec:
 def camera_frames(folder: Path, issues: IssueLog) -> list[ImageFrame]:
     """The frames listed in ``folder/data.csv``, each loading ``folder/data/<file>`` on demand."""
     csv = folder / "data.csv"
-    lines, stamps, names = read_image_list(csv)
+    lines, stamps, names = read_image_list(csv, issues)
     data = folder / "data"
     present = set(os.listdir(data)) if data.is_dir() else set()
     if not present and names:
@@ -125,7 +125,8 @@ def camera_frames(folder: Path, issues: IssueLog) -> list[ImageFrame]:
     frames = []
     for line, t, name in zip(lines, stamps, names, strict=True):
         if name not in present:
-            issues.reject("missing images", f"{folder.name}/data.csv:{line} ({name})")
+            where = f"{folder.name}/data.csv:{line} ({name})"
+            issues.reject("missing images", where, camera=folder.name)
             continue
         file = str(data / name)
         frames.append(
@@ -140,8 +141,9 @@ def camera_frames(folder: Path, issues: IssueLog) -> list[ImageFrame]:
 
 
 def read_imu_rows(folder: Path, issues: IssueLog) -> ImuTable:
-    """``imu0/data.csv``: ``t_ns, w_x, w_y, w_z, a_x, a_y, a_z``; NaN rows rejected and counted."""
-    table = read_table(folder / "data.csv", 6, issues, "IMU rows with a NaN")
+    """``imu0/data.csv``: ``t_ns, w_x, w_y, w_z, a_x, a_y, a_z``; unreadable, NaN, repeated and
+    out-of-order rows rejected and counted (:func:`read_table`)."""
+    table = read_table(folder / "data.csv", 6, issues, "IMU rows")
     return ImuTable(table.t_ns, table.values[:, 0:3], table.values[:, 3:6])
 
 
@@ -173,7 +175,7 @@ def read_groundtruth(mav0: Path, issues: IssueLog) -> GroundTruth | None:
     else:
         return None
     n = {"state_groundtruth_estimate0": 16, "leica0": 3}.get(name, 7)
-    tab = read_table(folder / "data.csv", n, issues, "ground-truth rows with a NaN")
+    tab = read_table(folder / "data.csv", n, issues, "ground-truth rows")
     v = tab.values
     q = v[:, [4, 5, 6, 3]] if n >= 7 else np.tile([0.0, 0.0, 0.0, 1.0], (len(v), 1))
     try:

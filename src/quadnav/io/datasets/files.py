@@ -20,7 +20,7 @@ from numpy.typing import NDArray
 from quadnav.errors import GeometryError, IoError, SampleError
 from quadnav.geometry.rotations import Pose
 from quadnav.io.config import yaml_problem
-from quadnav.io.datasets.types import IssueLog, check_increasing
+from quadnav.io.datasets.types import IN_ORDER, REPEATED, IssueLog, order_faults
 from quadnav.units import NS_PER_S
 
 __all__ = [
@@ -146,12 +146,6 @@ def _data_rows(path: Path) -> list[tuple[int, list[str]]]:
     return rows
 
 
-def _stamp(token: str, path: Path, line: int) -> int:
-    if not _INT.fullmatch(token):
-        raise IoError(f"{path}:{line}: timestamp must be integer nanoseconds, got {token!r}")
-    return int(token)
-
-
 def _numbers(
     rows: list[tuple[int, list[str]]], n_values: int
 ) -> tuple[FloatArray, NDArray[np.bool_]]:
@@ -167,47 +161,84 @@ def _numbers(
     return vals, np.asarray(np.isfinite(vals).all(axis=1), dtype=np.bool_)
 
 
-def _stamps(rows: list[tuple[int, list[str]]], path: Path) -> NDArray[np.int64]:
-    tokens = [r[0] for _, r in rows]
-    if all(_INT.fullmatch(t) for t in tokens):
-        return np.array([int(t) for t in tokens], dtype=np.int64)
-    k = next(i for i, t in enumerate(tokens) if not _INT.fullmatch(t))
-    raise IoError(f"{path}:{rows[k][0]}: timestamp must be integer nanoseconds, got {tokens[k]!r}")
+class _Rejects:
+    """Where a reader's bad rows go: counted in ``issues`` as ``<what> <fault>``, or without
+    an issue log a one-line error naming the file and the line."""
+
+    def __init__(self, path: Path, issues: IssueLog | None, what: str, camera: str = "") -> None:
+        self.path, self.issues, self.what, self.camera = path, issues, what, camera
+
+    def reject(self, line: int, fault: str, detail: str) -> None:
+        if self.issues is None:
+            raise IoError(f"{self.path}:{line}: {detail}")
+        where = f"{self.path.parent.name}/{self.path.name}:{line}"
+        self.issues.reject(f"{self.what} {fault}", where, camera=self.camera)
+
+    def ordered(self, lines: Sequence[int], t_ns: NDArray[np.int64]) -> NDArray[np.bool_]:
+        """Which rows keep the stamps increasing; the others rejected (repeated, out of order)."""
+        faults = order_faults(t_ns)
+        for i in np.flatnonzero(faults).tolist():
+            if faults[i] == REPEATED:
+                self.reject(lines[i], "repeated", f"timestamp {int(t_ns[i])} repeats")
+            else:
+                self.reject(lines[i], "out of order", f"timestamp {int(t_ns[i])} is out of order")
+        return np.asarray(faults == IN_ORDER, dtype=np.bool_)
 
 
-def read_table(path: Path, n_values: int, issues: IssueLog | None, kind: str) -> Table:
-    """Rows ``t_ns, v1..v_n`` (extra columns ignored). A row with too few columns or a bad stamp
-    is a one-line error naming the line; a row with a NaN or an unreadable number is rejected
-    and counted in ``issues`` (an error when ``issues`` is None); stamps must increase."""
-    rows = _data_rows(path)
+def _readable(
+    rows: list[tuple[int, list[str]]], columns: int, rejects: _Rejects
+) -> list[tuple[int, list[str]]]:
+    """The rows with ``columns`` columns and an integer stamp; the others rejected."""
+    kept = []
     for k, tokens in rows:
-        if len(tokens) < n_values + 1:
-            raise IoError(f"{path}:{k}: expected {n_values + 1} columns, got {len(tokens)}")
-    t_all = _stamps(rows, path)
+        if len(tokens) < columns:
+            rejects.reject(k, "unreadable", f"expected {columns} columns, got {len(tokens)}")
+        elif not _INT.fullmatch(tokens[0]):
+            detail = f"timestamp must be integer nanoseconds, got {tokens[0]!r}"
+            rejects.reject(k, "unreadable", detail)
+        else:
+            kept.append((k, tokens))
+    return kept
+
+
+def read_table(path: Path, n_values: int, issues: IssueLog | None, what: str) -> Table:
+    """Rows ``t_ns, v1..v_n`` (extra columns ignored). A row that cannot be read (too few
+    columns, a stamp that is not integer nanoseconds), that has a NaN or an unreadable number,
+    or whose stamp repeats or goes out of order is rejected and counted in ``issues`` as
+    ``<what> unreadable``, ``with a NaN``, ``repeated`` or ``out of order`` (a one-line error
+    naming the line when ``issues`` is None); the stamps kept increase."""
+    rejects = _Rejects(path, issues, what)
+    rows = _readable(_data_rows(path), n_values + 1, rejects)
     vals, ok = _numbers(rows, n_values)
     for i in np.flatnonzero(~ok):
-        if issues is None:
-            raise IoError(f"{path}:{rows[i][0]}: a value is not a finite number")
-        issues.reject(kind, f"{path.name}:{rows[i][0]}")
-    lines = [k for (k, _), good in zip(rows, ok, strict=True) if good]
-    t_arr = t_all[ok]
-    check_increasing(t_arr, lines, path)
-    return Table(lines, t_arr, vals[ok])
+        rejects.reject(rows[i][0], "with a NaN", "a value is not a finite number")
+    rows = [r for r, good in zip(rows, ok, strict=True) if good]
+    lines = [k for k, _ in rows]
+    t = np.array([int(tokens[0]) for _, tokens in rows], dtype=np.int64)
+    ordered = rejects.ordered(lines, t)
+    return Table(
+        [k for k, o in zip(lines, ordered, strict=True) if o], t[ordered], vals[ok][ordered]
+    )
 
 
-def read_image_list(path: Path) -> tuple[list[int], list[int], list[str]]:
-    """(line numbers, stamps, file names) of an ASL camera ``data.csv``."""
-    lines, stamps, names = [], [], []
-    for k, tokens in _data_rows(path):
-        if len(tokens) < 2 or not tokens[1]:
-            raise IoError(
-                f"{path}:{k}: expected 2 columns (timestamp, filename), got {len(tokens)}"
-            )
-        stamps.append(_stamp(tokens[0], path, k))
-        lines.append(k)
-        names.append(tokens[1])
-    check_increasing(np.asarray(stamps, dtype=np.int64), lines, path)
-    return lines, stamps, names
+def read_image_list(
+    path: Path, issues: IssueLog | None = None
+) -> tuple[list[int], list[int], list[str]]:
+    """(line numbers, stamps, file names) of an ASL camera ``data.csv``; unreadable, repeated
+    and out-of-order rows rejected and counted as ``image rows ...`` of the camera (the folder's
+    name), or without ``issues`` a one-line error."""
+    rejects = _Rejects(path, issues, "image rows", camera=path.parent.name)
+    rows = []
+    for k, tokens in _readable(_data_rows(path), 2, rejects):
+        if tokens[1]:
+            rows.append((k, tokens))
+        else:
+            rejects.reject(k, "unreadable", "expected 2 columns (timestamp, filename), got 1")
+    lines = [k for k, _ in rows]
+    t = np.array([int(tokens[0]) for _, tokens in rows], dtype=np.int64)
+    ordered = rejects.ordered(lines, t)
+    kept = [(k, tokens) for (k, tokens), o in zip(rows, ordered, strict=True) if o]
+    return [k for k, _ in kept], [int(tok[0]) for _, tok in kept], [tok[1] for _, tok in kept]
 
 
 def rate_of_stamps(t_ns: Sequence[int] | NDArray[np.int64], fallback_hz: float = 20.0) -> float:

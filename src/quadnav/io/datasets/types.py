@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import heapq
-from collections.abc import Iterator, Sequence
+from collections.abc import Collection, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
-from quadnav.errors import GeometryError, IoError, SampleError
+from quadnav.errors import GeometryError, SampleError
 from quadnav.geometry.trajectory import Trajectory
 from quadnav.messages import ImageFrame, ImuSample
 from quadnav.rig import Rig
@@ -123,11 +123,15 @@ class GroundTruth:
 
 @dataclass(frozen=True, slots=True)
 class DatasetIssues:
-    """Per-sample damage a reader rejected instead of failing on: a count per kind (``imu NaN
-    rows``, ``missing images``...) and the first few named with file and line."""
+    """Per-sample damage a reader rejected instead of failing on: a count per kind (``IMU rows
+    with a NaN``, ``missing images``...), the first few named with file and line, and which of
+    them are a camera's (``camera_counts``; ``named_cameras`` gives each named one's camera, or
+    ``""``), so that a run on one camera reports only that camera's."""
 
     counts: dict[str, int] = field(default_factory=dict)
     named: tuple[str, ...] = ()
+    camera_counts: dict[str, dict[str, int]] = field(default_factory=dict)
+    named_cameras: tuple[str, ...] = ()
 
     @property
     def total(self) -> int:
@@ -142,6 +146,26 @@ class DatasetIssues:
         kinds = ", ".join(f"{n} {k}" for k, n in sorted(self.counts.items()))
         return f"rejected {kinds}; first: {self.named[0]}" if self.named else f"rejected {kinds}"
 
+    def for_cameras(self, cameras: Collection[str]) -> DatasetIssues:
+        """These issues without those of the cameras not in ``cameras`` (the IMU's and the
+        ground truth's stay)."""
+        counts = dict(self.counts)
+        for cam, kinds in self.camera_counts.items():
+            if cam not in cameras:
+                for kind, n in kinds.items():
+                    counts[kind] -= n
+        named = [
+            (text, cam)
+            for text, cam in zip(self.named, self.named_cameras, strict=True)
+            if not cam or cam in cameras
+        ]
+        return DatasetIssues(
+            counts={k: n for k, n in counts.items() if n > 0},
+            named=tuple(t for t, _ in named),
+            camera_counts={c: dict(k) for c, k in self.camera_counts.items() if c in cameras},
+            named_cameras=tuple(c for _, c in named),
+        )
+
 
 class IssueLog:
     """A reader's running tally, frozen into :class:`DatasetIssues` at the end."""
@@ -149,14 +173,27 @@ class IssueLog:
     def __init__(self, start: DatasetIssues | None = None) -> None:
         self.counts: dict[str, int] = dict(start.counts) if start else {}
         self.named: list[str] = list(start.named) if start else []
+        self.camera_counts: dict[str, dict[str, int]] = (
+            {c: dict(k) for c, k in start.camera_counts.items()} if start else {}
+        )
+        self.named_cameras: list[str] = list(start.named_cameras) if start else []
 
-    def reject(self, kind: str, where: str) -> None:
+    def reject(self, kind: str, where: str, *, camera: str = "") -> None:
+        """Count one rejected sample of ``kind`` at ``where`` (a camera's when ``camera``)."""
         self.counts[kind] = self.counts.get(kind, 0) + 1
+        if camera:
+            per = self.camera_counts.setdefault(camera, {})
+            per[kind] = per.get(kind, 0) + 1
         if len(self.named) < MAX_NAMED:
             self.named.append(f"{where}: {kind}")
+            self.named_cameras.append(camera)
 
     def freeze(self) -> DatasetIssues:
-        return DatasetIssues(counts=dict(self.counts), named=tuple(self.named))
+        return DatasetIssues(
+            counts=dict(self.counts), named=tuple(self.named),
+            camera_counts={c: dict(k) for c, k in self.camera_counts.items()},
+            named_cameras=tuple(self.named_cameras),
+        )  # fmt: skip
 
 
 @dataclass(frozen=True, slots=True, eq=False, repr=False)
@@ -205,7 +242,8 @@ class VisualInertialDataset:
             try:
                 f.image()
             except SampleError:
-                log.reject("unreadable images", f.origin or f"{f.camera} at {f.t_ns}")
+                where = f.origin or f"{f.camera} at {f.t_ns}"
+                log.reject("unreadable images", where, camera=f.camera)
             else:
                 kept.append(f)
         return dataclasses.replace(self, frames=tuple(kept), issues=log.freeze())
@@ -231,11 +269,28 @@ def sort_frames(frames: list[ImageFrame], camera_order: Sequence[str]) -> tuple[
     return tuple(sorted(frames, key=lambda f: (f.t_ns, rank.get(f.camera, len(rank)))))
 
 
-def check_increasing(t_ns: IntArray, lines: Sequence[int], path: Path) -> None:
-    """A one-line error naming the first stamp that repeats or goes back."""
-    if len(t_ns) > 1:
-        bad = np.diff(t_ns) <= 0
-        if bad.any():
-            k = int(np.argmax(bad)) + 1
-            what = "repeats" if t_ns[k] == t_ns[k - 1] else "goes back in time"
-            raise IoError(f"{path}:{lines[k]}: timestamp {int(t_ns[k])} {what}")
+#: What :func:`order_faults` says of a row: kept, a repeat of the row before, out of order.
+IN_ORDER, REPEATED, OUT_OF_ORDER = 0, 1, 2
+
+
+def order_faults(t_ns: IntArray) -> NDArray[np.int8]:
+    """Per row, whether it keeps the stamps strictly increasing: ``IN_ORDER``, ``REPEATED`` (its
+    stamp is the last kept one's) or ``OUT_OF_ORDER`` (it goes back before the last kept
+    row, or jumps ahead of the row after it while that one follows on). One bad row costs one
+    row, a stamp far in the future included; rows before the first fault are not looked at."""
+    t = np.asarray(t_ns, dtype=np.int64)
+    faults = np.zeros(len(t), dtype=np.int8)
+    bad = np.flatnonzero(np.diff(t) <= 0)
+    if not len(bad):
+        return faults
+    first = int(bad[0])
+    last = int(t[first - 1]) if first > 0 else None
+    for k in range(first, len(t)):
+        tk = int(t[k])
+        if last is not None and tk <= last:
+            faults[k] = REPEATED if tk == last else OUT_OF_ORDER
+        elif k + 1 < len(t) and t[k + 1] < tk and (last is None or t[k + 1] > last):
+            faults[k] = OUT_OF_ORDER
+        else:
+            last = tk
+    return faults

@@ -4,12 +4,15 @@
 ``kalibr_imucam_chain.yaml`` and ``kalibr_imu_chain.yaml`` (``%YAML:1.0``, for OpenCV's reader).
 
 Everything goes to ``<root>.partial/`` and is renamed to ``<root>`` by :meth:`EurocWriter.close`:
-an exception (or a writer never closed) leaves no ``<root>/mav0`` that a reader would accept.
+an exception (or a writer never closed) leaves no ``<root>/mav0`` that a reader would accept. A
+file that cannot be written (a full disk) is an :class:`IoError` naming it: PNGs are encoded in
+memory and written by Python, so libpng prints nothing of its own.
 Numbers are written as ``repr`` of the floats, so they read back exactly. A radial-tangential
 lens without coefficients is written with four zeros (what EuRoC's tools expect)."""
 
 from __future__ import annotations
 
+import contextlib
 import shutil
 from pathlib import Path
 from typing import IO
@@ -70,6 +73,23 @@ def imu_yaml(rig: Rig) -> str:
     return text
 
 
+def cannot_write(exc: OSError, path: Path) -> IoError:
+    """One line for a failed write: the file the system names (else ``path``) and why."""
+    return IoError(f"cannot write {exc.filename or path}: {exc.strerror or exc}")
+
+
+def write_png(path: Path, image: NDArray[np.uint8] | NDArray[np.uint16]) -> None:
+    """``image`` as a PNG file: encoded in memory, written by Python (an :class:`IoError` naming
+    the file on failure, and no message of libpng's on stderr)."""
+    ok, data = cv2.imencode(".png", image)
+    if not ok:
+        raise IoError(f"cannot write {path}: the image cannot be encoded as PNG")
+    try:
+        path.write_bytes(data.tobytes())
+    except OSError as exc:
+        raise cannot_write(exc, path) from None
+
+
 def _row(t_ns: int, values: ArrayLike) -> str:
     return (
         f"{int(t_ns)}," + ",".join(float_text(x) for x in np.asarray(values, float).ravel()) + "\n"
@@ -91,6 +111,7 @@ class EurocWriter(PartialWriter):
             shutil.rmtree(self.partial)
         self.mav0 = self.partial / "mav0"
         self._files: dict[str, IO[str]] = {}
+        self._paths: dict[str, Path] = {}
         self._last: dict[str, int] = {}
         self.counts: dict[str, int] = {}
         self.closed = False
@@ -103,17 +124,28 @@ class EurocWriter(PartialWriter):
             if rig.depth is not None:
                 (self.mav0 / DEPTH_FOLDER / "data").mkdir(parents=True)
                 self._open(DEPTH_FOLDER, f"{DEPTH_FOLDER}/data.csv", "#timestamp [ns],filename\n")
-        except OSError as exc:
+        except (OSError, IoError) as exc:
             self.abort()
+            if isinstance(exc, IoError):
+                raise
             raise IoError(f"{self.partial}: cannot be written ({exc.strerror})") from None
 
     def _open(self, key: str, rel: str, header: str) -> None:
         path = self.mav0 / rel
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fh = path.open("w", encoding="utf-8")
-        fh.write(header)
-        self._files[key] = fh
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            self._files[key] = path.open("w", encoding="utf-8")
+        except OSError as exc:
+            raise cannot_write(exc, path) from None
+        self._paths[key] = path
         self.counts[key] = 0
+        self._put(key, header)
+
+    def _put(self, key: str, text: str) -> None:
+        try:
+            self._files[key].write(text)
+        except OSError as exc:
+            raise cannot_write(exc, self._paths[key]) from None
 
     def _stamp(self, key: str, t_ns: int) -> None:
         if self.closed:
@@ -139,9 +171,8 @@ class EurocWriter(PartialWriter):
             )
         self._stamp(camera, t_ns)
         name = f"{int(t_ns)}.png"
-        if not cv2.imwrite(str(self.mav0 / camera / "data" / name), img):
-            raise IoError(f"{self.mav0 / camera / 'data' / name}: cannot be written")
-        self._files[camera].write(f"{int(t_ns)},{name}\n")
+        write_png(self.mav0 / camera / "data" / name, img)
+        self._put(camera, f"{int(t_ns)},{name}\n")
 
     def add_depth(self, t_ns: int, depth_m: NDArray[np.floating]) -> None:
         """One depth image (metres, ``inf`` where nothing is read) of the rig's depth sensor,
@@ -155,15 +186,14 @@ class EurocWriter(PartialWriter):
             )
         self._stamp(DEPTH_FOLDER, t_ns)
         name = f"{int(t_ns)}.png"
-        if not cv2.imwrite(str(self.mav0 / DEPTH_FOLDER / "data" / name), depth_png(depth_m)):
-            raise IoError(f"{self.mav0 / DEPTH_FOLDER / 'data' / name}: cannot be written")
-        self._files[DEPTH_FOLDER].write(f"{int(t_ns)},{name}\n")
+        write_png(self.mav0 / DEPTH_FOLDER / "data" / name, depth_png(depth_m))
+        self._put(DEPTH_FOLDER, f"{int(t_ns)},{name}\n")
 
     def add_imu(self, sample: ImuSample) -> None:
         if self.rig.imu is None:
             raise IoError(f"rig {self.rig.name!r} has no IMU")
         self._stamp("imu0", sample.t_ns)
-        self._files["imu0"].write(_row(sample.t_ns, np.r_[sample.gyro_rad_s, sample.accel_m_s2]))
+        self._put("imu0", _row(sample.t_ns, np.r_[sample.gyro_rad_s, sample.accel_m_s2]))
 
     def add_groundtruth(
         self,
@@ -184,7 +214,7 @@ class EurocWriter(PartialWriter):
             self._open(_GT, f"{_GT}/data.csv", _GT_HEADER)
         self._stamp(_GT, t_ns)
         p_, q_, v_, bg_, ba_ = values
-        self._files[_GT].write(_row(t_ns, np.r_[p_, q_[[3, 0, 1, 2]], v_, bg_, ba_]))
+        self._put(_GT, _row(t_ns, np.r_[p_, q_[[3, 0, 1, 2]], v_, bg_, ba_]))
 
     def _write_yaml(self) -> None:
         for spec in self.rig.cameras:
@@ -207,18 +237,25 @@ class EurocWriter(PartialWriter):
         """Finish the files and move the folder to ``root``; the root's path."""
         if self.closed:
             return self.root
-        for fh in self._files.values():
-            fh.close()
-        self._write_yaml()
-        if self.root.exists():
-            shutil.rmtree(self.root)
-        self.partial.rename(self.root)
+        path = self.partial
+        try:
+            for key, fh in self._files.items():
+                path = self._paths[key]
+                fh.close()  # the last buffered rows are written here
+            path = self.partial
+            self._write_yaml()
+            if self.root.exists():
+                shutil.rmtree(self.root)
+            self.partial.rename(self.root)
+        except OSError as exc:
+            raise cannot_write(exc, path) from None
         self.closed = True
         return self.root
 
     def abort(self) -> None:
         """Drop what was written (the partial folder)."""
         for fh in self._files.values():
-            fh.close()
+            with contextlib.suppress(OSError):  # a full disk: the folder goes anyway
+                fh.close()
         shutil.rmtree(self.partial, ignore_errors=True)
         self.closed = True

@@ -1,0 +1,31 @@
+"""The benchmarks take bad input as the CLI does: one line naming the option or path, exit
+code 2, no traceback (issue 21, item 14: ``benchmarks/vio.py`` with a missing dataset)."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["/no/such/dataset"], "error: DATASET /no/such/dataset: no such file or folder"),
+        (["--core", "9999"], "error: --core 9999: not one of this machine's cores"),
+        (["--core", "x"], "error: --core x:"),
+        (["--frames", "0"], "error: --frames must be at least 1, got 0"),
+    ],
+)
+def test_vio_benchmark_refuses_bad_input_in_one_line(args: list[str], message: str) -> None:
+    done = subprocess.run(
+        [sys.executable, str(ROOT / "benchmarks" / "vio.py"), *args],
+        cwd=ROOT, capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert done.returncode == 2, done.stderr
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(message), done.stderr
