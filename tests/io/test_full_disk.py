@@ -104,3 +104,19 @@ def test_a_run_on_a_full_disk_ends_failed_with_its_own_error(
         monkeypatch.setattr(Path, "write_text", full)
         raise IoError("the run's own error")
     assert read_run_status(run_dir) == "failed"
+
+
+@needs_dev_full
+def test_an_overlay_image_on_a_full_disk_is_one_error_naming_it_and_libpng_says_nothing(
+    tmp_path: Path, capfd: pytest.CaptureFixture[str]
+) -> None:
+    """``quadnav markers``' ``write_images`` (issue 21, item 8: every writer)."""
+    from quadnav.io.frames import ImagesOut
+
+    out = ImagesOut(tmp_path / "images")
+    png = tmp_path / "images" / "frame_000003.png"
+    png.symlink_to(DEV_FULL)
+    with pytest.raises(IoError) as err:
+        out.write(3, np.zeros((H, W, 3), np.uint8))
+    assert str(err.value) == f"cannot write {png}: No space left on device"
+    assert capfd.readouterr().err == ""  # no "libpng error: Write Error"

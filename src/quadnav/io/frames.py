@@ -38,10 +38,12 @@ __all__ = [
     "ImagesOut",
     "VideoOut",
     "apply_capture_request",
+    "cannot_write",
     "display_missing",
     "is_raw_stream",
     "open_frames",
     "quiet_libraries",
+    "write_png",
 ]
 
 IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm"}
@@ -347,6 +349,23 @@ class VideoOut:
             self._w.release()
 
 
+def cannot_write(exc: OSError, path: Path) -> IoError:
+    """One line for a failed write: the file the system names (else ``path``) and why."""
+    return IoError(f"cannot write {exc.filename or path}: {exc.strerror or exc}")
+
+
+def write_png(path: Path, image: NDArray[np.uint8] | NDArray[np.uint16]) -> None:
+    """``image`` as a PNG file: encoded in memory, written by Python (an :class:`IoError` naming
+    the file on failure, and no message of libpng's on stderr)."""
+    ok, data = cv2.imencode(".png", image)
+    if not ok:
+        raise IoError(f"cannot write {path}: the image cannot be encoded as PNG")
+    try:
+        path.write_bytes(data.tobytes())
+    except OSError as exc:
+        raise cannot_write(exc, path) from None
+
+
 class ImagesOut:
     """Every frame as ``frame_<index>.png`` in a folder (the thesis's ``write_images``), up to
     ``max_bytes`` in all: a frame that would take the folder past it is not written (counted
@@ -375,8 +394,7 @@ class ImagesOut:
             self.refused += 1
             return False
         path = self.folder / f"frame_{index:06d}.png"
-        if not cv2.imwrite(str(path), image):
-            raise IoError(f"{path}: cannot be written")
+        write_png(path, image)
         try:
             self._last_bytes = path.stat().st_size
         except OSError as exc:

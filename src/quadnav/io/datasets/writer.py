@@ -17,7 +17,6 @@ import shutil
 from pathlib import Path
 from typing import IO
 
-import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -26,6 +25,7 @@ from quadnav.geometry.rotations import Pose
 from quadnav.io.datasets.depth import DEPTH_FOLDER, depth_png, depth_yaml
 from quadnav.io.datasets.files import PartialWriter, float_text
 from quadnav.io.datasets.kalibr import IMU_KEYS, lens_fields, write_camchain, write_kalibr_imu
+from quadnav.io.frames import cannot_write, write_png
 from quadnav.messages import ImuSample
 from quadnav.rig import CameraSpec, Rig
 
@@ -71,23 +71,6 @@ def imu_yaml(rig: Rig) -> str:
     for ours, theirs in IMU_KEYS.items():
         text += f"{theirs}: {float_text(getattr(rig.imu.noise, ours))}\n"
     return text
-
-
-def cannot_write(exc: OSError, path: Path) -> IoError:
-    """One line for a failed write: the file the system names (else ``path``) and why."""
-    return IoError(f"cannot write {exc.filename or path}: {exc.strerror or exc}")
-
-
-def write_png(path: Path, image: NDArray[np.uint8] | NDArray[np.uint16]) -> None:
-    """``image`` as a PNG file: encoded in memory, written by Python (an :class:`IoError` naming
-    the file on failure, and no message of libpng's on stderr)."""
-    ok, data = cv2.imencode(".png", image)
-    if not ok:
-        raise IoError(f"cannot write {path}: the image cannot be encoded as PNG")
-    try:
-        path.write_bytes(data.tobytes())
-    except OSError as exc:
-        raise cannot_write(exc, path) from None
 
 
 def _row(t_ns: int, values: ArrayLike) -> str:
