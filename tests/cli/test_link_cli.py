@@ -205,3 +205,16 @@ def test_sim_says_when_no_peer_heard_what_it_sent() -> None:
     res = runner.invoke(app, ["sim", "--mavlink", f"udpout:127.0.0.1:{free_port()}", "--duration", "0.5"])  # fmt: skip
     assert res.exit_code == 0, res.output
     assert "(no peer heard), received 0" in res.stdout and "sent 0" not in res.stdout
+
+
+def test_run_says_when_no_peer_heard_the_odometry_it_sent(tmp_path: Path) -> None:
+    """Issue 21, item 14: `run indoor_vio_odometry --mavlink udpout:...` said "sent N ODOMETRY"
+    with nobody listening. As `sim` and `markers` do, it now says no peer heard them."""
+    url = f"udpout:127.0.0.1:{free_port()}"
+    args = ["run", "indoor_vio_odometry", "--out", str(tmp_path), "--mavlink", url,
+            "--set", "plan.duration_s=4", "--set", "plan.height_m=1", "--set", "plan.forward_m=1"]  # fmt: skip
+    res = runner.invoke(app, args)
+    assert res.exit_code == 0, res.output
+    line = next(x for x in res.stdout.splitlines() if x.startswith("MAVLink to"))
+    assert re.search(r"ODOMETRY \d+", line), line
+    assert re.search(r"sent [1-9]\d* \(no peer heard\), received 0", line), line

@@ -163,7 +163,7 @@ def check_example(p: CommandParams) -> None:
 #: project's folder, with the shared data beside it).
 EXAMPLES = (
     "quadnav markers ../shared/data/thesis_rig/board12_17.mp4 --params ../shared/data/thesis_rig/vision_params.yml --camera ../shared/data/thesis_rig/cal.yml",
-    "quadnav markers ../shared/data/aruco --camera ../shared/data/aruco/tutorial_camera_params.yml --set dictionary=DICT_6X6_250 --set marker_length_m=0.05",
+    "quadnav markers ../shared/data/aruco --camera ../shared/data/aruco/tutorial_camera_charuco.yml --set dictionary=DICT_6X6_250 --set marker_length_m=0.05",
     "quadnav markers 0 --params ../shared/data/thesis_rig/vision_params.yml --camera ../shared/data/thesis_rig/cal.yml --show",
     "quadnav markers frames.h264 --camera ../shared/data/thesis_rig/cal.yml --fps 40 --set target=charuco",
     "quadnav markers 0 --camera ../shared/data/thesis_rig/cal.yml --mavlink udpout:127.0.0.1:14540",

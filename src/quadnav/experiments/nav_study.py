@@ -562,6 +562,7 @@ class NavStudy:
     per_seed: list[NavMetrics]
     summary: NavSummary
     mavlink_sent: dict[str, int] = field(default_factory=dict)  # messages sent, by name
+    mavlink_traffic: str = ""  # the link's traffic in words (io.mavlink.describe_traffic)
 
 
 def _one(sc: NavScenario, seed: int) -> NavRunResult:
@@ -725,4 +726,11 @@ def run_nav_study(
     per_seed = [results[s] for s in seeds]
     summary = _write_study(sc, run_dir, first, per_seed)
     sent = dict(link.stats.sent) if link is not None else {}
-    return NavStudy(run_dir=run_dir, per_seed=per_seed, summary=summary, mavlink_sent=sent)
+    traffic = link.describe() if link is not None else ""
+    return NavStudy(
+        run_dir=run_dir,
+        per_seed=per_seed,
+        summary=summary,
+        mavlink_sent=sent,
+        mavlink_traffic=traffic,
+    )
