@@ -121,7 +121,8 @@ def import_all() -> None:
 
 
 def all_config_models() -> set[type[ConfigModel]]:
-    """Every subclass of ConfigModel (after :func:`import_all`)."""
+    """Every subclass of ConfigModel that quadnav defines (after :func:`import_all`): not the
+    ones a test or a user's script makes in the same process."""
     found: set[type[ConfigModel]] = set()
     todo = list(ConfigModel.__subclasses__())
     while todo:
@@ -129,7 +130,7 @@ def all_config_models() -> set[type[ConfigModel]]:
         if cls not in found:
             found.add(cls)
             todo.extend(cls.__subclasses__())
-    return found
+    return {cls for cls in found if cls.__module__.split(".")[0] == "quadnav"}
 
 
 def root_model(spec: str) -> type[ConfigModel]:
