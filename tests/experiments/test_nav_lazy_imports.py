@@ -58,3 +58,10 @@ def test_the_vio_s_settings_validate_without_either() -> None:
     code = FLY_POSE.replace("r = run_nav(sc, 0)\nassert len(r.t_ns) > 100, len(r.t_ns)\n", "")
     assert _loaded(code.format(name="indoor_vio", overrides=["vio.window_keyframes=12"],
                                heavy=HEAVY)) == []  # fmt: skip
+
+
+def test_importing_the_navigation_experiment_does_not_load_scipy_stats() -> None:
+    """scipy.stats was 0.6 s of the import, for three chi-square quantiles
+    (``quadnav.estimation.chi2`` has them from scipy.special)."""
+    code = "import sys, quadnav.experiments.nav\nprint('scipy.stats' in sys.modules)"
+    assert _loaded(code) == ["False"]

@@ -26,10 +26,10 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
-from scipy.stats import chi2
 
 from quadnav.errors import EstimationError
 from quadnav.estimation.bias_estimator import BiasEstimator
+from quadnav.estimation.chi2 import chi2_isf, chi2_ppf, chi2_sf
 from quadnav.estimation.flow_model import (
     compensated_flow_rate,
     flow_noise_sigma,
@@ -199,13 +199,13 @@ def gate_thresholds(gate_sigma: float, dims: tuple[int, ...]) -> dict[int, float
     ``1 - tail``, which rounds to 1 from 8.5 sigma); where even the tail underflows (beyond
     about 37 sigma) the tail's asymptote ``x + (k - 1) ln x`` stands in."""
     x = float(gate_sigma) ** 2
-    tail = float(chi2.sf(x, 1))
+    tail = float(chi2_sf(x, 1))
     out: dict[int, float] = {}
     for k in dims:
         if k == 1:
             out[k] = x
         elif tail > 0.0:
-            out[k] = float(chi2.isf(tail, k))
+            out[k] = float(chi2_isf(tail, k))
         else:
             out[k] = x + (k - 1) * math.log(x)
     return out
@@ -427,7 +427,7 @@ class NavEkf:
         self.ba = np.zeros(3) if ba0 is None else np.asarray(ba0, dtype=np.float64).copy()
         self._P = 0.5 * (P0 + P0.T)
         self._gates = (
-            {k: float(chi2.ppf(config.gate_probability, k)) for k in (1, 2, 3, 4, 6)}
+            {k: float(chi2_ppf(config.gate_probability, k)) for k in (1, 2, 3, 4, 6)}
             if config.gate_sigma is None
             else gate_thresholds(config.gate_sigma, (1, 2, 3, 4, 6))
         )

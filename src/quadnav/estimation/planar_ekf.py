@@ -25,9 +25,9 @@ from typing import Literal
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.stats import chi2
 
 from quadnav.errors import EstimationError
+from quadnav.estimation.chi2 import chi2_ppf
 from quadnav.estimation.horizon import FusionResult, NavState
 from quadnav.messages import ImuSample, PositionSample, Sample, StateEstimate
 from quadnav.units import GRAVITY_M_S2
@@ -179,7 +179,7 @@ class PlanarEkf:
             [config.accel_sigma_m_s2**2, config.accel_sigma_m_s2**2, config.gyro_sigma_rad_s**2]
         )
         self._gate = (
-            None if config.gate_probability is None else float(chi2.ppf(config.gate_probability, 2))
+            None if config.gate_probability is None else float(chi2_ppf(config.gate_probability, 2))
         )
         self._H = np.zeros((2, 5))
         self._H[0, 0] = self._H[1, 1] = 1.0

@@ -26,9 +26,9 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
-from scipy.stats import chi2
 
 from quadnav.errors import EvalError
+from quadnav.estimation.chi2 import chi2_ppf
 from quadnav.eval.align import AlignMethod, align
 from quadnav.eval.metrics import ErrorStats, ape, rpe
 from quadnav.eval.na import Metric, na
@@ -248,7 +248,7 @@ def pose_nees(ref: Trajectory, est: Trajectory, cov_pose: FloatArray) -> FloatAr
 
 def nees_band(samples: int, dof: int = POSE_DOF, confidence: float = 0.95) -> tuple[float, float]:
     """The two-sided band of the mean of ``samples`` independent NEES draws, over ``dof``."""
-    lo, hi = chi2.ppf([(1 - confidence) / 2, (1 + confidence) / 2], dof * samples)
+    lo, hi = chi2_ppf([(1 - confidence) / 2, (1 + confidence) / 2], dof * samples)
     return float(lo / (dof * samples)), float(hi / (dof * samples))
 
 
@@ -257,7 +257,7 @@ def pose_nees_summary(values: FloatArray) -> NeesSummary:
     if v.ndim != 1 or len(v) == 0:
         raise EvalError("a NEES summary needs a non-empty 1-D array")
     lo, hi = nees_band(len(v))
-    one_lo, one_hi = chi2.ppf([0.025, 0.975], POSE_DOF)
+    one_lo, one_hi = chi2_ppf([0.025, 0.975], POSE_DOF)
     inside = float(np.mean((v >= one_lo) & (v <= one_hi)))
     return NeesSummary(
         samples=len(v), mean_over_dof=float(np.mean(v)) / POSE_DOF, band_low=lo, band_high=hi,

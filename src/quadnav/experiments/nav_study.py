@@ -18,9 +18,9 @@ from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
-from scipy.stats import chi2
 
 from quadnav.errors import ConfigError
+from quadnav.estimation.chi2 import chi2_ppf
 from quadnav.estimation.horizon import SourceStats
 from quadnav.estimation.nav_filter import ImuCounts
 from quadnav.eval.metrics import nees
@@ -154,7 +154,7 @@ def _nis_ratios(r: NavRunResult) -> dict[str, float]:
     ratios = {}
     for src, f in r.fusion.items():
         if len(f) and not is_pseudo_source(src):  # (standing still is not a measurement)
-            gate95 = chi2.ppf(0.95, f.dof)
+            gate95 = chi2_ppf(0.95, f.dof)
             ratios[src] = float(np.mean(f.nis > gate95))
     return ratios
 
@@ -303,6 +303,8 @@ def _plot_errors(r: NavRunResult, t: FloatArray, path: Path) -> Path:
 
 def _plot_innovations(r: NavRunResult, srcs: list[str], path: Path) -> Path:
     """Innovation test ratios per source (1 = the gate), and the NIS against its chi-square."""
+    from scipy.stats import chi2  # its density, for the plot only
+
     fig, axes = plt.subplots(
         len(srcs),
         2,
@@ -323,7 +325,7 @@ def _plot_innovations(r: NavRunResult, srcs: list[str], path: Path) -> Path:
         _shade_dropouts(r, row[0])
         dof = int(np.max(f.dof))
         nis = f.nis[ok]
-        hi = float(chi2.ppf(0.999, dof))
+        hi = float(chi2_ppf(0.999, dof))
         counts, _, _ = row[1].hist(nis[nis < hi], bins=40, density=True, alpha=0.6, label="NIS")
         xs = np.linspace(1e-3, hi, 200)
         row[1].plot(xs, chi2.pdf(xs, dof), "k", lw=1, label=f"chi2({dof})")
