@@ -15,8 +15,8 @@ from pathlib import Path
 SRC = Path(__file__).resolve().parents[1] / "src" / "quadnav"
 
 # Each top-level unit of quadnav (a subpackage or a top-level module) and the units it may import.
-# errors, config_model and units import nothing from quadnav; the root package only errors.
-_BASE = frozenset({"errors", "config_model", "units", "__init__"})
+# errors, config_model, units and lazy import nothing from quadnav; the root package only errors.
+_BASE = frozenset({"errors", "config_model", "units", "lazy", "__init__"})
 _CORE = _BASE | {"geometry", "messages", "vehicle", "rig"}  # import only the base (rig: geometry)
 _IO = _CORE | {"sim", "estimation", "vision", "control", "vio", "slam"}
 _EVAL = _IO | {"io"}
@@ -26,6 +26,7 @@ ALLOWED: dict[str, frozenset[str]] = {
     "errors": frozenset(),
     "config_model": frozenset(),
     "units": frozenset(),
+    "lazy": frozenset(),
     # geometry, messages and vehicle are one level: maths and the types everything passes around.
     "geometry": _BASE,
     "messages": _BASE,

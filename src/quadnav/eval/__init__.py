@@ -3,8 +3,7 @@ arrays. It runs nothing: the studies that produce the runs are in :mod:`quadnav.
 
 from __future__ import annotations
 
-import importlib
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 # Light and needed by every evaluation; align and associate are also submodule names, so the
 # functions must be bound here, after their modules.
@@ -27,6 +26,7 @@ from quadnav.eval.metrics import (
     rpe_pairs,
     settling_time_s,
 )
+from quadnav.lazy import lazy_getattr
 
 if TYPE_CHECKING:
     from quadnav.eval.evaluate import (
@@ -108,12 +108,7 @@ _WHERE: dict[str, str] = {
 }
 
 
-def __getattr__(name: str) -> Any:
-    if name not in _WHERE:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    value = getattr(importlib.import_module(_WHERE[name]), name)
-    globals()[name] = value
-    return value
+__getattr__ = lazy_getattr(__name__, _WHERE)
 
 
 def __dir__() -> list[str]:
