@@ -4,41 +4,20 @@ the folder says it was interrupted; an input error leaves no folder at all."""
 from __future__ import annotations
 
 import json
-import os
 import signal
 import subprocess
-import sys
-import time
 from pathlib import Path
 
 import pytest
 
-QUADNAV = [sys.executable, "-m", "quadnav"]
-
-
-def _wait_for_lines(root: Path, pattern: str, n: int, timeout_s: float) -> Path:
-    end = time.monotonic() + timeout_s
-    while time.monotonic() < end:
-        for f in root.glob(pattern):
-            if f.is_file() and f.read_text().count("\n") >= n:
-                return f
-        time.sleep(0.05)
-    raise AssertionError(f"no {root}/{pattern} with {n} lines within {timeout_s} s")
+from tests.interrupting import QUADNAV, start_interruptible, wait_for_lines
 
 
 @pytest.mark.parametrize("jobs", ["1", "2"])
 def test_ctrl_c_keeps_the_finished_seeds_and_marks_the_folder(tmp_path: Path, jobs: str) -> None:
-    proc = subprocess.Popen(
-        [*QUADNAV, "planar", "--seeds", "500", "--jobs", jobs, "--out", str(tmp_path)],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        env={**os.environ, "COLUMNS": "120"},
-        # A shell's background job ignores SIGINT and its children inherit that: restore it.
-        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
-    )
+    proc = start_interruptible(["planar", "--seeds", "500", "--jobs", jobs, "--out", str(tmp_path)])
     try:
-        seeds = _wait_for_lines(tmp_path, "*/seeds.jsonl", 3, timeout_s=90)
+        seeds = wait_for_lines(tmp_path, "*/seeds.jsonl", 3, timeout_s=90)
         proc.send_signal(signal.SIGINT)
         _out, err = proc.communicate(timeout=60)
     finally:

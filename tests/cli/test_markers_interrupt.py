@@ -6,11 +6,7 @@ camera, which only Ctrl-C or the window ends, still finishes its run
 from __future__ import annotations
 
 import csv
-import os
 import signal
-import subprocess
-import sys
-import time
 from pathlib import Path
 
 import cv2
@@ -19,6 +15,7 @@ import numpy as np
 from quadnav.geometry.camera import thesis_camera
 from quadnav.io.run_folder import read_run_status
 from tests.cli.conftest import marker_views
+from tests.interrupting import start_interruptible, wait_for_lines
 
 
 def _video(path: Path, n: int) -> Path:
@@ -31,31 +28,14 @@ def _video(path: Path, n: int) -> Path:
     return path
 
 
-def _rows(path: Path) -> int:
-    try:
-        return max(path.read_text().count("\n") - 1, 0)
-    except OSError:
-        return 0
-
-
 def test_ctrl_c_on_a_video_file_is_an_interrupted_run(frames, tmp_path: Path) -> None:
     _, cal, _ = frames
     video = _video(tmp_path / "flight.mp4", 2000)
     out = tmp_path / "runs"
-    cmd = [sys.executable, "-m", "quadnav", "markers", str(video), "--camera", str(cal),
-           "--set", "mount_rpy_deg=[0,0,0]", "--out", str(out)]  # fmt: skip
-    proc = subprocess.Popen(
-        cmd,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        env={**os.environ, "COLUMNS": "120"},
-        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
-    )
+    proc = start_interruptible(["markers", str(video), "--camera", str(cal),
+                                "--set", "mount_rpy_deg=[0,0,0]", "--out", str(out)])  # fmt: skip
     try:
-        end = time.monotonic() + 120
-        while time.monotonic() < end and not any(_rows(p) >= 20 for p in out.glob("*/poses.csv")):
-            time.sleep(0.05)
+        wait_for_lines(out, "*/poses.csv", 21, timeout_s=120)  # a header and 20 rows
         proc.send_signal(signal.SIGINT)
         _out, err = proc.communicate(timeout=60)
     finally:
