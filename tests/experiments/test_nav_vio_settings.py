@@ -43,6 +43,9 @@ def test_the_vio_settings_reach_the_estimator() -> None:
         ("outdoor_gps", "vio.sigma_m=0.1", "vio.sigma_m is set"),
         # the odometry shortcut runs no VIO: the VIO's own settings are refused
         ("indoor_vio_odometry", "vio.window_keyframes=12", "vio.window_keyframes is a setting"),
+        # ... and the VIO on rendered images does not read the shortcut's noise
+        ("indoor_vio", "vio.sigma_m=0.1", "vio.sigma_m is a setting of the odometry shortcut"),
+        ("indoor_vio", "vio.rate_hz=30", "vio.rate_hz is a setting of the odometry shortcut"),
     ],
 )
 def test_a_bad_or_unused_vio_setting_is_one_line_naming_it(

@@ -78,6 +78,10 @@ OdometryPart = Literal["pos", "vel", "yaw"]
 _ODOMETRY_PARTS: tuple[OdometryPart, ...] = ("pos", "vel", "yaw")
 
 
+#: The ``vio`` keys only the odometry shortcut (``vio.source=odometry``) reads.
+SHORTCUT_ONLY_VIO_KEYS = ("rate_hz", "sigma_m", "sigma_vel_m_s", "yaw_sigma_rad", "drift_m_sqrt_s")
+
+
 class VioSection(VioConfig):
     """Visual-inertial odometry as an external-odometry source (PX4's ODOMETRY): the rig's
     camera rendered in a 3-D world and its IMU, fed to the VIO, whose estimate (converted to
@@ -379,6 +383,13 @@ class NavScenario(ConfigModel):
             return (
                 f"vio.{own[0]} is a setting of the VIO, which vio.source=odometry does not run "
                 "(the shortcut): set vio.source=camera or leave it out"
+            )
+        shortcut = [k for k in changed if k in SHORTCUT_ONLY_VIO_KEYS]
+        if v.source == "camera" and shortcut:
+            return (
+                f"vio.{shortcut[0]} is a setting of the odometry shortcut, which "
+                "vio.source=camera does not use (the VIO on rendered images): set "
+                "vio.source=odometry or leave it out"
             )
         return None
 
