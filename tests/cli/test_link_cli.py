@@ -216,5 +216,5 @@ def test_run_says_when_no_peer_heard_the_odometry_it_sent(tmp_path: Path) -> Non
     res = runner.invoke(app, args)
     assert res.exit_code == 0, res.output
     line = next(x for x in res.stdout.splitlines() if x.startswith("MAVLink to"))
-    assert re.search(r"ODOMETRY \d+", line), line
+    assert re.search(r"\d+ ODOMETRY", line), line
     assert re.search(r"sent [1-9]\d* \(no peer heard\), received 0", line), line

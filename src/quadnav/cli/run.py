@@ -168,7 +168,7 @@ def run_command(
     console.print(table)
     _print_refusals(s)
     if mavlink is not None:
-        by_name = ", ".join(f"{k} {n}" for k, n in study.mavlink_sent.items()) or "nothing"
+        by_name = ", ".join(f"{n} {k}" for k, n in study.mavlink_sent.items()) or "nothing"
         console.print(f"MAVLink to {mavlink}: {by_name}; {study.mavlink_traffic}", highlight=False)
     console.print(str(study.run_dir), soft_wrap=True, highlight=False)
 
