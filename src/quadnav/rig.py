@@ -21,6 +21,7 @@ from scipy.spatial.transform import Rotation
 
 from quadnav.errors import GeometryError
 from quadnav.geometry.camera import PinholeCamera, thesis_camera
+from quadnav.geometry.multiview import nearest_rotation
 from quadnav.geometry.rotations import Pose
 
 __all__ = [
@@ -279,8 +280,7 @@ _EUROC_CAMERAS = {
 def _orthonormal(T: list[list[float]]) -> Pose:
     """A calibration's 4x4 with its rotation block made exactly orthonormal (SVD)."""
     M = np.asarray(T, dtype=np.float64)
-    U, _, Vt = np.linalg.svd(M[:3, :3])
-    return Pose(Rotation.from_matrix(U @ Vt), M[:3, 3])
+    return Pose(Rotation.from_matrix(nearest_rotation(M[:3, :3])), M[:3, 3])
 
 
 def _euroc_mount(pitch_down_deg: float = 20.0) -> Pose:

@@ -11,7 +11,7 @@ from quadnav.eval.align import yaw_translation
 from quadnav.vio.config import VioConfig
 from quadnav.vio.frontend import FeatureManager
 from quadnav.vio.preintegration import imu_params, preintegrate
-from quadnav.vio.window import Keyframe, SlidingWindow, StatePrior, triangulate
+from quadnav.vio.window import Keyframe, SlidingWindow, StatePrior
 from tests.vio.synthetic import Scene, make_scene
 
 
@@ -81,23 +81,3 @@ def test_window_recovers_the_trajectory(seed: int) -> None:
     # noise is 0.7 px, the model's 1 px: somewhat below), never many times over
     mean_nees = float(np.mean(nees[10:]))
     assert 1.0 < mean_nees < 18.0, f"seed {seed}: mean NEES {mean_nees:.1f}"
-
-
-def test_triangulate_recovers_a_point() -> None:
-    P0 = np.hstack([np.eye(3), np.zeros((3, 1))])
-    P1 = np.hstack([np.eye(3), -np.array([[0.5], [0.0], [0.0]])])
-    p = np.array([0.3, -0.2, 4.0])
-    obs = {0: p[:2] / p[2], 1: (p[:2] - [0.5, 0.0]) / p[2]}
-    got = triangulate(obs, {0: P0, 1: P1})
-    assert got is not None
-    assert np.allclose(got, p, atol=1e-9)
-
-
-def test_pose_conversion_round_trip() -> None:
-    from scipy.spatial.transform import Rotation
-
-    from quadnav.geometry import Pose
-    from quadnav.vio.window import pose3, to_pose
-
-    P = Pose(Rotation.from_rotvec([0.3, -1.2, 2.0]), np.array([1.0, 2.0, 3.0]))
-    assert np.allclose(to_pose(pose3(P)).matrix(), P.matrix(), atol=1e-12)

@@ -10,6 +10,7 @@ from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
 from quadnav.errors import EvalError
+from quadnav.geometry.multiview import kabsch
 from quadnav.geometry.trajectory import Trajectory
 
 __all__ = ["AlignMethod", "Alignment", "GravityAxis", "align", "umeyama", "yaw_translation"]
@@ -41,15 +42,10 @@ def umeyama(
         raise EvalError(f"alignment needs at least 3 matched poses, got {n}")
     mu_s, mu_d = src.mean(axis=0), dst.mean(axis=0)
     xs, xd = src - mu_s, dst - mu_d
-    cov = xd.T @ xs / n
-    U, D, Vt = np.linalg.svd(cov)
-    if np.linalg.matrix_rank(cov) < 2:
+    R, sv = kabsch(xs, xd)
+    if np.sum(np.abs(sv) > 1e-9 * max(float(np.abs(sv).max()), 1e-300)) < 2:
         raise EvalError("alignment is degenerate: the matched positions are (nearly) collinear")
-    S = np.eye(3)
-    if np.linalg.det(U) * np.linalg.det(Vt) < 0:
-        S[2, 2] = -1.0
-    R = U @ S @ Vt
-    s = float(np.trace(np.diag(D) @ S) / (np.sum(xs**2) / n)) if with_scale else 1.0
+    s = float(np.sum(sv) / np.sum(xs**2)) if with_scale else 1.0
     t = mu_d - s * R @ mu_s
     return Rotation.from_matrix(R), t, s
 

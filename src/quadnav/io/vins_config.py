@@ -21,6 +21,7 @@ from scipy.spatial.transform import Rotation
 
 from quadnav.errors import GeometryError, IoError
 from quadnav.geometry.camera import DistortionModel, PinholeCamera
+from quadnav.geometry.multiview import nearest_rotation
 from quadnav.geometry.rotations import Pose
 from quadnav.io.datasets.files import read_yaml, yaml_numbers
 from quadnav.rig import CameraSpec, ImuNoiseModel, ImuSpec, Rig
@@ -82,10 +83,10 @@ def _camera(doc: dict[str, Any], path: Path) -> PinholeCamera:
 def _extrinsic(doc: dict[str, Any], path: Path) -> Pose:
     R = np.array(yaml_numbers(doc, "extrinsicRotation", path, 9)).reshape(3, 3)
     p = np.array(yaml_numbers(doc, "extrinsicTranslation", path, 3))
-    U, S, Vt = np.linalg.svd(R)
+    S = np.linalg.svd(R, compute_uv=False)
     if abs(float(np.linalg.det(R)) - 1.0) > 1e-3 or np.max(np.abs(S - 1.0)) > 1e-3:
         raise IoError(f"{path}: extrinsicRotation is not a rotation (det {np.linalg.det(R):.4f})")
-    return Pose(Rotation.from_matrix(U @ Vt), p)
+    return Pose(Rotation.from_matrix(nearest_rotation(R)), p)
 
 
 def _noise(doc: dict[str, Any], path: Path) -> ImuNoiseModel:

@@ -21,13 +21,14 @@ from collections import deque
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 
-import cv2
 import gtsam
 import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
 from quadnav.errors import VioError, VisionError
+from quadnav.geometry.gtsam_bridge import pose3, to_pose
+from quadnav.geometry.multiview import essential_pose
 from quadnav.messages import ImuSample
 from quadnav.rig import Rig
 from quadnav.units import s_to_ns
@@ -39,7 +40,7 @@ from quadnav.vio.preintegration import imu_params, preintegrate
 from quadnav.vio.static_init import StaticStart, imu_stillness, is_still, static_start
 from quadnav.vio.time_offset import TimeOffsetEstimator
 from quadnav.vio.types import FrameFeatures, InitResult, InitWindow, StageTiming, VioEvent, VioState
-from quadnav.vio.window import Keyframe, SlidingWindow, StatePrior, pose3, to_pose
+from quadnav.vio.window import Keyframe, SlidingWindow, StatePrior
 
 __all__ = ["VioEstimator"]
 
@@ -452,14 +453,10 @@ class VioEstimator:
         pairs = [(obs[ka], obs[kb]) for obs in tracks if ka in obs and kb in obs]
         if len(pairs) < 15:
             return None
-        x0 = np.array([p[0] for p in pairs], np.float64).reshape(-1, 1, 2)
-        x1 = np.array([p[1] for p in pairs], np.float64).reshape(-1, 1, 2)
-        thr = 1.0 / self.window.focal_px
-        E, mask = cv2.findEssentialMat(x0, x1, np.eye(3), cv2.RANSAC, 0.999, thr)
-        if E is None or E.shape != (3, 3) or mask is None or int(mask.sum()) < 12:
-            return None
-        n, R_C1_C0, _, _ = cv2.recoverPose(E, x0, x1, np.eye(3), mask=mask)
-        return None if n < 12 else np.asarray(R_C1_C0, np.float64).T
+        x0 = np.array([p[0] for p in pairs], np.float64)
+        x1 = np.array([p[1] for p in pairs], np.float64)
+        two = essential_pose(x0, x1, threshold=1.0 / self.window.focal_px, min_inliers=12)
+        return None if two is None else two.T_Ca_Cb.R_A_B.as_matrix()
 
     def _prune_imu(self) -> None:
         """Keep the IMU the window and a static start may still need."""

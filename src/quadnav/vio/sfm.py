@@ -19,13 +19,21 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
-import cv2
 import gtsam
 import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
 from quadnav.geometry import Pose
+from quadnav.geometry.gtsam_bridge import pose3, to_pose
+from quadnav.geometry.multiview import (
+    essential_pose,
+    kabsch,
+    pnp,
+    projection,
+    reprojection_errors,
+    triangulate,
+)
 from quadnav.vio.types import FrameFeatures
 
 __all__ = [
@@ -99,8 +107,8 @@ def rotation_only_parallax_px(xa: FloatArray, xb: FloatArray, *, focal_px: float
     if len(xa) < 3:
         return 0.0
     ba, bb = _bearings(xa), _bearings(xb)
-    R_b_a, _ = Rotation.align_vectors(bb, ba)
-    angle = np.linalg.norm(np.cross(R_b_a.apply(ba), bb), axis=1)
+    R_b_a, _ = kabsch(ba, bb)
+    angle = np.linalg.norm(np.cross(ba @ R_b_a.T, bb), axis=1)
     return float(np.median(angle) * focal_px)
 
 
@@ -109,33 +117,18 @@ def relative_pose(
 ) -> tuple[Pose, NDArray[np.bool_]] | None:
     """``T_Ca_Cb`` (unit baseline) from normalised correspondences, by the essential matrix with
     RANSAC and the cheirality check; None with fewer than ``MIN_INLIERS`` inliers."""
-    if len(xa) < MIN_INLIERS:
-        return None
-    cv2.setRNGSeed(rng_seed)
-    E, mask = cv2.findEssentialMat(
-        xa, xb, np.eye(3), method=cv2.RANSAC, prob=0.999, threshold=1.0 / focal_px
-    )
-    if E is None or E.shape != (3, 3):
-        return None
-    n, R, t, mask = cv2.recoverPose(E, xa, xb, np.eye(3), mask=mask)
-    if n < MIN_INLIERS:
-        return None
-    T_Cb_Ca = Pose(Rotation.from_matrix(R), np.asarray(t, dtype=np.float64).ravel())
-    return T_Cb_Ca.inverse(), mask.ravel() > 0
+    two = essential_pose(xa, xb, threshold=1.0 / focal_px, min_inliers=MIN_INLIERS, seed=rng_seed)
+    return None if two is None else (two.T_Ca_Cb, two.inliers)
 
 
 def _triangulate(
     T_W_Ca: Pose, T_W_Cb: Pose, xa: FloatArray, xb: FloatArray
 ) -> tuple[FloatArray, NDArray[np.bool_]]:
     """Points in ``W`` from two views, and which lie in front of both cameras."""
-    Pa, Pb = T_W_Ca.inverse().matrix()[:3], T_W_Cb.inverse().matrix()[:3]
-    X = cv2.triangulatePoints(Pa, Pb, xa.T.astype(np.float64), xb.T.astype(np.float64))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        P = (X[:3] / X[3]).T
-    ok = np.isfinite(P).all(axis=1)
-    za = (T_W_Ca.inverse() @ np.where(ok[:, None], P, 0.0))[:, 2]
-    zb = (T_W_Cb.inverse() @ np.where(ok[:, None], P, 0.0))[:, 2]
-    return np.asarray(P, dtype=np.float64), ok & (za > 0) & (zb > 0)
+    P = np.array([projection(T_W_Ca), projection(T_W_Cb)])
+    pts, z = triangulate(np.stack([xa, xb], axis=1), P)
+    ok = np.isfinite(pts).all(axis=1) & (np.nan_to_num(z, nan=-1.0) > 0).all(axis=1)
+    return pts, np.asarray(ok, dtype=bool)
 
 
 def _add_points(
@@ -159,16 +152,8 @@ def _pnp(obs: dict[int, FloatArray], points: dict[int, FloatArray], guess: Pose)
         return None
     X = np.array([points[i] for i in ids])
     x = np.array([obs[i] for i in ids])
-    T_C_W = guess.inverse()
-    rvec = T_C_W.R_A_B.as_rotvec().reshape(3, 1)
-    tvec = T_C_W.p_A_B.reshape(3, 1).copy()
-    ok, r_out, t_out = cv2.solvePnP(
-        X, x, np.eye(3), None, rvec, tvec, useExtrinsicGuess=True, flags=cv2.SOLVEPNP_ITERATIVE
-    )
-    r, t = np.asarray(r_out, dtype=np.float64).ravel(), np.asarray(t_out, dtype=np.float64).ravel()
-    if not ok or not (np.isfinite(r).all() and np.isfinite(t).all()):
-        return None
-    return Pose(Rotation.from_rotvec(r), t).inverse()
+    res = pnp(X, x, guess=guess, min_points=MIN_PNP)
+    return None if res is None else res.T_W_C
 
 
 def _pick_reference(
@@ -262,7 +247,7 @@ def _bundle_adjust(
     robust = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(1.5), pixel)
     graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
     for k, T in poses.items():
-        values.insert(_X(k), gtsam.Pose3(T.matrix()))
+        values.insert(_X(k), pose3(T))
     for i, P in points.items():
         values.insert(_L(i), np.asarray(P, dtype=np.float64))
     for k, o in enumerate(obs):
@@ -270,10 +255,10 @@ def _bundle_adjust(
             if i in points:
                 graph.add(gtsam.GenericProjectionFactorCal3_S2(x, robust, _X(k), _L(i), K))
     tight = gtsam.noiseModel.Isotropic.Sigma(6, 1e-6)
-    graph.add(gtsam.PriorFactorPose3(_X(ref), gtsam.Pose3(poses[ref].matrix()), tight))
+    graph.add(gtsam.PriorFactorPose3(_X(ref), pose3(poses[ref]), tight))
     graph.add(
         gtsam.PoseTranslationPrior3D(
-            _X(n), gtsam.Pose3(poses[n].matrix()), gtsam.noiseModel.Isotropic.Sigma(3, 1e-6)
+            _X(n), pose3(poses[n]), gtsam.noiseModel.Isotropic.Sigma(3, 1e-6)
         )
     )
     if rotations is not None:
@@ -284,7 +269,7 @@ def _bundle_adjust(
     params = gtsam.LevenbergMarquardtParams()
     params.setMaxIterations(iterations)
     result = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
-    new_poses = {k: Pose.from_matrix(result.atPose3(_X(k)).matrix()) for k in poses}
+    new_poses = {k: to_pose(result.atPose3(_X(k))) for k in poses}
     new_points = {i: np.asarray(result.atPoint3(_L(i)), dtype=np.float64) for i in points}
     return new_poses, new_points, _rms_px(obs, new_poses, new_points, focal_px)
 
@@ -292,16 +277,18 @@ def _bundle_adjust(
 def _rms_px(
     obs: Observations, poses: dict[int, Pose], points: dict[int, FloatArray], focal_px: float
 ) -> float:
-    err: list[float] = []
+    """The RMS reprojection error in pixels (``inf`` with a point at or behind a camera)."""
+    err: list[FloatArray] = []
     for k, o in enumerate(obs):
         ids = [i for i in o if i in points]
-        if not ids:
-            continue
-        Pc = poses[k].inverse() @ np.array([points[i] for i in ids])
-        with np.errstate(divide="ignore", invalid="ignore"):
-            proj = Pc[:, :2] / Pc[:, 2:3]
-        err.extend(np.linalg.norm(proj - np.array([o[i] for i in ids]), axis=1).tolist())
-    e = np.asarray(err)
+        if ids:
+            e, _ = reprojection_errors(
+                projection(poses[k]),
+                np.array([points[i] for i in ids]),
+                np.array([o[i] for i in ids]),
+            )
+            err.append(e)
+    e = np.concatenate(err) if err else np.zeros(0)
     return float(np.sqrt(np.mean(e**2)) * focal_px) if len(e) and np.isfinite(e).all() else np.inf
 
 

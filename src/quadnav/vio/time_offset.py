@@ -32,6 +32,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.transform import Rotation
 
 from quadnav.errors import VioError
+from quadnav.geometry.multiview import kabsch
 from quadnav.units import NS_PER_S
 
 __all__ = ["TdEstimate", "TimeOffsetEstimator"]
@@ -113,19 +114,6 @@ def _gyro_rates(buf: _Buffer, td: FloatArray) -> FloatArray:
 
     rel = (at(a).inv() * at(b)).as_rotvec() / (b - a)[:, None]
     return np.asarray(rel.reshape(len(td), len(buf.t0), 3), dtype=np.float64)
-
-
-def _kabsch(c: FloatArray, g: FloatArray) -> FloatArray:
-    """Per leading index, the rotation taking the centred rates ``c`` onto ``g``: (m, 3, 3)."""
-    H = np.einsum("mni,mnj->mij", c, g)
-    U, _, Vt = np.linalg.svd(H)
-    d = np.sign(
-        np.linalg.det(np.einsum("mij,mjk->mik", Vt.transpose(0, 2, 1), U.transpose(0, 2, 1)))
-    )
-    D = np.zeros_like(H)
-    D[:, 0, 0] = D[:, 1, 1] = 1.0
-    D[:, 2, 2] = d
-    return np.asarray(Vt.transpose(0, 2, 1) @ D @ U.transpose(0, 2, 1), dtype=np.float64)
 
 
 class TimeOffsetEstimator:
@@ -235,7 +223,7 @@ class TimeOffsetEstimator:
         g = g - g.mean(axis=1, keepdims=True)
         c = np.broadcast_to(buf.w_cam - buf.w_cam.mean(axis=0), g.shape)
         if self._R_B_C is None:
-            c = np.einsum("mij,mnj->mni", _kabsch(c, g), c)
+            c = np.einsum("mij,mnj->mni", kabsch(c, g)[0], c)
         return np.asarray(np.sum((g - c) ** 2, axis=(1, 2)), dtype=np.float64)
 
     def _excited(self, w_cam: FloatArray) -> bool:

@@ -25,20 +25,20 @@ determinate until it leaves the window).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
 
 import gtsam
 import numpy as np
 from gtsam.symbol_shorthand import B, L, V, X
 from numpy.typing import NDArray
-from scipy.spatial.transform import Rotation
 
 from quadnav.errors import VioError
 from quadnav.geometry import Pose
+from quadnav.geometry.gtsam_bridge import pose3
+from quadnav.geometry.multiview import reprojection_errors, triangulate_track
 from quadnav.vio.config import VioConfig
 from quadnav.vio.frontend import FeatureManager
 
-__all__ = ["Keyframe", "SlidingWindow", "SolveResult", "StatePrior", "pose3", "to_pose"]
+__all__ = ["Keyframe", "SlidingWindow", "SolveResult", "StatePrior"]
 
 FloatArray = NDArray[np.float64]
 
@@ -46,15 +46,6 @@ FloatArray = NDArray[np.float64]
 GTSAM_ERRORS = (RuntimeError, IndexError, ValueError)
 #: The standard deviation of the weak prior that keeps each landmark determinate.
 LANDMARK_PRIOR_M = 10.0
-
-
-def pose3(p: Pose) -> gtsam.Pose3:
-    return gtsam.Pose3(gtsam.Rot3(p.R_A_B.as_matrix()), np.asarray(p.p_A_B, np.float64))
-
-
-def to_pose(p: gtsam.Pose3) -> Pose:
-    q: Any = p.rotation().toQuaternion()  # the stubs leave GTSAM's Quaternion unresolved
-    return Pose(Rotation.from_quat([q.x(), q.y(), q.z(), q.w()]), np.asarray(p.translation()))
 
 
 @dataclass(slots=True)
@@ -102,20 +93,6 @@ def _camera_poses(kfs: dict[int, gtsam.Pose3], T_B_C: gtsam.Pose3) -> dict[int, 
         T_C_W = T_W_B.compose(T_B_C).inverse().matrix()
         out[k] = T_C_W[:3, :]
     return out
-
-
-def triangulate(obs: dict[int, FloatArray], P: dict[int, FloatArray]) -> FloatArray | None:
-    """The DLT point of normalised observations in the cameras ``P`` (None if degenerate)."""
-    rows = []
-    for k, xy in obs.items():
-        Pk = P[k]
-        rows.append(xy[0] * Pk[2] - Pk[0])
-        rows.append(xy[1] * Pk[2] - Pk[1])
-    _, _, Vt = np.linalg.svd(np.asarray(rows))
-    h = Vt[-1]
-    if abs(h[3]) < 1e-12:
-        return None
-    return np.asarray(h[:3] / h[3], np.float64)
 
 
 def _bearing_angle(obs: dict[int, FloatArray], P: dict[int, FloatArray]) -> float:
@@ -227,7 +204,7 @@ class SlidingWindow:
         )
         if _bearing_angle(obs, P) < need:  # too little parallax: not worth a triangulation
             return None
-        p = triangulate(obs, P)
+        p = triangulate_track(obs, P)
         if p is None or not np.isfinite(p).all():
             return None
         rays = [p - centres[k] for k in obs]
@@ -248,11 +225,9 @@ class SlidingWindow:
         """In front of every camera at a sane range and near every pixel it was seen at."""
         cfg = self.config
         Ps = np.array([P[k] for k in obs])
-        c = Ps[:, :, :3] @ p + Ps[:, :, 3]
-        z = c[:, 2]
+        err, z = reprojection_errors(Ps, p, np.array(list(obs.values())))
         if not (np.all(z >= cfg.landmark_min_depth_m) and np.all(z <= cfg.landmark_max_depth_m)):
             return False
-        err = np.linalg.norm(c[:, :2] / z[:, None] - np.array(list(obs.values())), axis=1)
         return bool(np.all(err * self.focal_px <= cfg.max_reprojection_px))
 
     def _point_prior(self, p: FloatArray, used: set[int]) -> gtsam.noiseModel.Base:
@@ -362,11 +337,8 @@ class SlidingWindow:
         if not owner:
             return []
         pts = np.array([self.landmarks[j] for j in owner])
-        Ps = np.array([P[k] for k in cams])
-        c = np.einsum("nij,nj->ni", Ps[:, :, :3], pts) + Ps[:, :, 3]
-        z = c[:, 2]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            err = np.linalg.norm(c[:, :2] / z[:, None] - np.array(meas), axis=1) * self.focal_px
+        e, z = reprojection_errors(np.array([P[k] for k in cams]), pts, np.array(meas))
+        err = e * self.focal_px
         wrong = ~(
             (z >= cfg.landmark_min_depth_m)
             & (z <= cfg.landmark_max_depth_m)

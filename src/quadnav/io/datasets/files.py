@@ -18,6 +18,7 @@ import yaml
 from numpy.typing import NDArray
 
 from quadnav.errors import GeometryError, IoError, SampleError
+from quadnav.geometry.multiview import nearest_rotation
 from quadnav.geometry.rotations import Pose
 from quadnav.io.config import yaml_problem
 from quadnav.io.datasets.types import IN_ORDER, REPEATED, IssueLog, order_faults
@@ -118,9 +119,8 @@ def pose_of_4x4(values: Sequence[float], path: Path, key: str) -> Pose:
     R = M[:3, :3]
     if not np.allclose(M[3], [0, 0, 0, 1], atol=1e-9) or abs(np.linalg.det(R) - 1.0) > 1e-4:
         raise IoError(f"{path}: {key} is not a rigid transform (last row or rotation block)")
-    U, _, Vt = np.linalg.svd(R)
     try:
-        return Pose.from_matrix(np.block([[U @ Vt, M[:3, 3:]], [M[3:]]]))
+        return Pose.from_matrix(np.block([[nearest_rotation(R), M[:3, 3:]], [M[3:]]]))
     except GeometryError as exc:
         raise IoError(f"{path}: {key}: {exc}") from None
 
