@@ -60,7 +60,7 @@ from quadnav.errors import QuadnavError  # noqa: E402
 from quadnav.experiments.vio_run import resolve_dataset  # noqa: E402
 from quadnav.io.datasets import VisualInertialDataset, open_dataset  # noqa: E402
 from quadnav.io.run_folder import write_text  # noqa: E402
-from quadnav.messages import ImuSample  # noqa: E402
+from quadnav.messages import ImageFrame, ImuSample  # noqa: E402
 from quadnav.vio import VioConfig, VioEstimator  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -95,9 +95,11 @@ def _one_run(ds: VisualInertialDataset, items: list[Item], camera: str) -> dict[
     for t_ns, x in items:
         t = time.perf_counter()
         if isinstance(x, ImuSample):
-            vio.push_imu(x)
+            vio.push(x)
         else:
-            estimates += vio.push_image(t_ns, x) is not None
+            frame = ImageFrame(t_ns=t_ns, camera=camera, load=lambda x=x: x)
+            estimates += vio.push(frame) is not None
+            vio.keyframes()
             frames += 1
         total += time.perf_counter() - t
     stages = {name: (s, n) for name, s, n in vio.timing().stages}

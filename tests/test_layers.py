@@ -17,7 +17,7 @@ SRC = Path(__file__).resolve().parents[1] / "src" / "quadnav"
 # Each top-level unit of quadnav (a subpackage or a top-level module) and the units it may import.
 # errors, config_model, units and lazy import nothing from quadnav; the root package only errors.
 _BASE = frozenset({"errors", "config_model", "units", "lazy", "__init__"})
-_CORE = _BASE | {"geometry", "messages", "vehicle", "rig"}  # import only the base (rig: geometry)
+_CORE = _BASE | {"geometry", "messages", "vehicle", "rig", "odometry"}  # the base (and geometry)
 _IO = _CORE | {"sim", "estimation", "vision", "control", "vio", "slam"}
 _EVAL = _IO | {"io"}
 _EXPERIMENTS = _EVAL | {"eval"}
@@ -33,6 +33,8 @@ ALLOWED: dict[str, frozenset[str]] = {
     "vehicle": _BASE,
     # A camera-IMU rig is a lens and poses: it builds on geometry.
     "rig": _BASE | {"geometry"},
+    # The odometry interface (VIO, SLAM): poses and samples, no estimator in it.
+    "odometry": _BASE | {"geometry", "messages"},
     # sim, estimation, vision and control do not import one another.
     "sim": _CORE,
     "estimation": _CORE,

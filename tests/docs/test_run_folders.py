@@ -69,10 +69,10 @@ def test_every_command_that_writes_a_run_folder_is_declared() -> None:
         "experiments/flight_study.py",  # sim
         "experiments/markers_run.py",  # markers
         "experiments/nav_study.py",  # run
+        "experiments/odometry_run.py",  # vio (and any odometry)
+        "experiments/odometry_study.py",  # vio_study
         "experiments/planar_study.py",  # planar
         "experiments/replay_run.py",  # replay
-        "experiments/vio_run.py",  # vio
-        "experiments/vio_study.py",  # vio_study
     ], "a new kind of run folder: declare its files in quadnav/experiments/run_kinds.py"
 
 

@@ -17,8 +17,8 @@ from quadnav.experiments.nav_study import nav_metrics, run_nav_study
 from quadnav.experiments.scenarios import NAV_SCENARIOS, nav_builtin
 from quadnav.experiments.vio_flight import vehicle_odometry
 from quadnav.geometry.rotations import Pose
+from quadnav.odometry import OdometryState
 from quadnav.rig import euroc_mono
-from quadnav.vio.types import VioState
 
 # A short take-off and forward: 2 m up, 2 m ahead, then hover
 SHORT = ["plan.height_m=2", "plan.forward_m=2", "plan.duration_s=14"]
@@ -77,7 +77,7 @@ def test_a_vio_state_becomes_the_vehicle_s_odometry() -> None:
     v_W_B = v_W_V + T_W_V.R_A_B.apply(np.cross(w_V, T_V_B.p_A_B))
     w_B = T_V_B.R_A_B.inv().apply(w_V)
     cov = np.diag([1e-4, 1e-4, 1e-4, 4e-6, 4e-6, 4e-6])  # GTSAM's (rot, trans), body frame
-    state = VioState(t_ns=1, T_W_B=T_W_B, v_W_B=v_W_B, gyro_bias=np.zeros(3),
+    state = OdometryState(t_ns=1, T_W_B=T_W_B, v_W_B=v_W_B, gyro_bias=np.zeros(3),
                      accel_bias=np.zeros(3), cov_pose=cov, cov_v=np.eye(3) * 1e-4)  # fmt: skip
     odo = vehicle_odometry(state, T_V_B, w_B)
     np.testing.assert_allclose(odo.p_W_B, T_W_V.p_A_B, atol=1e-12)
@@ -88,7 +88,7 @@ def test_a_vio_state_becomes_the_vehicle_s_odometry() -> None:
     r = np.linalg.norm(T_V_B.p_A_B)
     grown = np.trace(odo.cov_pose[0:3, 0:3]) - 3 * 4e-6
     assert 0 < grown <= 2 * (r**2) * 1e-4 + 1e-12
-    bad = VioState(t_ns=1, T_W_B=T_W_B, v_W_B=[np.nan, 0, 0], gyro_bias=np.zeros(3),
+    bad = OdometryState(t_ns=1, T_W_B=T_W_B, v_W_B=[np.nan, 0, 0], gyro_bias=np.zeros(3),
                    accel_bias=np.zeros(3), cov_pose=cov, cov_v=np.eye(3))  # fmt: skip
     with pytest.raises(SampleError, match="non-finite"):
         vehicle_odometry(bad, T_V_B, w_B)

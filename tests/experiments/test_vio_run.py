@@ -20,16 +20,16 @@ from quadnav.config_model import ConfigModel
 from quadnav.errors import ConfigError, IoError
 from quadnav.eval.na import is_na
 from quadnav.eval.vio_metrics import ApeSummary, NeesSummary
-from quadnav.experiments.seeds import parse_seeds
-from quadnav.experiments.vio_run import (
-    VioRun,
-    VioRunOptions,
+from quadnav.experiments.odometry_run import (
+    OdometryRun,
+    OdometryRunOptions,
     dataset_cache_folder,
     resolve_dataset,
-    resolve_vio_config,
-    run_vio,
+    run_odometry,
 )
-from quadnav.experiments.vio_study import group_of, run_vio_study
+from quadnav.experiments.odometry_study import group_of, run_odometry_study
+from quadnav.experiments.seeds import parse_seeds
+from quadnav.experiments.vio_run import resolve_vio_config
 from quadnav.io.datasets import VisualInertialDataset, open_dataset
 from quadnav.io.run_folder import read_run_status, run_guard
 from quadnav.io.trajectory_io import read_tum
@@ -57,8 +57,13 @@ def _double(ds: VisualInertialDataset, **kw: object) -> TruthPlusNoise:
 
 def _run(ds: VisualInertialDataset, out: Path, double: TruthPlusNoise, **opt: object):  # type: ignore[no-untyped-def]
     with run_guard():
-        return run_vio(
-            ds, ds.rig, lambda rig: double, out, config_text="k: 1\n", options=VioRunOptions(**opt)
+        return run_odometry(
+            ds,
+            ds.rig,
+            lambda rig: double,
+            out,
+            config_text="k: 1\n",
+            options=OdometryRunOptions(**opt),
         )  # type: ignore[arg-type]
 
 
@@ -295,24 +300,24 @@ def test_study_over_seeds_and_folders(made: Path, tmp_path: Path) -> None:
     differ) and a folder, run once whatever the seeds."""
     ds = open_dataset(made)
     assert ds.groundtruth is not None
-    runs: list[VioRun] = []
+    runs: list[OdometryRun] = []
 
-    def run_one(source: str, seed: int, where: Path) -> VioRun:
+    def run_one(source: str, seed: int, where: Path) -> OdometryRun:
         double = TruthPlusNoise(ds.groundtruth.trajectory, seed=seed, init_after_s=0.0)  # type: ignore[union-attr]
         runs.append(
-            run_vio(
+            run_odometry(
                 ds,
                 ds.rig,
                 lambda rig: double,
                 where,
-                options=VioRunOptions(video=False),
+                options=OdometryRunOptions(video=False),
                 name=f"{source}_{seed}",
             )
         )
         return runs[-1]
 
     with run_guard():
-        study = run_vio_study(
+        study = run_odometry_study(
             ["seq", str(made)], (0, 1, 2), run_one, tmp_path, is_sequence=lambda s: s == "seq"
         )
     assert [(r.group, r.seed) for r in study.rows] == [

@@ -1,4 +1,4 @@
-"""A stand-in for the VIO estimator that satisfies :class:`quadnav.vio.VisualOdometry`: the
+"""A stand-in for the VIO estimator that satisfies :class:`quadnav.odometry.VisualOdometry`: the
 ground truth moved into a VIO world (yawed and shifted), with Gaussian pose errors drawn from
 the covariance it reports, initialised after a delay, failing and re-initialising on a
 schedule, and features moving across the image. What a run makes of it is known in advance,
@@ -14,8 +14,14 @@ from scipy.spatial.transform import Rotation
 
 from quadnav.geometry import Pose
 from quadnav.geometry.trajectory import Trajectory
-from quadnav.messages import ImuSample
-from quadnav.vio import FrameFeatures, StageTiming, VioEvent, VioState
+from quadnav.messages import ImageFrame, ImuSample
+from quadnav.odometry import (
+    FrameFeatures,
+    KeyframeRecord,
+    OdometryEvent,
+    OdometryState,
+    StageTiming,
+)
 
 #: The double's pose noise: 2 mrad, 3 cm per axis (body frame (rot, trans), GTSAM's order).
 SIGMAS = np.array([0.002] * 3 + [0.03] * 3)
@@ -39,7 +45,7 @@ class TruthPlusNoise:
         self.fail_at_s = fail_at_s
         self.reinit_after_s = reinit_after_s
         self.interrupt_at_frame = interrupt_at_frame
-        self._events: list[VioEvent] = []
+        self._events: list[OdometryEvent] = []
         self._features: FrameFeatures | None = None
         self.frames = 0
         self.imu = 0
@@ -47,9 +53,20 @@ class TruthPlusNoise:
         self.track_s = 0.0
         self.world = (Rotation.from_euler("z", 50.0, degrees=True), np.array([1.0, -2.0, 0.3]))
 
-    def push_imu(self, sample: ImuSample) -> VioState | None:
+    cameras = ("cam0",)
+
+    @property
+    def rejected(self) -> dict[str, int]:
+        return {}
+
+    def push(self, sample: ImuSample | ImageFrame) -> OdometryState | None:
+        if isinstance(sample, ImageFrame):
+            return self._image(sample.t_ns, sample.image())
         self.imu += 1
         return None
+
+    def keyframes(self, *, final: bool = False) -> list[KeyframeRecord]:
+        return []
 
     def _phase(self, t_s: float) -> str:
         if t_s < self.init_after_s:
@@ -62,9 +79,9 @@ class TruthPlusNoise:
         return "tracking"
 
     def _event(self, t_ns: int, kind: str, detail: str) -> None:
-        self._events.append(VioEvent(t_ns=t_ns, kind=kind, detail=detail))  # type: ignore[arg-type]
+        self._events.append(OdometryEvent(t_ns=t_ns, kind=kind, detail=detail))  # type: ignore[arg-type]
 
-    def push_image(self, t_ns: int, image: NDArray[np.uint8]) -> VioState | None:
+    def _image(self, t_ns: int, image: NDArray[np.uint8]) -> OdometryState | None:
         if self.interrupt_at_frame is not None and self.frames == self.interrupt_at_frame:
             raise KeyboardInterrupt
         tic = time.perf_counter()
@@ -94,7 +111,7 @@ class TruthPlusNoise:
             self._event(t_ns, "reinitialized", "static (scheduled)")
         return self._state(t_ns)
 
-    def _state(self, t_ns: int) -> VioState:
+    def _state(self, t_ns: int) -> OdometryState:
         truth = self.truth.interpolate(np.array([t_ns]))
         xi = self.rng.normal(size=6) * SIGMAS
         R_true = truth.R_W_B[0]
@@ -102,7 +119,7 @@ class TruthPlusNoise:
         p_est = truth.p_W_B[0] - R_est.apply(xi[3:])
         Rw, tw = self.world
         pose = Pose.from_quat_xyzw((Rw * R_est).as_quat(), Rw.apply(p_est) + tw)
-        return VioState(
+        return OdometryState(
             t_ns=t_ns,
             T_W_B=pose,
             v_W_B=np.zeros(3),
@@ -115,7 +132,7 @@ class TruthPlusNoise:
         )
 
     @property
-    def events(self) -> tuple[VioEvent, ...]:
+    def events(self) -> tuple[OdometryEvent, ...]:
         return tuple(self._events)
 
     @property

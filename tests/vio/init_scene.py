@@ -12,11 +12,12 @@ from scipy.spatial.transform import Rotation
 
 from quadnav.geometry import Pose
 from quadnav.messages import ImuSample
+from quadnav.odometry import FrameFeatures
 from quadnav.rig import ImuNoiseModel, euroc_mono
 from quadnav.sim.motion import SplineMotion, synthesize_imu
 from quadnav.units import GRAVITY_M_S2, NS_PER_S
 from quadnav.vio.preintegration import imu_params, preintegrate
-from quadnav.vio.types import FrameFeatures, InitWindow
+from quadnav.vio.types import InitWindow
 
 FOCAL_PX = 458.0
 

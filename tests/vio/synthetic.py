@@ -12,9 +12,9 @@ from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
 from quadnav.messages import ImuSample
+from quadnav.odometry import FrameFeatures
 from quadnav.rig import ImuNoiseModel, Rig, rig_named
 from quadnav.sim.motion import SplineMotion, synthesize_imu
-from quadnav.vio.types import FrameFeatures
 
 FloatArray = NDArray[np.float64]
 

@@ -25,9 +25,9 @@ def _run(root: Path) -> tuple[Trajectory, VioEstimator]:
     t, p, q = [], [], []
     for item in ds.stream():
         if isinstance(item, ImuSample):
-            vio.push_imu(item)
+            vio.push(item)
             continue
-        s = vio.push_image(item.t_ns, item.image())
+        s = vio.push(item)
         if s is not None:
             t.append(s.t_ns)
             p.append(s.T_W_B.p_A_B)

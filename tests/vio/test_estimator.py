@@ -7,9 +7,10 @@ import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from quadnav.messages import ImuSample
+from quadnav.messages import ImageFrame, ImuSample
+from quadnav.odometry import OdometryState
 from quadnav.rig import rig_named
-from quadnav.vio import VioConfig, VioEstimator, VioState
+from quadnav.vio import VioConfig, VioEstimator
 from tests.shared_data import SHARED, needs
 
 EUROC_MICRO = SHARED / "euroc_micro"
@@ -35,7 +36,7 @@ def _rest_imu(t_ns: int, rng: np.random.Generator, R_W_B: Rotation) -> ImuSample
 
 def _still_run(
     vio: VioEstimator, seconds: float, black: tuple[float, float] | None, seed: int = 0
-) -> list[VioState]:
+) -> list[OdometryState]:
     """``seconds`` at rest: IMU at 200 Hz, images at 20 Hz (black during ``black``)."""
     rng = np.random.default_rng(seed)
     tilt = Rotation.from_euler("xy", [4.0, -3.0], degrees=True)
@@ -43,12 +44,12 @@ def _still_run(
     states = []
     for k in range(int(seconds * 200) + 1):
         t = k * 5_000_000
-        vio.push_imu(_rest_imu(t, rng, tilt))
+        vio.push(_rest_imu(t, rng, tilt))
         if k % 10 == 0 and k:
             img = np.clip(base + rng.normal(0, 1.5, base.shape), 0, 255).astype(np.uint8)
             if black is not None and black[0] <= t * 1e-9 < black[1]:
                 img = np.zeros_like(base)
-            s = vio.push_image(t, img)
+            s = vio.push(ImageFrame(t_ns=t, camera="cam0", load=lambda img=img: img))
             if s is not None:
                 states.append(s)
     return states
@@ -83,7 +84,7 @@ def test_static_start_on_a_still_rendered_scene() -> None:
     # between frames the IMU propagates the state at its own rate
     rng = np.random.default_rng(9)
     t = states[-1].t_ns + 5_000_000
-    prop = vio.push_imu(_rest_imu(t, rng, Rotation.from_euler("xy", [4.0, -3.0], degrees=True)))
+    prop = vio.push(_rest_imu(t, rng, Rotation.from_euler("xy", [4.0, -3.0], degrees=True)))
     assert prop is not None and prop.status == "propagated" and prop.t_ns == t
     assert np.linalg.norm(prop.T_W_B.p_A_B - s.T_W_B.p_A_B) < 1e-3
     assert np.trace(prop.cov_pose) >= np.trace(s.cov_pose)
@@ -92,18 +93,29 @@ def test_static_start_on_a_still_rendered_scene() -> None:
 def test_bad_input_is_counted_not_raised() -> None:
     vio = VioEstimator(rig_named("thesis003_sim"))
     ok = ImuSample(t_ns=1_000, gyro_rad_s=np.zeros(3), accel_m_s2=np.array([0, 0, G]))
-    assert vio.push_imu(ok) is None
+    assert vio.push(ok) is None
     nan = ImuSample(t_ns=2_000, gyro_rad_s=np.zeros(3), accel_m_s2=np.array([0, 0, G]))
     object.__setattr__(nan, "gyro_rad_s", np.array([np.nan, 0.0, 0.0]))
-    vio.push_imu(nan)
-    vio.push_imu(ImuSample(t_ns=500, gyro_rad_s=np.zeros(3), accel_m_s2=np.array([0, 0, G])))
+    vio.push(nan)
+    vio.push(ImuSample(t_ns=500, gyro_rad_s=np.zeros(3), accel_m_s2=np.array([0, 0, G])))
     img = _texture(1)
-    vio.push_image(10_000, img)
-    vio.push_image(9_000, img)  # backwards
-    vio.push_image(20_000, img[:100])  # wrong size
-    vio.push_image(30_000, np.zeros((480, 640), np.float32))  # not 8-bit
-    vio.push_image(40_000, "not an image")  # type: ignore[arg-type]
-    assert vio.rejected == {"imu_nonfinite": 1, "imu_time": 1, "image_time": 1, "image": 3}
+
+    def frame(t_ns: int, pixels: object, camera: str = "cam0") -> ImageFrame:
+        return ImageFrame(t_ns=t_ns, camera=camera, load=lambda: pixels)  # type: ignore[arg-type,return-value]
+
+    vio.push(frame(10_000, img))
+    vio.push(frame(9_000, img))  # backwards
+    vio.push(frame(20_000, img[:100]))  # wrong size
+    vio.push(frame(30_000, np.zeros((480, 640), np.float32)))  # not 8-bit
+    vio.push(frame(40_000, "not an image"))
+    vio.push(frame(50_000, img, camera="cam7"))  # a camera it does not use
+    assert vio.rejected == {
+        "imu_nonfinite": 1,
+        "imu_time": 1,
+        "image_time": 1,
+        "image": 3,
+        "other_camera": 1,
+    }
 
 
 @needs(EUROC_MICRO)
@@ -120,9 +132,9 @@ def test_euroc_micro_at_rest_gravity_and_drift() -> None:
         if item.t_ns > frames[-1].t_ns:
             break
         if isinstance(item, ImuSample):
-            vio.push_imu(item)
+            vio.push(item)
         elif item.camera == "cam0":
-            s = vio.push_image(item.t_ns, item.image())
+            s = vio.push(item)
             if s is not None:
                 states.append(s)
     assert [e.kind for e in vio.events] == ["initialized"]

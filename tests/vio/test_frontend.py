@@ -6,10 +6,10 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from quadnav.odometry import FrameFeatures
 from quadnav.rig import rig_named
 from quadnav.vio.config import VioConfig
 from quadnav.vio.frontend import FeatureManager, Frontend, mean_parallax, normalised
-from quadnav.vio.types import FrameFeatures
 
 
 def _frame(t_ns: int, pts_W: np.ndarray, R_W_C: np.ndarray, p_W_C: np.ndarray) -> FrameFeatures:

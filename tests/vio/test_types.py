@@ -9,12 +9,12 @@ from scipy.spatial.transform import Rotation
 from quadnav.errors import SampleError
 from quadnav.geometry import Pose
 from quadnav.messages import OdometrySample
-from quadnav.vio import VioState
+from quadnav.odometry import OdometryState
 
 
-def _state(yaw_deg: float, cov_pose: np.ndarray) -> VioState:
+def _state(yaw_deg: float, cov_pose: np.ndarray) -> OdometryState:
     R = Rotation.from_euler("z", yaw_deg, degrees=True)
-    return VioState(
+    return OdometryState(
         t_ns=5,
         T_W_B=Pose(R_A_B=R, p_A_B=np.array([1.0, 2.0, 3.0])),
         v_W_B=np.array([0.1, 0.0, 0.0]),

@@ -24,23 +24,18 @@ from quadnav.cli.common import (
 )
 from quadnav.cli.planar import OutOpt
 from quadnav.errors import ConfigError
-from quadnav.experiments.seeds import parse_seeds
-from quadnav.experiments.vio_run import (
-    VioRequest,
-    VioRun,
-    VioRunOptions,
-    check_request,
-    run_vio_source,
-)
-from quadnav.experiments.vio_study import (
+from quadnav.experiments.odometry_run import OdometryRun, OdometryRunOptions
+from quadnav.experiments.odometry_study import (
     GROUP_HEADER,
     ROW_HEADER,
-    VioStudy,
+    OdometryStudy,
     group_cells,
     row_cells,
     row_of,
-    run_vio_study,
+    run_odometry_study,
 )
+from quadnav.experiments.seeds import parse_seeds
+from quadnav.experiments.vio_run import VioRequest, check_request, run_vio_source
 
 __all__ = ["EXAMPLES", "check_example", "resolve_request", "vio_command"]
 
@@ -76,7 +71,7 @@ def resolve_request(
         raise ConfigError(f"--calibration {calibration}: no such file or folder")
     if duration_s is not None:
         check_range(duration_s, "--duration", 0.0, 1e6, "s", low_open=True)
-    options = VioRunOptions(
+    options = OdometryRunOptions(
         camera=camera, start_s=start_s, duration_s=duration_s, video=video, video_every=video_every
     )
     request = VioRequest(
@@ -110,7 +105,7 @@ EXAMPLES = (
 )
 
 
-def _print_run(run: VioRun) -> None:
+def _print_run(run: OdometryRun) -> None:
     table = Table(title=f"VIO on {run.dataset}: {run.timing.frames} frames")
     for c in ROW_HEADER[2:]:
         table.add_column(c, justify="right")
@@ -130,7 +125,7 @@ def _print_run(run: VioRun) -> None:
     console.print(str(run.run_dir), soft_wrap=True, highlight=False)
 
 
-def _print_study(study: VioStudy) -> None:
+def _print_study(study: OdometryStudy) -> None:
     for title, header, rows in (
         ("per run", ROW_HEADER, [row_cells(r) for r in study.rows]),
         ("per group", GROUP_HEADER, [group_cells(g) for g in study.groups]),
@@ -195,7 +190,7 @@ def vio_command(
         _print_run(run)
         return
     with progress_bar("vio study", line_step=0) as update:
-        study = run_vio_study(
+        study = run_odometry_study(
             datasets, request.seeds,
             lambda src, s, where: run_vio_source(request, src, s, where), out,
             is_sequence=_is_sequence, progress=update,

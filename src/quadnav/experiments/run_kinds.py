@@ -187,6 +187,7 @@ _VIO = RunFolderKind(
     files=(
         *_COMMON,
         RunFile("estimate.tum", "the VIO's estimate of the rig's body (TUM)"),
+        RunFile("keyframes.tum", "the keyframes the VIO published, at their final estimates (TUM)"),
         RunFile("groundtruth.tum", "the dataset's ground truth (TUM)", False),
         RunFile("events.jsonl", "initialisation, failures, resets, time offset, one a line"),
         RunFile("timing.json", "time per stage"),

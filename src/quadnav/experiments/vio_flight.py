@@ -31,15 +31,15 @@ from quadnav.errors import SampleError
 from quadnav.estimation.nav_ekf import skew
 from quadnav.experiments.nav_config import NavScenario
 from quadnav.geometry.rotations import Pose
-from quadnav.messages import ImuSample, OdometrySample, VehicleState
+from quadnav.messages import ImageFrame, ImuSample, OdometrySample, VehicleState
 from quadnav.sim.sensors import IntegratingImu, Ticker
 from quadnav.units import s_to_ns
 
 if TYPE_CHECKING:  # (the rig, the renderer and the VIO load OpenCV and GTSAM: only when used)
+    from quadnav.odometry import OdometryState, VisualOdometry
     from quadnav.rig import Rig
     from quadnav.sim.render import RenderEffects, Renderer
     from quadnav.sim.scene import Scene
-    from quadnav.vio.types import VioState, VisualOdometry
 
 __all__ = [
     "OdometryShortcut",
@@ -88,7 +88,7 @@ def _record(track: list[_TrackRow], **counts: Any) -> VioRecord:
 
 
 def vehicle_odometry(
-    state: VioState, T_V_B: Pose, w_B_rad_s: FloatArray, *, source: str = "vio"
+    state: OdometryState, T_V_B: Pose, w_B_rad_s: FloatArray, *, source: str = "vio"
 ) -> OdometrySample:
     """A VIO state of the rig's body ``B`` as odometry of the vehicle ``V`` (FLU, its centre):
     ``T_W_V = T_W_B T_V_B^-1``, the velocity of V's origin ``v_B - R_W_V (w_V x p_V_B)``, the
@@ -173,6 +173,7 @@ class VioCameraSensor:
         self._R_B_V = rig.T_V_B.R_A_B.inv().as_matrix()
         period = s_to_ns(1.0 / spec.rate_hz)
         self._camera = Ticker(period, first_ns=period)
+        self._camera_name = camera
         self._image_rng, self.sink = image_rng, sink
         self._w_B = np.zeros(3)
         self._track: list[_TrackRow] = []
@@ -185,13 +186,14 @@ class VioCameraSensor:
                 t_ns=s.t_ns, gyro_rad_s=self._R_B_V @ s.gyro_rad_s, accel_m_s2=self._R_B_V @ s.accel_m_s2
             )  # fmt: skip
             self._w_B = imu_B.gyro_rad_s
-            self.vio.push_imu(imu_B)
+            self.vio.push(imu_B)
         if not self._camera.due(t_ns):
             return None
         T_W_C = Pose.from_quat_xyzw(truth.q_W_B_xyzw, truth.p_W_B) @ self.T_V_C
         image = self.effects.apply(self.renderer.render(T_W_C).image, self._image_rng)
         self.frames += 1
-        state = self.vio.push_image(t_ns, image)
+        state = self.vio.push(ImageFrame(t_ns=t_ns, camera=self._camera_name, load=lambda: image))
+        self.vio.keyframes()  # the flight keeps no map: what the odometry publishes is let go
         if state is None:
             return None
         self.states += 1

@@ -16,38 +16,23 @@ if TYPE_CHECKING:
     from quadnav.vio.config import VioConfig
     from quadnav.vio.estimator import VioEstimator
     from quadnav.vio.types import (
-        FrameFeatures,
         InitResult,
         InitWindow,
-        StageTiming,
-        VioEvent,
-        VioState,
-        VisualOdometry,
     )
 
 __all__ = [
-    "FrameFeatures",
     "InitResult",
     "InitWindow",
-    "StageTiming",
     "VioConfig",
     "VioEstimator",
-    "VioEvent",
-    "VioState",
-    "VisualOdometry",
 ]
 
 # The module of each name (GTSAM behind the estimator and the types, OpenCV behind the front end).
 _WHERE: dict[str, str] = {
-    "FrameFeatures": "quadnav.vio.types",
     "InitResult": "quadnav.vio.types",
     "InitWindow": "quadnav.vio.types",
-    "StageTiming": "quadnav.vio.types",
     "VioConfig": "quadnav.vio.config",
     "VioEstimator": "quadnav.vio.estimator",
-    "VioEvent": "quadnav.vio.types",
-    "VioState": "quadnav.vio.types",
-    "VisualOdometry": "quadnav.vio.types",
 }
 
 

@@ -112,3 +112,12 @@ class VioConfig(ConfigModel):
         0.0, ge=-0.1, le=0.1, description="camera-IMU offset: image taken at stamp + td_s"
     )
     g_norm: float = Field(GRAVITY_M_S2, ge=9.0, le=10.5, description="gravity (m/s^2)")
+    describe_keyframes: bool = Field(
+        True, description="ORB descriptors at each keyframe's corners, for place recognition"
+    )
+    max_unread_keyframes: int = Field(
+        200,
+        ge=1,
+        le=100_000,
+        description="keyframe records kept until keyframes() is called; older ones are dropped",
+    )

@@ -1,5 +1,6 @@
-"""``VioEstimator``: the monocular visual-inertial odometry (thesis 003, VINS-Mono class) a run
-drives through the :class:`~quadnav.vio.types.VisualOdometry` protocol.
+"""``VioEstimator``: the monocular visual-inertial odometry (thesis 003, VINS-Mono class) behind
+the odometry interface (:class:`~quadnav.odometry.VisualOdometry`): ``push`` an IMU sample or a
+camera frame, read ``keyframes()`` as they leave the window.
 
 IMU samples go into a buffer (and, once initialised, propagate the last optimised keyframe at
 the IMU's rate: status ``propagated``). Each image is tracked; before the start the estimator
@@ -8,8 +9,9 @@ initialisation over a window of keyframes; then each frame is predicted by the I
 newest keyframe, and a keyframe (by parallax, few tracks or time) is added to the sliding
 window and optimised. A failure (too few tracks, an implausible state, a solve that did not go
 through) resets the window and re-initialises, with ``reset_counter`` + 1. Bad input (a
-non-finite IMU sample, time going backwards, an image the tracker cannot use) is rejected and
-counted in :attr:`VioEstimator.rejected`, never raised.
+non-finite IMU sample, time going backwards, an image that cannot be read or tracked, a frame
+of a camera it does not use) is rejected and counted in :attr:`VioEstimator.rejected`, never
+raised.
 """
 
 from __future__ import annotations
@@ -20,16 +22,24 @@ import time
 from collections import deque
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from dataclasses import dataclass
 
 import gtsam
 import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
-from quadnav.errors import VioError, VisionError
+from quadnav.errors import SampleError, VioError, VisionError
 from quadnav.geometry.gtsam_bridge import pose3, to_pose
 from quadnav.geometry.multiview import essential_pose
-from quadnav.messages import ImuSample
+from quadnav.messages import ImageFrame, ImuSample
+from quadnav.odometry import (
+    FrameFeatures,
+    KeyframeRecord,
+    OdometryEvent,
+    OdometryState,
+    StageTiming,
+)
 from quadnav.rig import Rig
 from quadnav.units import s_to_ns
 from quadnav.vio.config import VioConfig
@@ -39,12 +49,27 @@ from quadnav.vio.initialization import visual_inertial_init
 from quadnav.vio.preintegration import imu_params, preintegrate
 from quadnav.vio.static_init import StaticStart, imu_stillness, is_still, static_start
 from quadnav.vio.time_offset import TimeOffsetEstimator
-from quadnav.vio.types import FrameFeatures, InitResult, InitWindow, StageTiming, VioEvent, VioState
+from quadnav.vio.types import InitResult, InitWindow
 from quadnav.vio.window import Keyframe, SlidingWindow, StatePrior
+from quadnav.vision.descriptors import orb_at
 
 __all__ = ["VioEstimator"]
 
 FloatArray = NDArray[np.float64]
+
+
+@dataclass(slots=True)
+class _KeyframeInfo:
+    """What a window keyframe is published with when it leaves: its features, the frame its
+    pixels come from, their descriptors, the window's state object (whose pose the solves keep
+    up to date while it stays) and its covariance when it was the newest."""
+
+    features: FrameFeatures
+    image: ImageFrame | None
+    descriptors: NDArray[np.uint8] | None
+    described: NDArray[np.bool_] | None
+    keyframe: Keyframe | None = None
+    cov_pose: FloatArray | None = None
 
 
 def _time_offset_estimator(R_B_C: Rotation) -> TimeOffsetEstimator:
@@ -61,6 +86,7 @@ class VioEstimator:
         self.config = cfg = config or VioConfig()
         spec = rig.camera(camera)
         self.camera_spec = spec
+        self.camera = camera
         self._params = imu_params(rig.imu.noise, g_norm=cfg.g_norm)
         self.frontend = Frontend(spec.camera, cfg)
         self.features = FeatureManager()
@@ -68,7 +94,7 @@ class VioEstimator:
         self.input = InputLog()
         self._imu: list[ImuSample] = []
         self._imu_t: list[int] = []
-        self._events: list[VioEvent] = []
+        self._events: list[OdometryEvent] = []
         self._stages: dict[str, list[float]] = {}
         self._recent: deque[FrameFeatures] = deque()
         self._init_frames: list[FrameFeatures] = []
@@ -89,10 +115,16 @@ class VioEstimator:
         self._td_settled = False
         # the visual-inertial initialisation (a start or re-start while moving)
         self._visual_init: Callable[[InitWindow], InitResult | None] = visual_inertial_init
+        # the window's keyframes as the interface publishes them once they leave it
+        self._kf_info: dict[int, _KeyframeInfo] = {}  # by keyframe index
+        self._candidates: dict[int, _KeyframeInfo] = {}  # an initialisation window, by stamp
+        self._done: list[KeyframeRecord] = []
+        self._image: ImageFrame | None = None  # the frame being pushed
+        self._image_px: NDArray[np.uint8] | None = None
 
     # -- the protocol -----------------------------------------------------------------------
     @property
-    def events(self) -> tuple[VioEvent, ...]:
+    def events(self) -> tuple[OdometryEvent, ...]:
         return tuple(self._events)
 
     @property
@@ -121,7 +153,27 @@ class VioEstimator:
             acc[0] += time.perf_counter() - t0
             acc[1] += 1
 
-    def push_imu(self, sample: ImuSample) -> VioState | None:
+    @property
+    def cameras(self) -> tuple[str, ...]:
+        """The rig's cameras this odometry uses (frames of another are rejected and counted)."""
+        return (self.camera,)
+
+    def push(self, sample: ImuSample | ImageFrame) -> OdometryState | None:
+        """An IMU sample (the state propagated to it once initialised) or a camera frame (the
+        state at it once initialised); bad input rejected and counted, never raised."""
+        if isinstance(sample, ImageFrame):
+            return self._push_frame(sample)
+        return self._push_imu(sample)
+
+    def keyframes(self, *, final: bool = False) -> list[KeyframeRecord]:
+        """The keyframes that left the window since the last call, each handed out once;
+        ``final`` (at the end of a run) the window's own too."""
+        if final:
+            self._retire(everything=True)
+        done, self._done = self._done, []
+        return done
+
+    def _push_imu(self, sample: ImuSample) -> OdometryState | None:
         """Buffer an IMU sample; once initialised, the state propagated to its time."""
         if not self.input.imu_ok(sample):
             return None
@@ -140,10 +192,25 @@ class VioEstimator:
             )
         return self._predicted_state(sample.t_ns, self._prop, "propagated", tracked=0)
 
-    def push_image(self, t_ns: int, image: NDArray[np.uint8]) -> VioState | None:
-        """Track an image stamped ``t_ns`` (camera clock; ``td_s`` moves it to the IMU's)."""
-        if not self.input.image_time_ok(t_ns):
+    def _push_frame(self, frame: ImageFrame) -> OdometryState | None:
+        """A camera frame stamped in the camera's clock (``td_s`` moves it to the IMU's)."""
+        if frame.camera != self.camera:
+            self.input.counts["other_camera"] += 1
             return None
+        if not self.input.image_time_ok(frame.t_ns):
+            return None
+        try:
+            image = frame.image()
+        except SampleError:
+            self.input.counts["image"] += 1
+            return None
+        self._image, self._image_px = frame, image
+        try:
+            return self._track_image(int(frame.t_ns), image)
+        finally:
+            self._image, self._image_px = None, None
+
+    def _track_image(self, t_ns: int, image: NDArray[np.uint8]) -> OdometryState | None:
         t = int(t_ns) + s_to_ns(self._td_s)
         if self._td is not None:
             self._td_applied_ns[t] = t - int(t_ns)
@@ -174,7 +241,7 @@ class VioEstimator:
         motion, n = median_motion_px(ref, frame)
         return n >= 10 and motion < self.config.static_image_motion_px
 
-    def _try_init(self, frame: FrameFeatures) -> VioState | None:
+    def _try_init(self, frame: FrameFeatures) -> OdometryState | None:
         cfg = self.config
         span_ns = s_to_ns(cfg.static_window_s)
         if tracking_failure(len(frame.ids), cfg) is not None:
@@ -184,7 +251,7 @@ class VioEstimator:
             return self._start_static(frame, start)
         return self._try_visual_init(frame)
 
-    def _start_static(self, frame: FrameFeatures, start: StaticStart) -> VioState:
+    def _start_static(self, frame: FrameFeatures, start: StaticStart) -> OdometryState:
         cfg = self.config
         k = self._new_kf_index()
         pose = gtsam.Pose3(gtsam.Rot3(start.R_W_B.as_matrix()), self._last_p)
@@ -200,7 +267,7 @@ class VioEstimator:
         )
         self.window.start(kf, prior)
         self._cov_pose, self._cov_v = prior.cov_pose, prior.cov_v
-        self.features.add(k, frame)
+        self._add_features(kf, frame)
         self._begin(frame, "static")
         return self._keyframe_state(frame)
 
@@ -213,16 +280,16 @@ class VioEstimator:
         if self._failures:
             self._reset_counter += 1
             detail = f"{how} (reset {self._reset_counter})"
-            self._events.append(VioEvent(t_ns=frame.t_ns, kind="reinitialized", detail=detail))
+            self._events.append(OdometryEvent(t_ns=frame.t_ns, kind="reinitialized", detail=detail))
         else:
-            self._events.append(VioEvent(t_ns=frame.t_ns, kind="initialized", detail=how))
+            self._events.append(OdometryEvent(t_ns=frame.t_ns, kind="initialized", detail=how))
 
     def _new_kf_index(self) -> int:
         k = self._next_kf
         self._next_kf += 1
         return k
 
-    def _try_visual_init(self, frame: FrameFeatures) -> VioState | None:
+    def _try_visual_init(self, frame: FrameFeatures) -> OdometryState | None:
         """The visual-inertial initialisation over the keyframes collected while moving."""
         init = self._visual_init
         dec = self.frontend.decide(frame)
@@ -230,6 +297,9 @@ class VioEstimator:
             return None
         self.frontend.mark_keyframe(frame)
         self._init_frames = (self._init_frames + [frame])[-self.config.window_keyframes :]
+        self._candidates[frame.t_ns] = self._info(frame)
+        keep = {f.t_ns for f in self._init_frames}
+        self._candidates = {t: c for t, c in self._candidates.items() if t in keep}
         if len(self._init_frames) < self.config.window_keyframes:
             return None
         frames = tuple(self._init_frames)
@@ -256,7 +326,7 @@ class VioEstimator:
         frames: tuple[FrameFeatures, ...],
         pims: tuple[gtsam.PreintegratedCombinedMeasurements, ...],
         result: InitResult,
-    ) -> VioState:
+    ) -> OdometryState:
         cfg = self.config
         bias = gtsam.imuBias.ConstantBias(np.zeros(3), np.asarray(result.gyro_bias))
         self.features.clear()
@@ -273,7 +343,7 @@ class VioEstimator:
                     pim=None if i == 0 else pims[i - 1],
                 )
             )
-            self.features.add(k, f)
+            self._add_features(kfs[-1], f)
         prior = StatePrior(
             cov_pose=np.diag([cfg.init_attitude_sigma_rad**2] * 3 + [1e-6] * 3),
             cov_v=np.eye(3) * 0.1**2,
@@ -286,6 +356,7 @@ class VioEstimator:
         res = self.window.solve(self.features)
         if res.ok:
             self._cov_pose, self._cov_v = res.cov_pose, res.cov_v
+        self._retire()
         self._begin(frames[-1], "visual")
         return self._keyframe_state(frames[-1])
 
@@ -306,7 +377,7 @@ class VioEstimator:
         status: str,
         *,
         tracked: int,
-    ) -> VioState:
+    ) -> OdometryState:
         """The newest keyframe carried to ``t_ns`` by ``pim``; its covariance grown by the
         preintegration's (rotation, position; velocity in the world)."""
         kf = self.window.newest
@@ -330,8 +401,8 @@ class VioEstimator:
         status: str,
         keyframe: bool,
         tracked: int,
-    ) -> VioState:
-        return VioState(
+    ) -> OdometryState:
+        return OdometryState(
             t_ns=int(t_ns),
             T_W_B=to_pose(pose),
             v_W_B=np.asarray(v, np.float64),
@@ -342,12 +413,24 @@ class VioEstimator:
             status="propagated" if status == "propagated" else "tracking",
             keyframe=keyframe,
             reset_counter=self._reset_counter,
+            quality=self._quality(tracked, status),
             td_s=self._td_s,
             tracked=tracked,
         )
 
-    def _keyframe_state(self, frame: FrameFeatures) -> VioState:
+    def _quality(self, tracked: int, status: str) -> int:
+        """PX4's 0-100: the share of the front end's feature budget tracked at the last frame
+        (between frames, the last frame's)."""
+        if status == "propagated":
+            tracked = len(self._last_features.ids) if self._last_features is not None else 0
+        budget = self.config.tracker.max_features
+        return round(100 * min(1.0, tracked / budget)) if budget > 0 else 0
+
+    def _keyframe_state(self, frame: FrameFeatures) -> OdometryState:
         kf = self.window.newest
+        info = self._kf_info.get(kf.index)
+        if info is not None:
+            info.cov_pose = np.array(self._cov_pose)
         self._last_p = np.asarray(kf.pose.translation(), np.float64)
         return self._state(
             kf.t_ns, kf.pose, kf.velocity, kf.bias, self._cov_pose, self._cov_v,
@@ -364,7 +447,7 @@ class VioEstimator:
         ref = self.frontend.last_keyframe
         return ref is not None and self._stood(ref, frame)
 
-    def _track(self, frame: FrameFeatures) -> VioState | None:
+    def _track(self, frame: FrameFeatures) -> OdometryState | None:
         cfg = self.config
         reason = tracking_failure(len(frame.ids), cfg)
         if reason is not None:
@@ -386,7 +469,7 @@ class VioEstimator:
 
     def _add_keyframe(
         self, frame: FrameFeatures, prev: Keyframe, pim: gtsam.PreintegratedCombinedMeasurements
-    ) -> VioState | None:
+    ) -> OdometryState | None:
         cfg = self.config
         nav = pim.predict(gtsam.NavState(prev.pose, prev.velocity), prev.bias)
         bias0 = prev.bias
@@ -397,7 +480,7 @@ class VioEstimator:
             bias=prev.bias, pim=pim, still=still,
         )  # fmt: skip
         self.window.push(kf)
-        self.features.add(k, frame)
+        self._add_features(kf, frame)
         self.frontend.mark_keyframe(frame)
         with self._stage("optimize"):
             res = self.window.solve(self.features)
@@ -416,6 +499,7 @@ class VioEstimator:
         if reason is not None:
             return self._fail(frame.t_ns, reason)
         self._cov_pose, self._cov_v = res.cov_pose, res.cov_v
+        self._retire()
         self._prop = self._span(new, self._imu_t[-1])
         self._feed_time_offset(prev, new)
         self._prune_imu()
@@ -443,7 +527,7 @@ class VioEstimator:
         if est.converged and not self._td_settled:
             self._td_settled = True
             detail = f"camera-IMU offset {1e3 * est.td_s:.2f} ms (sigma {1e3 * est.sigma_s:.2f} ms)"
-            self._events.append(VioEvent(t_ns=b.t_ns, kind="td", detail=detail))
+            self._events.append(OdometryEvent(t_ns=b.t_ns, kind="td", detail=detail))
 
     def _vision_rotation(self, ka: int, kb: int) -> FloatArray | None:
         """The camera's rotation from keyframe ``ka`` to ``kb`` by vision alone (the essential
@@ -458,6 +542,52 @@ class VioEstimator:
         two = essential_pose(x0, x1, threshold=1.0 / self.window.focal_px, min_inliers=12)
         return None if two is None else two.T_Ca_Cb.R_A_B.as_matrix()
 
+    # -- keyframes for the interface ---------------------------------------------------------
+    def _info(self, frame: FrameFeatures) -> _KeyframeInfo:
+        """A keyframe's features with the frame being pushed and, if asked, ORB descriptors at
+        its corners (computed while its pixels are at hand)."""
+        desc = ok = None
+        if self.config.describe_keyframes and self._image_px is not None:
+            with self._stage("describe"):
+                try:
+                    desc, ok = orb_at(self._image_px, frame.uv_px)
+                except VisionError:
+                    desc = ok = None
+        return _KeyframeInfo(features=frame, image=self._image, descriptors=desc, described=ok)
+
+    def _add_features(self, kf: Keyframe, frame: FrameFeatures) -> None:
+        """A keyframe enters the window: its observations, and what it will be published with."""
+        self.features.add(kf.index, frame)
+        info = self._candidates.pop(frame.t_ns, None) or self._info(frame)
+        info.keyframe = kf
+        self._kf_info[kf.index] = info
+
+    def _retire(self, *, everything: bool = False) -> None:
+        """Publish the keyframes that left the window (all of them at a failure or the end)."""
+        inside = set() if everything else {kf.index for kf in self.window.keyframes}
+        for k in sorted(set(self._kf_info) - inside):
+            info = self._kf_info.pop(k)
+            if info.keyframe is not None:
+                self._done.append(self._record(k, info))
+        excess = len(self._done) - self.config.max_unread_keyframes
+        if excess > 0:  # nobody reads them: the oldest go (memory stays bounded), counted
+            del self._done[:excess]
+            self.input.counts["keyframes_unread"] += excess
+
+    def _record(self, k: int, info: _KeyframeInfo) -> KeyframeRecord:
+        kf, f = info.keyframe, info.features
+        assert kf is not None
+        lm = [(int(j), self.window.landmark_position(int(j))) for j in f.ids]
+        seen = [(j, p) for j, p in lm if p is not None]
+        cov = info.cov_pose if info.cov_pose is not None else self._cov_pose
+        return KeyframeRecord(
+            index=k, t_ns=kf.t_ns, reset_counter=self._reset_counter, T_W_B=to_pose(kf.pose),
+            cov_pose=cov, camera=self.camera, image=info.image, ids=f.ids, uv_px=f.uv_px,
+            xy=f.xy, descriptors=info.descriptors, described=info.described,
+            landmark_ids=np.array([j for j, _ in seen], np.int64),
+            landmarks_W=np.array([p for _, p in seen], np.float64).reshape(-1, 3),
+        )  # fmt: skip
+
     def _prune_imu(self) -> None:
         """Keep the IMU the window and a static start may still need."""
         if not self._imu_t:
@@ -470,12 +600,14 @@ class VioEstimator:
             del self._imu[:i]
             del self._imu_t[:i]
 
-    def _fail(self, t_ns: int, reason: str) -> VioState | None:
+    def _fail(self, t_ns: int, reason: str) -> OdometryState | None:
         """A failure: reported, the window reset; the next frames re-initialise."""
-        self._events.append(VioEvent(t_ns=int(t_ns), kind="failure", detail=reason))
+        self._events.append(OdometryEvent(t_ns=int(t_ns), kind="failure", detail=reason))
         self._failures += 1
         if self.window.keyframes:
             self._last_p = np.asarray(self.window.keyframes[-1].pose.translation(), np.float64)
+        self._retire(everything=True)
+        self._candidates.clear()
         self.window = SlidingWindow(self.config, self.camera_spec.T_B_C, self.camera_spec.camera.fx)
         self.features.clear()
         self.frontend.reset()

@@ -1,6 +1,6 @@
 """Failure detection (VINS-Mono's ``failureDetection``, thesis 003): too few features tracked,
 an implausible bias, speed or jump of the solved state against the IMU's prediction, a solve
-that did not go through. Each gives the reason a :class:`VioEvent` reports; the estimator then
+that did not go through. Each gives the reason a :class:`OdometryEvent` reports; the estimator then
 resets and re-initialises."""
 
 from __future__ import annotations

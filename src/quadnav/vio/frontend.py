@@ -15,8 +15,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from quadnav.geometry.camera import PinholeCamera
+from quadnav.odometry import FrameFeatures
 from quadnav.vio.config import VioConfig
-from quadnav.vio.types import FrameFeatures
 from quadnav.vision.tracking import FeatureTracker, TrackedFrame
 
 __all__ = [

@@ -34,7 +34,7 @@ from quadnav.geometry.multiview import (
     reprojection_errors,
     triangulate,
 )
-from quadnav.vio.types import FrameFeatures
+from quadnav.odometry import FrameFeatures
 
 __all__ = [
     "SfmResult",

@@ -374,3 +374,11 @@ class SlidingWindow:
             ok=True, cov_pose=cov_pose, cov_v=cov_v, landmarks=len(self.landmarks),
             added=added, dropped=dropped, error=err,
         )  # fmt: skip
+
+    def landmark_position(self, track: int) -> FloatArray | None:
+        """Where the window puts a track's landmark (in ``W``): its estimate, or the last one
+        it had when its first keyframe was marginalised; None if it has none (or a bad one)."""
+        if track in self.bad_tracks:
+            return None
+        p = self.landmarks.get(track)
+        return p if p is not None else self._seed.get(track)

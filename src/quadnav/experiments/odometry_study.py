@@ -1,4 +1,4 @@
-"""VIO over several datasets and seeds (``quadnav vio SEQ ... --seeds 0-4``): one run folder per
+"""An odometry (``quadnav vio SEQ ... --seeds 0-4``) over several datasets and seeds: one run folder per
 run inside a study folder, and a table of ATE, drift, failures and speed per run with the mean
 and median over the runs of each dataset (``summary.json``, ``summary.md``, printed by the CLI).
 
@@ -19,27 +19,27 @@ import numpy as np
 
 from quadnav.eval.na import Metric, fmt_metric, is_na
 from quadnav.eval.vio_metrics import MIN_DRIFT_DISTANCE_M
-from quadnav.experiments.vio_run import VioRun
+from quadnav.experiments.odometry_run import OdometryRun
 from quadnav.io.run_folder import append_jsonl, create_run_folder, write_json, write_text
 
 __all__ = [
     "GROUP_HEADER",
     "ROW_HEADER",
-    "VioGroup",
-    "VioRow",
-    "VioStudy",
+    "OdometryGroup",
+    "OdometryRow",
+    "OdometryStudy",
     "group_cells",
     "group_of",
     "row_cells",
     "row_of",
-    "run_vio_study",
+    "run_odometry_study",
     "summarize",
     "summary_markdown",
 ]
 
 Progress = Callable[[int, int, str], None]
 #: One run: (dataset source, seed, the folder its run folder goes in) -> the finished run.
-RunOne = Callable[[str, int, Path], VioRun]
+RunOne = Callable[[str, int, Path], OdometryRun]
 
 
 def group_of(source: str) -> str:
@@ -50,7 +50,7 @@ def group_of(source: str) -> str:
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
-class VioRow:
+class OdometryRow:
     """One run of the study."""
 
     group: str
@@ -70,7 +70,7 @@ class VioRow:
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
-class VioGroup:
+class OdometryGroup:
     """Mean and median over one group's runs (runs without a number are left out and
     counted in ``runs_without_ate``)."""
 
@@ -89,9 +89,9 @@ class VioGroup:
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
-class VioStudy:
-    rows: tuple[VioRow, ...]
-    groups: tuple[VioGroup, ...]
+class OdometryStudy:
+    rows: tuple[OdometryRow, ...]
+    groups: tuple[OdometryGroup, ...]
     run_dir: Path
 
     def as_json(self) -> dict[str, object]:
@@ -102,9 +102,9 @@ def _field(value: object, name: str) -> Metric:
     return value if isinstance(value, str) else float(getattr(value, name))
 
 
-def row_of(run: VioRun, group: str, seed: int | None) -> VioRow:
+def row_of(run: OdometryRun, group: str, seed: int | None) -> OdometryRow:
     m = run.metrics
-    return VioRow(
+    return OdometryRow(
         group=group, dataset=run.dataset, seed=seed,
         ate_4dof_rmse_m=_field(m.ape_4dof, "rmse_m"), final_error_m=m.final_error_m,
         drift_final_pct=m.drift_final_pct,
@@ -130,9 +130,9 @@ def _median(values: Sequence[Metric], what: str) -> Metric:
     return float(np.median(nums)) if nums else f"n/a: no run has {what}"
 
 
-def summarize(rows: Sequence[VioRow]) -> tuple[VioGroup, ...]:
+def summarize(rows: Sequence[OdometryRow]) -> tuple[OdometryGroup, ...]:
     """Per group (in the order first met): mean and median of each metric over its runs."""
-    groups: dict[str, list[VioRow]] = {}
+    groups: dict[str, list[OdometryRow]] = {}
     for r in rows:
         groups.setdefault(r.group, []).append(r)
     out = []
@@ -140,7 +140,7 @@ def summarize(rows: Sequence[VioRow]) -> tuple[VioGroup, ...]:
         ate = [r.ate_4dof_rmse_m for r in rs]
         drift = [r.drift_final_pct for r in rs]
         out.append(
-            VioGroup(
+            OdometryGroup(
                 group=name,
                 runs=len(rs),
                 runs_without_ate=len(rs) - len(_numbers(ate)),
@@ -173,7 +173,7 @@ def _cell(value: Metric, spec: str) -> str:
     return "n/a" if is_na(value) else fmt_metric(value, spec)
 
 
-def row_cells(r: VioRow) -> list[str]:
+def row_cells(r: OdometryRow) -> list[str]:
     return [
         r.dataset, "-" if r.seed is None else str(r.seed), _cell(r.ate_4dof_rmse_m, ".3f"),
         _cell(r.final_error_m, ".3f"),
@@ -184,7 +184,7 @@ def row_cells(r: VioRow) -> list[str]:
     ]  # fmt: skip
 
 
-def group_cells(g: VioGroup) -> list[str]:
+def group_cells(g: OdometryGroup) -> list[str]:
     return [
         g.group, str(g.runs), _cell(g.ate_mean_m, ".3f"), _cell(g.ate_median_m, ".3f"),
         _cell(g.drift_final_mean_pct, ".2f"), _cell(g.drift_final_median_pct, ".2f"),
@@ -199,7 +199,7 @@ def _md_table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
     return "\n".join(lines)
 
 
-def summary_markdown(study: VioStudy) -> str:
+def summary_markdown(study: OdometryStudy) -> str:
     """The study's two tables (per run, per group) as Markdown."""
     return (
         "## Per group (mean and median over its runs)\n\n"
@@ -213,15 +213,16 @@ def summary_markdown(study: VioStudy) -> str:
     )
 
 
-def run_vio_study(
+def run_odometry_study(
     sources: Sequence[str],
     seeds: Sequence[int] | None,
     run_one: RunOne,
     out: Path,
     *,
     is_sequence: Callable[[str], bool],
+    kind: str = "vio",
     progress: Progress | None = None,
-) -> VioStudy:
+) -> OdometryStudy:
     """Every source (for a built-in sequence, every seed) through ``run_one``, each into its
     own run folder inside the study's; the tables. Each finished run is appended to
     ``runs.jsonl`` at once, so an interrupted study keeps what it did."""
@@ -231,7 +232,7 @@ def run_vio_study(
             plan.extend((src, s) for s in (seeds or (0,)))
         else:
             plan.append((src, None))
-    study_dir = create_run_folder(out, "vio_study")
+    study_dir = create_run_folder(out, f"{kind}_study")
     write_text(study_dir / "config.yaml", f"sources: {list(sources)}\nseeds: {list(seeds or [])}\n")
     rows = []
     for k, (src, seed) in enumerate(plan):
@@ -242,7 +243,7 @@ def run_vio_study(
         append_jsonl(study_dir / "runs.jsonl", asdict(rows[-1]))
     if progress is not None:
         progress(len(plan), len(plan), "done")
-    study = VioStudy(rows=tuple(rows), groups=summarize(rows), run_dir=study_dir)
+    study = OdometryStudy(rows=tuple(rows), groups=summarize(rows), run_dir=study_dir)
     write_json(study_dir / "summary.json", study.as_json())
     write_text(study_dir / "summary.md", summary_markdown(study))
     return study

@@ -1,0 +1,181 @@
+"""The plots and the HTML report of an odometry run folder (:mod:`quadnav.experiments.odometry_run`)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from quadnav.errors import EvalError, IoError
+from quadnav.eval.na import fmt_metric
+from quadnav.eval.vio_metrics import VioMetrics
+from quadnav.experiments.odometry_run import OdometryRun, OdometryTiming
+from quadnav.geometry.trajectory import Trajectory
+from quadnav.units import ns_to_s
+
+__all__ = ["write_odometry_outputs"]
+
+
+def _pyplot() -> Any:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _plot_path(path: Path, truth: Trajectory | None, est: Trajectory, t0_ns: int) -> Path:
+    """Top view and height against time: the estimate (4-DoF aligned when there is a truth)
+    and the ground truth dashed."""
+    plt = _pyplot()
+    fig, (top, up) = plt.subplots(1, 2, figsize=(14, 5.5), constrained_layout=True)
+    for tr, style, label in ((truth, "--", "ground truth"), (est, "-", "VIO")):
+        if tr is None or len(tr) == 0:
+            continue
+        top.plot(tr.p_W_B[:, 0], tr.p_W_B[:, 1], style, lw=1.2, label=label)
+        up.plot((tr.t_ns - t0_ns) * 1e-9, tr.p_W_B[:, 2], style, lw=1.2, label=label)
+    top.set_aspect("equal", adjustable="datalim")
+    top.set_xlabel("x (m)")
+    top.set_ylabel("y (m)")
+    top.set_title("Top view" + (" (VIO aligned in position and yaw)" if truth is not None else ""))
+    up.set_xlabel("t (s from the run's start)")
+    up.set_ylabel("z (m)")
+    up.set_title("Height")
+    for ax in (top, up):
+        ax.grid(True, alpha=0.3)
+        ax.legend(fontsize=8)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
+def _plot_timing(path: Path, timing: OdometryTiming) -> Path:
+    plt = _pyplot()
+    names = list(timing.stage_ms_per_frame)
+    fig, ax = plt.subplots(figsize=(9, 0.5 * len(names) + 1.5), constrained_layout=True)
+    ax.barh(names, [timing.stage_ms_per_frame[n] for n in names])
+    ax.invert_yaxis()
+    ax.set_xlabel("ms per camera frame")
+    ax.set_title(f"Per stage: {timing.frames_per_s:.1f} frames/s for the estimator")
+    ax.grid(True, axis="x", alpha=0.3)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
+def _write_plots(
+    run: OdometryRun, ref: Trajectory | None, est_m: Trajectory | None, truth: Trajectory | None,
+    est: Trajectory,
+) -> list[Path]:  # fmt: skip
+    from quadnav.eval.align import align
+    from quadnav.eval.metrics import ape
+    from quadnav.eval.plots import plot_errors
+
+    plots = run.run_dir / "plots"
+    t0 = int(truth.t_ns[0]) if truth is not None else int(est.t_ns[0]) if len(est) else 0
+    images = []
+    if ref is not None and est_m is not None and len(est_m) >= 2:
+        try:
+            aligned, _ = align(ref, est_m, "4dof")
+        except EvalError:
+            aligned = None
+        if aligned is not None:
+            images.append(_plot_path(plots / "trajectory.png", truth, aligned, t0))
+            plot_errors(
+                ref,
+                aligned,
+                ape(ref, aligned),
+                plots / "error.png",
+                what="APE after 4-DoF alignment (m)",
+            )
+            images.append(plots / "error.png")
+    elif len(est):
+        images.append(_plot_path(plots / "trajectory.png", None, est, t0))
+    if run.timing.stage_ms_per_frame:
+        images.append(_plot_timing(plots / "timing.png", run.timing))
+    return images
+
+
+def _metric_rows(m: VioMetrics) -> list[list[object]]:
+    """The report's metrics, numbers to 4 significant digits (``metrics.json`` keeps them all)."""
+
+    def cell(v: object, key: str | None = None) -> str:
+        value = getattr(v, key) if key is not None and not isinstance(v, str) else v
+        return fmt_metric(value, ".4g")
+
+    return [
+        ["APE 4-DoF RMSE (m)", cell(m.ape_4dof, "rmse_m")],
+        ["APE 4-DoF median / max (m)", f"{cell(m.ape_4dof, 'median_m')} / {cell(m.ape_4dof, 'max_m')}"],
+        ["APE SE(3) RMSE (m)", cell(m.ape_se3, "rmse_m")],
+        ["APE Sim(3) RMSE (m), scale", f"{cell(m.ape_sim3, 'rmse_m')}, {cell(m.ape_sim3, 'scale')}"],
+        ["RPE per 1 m: trans RMSE (m), rot RMSE (deg)", f"{cell(m.rpe_1m, 'trans_rmse_m')}, {cell(m.rpe_1m, 'rot_rmse_deg')}"],
+        ["RPE per 10 m: trans RMSE (m), rot RMSE (deg)", f"{cell(m.rpe_10m, 'trans_rmse_m')}, {cell(m.rpe_10m, 'rot_rmse_deg')}"],
+        ["final position error (m)", cell(m.final_error_m)],
+        ["drift, final (%)", cell(m.drift_final_pct)],
+        ["drift, RPE (%)", cell(m.drift_rpe_pct)],
+        ["gravity error at the start (deg)", cell(m.gravity_error_deg)],
+        ["pose NEES / 6 (1: consistent)", cell(m.nees_pose, "mean_over_dof")],
+        ["distance travelled (m)", cell(m.distance_m)],
+        ["frames with an estimate", f"{m.frames_with_estimate} of {m.frames} ({100 * m.fraction_with_estimate:.1f} %)"],
+        ["initialised after (s)", cell(m.initialized_after_s)],
+        ["failures, re-initialisations", f"{m.failures}, {m.reinitializations}"],
+        ["rejected images", m.rejected_images],
+    ]  # fmt: skip
+
+
+def write_odometry_outputs(
+    run: OdometryRun, ref: Trajectory | None, est_m: Trajectory | None, truth: Trajectory | None,
+    est: Trajectory,
+) -> None:  # fmt: skip
+    """The plots and ``report.html`` of a finished run."""
+    from quadnav.eval.report import ReportSection, ReportTable, write_report
+
+    try:
+        images = _write_plots(run, ref, est_m, truth, est)
+    except OSError as exc:  # matplotlib and PIL raise it as it is (a full disk, say)
+        where = exc.filename or run.run_dir / "plots"
+        raise IoError(f"cannot write {where}: {exc.strerror or exc}") from None
+    t = run.timing
+    events = [
+        [f"{ns_to_s(e.t_ns - (int(est.t_ns[0]) if len(est) else e.t_ns)):.2f}", e.kind, e.detail]
+        for e in run.events
+    ]
+    stages = [
+        [n, t.stage_ms_per_call[n], t.stage_ms_per_frame.get(n, 0.0), t.stage_calls.get(n, 0)]
+        for n in t.stage_ms_per_call
+    ]
+    write_report(
+        run.run_dir / "report.html",
+        title=f"VIO on {run.dataset} ({run.camera})",
+        sections=[
+            ReportSection(
+                "Metrics",
+                text=run.metrics.drift_definitions,
+                tables=[
+                    ReportTable(
+                        "against the ground truth", ["metric", "value"], _metric_rows(run.metrics)
+                    )
+                ],
+            ),
+            ReportSection(
+                "Events",
+                tables=[
+                    ReportTable(
+                        "t (s from the first estimate)", ["t (s)", "kind", "detail"], events
+                    )
+                ],
+            ),
+            ReportSection(
+                "Timing",
+                text=f"{t.frames} frames, {t.frames_per_s:.1f} frames/s for the estimator, {t.wall_s:.1f} s wall time for the run",
+                tables=[
+                    ReportTable(
+                        "per stage", ["stage", "ms per call", "ms per frame", "calls"], stages
+                    )
+                ],
+            ),
+            ReportSection("Plots", images=images),
+            ReportSection("Notes", text="\n".join(run.notes) or "none"),
+            ReportSection("Configuration", code=(run.run_dir / "config.yaml").read_text()),
+        ],
+    )

@@ -1,0 +1,555 @@
+"""One run of any visual odometry (the VIO now, the SLAM next) over any visual-inertial dataset
+into a run folder: ``quadnav vio DATASET`` and the commands after it call this, with the
+estimator they build.
+
+The dataset's IMU samples and the frames of the cameras the estimator uses go, in time order,
+into anything that satisfies :class:`quadnav.odometry.VisualOdometry` through its one ``push``.
+The folder holds ``estimate.tum`` (the body's pose at each camera frame with an estimate, for
+evo), ``keyframes.tum`` (the keyframes the odometry published, at their final estimates),
+``groundtruth.tum`` (when the dataset has one), ``metrics.json``
+(:class:`quadnav.eval.vio_metrics.VioMetrics` with the run's timing), ``events.jsonl``
+(initialisation, failures, re-initialisations and rejected images as they happen),
+``timing.json``, ``plots/``, ``tracks.mp4`` (the tracked features), ``report.html`` and the
+``config.yaml`` used. A corrupt image is rejected and counted; the run goes on.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import shutil
+import time
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from quadnav.errors import ConfigError, EvalError, IoError, SampleError
+from quadnav.eval.associate import associate
+from quadnav.eval.na import Metric, na
+from quadnav.eval.vio_metrics import RunCounts, VioMetrics, vio_metrics
+from quadnav.geometry.trajectory import Trajectory
+from quadnav.io.datasets import VisualInertialDataset, open_dataset
+from quadnav.io.frames import VideoOut
+from quadnav.io.run_folder import append_jsonl, create_run_folder, write_json, write_text
+from quadnav.io.trajectory_io import write_tum
+from quadnav.messages import ImageFrame, ImuSample
+from quadnav.odometry import (
+    FrameFeatures,
+    KeyframeRecord,
+    OdometryEvent,
+    OdometryState,
+    VisualOdometry,
+)
+from quadnav.rig import Rig
+from quadnav.units import ns_to_s, s_to_ns
+from quadnav.vision.track_video import draw_tracks
+from quadnav.vision.tracking import FrameCounts, TrackedFrame, as_grey
+
+__all__ = [
+    "EstimatorFactory",
+    "OdometryRun",
+    "OdometryRunOptions",
+    "OdometryTiming",
+    "Progress",
+    "dataset_cache_folder",
+    "resolve_dataset",
+    "run_odometry",
+]
+
+Progress = Callable[[int, int, str], None]
+#: Makes the estimator of a run from the rig it runs on (the dataset's or a config file's).
+EstimatorFactory = Callable[[Rig], VisualOdometry]
+FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class OdometryRunOptions:
+    """What part of the dataset a run covers and what it writes: ``camera`` (its name in the
+    rig), ``start_s`` and ``duration_s`` (from the camera's first image; None: to its last),
+    ``imu_lead_s`` the IMU fed before the first image (a static start looks at it),
+    ``video`` every ``video_every`` frames, ``drift_first_s`` the span the final drift aligns
+    on, ``t_max_diff_s`` how far an estimate may be from a ground-truth sample to be scored."""
+
+    camera: str = "cam0"
+    start_s: float = 0.0
+    duration_s: float | None = None
+    imu_lead_s: float = 1.0
+    video: bool = True
+    video_every: int = 1
+    drift_first_s: float = 2.0
+    t_max_diff_s: float = 0.02
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class OdometryTiming:
+    """Where the run's time went: per stage (the estimator's own ``timing()``), the estimator
+    as a whole (every ``push`` and ``keyframes``), frames per second of that, and the
+    run's wall time (reading images, writing the video and files included)."""
+
+    frames: int
+    estimator_s: float
+    frames_per_s: float
+    wall_s: float
+    stage_ms_per_call: Mapping[str, float]
+    stage_ms_per_frame: Mapping[str, float]
+    stage_calls: Mapping[str, int]
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class OdometryRun:
+    """A finished run: its folder, what it measured, when it went wrong and how fast it was."""
+
+    run_dir: Path
+    dataset: str
+    camera: str
+    metrics: VioMetrics
+    timing: OdometryTiming
+    events: tuple[OdometryEvent, ...]
+    notes: tuple[str, ...] = ()
+
+    def as_json(self) -> dict[str, object]:
+        return {
+            "dataset": self.dataset, "camera": self.camera,
+            **dataclasses.asdict(self.metrics), "timing": dataclasses.asdict(self.timing),
+            "notes": list(self.notes),
+        }  # fmt: skip
+
+
+# -- what a run reads ---------------------------------------------------------------------------
+
+
+def dataset_cache_folder(root: Path, name: str, rig: str, seed: int, duration_s: float) -> Path:
+    """Where a built-in sequence made for a run is kept: keyed by sequence, rig, seed and
+    length, so that the same run reuses it and a different one does not."""
+    return Path(root) / "datasets" / f"{name}_{rig}_s{seed}_{duration_s:g}s"
+
+
+def _make_sequence(
+    name: str,
+    *,
+    rig: str,
+    seed: int,
+    duration_s: float,
+    cache_root: Path,
+    progress: Progress | None,
+) -> Path:
+    from quadnav.experiments.datasets import make_dataset, sequence_spec
+
+    spec = sequence_spec(name, {"rig": rig, "seed": seed, "duration_s": duration_s})
+    folder = dataset_cache_folder(cache_root, name, rig, seed, spec.duration_s)
+    if (folder / "dataset.json").is_file():
+        return folder  # made before, to the end (the manifest is written last)
+    if folder.exists():
+        shutil.rmtree(folder)  # a make that was stopped between the images and the manifest
+    make_dataset(spec, folder, name=name, progress=progress)
+    return folder
+
+
+def resolve_dataset(
+    source: str,
+    *,
+    seed: int = 0,
+    rig: str = "euroc_mono",
+    duration_s: float | None = None,
+    start_s: float = 0.0,
+    cache_root: Path = Path("runs"),
+    calibration: Path | None = None,
+    progress: Progress | None = None,
+) -> VisualInertialDataset:
+    """The dataset a run reads: a folder or bag ``open_dataset`` knows (``calibration``, a
+    Kalibr camchain or an EuRoC folder, replacing its own), or a built-in sequence made (once)
+    for ``seed`` and ``rig`` under ``cache_root/datasets``, as long as the run needs
+    (``start_s + duration_s``; the whole sequence without a duration)."""
+    from quadnav.experiments.datasets import SEQUENCES
+
+    path = Path(source)
+    if path.exists() or source not in SEQUENCES:
+        if not path.exists():
+            raise IoError(
+                f"DATASET {source!r}: no such file or folder, and not a built-in sequence "
+                f"({', '.join(SEQUENCES)})"
+            )
+        return open_dataset(path, calibration=calibration)
+    length = SEQUENCES[source].duration_s if duration_s is None else start_s + duration_s
+    folder = _make_sequence(
+        source, rig=rig, seed=seed, duration_s=length, cache_root=cache_root, progress=progress
+    )
+    return open_dataset(folder)
+
+
+# -- the run ------------------------------------------------------------------------------------
+
+
+def _span_frames(
+    dataset: VisualInertialDataset, options: OdometryRunOptions
+) -> tuple[int, int, list[ImageFrame]]:
+    if options.camera not in dataset.rig.camera_names:
+        raise ConfigError(
+            f"--camera {options.camera!r}: the dataset's cameras are "
+            f"{', '.join(dataset.rig.camera_names)}"
+        )
+    if len(dataset.imu) == 0:
+        raise ConfigError(f"{dataset.root}: the dataset has no IMU samples: VIO needs them")
+    frames = dataset.frames_of(options.camera)
+    if not frames:
+        raise ConfigError(f"{dataset.root}: camera {options.camera} has no images")
+    t0 = frames[0].t_ns + s_to_ns(options.start_s)
+    t1 = t0 + s_to_ns(options.duration_s) if options.duration_s is not None else frames[-1].t_ns
+    chosen = [f for f in frames if t0 <= f.t_ns <= t1]
+    if not chosen:
+        raise ConfigError(
+            f"--start {options.start_s:g} s / --duration: no image of {options.camera} "
+            f"in that span of {dataset.duration_s:.1f} s"
+        )
+    t0, t1 = chosen[0].t_ns, chosen[-1].t_ns
+    return t0, t1, chosen
+
+
+def _cameras(vio: VisualOdometry, primary: str) -> tuple[str, ...]:
+    """The cameras whose frames the odometry is given: the run's, then the others it uses."""
+    return (primary, *[c for c in vio.cameras if c != primary])
+
+
+def _stream(
+    dataset: VisualInertialDataset,
+    cameras: tuple[str, ...],
+    t0: int,
+    t1: int,
+    imu_lead_ns: int,
+) -> Iterator[ImageFrame | ImuSample]:
+    """The cameras' frames in ``[t0, t1]`` and the IMU from ``imu_lead_ns`` before ``t0``."""
+    for s in dataset.stream():
+        if s.t_ns < t0 - imu_lead_ns or (s.t_ns < t0 and not isinstance(s, ImuSample)):
+            continue
+        if s.t_ns > t1:
+            return
+        if isinstance(s, ImuSample) or s.camera in cameras:
+            yield s
+
+
+@dataclass(slots=True)
+class _Tracks:
+    """The features drawn in ``tracks.mp4``: each id's track length so far, the last frame."""
+
+    video: VideoOut | None
+    every: int
+    lengths: dict[int, int] = field(default_factory=dict)
+    previous: TrackedFrame | None = None
+
+    def add(self, k: int, image: NDArray[np.uint8], f: FrameFeatures | None, text: str) -> None:
+        if f is None:
+            self.previous = None
+            if self.video is not None and k % self.every == 0:
+                grey = as_grey(image)
+                self.video.write(_caption(np.asarray(cv2.cvtColor(grey, cv2.COLOR_GRAY2BGR)), text))
+            return
+        ids = np.asarray(f.ids, dtype=np.int64)
+        n = np.array([self.lengths.get(int(i), 0) + 1 for i in ids], dtype=np.int64)
+        self.lengths = dict(zip(ids.tolist(), n.tolist(), strict=True))
+        zero = FrameCounts(
+            previous=0, tracked=0, lost_klt=0, lost_border=0, lost_fb=0, lost_ransac=0,
+            lost_spacing=0, new=0,
+        )  # fmt: skip
+        frame = TrackedFrame(
+            t_ns=f.t_ns, ids=ids, pixels=f.uv_px, pixels_undistorted=f.uv_px,
+            track_lengths=n, is_new=n == 1, counts=zero,
+        )  # fmt: skip
+        if self.video is not None and k % self.every == 0:
+            self.video.write(_caption(draw_tracks(image, frame, self.previous), text))
+        self.previous = frame
+
+
+def _caption(image: NDArray[np.uint8], text: str) -> NDArray[np.uint8]:
+    out = np.ascontiguousarray(image)
+    cv2.putText(out, text, (8, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 255, 255), 1, cv2.LINE_AA)
+    return out
+
+
+@dataclass(slots=True)
+class _Record:
+    """What the loop collects: the camera-rate states, the counts, the events written."""
+
+    states: list[OdometryState] = field(default_factory=list)
+    frames: int = 0
+    rejected: int = 0
+    events_written: int = 0
+    estimator_s: float = 0.0
+    first_frame_ns: int | None = None
+    #: the published keyframes' stamps and poses (not the records: their keypoints would grow
+    #: with the run)
+    keyframes: _KeyframePoses = field(default_factory=lambda: _KeyframePoses())
+
+
+@dataclass(slots=True)
+class _KeyframePoses:
+    rows: dict[int, tuple[FloatArray, FloatArray]] = field(default_factory=dict)
+
+    def extend(self, records: Sequence[KeyframeRecord]) -> None:
+        for r in records:
+            self.rows[r.t_ns] = (r.T_W_B.p_A_B, r.T_W_B.R_A_B.as_quat())
+
+    def trajectory(self) -> Trajectory:
+        """The keyframes' poses in time order (the latest record of a stamp)."""
+        t = sorted(self.rows)
+        return Trajectory(
+            t_ns=np.array(t, dtype=np.int64),
+            p_W_B=np.array([self.rows[k][0] for k in t]).reshape(-1, 3),
+            q_W_B_xyzw=np.array([self.rows[k][1] for k in t]).reshape(-1, 4),
+            name="keyframes",
+        )
+
+
+def _event_json(e: OdometryEvent, t0: int) -> dict[str, object]:
+    return {"t_ns": e.t_ns, "t_s": ns_to_s(e.t_ns - t0), "kind": e.kind, "detail": e.detail}
+
+
+def _flush_events(vio: VisualOdometry, rec: _Record, path: Path, t0: int) -> None:
+    events = vio.events
+    for e in events[rec.events_written :]:
+        append_jsonl(path, _event_json(e, t0))
+    rec.events_written = len(events)
+
+
+def _image_of(frame: ImageFrame, rec: _Record, events: Path, t0: int) -> NDArray[np.uint8] | None:
+    try:
+        return frame.image()
+    except SampleError as exc:
+        rec.rejected += 1
+        append_jsonl(
+            events,
+            {"t_ns": frame.t_ns, "t_s": ns_to_s(frame.t_ns - t0), "kind": "rejected_image",
+             "detail": str(exc)},
+        )  # fmt: skip
+        return None
+
+
+def _status(state: OdometryState | None, t_s: float, rec: _Record) -> str:
+    if state is None:
+        return f"{t_s:6.2f} s  no estimate"
+    return f"{t_s:6.2f} s  {state.status}  {state.tracked} tracked  reset {state.reset_counter}"
+
+
+class _Pixels:
+    """A frame's loader that hands the pixels the run already read to the first caller (the
+    odometry), then lets them go and reads from the source again: the keyframe records keep a
+    file's reference, not its pixels."""
+
+    __slots__ = ("_image", "_load")
+
+    def __init__(self, image: NDArray[np.uint8], load: Callable[[], NDArray[np.uint8]]) -> None:
+        self._image: NDArray[np.uint8] | None = image
+        self._load = load
+
+    def __call__(self) -> NDArray[np.uint8]:
+        image, self._image = self._image, None
+        return image if image is not None else self._load()
+
+
+def _push(vio: VisualOdometry, s: ImuSample | ImageFrame, rec: _Record) -> OdometryState | None:
+    tic = time.perf_counter()
+    state = vio.push(s)
+    rec.keyframes.extend(vio.keyframes())
+    rec.estimator_s += time.perf_counter() - tic
+    return state
+
+
+def _loop(
+    vio: VisualOdometry,
+    stream: Iterator[ImageFrame | ImuSample],
+    n_frames: int,
+    run_dir: Path,
+    tracks: _Tracks,
+    t0: int,
+    progress: Progress | None,
+    rec: _Record,
+    primary: str,
+) -> None:
+    """Feed the stream to ``vio``, filling ``rec`` (kept as far as it got on an interrupt); the
+    frames of ``primary`` are drawn and counted, those of its other cameras only pushed."""
+    events = run_dir / "events.jsonl"
+    events.touch()
+    for s in stream:
+        if isinstance(s, ImuSample) or s.camera != primary:
+            _push(vio, s, rec)  # the IMU, and the other cameras the odometry uses
+            continue
+        image = _image_of(s, rec, events, t0)
+        if image is None:
+            continue
+        rec.first_frame_ns = s.t_ns if rec.first_frame_ns is None else rec.first_frame_ns
+        frame = dataclasses.replace(s, load=_Pixels(image, s.load))
+        state = _push(vio, frame, rec)
+        rec.frames += 1
+        if state is not None:
+            rec.states.append(state)
+        _flush_events(vio, rec, events, t0)
+        tracks.add(
+            rec.frames - 1, image, vio.last_features, _status(state, ns_to_s(s.t_ns - t0), rec)
+        )
+        if progress is not None:
+            progress(rec.frames + rec.rejected, n_frames, f"{ns_to_s(s.t_ns - t0):.1f} s")
+
+
+def _estimate(states: list[OdometryState]) -> tuple[Trajectory, FloatArray]:
+    """The camera-rate estimate (time-ordered, one pose per stamp) and its pose covariances."""
+    kept: dict[int, OdometryState] = {}
+    for st in states:
+        kept[st.t_ns] = st  # a repeated stamp: the later state
+    ordered = [kept[t] for t in sorted(kept)]
+    t = np.array([s.t_ns for s in ordered], dtype=np.int64)
+    p = np.array([s.T_W_B.p_A_B for s in ordered]).reshape(-1, 3)
+    q = np.array([s.T_W_B.R_A_B.as_quat() for s in ordered]).reshape(-1, 4)
+    cov = np.array([s.cov_pose for s in ordered], dtype=np.float64).reshape(-1, 6, 6)
+    return Trajectory(t_ns=t, p_W_B=p, q_W_B_xyzw=q, name="vio"), cov
+
+
+def _timing(vio: VisualOdometry, rec: _Record, wall_s: float) -> OdometryTiming:
+    stages = vio.timing().stages
+    frames = max(rec.frames, 1)
+    return OdometryTiming(
+        frames=rec.frames, estimator_s=rec.estimator_s,
+        frames_per_s=rec.frames / rec.estimator_s if rec.estimator_s > 0 else 0.0,
+        wall_s=wall_s, stage_ms_per_call=vio.timing().per_call_ms(),
+        stage_ms_per_frame={name: 1e3 * s / frames for name, s, _ in stages},
+        stage_calls={name: n for name, _, n in stages},
+    )  # fmt: skip
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class _Scored:
+    """The estimate and the ground truth matched to it (None without one), for the metrics
+    and the plots; ``truth`` is the ground truth over the run's span."""
+
+    est: Trajectory
+    cov: FloatArray
+    matched_truth: Trajectory | None = None
+    matched_est: Trajectory | None = None
+    matched_cov: FloatArray | None = None
+    truth: Trajectory | None = None
+    note: str = ""
+
+
+def _score(
+    dataset: VisualInertialDataset,
+    est: Trajectory,
+    cov: FloatArray,
+    t0: int,
+    t1: int,
+    opt: OdometryRunOptions,
+) -> _Scored:
+    gt = dataset.groundtruth
+    if gt is None:
+        return _Scored(est=est, cov=cov)
+    tr = gt.trajectory
+    truth = tr.select(np.flatnonzero((tr.t_ns >= t0) & (tr.t_ns <= t1)))
+    if len(est) == 0 or len(truth) < 2:
+        note = "no estimate to score" if len(est) == 0 else "no ground truth in the run's span"
+        return _Scored(est=est, cov=cov, truth=truth if len(truth) else None, note=note)
+    try:
+        ref_m, est_m = associate(truth, est, t_max_diff_s=opt.t_max_diff_s, interpolate=True)
+    except EvalError as exc:
+        return _Scored(est=est, cov=cov, truth=truth, note=str(exc))
+    idx = np.searchsorted(est.t_ns, est_m.t_ns)
+    return _Scored(
+        est=est, cov=cov, matched_truth=ref_m, matched_est=est_m, matched_cov=cov[idx], truth=truth
+    )
+
+
+def _counts(rec: _Record, vio: VisualOdometry, t0: int) -> RunCounts:
+    kinds = [e.kind for e in vio.events]
+    first = rec.states[0].t_ns if rec.states else None
+    after: Metric = (
+        ns_to_s(first - (rec.first_frame_ns or t0))
+        if first is not None
+        else na("never initialised")
+    )
+    return RunCounts(
+        frames=rec.frames + rec.rejected, failures=kinds.count("failure"),
+        reinitializations=kinds.count("reinitialized"), rejected_images=rec.rejected,
+        initialized_after_s=after,
+    )  # fmt: skip
+
+
+def run_odometry(
+    dataset: VisualInertialDataset,
+    rig: Rig,
+    make_estimator: EstimatorFactory,
+    out: Path,
+    *,
+    config_text: str = "",
+    options: OdometryRunOptions | None = None,
+    name: str = "",
+    kind: str = "vio",
+    progress: Progress | None = None,
+) -> OdometryRun:
+    """Run the estimator ``make_estimator(rig)`` over ``dataset``'s IMU and the cameras it uses
+    into a run folder ``<stamp>_<kind>_<name>`` under ``out`` (see the module); what it
+    measured."""
+    opt = options or OdometryRunOptions()
+    start = time.perf_counter()
+    t0, t1, frames = _span_frames(dataset, opt)
+    vio = make_estimator(rig)
+    run_dir = create_run_folder(out, f"{kind}_{name or dataset.name}")
+    write_text(run_dir / "config.yaml", config_text)
+    video = (
+        VideoOut(run_dir / "tracks.mp4", rig.camera(opt.camera).rate_hz / opt.video_every)
+        if opt.video
+        else None
+    )
+    tracks = _Tracks(video=video, every=opt.video_every)
+    rec = _Record()
+    try:
+        _loop(
+            vio,
+            _stream(dataset, _cameras(vio, opt.camera), t0, t1, s_to_ns(opt.imu_lead_s)),
+            len(frames),
+            run_dir,
+            tracks,
+            t0,
+            progress,
+            rec,
+            opt.camera,
+        )
+        rec.keyframes.extend(vio.keyframes(final=True))
+    finally:
+        if video is not None:
+            video.close()
+        est, cov = _estimate(rec.states)
+        write_tum(run_dir / "estimate.tum", est)
+        write_tum(run_dir / "keyframes.tum", rec.keyframes.trajectory())
+    return _finish(dataset, vio, rec, run_dir, est, cov, (t0, t1), opt, time.perf_counter() - start)
+
+
+def _finish(
+    dataset: VisualInertialDataset,
+    vio: VisualOdometry,
+    rec: _Record,
+    run_dir: Path,
+    est: Trajectory,
+    cov: FloatArray,
+    span: tuple[int, int],
+    opt: OdometryRunOptions,
+    wall_s: float,
+) -> OdometryRun:
+    scored = _score(dataset, est, cov, span[0], span[1], opt)
+    if scored.truth is not None:
+        write_tum(run_dir / "groundtruth.tum", scored.truth)
+    metrics = vio_metrics(
+        scored.matched_truth, scored.matched_est if scored.matched_est is not None else est,
+        _counts(rec, vio, span[0]), cov_pose=scored.matched_cov, drift_first_s=opt.drift_first_s,
+        unscored=scored.note or "the dataset has no ground truth",
+    )  # fmt: skip
+    issues = dataset.issues.for_cameras([opt.camera])  # not those of a camera left unused
+    notes = [n for n in (scored.note, issues.summary() if issues else "") if n]
+    run = OdometryRun(
+        run_dir=run_dir, dataset=dataset.name, camera=opt.camera, metrics=metrics,
+        timing=_timing(vio, rec, wall_s), events=vio.events, notes=tuple(notes),
+    )  # fmt: skip
+    write_json(run_dir / "timing.json", dataclasses.asdict(run.timing))
+    write_json(run_dir / "metrics.json", run.as_json())
+    from quadnav.experiments.odometry_report import write_odometry_outputs
+
+    write_odometry_outputs(run, scored.matched_truth, scored.matched_est, scored.truth, est)
+    return run

@@ -1,0 +1,222 @@
+"""The odometry interface: what a visual odometry (the VIO now, the SLAM next) takes, gives out and
+publishes, with no GTSAM and no OpenCV in it, so that a run, a loop closer, a map or a fusion
+depends on it and not on an estimator.
+
+An odometry takes :class:`~quadnav.messages.ImuSample` and :class:`~quadnav.messages.ImageFrame`
+(of any camera of its rig) in time order through ``push`` and answers with an
+:class:`OdometryState` once it has one. Its world frame ``W`` is gravity-aligned (z up) with the
+yaw and origin of its initialisation; ``reset_counter`` goes up each time it starts again (its
+frame then jumps, as PX4's external odometry expects). ``keyframes()`` hands out, once each, the
+keyframes it has finished with (they left its window): their final pose, covariance, keypoints
+with their descriptors, the landmarks they see and a reference to their image, for a loop closer
+or a map to keep. The odometry keeps none of them, so its memory stays bounded.
+
+Covariances of a pose follow GTSAM's ``Pose3`` convention: 6x6 over (rx, ry, rz, x, y, z), a
+perturbation on the right, ``T = T_hat Exp(xi)``, i.e. in the body frame.
+:meth:`OdometryState.odometry` turns that into PX4's world-frame order for the EKF.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Literal, Protocol
+
+import numpy as np
+from numpy.typing import NDArray
+
+from quadnav.errors import SampleError
+from quadnav.geometry.rotations import Pose
+from quadnav.messages import ImageFrame, ImuSample, OdometrySample
+
+__all__ = [
+    "EventKind",
+    "FrameFeatures",
+    "KeyframeRecord",
+    "OdometryEvent",
+    "OdometryState",
+    "StageTiming",
+    "Status",
+    "VisualOdometry",
+]
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+
+Status = Literal["tracking", "propagated"]
+EventKind = Literal["initialized", "failure", "reinitialized", "td", "stereo"]
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class FrameFeatures:
+    """One camera frame's tracked features: ``ids`` (stable per track), ``uv_px`` (distorted
+    pixels, as tracked), ``xy`` (undistorted normalised image coordinates, z = 1) and
+    ``velocity_xy_s`` (their image velocity in normalised coordinates per second, for the time
+    offset), with ``keyframe`` the front end's decision and ``parallax_px`` its reason."""
+
+    t_ns: int
+    ids: IntArray
+    uv_px: FloatArray
+    xy: FloatArray
+    velocity_xy_s: FloatArray
+    keyframe: bool = False
+    parallax_px: float = 0.0
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class OdometryState:
+    """The estimate at ``t_ns``: the pose and velocity of the body in the odometry's world, the
+    IMU biases, the covariances (``cov_pose`` GTSAM's 6x6 (rot, trans) in the body frame;
+    ``cov_v`` 3x3 world), ``status`` (``tracking`` after an optimisation at a camera frame,
+    ``propagated`` by the IMU between frames), whether it is a keyframe's, ``reset_counter``
+    (up at each re-initialisation), ``quality`` (0-100 as PX4's ODOMETRY: the share of the
+    features the front end aims for that it tracks), the camera-IMU time offset in use and the
+    features tracked."""
+
+    t_ns: int
+    T_W_B: Pose
+    v_W_B: FloatArray
+    gyro_bias: FloatArray
+    accel_bias: FloatArray
+    cov_pose: FloatArray
+    cov_v: FloatArray
+    status: Status = "tracking"
+    keyframe: bool = False
+    reset_counter: int = 0
+    quality: int = 100
+    td_s: float = 0.0
+    tracked: int = 0
+
+    def odometry(self, *, source: str = "vio", quality: int | None = None) -> OdometrySample:
+        """This state as an external-odometry sample (PX4's ``ODOMETRY``): the pose covariance
+        carried to the world frame and PX4's (x, y, z, rx, ry, rz) order; ``quality`` replaces
+        the state's own when given."""
+        R = self.T_W_B.R_A_B.as_matrix()
+        J = np.zeros((6, 6))
+        J[0:3, 3:6] = R  # position error in W = R * body translation error
+        J[3:6, 0:3] = R  # world-frame attitude error = R * body-frame one
+        cov = J @ self.cov_pose @ J.T
+        return OdometrySample(
+            t_ns=self.t_ns,
+            p_W_B=self.T_W_B.p_A_B,
+            q_W_B_xyzw=self.T_W_B.R_A_B.as_quat(),
+            v_W_B=self.v_W_B,
+            cov_pose=0.5 * (cov + cov.T),
+            cov_v=0.5 * (self.cov_v + self.cov_v.T),
+            reset_counter=self.reset_counter,
+            quality=self.quality if quality is None else quality,
+            source=source,
+        )
+
+
+def _rows(a: object, cols: int | None, dtype: type, name: str) -> NDArray[np.generic]:
+    arr: NDArray[np.generic] = np.asarray(a, dtype=dtype)
+    want = (arr.shape[0], cols) if cols is not None else (arr.shape[0],) if arr.ndim else ()
+    if arr.ndim == 0 or arr.shape != want:
+        raise SampleError(
+            f"KeyframeRecord.{name} must have shape (N{', ' + str(cols) if cols else ''}), got {arr.shape}"
+        )
+    if arr.dtype.kind == "f" and not np.isfinite(arr).all():
+        raise SampleError(f"KeyframeRecord.{name} must be finite")
+    return arr
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class KeyframeRecord:
+    """A keyframe an odometry has finished with: its number ``index`` (unique in the run), time,
+    ``reset_counter`` (the odometry frame it is in), pose ``T_W_B`` and its ``cov_pose`` (body
+    frame, GTSAM's order), the camera it was taken with and its ``image`` (the frame, whose
+    pixels load on demand; None if the odometry was given bare pixels without a source).
+
+    Its keypoints: ``ids`` (track ids, one per keypoint), ``uv_px`` (distorted pixels), ``xy``
+    (undistorted normalised coordinates) and ``descriptors`` (``(N, 32)`` uint8 ORB/BRIEF, or
+    None when the odometry describes none; a keypoint it could not describe has a row of
+    zeros and ``described`` False). The landmarks it sees: ``landmark_ids`` (track ids, a subset
+    of ``ids``) and their positions ``landmarks_W`` in the odometry's world."""
+
+    index: int
+    t_ns: int
+    reset_counter: int
+    T_W_B: Pose
+    cov_pose: FloatArray
+    camera: str
+    image: ImageFrame | None
+    ids: IntArray
+    uv_px: FloatArray
+    xy: FloatArray
+    descriptors: NDArray[np.uint8] | None = None
+    described: NDArray[np.bool_] | None = None
+    landmark_ids: IntArray = field(default_factory=lambda: np.zeros(0, np.int64))
+    landmarks_W: FloatArray = field(default_factory=lambda: np.zeros((0, 3)))
+
+    def __post_init__(self) -> None:
+        ids = _rows(self.ids, None, np.int64, "ids")
+        object.__setattr__(self, "ids", ids)
+        for name in ("uv_px", "xy"):
+            arr = _rows(getattr(self, name), 2, np.float64, name)
+            if len(arr) != len(ids):
+                raise SampleError(f"KeyframeRecord.{name} needs one row per id ({len(ids)})")
+            object.__setattr__(self, name, arr)
+        if self.descriptors is not None:
+            d = np.asarray(self.descriptors)
+            if d.dtype != np.uint8 or d.ndim != 2 or len(d) != len(ids):
+                raise SampleError(
+                    "KeyframeRecord.descriptors must be (N, bytes) uint8, a row per id"
+                )
+        lid = _rows(self.landmark_ids, None, np.int64, "landmark_ids")
+        lw = _rows(self.landmarks_W, 3, np.float64, "landmarks_W")
+        if len(lid) != len(lw):
+            raise SampleError("KeyframeRecord.landmarks_W needs one row per landmark id")
+        object.__setattr__(self, "landmark_ids", lid)
+        object.__setattr__(self, "landmarks_W", lw)
+        cov = np.asarray(self.cov_pose, np.float64)
+        if cov.shape != (6, 6) or not np.isfinite(cov).all():
+            raise SampleError(f"KeyframeRecord.cov_pose must be a finite 6x6, got {cov.shape}")
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class OdometryEvent:
+    """Something a run must report: the initialisation (``detail`` says how), a failure (too
+    few tracks, a jump in bias or velocity, an implausible motion) and the re-initialisation
+    after it, a time-offset estimate settling, stereo frames used as mono."""
+
+    t_ns: int
+    kind: EventKind
+    detail: str
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class StageTiming:
+    """Wall time per stage of the pipeline (``track``, ``keyframe``, ``preintegrate``,
+    ``initialize``, ``optimize``...): total seconds and calls, in order."""
+
+    stages: tuple[tuple[str, float, int], ...] = field(default=())
+
+    def per_call_ms(self) -> dict[str, float]:
+        return {name: 1e3 * s / max(n, 1) for name, s, n in self.stages}
+
+
+class VisualOdometry(Protocol):
+    """What a run, a closed loop or a loop closer drives: IMU samples and camera frames of any
+    camera of the rig, in time order; a state back once initialised (IMU-rate propagation from
+    an IMU sample, an optimised state from an image). Bad input is rejected and counted in
+    ``rejected``, never raised."""
+
+    @property
+    def cameras(self) -> tuple[str, ...]: ...  # the rig's cameras it uses
+
+    def push(self, sample: ImuSample | ImageFrame) -> OdometryState | None: ...
+
+    # the keyframes finished since the last call, each once; ``final``: the window's too
+    def keyframes(self, *, final: bool = False) -> Sequence[KeyframeRecord]: ...
+
+    @property
+    def events(self) -> tuple[OdometryEvent, ...]: ...
+
+    @property
+    def last_features(self) -> FrameFeatures | None: ...
+
+    @property
+    def rejected(self) -> Mapping[str, int]: ...
+
+    def timing(self) -> StageTiming: ...

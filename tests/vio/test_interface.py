@@ -1,0 +1,128 @@
+"""The odometry interface on the real VIO (a rendered room sequence through EuRoC's mono rig, a
+still start then motion): one ``push`` for IMU samples and frames, keyframe records handed out
+once, consistent with themselves (their landmarks project onto their keypoints, their
+descriptors follow their tracks), and memory bounded when nobody reads them."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+
+from quadnav.experiments.datasets import make_dataset, sequence_spec
+from quadnav.io.datasets import VisualInertialDataset, open_dataset
+from quadnav.odometry import KeyframeRecord, OdometryState
+from quadnav.vio import VioConfig, VioEstimator
+
+
+@dataclass
+class _Run:
+    ds: VisualInertialDataset
+    vio: VioEstimator
+    lazy: VioEstimator  # never asked for its keyframes until the end
+    states: list[OdometryState]
+    records: list[KeyframeRecord]
+    batches: list[int]
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory: pytest.TempPathFactory) -> _Run:
+    root = tmp_path_factory.mktemp("interface") / "room"
+    spec = sequence_spec(
+        "room_easy", {"duration_s": 6.0, "still_s": 1.0, "rig": "euroc_mono", "seed": 3}
+    )
+    make_dataset(spec, root, name="room_easy")
+    ds = open_dataset(root)
+    vio = VioEstimator(ds.rig, VioConfig())
+    lazy = VioEstimator(ds.rig, VioConfig(max_unread_keyframes=2))
+    states, records, batches = [], [], []
+    for item in ds.stream():
+        s = vio.push(item)
+        lazy.push(item)
+        if s is not None:
+            states.append(s)
+        got = vio.keyframes()
+        if got:
+            batches.append(len(got))
+            records.extend(got)
+    records.extend(vio.keyframes(final=True))
+    return _Run(ds=ds, vio=vio, lazy=lazy, states=states, records=records, batches=batches)
+
+
+def test_keyframes_are_handed_out_once_in_order(run: _Run) -> None:
+    idx = [r.index for r in run.records]
+    assert len(idx) >= 8
+    assert idx == sorted(set(idx)), "each keyframe once, in order"
+    assert all(np.diff([r.t_ns for r in run.records]) > 0)
+    assert run.vio.keyframes() == [] and run.vio.keyframes(final=True) == []
+    assert [e.kind for e in run.vio.events] == ["initialized"]
+    # most were published while the run went on (as they left the window), not at the end
+    assert sum(run.batches) >= len(idx) - VioConfig().window_keyframes - 1
+
+
+def test_a_records_landmarks_project_onto_its_keypoints(run: _Run) -> None:
+    T_B_C = run.ds.rig.camera("cam0").T_B_C
+    f = run.ds.rig.camera("cam0").camera.fx
+    errors = []
+    with_landmarks = 0
+    for r in run.records:
+        if len(r.landmark_ids) == 0:
+            continue
+        with_landmarks += 1
+        assert set(r.landmark_ids.tolist()) <= set(r.ids.tolist())
+        c = (r.T_W_B @ T_B_C).inverse() @ r.landmarks_W
+        assert np.all(c[:, 2] > 0), "landmarks in front of the keyframe's camera"
+        at = {int(j): k for k, j in enumerate(r.ids)}
+        xy = r.xy[[at[int(j)] for j in r.landmark_ids]]
+        errors.append(np.median(np.linalg.norm(c[:, :2] / c[:, 2:3] - xy, axis=1)) * f)
+    assert with_landmarks >= 0.7 * len(run.records)
+    assert float(np.median(errors)) < 1.5, f"median reprojection {np.median(errors):.2f} px"
+
+
+def test_descriptors_follow_their_tracks(run: _Run) -> None:
+    """The same track's ORB descriptor in two consecutive keyframes is far closer (Hamming) than
+    two different tracks' are: the descriptors sit at their keypoints."""
+    same, other = [], []
+    for a, b in zip(run.records, run.records[1:], strict=False):
+        assert a.descriptors is not None and a.described is not None
+        # a corner within 16 px of the border cannot be described (tracks leave the image there)
+        assert a.descriptors.shape == (len(a.ids), 32) and a.described.mean() > 0.7
+        assert b.descriptors is not None and b.described is not None
+        _, ia, ib = np.intersect1d(a.ids, b.ids, return_indices=True)
+        ok = a.described[ia] & b.described[ib]
+        bits = np.unpackbits(a.descriptors[ia][ok] ^ b.descriptors[ib][ok], axis=1).sum(axis=1)
+        same.extend(bits.tolist())
+        shuffled = np.unpackbits(
+            a.descriptors[ia][ok] ^ np.roll(b.descriptors[ib][ok], 7, axis=0), axis=1
+        ).sum(axis=1)
+        other.extend(shuffled.tolist())
+    assert len(same) > 200
+    assert np.median(same) < 0.5 * np.median(other)
+
+
+def test_a_record_refers_to_its_image(run: _Run) -> None:
+    r = run.records[len(run.records) // 2]
+    assert r.image is not None and r.image.camera == "cam0" and r.camera == "cam0"
+    assert abs(r.image.t_ns - r.t_ns) < 1_000_000  # the offset in use is zero here
+    px = r.image.image()  # read again from its file: the record holds no pixels
+    assert px.shape[:2] == (480, 752)
+
+
+def test_quality_is_the_share_of_the_feature_budget(run: _Run) -> None:
+    budget = VioConfig().tracker.max_features
+    tracked = [s for s in run.states if s.status == "tracking"]
+    assert tracked
+    for s in tracked:
+        assert s.quality == round(100 * min(1.0, s.tracked / budget))
+    assert all(0 <= s.quality <= 100 for s in run.states)
+    assert all(s.odometry().quality == s.quality for s in tracked[:5])
+
+
+def test_unread_keyframes_are_dropped_and_counted(run: _Run) -> None:
+    kept = run.lazy.keyframes()
+    assert len(kept) <= 2
+    dropped = run.lazy.rejected.get("keyframes_unread", 0)
+    assert dropped >= len(run.records) - VioConfig().window_keyframes - 2
+    # what it kept are its newest published keyframes, as the reading run got them
+    assert [k.index for k in kept] == sorted(k.index for k in kept)
