@@ -52,7 +52,8 @@ class FrameFeatures:
     """One camera frame's tracked features: ``ids`` (stable per track), ``uv_px`` (distorted
     pixels, as tracked), ``xy`` (undistorted normalised image coordinates, z = 1) and
     ``velocity_xy_s`` (their image velocity in normalised coordinates per second, for the time
-    offset), with ``keyframe`` the front end's decision and ``parallax_px`` its reason."""
+    offset), with ``keyframe`` the front end's decision and ``parallax_px`` its reason; with a
+    stereo rig, the same features in the second camera."""
 
     t_ns: int
     ids: IntArray
@@ -61,6 +62,10 @@ class FrameFeatures:
     velocity_xy_s: FloatArray
     keyframe: bool = False
     parallax_px: float = 0.0
+    #: with a stereo rig: the features also found in the second camera (ids, a subset of
+    #: ``ids``) and where (undistorted normalised coordinates of that camera)
+    stereo_ids: IntArray = field(default_factory=lambda: np.zeros(0, np.int64))
+    stereo_xy: FloatArray = field(default_factory=lambda: np.zeros((0, 2)))
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

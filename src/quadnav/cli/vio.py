@@ -58,14 +58,17 @@ def resolve_request(
     duration_s: float | None,
     seed: int,
     seeds: str | None,
-    rig: str,
+    rig: str | None,
     out: Path,
     *,
     video: bool,
     video_every: int = 1,
     calibration: Path | None = None,
+    stereo: bool = False,
 ) -> VioRequest:
-    """The validated request (no dataset read, no folder made)."""
+    """The validated request (no dataset read, no folder made). ``--stereo`` uses the rig's
+    second camera; a built-in sequence is then made with EuRoC's stereo rig unless ``--rig``
+    names another."""
     check_range(start_s, "--start", 0.0, 1e6, "s")
     if calibration is not None and not calibration.exists():
         raise ConfigError(f"--calibration {calibration}: no such file or folder")
@@ -74,10 +77,12 @@ def resolve_request(
     options = OdometryRunOptions(
         camera=camera, start_s=start_s, duration_s=duration_s, video=video, video_every=video_every
     )
+    rig_name = rig or ("euroc" if stereo else "euroc_mono")
     request = VioRequest(
-        sources=tuple(datasets), config=config, overrides=tuple(set_), options=options,
-        seed=seed, seeds=parse_seeds(seeds) if seeds is not None else None, rig=rig, out=out,
-        calibration=calibration,
+        sources=tuple(datasets), config=config,
+        overrides=(*set_, "stereo=true") if stereo else tuple(set_), options=options,
+        seed=seed, seeds=parse_seeds(seeds) if seeds is not None else None, rig=rig_name,
+        out=out, calibration=calibration,
     )  # fmt: skip
     check_request(request)
     return request
@@ -90,9 +95,10 @@ def check_example(params: CommandParams) -> None:
         strings_param(params, "set_"), param(params, "camera", str),
         param(params, "start_s", float), optional_param(params, "duration_s", float),
         param(params, "seed", int), optional_param(params, "seeds", str),
-        param(params, "rig", str), param(params, "out", Path), video=param(params, "video", bool),
-        video_every=param(params, "video_every", int),
+        optional_param(params, "rig", str), param(params, "out", Path),
+        video=param(params, "video", bool), video_every=param(params, "video_every", int),
         calibration=optional_param(params, "calibration", Path),
+        stereo=param(params, "stereo", bool),
     )  # fmt: skip
 
 
@@ -102,6 +108,7 @@ EXAMPLES = (
     "quadnav vio data/V1_01_easy --config examples/vins_euroc_config.yaml --no-video",
     "quadnav vio ../shared/data/euroc_micro --set window_keyframes=8",
     "quadnav vio room_easy hall_easy --seeds 0-4 --out /tmp/runs",
+    "quadnav vio room_medium --stereo --duration 30 --no-video",
 )
 
 
@@ -170,8 +177,15 @@ def vio_command(
         str | None, typer.Option("--seeds", help="a study over seeds: 0-4, or 0,2,7")
     ] = None,
     rig: Annotated[
-        str, typer.Option("--rig", help="rig a built-in sequence is made with")
-    ] = "euroc_mono",
+        str | None,
+        typer.Option(
+            "--rig",
+            help="rig a built-in sequence is made with [default: euroc_mono; euroc with --stereo]",
+        ),
+    ] = None,
+    stereo: Annotated[
+        bool, typer.Option("--stereo", help="stereo-inertial: the rig's second camera too")
+    ] = False,
     out: OutOpt = Path("runs"),
     video: Annotated[
         bool, typer.Option("--video/--no-video", help="write tracks.mp4 of the features")
@@ -182,7 +196,7 @@ def vio_command(
 ) -> None:
     request = resolve_request(
         datasets, config, list(set_ or []), camera, start_s, duration_s, seed, seeds, rig, out,
-        video=video, video_every=video_every, calibration=calibration,
+        video=video, video_every=video_every, calibration=calibration, stereo=stereo,
     )  # fmt: skip
     if len(datasets) == 1 and seeds is None:
         with progress_bar("vio") as update:
@@ -199,7 +213,7 @@ def vio_command(
 
 
 vio_command.__doc__ = command_help(
-    "Monocular visual-inertial odometry (VINS-Mono class) over a dataset: estimate, metrics, video, report.",
+    "Visual-inertial odometry (VINS-Mono class; stereo-inertial with --stereo) over a dataset: estimate, metrics, video, report.",
     "DATASET is an EuRoC ASL or TUM-VI folder, a ROS 1/2 bag, or a built-in sequence, made "
     "once per --seed and --rig under OUT/datasets. Without --config the dataset's own "
     "calibration is used. Metrics against the ground truth: APE after a position + yaw "

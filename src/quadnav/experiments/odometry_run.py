@@ -373,7 +373,11 @@ def _loop(
     events.touch()
     for s in stream:
         if isinstance(s, ImuSample) or s.camera != primary:
-            _push(vio, s, rec)  # the IMU, and the other cameras the odometry uses
+            # the IMU and the other cameras the odometry uses: a camera-rate state may come
+            # from them too (a stereo pair completed by its right frame, a late partner given up)
+            late = _push(vio, s, rec)
+            if late is not None and late.status == "tracking":
+                rec.states.append(late)
             continue
         image = _image_of(s, rec, events, t0)
         if image is None:

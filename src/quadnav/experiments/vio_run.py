@@ -122,7 +122,15 @@ def check_request(request: VioRequest) -> None:
         rig = rig_named(request.rig)
     except GeometryError as exc:
         raise ConfigError(f"--rig: {exc}") from None
-    resolve_vio_config(VioConfig, request.config, request.overrides, rig)
+    cfg, _ = resolve_vio_config(VioConfig, request.config, request.overrides, rig)
+    from quadnav.experiments.datasets import SEQUENCES
+
+    builtin = [s for s in request.sources if s in SEQUENCES and not Path(s).exists()]
+    if cfg.stereo and not rig.stereo and builtin:
+        raise ConfigError(
+            f"--stereo: rig {request.rig!r} has one camera; a built-in sequence needs a stereo "
+            "rig (--rig euroc or zed)"
+        )
 
 
 def run_vio_source(

@@ -112,6 +112,18 @@ class VioConfig(ConfigModel):
         0.0, ge=-0.1, le=0.1, description="camera-IMU offset: image taken at stamp + td_s"
     )
     g_norm: float = Field(GRAVITY_M_S2, ge=9.0, le=10.5, description="gravity (m/s^2)")
+    stereo: bool = Field(
+        False, description="use the rig's second camera: depth at once and stereo factors"
+    )
+    stereo_pair_tolerance_s: float = Field(
+        0.002, gt=0.0, le=0.05, description="largest stamp difference of a stereo pair"
+    )
+    stereo_max_epipolar_px: float = Field(
+        1.5,
+        gt=0.0,
+        le=20.0,
+        description="a left-right match this far off its epipolar line is dropped",
+    )
     describe_keyframes: bool = Field(
         True, description="ORB descriptors at each keyframe's corners, for place recognition"
     )

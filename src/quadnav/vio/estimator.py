@@ -48,6 +48,7 @@ from quadnav.vio.frontend import FeatureManager, Frontend, median_motion_px
 from quadnav.vio.initialization import visual_inertial_init
 from quadnav.vio.preintegration import imu_params, preintegrate
 from quadnav.vio.static_init import StaticStart, imu_stillness, is_still, static_start
+from quadnav.vio.stereo import PendingFrame, StereoFrontend
 from quadnav.vio.time_offset import TimeOffsetEstimator
 from quadnav.vio.types import InitResult, InitWindow
 from quadnav.vio.window import Keyframe, SlidingWindow, StatePrior
@@ -121,6 +122,7 @@ class VioEstimator:
         self._done: list[KeyframeRecord] = []
         self._image: ImageFrame | None = None  # the frame being pushed
         self._image_px: NDArray[np.uint8] | None = None
+        self.stereo = StereoFrontend(rig, camera, cfg) if cfg.stereo else None
 
     # -- the protocol -----------------------------------------------------------------------
     @property
@@ -156,7 +158,7 @@ class VioEstimator:
     @property
     def cameras(self) -> tuple[str, ...]:
         """The rig's cameras this odometry uses (frames of another are rejected and counted)."""
-        return (self.camera,)
+        return (self.camera,) if self.stereo is None else (self.camera, self.stereo.right.name)
 
     def push(self, sample: ImuSample | ImageFrame) -> OdometryState | None:
         """An IMU sample (the state propagated to it once initialised) or a camera frame (the
@@ -180,6 +182,8 @@ class VioEstimator:
         prev = self._imu[-1] if self._imu else None
         self._imu.append(sample)
         self._imu_t.append(sample.t_ns)
+        if self.stereo is not None and self.stereo.overdue(sample.t_ns):
+            return self._unpaired()  # the stream moved past a left frame: it goes on as mono
         if self._td is not None:  # the online time offset compares the gyro with vision
             self._td.push_gyro(sample.t_ns, np.asarray(sample.gyro_rad_s))
         if not self._initialized or self._prop is None or prev is None:
@@ -194,23 +198,83 @@ class VioEstimator:
 
     def _push_frame(self, frame: ImageFrame) -> OdometryState | None:
         """A camera frame stamped in the camera's clock (``td_s`` moves it to the IMU's)."""
-        if frame.camera != self.camera:
+        if frame.camera not in self.cameras:
             self.input.counts["other_camera"] += 1
             return None
+        if self.stereo is not None and frame.camera == self.stereo.right.name:
+            return self._push_right(frame)
         if not self.input.image_time_ok(frame.t_ns):
             return None
+        done = self._unpaired() if self.stereo is not None and self.stereo.pending else None
+        image = self._pixels(frame)
+        features = None if image is None else self._front(int(frame.t_ns), image)
+        if features is None or image is None:
+            return done
+        if self.stereo is None:
+            return self._estimate_with(features, image, frame)
+        right = self.stereo.take_right(int(frame.t_ns))
+        if right is None:  # its partner has not come yet
+            self.stereo.pending = PendingFrame(
+                t_ns=int(frame.t_ns), features=features, image=image, source=frame
+            )
+            return done
+        return self._estimate_pair(features, image, right, frame)
+
+    def _pixels(self, frame: ImageFrame) -> NDArray[np.uint8] | None:
         try:
-            image = frame.image()
+            return frame.image()
         except SampleError:
             self.input.counts["image"] += 1
             return None
-        self._image, self._image_px = frame, image
+
+    def _push_right(self, frame: ImageFrame) -> OdometryState | None:
+        """The second camera's frame: paired with the left one waiting, or kept for it."""
+        st = self.stereo
+        assert st is not None
+        if st.last_right_ns is not None and frame.t_ns <= st.last_right_ns:
+            self.input.counts["image_time"] += 1
+            return None
+        st.last_right_ns = int(frame.t_ns)
+        right = self._pixels(frame)
+        if right is None:
+            return None
+        pending = st.pending
+        if pending is not None and st.pairs_with_pending(frame.t_ns):
+            st.pending = None
+            return self._estimate_pair(pending.features, pending.image, right, pending.source)
+        st.put_right(int(frame.t_ns), right)
+        return None
+
+    def _unpaired(self) -> OdometryState | None:
+        """The waiting left frame, its partner missing or late: used as mono, counted."""
+        st = self.stereo
+        assert st is not None and st.pending is not None
+        p, st.pending = st.pending, None
+        self.input.counts["stereo_unpaired"] += 1
+        return self._estimate_with(p.features, p.image, p.source)
+
+    def _estimate_pair(
+        self, features: FrameFeatures, left: NDArray[np.uint8], right: NDArray[np.uint8],
+        source: ImageFrame,
+    ) -> OdometryState | None:  # fmt: skip
+        assert self.stereo is not None
+        with self._stage("stereo"):
+            features = self.stereo.match(features, left, right)
+        self._last_features = features
+        return self._estimate_with(features, left, source)
+
+    def _estimate_with(
+        self, features: FrameFeatures, image: NDArray[np.uint8], source: ImageFrame
+    ) -> OdometryState | None:
+        """The estimate at a tracked frame, its pixels and source at hand for a keyframe."""
+        self._image, self._image_px = source, image
         try:
-            return self._track_image(int(frame.t_ns), image)
+            return self._estimate(features)
         finally:
             self._image, self._image_px = None, None
 
-    def _track_image(self, t_ns: int, image: NDArray[np.uint8]) -> OdometryState | None:
+    def _front(self, t_ns: int, image: NDArray[np.uint8]) -> FrameFeatures | None:
+        """The front end on a left image (None if it cannot be used, counted)."""
         t = int(t_ns) + s_to_ns(self._td_s)
         if self._td is not None:
             self._td_applied_ns[t] = t - int(t_ns)
@@ -221,6 +285,10 @@ class VioEstimator:
             self.input.counts["image"] += 1
             return None
         self._last_features = frame
+        return frame
+
+    def _estimate(self, frame: FrameFeatures) -> OdometryState | None:
+        t = frame.t_ns
         self._recent.append(frame)
         while self._recent and self._recent[0].t_ns < t - s_to_ns(self.config.static_window_s):
             self._recent.popleft()

@@ -144,24 +144,30 @@ class Frontend:
 
 
 class FeatureManager:
-    """Each track's observations (normalised coordinates) in the window's keyframes."""
+    """Each track's observations (normalised coordinates) in the window's keyframes, and with a
+    stereo rig its observations in the second camera (``right``, by track and keyframe)."""
 
     def __init__(self) -> None:
         self.tracks: dict[int, dict[int, FloatArray]] = {}
+        self.right: dict[int, dict[int, FloatArray]] = {}
 
     def clear(self) -> None:
         self.tracks.clear()
+        self.right.clear()
 
     def add(self, kf: int, frame: FrameFeatures) -> None:
         for j, xy in zip(frame.ids.tolist(), frame.xy, strict=True):
             self.tracks.setdefault(int(j), {})[kf] = xy
+        for j, xy in zip(frame.stereo_ids.tolist(), frame.stereo_xy, strict=True):
+            self.right.setdefault(int(j), {})[kf] = xy
 
     def drop_keyframe(self, kf: int) -> None:
-        for j in list(self.tracks):
-            obs = self.tracks[j]
-            obs.pop(kf, None)
-            if not obs:
-                del self.tracks[j]
+        for book in (self.tracks, self.right):
+            for j in list(book):
+                obs = book[j]
+                obs.pop(kf, None)
+                if not obs:
+                    del book[j]
 
     def observations(self, track: int) -> dict[int, FloatArray]:
         return self.tracks.get(track, {})

@@ -1,0 +1,111 @@
+"""The stereo front end of the VIO: a rig that cannot make a pair is one line naming --stereo;
+on a rendered stereo sequence (EuRoC's rig) the left corners are found in the right image where
+the VIO's own (monocular) landmarks say they are; a right frame missing, late or first is
+handled, the left frame then used as mono and counted."""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Iterator
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+
+from quadnav.errors import VioError
+from quadnav.experiments.datasets import make_dataset, sequence_spec
+from quadnav.geometry.multiview import triangulate
+from quadnav.io.datasets import VisualInertialDataset, open_dataset
+from quadnav.messages import ImageFrame, ImuSample
+from quadnav.odometry import OdometryState
+from quadnav.rig import rig_named
+from quadnav.vio import VioConfig, VioEstimator
+from quadnav.vio.stereo import partner_camera
+
+Sample = ImuSample | ImageFrame
+
+
+@pytest.fixture(scope="module")
+def stereo_ds(tmp_path_factory: pytest.TempPathFactory) -> VisualInertialDataset:
+    root = tmp_path_factory.mktemp("stereo") / "room"
+    spec = sequence_spec(
+        "room_easy", {"duration_s": 5.0, "still_s": 1.0, "rig": "euroc", "seed": 5}
+    )
+    make_dataset(spec, root, name="room_easy")
+    return open_dataset(root)
+
+
+@dataclass
+class _Out:
+    vio: VioEstimator
+    states: list[OdometryState]
+    stereo_share: list[float]
+
+
+def _run(stream: Iterator[Sample], ds: VisualInertialDataset) -> _Out:
+    vio = VioEstimator(ds.rig, VioConfig(stereo=True))
+    states, share = [], []
+    for s in stream:
+        st = vio.push(s)
+        if st is not None and st.status == "tracking":
+            states.append(st)
+            f = vio.last_features
+            if f is not None and len(f.ids):
+                share.append(len(f.stereo_ids) / len(f.ids))
+    return _Out(vio=vio, states=states, stereo_share=share)
+
+
+def test_a_rig_that_cannot_pair_is_one_line_naming_stereo() -> None:
+    with pytest.raises(VioError, match="--stereo: rig 'euroc_mono' has one camera"):
+        VioEstimator(rig_named("euroc_mono"), VioConfig(stereo=True))
+    rig = rig_named("euroc")
+    same = dataclasses.replace(rig.cameras[1], T_B_C=rig.cameras[0].T_B_C)
+    with pytest.raises(VioError, match=r"--stereo: cam0 and cam1.*no baseline"):
+        partner_camera(dataclasses.replace(rig, cameras=(rig.cameras[0], same)), "cam0")
+
+
+def test_the_right_cameras_points_agree_with_the_mono_landmarks(
+    stereo_ds: VisualInertialDataset,
+) -> None:
+    out = _run(stereo_ds.stream(), stereo_ds)
+    assert out.vio.rejected.get("stereo_unpaired", 0) == 0
+    assert out.vio.cameras == ("cam0", "cam1")
+    assert np.median(out.stereo_share) > 0.6, "most corners are found in the right image"
+    # the stereo depth of a keyframe's corners against the window's landmarks (made from
+    # the left camera's views over time): the same points
+    rig = stereo_ds.rig
+    T_B_L, T_B_R = rig.camera("cam0").T_B_C, rig.camera("cam1").T_B_C
+    ratios = []
+    f = out.vio.last_features
+    assert f is not None
+    T_W_B = out.states[-1].T_W_B
+    P = np.array([(T_W_B @ T).inverse().matrix()[:3] for T in (T_B_L, T_B_R)])
+    at = {int(j): k for k, j in enumerate(f.ids)}
+    for j, xy_r in zip(f.stereo_ids.tolist(), f.stereo_xy, strict=True):
+        p_lm = out.vio.window.landmark_position(int(j))
+        if p_lm is None:
+            continue
+        _, z = triangulate(np.array([[f.xy[at[j]], xy_r]]), P)
+        z_lm = ((T_W_B @ T_B_L).inverse() @ p_lm[None])[0, 2]
+        ratios.append(z[0, 0] / z_lm)
+    assert len(ratios) >= 20
+    assert abs(float(np.median(ratios)) - 1.0) < 0.05
+
+
+def test_missing_late_and_early_partners(stereo_ds: VisualInertialDataset) -> None:
+    items = list(stereo_ds.stream())
+    rights = [k for k, s in enumerate(items) if isinstance(s, ImageFrame) and s.camera == "cam1"]
+    dropped = set(rights[5::4])
+    # a missing right frame: its left goes on as mono, counted once
+    missing = _run(iter([s for k, s in enumerate(items) if k not in dropped]), stereo_ds)
+    assert missing.vio.rejected.get("stereo_unpaired") == len(dropped)
+    # every right frame before its left (the other order of a stream): all paired
+    swapped = list(items)
+    for k in rights:
+        if isinstance(swapped[k - 1], ImageFrame):
+            swapped[k - 1], swapped[k] = swapped[k], swapped[k - 1]
+    early = _run(iter(swapped), stereo_ds)
+    assert early.vio.rejected.get("stereo_unpaired", 0) == 0
+    full = _run(stereo_ds.stream(), stereo_ds)
+    # every left frame gives its state either way (a late one when the stream moves past it)
+    assert len(missing.states) == len(full.states) == len(early.states)
