@@ -109,12 +109,15 @@ class OdometryRun:
     timing: OdometryTiming
     events: tuple[OdometryEvent, ...]
     notes: tuple[str, ...] = ()
+    #: what the odometry rejected or did not use, by kind (``stereo_unpaired``: a left frame
+    #: used as mono for want of its partner)
+    input_counts: Mapping[str, int] = field(default_factory=dict)
 
     def as_json(self) -> dict[str, object]:
         return {
             "dataset": self.dataset, "camera": self.camera,
             **dataclasses.asdict(self.metrics), "timing": dataclasses.asdict(self.timing),
-            "notes": list(self.notes),
+            "input_counts": dict(self.input_counts), "notes": list(self.notes),
         }  # fmt: skip
 
 
@@ -546,10 +549,16 @@ def _finish(
         unscored=scored.note or "the dataset has no ground truth",
     )  # fmt: skip
     issues = dataset.issues.for_cameras([opt.camera])  # not those of a camera left unused
-    notes = [n for n in (scored.note, issues.summary() if issues else "") if n]
+    counts = dict(sorted(vio.rejected.items()))
+    said = ", ".join(f"{k} {v}" for k, v in counts.items())
+    notes = [
+        n for n in (scored.note, issues.summary() if issues else "",
+                    f"input the odometry rejected or did not use: {said}" if said else "") if n
+    ]  # fmt: skip
     run = OdometryRun(
         run_dir=run_dir, dataset=dataset.name, camera=opt.camera, metrics=metrics,
         timing=_timing(vio, rec, wall_s), events=vio.events, notes=tuple(notes),
+        input_counts=counts,
     )  # fmt: skip
     write_json(run_dir / "timing.json", dataclasses.asdict(run.timing))
     write_json(run_dir / "metrics.json", run.as_json())
