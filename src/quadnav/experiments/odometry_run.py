@@ -275,7 +275,9 @@ def _caption(image: NDArray[np.uint8], text: str) -> NDArray[np.uint8]:
 class _Record:
     """What the loop collects: the camera-rate states, the counts, the events written."""
 
-    states: list[OdometryState] = field(default_factory=list)
+    #: the camera-rate states, kept compact (stamp, position, quaternion, pose covariance): a
+    #: state object a frame would make a 30-minute run's memory grow by tens of megabytes
+    states: _States = field(default_factory=lambda: _States())
     frames: int = 0
     rejected: int = 0
     events_written: int = 0
@@ -284,6 +286,21 @@ class _Record:
     #: the published keyframes' stamps and poses (not the records: their keypoints would grow
     #: with the run)
     keyframes: _KeyframePoses = field(default_factory=lambda: _KeyframePoses())
+
+
+@dataclass(slots=True)
+class _States:
+    t_ns: list[int] = field(default_factory=list)
+    rows: list[FloatArray] = field(default_factory=list)  # p (3), q xyzw (4), cov (36)
+
+    def append(self, st: OdometryState) -> None:
+        self.t_ns.append(int(st.t_ns))
+        self.rows.append(
+            np.concatenate([st.T_W_B.p_A_B, st.T_W_B.R_A_B.as_quat(), np.ravel(st.cov_pose)])
+        )
+
+    def __bool__(self) -> bool:
+        return bool(self.t_ns)
 
 
 @dataclass(slots=True)
@@ -399,17 +416,14 @@ def _loop(
             progress(rec.frames + rec.rejected, n_frames, f"{ns_to_s(s.t_ns - t0):.1f} s")
 
 
-def _estimate(states: list[OdometryState]) -> tuple[Trajectory, FloatArray]:
+def _estimate(states: _States) -> tuple[Trajectory, FloatArray]:
     """The camera-rate estimate (time-ordered, one pose per stamp) and its pose covariances."""
-    kept: dict[int, OdometryState] = {}
-    for st in states:
-        kept[st.t_ns] = st  # a repeated stamp: the later state
-    ordered = [kept[t] for t in sorted(kept)]
-    t = np.array([s.t_ns for s in ordered], dtype=np.int64)
-    p = np.array([s.T_W_B.p_A_B for s in ordered]).reshape(-1, 3)
-    q = np.array([s.T_W_B.R_A_B.as_quat() for s in ordered]).reshape(-1, 4)
-    cov = np.array([s.cov_pose for s in ordered], dtype=np.float64).reshape(-1, 6, 6)
-    return Trajectory(t_ns=t, p_W_B=p, q_W_B_xyzw=q, name="vio"), cov
+    kept = {t: k for k, t in enumerate(states.t_ns)}  # a repeated stamp: the later state
+    order = [kept[t] for t in sorted(kept)]
+    rows = np.array([states.rows[k] for k in order], dtype=np.float64).reshape(-1, 43)
+    t = np.array(sorted(kept), dtype=np.int64)
+    cov = rows[:, 7:].reshape(-1, 6, 6)
+    return Trajectory(t_ns=t, p_W_B=rows[:, :3], q_W_B_xyzw=rows[:, 3:7], name="vio"), cov
 
 
 def _timing(vio: VisualOdometry, rec: _Record, wall_s: float) -> OdometryTiming:
@@ -466,7 +480,7 @@ def _score(
 
 def _counts(rec: _Record, vio: VisualOdometry, t0: int) -> RunCounts:
     kinds = [e.kind for e in vio.events]
-    first = rec.states[0].t_ns if rec.states else None
+    first = rec.states.t_ns[0] if rec.states else None
     after: Metric = (
         ns_to_s(first - (rec.first_frame_ns or t0))
         if first is not None
