@@ -197,6 +197,22 @@ def test_ids_persist_lengths_count_up_and_spacing_holds() -> None:
     assert frames[-1].ids.max() >= len(frames[-1])  # ids are never reused
 
 
+def test_detection_waits_for_enough_missing_corners() -> None:
+    """``detect_min_new``: a frame missing fewer corners detects none; the first frame and one
+    missing enough do (VINS' default, 1, detects whenever one is missing)."""
+    cfg = TrackerConfig(max_features=200, min_distance_px=25.0, detect_min_new=20)
+    tr = FeatureTracker(cfg)
+    frames = [tr.track(k * 50_000_000, img) for k, img in enumerate(_pan(7, 12))]
+    assert frames[0].counts.new >= 150
+    for f in frames[1:]:
+        missing = cfg.max_features - f.counts.tracked
+        if missing < cfg.detect_min_new:
+            assert f.counts.new == 0
+    every = FeatureTracker(TrackerConfig(max_features=200, min_distance_px=25.0))
+    eager = [every.track(k * 50_000_000, img) for k, img in enumerate(_pan(7, 12))]
+    assert sum(f.counts.new > 0 for f in eager[1:]) > sum(f.counts.new > 0 for f in frames[1:])
+
+
 def test_a_blank_frame_has_no_features_and_tracking_resumes() -> None:
     imgs = _pan(8, 4)
     tr = FeatureTracker()

@@ -34,6 +34,12 @@ class TrackerConfig(ConfigModel):
         0.01, gt=0.0, lt=1.0, description="Shi-Tomasi: weakest corner / strongest corner"
     )
     equalize: bool = Field(False, description="CLAHE before tracking (VINS' equalize, dark images)")
+    detect_min_new: int = Field(
+        1,
+        ge=1,
+        le=1000,
+        description="detect corners only when this many are missing (VINS: 1, every frame)",
+    )
 
     @field_validator("window_px")
     @classmethod

@@ -363,7 +363,10 @@ class FeatureTracker:
         order = np.argsort(-lengths, kind="stable")  # longest tracks keep their place
         s.lengths = lengths
         s.keep(_spaced(s.cur, order, cfg.min_distance_px), "spacing")
-        new = _detect(img, s.cur, cfg.max_features - len(s.cur), cfg)
+        missing = cfg.max_features - len(s.cur)
+        # a few missing corners wait for more (the detector costs as much for one as for 50)
+        wanted = missing if st is None or missing >= cfg.detect_min_new else 0
+        new = _detect(img, s.cur, wanted, cfg)
         times["detect_s"] = time.perf_counter() - t1
         new_ids = np.arange(self._next_id, self._next_id + len(new), dtype=np.int64)
         self._next_id += len(new)
