@@ -87,3 +87,24 @@ def test_a_mirrored_structure_is_refused() -> None:
     deltas = [corrected_deltas(pim, np.zeros(3)) for pim in scene.window.preintegrations]
     out = linear_alignment(-p, R_C0_B, deltas, scene.window.T_B_C.p_A_B, g_norm=GRAVITY_M_S2)
     assert isinstance(out, str)
+
+
+def test_a_known_scale_needs_no_acceleration() -> None:
+    """At constant velocity (``cruise``) the scale is not observable: the free alignment refuses;
+    held at the true (stereo, metric) scale the velocities and gravity still come out."""
+    for seed in range(3):
+        scene = make_scene(seed, gyro_bias=(0.0, 0.0, 0.0), cruise=True)
+        R_C0_B, p = _truth(scene)
+        deltas = [corrected_deltas(pim, np.zeros(3)) for pim in scene.window.preintegrations]
+        p_B_C = scene.window.T_B_C.p_A_B
+        free = linear_alignment(p, R_C0_B, deltas, p_B_C, g_norm=GRAVITY_M_S2)
+        assert isinstance(free, str) and "not observable" in free
+        held = linear_alignment(p, R_C0_B, deltas, p_B_C, g_norm=GRAVITY_M_S2, scale=1.0)
+        assert isinstance(held, AlignmentResult) and held.scale == 1.0
+        g_true = (scene.T_W_B[0] @ scene.window.T_B_C).R_A_B.inv().apply([0, 0, -GRAVITY_M_S2])
+        cos = held.gravity_C0 @ g_true / GRAVITY_M_S2**2
+        assert np.degrees(np.arccos(min(cos, 1.0))) < 0.2
+        v_true = np.array(
+            [T.R_A_B.inv().apply(v) for T, v in zip(scene.T_W_B, scene.v_W_B, strict=True)]
+        )
+        assert np.abs(held.v_B - v_true).max() < 0.02

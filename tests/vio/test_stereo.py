@@ -109,3 +109,49 @@ def test_missing_late_and_early_partners(stereo_ds: VisualInertialDataset) -> No
     full = _run(stereo_ds.stream(), stereo_ds)
     # every left frame gives its state either way (a late one when the stream moves past it)
     assert len(missing.states) == len(full.states) == len(early.states)
+
+
+@pytest.fixture(scope="module")
+def moving_ds(tmp_path_factory: pytest.TempPathFactory) -> VisualInertialDataset:
+    """A start in motion (no still period): the monocular start waits for a window of parallax."""
+    root = tmp_path_factory.mktemp("moving") / "room"
+    spec = sequence_spec(
+        "room_medium", {"duration_s": 4.0, "still_s": 0.0, "rig": "euroc", "seed": 4}
+    )
+    make_dataset(spec, root, name="room_medium")
+    return open_dataset(root)
+
+
+def test_a_stereo_start_in_motion_is_metric_and_early(moving_ds: VisualInertialDataset) -> None:
+    from quadnav.eval.align import align
+    from quadnav.eval.associate import associate
+    from quadnav.geometry.trajectory import Trajectory
+
+    first = moving_ds.frames_of("cam0")[0].t_ns
+    started = {}
+    for stereo in (False, True):
+        vio = VioEstimator(moving_ds.rig, VioConfig(stereo=stereo))
+        states = []
+        for s in moving_ds.stream():
+            if isinstance(s, ImageFrame) and s.camera == "cam1" and not stereo:
+                continue
+            st = vio.push(s)
+            if st is not None and st.status == "tracking":
+                states.append(st)
+        kinds = [(e.kind, e.detail) for e in vio.events]
+        assert kinds[0][0] == "initialized" and "failure" not in [k for k, _ in kinds]
+        started[stereo] = (states[0].t_ns - first) * 1e-9
+        if stereo:
+            assert kinds[0][1] == "visual, stereo"
+            est = Trajectory(
+                t_ns=np.array([s.t_ns for s in states]),
+                p_W_B=np.array([s.T_W_B.p_A_B for s in states]),
+                q_W_B_xyzw=np.array([s.T_W_B.R_A_B.as_quat() for s in states]),
+            )
+            assert moving_ds.groundtruth is not None
+            ref, e = associate(moving_ds.groundtruth.trajectory, est, t_max_diff_s=0.01)
+            aligned, _ = align(ref, e, "4dof")
+            err = np.linalg.norm(aligned.p_W_B - ref.p_W_B, axis=1)
+            assert float(np.sqrt(np.mean(err**2))) < 0.05  # metric from the start: no scale error
+    assert started[True] < 0.8, started
+    assert started[True] < started[False], started

@@ -135,10 +135,12 @@ def _solve(
     p_B_C: FloatArray,
     g_fixed: FloatArray,
     basis: FloatArray,
+    scale: float | None = None,
 ) -> tuple[FloatArray, float, float]:
     """The stacked linear system with gravity ``g_fixed + basis @ w``: unknowns ``[v_0..v_n, w,
     s]``; returns them, the RMS residual and the scale's standard deviation (the residual's
-    spread through the normal equations)."""
+    spread through the normal equations). A known ``scale`` (a stereo structure's, metric)
+    leaves the unknowns ``[v_0..v_n, w]`` (returned with it appended, its deviation 0)."""
     n, m = len(R_C0_B), basis.shape[1]
     A = np.zeros((6 * (n - 1), 3 * n + m + 1))
     y = np.zeros(6 * (n - 1))
@@ -157,6 +159,11 @@ def _solve(
         A[r] = blk
         y[6 * i : 6 * i + 3] = d.dP - p_B_C + R_Bi_Bj @ p_B_C + 0.5 * dt**2 * R_Bi_C0 @ g_fixed
         y[6 * i + 3 : 6 * i + 6] = d.dV + dt * R_Bi_C0 @ g_fixed
+    if scale is not None:
+        y = y - A[:, -1] * scale
+        xs = np.asarray(np.linalg.lstsq(A[:, :-1], y, rcond=None)[0], dtype=np.float64)
+        e = A[:, :-1] @ xs - y
+        return np.append(xs, scale), float(np.sqrt(np.mean(e**2))), 0.0
     x = np.asarray(np.linalg.lstsq(A, y, rcond=None)[0], dtype=np.float64)
     e = A @ x - y
     dof = max(A.shape[0] - A.shape[1], 1)
@@ -183,14 +190,17 @@ def linear_alignment(
     max_g_norm_error_m_s2: float = 1.0,
     max_scale_sigma: float = 0.05,
     refine_iterations: int = 4,
+    scale: float | None = None,
 ) -> AlignmentResult | str:
     """Velocities, gravity and scale (eqs 3.7-3.9), then gravity refined with ``|g| = g_norm``;
     or why not: a gravity whose magnitude is off by more than ``max_g_norm_error_m_s2``, a
     scale that is not positive, or one whose standard deviation exceeds ``max_scale_sigma`` of
     itself (too little acceleration in the window: at constant velocity the IMU sees only
-    gravity and any scale fits, the vision's small errors then pull it towards zero)."""
+    gravity and any scale fits, the vision's small errors then pull it towards zero). A known
+    ``scale`` (a stereo structure is metric) is held, and only velocities and gravity solved:
+    they need no acceleration."""
     n = len(R_C0_B)
-    x, res, sigma = _solve(p_C0_C, R_C0_B, deltas, p_B_C, np.zeros(3), np.eye(3))
+    x, res, sigma = _solve(p_C0_C, R_C0_B, deltas, p_B_C, np.zeros(3), np.eye(3), scale)
     g = x[3 * n : 3 * n + 3]
     if not np.isfinite(x).all() or abs(np.linalg.norm(g) - g_norm) > max_g_norm_error_m_s2:
         return f"the linear alignment's gravity is {np.linalg.norm(g):.2f} m/s^2, not {g_norm:g}"
@@ -199,7 +209,7 @@ def linear_alignment(
     g = g / np.linalg.norm(g) * g_norm
     for _ in range(refine_iterations):
         B = _tangent_basis(g)
-        x, res, sigma = _solve(p_C0_C, R_C0_B, deltas, p_B_C, g, B)
+        x, res, sigma = _solve(p_C0_C, R_C0_B, deltas, p_B_C, g, B, scale)
         g = g + B @ x[3 * n : 3 * n + 2]
         g = g / np.linalg.norm(g) * g_norm
     if not np.isfinite(x).all() or x[-1] <= 0.0:

@@ -115,6 +115,9 @@ class VioConfig(ConfigModel):
     stereo: bool = Field(
         False, description="use the rig's second camera: depth at once and stereo factors"
     )
+    stereo_init_keyframes: int = Field(
+        4, ge=2, le=30, description="keyframes a stereo start in motion waits for"
+    )
     stereo_pair_tolerance_s: float = Field(
         0.002, gt=0.0, le=0.05, description="largest stamp difference of a stereo pair"
     )

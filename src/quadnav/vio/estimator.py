@@ -352,6 +352,12 @@ class VioEstimator:
         else:
             self._events.append(OdometryEvent(t_ns=frame.t_ns, kind="initialized", detail=how))
 
+    def _init_keyframes(self) -> int:
+        """Keyframes a start in motion waits for: a window's (mono: the parallax that gives the
+        structure and the acceleration that gives its scale), fewer with stereo (metric at once)."""
+        cfg = self.config
+        return cfg.window_keyframes if self.stereo is None else cfg.stereo_init_keyframes
+
     def _new_kf_index(self) -> int:
         k = self._next_kf
         self._next_kf += 1
@@ -364,11 +370,12 @@ class VioEstimator:
         if not dec.keyframe:
             return None
         self.frontend.mark_keyframe(frame)
-        self._init_frames = (self._init_frames + [frame])[-self.config.window_keyframes :]
+        need = self._init_keyframes()
+        self._init_frames = (self._init_frames + [frame])[-need:]
         self._candidates[frame.t_ns] = self._info(frame)
         keep = {f.t_ns for f in self._init_frames}
         self._candidates = {t: c for t, c in self._candidates.items() if t in keep}
-        if len(self._init_frames) < self.config.window_keyframes:
+        if len(self._init_frames) < need:
             return None
         frames = tuple(self._init_frames)
         try:
@@ -383,6 +390,7 @@ class VioEstimator:
             preintegrations=pims,
             T_B_C=self.camera_spec.T_B_C,
             g_norm=self.config.g_norm,
+            T_L_R=None if self.stereo is None else self.stereo.geometry.T_L_R,
         )
         result = init(window)
         if result is None:
@@ -425,7 +433,7 @@ class VioEstimator:
         if res.ok:
             self._cov_pose, self._cov_v = res.cov_pose, res.cov_v
         self._retire()
-        self._begin(frames[-1], "visual")
+        self._begin(frames[-1], "visual" if self.stereo is None else "visual, stereo")
         return self._keyframe_state(frames[-1])
 
     # -- tracking ---------------------------------------------------------------------------

@@ -33,6 +33,7 @@ from quadnav.vio.alignment import (
     rotation_residual_deg,
 )
 from quadnav.vio.sfm import SfmResult, refine_with_rotations, vision_sfm
+from quadnav.vio.stereo_sfm import stereo_structure
 from quadnav.vio.types import InitResult, InitWindow
 
 __all__ = ["InitFailure", "InitSettings", "try_visual_inertial_init", "visual_inertial_init"]
@@ -134,13 +135,19 @@ def try_visual_inertial_init(
     """The window's metric, gravity-aligned start, or the step that refused and why."""
     _check_window(window)
     cfg = settings or InitSettings()
-    sfm = vision_sfm(
-        window.frames,
-        focal_px=cfg.focal_px,
-        min_parallax_px=cfg.min_parallax_px,
-        min_common=cfg.min_features,
-        min_translation_px=cfg.min_translation_px,
-    )
+    stereo = window.T_L_R is not None and len(window.frames[0].stereo_ids) > 0
+    if window.T_L_R is not None and stereo:
+        sfm = stereo_structure(
+            window.frames, window.T_L_R, focal_px=cfg.focal_px, min_points=cfg.min_features
+        )
+    else:
+        sfm = vision_sfm(
+            window.frames,
+            focal_px=cfg.focal_px,
+            min_parallax_px=cfg.min_parallax_px,
+            min_common=cfg.min_features,
+            min_translation_px=cfg.min_translation_px,
+        )
     if isinstance(sfm, str):
         return InitFailure(stage="sfm", reason=sfm)
     R_C_B = window.T_B_C.R_A_B.inv()
@@ -173,9 +180,16 @@ def try_visual_inertial_init(
         g_norm=window.g_norm,
         max_g_norm_error_m_s2=cfg.max_g_norm_error_m_s2,
         max_scale_sigma=cfg.max_scale_sigma,
+        scale=1.0 if stereo else None,
     )
     if isinstance(al, str):
         return InitFailure(stage="alignment", reason=al)
+    if stereo:
+        detail = (
+            f"stereo: {len(window.frames)} keyframes, {len(sfm.points_C0)} landmarks, "
+            f"reprojection {sfm.reprojection_px:.2f} px, gyro bias {np.round(bias, 4).tolist()} rad/s"
+        )
+        return _to_world(window, sfm, al, bias, detail)
     detail = (
         f"visual: reference frame {sfm.reference} ({sfm.parallax_px:.0f} px parallax), "
         f"{len(sfm.points_C0)} landmarks, reprojection {sfm.reprojection_px:.2f} px, "

@@ -23,12 +23,15 @@ FloatArray = NDArray[np.float64]
 class InitWindow:
     """What a visual-inertial initialisation works on (thesis 003 §3.2): the window's frames in
     time order with their features, the IMU preintegrated between consecutive frames (with zero
-    bias; ``len(frames) - 1`` of them), the camera's mount ``T_B_C`` and gravity's magnitude."""
+    bias; ``len(frames) - 1`` of them), the camera's mount ``T_B_C`` and gravity's magnitude
+    (and, stereo, the second camera's pose in the first)."""
 
     frames: tuple[FrameFeatures, ...]
     preintegrations: tuple[gtsam.PreintegratedCombinedMeasurements, ...]
     T_B_C: Pose
     g_norm: float
+    #: with a stereo rig, the second camera in the first (its frames then carry stereo corners)
+    T_L_R: Pose | None = None
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
