@@ -10,10 +10,10 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
-from quadnav.experiments.datasets import make_dataset, sequence_spec
-from quadnav.io.datasets import VisualInertialDataset, open_dataset
+from quadnav.io.datasets import VisualInertialDataset
 from quadnav.odometry import KeyframeRecord, OdometryState
 from quadnav.vio import VioConfig, VioEstimator
+from tests.vio.rendered import rendered
 
 
 @dataclass
@@ -28,12 +28,9 @@ class _Run:
 
 @pytest.fixture(scope="module")
 def run(tmp_path_factory: pytest.TempPathFactory) -> _Run:
-    root = tmp_path_factory.mktemp("interface") / "room"
-    spec = sequence_spec(
-        "room_easy", {"duration_s": 6.0, "still_s": 1.0, "rig": "euroc_mono", "seed": 3}
+    ds = rendered(
+        tmp_path_factory, "room_easy", duration_s=6.0, still_s=1.0, rig="euroc_mono", seed=3
     )
-    make_dataset(spec, root, name="room_easy")
-    ds = open_dataset(root)
     vio = VioEstimator(ds.rig, VioConfig())
     lazy = VioEstimator(ds.rig, VioConfig(max_unread_keyframes=2))
     states, records, batches = [], [], []

@@ -13,26 +13,21 @@ import numpy as np
 import pytest
 
 from quadnav.errors import VioError
-from quadnav.experiments.datasets import make_dataset, sequence_spec
 from quadnav.geometry.multiview import triangulate
-from quadnav.io.datasets import VisualInertialDataset, open_dataset
+from quadnav.io.datasets import VisualInertialDataset
 from quadnav.messages import ImageFrame, ImuSample
 from quadnav.odometry import OdometryState
 from quadnav.rig import rig_named
 from quadnav.vio import VioConfig, VioEstimator
 from quadnav.vio.stereo import partner_camera
+from tests.vio.rendered import rendered
 
 Sample = ImuSample | ImageFrame
 
 
 @pytest.fixture(scope="module")
 def stereo_ds(tmp_path_factory: pytest.TempPathFactory) -> VisualInertialDataset:
-    root = tmp_path_factory.mktemp("stereo") / "room"
-    spec = sequence_spec(
-        "room_easy", {"duration_s": 5.0, "still_s": 1.0, "rig": "euroc", "seed": 5}
-    )
-    make_dataset(spec, root, name="room_easy")
-    return open_dataset(root)
+    return rendered(tmp_path_factory, "room_easy", duration_s=5.0, still_s=1.0, rig="euroc", seed=5)
 
 
 @dataclass
@@ -114,12 +109,9 @@ def test_missing_late_and_early_partners(stereo_ds: VisualInertialDataset) -> No
 @pytest.fixture(scope="module")
 def moving_ds(tmp_path_factory: pytest.TempPathFactory) -> VisualInertialDataset:
     """A start in motion (no still period): the monocular start waits for a window of parallax."""
-    root = tmp_path_factory.mktemp("moving") / "room"
-    spec = sequence_spec(
-        "room_medium", {"duration_s": 4.0, "still_s": 0.0, "rig": "euroc", "seed": 4}
+    return rendered(
+        tmp_path_factory, "room_medium", duration_s=4.0, still_s=0.0, rig="euroc", seed=4
     )
-    make_dataset(spec, root, name="room_medium")
-    return open_dataset(root)
 
 
 def test_a_stereo_start_in_motion_is_metric_and_early(moving_ds: VisualInertialDataset) -> None:
