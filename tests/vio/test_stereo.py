@@ -147,3 +147,44 @@ def test_a_stereo_start_in_motion_is_metric_and_early(moving_ds: VisualInertialD
             assert float(np.sqrt(np.mean(err**2))) < 0.05  # metric from the start: no scale error
     assert started[True] < 0.8, started
     assert started[True] < started[False], started
+
+
+def _ate(ds: VisualInertialDataset, *, stereo: bool) -> float:
+    from quadnav.eval.align import align
+    from quadnav.eval.associate import associate
+    from quadnav.geometry.trajectory import Trajectory
+
+    vio = VioEstimator(ds.rig, VioConfig(stereo=stereo))
+    states = []
+    for s in ds.stream():
+        if isinstance(s, ImageFrame) and s.camera == "cam1" and not stereo:
+            continue
+        st = vio.push(s)
+        if st is not None and st.status == "tracking":
+            states.append(st)
+    assert [e.kind for e in vio.events] == ["initialized"], vio.events
+    est = Trajectory(
+        t_ns=np.array([s.t_ns for s in states]),
+        p_W_B=np.array([s.T_W_B.p_A_B for s in states]),
+        q_W_B_xyzw=np.array([s.T_W_B.R_A_B.as_quat() for s in states]),
+    )
+    assert ds.groundtruth is not None
+    ref, e = associate(ds.groundtruth.trajectory, est, t_max_diff_s=0.01)
+    aligned, _ = align(ref, e, "4dof")
+    return float(np.sqrt(np.mean(np.linalg.norm(aligned.p_W_B - ref.p_W_B, axis=1) ** 2)))
+
+
+@pytest.mark.slow  # 3 renders and 6 runs: about 2 minutes of one core
+def test_stereo_factors_beat_mono_over_seeds(tmp_path_factory: pytest.TempPathFactory) -> None:
+    """The right camera's observations in the window: over three seeds of a moving start in the
+    room (8 s), the stereo VIO's ATE is well under the monocular one's (measured 0.009 against
+    0.017 m on a 15 s sequence)."""
+    mono, stereo = [], []
+    for seed in (11, 12, 13):
+        ds = rendered(
+            tmp_path_factory, "room_medium", duration_s=8.0, still_s=0.0, rig="euroc", seed=seed
+        )
+        mono.append(_ate(ds, stereo=False))
+        stereo.append(_ate(ds, stereo=True))
+    assert np.mean(stereo) < 0.8 * np.mean(mono), (mono, stereo)
+    assert max(stereo) < 0.05

@@ -19,8 +19,9 @@ normalised coordinates (:func:`projection`). OpenCV is imported by the functions
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Hashable, Mapping
 from dataclasses import dataclass
+from typing import TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -44,6 +45,7 @@ __all__ = [
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
+K = TypeVar("K", bound=Hashable)
 
 
 def nearest_rotation(M: FloatArray) -> FloatArray:
@@ -180,9 +182,7 @@ def triangulate(xy: FloatArray, P: FloatArray) -> tuple[FloatArray, FloatArray]:
     return pts, np.asarray(z, dtype=np.float64)
 
 
-def triangulate_track(
-    obs: Mapping[int, FloatArray], P: Mapping[int, FloatArray]
-) -> FloatArray | None:
+def triangulate_track(obs: Mapping[K, FloatArray], P: Mapping[K, FloatArray]) -> FloatArray | None:
     """One track's DLT point from its observations by view key and the views' 3x4 projections
     (None if degenerate)."""
     keys = [k for k in obs if k in P]

@@ -115,6 +115,12 @@ class VioConfig(ConfigModel):
     stereo: bool = Field(
         False, description="use the rig's second camera: depth at once and stereo factors"
     )
+    stereo_max_depth_baselines: float = Field(
+        40.0,
+        gt=1.0,
+        le=1000.0,
+        description="a track enters from one stereo pair within this depth (ORB-SLAM's ThDepth)",
+    )
     stereo_init_keyframes: int = Field(
         4, ge=2, le=30, description="keyframes a stereo start in motion waits for"
     )

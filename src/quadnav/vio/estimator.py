@@ -91,7 +91,6 @@ class VioEstimator:
         self._params = imu_params(rig.imu.noise, g_norm=cfg.g_norm)
         self.frontend = Frontend(spec.camera, cfg)
         self.features = FeatureManager()
-        self.window = SlidingWindow(cfg, spec.T_B_C, spec.camera.fx)
         self.input = InputLog()
         self._imu: list[ImuSample] = []
         self._imu_t: list[int] = []
@@ -123,6 +122,7 @@ class VioEstimator:
         self._image: ImageFrame | None = None  # the frame being pushed
         self._image_px: NDArray[np.uint8] | None = None
         self.stereo = StereoFrontend(rig, camera, cfg) if cfg.stereo else None
+        self.window = self._new_window()
 
     # -- the protocol -----------------------------------------------------------------------
     @property
@@ -351,6 +351,11 @@ class VioEstimator:
             self._events.append(OdometryEvent(t_ns=frame.t_ns, kind="reinitialized", detail=detail))
         else:
             self._events.append(OdometryEvent(t_ns=frame.t_ns, kind="initialized", detail=how))
+
+    def _new_window(self) -> SlidingWindow:
+        spec = self.camera_spec
+        right = None if self.stereo is None else self.stereo.right.T_B_C
+        return SlidingWindow(self.config, spec.T_B_C, spec.camera.fx, right)
 
     def _init_keyframes(self) -> int:
         """Keyframes a start in motion waits for: a window's (mono: the parallax that gives the
@@ -684,7 +689,7 @@ class VioEstimator:
             self._last_p = np.asarray(self.window.keyframes[-1].pose.translation(), np.float64)
         self._retire(everything=True)
         self._candidates.clear()
-        self.window = SlidingWindow(self.config, self.camera_spec.T_B_C, self.camera_spec.camera.fx)
+        self.window = self._new_window()
         self.features.clear()
         self.frontend.reset()
         self._recent.clear()

@@ -107,9 +107,19 @@ def _bearing_angle(obs: dict[int, FloatArray], P: dict[int, FloatArray]) -> floa
 class SlidingWindow:
     """Keyframes and landmarks of a fixed-lag window (see the module)."""
 
-    def __init__(self, config: VioConfig, T_B_C: Pose, focal_px: float) -> None:
+    def __init__(
+        self, config: VioConfig, T_B_C: Pose, focal_px: float, T_B_R: Pose | None = None
+    ) -> None:
         self.config = config
         self.T_B_C = pose3(T_B_C)
+        #: a stereo rig's second camera: its observations are projection factors too, and a
+        #: track seen by both in one keyframe near enough may enter at once
+        self.T_B_R = None if T_B_R is None else pose3(T_B_R)
+        self._baseline_m = (
+            0.0 if T_B_R is None else float(np.linalg.norm((T_B_C.inverse() @ T_B_R).p_A_B))
+        )
+        self._seen_r: dict[int, set[int]] = {}  # track -> keyframes with its right factor in
+        self._used_r: dict[int, set[int]] = {}  # track -> right views in the prior
         self.focal_px = float(focal_px)
         self.K = gtsam.Cal3_S2(1.0, 1.0, 0.0, 0.0, 0.0)
         sigma = config.pixel_sigma_px / self.focal_px
@@ -147,6 +157,7 @@ class SlidingWindow:
         self._smoother = gtsam.BatchFixedLagSmoother(self.config.window_keyframes - 0.5, params)
         self.keyframes, self.landmarks, self._remove = [kf], {}, []
         self._seen, self._key, self._used = {}, {}, {}
+        self._seen_r, self._used_r = {}, {}
         self._new = graph, _, _ = self._pending()
         k = kf.index
         gauss = gtsam.noiseModel.Gaussian.Covariance
@@ -245,20 +256,25 @@ class SlidingWindow:
         graph, values, ts = self._new
         poses = {kf.index: kf.pose for kf in self.keyframes}
         P = _camera_poses(poses, self.T_B_C)
+        PR = _camera_poses(poses, self.T_B_R) if self.T_B_R is not None else {}
         centres = {k: -Pk[:, :3].T @ Pk[:, 3] for k, Pk in P.items()}
         added = 0
         for j, obs_all in features.tracks.items():
             if j in self.bad_tracks:
                 continue
             obs = {k: xy for k, xy in obs_all.items() if k in P}
+            robs = {k: xy for k, xy in features.right.get(j, {}).items() if k in PR}
             if j not in self.landmarks:
-                if len(obs) < 2:
+                if len(obs) < 2 and not robs:
                     continue
                 p = self._seed.pop(j, None)
                 if p is None or not self._landmark_ok(p, obs, P):
-                    p = self._new_landmark(obs, P, centres)
+                    p = self._new_landmark(obs, P, centres) if len(obs) >= 2 else None
+                if p is None and robs:
+                    p = self._stereo_landmark(obs, robs, P, PR)
                 if p is None:
                     continue
+                self._seen_r[j] = set(self._used_r.get(j, set()))
                 self.landmarks[j] = p
                 used = self._used.get(j, set())
                 self._seen[j] = set(used)  # already in the prior: not again
@@ -278,7 +294,51 @@ class SlidingWindow:
                         )
                     )
                     seen.add(k)
+            if robs:
+                self._add_right(j, robs, key)
         return added
+
+    def _add_right(self, j: int, robs: dict[int, FloatArray], key: int) -> None:
+        """The projection factors of a landmark's new observations in the second camera."""
+        graph, T_B_R = self._new[0], self.T_B_R
+        assert T_B_R is not None
+        seen = self._seen_r.setdefault(j, set())
+        for k, xy in robs.items():
+            if k not in seen:
+                graph.add(
+                    gtsam.GenericProjectionFactorCal3_S2(
+                        xy, self._pixel_noise, X(k), key, self.K, T_B_R
+                    )
+                )
+                seen.add(k)
+
+    def _stereo_landmark(
+        self,
+        obs: dict[int, FloatArray],
+        robs: dict[int, FloatArray],
+        P: dict[int, FloatArray],
+        PR: dict[int, FloatArray],
+    ) -> FloatArray | None:
+        """A track's point from its views in both cameras (a stereo pair is enough), if it is
+        within ``stereo_max_depth_baselines`` of a camera that sees it in stereo, in front of
+        every view and near every pixel."""
+        cfg = self.config
+        views: dict[tuple[int, int], FloatArray] = {(k, 0): xy for k, xy in obs.items()}
+        views.update({(k, 1): xy for k, xy in robs.items()})
+        Pv = {(k, 0): P[k] for k in obs} | {(k, 1): PR[k] for k in robs}
+        p = triangulate_track(views, Pv)
+        if p is None:
+            return None
+        err, z = reprojection_errors(
+            np.array([Pv[v] for v in views]), p, np.array(list(views.values()))
+        )
+        far = min(cfg.landmark_max_depth_m, cfg.stereo_max_depth_baselines * self._baseline_m)
+        near_pair = any(
+            zz <= far for (k, c), zz in zip(views, z, strict=True) if c == 1 and (k, 0) in views
+        )
+        if not near_pair or not np.all(z >= cfg.landmark_min_depth_m):
+            return None
+        return p if bool(np.all(err * self.focal_px <= cfg.max_reprojection_px)) else None
 
     def _read_back(self, est: gtsam.Values, features: FeatureManager) -> int:
         """The smoother's estimates in; marginalised keyframes and landmarks out; landmarks
@@ -300,12 +360,16 @@ class SlidingWindow:
             # the observations the prior does not hold yet
             self._seed[j] = self.landmarks.pop(j)
             self._used[j] = self._seen.pop(j)
+            self._used_r[j] = self._seen_r.pop(j, set())
             del self._key[j]
         for j in [j for j in self._used if j not in features.tracks]:
             del self._used[j]
-        P = _camera_poses({kf.index: kf.pose for kf in self.keyframes}, self.T_B_C)
+            self._used_r.pop(j, None)
+        poses = {kf.index: kf.pose for kf in self.keyframes}
+        P = _camera_poses(poses, self.T_B_C)
+        PR = _camera_poses(poses, self.T_B_R) if self.T_B_R is not None else {}
         live = [j for j in self.landmarks if j not in self.bad_tracks]
-        bad = self._bad_landmarks(live, features, P)
+        bad = self._bad_landmarks(live, features, P, PR)
         if bad:
             self.bad_tracks.update(bad)
             self._remove = self._projection_slots({L(self._key[j]) for j in bad})
@@ -323,21 +387,27 @@ class SlidingWindow:
         return out
 
     def _bad_landmarks(
-        self, js: list[int], features: FeatureManager, P: dict[int, FloatArray]
+        self,
+        js: list[int],
+        features: FeatureManager,
+        P: dict[int, FloatArray],
+        PR: dict[int, FloatArray],
     ) -> list[int]:
-        """The landmarks behind or too near or far from a camera, or too far from a pixel."""
+        """The landmarks behind or too near or far from a camera, or too far from a pixel (in
+        either camera of a stereo rig)."""
         cfg = self.config
         owner, cams, meas = [], [], []
         for j in js:
-            for k, xy in features.observations(j).items():
-                if k in P:
-                    owner.append(j)
-                    cams.append(k)
-                    meas.append(xy)
+            for book, views in ((features.observations(j), P), (features.right.get(j, {}), PR)):
+                for k, xy in book.items():
+                    if k in views:
+                        owner.append(j)
+                        cams.append(views[k])
+                        meas.append(xy)
         if not owner:
             return []
         pts = np.array([self.landmarks[j] for j in owner])
-        e, z = reprojection_errors(np.array([P[k] for k in cams]), pts, np.array(meas))
+        e, z = reprojection_errors(np.array(cams), pts, np.array(meas))
         err = e * self.focal_px
         wrong = ~(
             (z >= cfg.landmark_min_depth_m)
