@@ -23,6 +23,7 @@ from scipy.spatial.transform import Rotation
 from quadnav.errors import GeometryError
 from quadnav.geometry.camera import PinholeCamera, thesis_camera
 from quadnav.geometry.rotations import Pose
+from quadnav.units import GRAVITY_M_S2
 
 __all__ = [
     "RIGS",
@@ -103,7 +104,7 @@ class ImuNoiseModel:
             accel_noise_density=2.0000e-3,
             accel_random_walk=3.0000e-3,
             gyro_bias0_sigma_rad_s=math.radians(0.5),
-            accel_bias0_sigma_m_s2=20.0e-3 * 9.81,
+            accel_bias0_sigma_m_s2=20.0e-3 * GRAVITY_M_S2,
         )
 
     @classmethod
