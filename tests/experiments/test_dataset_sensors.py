@@ -13,7 +13,12 @@ import numpy as np
 import pytest
 
 from quadnav.errors import QuadnavError
-from quadnav.experiments.datasets import make_dataset, plan_dataset, sequence_spec
+from quadnav.experiments.datasets import (
+    make_dataset,
+    plan_dataset,
+    sequence_spec,
+    synthesize_dataset_imu,
+)
 from quadnav.io.datasets import open_dataset
 from quadnav.rig import rig_named
 from quadnav.sim.motion import synthesize_imu
@@ -109,6 +114,30 @@ def test_a_realistic_dataset_states_a_perturbed_calibration_and_keeps_the_truth(
     assert plan.imu_noise is not None
     assert np.allclose(gt.gyro_bias_rad_s[0], plan.imu_noise.gyro_bias0_rad_s)
     assert np.allclose(gt.accel_bias_m_s2[0], plan.imu_noise.accel_bias0_m_s2)
+
+
+def test_the_imu_is_quieter_on_the_ground_than_in_flight() -> None:
+    """Standing still for 3 s (rotors off until a second before the take-off) the IMU shows
+    its level on the ground, flying its level in flight."""
+    plan = plan_dataset(
+        sequence_spec("room", {"rig": "euroc_mono", "duration_s": 5.0, "still_s": 3.0})
+    )
+    imu = synthesize_dataset_imu(plan, 0)
+    exact = synthesize_imu(plan.motion, rate_hz=200.0, noise=None, t_start_ns=plan.span[0],
+                           t_end_ns=plan.span[1])  # fmt: skip
+    t = (imu.t_true_ns - imu.t_true_ns[0]) / 1e9  # the span starts 0.1 s into the motion
+    for name, level in (("ground", plan.ground_noise), ("flight", plan.imu_noise)):
+        assert level is not None
+        window = (t < 1.5) if name == "ground" else (t > 3.5)
+        for got, want, bias in (
+            (imu.gyro_rad_s, level.gyro_noise_density, imu.gyro_bias_rad_s),
+            (imu.accel_m_s2, level.accel_noise_density, imu.accel_bias_m_s2),
+        ):
+            noise = got - exact.gyro_rad_s if got is imu.gyro_rad_s else got - exact.accel_m_s2
+            assert np.std((noise - bias)[window]) == pytest.approx(want * math.sqrt(200), rel=0.1)
+    assert plan.ground_noise is not None and plan.imu_noise is not None
+    assert plan.imu_noise.accel_noise_density > 3 * plan.ground_noise.accel_noise_density
+    assert plan_dataset(sequence_spec("room", {**SMALL, "sensors": "ideal"})).ground_noise is None
 
 
 def test_an_ideal_dataset_states_the_calibration_it_was_made_with(tmp_path: Path) -> None:

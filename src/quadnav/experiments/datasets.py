@@ -43,7 +43,7 @@ from quadnav.io.config import load_config
 from quadnav.io.run_folder import write_text
 from quadnav.io.trajectory_io import write_tum
 from quadnav.rig import CameraSpec, DepthSpec, ImuNoiseModel, ImuSpec, Rig, rig_named
-from quadnav.sim.motion import SplineMotion, synthesize_imu
+from quadnav.sim.motion import ImuSeries, SplineMotion, synthesize_imu
 from quadnav.sim.render import RenderedFrame, RenderEffects, depth_noise
 from quadnav.units import NS_PER_S, s_to_ns
 
@@ -60,6 +60,7 @@ __all__ = [
     "plan_dataset",
     "sequence_spec",
     "stream_rng",
+    "synthesize_dataset_imu",
 ]
 
 FloatArray = NDArray[np.float64]
@@ -393,7 +394,8 @@ class DatasetPlan:
     """What a sequence is made from: the rig the data is made with (the sequence's exposure,
     the true time offset and calibration, the IMU noise it is synthesized with), the rig the
     dataset states (``mav0/``'s calibration files), the IMU's noise model with its turn-on
-    biases (None: an exact IMU), the motion of the body frame, the span of IMU time it covers
+    biases (None: an exact IMU; its in-flight level when ``ground_noise`` gives the one on the
+    ground before take-off), the motion of the body frame, the span of IMU time it covers
     (ns), and what the sensor profile drew (for ``dataset.json``)."""
 
     rig: Rig
@@ -402,6 +404,7 @@ class DatasetPlan:
     motion: SplineMotion
     span: tuple[int, int]
     sensors: Mapping[str, object]
+    ground_noise: ImuNoiseModel | None = None
 
 
 def plan_dataset(spec: SequenceSpec) -> DatasetPlan:
@@ -411,6 +414,8 @@ def plan_dataset(spec: SequenceSpec) -> DatasetPlan:
     motion = _motion(spec)
     if _vehicle_motion(spec):
         motion = _rig_body_motion(motion, rig.T_V_B)
+    imu = resolve_rig(spec.rig).imu
+    realistic = spec.sensors == "realistic" and imu_noise is not None and imu is not None
     return DatasetPlan(
         rig=rig,
         stated=stated,
@@ -418,6 +423,7 @@ def plan_dataset(spec: SequenceSpec) -> DatasetPlan:
         motion=motion,
         span=_span(spec, motion),
         sensors=drawn,
+        ground_noise=imu.ground_noise if realistic and imu is not None else None,
     )
 
 
@@ -496,6 +502,11 @@ def _imu_noise(spec: SequenceSpec, imu: ImuSpec) -> ImuNoiseModel | None:
     return flight.draw_turn_on_biases(stream_rng(spec.seed, "imu_bias0"), spec.imu_bias0_scale)
 
 
+def _ground_yaml(spec: SequenceSpec, imu: ImuSpec) -> dict[str, float] | None:
+    ground = imu.ground_noise if spec.sensors == "realistic" else None
+    return ground.sensor_yaml() if ground is not None else None
+
+
 def _rigs_for(spec: SequenceSpec) -> tuple[Rig, Rig, ImuNoiseModel | None, dict[str, object]]:
     """The rig the data is made with, the rig the dataset states, the IMU's noise model and
     what was drawn (see :class:`DatasetPlan`)."""
@@ -530,6 +541,7 @@ def _rigs_for(spec: SequenceSpec) -> tuple[Rig, Rig, ImuNoiseModel | None, dict[
         },
         "imu_noise_density": {
             "synthesized": imu_noise.sensor_yaml() if imu_noise else None,
+            "on_the_ground": _ground_yaml(spec, rig.imu) if imu_noise else None,
             "stated": rig.imu.noise.sensor_yaml(),
         },
         "calibration_error": {
@@ -540,20 +552,62 @@ def _rigs_for(spec: SequenceSpec) -> tuple[Rig, Rig, ImuNoiseModel | None, dict[
     return true, stated, imu_noise, drawn
 
 
+#: A body moving faster than this (m/s, rad/s) is flying; its rotors run from a second before.
+FLYING_SPEED_M_S, FLYING_RATE_RAD_S, ROTORS_AHEAD_S = 0.05, 0.05, 1.0
+
+
+def flying(motion: SplineMotion, t_ns: NDArray[np.int64]) -> NDArray[np.bool_]:
+    """Whether the rotors run at ``t_ns``: within :data:`ROTORS_AHEAD_S` of the body moving."""
+    moving = (np.linalg.norm(motion.velocity(t_ns), axis=1) > FLYING_SPEED_M_S) | (
+        np.linalg.norm(motion.angular_rate_B(t_ns), axis=1) > FLYING_RATE_RAD_S
+    )
+    t_moving = t_ns[moving]
+    if not t_moving.size:
+        return np.zeros(len(t_ns), dtype=np.bool_)
+    k = np.searchsorted(t_moving, t_ns)
+    ahead = np.abs(t_moving[np.minimum(k, len(t_moving) - 1)] - t_ns)
+    behind = np.abs(t_moving[np.maximum(k - 1, 0)] - t_ns)
+    return np.asarray(np.minimum(ahead, behind) <= s_to_ns(ROTORS_AHEAD_S), dtype=np.bool_)
+
+
+def synthesize_dataset_imu(plan: DatasetPlan, seed: int) -> ImuSeries:
+    """The IMU ``make_dataset`` writes: :func:`~quadnav.sim.motion.synthesize_imu` with the
+    plan's noise; with a ``ground_noise``, at that level, plus white noise up to the in-flight
+    level where the rotors run (:func:`flying`; its own stream, ``imu_vibration``)."""
+    imu_spec, noise, ground = plan.rig.imu, plan.imu_noise, plan.ground_noise
+    assert imu_spec is not None
+    base = noise
+    if noise is not None and ground is not None:
+        base = replace(
+            noise,
+            gyro_noise_density=ground.gyro_noise_density,
+            accel_noise_density=ground.accel_noise_density,
+        )
+    imu = synthesize_imu(
+        plan.motion, rate_hz=imu_spec.rate_hz, noise=base, rng=stream_rng(seed, "imu"),
+        t_start_ns=plan.span[0], t_end_ns=plan.span[1],
+    )  # fmt: skip
+    if noise is None or ground is None:
+        return imu
+    on = flying(plan.motion, imu.t_true_ns)[:, None] * math.sqrt(imu_spec.rate_hz)
+    extra = [
+        math.sqrt(max(a**2 - b**2, 0.0))
+        for a, b in (
+            (noise.gyro_noise_density, ground.gyro_noise_density),
+            (noise.accel_noise_density, ground.accel_noise_density),
+        )
+    ]
+    rng = stream_rng(seed, "imu_vibration")
+    g = imu.gyro_rad_s + extra[0] * on * rng.standard_normal(imu.gyro_rad_s.shape)
+    a = imu.accel_m_s2 + extra[1] * on * rng.standard_normal(imu.accel_m_s2.shape)
+    return replace(imu, gyro_rad_s=g, accel_m_s2=a)
+
+
 def _write_imu(
     writer: EurocWriter, motion: SplineMotion, plan: DatasetPlan, spec: SequenceSpec
 ) -> int:
     """The IMU and the ground truth at its stamps (pose, velocity, the true biases)."""
-    rig, span = plan.rig, plan.span
-    assert rig.imu is not None
-    imu = synthesize_imu(
-        motion,
-        rate_hz=rig.imu.rate_hz,
-        noise=plan.imu_noise,
-        rng=stream_rng(spec.seed, "imu"),
-        t_start_ns=span[0],
-        t_end_ns=span[1],
-    )
+    imu = synthesize_dataset_imu(plan, spec.seed)
     for s in imu.samples():
         writer.add_imu(s)
     p, q = motion.pose(imu.t_ns)
