@@ -13,9 +13,10 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
+from numpy.random import Generator
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
@@ -23,6 +24,7 @@ from quadnav.errors import GeometryError
 from quadnav.geometry.camera import PinholeCamera, thesis_camera
 from quadnav.geometry.multiview import nearest_rotation
 from quadnav.geometry.rotations import Pose
+from quadnav.units import GRAVITY_M_S2
 
 __all__ = [
     "RIGS",
@@ -55,7 +57,10 @@ class ImuNoiseModel:
     """Continuous-time IMU noise, in the names of EuRoC's and Kalibr's ``imu0`` YAML: white-noise
     densities (``gyro`` rad/s/sqrt(Hz), ``accel`` m/s^2/sqrt(Hz)) and bias random walks (rad/s^2/
     sqrt(Hz), m/s^3/sqrt(Hz)), with the biases at the start. A sample at rate ``f`` has white
-    noise of standard deviation ``density * sqrt(f)``."""
+    noise of standard deviation ``density * sqrt(f)``. ``*_bias0_sigma_*`` is the spread of the
+    turn-on bias over power-ups (1 sigma per axis; what a datasheet calls the initial bias error
+    or bias repeatability): a synthetic IMU draws its ``*_bias0_*`` from it
+    (:meth:`draw_turn_on_biases`)."""
 
     gyro_noise_density: float
     gyro_random_walk: float
@@ -63,6 +68,8 @@ class ImuNoiseModel:
     accel_random_walk: float
     gyro_bias0_rad_s: Vec3 = (0.0, 0.0, 0.0)
     accel_bias0_m_s2: Vec3 = (0.0, 0.0, 0.0)
+    gyro_bias0_sigma_rad_s: float = 0.0
+    accel_bias0_sigma_m_s2: float = 0.0
 
     def __post_init__(self) -> None:
         for name in (
@@ -70,6 +77,8 @@ class ImuNoiseModel:
             "gyro_random_walk",
             "accel_noise_density",
             "accel_random_walk",
+            "gyro_bias0_sigma_rad_s",
+            "accel_bias0_sigma_m_s2",
         ):
             v = float(getattr(self, name))
             if not math.isfinite(v) or v < 0.0:
@@ -83,12 +92,53 @@ class ImuNoiseModel:
 
     @classmethod
     def euroc_adis16448(cls) -> ImuNoiseModel:
-        """EuRoC's ADIS16448 (its ``imu0/sensor.yaml``)."""
+        """EuRoC's ADIS16448: the densities of its ``imu0/sensor.yaml`` (the datasheet's: angular
+        random walk 0.66 deg/sqrt(h) = 1.9e-4 rad/s/sqrt(Hz), velocity random walk
+        0.11 m/s/sqrt(h) = 1.8e-3 m/s^2/sqrt(Hz)). Turn-on biases of 0.5 deg/s and 20 mg (1 sigma):
+        the ADIS16448 defaults of ETH ASL's RotorS simulator (``gazebo_imu_plugin.h``,
+        ``kDefaultAdis*TurnOnBiasSigma``), the lab that recorded EuRoC. (EuRoC's own V1_01 biases,
+        as OpenVINS estimates them, are bg (-0.002, 0.021, 0.077) rad/s and ba up to 0.19 m/s^2:
+        the gyro's z beyond that spread, the accelerometer's within it.)"""
         return cls(
             gyro_noise_density=1.6968e-04,
             gyro_random_walk=1.9393e-05,
             accel_noise_density=2.0000e-3,
             accel_random_walk=3.0000e-3,
+            gyro_bias0_sigma_rad_s=math.radians(0.5),
+            accel_bias0_sigma_m_s2=20.0e-3 * GRAVITY_M_S2,
+        )
+
+    @classmethod
+    def euroc_adis16448_in_flight(cls) -> ImuNoiseModel:
+        """The white noise EuRoC's ADIS16448 shows in flight on its MAV (rotor vibration
+        included), measured in ``euroc_micro`` (V1_01_easy's IMU, 200 Hz): from 10 s to 140 s,
+        each axis less its centred 0.1 s moving average, the per-sample standard deviation over
+        sqrt(200 Hz), the RMS over the axes: gyro 2.8e-3 rad/s/sqrt(Hz) (axes 1.5, 3.7,
+        2.7e-3; 16x the datasheet's 1.7e-4), accelerometer 0.062 m/s^2/sqrt(Hz) (axes 0.080,
+        0.037, 0.061; 31x its 2.0e-3). VINS-Mono's EuRoC configuration inflates to the same
+        order (gyr_n 0.004, acc_n 0.08). Standing on the ground before take-off the same IMU
+        shows 1.3e-3 and 0.024 (0 to 4.7 s), 3.4e-4 and 6e-3 in its quietest half second. The
+        random walks (not measurable in 145 s) and the turn-on spread are the datasheet's."""
+        return replace(cls.euroc_adis16448(), gyro_noise_density=2.8e-3, accel_noise_density=0.062)
+
+    @classmethod
+    def euroc_adis16448_on_ground(cls) -> ImuNoiseModel:
+        """The white noise of EuRoC's ADIS16448 on the ground before take-off, measured as
+        :meth:`euroc_adis16448_in_flight` over V1_01's steadiest stretch, 1.5 to 3.5 s (the
+        vehicle moves 1.7 cm in its first 4.7 s): gyro 8.4e-4 rad/s/sqrt(Hz) (axes 0.91, 0.90,
+        0.69e-3), accelerometer 0.014 m/s^2/sqrt(Hz) (axes 0.016, 0.015, 0.009); over all of
+        0 to 4.7 s, with a disturbance first and the take-off last, 2.2e-3 and 0.032."""
+        return replace(cls.euroc_adis16448(), gyro_noise_density=8.4e-4, accel_noise_density=0.014)
+
+    def draw_turn_on_biases(self, rng: Generator, scale: float = 1.0) -> ImuNoiseModel:
+        """This model with turn-on biases drawn per axis from a normal of ``scale`` times its
+        ``*_bias0_sigma_*``, clipped to 3 sigma (the range a datasheet's 1 sigma implies)."""
+        g = np.clip(rng.standard_normal(3), -3.0, 3.0) * self.gyro_bias0_sigma_rad_s * scale
+        a = np.clip(rng.standard_normal(3), -3.0, 3.0) * self.accel_bias0_sigma_m_s2 * scale
+        return replace(
+            self,
+            gyro_bias0_rad_s=(float(g[0]), float(g[1]), float(g[2])),
+            accel_bias0_m_s2=(float(a[0]), float(a[1]), float(a[2])),
         )
 
     def sensor_yaml(self) -> dict[str, float]:
@@ -108,18 +158,25 @@ class ImuNoiseModel:
             accel_random_walk=0.0,
             gyro_bias0_rad_s=self.gyro_bias0_rad_s,
             accel_bias0_m_s2=self.accel_bias0_m_s2,
+            gyro_bias0_sigma_rad_s=self.gyro_bias0_sigma_rad_s,
+            accel_bias0_sigma_m_s2=self.accel_bias0_sigma_m_s2,
         )
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class ImuSpec:
     """An IMU at ``rate_hz`` with its noise, mounted at ``T_B_I`` (the identity when the body frame
-    is the IMU's, as in EuRoC)."""
+    is the IMU's, as in EuRoC). ``noise`` is what its calibration file states (a datasheet's);
+    ``flight_noise`` what it shows on the vehicle in flight (vibration included), which realistic
+    synthetic data is made with (None: the stated one), and ``ground_noise`` what it shows
+    standing on the ground before take-off (None: the in-flight level throughout)."""
 
     rate_hz: float
     noise: ImuNoiseModel
     T_B_I: Pose = field(default_factory=Pose.identity)
     name: str = "imu0"
+    flight_noise: ImuNoiseModel | None = None
+    ground_noise: ImuNoiseModel | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "rate_hz", _positive("IMU rate_hz", self.rate_hz))
@@ -232,12 +289,27 @@ def _pose(R: FloatArray, p: Vec3) -> Pose:
 
 
 # A small multirotor's IMU (MPU-6000 class, as in a Pixhawk; the order of PX4's defaults).
+# Its turn-on biases: PX4's EKF2 switch-on bias 1 sigma (EKF2_GBIAS_INIT 0.1 rad/s; accelerometer
+# 0.2 m/s^2, EKF2_ABIAS_INIT), what is left after the flight controller's own calibration (the
+# MPU-6000's raw initial tolerance, +-20 deg/s and +-50 mg, is calibrated out at boot).
 _FC_IMU = ImuNoiseModel(
     gyro_noise_density=2.4e-4,
     gyro_random_walk=2.0e-5,
     accel_noise_density=2.8e-3,
     accel_random_walk=4.0e-4,
+    gyro_bias0_sigma_rad_s=0.1,
+    accel_bias0_sigma_m_s2=0.2,
 )
+# In flight: no measurement of our own; the vibration is the vehicle's, so EuRoC's MAV's level
+# (ImuNoiseModel.euroc_adis16448_in_flight), with this IMU's random walks.
+_FC_IMU_FLIGHT = replace(_FC_IMU, gyro_noise_density=2.8e-3, accel_noise_density=0.062)
+_FC_IMU_GROUND = replace(_FC_IMU, gyro_noise_density=8.4e-4, accel_noise_density=0.014)
+
+
+def _fc_imu(rate_hz: float) -> ImuSpec:
+    return ImuSpec(
+        rate_hz=rate_hz, noise=_FC_IMU, flight_noise=_FC_IMU_FLIGHT, ground_noise=_FC_IMU_GROUND
+    )
 
 
 def thesis003_sim() -> Rig:
@@ -247,7 +319,7 @@ def thesis003_sim() -> Rig:
     spec = CameraSpec(
         name="cam0", camera=cam, T_B_C=_pose(R_B_C_FORWARD, (0.1, 0.0, 0.0)), rate_hz=20.0
     )
-    return Rig(name="thesis003_sim", cameras=(spec,), imu=ImuSpec(rate_hz=200.0, noise=_FC_IMU))
+    return Rig(name="thesis003_sim", cameras=(spec,), imu=_fc_imu(200.0))
 
 
 # EuRoC's cam0/cam1 (its sensor.yaml): T_BS rows, intrinsics fu fv cu cv, radial-tangential.
@@ -311,7 +383,12 @@ def euroc() -> Rig:
     return Rig(
         name="euroc",
         cameras=tuple(cams),
-        imu=ImuSpec(rate_hz=200.0, noise=ImuNoiseModel.euroc_adis16448()),
+        imu=ImuSpec(
+            rate_hz=200.0,
+            noise=ImuNoiseModel.euroc_adis16448(),
+            flight_noise=ImuNoiseModel.euroc_adis16448_in_flight(),
+            ground_noise=ImuNoiseModel.euroc_adis16448_on_ground(),
+        ),
         T_V_B=_euroc_mount(),
     )
 
@@ -334,7 +411,7 @@ def zed() -> Rig:
     right = CameraSpec(
         name="cam1", camera=cam, T_B_C=_pose(R_B_C_FORWARD, (0.1, -0.06, 0.0)), rate_hz=60.0
     )
-    return Rig(name="zed", cameras=(left, right), imu=ImuSpec(rate_hz=200.0, noise=_FC_IMU))
+    return Rig(name="zed", cameras=(left, right), imu=_fc_imu(200.0))
 
 
 def pi_camera() -> Rig:
@@ -346,7 +423,7 @@ def pi_camera() -> Rig:
         T_B_C=_pose(R_B_C_DOWN_THESIS000, (0.0, 0.0, -0.05)),
         rate_hz=40.0,
     )
-    return Rig(name="pi_camera", cameras=(spec,), imu=ImuSpec(rate_hz=250.0, noise=_FC_IMU))
+    return Rig(name="pi_camera", cameras=(spec,), imu=_fc_imu(250.0))
 
 
 def rgbd() -> Rig:

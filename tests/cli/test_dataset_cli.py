@@ -44,11 +44,13 @@ def test_make_writes_a_readable_folder_and_prints_its_path_last(tmp_path: Path) 
     assert res.exit_code == 0, res.output
     assert res.stdout.strip().splitlines()[-1] == str(out)
     doc = json.loads((out / "dataset.json").read_text())
-    assert doc["made"]["frames"] == 31 and doc["spec"]["rig"] == "thesis003_sim"
+    # 0 to 1.5 s at 20 Hz, both ends, less the frame the unstated time offset pushes out
+    assert doc["made"]["frames"] == 30 and doc["spec"]["rig"] == "thesis003_sim"
+    assert doc["spec"]["sensors"] == doc["sensors"]["profile"] == "realistic"
     assert (out / "groundtruth.tum").read_text().count("\n") == 150  # 100 Hz over 1.5 s
     info = runner.invoke(app, ["dataset", "info", str(out)])
     assert info.exit_code == 0, info.output
-    assert "31 frames, 20 Hz, 640x480" in info.stdout
+    assert "30 frames, 20 Hz, 640x480" in info.stdout
     assert "IMU" in info.stdout and "samples at 200 Hz" in info.stdout
 
 
@@ -56,6 +58,9 @@ def test_make_refuses_bad_requests_in_one_line(tmp_path: Path) -> None:
     (tmp_path / "full").mkdir()
     (tmp_path / "full" / "x").write_text("x")
     (tmp_path / "file").write_text("x")
+    gap = tmp_path / "file_gap.txt"  # 20 Hz poses, none from 1 s to 3 s
+    t = [k * 0.05 for k in range(100) if not 1.0 < k * 0.05 < 3.0]
+    gap.write_text("".join(f"{100 + x:.3f} {0.3 * x:.4f} 0 1 0 0 0 1\n" for x in t))
     cases = [
         (["attic", "--out", str(tmp_path / "a")], "unknown sequence or world 'attic'"),
         (["room", "--rig", "kinect", "--out", str(tmp_path / "b")], "--rig: unknown rig 'kinect'"),
@@ -67,10 +72,19 @@ def test_make_refuses_bad_requests_in_one_line(tmp_path: Path) -> None:
             ["room", "--motion", "nowhere.txt", "--out", str(tmp_path / "d")],
             "--motion 'nowhere.txt'",
         ),
+        (["room", "--sensors", "perfect", "--out", str(tmp_path / "e")], "sensors"),
+        (
+            ["room", "--motion", str(gap), "--out", str(tmp_path / "g")],
+            "longer than max_gap_s = 1 s that is bridged (--set max_gap_s=S)",
+        ),
     ]
     for args, fragment in cases:
         one_line_error(runner.invoke(app, ["dataset", "make", *args]), fragment)
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["file", "full"]  # nothing half-made
+    assert sorted(p.name for p in tmp_path.iterdir()) == [
+        "file",
+        "file_gap.txt",
+        "full",
+    ]  # nothing half-made
 
 
 @needs(EUROC)

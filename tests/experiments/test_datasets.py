@@ -15,7 +15,7 @@ from quadnav.experiments.datasets import (
     make_dataset,
     plan_dataset,
     sequence_spec,
-    stream_rng,
+    synthesize_dataset_imu,
 )
 from quadnav.geometry.rotations import Pose
 from quadnav.io.datasets import open_dataset
@@ -30,6 +30,7 @@ QUIET = {
     "read_noise": 0.0,
     "shot_noise_dn": 0.0,
     "exposure_s": 0.0,
+    "lighting": 0.0,
     "auto_exposure_s": 0.0,
     "rig": "thesis003_sim",
 }
@@ -46,27 +47,30 @@ def test_the_dataset_reads_back_as_the_samples_that_were_made(tmp_path: Path) ->
     root, spec = _make(tmp_path, mean_speed_m_s=0.8, rig="euroc")
     ds = open_dataset(root)
     plan = plan_dataset(spec)  # type: ignore[arg-type]
-    rig, motion, span = plan.rig, plan.motion, plan.span
-    # the calibration is the rig's
-    for cam in rig.cameras:
-        got = ds.rig.camera(cam.name)
-        assert np.allclose(got.camera.K, cam.camera.K)
-        assert np.allclose(got.camera.dist, cam.camera.dist)
-        assert np.allclose(got.T_B_C.matrix(), cam.T_B_C.matrix(), atol=1e-12)
-        assert got.rate_hz == cam.rate_hz
-    # the IMU is exactly what synthesize_imu gives for that seed
+    rig, motion = plan.rig, plan.motion
+    # the calibration is the one the plan states (mav0/), and the true one is in truth/
+    truth = open_dataset(root, calibration=root / "truth")
+    for stated, read in ((plan.stated, ds), (rig, truth)):
+        for cam in stated.cameras:
+            got = read.rig.camera(cam.name)
+            assert np.allclose(got.camera.K, cam.camera.K)
+            assert np.allclose(got.camera.dist, cam.camera.dist)
+            assert np.allclose(got.T_B_C.matrix(), cam.T_B_C.matrix(), atol=1e-12)
+            assert got.rate_hz == cam.rate_hz
+            assert got.time_offset_ns == cam.time_offset_ns
+    # the IMU is exactly what synthesize_imu gives for that seed with the plan's noise (the
+    # realistic profile's own test checks its levels)
     assert rig.imu is not None
-    imu = synthesize_imu(
-        motion, rate_hz=rig.imu.rate_hz, noise=rig.imu.noise, rng=stream_rng(0, "imu"),
-        t_start_ns=span[0], t_end_ns=span[1],
-    )  # fmt: skip
+    imu = synthesize_dataset_imu(plan, 0)
     read = list(ds.imu)
     assert len(read) == len(imu) > 400
     assert [s.t_ns for s in read] == list(imu.t_ns)
     assert np.array_equal(np.array([s.gyro_rad_s for s in read]), imu.gyro_rad_s)
     assert np.array_equal(np.array([s.accel_m_s2 for s in read]), imu.accel_m_s2)
     # 20 Hz stereo: both cameras at every stamp, merged with the IMU in time order
-    assert len(ds.frames_of("cam0")) == len(ds.frames_of("cam1")) == 51  # 0 to 2.5 s, both ends
+    # 0 to 2.5 s, both ends, less the one the unstated time offset (2.5 to 5 ms) pushes out
+    assert rig.cameras[0].time_offset_ns != 0
+    assert len(ds.frames_of("cam0")) == len(ds.frames_of("cam1")) == 50
     stamps = [s.t_ns for s in ds.stream()]
     assert stamps == sorted(stamps)
     # ground truth at the IMU's stamps, the spline's own poses
@@ -76,11 +80,14 @@ def test_the_dataset_reads_back_as_the_samples_that_were_made(tmp_path: Path) ->
 
 
 def test_an_image_stamped_t_shows_the_scene_at_t_plus_the_time_offset(tmp_path: Path) -> None:
-    td = 0.02
-    root, spec = _make(tmp_path, time_offset_s=td, vignetting=0.0, mean_speed_m_s=1.0, **QUIET)
+    """The stated offset (20 ms) plus the one the realistic profile draws and does not state."""
+    root, spec = _make(tmp_path, time_offset_s=0.02, vignetting=0.0, mean_speed_m_s=1.0, **QUIET)
     ds = open_dataset(root)
     plan = plan_dataset(spec)  # type: ignore[arg-type]
     motion, cam = plan.motion, plan.rig.cameras[0]
+    assert ds.rig.cameras[0].time_offset_ns == 20_000_000  # what the calibration states
+    td = cam.time_offset_ns / 1e9
+    assert 0.0225 <= td <= 0.025 or 0.015 <= td <= 0.0175  # 2.5 to 5 ms more, either sign
     scene = _world(spec, motion, *plan.span)  # type: ignore[arg-type]
     renderer = Renderer(scene, cam.camera)
     frame = ds.frames_of("cam0")[30]
@@ -176,7 +183,7 @@ def test_an_rgbd_rig_writes_the_depth_with_its_noise_model(
     renderer = Renderer(_world(spec, plan.motion, *plan.span), cam.camera)  # type: ignore[arg-type]
     errors, depths = [], []
     for d in ds.depth[:5]:
-        p, q = plan.motion.pose(np.array([d.t_ns]))
+        p, q = plan.motion.pose(np.array([d.t_ns + cam.time_offset_ns]))  # its true time
         true = renderer.render(Pose.from_quat_xyzw(q[0], p[0]) @ cam.T_B_C).depth_m
         read = d.depth_m()
         ok = np.isfinite(true) & np.isfinite(read)

@@ -41,7 +41,8 @@ def _run(root: Path) -> tuple[Trajectory, VioEstimator]:
 def test_room_flight_posyaw_ate(tmp_path: Path, seed: int) -> None:
     """10 s (1.5 s still, then ~3.5 m of flight at 0.45 m/s): ATE under 5 cm, no failure."""
     spec = sequence_spec(
-        "room_easy", {"duration_s": 10.0, "still_s": 1.5, "rig": "euroc_mono", "seed": seed}
+        "room_easy",
+        {"duration_s": 10.0, "still_s": 1.5, "rig": "euroc_mono", "seed": seed, "sensors": "ideal"},
     )
     made = make_dataset(spec, tmp_path / "seq", name="room_easy")
     est, vio = _run(made.root)

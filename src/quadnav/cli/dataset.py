@@ -44,9 +44,16 @@ def resolve_make(
     seed: int | None,
     duration_s: float | None,
     set_: list[str],
+    sensors: str | None = None,
 ) -> SequenceSpec:
     """The validated sequence ``dataset make`` would write (no work, no folder)."""
-    options = {"motion": motion, "rig": rig, "seed": seed, "duration_s": duration_s}
+    options = {
+        "motion": motion,
+        "rig": rig,
+        "seed": seed,
+        "duration_s": duration_s,
+        "sensors": sensors,
+    }
     return sequence_spec(name, {k: v for k, v in options.items() if v is not None}, set_)
 
 
@@ -59,6 +66,7 @@ def check_example(params: CommandParams) -> None:
         optional_param(params, "seed", int),
         optional_param(params, "duration_s", float),
         strings_param(params, "set_"),
+        optional_param(params, "sensors", str),
     )
 
 
@@ -68,6 +76,7 @@ EXAMPLES = (
     "quadnav dataset make hall --motion ../shared/data/motions/euroc_MH_01_easy.txt --out data/mh01",
     "quadnav dataset make room --motion indoor_vision --rig thesis003_sim --out data/flight",
     "quadnav dataset make room_difficult --rig zed --seed 3 --bag --out data/room_zed",
+    "quadnav dataset make room_medium --rig euroc_mono --sensors ideal --out data/room_ideal",
 )
 
 
@@ -92,8 +101,16 @@ def make_command(
         list[str] | None, typer.Option("--set", help="override a field: key=value")
     ] = None,
     bag: Annotated[bool, typer.Option("--bag", help="also write a ROS 2 bag (out/bag)")] = False,
+    sensors: Annotated[
+        str | None,
+        typer.Option(
+            "--sensors",
+            help="realistic: IMU turn-on biases and in-flight noise, an unstated time offset, "
+            "a calibration error (the truth in out/truth/) [default]; ideal: exact",
+        ),
+    ] = None,
 ) -> None:
-    spec = resolve_make(name, motion, rig, seed, duration_s, set_ or [])
+    spec = resolve_make(name, motion, rig, seed, duration_s, set_ or [], sensors)
     if out.exists() and not out.is_dir():
         raise ConfigError(f"--out {out}: is a file, not a folder")
     if out.exists() and any(out.iterdir()):
@@ -121,7 +138,13 @@ def make_command(
 make_command.__doc__ = command_help(
     "Render a visual-inertial dataset in a 3-D world along a motion and write it as an EuRoC "
     "ASL folder (mav0/cam*/, imu0/, state_groundtruth_estimate0/, sensor.yaml per sensor), "
-    "with a Kalibr camchain, dataset.json and groundtruth.tum; --bag adds a ROS 2 bag.",
+    "with a Kalibr camchain, dataset.json and groundtruth.tum; --bag adds a ROS 2 bag. "
+    "Sensors are realistic unless --sensors ideal: the IMU's turn-on biases drawn from its "
+    "rig's spread and its noise at the level a real one shows in flight (imu0/sensor.yaml "
+    "states the datasheet's), a camera-IMU time offset of a few ms that the calibration does "
+    "not state, and a calibration error in cam*/sensor.yaml; the true calibration is in "
+    "OUT/truth/ (quadnav vio OUT --calibration OUT/truth uses it), what was drawn in "
+    "dataset.json.",
     lists=[("Built-in sequences", {n: s.description for n, s in SEQUENCES.items()})],
     examples=EXAMPLES,
 )

@@ -7,6 +7,14 @@ noise; the IMU is synthesized from the same spline with its noise and bias rando
 result is an EuRoC ASL folder (``mav0/``) that VINS-Mono, OpenVINS, ORB-SLAM3 and Kimera read as
 they read EuRoC, with ``dataset.json`` (what was made and how) and ``groundtruth.tum`` (for evo).
 Everything is deterministic per seed: every stream has its own generator keyed by its name.
+
+Sensors are realistic by default (``sensors: realistic``; ``ideal`` gives what the data was made
+with, exactly): the IMU's turn-on biases are drawn from its rig's stated spread, its white noise is
+the level a real one shows in flight (:meth:`~quadnav.rig.ImuNoiseModel.euroc_adis16448_in_flight`)
+while ``imu0/sensor.yaml`` states the datasheet's, each camera is late or early on the IMU by an
+offset the calibration does not state, and its stated ``T_B_C`` and intrinsics carry a
+calibration error. The calibration the data was made with is written to ``truth/`` beside ``mav0/``
+(``quadnav vio DIR --calibration DIR/truth`` runs on it); ``dataset.json`` says what was drawn.
 """
 
 from __future__ import annotations
@@ -26,7 +34,7 @@ from pydantic import Field
 from scipy.spatial.transform import Rotation
 
 from quadnav.config_model import ConfigModel
-from quadnav.errors import ConfigError, GeometryError
+from quadnav.errors import ConfigError, ExperimentError, GeometryError
 from quadnav.experiments.dataset_motions import FlightPath, flight_path_trajectory
 from quadnav.experiments.nav_channels import channel_rng
 from quadnav.geometry.rotations import Pose
@@ -34,8 +42,8 @@ from quadnav.geometry.trajectory import Trajectory
 from quadnav.io.config import load_config
 from quadnav.io.run_folder import write_text
 from quadnav.io.trajectory_io import write_tum
-from quadnav.rig import CameraSpec, DepthSpec, Rig, rig_named
-from quadnav.sim.motion import SplineMotion, synthesize_imu
+from quadnav.rig import CameraSpec, DepthSpec, ImuNoiseModel, ImuSpec, Rig, rig_named
+from quadnav.sim.motion import ImuSeries, SplineMotion, synthesize_imu
 from quadnav.sim.render import RenderedFrame, RenderEffects, depth_noise
 from quadnav.units import NS_PER_S, s_to_ns
 
@@ -52,6 +60,7 @@ __all__ = [
     "plan_dataset",
     "sequence_spec",
     "stream_rng",
+    "synthesize_dataset_imu",
 ]
 
 FloatArray = NDArray[np.float64]
@@ -71,7 +80,16 @@ class SequenceSpec(ConfigModel):
     a trajectory file (TUM, EuRoC ground truth...) or a ``quadnav run``/``sim`` scenario name.
     ``exposure_s`` sets the motion blur (0: none), ``lighting`` the depth of the slow exposure
     changes (0: constant, 0.5: from half to one and a half), ``texture_poor`` the fraction of
-    surfaces without texture. ``motion_frame`` says whose poses the motion gives: a vehicle's
+    surfaces without texture; left out (None), they are the profile's: a realistic ``exposure_s``
+    of 5 ms and ``lighting`` of 0.15 (``room_medium``'s), the ideal 2 ms and 0.
+    ``sensors`` is the profile (see the module): ``realistic`` draws the IMU's turn-on biases
+    (``imu_bias0_scale`` times the rig's spread), a camera-IMU time offset the calibration does
+    not state (``time_offset_error_s`` at most, half of it at least, of either sign; on top of the
+    stated ``time_offset_s``), and a calibration error per camera (rotation ``calib_rotation_deg``
+    and lever arm ``calib_translation_m``, RMS norms; focal lengths ``calib_focal`` relative and
+    principal point ``calib_principal_px``, per coordinate; all normal). A motion file's gaps up
+    to ``max_gap_s`` are bridged; ``knot_spacing_s`` sets its spline's smoothing (None: the
+    larger of 0.1 s and 4 pose periods). ``motion_frame`` says whose poses the motion gives: a vehicle's
     (FLU; the rig rides on it at its ``T_V_B``) or the rig body's itself (a dataset's ground
     truth); ``auto``: the vehicle's for ``flight_path`` and scenarios, the body's for files.
     ``read_noise`` the sensor's read noise in grey levels,
@@ -90,8 +108,8 @@ class SequenceSpec(ConfigModel):
     flight_centre_m: Vec3 = (0.0, 0.0, 1.4)
     flight_half_extent_m: Vec3 = (2.0, 1.6, 0.5)
     still_s: float = Field(default=2.0, ge=0.0, le=600.0)
-    exposure_s: float = Field(default=0.002, ge=0.0, le=0.05)
-    lighting: float = Field(default=0.0, ge=0.0, le=0.9)
+    exposure_s: float | None = Field(default=None, ge=0.0, le=0.05)
+    lighting: float | None = Field(default=None, ge=0.0, le=0.9)
     texture_poor: float = Field(default=0.0, ge=0.0, le=1.0)
     read_noise: float = Field(default=2.0, ge=0.0, le=50.0)
     shot_noise_dn: float = Field(default=0.03, ge=0.0, le=10.0)
@@ -101,6 +119,15 @@ class SequenceSpec(ConfigModel):
     time_offset_s: float = Field(default=0.0, ge=-0.1, le=0.1)
     motion_frame: Literal["auto", "vehicle", "body"] = "auto"
     imu_noise: bool = True
+    sensors: Literal["realistic", "ideal"] = "realistic"
+    imu_bias0_scale: float = Field(default=1.0, ge=0.0, le=10.0)
+    time_offset_error_s: float = Field(default=0.005, ge=0.0, le=0.05)
+    calib_rotation_deg: float = Field(default=0.5, ge=0.0, le=10.0)
+    calib_translation_m: float = Field(default=0.005, ge=0.0, le=0.5)
+    calib_focal: float = Field(default=0.005, ge=0.0, le=0.2)
+    calib_principal_px: float = Field(default=1.0, ge=0.0, le=50.0)
+    knot_spacing_s: float | None = Field(default=None, gt=0.0, le=10.0)
+    max_gap_s: float = Field(default=1.0, gt=0.0, le=60.0)
     seed: int = Field(default=0, ge=0, le=2**31 - 1)
     description: str = ""
 
@@ -114,7 +141,7 @@ def _seq(**kw: object) -> SequenceSpec:
 SEQUENCES: Mapping[str, SequenceSpec] = {
     "room_easy": _seq(
         world="room", duration_s=60.0, mean_speed_m_s=0.45, yaw_sway_deg=15.0,
-        exposure_s=0.002, read_noise=1.5,
+        exposure_s=0.002, lighting=0.0, read_noise=1.5,
         description="the room, slow (0.45 m/s), steady light, little blur",
     ),
     "room_medium": _seq(
@@ -130,7 +157,7 @@ SEQUENCES: Mapping[str, SequenceSpec] = {
     "hall_easy": _seq(
         world="hall", duration_s=90.0, mean_speed_m_s=0.6, yaw_sway_deg=20.0,
         flight_centre_m=(0.0, 0.0, 2.0), flight_half_extent_m=(5.0, 3.5, 1.0), exposure_s=0.003,
-        description="the machine hall, slow (0.6 m/s) through a large space",
+        lighting=0.0, description="the machine hall, slow (0.6 m/s) through a large space",
     ),
     "hall_difficult": _seq(
         world="hall", duration_s=90.0, mean_speed_m_s=1.3, yaw_sway_deg=50.0,
@@ -164,7 +191,7 @@ def sequence_spec(
             f"worlds: {', '.join(WORLDS)}"
         )
     base.update(fields or {})
-    spec = load_config(SequenceSpec, None, overrides, base=base)
+    spec = with_profile(load_config(SequenceSpec, None, overrides, base=base))
     if spec.world not in WORLDS:
         raise ConfigError(f"world must be one of {', '.join(WORLDS)}, got {spec.world!r}")
     try:
@@ -172,6 +199,21 @@ def sequence_spec(
     except GeometryError as exc:
         raise ConfigError(f"--rig: {exc}") from None
     return spec
+
+
+#: The image conditions a sequence without its own takes, by sensor profile: the realistic
+#: ones are ``room_medium``'s (5 ms of exposure, lighting from 0.85 to 1.15), the ideal ones the
+#: steady light and short exposure motion files were made with before.
+PROFILE_IMAGES: Mapping[str, Mapping[str, float]] = {
+    "realistic": {"exposure_s": 0.005, "lighting": 0.15},
+    "ideal": {"exposure_s": 0.002, "lighting": 0.0},
+}
+
+
+def with_profile(spec: SequenceSpec) -> SequenceSpec:
+    """``spec`` with the image conditions it leaves out (None) taken from its sensor profile."""
+    fill = {k: v for k, v in PROFILE_IMAGES[spec.sensors].items() if getattr(spec, k) is None}
+    return spec.model_copy(update=fill) if fill else spec
 
 
 def stream_rng(seed: int, name: str) -> Generator:
@@ -231,8 +273,10 @@ def _folder_size(root: Path) -> int:
     return sum(f.stat().st_size for f in root.rglob("*") if f.is_file())
 
 
-def _write_manifest(root: Path, spec: SequenceSpec, name: str, made: DatasetMade) -> None:
-    doc = {"sequence": name, "spec": spec.model_dump(), "made": made.to_json()}
+def _write_manifest(
+    root: Path, spec: SequenceSpec, name: str, made: DatasetMade, sensors: Mapping[str, object]
+) -> None:
+    doc = {"sequence": name, "spec": spec.model_dump(), "sensors": sensors, "made": made.to_json()}
     write_text(root / "dataset.json", json.dumps(doc, indent=2) + "\n")
 
 
@@ -287,7 +331,12 @@ def _blur_poses(motion: SplineMotion, cam: CameraSpec, t_mid_ns: int, depth_m: f
 
 def _motion(spec: SequenceSpec) -> SplineMotion:
     """The spline the rig follows: the built-in flight, a file's poses, or a flight's truth."""
-    from quadnav.experiments.motions import motion_from_file, motion_from_scenario, motion_scenarios
+    from quadnav.experiments.motions import (
+        SCENARIO_KNOT_SPACING_S,
+        motion_from_file,
+        motion_from_scenario,
+        motion_scenarios,
+    )
 
     if spec.motion == "flight_path":
         path = FlightPath(
@@ -301,15 +350,21 @@ def _motion(spec: SequenceSpec) -> SplineMotion:
             seed=spec.seed,
         )
         return SplineMotion.fit(flight_path_trajectory(path, t0_ns=T0_NS), knot_spacing_s=0.05)
-    if spec.motion in motion_scenarios():
-        return motion_from_scenario(spec.motion, spec.seed)
-    path_ = Path(spec.motion)
-    if not path_.exists():
-        raise ConfigError(
-            f"--motion {spec.motion!r} is neither flight_path, a scenario "
-            f"({', '.join(motion_scenarios())}) nor a file"
-        )
-    return motion_from_file(path_)
+    try:
+        if spec.motion in motion_scenarios():
+            knots = spec.knot_spacing_s or SCENARIO_KNOT_SPACING_S
+            return motion_from_scenario(spec.motion, spec.seed, knot_spacing_s=knots)
+        path_ = Path(spec.motion)
+        if not path_.exists():
+            raise ConfigError(
+                f"--motion {spec.motion!r} is neither flight_path, a scenario "
+                f"({', '.join(motion_scenarios())}) nor a file"
+            )
+        return motion_from_file(path_, max_gap_s=spec.max_gap_s, knot_spacing_s=spec.knot_spacing_s)
+    except ExperimentError as exc:
+        if "knot_spacing_s" in str(exc) and "--set" not in str(exc):
+            raise ExperimentError(f"--motion: {exc} (--set knot_spacing_s=S)") from None
+        raise
 
 
 def _vehicle_motion(spec: SequenceSpec) -> bool:
@@ -336,21 +391,40 @@ def _rig_body_motion(motion: SplineMotion, T_V_B: Pose) -> SplineMotion:
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class DatasetPlan:
-    """What a sequence is made from: the rig (with the sequence's exposure and time offset),
-    the motion of its body frame, and the span of IMU time it covers (ns)."""
+    """What a sequence is made from: the rig the data is made with (the sequence's exposure,
+    the true time offset and calibration, the IMU noise it is synthesized with), the rig the
+    dataset states (``mav0/``'s calibration files), the IMU's noise model with its turn-on
+    biases (None: an exact IMU; its in-flight level when ``ground_noise`` gives the one on the
+    ground before take-off), the motion of the body frame, the span of IMU time it covers
+    (ns), and what the sensor profile drew (for ``dataset.json``)."""
 
     rig: Rig
+    stated: Rig
+    imu_noise: ImuNoiseModel | None
     motion: SplineMotion
     span: tuple[int, int]
+    sensors: Mapping[str, object]
+    ground_noise: ImuNoiseModel | None = None
 
 
 def plan_dataset(spec: SequenceSpec) -> DatasetPlan:
-    """The rig, the body's motion and the span ``make_dataset`` renders (no images)."""
-    rig = _rig_for(spec)
+    """The rigs, the body's motion and the span ``make_dataset`` renders (no images)."""
+    spec = with_profile(spec)
+    rig, stated, imu_noise, drawn = _rigs_for(spec)
     motion = _motion(spec)
     if _vehicle_motion(spec):
         motion = _rig_body_motion(motion, rig.T_V_B)
-    return DatasetPlan(rig=rig, motion=motion, span=_span(spec, motion))
+    imu = resolve_rig(spec.rig).imu
+    realistic = spec.sensors == "realistic" and imu_noise is not None and imu is not None
+    return DatasetPlan(
+        rig=rig,
+        stated=stated,
+        imu_noise=imu_noise,
+        motion=motion,
+        span=_span(spec, motion),
+        sensors=drawn,
+        ground_noise=imu.ground_noise if realistic and imu is not None else None,
+    )
 
 
 def _span(spec: SequenceSpec, motion: SplineMotion) -> tuple[int, int]:
@@ -378,31 +452,162 @@ def _world(spec: SequenceSpec, motion: SplineMotion, t0: int, t1: int) -> Scene:
     return WORLDS[spec.world](plan)
 
 
-def _rig_for(spec: SequenceSpec) -> Rig:
-    """The named rig with the sequence's exposure and camera-IMU time offset."""
+def _drawn_time_offset_s(spec: SequenceSpec) -> float:
+    """The offset the calibration does not state: between half ``time_offset_error_s`` and all
+    of it, of either sign (a few milliseconds, as a camera's trigger or a driver's stamping)."""
+    rng = stream_rng(spec.seed, "time_offset")
+    size = spec.time_offset_error_s * rng.uniform(0.5, 1.0)
+    return float(size if rng.random() < 0.5 else -size)
+
+
+def _miscalibrated(cam: CameraSpec, spec: SequenceSpec, rng: Generator) -> CameraSpec:
+    """``cam`` as a calibration states it: its ``T_B_C`` turned and moved (in the camera's own
+    frame) and its focal lengths and principal point off, by normal errors of ``spec``'s sizes
+    (rotation and lever arm: RMS norms; focal: relative; principal point: px per coordinate)."""
+    rot = rng.normal(0.0, math.radians(spec.calib_rotation_deg) / math.sqrt(3.0), 3)
+    lever = rng.normal(0.0, spec.calib_translation_m / math.sqrt(3.0), 3)
+    focal = rng.normal(0.0, spec.calib_focal, 2)
+    centre = rng.normal(0.0, spec.calib_principal_px, 2)
+    K = cam.camera.K.copy()
+    K[0, 0] *= 1.0 + focal[0]
+    K[1, 1] *= 1.0 + focal[1]
+    K[0, 2] += centre[0]
+    K[1, 2] += centre[1]
+    error = Pose(Rotation.from_rotvec(rot), lever)
+    return replace(cam, camera=replace(cam.camera, K=K), T_B_C=cam.T_B_C @ error)
+
+
+def _calibration_error(true: CameraSpec, stated: CameraSpec) -> dict[str, float]:
+    """How far a stated camera is from the true one (for ``dataset.json``)."""
+    d = true.T_B_C.inverse() @ stated.T_B_C
+    Kt, Ks = true.camera.K, stated.camera.K
+    return {
+        "rotation_deg": float(np.degrees(d.R_A_B.magnitude())),
+        "translation_m": float(np.linalg.norm(d.p_A_B)),
+        "fx_rel": float(Ks[0, 0] / Kt[0, 0] - 1.0),
+        "fy_rel": float(Ks[1, 1] / Kt[1, 1] - 1.0),
+        "cx_px": float(Ks[0, 2] - Kt[0, 2]),
+        "cy_px": float(Ks[1, 2] - Kt[1, 2]),
+    }
+
+
+def _imu_noise(spec: SequenceSpec, imu: ImuSpec) -> ImuNoiseModel | None:
+    """The noise the IMU is synthesized with: none, the stated one (ideal), or its in-flight
+    level with turn-on biases drawn from its spread (realistic)."""
+    if not spec.imu_noise:
+        return None
+    if spec.sensors == "ideal":
+        return imu.noise
+    flight = imu.flight_noise or imu.noise
+    return flight.draw_turn_on_biases(stream_rng(spec.seed, "imu_bias0"), spec.imu_bias0_scale)
+
+
+def _ground_yaml(spec: SequenceSpec, imu: ImuSpec) -> dict[str, float] | None:
+    ground = imu.ground_noise if spec.sensors == "realistic" else None
+    return ground.sensor_yaml() if ground is not None else None
+
+
+def _rigs_for(spec: SequenceSpec) -> tuple[Rig, Rig, ImuNoiseModel | None, dict[str, object]]:
+    """The rig the data is made with, the rig the dataset states, the IMU's noise model and
+    what was drawn (see :class:`DatasetPlan`)."""
     rig = resolve_rig(spec.rig)
-    td = s_to_ns(spec.time_offset_s)
-    cams = tuple(
-        replace(c, exposure_s=min(spec.exposure_s, 1.0 / c.rate_hz), time_offset_ns=td)
-        for c in rig.cameras
+    assert rig.imu is not None and spec.exposure_s is not None
+    realistic = spec.sensors == "realistic"
+    hidden = _drawn_time_offset_s(spec) if realistic else 0.0
+    stated_td, true_td = s_to_ns(spec.time_offset_s), s_to_ns(spec.time_offset_s + hidden)
+    stated = replace(
+        rig,
+        cameras=tuple(
+            replace(c, exposure_s=min(spec.exposure_s, 1.0 / c.rate_hz), time_offset_ns=stated_td)
+            for c in rig.cameras
+        ),
+        imu=replace(rig.imu, flight_noise=None),
     )
-    return replace(rig, cameras=cams)
+    imu_noise = _imu_noise(spec, rig.imu)
+    true_cams = tuple(replace(c, time_offset_ns=true_td) for c in stated.cameras)
+    true_imu = replace(rig.imu, flight_noise=None, noise=imu_noise or rig.imu.noise)
+    true = replace(stated, cameras=true_cams, imu=true_imu)
+    if realistic:
+        rng = stream_rng(spec.seed, "calibration")
+        stated = replace(
+            stated, cameras=tuple(_miscalibrated(c, spec, rng) for c in stated.cameras)
+        )
+    drawn: dict[str, object] = {
+        "profile": spec.sensors,
+        "time_offset_s": {"true": true_td / NS_PER_S, "stated": stated_td / NS_PER_S},
+        "imu_bias0": {
+            "gyro_rad_s": list(imu_noise.gyro_bias0_rad_s) if imu_noise else [0.0] * 3,
+            "accel_m_s2": list(imu_noise.accel_bias0_m_s2) if imu_noise else [0.0] * 3,
+        },
+        "imu_noise_density": {
+            "synthesized": imu_noise.sensor_yaml() if imu_noise else None,
+            "on_the_ground": _ground_yaml(spec, rig.imu) if imu_noise else None,
+            "stated": rig.imu.noise.sensor_yaml(),
+        },
+        "calibration_error": {
+            c.name: _calibration_error(c, s) for c, s in zip(true_cams, stated.cameras, strict=True)
+        },
+        "truth": "truth/ (quadnav vio DIR --calibration DIR/truth)",
+    }
+    return true, stated, imu_noise, drawn
+
+
+#: A body moving faster than this (m/s, rad/s) is flying; its rotors run from a second before.
+FLYING_SPEED_M_S, FLYING_RATE_RAD_S, ROTORS_AHEAD_S = 0.05, 0.05, 1.0
+
+
+def flying(motion: SplineMotion, t_ns: NDArray[np.int64]) -> NDArray[np.bool_]:
+    """Whether the rotors run at ``t_ns``: within :data:`ROTORS_AHEAD_S` of the body moving."""
+    moving = (np.linalg.norm(motion.velocity(t_ns), axis=1) > FLYING_SPEED_M_S) | (
+        np.linalg.norm(motion.angular_rate_B(t_ns), axis=1) > FLYING_RATE_RAD_S
+    )
+    t_moving = t_ns[moving]
+    if not t_moving.size:
+        return np.zeros(len(t_ns), dtype=np.bool_)
+    k = np.searchsorted(t_moving, t_ns)
+    ahead = np.abs(t_moving[np.minimum(k, len(t_moving) - 1)] - t_ns)
+    behind = np.abs(t_moving[np.maximum(k - 1, 0)] - t_ns)
+    return np.asarray(np.minimum(ahead, behind) <= s_to_ns(ROTORS_AHEAD_S), dtype=np.bool_)
+
+
+def synthesize_dataset_imu(plan: DatasetPlan, seed: int) -> ImuSeries:
+    """The IMU ``make_dataset`` writes: :func:`~quadnav.sim.motion.synthesize_imu` with the
+    plan's noise; with a ``ground_noise``, at that level, plus white noise up to the in-flight
+    level where the rotors run (:func:`flying`; its own stream, ``imu_vibration``)."""
+    imu_spec, noise, ground = plan.rig.imu, plan.imu_noise, plan.ground_noise
+    assert imu_spec is not None
+    base = noise
+    if noise is not None and ground is not None:
+        base = replace(
+            noise,
+            gyro_noise_density=ground.gyro_noise_density,
+            accel_noise_density=ground.accel_noise_density,
+        )
+    imu = synthesize_imu(
+        plan.motion, rate_hz=imu_spec.rate_hz, noise=base, rng=stream_rng(seed, "imu"),
+        t_start_ns=plan.span[0], t_end_ns=plan.span[1],
+    )  # fmt: skip
+    if noise is None or ground is None:
+        return imu
+    on = flying(plan.motion, imu.t_true_ns)[:, None] * math.sqrt(imu_spec.rate_hz)
+    extra = [
+        math.sqrt(max(a**2 - b**2, 0.0))
+        for a, b in (
+            (noise.gyro_noise_density, ground.gyro_noise_density),
+            (noise.accel_noise_density, ground.accel_noise_density),
+        )
+    ]
+    rng = stream_rng(seed, "imu_vibration")
+    g = imu.gyro_rad_s + extra[0] * on * rng.standard_normal(imu.gyro_rad_s.shape)
+    a = imu.accel_m_s2 + extra[1] * on * rng.standard_normal(imu.accel_m_s2.shape)
+    return replace(imu, gyro_rad_s=g, accel_m_s2=a)
 
 
 def _write_imu(
-    writer: EurocWriter, motion: SplineMotion, rig: Rig, spec: SequenceSpec, span: tuple[int, int]
+    writer: EurocWriter, motion: SplineMotion, plan: DatasetPlan, spec: SequenceSpec
 ) -> int:
     """The IMU and the ground truth at its stamps (pose, velocity, the true biases)."""
-    assert rig.imu is not None
-    noise = rig.imu.noise if spec.imu_noise else None
-    imu = synthesize_imu(
-        motion,
-        rate_hz=rig.imu.rate_hz,
-        noise=noise,
-        rng=stream_rng(spec.seed, "imu"),
-        t_start_ns=span[0],
-        t_end_ns=span[1],
-    )
+    imu = synthesize_dataset_imu(plan, spec.seed)
     for s in imu.samples():
         writer.add_imu(s)
     p, q = motion.pose(imu.t_ns)
@@ -487,7 +692,7 @@ def _write_frames(
     td = rig.cameras[0].time_offset_ns
     stamps = _camera_times(span[0] + max(-td, 0), span[1] - max(td, 0), rig.cameras[0])
     t_s = (stamps - stamps[0]) / NS_PER_S
-    light = _lighting_gain(t_s, spec.lighting, stream_rng(spec.seed, "lighting"))
+    light = _lighting_gain(t_s, spec.lighting or 0.0, stream_rng(spec.seed, "lighting"))
     depth_rng = stream_rng(spec.seed, "depth0")
     written = 0
     for k, t_cam in enumerate(stamps):
@@ -514,10 +719,11 @@ def make_dataset(
     from quadnav.io.datasets import EurocWriter
 
     start = time.perf_counter()
+    spec = with_profile(spec)
     rig, motion, span = (plan := plan_dataset(spec)).rig, plan.motion, plan.span
     scene = _world(spec, motion, *span)
-    with EurocWriter(out, rig) as writer:
-        n_imu = _write_imu(writer, motion, rig, spec, span)
+    with EurocWriter(out, plan.stated, truth=rig) as writer:
+        n_imu = _write_imu(writer, motion, plan, spec)
         n_frames = _write_frames(writer, motion, rig, spec, scene, span, progress)
         root = writer.close()
     t = np.arange(span[0], span[1], s_to_ns(0.01), dtype=np.int64)
@@ -534,5 +740,5 @@ def make_dataset(
         distance_m=dist, mean_speed_m_s=speed, mean_rate_deg_s=rate,
         size_bytes=_folder_size(root), seconds=time.perf_counter() - start,
     )  # fmt: skip
-    _write_manifest(root, spec, made.sequence, made)
+    _write_manifest(root, spec, made.sequence, made, plan.sensors)
     return made

@@ -6,7 +6,7 @@ of EuRoC and TUM-VI sequences (a folder the user names). Each becomes a
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -23,9 +23,11 @@ from quadnav.sim.motion import SplineMotion
 from quadnav.units import s_to_ns
 
 __all__ = [
+    "MAX_GAP_S",
     "REAL_MOTIONS",
     "SCENARIO_KNOT_SPACING_S",
     "MotionProfile",
+    "bridge_gaps",
     "motion_from_file",
     "motion_from_profile",
     "motion_from_scenario",
@@ -84,12 +86,47 @@ def _fit(traj: Trajectory, where: str, knot_spacing_s: float | None) -> SplineMo
         raise ExperimentError(f"{where}: {exc}") from None
 
 
+#: The longest gap in a motion file's poses that is bridged by default (s): a hand-held
+#: recording's tracking drop-outs (TUM-VI's corridors leave the motion-capture room).
+MAX_GAP_S = 1.0
+
+
+def bridge_gaps(traj: Trajectory, max_gap_s: float, where: str) -> tuple[Trajectory, int]:
+    """``traj`` with every interval over twice its median pose period filled by poses at that
+    period (positions linear, rotations slerped), and how many were filled; a gap over
+    ``max_gap_s`` is an error naming ``--set max_gap_s``."""
+    t = np.asarray(traj.t_ns, dtype=np.int64)
+    if len(t) < 3:
+        return traj, 0
+    dt = np.diff(t)
+    period = int(np.median(dt))
+    gaps = np.flatnonzero(dt > 2 * period)
+    if not gaps.size:
+        return traj, 0
+    worst = int(gaps[np.argmax(dt[gaps])])
+    if dt[worst] > s_to_ns(max_gap_s):
+        raise ExperimentError(
+            f"{where}: no pose for {dt[worst] / 1e9:.2f} s after {(t[worst] - t[0]) / 1e9:.2f} s, "
+            f"longer than max_gap_s = {max_gap_s:g} s that is bridged (--set max_gap_s=S)"
+        )
+    fill = [np.arange(t[k] + period, t[k + 1] - period // 2, period, dtype=np.int64) for k in gaps]
+    t_all = np.union1d(t, np.concatenate(fill))
+    bridged = traj.interpolate(t_all)
+    return replace(bridged, name=traj.name), int(gaps.size)
+
+
 def motion_from_file(
-    path: Path, fmt: str | None = None, *, knot_spacing_s: float | None = None
+    path: Path,
+    fmt: str | None = None,
+    *,
+    knot_spacing_s: float | None = None,
+    max_gap_s: float = MAX_GAP_S,
 ) -> SplineMotion:
     """The smooth motion through a trajectory file's poses (format guessed when ``fmt`` is
-    None: TUM, EuRoC ground truth, KITTI, quadnav CSV...)."""
-    return _fit(read_trajectory(Path(path), fmt), str(path), knot_spacing_s)
+    None: TUM, EuRoC ground truth, KITTI, quadnav CSV...), its gaps up to ``max_gap_s``
+    bridged (:func:`bridge_gaps`)."""
+    traj, _ = bridge_gaps(read_trajectory(Path(path), fmt), max_gap_s, str(path))
+    return _fit(traj, str(path), knot_spacing_s)
 
 
 def motion_from_profile(

@@ -220,9 +220,15 @@ _DATASET = RunFolderKind(
     folder="FOLDER/ (written as FOLDER.partial/, renamed when complete)",
     description="Not a run folder but a dataset: an EuRoC ASL folder with calibration files "
     "for Kalibr and OpenVINS. `mav0/cam1/` only for a stereo rig, `mav0/depth0/` for an RGB-D "
-    "one.",
+    "one. With realistic sensors (the default) `mav0/`'s calibration is what a user would have "
+    "(the datasheet's IMU noise, a calibration error, no time offset); `truth/` holds the one "
+    "the data was made with (`--calibration FOLDER/truth`).",
     files=(
-        RunFile("dataset.json", "what was made: the sequence, rig, seed, spans (written last)"),
+        RunFile(
+            "dataset.json",
+            "what was made: the sequence, rig, seed, spans, and what the sensor profile drew "
+            "(turn-on biases, time offset, calibration error; written last)",
+        ),
         RunFile("groundtruth.tum", "the rig body's ground truth (TUM)"),
         RunFile("camchain.yaml", "Kalibr's camera chain"),
         RunFile("imu.yaml", "Kalibr's IMU noise"),
@@ -240,6 +246,15 @@ _DATASET = RunFolderKind(
         RunFile("mav0/state_groundtruth_estimate0/data.csv", "EuRoC's ground-truth CSV"),
         RunFile("mav0/state_groundtruth_estimate0/sensor.yaml", "the ground truth's sensor"),
         RunFile("bag/*", "the ROS 2 bag (--bag)", False),
+        RunFile("truth/camchain.yaml", "the true calibration: Kalibr's camera chain"),
+        RunFile("truth/imu.yaml", "the true calibration: Kalibr's IMU noise"),
+        RunFile("truth/kalibr_imu_chain.yaml", "the true calibration: OpenVINS's IMU chain"),
+        RunFile(
+            "truth/kalibr_imucam_chain.yaml", "the true calibration: OpenVINS's camera-IMU chain"
+        ),
+        RunFile("truth/mav0/body.yaml", "the true calibration: the body frame"),
+        RunFile("truth/mav0/cam*/sensor.yaml", "each camera's true calibration and time offset"),
+        RunFile("truth/mav0/imu0/sensor.yaml", "the IMU noise the data was synthesized with"),
     ),
 )
 

@@ -29,9 +29,11 @@ from quadnav.io.frames import cannot_write, write_png
 from quadnav.messages import ImuSample
 from quadnav.rig import CameraSpec, Rig
 
-__all__ = ["EurocWriter"]
+__all__ = ["TRUTH_FOLDER", "EurocWriter", "write_calibration"]
 
 _GT = "state_groundtruth_estimate0"
+#: Where a synthetic dataset keeps the calibration its data was made with (beside ``mav0/``).
+TRUTH_FOLDER = "truth"
 _IMU_HEADER = (
     "#timestamp [ns],w_RS_S_x [rad s^-1],w_RS_S_y [rad s^-1],w_RS_S_z [rad s^-1],"
     "a_RS_S_x [m s^-2],a_RS_S_y [m s^-2],a_RS_S_z [m s^-2]\n"
@@ -73,6 +75,25 @@ def imu_yaml(rig: Rig) -> str:
     return text
 
 
+def write_calibration(root: Path, rig: Rig) -> None:
+    """A rig's calibration as a dataset states it: ``root/mav0/<camera>/sensor.yaml``,
+    ``root/mav0/imu0/sensor.yaml`` and ``root/mav0/body.yaml``, with Kalibr's ``camchain.yaml`` and
+    ``imu.yaml`` and OpenVINS' ``kalibr_imucam_chain.yaml`` and ``kalibr_imu_chain.yaml`` beside
+    ``mav0/``. ``quadnav``'s readers take such a folder as ``--calibration``."""
+    mav0 = root / "mav0"
+    for spec in rig.cameras:
+        (mav0 / spec.name).mkdir(parents=True, exist_ok=True)
+        (mav0 / spec.name / "sensor.yaml").write_text(camera_yaml(spec), encoding="utf-8")
+    if rig.imu is not None:
+        (mav0 / "imu0").mkdir(parents=True, exist_ok=True)
+        (mav0 / "imu0" / "sensor.yaml").write_text(imu_yaml(rig), encoding="utf-8")
+        write_kalibr_imu(root / "imu.yaml", rig)
+        write_kalibr_imu(root / "kalibr_imu_chain.yaml", rig, openvins=True)
+    (mav0 / "body.yaml").write_text(f"%YAML:1.0\ncomment: {rig.name}\n", "utf-8")
+    write_camchain(root / "camchain.yaml", rig)
+    write_camchain(root / "kalibr_imucam_chain.yaml", rig, openvins=True)
+
+
 def _row(t_ns: int, values: ArrayLike) -> str:
     return (
         f"{int(t_ns)}," + ",".join(float_text(x) for x in np.asarray(values, float).ravel()) + "\n"
@@ -81,11 +102,17 @@ def _row(t_ns: int, values: ArrayLike) -> str:
 
 class EurocWriter(PartialWriter):
     """Write a rig's sequence sample by sample (see the module docstring); a context manager
-    that closes on success and removes the partial folder on an exception."""
+    that closes on success and removes the partial folder on an exception. ``rig`` is the
+    calibration the dataset states (``mav0/``'s files); ``truth``, when given, the one the data
+    was made with, written to ``truth/`` beside ``mav0/`` (:func:`write_calibration`), where no
+    reader of the dataset looks unless told (``--calibration DIR/truth``)."""
 
-    def __init__(self, root: Path | str, rig: Rig, *, overwrite: bool = False) -> None:
+    def __init__(
+        self, root: Path | str, rig: Rig, *, overwrite: bool = False, truth: Rig | None = None
+    ) -> None:
         self.root = Path(root)
         self.rig = rig
+        self.truth = truth
         self.overwrite = overwrite
         if self.root.exists() and not overwrite:
             raise IoError(f"{self.root}: already exists (give overwrite=True to replace it)")
@@ -200,21 +227,15 @@ class EurocWriter(PartialWriter):
         self._put(_GT, _row(t_ns, np.r_[p_, q_[[3, 0, 1, 2]], v_, bg_, ba_]))
 
     def _write_yaml(self) -> None:
-        for spec in self.rig.cameras:
-            (self.mav0 / spec.name / "sensor.yaml").write_text(camera_yaml(spec), encoding="utf-8")
-        if self.rig.imu is not None:
-            (self.mav0 / "imu0" / "sensor.yaml").write_text(imu_yaml(self.rig), encoding="utf-8")
-            write_kalibr_imu(self.partial / "imu.yaml", self.rig)
-            write_kalibr_imu(self.partial / "kalibr_imu_chain.yaml", self.rig, openvins=True)
+        write_calibration(self.partial, self.rig)
         if _GT in self._files:
             text = f"%YAML:1.0\nsensor_type: visual-inertial\n{_t_bs(Pose.identity())}"
             (self.mav0 / _GT / "sensor.yaml").write_text(text, encoding="utf-8")
         if self.rig.depth is not None:
             text = depth_yaml(self.rig.depth)
             (self.mav0 / DEPTH_FOLDER / "sensor.yaml").write_text(text, encoding="utf-8")
-        (self.mav0 / "body.yaml").write_text(f"%YAML:1.0\ncomment: {self.rig.name}\n", "utf-8")
-        write_camchain(self.partial / "camchain.yaml", self.rig)
-        write_camchain(self.partial / "kalibr_imucam_chain.yaml", self.rig, openvins=True)
+        if self.truth is not None:
+            write_calibration(self.partial / TRUTH_FOLDER, self.truth)
 
     def close(self) -> Path:
         """Finish the files and move the folder to ``root``; the root's path."""
