@@ -50,9 +50,6 @@ class VioConfig(ConfigModel):
     )
     landmark_min_depth_m: float = Field(0.1, gt=0.0, le=10.0, description="nearest landmark")
     landmark_max_depth_m: float = Field(60.0, gt=1.0, le=1e4, description="farthest landmark")
-    landmark_carry_sigma: float = Field(
-        0.2, gt=0.0, le=10.0, description="a track's point carried over, per metre of range"
-    )
     max_reprojection_px: float = Field(
         4.0, gt=0.0, le=100.0, description="landmarks worse than this after a solve are dropped"
     )
