@@ -50,6 +50,30 @@ def test_spans_cut_between_samples_add_up_to_the_whole() -> None:
     assert np.allclose(R.matrix(), whole.deltaRij().matrix(), atol=2e-5)
 
 
+def test_a_changing_rate_is_integrated_without_lag() -> None:
+    """Samples of a yaw rate and a thrust growing linearly (each the value at its time): the
+    rotation and velocity after 1 s are the integrals, c T^2 / 2, exactly; holding each sample
+    until the next (GTSAM's rule) lags half a sample, 2.5e-3 rad and m/s here."""
+    params = imu_params(ImuNoiseModel.euroc_adis16448())
+    dt_ns, c = 5_000_000, 1.0
+    samples = [
+        ImuSample(
+            t_ns=k * dt_ns,
+            gyro_rad_s=np.array([0.0, 0.0, c * k * dt_ns * 1e-9]),
+            accel_m_s2=np.array([0.0, 0.0, GRAVITY_M_S2 + c * k * dt_ns * 1e-9]),
+        )
+        for k in range(300)
+    ]
+    pim = preintegrate(params, samples, 0, 1_000_000_000)
+    assert pim.deltaRij().ypr()[0] == pytest.approx(0.5, abs=1e-9)
+    # the velocity rotates with the yaw but stays along z: its norm is the thrust's integral
+    v = pim.predict(gtsam.NavState(), gtsam.imuBias.ConstantBias()).velocity()
+    assert float(np.linalg.norm(v)) == pytest.approx(0.5, abs=1e-9)
+    # a span cut between samples: the same
+    yaw = float(preintegrate(params, samples, 2_500_000, 1_002_500_000).deltaRij().ypr()[0])
+    assert yaw == pytest.approx(0.5 * (1.0025**2 - 0.0025**2), abs=1e-9)
+
+
 def test_a_span_the_imu_does_not_cover_is_refused() -> None:
     params = imu_params(ImuNoiseModel.euroc_adis16448())
     samples = _samples(np.zeros(3), np.array([0.0, 0.0, 9.8]), 10, 5_000_000)

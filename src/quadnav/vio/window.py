@@ -12,14 +12,16 @@ keyframe number: a state has its keyframe's, a landmark that of the first keyfra
 with, so it is marginalised with that keyframe, as VINS-Mono marginalises the features anchored
 in its oldest frame: the marginal factor then ties states only (a prior renewed with each
 landmark would tie every landmark together and grow dense). A track still seen goes on as a
-new landmark from the old one's estimate, with the observations the prior does not hold yet
-(none is counted twice). The first state has a
+new landmark once the observations the prior does not hold yet would make one (the old
+estimate is its starting value only: a prior from it would count those observations twice,
+and, fixed in the world, would tie the window's position and yaw, which the data cannot
+observe, so that the covariance would stop growing with the drift). The first state has a
 tight Gaussian prior (no ``NonlinearEquality``: it forces a slow QR path).
 Landmarks enter once seen in ``landmark_min_observations`` keyframes (or two with enough
 parallax), triangulated (DLT) from the current estimates, only with a positive depth in every
 view, a sane range and a small reprojection error; after each solve those behind a camera or
 with a large error lose their projection factors for good (a weak prior keeps each landmark
-determinate until it leaves the window).
+determinate until it leaves the window: see ``LANDMARK_PRIOR_M``).
 """
 
 from __future__ import annotations
@@ -44,8 +46,11 @@ FloatArray = NDArray[np.float64]
 
 #: What GTSAM raises on a singular system or a failed solve.
 GTSAM_ERRORS = (RuntimeError, IndexError, ValueError)
-#: The standard deviation of the weak prior that keeps each landmark determinate.
+#: The weak prior that keeps each landmark determinate: its range (m) and bearing (rad) from
+#: the keyframe it is anchored in, as first estimated. Relative to a state, it says nothing
+#: about the window's position and yaw (a prior in the world would: one per landmark adds up).
 LANDMARK_PRIOR_M = 10.0
+LANDMARK_PRIOR_RAD = 1.0
 
 
 @dataclass(slots=True)
@@ -127,9 +132,11 @@ class SlidingWindow:
             gtsam.noiseModel.mEstimator.Huber.Create(config.huber_k),
             gtsam.noiseModel.Isotropic.Sigma(2, sigma),
         )
-        #: a weak prior on every landmark (metres): a point the Huber loss has all but let go
-        #: of, or whose projections were taken out, stays determinate
-        self._landmark_prior = gtsam.noiseModel.Isotropic.Sigma(3, LANDMARK_PRIOR_M)
+        #: a weak prior on every landmark: a point the Huber loss has all but let go of, or
+        #: whose projections were taken out, stays determinate
+        self._landmark_prior = gtsam.noiseModel.Diagonal.Sigmas(
+            np.array([LANDMARK_PRIOR_RAD, LANDMARK_PRIOR_RAD, LANDMARK_PRIOR_M])
+        )
         self.keyframes: list[Keyframe] = []
         self.landmarks: dict[int, FloatArray] = {}
         self.bad_tracks: set[int] = set()
@@ -201,20 +208,22 @@ class SlidingWindow:
     def newest(self) -> Keyframe:
         return self.keyframes[-1]
 
+    def _parallax_needed(self, views: int) -> float:
+        """The angle (rad) between a track's first and last views it needs to enter."""
+        cfg = self.config
+        px = 3.0 if views >= cfg.landmark_min_observations else cfg.landmark_min_parallax_px
+        return px / cfg.parallax_focal_px
+
+    def _enough_parallax(self, obs: dict[int, FloatArray], P: dict[int, FloatArray]) -> bool:
+        return len(obs) >= 2 and _bearing_angle(obs, P) >= self._parallax_needed(len(obs))
+
     def _new_landmark(
         self, obs: dict[int, FloatArray], P: dict[int, FloatArray], centres: dict[int, FloatArray]
     ) -> FloatArray | None:
         """A track's point if it may enter: enough views or parallax, in front, near its pixels."""
-        cfg = self.config
-        if len(obs) < 2:
+        if not self._enough_parallax(obs, P):  # not worth a triangulation
             return None
-        need = (
-            3.0 / cfg.parallax_focal_px
-            if len(obs) >= cfg.landmark_min_observations
-            else cfg.landmark_min_parallax_px / cfg.parallax_focal_px
-        )
-        if _bearing_angle(obs, P) < need:  # too little parallax: not worth a triangulation
-            return None
+        need = self._parallax_needed(len(obs))
         p = triangulate_track(obs, P)
         if p is None or not np.isfinite(p).all():
             return None
@@ -241,16 +250,6 @@ class SlidingWindow:
             return False
         return bool(np.all(err * self.focal_px <= cfg.max_reprojection_px))
 
-    def _point_prior(self, p: FloatArray, used: set[int]) -> gtsam.noiseModel.Base:
-        """A new landmark's weak prior; a track going on after its landmark was marginalised
-        keeps its point within ``landmark_carry_sigma`` of its range from the newest camera
-        (its depth would be free with one new view)."""
-        if not used:
-            return self._landmark_prior
-        c = self.newest.pose.compose(self.T_B_C).translation()
-        r = float(np.linalg.norm(p - np.asarray(c)))
-        return gtsam.noiseModel.Isotropic.Sigma(3, max(0.01, self.config.landmark_carry_sigma * r))
-
     def _add_landmarks(self, features: FeatureManager) -> int:
         """Projection factors of the new observations of landmarks, and new landmarks."""
         graph, values, ts = self._new
@@ -265,25 +264,38 @@ class SlidingWindow:
             obs = {k: xy for k, xy in obs_all.items() if k in P}
             robs = {k: xy for k, xy in features.right.get(j, {}).items() if k in PR}
             if j not in self.landmarks:
-                if len(obs) < 2 and not robs:
+                used = self._used.get(j, set())
+                used_r = self._used_r.get(j, set())
+                # a track whose landmark was marginalised enters again from the views the
+                # prior does not hold, as a new track would: no prior from the old estimate
+                fresh = {k: xy for k, xy in obs.items() if k not in used}
+                rfresh = {k: xy for k, xy in robs.items() if k not in used_r}
+                mono = len(fresh) >= 2 and (not used or self._enough_parallax(fresh, P))
+                if not mono and not rfresh:
                     continue
-                p = self._seed.pop(j, None)
-                if p is None or not self._landmark_ok(p, obs, P):
-                    p = self._new_landmark(obs, P, centres) if len(obs) >= 2 else None
-                if p is None and robs:
-                    p = self._stereo_landmark(obs, robs, P, PR)
+                p = self._seed.get(j)
+                if p is None or not fresh or not self._landmark_ok(p, fresh, P):
+                    p = self._new_landmark(fresh, P, centres) if mono else None
+                if p is None and rfresh:
+                    p = self._stereo_landmark(fresh, rfresh, P, PR)
                 if p is None:
                     continue
-                self._seen_r[j] = set(self._used_r.get(j, set()))
+                self._seed.pop(j, None)
+                self._seen_r[j] = set(used_r)
                 self.landmarks[j] = p
-                used = self._used.get(j, set())
                 self._seen[j] = set(used)  # already in the prior: not again
                 self._key[j] = self._next_key
                 self._next_key += 1
                 values.insert(L(self._key[j]), p)
-                fresh = [k for k in obs if k not in used] or [self.keyframes[-1].index]
-                ts[L(self._key[j])] = float(min(fresh))  # it leaves with its first keyframe
-                graph.add(gtsam.PriorFactorPoint3(L(self._key[j]), p, self._point_prior(p, used)))
+                anchor = min(fresh)  # it leaves with its first keyframe
+                ts[L(self._key[j])] = float(anchor)
+                T_W_B = poses[anchor]
+                graph.add(
+                    gtsam.BearingRangeFactor3D(
+                        X(anchor), L(self._key[j]), T_W_B.bearing(p), T_W_B.range(p),
+                        self._landmark_prior,
+                    )
+                )  # fmt: skip
                 added += 1
             seen, key = self._seen[j], L(self._key[j])
             for k, xy in obs.items():
@@ -365,6 +377,7 @@ class SlidingWindow:
         for j in [j for j in self._used if j not in features.tracks]:
             del self._used[j]
             self._used_r.pop(j, None)
+            self._seed.pop(j, None)
         poses = {kf.index: kf.pose for kf in self.keyframes}
         P = _camera_poses(poses, self.T_B_C)
         PR = _camera_poses(poses, self.T_B_R) if self.T_B_R is not None else {}
@@ -393,14 +406,18 @@ class SlidingWindow:
         P: dict[int, FloatArray],
         PR: dict[int, FloatArray],
     ) -> list[int]:
-        """The landmarks behind or too near or far from a camera, or too far from a pixel (in
-        either camera of a stereo rig)."""
+        """The landmarks behind or too near or far from a camera, or too far from a pixel, in
+        the views they have projection factors in (either camera of a stereo rig)."""
         cfg = self.config
         owner, cams, meas = [], [], []
         for j in js:
-            for book, views in ((features.observations(j), P), (features.right.get(j, {}), PR)):
+            used, used_r = self._used.get(j, ()), self._used_r.get(j, ())  # held by the prior
+            for book, views, held in (
+                (features.observations(j), P, used),
+                (features.right.get(j, {}), PR, used_r),
+            ):
                 for k, xy in book.items():
-                    if k in views:
+                    if k in views and k not in held:
                         owner.append(j)
                         cams.append(views[k])
                         meas.append(xy)
