@@ -107,3 +107,26 @@ def test_yaw_uncertainty_never_drops_below_the_first_state_s() -> None:
     assert sigma_yaw.min() > 0.0098, f"yaw sigma down to {1e3 * sigma_yaw.min():.2f} mrad"
     sigma_p = np.sqrt([np.diag(c)[3:].min() for c in covs])
     assert sigma_p.min() > 0.0098, f"position sigma down to {1e3 * sigma_p.min():.2f} mm"
+
+
+def _book_sizes(win: SlidingWindow) -> dict[str, int]:
+    """What the window keeps per track or per factor: all of it must stay bounded."""
+    fs = win._smoother.getFactors() if win._smoother is not None else None
+    return {
+        "landmarks": len(win.landmarks),
+        "seed": len(win._seed),
+        "used": len(win._used),
+        "bad": len(win.bad_tracks),
+        "factors": int(fs.size()) if fs is not None else 0,
+    }
+
+
+def test_the_windows_books_stay_bounded_on_a_long_run() -> None:
+    """Memory of a long run: what the window keeps after 20 s of flight is no more than after
+    7 s (within the scene's variation), not three times as much: tracks that ended leave every
+    book (the seeds of marginalised landmarks, the verdicts on bad ones)."""
+    short = _run_window(make_scene(3, duration_s=7.0), VioConfig())[2]
+    long = _run_window(make_scene(3, duration_s=20.0), VioConfig())[2]
+    a, b = _book_sizes(short), _book_sizes(long)
+    for name in a:
+        assert b[name] <= 1.6 * a[name] + 20, (name, a, b)

@@ -112,6 +112,15 @@ class VioConfig(ConfigModel):
         0.0, ge=-0.1, le=0.1, description="camera-IMU offset: image taken at stamp + td_s"
     )
     g_norm: float = Field(GRAVITY_M_S2, ge=9.0, le=10.5, description="gravity (m/s^2)")
+    imu_noise_scale: float = Field(
+        1.0,
+        ge=0.1,
+        le=100.0,
+        description="multiplies the rig's stated IMU white-noise densities (a datasheet's leave out vibration)",
+    )
+    imu_walk_scale: float = Field(
+        1.0, ge=0.01, le=100.0, description="multiplies the rig's stated IMU bias random walks"
+    )
     stereo: bool = Field(
         False, description="use the rig's second camera: depth at once and stereo factors"
     )

@@ -17,6 +17,7 @@ raised.
 from __future__ import annotations
 
 import bisect
+import dataclasses
 import itertools
 import time
 from collections import deque
@@ -88,7 +89,12 @@ class VioEstimator:
         spec = rig.camera(camera)
         self.camera_spec = spec
         self.camera = camera
-        self._params = imu_params(rig.imu.noise, g_norm=cfg.g_norm)
+        n, a, w = rig.imu.noise, cfg.imu_noise_scale, cfg.imu_walk_scale
+        noise = dataclasses.replace(
+            n, gyro_noise_density=a * n.gyro_noise_density, accel_noise_density=a * n.accel_noise_density,
+            gyro_random_walk=w * n.gyro_random_walk, accel_random_walk=w * n.accel_random_walk,
+        )  # fmt: skip
+        self._params = imu_params(noise, g_norm=cfg.g_norm)
         self.frontend = Frontend(spec.camera, cfg)
         self.features = FeatureManager()
         self.input = InputLog()

@@ -378,6 +378,7 @@ class SlidingWindow:
             del self._used[j]
             self._used_r.pop(j, None)
             self._seed.pop(j, None)
+        self.bad_tracks.intersection_update(features.tracks)  # an ended track's verdict goes
         poses = {kf.index: kf.pose for kf in self.keyframes}
         P = _camera_poses(poses, self.T_B_C)
         PR = _camera_poses(poses, self.T_B_R) if self.T_B_R is not None else {}
