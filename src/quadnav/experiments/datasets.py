@@ -85,9 +85,11 @@ class SequenceSpec(ConfigModel):
     ``sensors`` is the profile (see the module): ``realistic`` draws the IMU's turn-on biases
     (``imu_bias0_scale`` times the rig's spread), a camera-IMU time offset the calibration does
     not state (``time_offset_error_s`` at most, half of it at least, of either sign; on top of the
-    stated ``time_offset_s``), and a calibration error per camera (rotation ``calib_rotation_deg``
-    and lever arm ``calib_translation_m``, RMS norms; focal lengths ``calib_focal`` relative and
-    principal point ``calib_principal_px``, per coordinate; all normal). A motion file's gaps up
+    stated ``time_offset_s``), and a calibration error: the cameras' common camera-IMU extrinsic
+    (rotation ``calib_rotation_deg`` and lever arm ``calib_translation_m``, RMS norms), each
+    camera's own (``calib_stereo_rotation_deg``, ``calib_stereo_translation_m``: a stereo pair's
+    relative pose is calibrated far better), focal lengths ``calib_focal`` relative and principal
+    point ``calib_principal_px``, per coordinate; all normal. A motion file's gaps up
     to ``max_gap_s`` are bridged; ``knot_spacing_s`` sets its spline's smoothing (None: the
     larger of 0.1 s and 4 pose periods). ``motion_frame`` says whose poses the motion gives: a vehicle's
     (FLU; the rig rides on it at its ``T_V_B``) or the rig body's itself (a dataset's ground
@@ -124,6 +126,8 @@ class SequenceSpec(ConfigModel):
     time_offset_error_s: float = Field(default=0.005, ge=0.0, le=0.05)
     calib_rotation_deg: float = Field(default=0.5, ge=0.0, le=10.0)
     calib_translation_m: float = Field(default=0.005, ge=0.0, le=0.5)
+    calib_stereo_rotation_deg: float = Field(default=0.05, ge=0.0, le=10.0)
+    calib_stereo_translation_m: float = Field(default=0.0005, ge=0.0, le=0.5)
     calib_focal: float = Field(default=0.005, ge=0.0, le=0.2)
     calib_principal_px: float = Field(default=1.0, ge=0.0, le=50.0)
     knot_spacing_s: float | None = Field(default=None, gt=0.0, le=10.0)
@@ -460,12 +464,22 @@ def _drawn_time_offset_s(spec: SequenceSpec) -> float:
     return float(size if rng.random() < 0.5 else -size)
 
 
-def _miscalibrated(cam: CameraSpec, spec: SequenceSpec, rng: Generator) -> CameraSpec:
-    """``cam`` as a calibration states it: its ``T_B_C`` turned and moved (in the camera's own
-    frame) and its focal lengths and principal point off, by normal errors of ``spec``'s sizes
+def _pose_error(rng: Generator, rotation_deg: float, translation_m: float) -> Pose:
+    """A small rigid error: normal rotation and translation of these RMS norms."""
+    rot = rng.normal(0.0, math.radians(rotation_deg) / math.sqrt(3.0), 3)
+    return Pose(Rotation.from_rotvec(rot), rng.normal(0.0, translation_m / math.sqrt(3.0), 3))
+
+
+def _miscalibrated(
+    cam: CameraSpec, spec: SequenceSpec, rng: Generator, rig_error: Pose
+) -> CameraSpec:
+    """``cam`` as a calibration states it: its ``T_B_C`` off by the rig's camera-IMU error
+    ``rig_error`` (in the body frame, common to its cameras: ``calib_rotation_deg``,
+    ``calib_translation_m``) and by a small error of its own (in its own frame: the stereo
+    extrinsic a calibration gets far better, ``calib_stereo_rotation_deg`` and
+    ``calib_stereo_translation_m``), its focal lengths and principal point off too; all normal
     (rotation and lever arm: RMS norms; focal: relative; principal point: px per coordinate)."""
-    rot = rng.normal(0.0, math.radians(spec.calib_rotation_deg) / math.sqrt(3.0), 3)
-    lever = rng.normal(0.0, spec.calib_translation_m / math.sqrt(3.0), 3)
+    own = _pose_error(rng, spec.calib_stereo_rotation_deg, spec.calib_stereo_translation_m)
     focal = rng.normal(0.0, spec.calib_focal, 2)
     centre = rng.normal(0.0, spec.calib_principal_px, 2)
     K = cam.camera.K.copy()
@@ -473,8 +487,7 @@ def _miscalibrated(cam: CameraSpec, spec: SequenceSpec, rng: Generator) -> Camer
     K[1, 1] *= 1.0 + focal[1]
     K[0, 2] += centre[0]
     K[1, 2] += centre[1]
-    error = Pose(Rotation.from_rotvec(rot), lever)
-    return replace(cam, camera=replace(cam.camera, K=K), T_B_C=cam.T_B_C @ error)
+    return replace(cam, camera=replace(cam.camera, K=K), T_B_C=rig_error @ cam.T_B_C @ own)
 
 
 def _calibration_error(true: CameraSpec, stated: CameraSpec) -> dict[str, float]:
@@ -529,8 +542,9 @@ def _rigs_for(spec: SequenceSpec) -> tuple[Rig, Rig, ImuNoiseModel | None, dict[
     true = replace(stated, cameras=true_cams, imu=true_imu)
     if realistic:
         rng = stream_rng(spec.seed, "calibration")
+        common = _pose_error(rng, spec.calib_rotation_deg, spec.calib_translation_m)
         stated = replace(
-            stated, cameras=tuple(_miscalibrated(c, spec, rng) for c in stated.cameras)
+            stated, cameras=tuple(_miscalibrated(c, spec, rng, common) for c in stated.cameras)
         )
     drawn: dict[str, object] = {
         "profile": spec.sensors,

@@ -137,7 +137,7 @@ class VioConfig(ConfigModel):
         0.002, gt=0.0, le=0.05, description="largest stamp difference of a stereo pair"
     )
     stereo_max_epipolar_px: float = Field(
-        1.5,
+        2.0,
         gt=0.0,
         le=20.0,
         description="a left-right match this far off its epipolar line is dropped",
