@@ -147,3 +147,19 @@ def test_euroc_micro_at_rest_gravity_and_drift() -> None:
         assert np.degrees(np.arccos(np.clip(up @ up_gt, -1, 1))) < 1.0
     drift = np.linalg.norm(states[-1].T_W_B.p_A_B - states[0].T_W_B.p_A_B)
     assert drift < 0.02
+
+
+def test_the_stated_imu_noise_can_be_scaled() -> None:
+    """``imu_noise_scale`` multiplies the white-noise densities the preintegration uses (a
+    datasheet's leave out vibration), ``imu_walk_scale`` the bias random walks, each alone."""
+    rig = rig_named("euroc_mono")
+    assert rig.imu is not None
+    n = rig.imu.noise
+    base = VioEstimator(rig)._params
+    loud = VioEstimator(rig, VioConfig(imu_noise_scale=10.0, imu_walk_scale=0.5))._params
+    assert np.allclose(np.diag(base.getGyroscopeCovariance()), n.gyro_noise_density**2)
+    assert np.allclose(np.diag(loud.getGyroscopeCovariance()), (10 * n.gyro_noise_density) ** 2)
+    assert np.allclose(
+        np.diag(loud.getAccelerometerCovariance()), (10 * n.accel_noise_density) ** 2
+    )
+    assert np.allclose(np.diag(loud.getBiasAccCovariance()), (0.5 * n.accel_random_walk) ** 2)
