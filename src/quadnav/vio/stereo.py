@@ -19,6 +19,7 @@ from quadnav.errors import VioError, VisionError
 from quadnav.messages import ImageFrame
 from quadnav.odometry import FrameFeatures
 from quadnav.rig import CameraSpec, Rig
+from quadnav.units import s_to_ns
 from quadnav.vio.config import VioConfig
 from quadnav.vio.frontend import normalised
 from quadnav.vision.stereo import StereoRectifier
@@ -66,7 +67,7 @@ class StereoFrontend:
         self.geometry = StereoGeometry(
             left=spec_l.camera, right=spec_r.camera, T_L_R=spec_l.T_B_C.inverse() @ spec_r.T_B_C
         )
-        self.tolerance_ns = round(config.stereo_pair_tolerance_s * 1e9)
+        self.tolerance_ns = s_to_ns(config.stereo_pair_tolerance_s)
         self.pending: PendingFrame | None = None
         self._rights: dict[int, Image] = {}
         self.last_right_ns: int | None = None
