@@ -102,13 +102,17 @@ def count_resets(log: str) -> int:
 
 def summarise(runs: Sequence[Mapping[str, Metric]]) -> dict[str, Metric | str]:
     """The median over repeats of each metric (numbers only; the first reason when no repeat
-    has a number), and ``runs_ok``: repeats with a causal trajectory scored, of all."""
+    has a number), ``runs_ok``: repeats with a causal trajectory scored, of all, and ``error``:
+    the first failed repeat's reason, if any."""
     keys = dict.fromkeys(k for r in runs for k in r if k != "error")
     out: dict[str, Metric | str] = {
         k: median_or_na(r.get(k, r.get("error", na("not measured"))) for r in runs) for k in keys
     }
     ok = sum(1 for r in runs if not isinstance(r.get("ape_se3_m", na("")), str))
     out["runs_ok"] = f"{ok}/{len(runs)}"
+    errors = [r["error"] for r in runs if "error" in r]
+    if errors:
+        out["error"] = errors[0]
     return out
 
 
@@ -116,15 +120,24 @@ def markdown_table(
     rows: Sequence[tuple[str, str, Mapping[str, Metric | str]]],
     columns: Sequence[tuple[str, str, str]],
 ) -> str:
-    """One Markdown row per (dataset, system, medians); a metric that is n/a prints its reason."""
+    """One Markdown row per (dataset, system, medians). A metric that is n/a prints ``n/a (k)``,
+    its reason the k-th note under the table (a failed run's reason once, not in every cell)."""
     head = ["dataset", "system", "runs ok", *(c[1] for c in columns)]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    reasons: list[str] = []
     for dataset, system, med in rows:
         cells = [dataset, system, str(med.get("runs_ok", "0/0"))]
         for key, _, spec in columns:
-            cells.append(fmt_metric(med.get(key, na("not measured")), spec))
+            value = med.get(key, med.get("error", na("not measured")))
+            if isinstance(value, str):
+                why = value.removeprefix("n/a: ")
+                reasons += [why] if why not in reasons else []
+                cells.append(f"n/a ({reasons.index(why) + 1})")
+            else:
+                cells.append(fmt_metric(value, spec))
         lines.append("| " + " | ".join(cells) + " |")
-    return "\n".join(lines)
+    notes = [f"({k}) {why}" for k, why in enumerate(reasons, start=1)]
+    return "\n".join(lines + ([""] + notes if notes else []))
 
 
 def _score(groundtruth: Path, estimate: Path, aligns: Sequence[str]) -> dict[str, Metric]:
@@ -348,7 +361,7 @@ def _git_commit() -> str:
 def _tables(results: Sequence[Mapping[str, object]], systems: Sequence[str]) -> str:
     causal, refined = [], []
     for res in results:
-        name = str(res["dataset"]["sequence"] or Path(res["dataset"]["path"]).name)  # type: ignore[index]
+        name = Path(res["dataset"]["path"]).name  # type: ignore[index]
         for s in systems:
             med = res["systems"][s]["median"]  # type: ignore[index]
             causal.append((name, SYSTEMS[s][0], med))

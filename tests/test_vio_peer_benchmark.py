@@ -36,7 +36,7 @@ def test_median_over_repeats_skips_failed_ones_and_counts_them(peer: ModuleType)
     assert med["ape_se3_m"] == pytest.approx(0.03)  # median of the two that scored
     assert med["estimator_fps"] == pytest.approx(50.0)  # the crashed run has none
     assert med["resets"] == pytest.approx(2.0)  # median of 2, 27, 0
-    assert med["runs_ok"] == "2/3"
+    assert med["runs_ok"] == "2/3" and med["error"] == crashed
 
 
 def test_a_metric_no_repeat_has_keeps_the_reason(peer: ModuleType) -> None:
@@ -47,16 +47,19 @@ def test_a_metric_no_repeat_has_keeps_the_reason(peer: ModuleType) -> None:
 
 
 def test_table_prints_numbers_and_reasons_never_nan(peer: ModuleType) -> None:
+    crash = {"runs_ok": "0/3", "error": "n/a: crash", "ape_se3_m": "n/a: crash"}
     rows = [
         ("room_medium", "quadnav VIO mono", {"runs_ok": "3/3", "ape_se3_m": 0.01234}),
-        ("room_medium", "ORB-SLAM3 mono-inertial", {"runs_ok": "0/3", "ape_se3_m": "n/a: crash"}),
+        ("room_medium", "ORB-SLAM3 mono-inertial", crash),
     ]
-    table = peer.markdown_table(rows, (("ape_se3_m", "APE SE(3) (m)", ".3f"),))
-    lines = table.splitlines()
-    assert lines[0] == "| dataset | system | runs ok | APE SE(3) (m) |"
-    assert lines[2] == "| room_medium | quadnav VIO mono | 3/3 | 0.012 |"
-    assert lines[3] == "| room_medium | ORB-SLAM3 mono-inertial | 0/3 | n/a: crash |"
-    assert "nan" not in table
+    columns = (("ape_se3_m", "APE SE(3) (m)", ".3f"), ("process_s", "process (s)", ".1f"))
+    lines = peer.markdown_table(rows, columns).splitlines()
+    assert lines[0] == "| dataset | system | runs ok | APE SE(3) (m) | process (s) |"
+    assert lines[2] == "| room_medium | quadnav VIO mono | 3/3 | 0.012 | n/a (1) |"
+    # a failed run's reason once, under the table, for every metric it lacks
+    assert lines[3] == "| room_medium | ORB-SLAM3 mono-inertial | 0/3 | n/a (2) | n/a (2) |"
+    assert lines[5:] == ["(1) not measured", "(2) crash"]
+    assert not any("nan" in line for line in lines)
 
 
 def test_resets_are_counted_in_orb_slam3_output(peer: ModuleType) -> None:
