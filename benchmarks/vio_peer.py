@@ -74,6 +74,7 @@ CAUSAL_COLUMNS: tuple[tuple[str, str, str], ...] = (
 )
 NOT_CAUSAL_COLUMNS: tuple[tuple[str, str, str], ...] = (
     ("saved_ape_se3_m", "saved (BA-refined) APE SE(3) (m)", ".3f"),
+    ("saved_coverage_pct", "frames in saved (%)", ".0f"),
     ("imuinit_ape_4dof_m", "online after IMU init APE 4-DoF (m)", ".3f"),
 )
 
@@ -223,6 +224,13 @@ def run_orb(
     cmd = [str(peer.python), str(peer.dir / "run_orb.py"), str(dataset), mode, str(peer.vocab),
            str(settings / f"{mode}.yaml"), str(work / "out"), "--no-pace"]  # fmt: skip
     code, wall = _run(cmd, work / "log.txt", timeout_s)
+    return orb_metrics(dataset, mode, work, code, wall)
+
+
+def orb_metrics(
+    dataset: Path, mode: str, work: Path, code: int | str, wall: float
+) -> dict[str, Metric]:
+    """The metrics of a ``run_orb.py`` run whose output is in ``work`` (``log.txt``, ``out/``)."""
     log = (work / "log.txt").read_text(encoding="utf-8", errors="replace")
     resets = count_resets(log)
     stats_path = work / "out" / "stats.json"
@@ -242,7 +250,9 @@ def run_orb(
         "init_s": float(init) if isinstance(init, int | float) else na("never initialised"),
         "failures": float(st["lost_events"]), "resets": float(resets),
         "estimator_fps": float(st["max_fps_tracking"]), "process_s": wall,
-        "saved_ape_se3_m": saved["se3"], "imuinit_ape_4dof_m": imuinit["4dof"],
+        "saved_ape_se3_m": saved["se3"],
+        "saved_coverage_pct": _coverage(saved["matched"], _frames(dataset)),
+        "imuinit_ape_4dof_m": imuinit["4dof"],
     }  # fmt: skip
 
 
