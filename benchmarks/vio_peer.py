@@ -1,0 +1,415 @@
+"""quadnav's VIO side by side with ORB-SLAM3 (the field's reference) on the same EuRoC-format
+datasets, in one run: quadnav's mono and stereo VIO (``quadnav vio DATASET [--stereo]
+--no-video``) and ORB-SLAM3's mono-inertial and stereo-inertial modes, unpaced, through
+``../shared/peers/orbslam3/`` (``make_settings.py``, ``run_orb.py --no-pace``) in its own venv,
+each as a subprocess with a timeout; ``--repeats`` runs of each, median reported.
+
+Accuracy is measured on the CAUSAL trajectory, the pose each frame got when it was processed:
+quadnav's ``estimate.tum``, ORB-SLAM3's ``orb_online.tum``. ORB-SLAM3's saved trajectory
+(``orb_saved.tum``) is refined afterwards by bundle adjustment and loop closing: it is not
+causal, and is reported apart (SE(3) only: it is in its first keyframe's body frame, not level).
+All trajectories are scored by the same code (``quadnav.eval``'s ``evaluate_pair``) against the
+dataset's ``groundtruth.tum``: APE RMSE after a position + yaw (4-DoF) and an SE(3) alignment.
+Also per run: the share of camera frames with a pose, the estimator's frames/s (quadnav: its
+own timing, frames over the time spent in the estimator; ORB-SLAM3: one over its mean
+``track_*`` call, its mapping threads running beside), the wall time of the whole process
+(start-up and writing included), the time to initialise (quadnav: its first estimate;
+ORB-SLAM3 inertial: its IMU initialisation, when its poses become metric and gravity-aligned),
+failures (quadnav: failures; ORB-SLAM3: tracking lost) and resets (quadnav: re-initialisations;
+ORB-SLAM3: active-map resets, counted in its log). Nothing is pinned to a core: ORB-SLAM3 is
+multi-threaded, as its users run it; the 1-min load average before each run is recorded.
+
+The peer is never a dependency of the package or of the tests: without its venv (``--orb-venv``,
+with ``bin/python`` and the vocabulary ``orbvoc.txt``, set up as the peer's README says) one line
+says so and quadnav's side runs alone.
+
+    python benchmarks/vio_peer.py DATASET [DATASET ...] [--systems quadnav_mono,quadnav_stereo,
+        orb_mono_inertial,orb_stereo_inertial] [--repeats 3] [--timeout 900]
+        [--orb-venv ../orb-venv] [--orb-dir ../shared/peers/orbslam3] [--keep DIR]
+        [--out benchmarks/results/vio_peer.json]
+
+DATASET: an EuRoC folder with ``groundtruth.tum`` and two cameras, as
+``quadnav dataset make NAME --rig euroc --out DATASET`` writes.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+from quadnav.errors import QuadnavError
+from quadnav.eval.evaluate import EvalOptions, evaluate_pair
+from quadnav.eval.na import Metric, fmt_metric, median_or_na, na
+from quadnav.io.run_folder import read_run_status, write_text
+from quadnav.io.trajectory_io import read_tum
+
+ROOT = Path(__file__).resolve().parents[1]
+
+#: name -> (label, kind, mode)
+SYSTEMS: dict[str, tuple[str, str, str]] = {
+    "quadnav_mono": ("quadnav VIO mono", "quadnav", "mono"),
+    "quadnav_stereo": ("quadnav VIO stereo", "quadnav", "stereo"),
+    "orb_mono_inertial": ("ORB-SLAM3 mono-inertial", "orb", "mono_inertial"),
+    "orb_stereo_inertial": ("ORB-SLAM3 stereo-inertial", "orb", "stereo_inertial"),
+}
+
+#: the metrics of one run, medians taken over repeats (key, column heading, format)
+CAUSAL_COLUMNS: tuple[tuple[str, str, str], ...] = (
+    ("ape_4dof_m", "APE 4-DoF (m)", ".3f"),
+    ("ape_se3_m", "APE SE(3) (m)", ".3f"),
+    ("coverage_pct", "frames with pose (%)", ".0f"),
+    ("init_s", "init (s)", ".1f"),
+    ("failures", "failures", ".0f"),
+    ("resets", "resets", ".0f"),
+    ("estimator_fps", "estimator frames/s", ".1f"),
+    ("process_s", "whole process (s)", ".1f"),
+)
+NOT_CAUSAL_COLUMNS: tuple[tuple[str, str, str], ...] = (
+    ("saved_ape_se3_m", "saved (BA-refined) APE SE(3) (m)", ".3f"),
+    ("saved_coverage_pct", "frames in saved (%)", ".0f"),
+    ("imuinit_ape_4dof_m", "online after IMU init APE 4-DoF (m)", ".3f"),
+)
+
+RESET_LINE = "Reseting active map"  # ORB-SLAM3's spelling, once per active-map reset
+
+
+def _fail(message: str) -> None:
+    """A bad input: one line naming the option or path, exit code 2 (as the CLI does)."""
+    print(f"error: {message}", file=sys.stderr)
+    raise SystemExit(2)
+
+
+def parse_systems(text: str) -> list[str]:
+    """The ``--systems`` list, in the order given; an unknown name is a one-line error."""
+    names = [s.strip() for s in text.split(",") if s.strip()]
+    unknown = [s for s in names if s not in SYSTEMS]
+    if unknown or not names:
+        raise ValueError(f"--systems {text!r}: choose among {', '.join(SYSTEMS)} (comma-separated)")
+    return list(dict.fromkeys(names))
+
+
+def count_resets(log: str) -> int:
+    """ORB-SLAM3's active-map resets in its output."""
+    return log.count(RESET_LINE)
+
+
+def summarise(runs: Sequence[Mapping[str, Metric]]) -> dict[str, Metric | str]:
+    """The median over repeats of each metric (numbers only; the first reason when no repeat
+    has a number), ``runs_ok``: repeats with a causal trajectory scored, of all, and ``error``:
+    the first failed repeat's reason, if any."""
+    keys = dict.fromkeys(k for r in runs for k in r if k != "error")
+    out: dict[str, Metric | str] = {
+        k: median_or_na(r.get(k, r.get("error", na("not measured"))) for r in runs) for k in keys
+    }
+    ok = sum(1 for r in runs if not isinstance(r.get("ape_se3_m", na("")), str))
+    out["runs_ok"] = f"{ok}/{len(runs)}"
+    errors = [r["error"] for r in runs if "error" in r]
+    if errors:
+        out["error"] = errors[0]
+    return out
+
+
+def markdown_table(
+    rows: Sequence[tuple[str, str, Mapping[str, Metric | str]]],
+    columns: Sequence[tuple[str, str, str]],
+) -> str:
+    """One Markdown row per (dataset, system, medians). A metric that is n/a prints ``n/a (k)``,
+    its reason the k-th note under the table (a failed run's reason once, not in every cell)."""
+    head = ["dataset", "system", "runs ok", *(c[1] for c in columns)]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    reasons: list[str] = []
+    for dataset, system, med in rows:
+        cells = [dataset, system, str(med.get("runs_ok", "0/0"))]
+        for key, _, spec in columns:
+            value = med.get(key, med.get("error", na("not measured")))
+            if isinstance(value, str):
+                why = value.removeprefix("n/a: ")
+                reasons += [why] if why not in reasons else []
+                cells.append(f"n/a ({reasons.index(why) + 1})")
+            else:
+                cells.append(fmt_metric(value, spec))
+        lines.append("| " + " | ".join(cells) + " |")
+    notes = [f"({k}) {why}" for k, why in enumerate(reasons, start=1)]
+    return "\n".join(lines + ([""] + notes if notes else []))
+
+
+def _score(groundtruth: Path, estimate: Path, aligns: Sequence[str]) -> dict[str, Metric]:
+    """APE RMSE (m) of a TUM trajectory after each alignment, and the poses matched."""
+    if not estimate.is_file() or estimate.stat().st_size == 0:
+        why = na(f"no poses ({estimate.name} {'empty' if estimate.is_file() else 'missing'})")
+        return {**{a: why for a in aligns}, "matched": why}
+    out: dict[str, Metric] = {}
+    try:
+        ref, est = read_tum(groundtruth), read_tum(estimate)
+        for align in aligns:
+            res = evaluate_pair(ref, est, EvalOptions(align=align, plots=False))  # type: ignore[arg-type]
+            out[align] = res.metrics.ape_trans_m.rmse
+            out["matched"] = float(res.n_matched)
+    except QuadnavError as exc:
+        return {**{a: na(str(exc)) for a in aligns}, "matched": na(str(exc))}
+    return out
+
+
+def _frames(dataset: Path) -> int:
+    rows = (dataset / "mav0" / "cam0" / "data.csv").read_text(encoding="utf-8").splitlines()
+    return sum(1 for line in rows if line.strip() and not line.startswith("#"))
+
+
+def _coverage(matched: Metric, frames: int) -> Metric:
+    return matched if isinstance(matched, str) else 100.0 * float(matched) / frames
+
+
+def _run(cmd: list[str], log: Path, timeout_s: float) -> tuple[int | str, float]:
+    """Run ``cmd``, output to ``log``: the exit code (or why it has none) and the wall time."""
+    t0 = time.perf_counter()
+    with log.open("w", encoding="utf-8") as out:
+        try:
+            code: int | str = subprocess.run(
+                cmd, stdout=out, stderr=subprocess.STDOUT, timeout=timeout_s, check=False,
+                env=dict(os.environ, MPLBACKEND="Agg"),
+            ).returncode  # fmt: skip
+        except subprocess.TimeoutExpired:
+            code = f"timed out after {timeout_s:g} s (--timeout)"
+    return code, time.perf_counter() - t0
+
+
+def _last_line(log: Path) -> str:
+    lines = [s for s in log.read_text(encoding="utf-8", errors="replace").splitlines() if s]
+    return lines[-1][:200] if lines else "no output"
+
+
+def run_quadnav(dataset: Path, mode: str, work: Path, timeout_s: float) -> dict[str, Metric]:
+    """One ``quadnav vio`` process; its causal trajectory scored."""
+    out = work / "runs"
+    cmd = [sys.executable, "-m", "quadnav", "vio", str(dataset), "--no-video", "--out", str(out)]
+    code, wall = _run(cmd + (["--stereo"] if mode == "stereo" else []), work / "log.txt", timeout_s)
+    folders = sorted(out.glob("*")) if out.is_dir() else []
+    if code != 0 or not folders or read_run_status(folders[-1]) != "complete":
+        why = na(f"quadnav vio failed ({code}): {_last_line(work / 'log.txt')}")
+        return {"error": why, "ape_4dof_m": why, "ape_se3_m": why, "process_s": wall}
+    run = folders[-1]
+    m = json.loads((run / "metrics.json").read_text(encoding="utf-8"))
+    s = _score(dataset / "groundtruth.tum", run / "estimate.tum", ("4dof", "se3"))
+    init = m.get("initialized_after_s")
+    return {
+        "ape_4dof_m": s["4dof"], "ape_se3_m": s["se3"],
+        "coverage_pct": _coverage(s["matched"], _frames(dataset)),
+        "init_s": float(init) if isinstance(init, int | float) else na("never initialised"),
+        "failures": float(m["failures"]), "resets": float(m["reinitializations"]),
+        "estimator_fps": float(m["timing"]["frames_per_s"]), "process_s": wall,
+    }  # fmt: skip
+
+
+def _orb_failure(code: int | str, log: str, resets: int) -> str:
+    """Why an ORB-SLAM3 run left no statistics (it ``exit``s or crashes on some inputs, e.g.
+    saving a map that never initialised)."""
+    hint = ""
+    if "not enough acceleration" in log:
+        hint = f"; 'not enough acceleration' {log.count('not enough acceleration')} times"
+    return f"ORB-SLAM3 exit {code}, no stats.json ({resets} map resets{hint})"
+
+
+def run_orb(
+    dataset: Path, mode: str, peer: OrbPeer, settings: Path, work: Path, timeout_s: float
+) -> dict[str, Metric]:
+    """One ``run_orb.py --no-pace`` process in the peer's venv; its trajectories scored."""
+    cmd = [str(peer.python), str(peer.dir / "run_orb.py"), str(dataset), mode, str(peer.vocab),
+           str(settings / f"{mode}.yaml"), str(work / "out"), "--no-pace"]  # fmt: skip
+    code, wall = _run(cmd, work / "log.txt", timeout_s)
+    return orb_metrics(dataset, mode, work, code, wall)
+
+
+def orb_metrics(
+    dataset: Path, mode: str, work: Path, code: int | str, wall: float
+) -> dict[str, Metric]:
+    """The metrics of a ``run_orb.py`` run whose output is in ``work`` (``log.txt``, ``out/``)."""
+    log = (work / "log.txt").read_text(encoding="utf-8", errors="replace")
+    resets = count_resets(log)
+    stats_path = work / "out" / "stats.json"
+    if not stats_path.is_file():
+        why = na(_orb_failure(code, log, resets))
+        return {"error": why, "ape_4dof_m": why, "ape_se3_m": why, "resets": float(resets),
+                "process_s": wall}  # fmt: skip
+    st = json.loads(stats_path.read_text(encoding="utf-8"))
+    gt, out = dataset / "groundtruth.tum", work / "out"
+    online = _score(gt, out / "orb_online.tum", ("4dof", "se3"))
+    saved = _score(gt, out / "orb_saved.tum", ("se3",))
+    imuinit = _score(gt, out / "orb_online_imuinit.tum", ("4dof",))
+    init = st.get("imu_init_s") if "inertial" in mode else st.get("first_ok_s")
+    return {
+        "ape_4dof_m": online["4dof"], "ape_se3_m": online["se3"],
+        "coverage_pct": _coverage(online["matched"], _frames(dataset)),
+        "init_s": float(init) if isinstance(init, int | float) else na("never initialised"),
+        "failures": float(st["lost_events"]), "resets": float(resets),
+        "estimator_fps": float(st["max_fps_tracking"]), "process_s": wall,
+        "saved_ape_se3_m": saved["se3"],
+        "saved_coverage_pct": _coverage(saved["matched"], _frames(dataset)),
+        "imuinit_ape_4dof_m": imuinit["4dof"],
+    }  # fmt: skip
+
+
+class OrbPeer:
+    """Where the peer lives: its venv's interpreter, its vocabulary, its scripts."""
+
+    def __init__(self, venv: Path, scripts: Path) -> None:
+        self.python, self.vocab, self.dir = venv / "bin" / "python", venv / "orbvoc.txt", scripts
+
+    def missing(self) -> str:
+        """Empty when usable, else what is missing (one line)."""
+        gone = [
+            str(p) for p in (self.python, self.vocab, self.dir / "run_orb.py") if not p.exists()
+        ]
+        return ", ".join(gone)
+
+    def version(self) -> str:
+        done = subprocess.run(
+            [str(self.python), "-c", "from importlib.metadata import version as v; print(v('pyorbslam3'))"],
+            capture_output=True, text=True, check=False, timeout=60,
+        )  # fmt: skip
+        return done.stdout.strip() or "?"
+
+
+def _arguments() -> argparse.Namespace:
+    parser = argparse.ArgumentParser(description="quadnav VIO vs ORB-SLAM3, same datasets")
+    parser.add_argument("datasets", nargs="+", type=Path)
+    parser.add_argument("--systems", default=",".join(SYSTEMS))
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--timeout", type=float, default=900.0, help="seconds per process")
+    parser.add_argument("--orb-venv", type=Path, default=ROOT.parent / "orb-venv")
+    parser.add_argument("--orb-dir", type=Path, default=ROOT.parent / "shared/peers/orbslam3")
+    parser.add_argument("--keep", type=Path, default=None, help="keep every run's output here")
+    parser.add_argument("--out", type=Path, default=Path("benchmarks/results/vio_peer.json"))
+    args = parser.parse_args()
+    try:
+        args.systems = parse_systems(args.systems)
+    except ValueError as exc:
+        _fail(str(exc))
+    if args.repeats < 1:
+        _fail(f"--repeats must be at least 1, got {args.repeats}")
+    if not args.timeout > 0:
+        _fail(f"--timeout must be a positive number of seconds, got {args.timeout}")
+    for ds in args.datasets:
+        for need in ("groundtruth.tum", "mav0/cam0/data.csv", "mav0/cam1/data.csv"):
+            if not (ds / need).is_file():
+                _fail(
+                    f"DATASET {ds}: no {need} (make it with quadnav dataset make ... --rig euroc)"
+                )
+    return args
+
+
+def _available(args: argparse.Namespace, peer: OrbPeer) -> list[str]:
+    """The systems to run: the ORB-SLAM3 ones dropped, with one line, without its venv."""
+    gone = peer.missing()
+    wanted_orb = [s for s in args.systems if SYSTEMS[s][1] == "orb"]
+    if not gone or not wanted_orb:
+        return list(args.systems)
+    print(f"ORB-SLAM3 not run: missing {gone} (set up as {args.orb_dir}/README.md says); "
+          "running quadnav's side only")  # fmt: skip
+    left = [s for s in args.systems if SYSTEMS[s][1] != "orb"]
+    if not left:
+        _fail("--systems: only ORB-SLAM3 chosen, and its venv is missing (see the line above)")
+    return left
+
+
+def _dataset_record(ds: Path) -> dict[str, object]:
+    meta_path = ds / "dataset.json"
+    meta = json.loads(meta_path.read_text(encoding="utf-8")) if meta_path.is_file() else {}
+    spec = meta.get("spec", {})
+    keep = ("world", "rig", "motion", "duration_s", "seed", "imu_noise", "still_s", "time_offset_s")
+    return {"path": str(ds.resolve()), "frames": _frames(ds), "sequence": meta.get("sequence"),
+            **{k: spec.get(k) for k in keep if k in spec}}  # fmt: skip
+
+
+def _run_dataset(
+    ds: Path, systems: Sequence[str], args: argparse.Namespace, peer: OrbPeer, work: Path
+) -> dict[str, object]:
+    settings = work / "orb_settings"
+    if any(SYSTEMS[s][1] == "orb" for s in systems):
+        done = subprocess.run(
+            [str(peer.python), str(peer.dir / "make_settings.py"), str(ds), str(settings)],
+            capture_output=True, text=True, timeout=120, check=False,
+        )  # fmt: skip
+        if done.returncode != 0:
+            last = (done.stdout + done.stderr).strip().splitlines()[-1:] or ["no output"]
+            _fail(f"DATASET {ds}: ORB-SLAM3's make_settings.py failed: {last[0][:200]}")
+    record: dict[str, object] = {"dataset": _dataset_record(ds), "systems": {}}
+    for name in systems:
+        _, kind, mode = SYSTEMS[name]
+        runs: list[dict[str, Metric]] = []
+        for k in range(args.repeats):
+            run_dir = work / name / f"run{k}"
+            run_dir.mkdir(parents=True)
+            load = os.getloadavg()[0]
+            if kind == "quadnav":
+                r = run_quadnav(ds, mode, run_dir, args.timeout)
+            else:
+                r = run_orb(ds, mode, peer, settings, run_dir, args.timeout)
+            r["load_1min_before"] = load
+            runs.append(r)
+            print(f"  {ds.name} {name} run {k + 1}/{args.repeats}: "
+                  f"APE SE(3) {fmt_metric(r['ape_se3_m'], '.3f')} m, "
+                  f"whole process {float(r['process_s']):.1f} s", flush=True)  # fmt: skip
+        record["systems"][name] = {"runs": runs, "median": summarise(runs)}  # type: ignore[index]
+    return record
+
+
+def _git_commit() -> str:
+    done = subprocess.run(
+        ["git", "-C", str(ROOT), "rev-parse", "HEAD"], capture_output=True, text=True, check=False
+    )
+    return done.stdout.strip() or "?"
+
+
+def _tables(results: Sequence[Mapping[str, object]], systems: Sequence[str]) -> str:
+    causal, refined = [], []
+    for res in results:
+        name = Path(res["dataset"]["path"]).name  # type: ignore[index]
+        for s in systems:
+            med = res["systems"][s]["median"]  # type: ignore[index]
+            causal.append((name, SYSTEMS[s][0], med))
+            if SYSTEMS[s][1] == "orb":
+                refined.append((name, SYSTEMS[s][0], med))
+    text = "Causal trajectories (quadnav estimate.tum, ORB-SLAM3 orb_online.tum), median:\n\n"
+    text += markdown_table(causal, CAUSAL_COLUMNS)
+    if refined:
+        text += "\n\nORB-SLAM3, not causal (saved: refined afterwards by bundle adjustment):\n\n"
+        text += markdown_table(refined, NOT_CAUSAL_COLUMNS)
+    return text
+
+
+def main() -> None:
+    args = _arguments()
+    peer = OrbPeer(args.orb_venv.resolve(), args.orb_dir.resolve())
+    systems = _available(args, peer)
+    keep = args.keep.resolve() if args.keep is not None else None
+    with tempfile.TemporaryDirectory(prefix="vio_peer_") as tmp:
+        results = []
+        for i, ds in enumerate(args.datasets):
+            work = (keep or Path(tmp)) / f"{i}_{ds.name}"
+            if work.exists():
+                _fail(f"--keep {args.keep}: {work} exists already; choose an empty folder")
+            print(f"{ds}: {', '.join(systems)}, {args.repeats} repeats", flush=True)
+            results.append(_run_dataset(ds, systems, args, peer, work))
+    text = _tables(results, systems)
+    print(f"\n{text}\n")
+    orb = [s for s in systems if SYSTEMS[s][1] == "orb"]
+    write_text(args.out, json.dumps({
+        "benchmark": "vio_peer", "commit": _git_commit(), "python": platform.python_version(),
+        "pyorbslam3": peer.version() if orb else None, "cpus": os.cpu_count(),
+        "repeats": args.repeats, "systems": {s: SYSTEMS[s][0] for s in systems},
+        "causal": "quadnav estimate.tum; ORB-SLAM3 orb_online.tum (orb_saved.tum is BA-refined)",
+        "results": results, "table_markdown": text,
+    }, indent=2) + "\n")  # fmt: skip
+    print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()
