@@ -27,13 +27,19 @@ FloatArray = NDArray[np.float64]
 #: within 40 baselines; beyond, the depth is too uncertain to start on).
 MIN_DEPTH_BASELINES = 1.0
 MAX_DEPTH_BASELINES = 40.0
+#: The largest reprojection error (px) of a new stereo point in either view.
+MAX_REPROJECTION_PX = 1.5
 
 
 def _stereo_points(
-    frame: FrameFeatures, T_C0_C: Pose, T_L_R: Pose, points: dict[int, FloatArray]
+    frame: FrameFeatures,
+    T_C0_C: Pose,
+    T_L_R: Pose,
+    points: dict[int, FloatArray],
+    focal_px: float,
 ) -> None:
     """Add the frame's stereo corners that have no point yet (in ``C0``), checked for depth
-    and reprojection in both views."""
+    and reprojection in both views (``MAX_REPROJECTION_PX`` at ``focal_px``)."""
     at = {int(j): k for k, j in enumerate(frame.ids)}
     new = [k for k, j in enumerate(frame.stereo_ids.tolist()) if int(j) not in points]
     if not new:
@@ -51,7 +57,7 @@ def _stereo_points(
         np.isfinite(pts).all(axis=1)
         & (np.nan_to_num(z[:, 0]) > MIN_DEPTH_BASELINES * b)
         & (np.nan_to_num(z[:, 0]) < MAX_DEPTH_BASELINES * b)
-        & (err < 3e-3)  # about 1.5 px at focal 460
+        & (err * focal_px < MAX_REPROJECTION_PX)
     )
     for k in np.flatnonzero(ok):
         points[ids[k]] = pts[k]
@@ -70,7 +76,7 @@ def stereo_structure(
         return f"a stereo window needs at least 2 frames, got {len(frames)}"
     points: dict[int, FloatArray] = {}
     poses = [Pose.identity()]
-    _stereo_points(frames[0], poses[0], T_L_R, points)
+    _stereo_points(frames[0], poses[0], T_L_R, points, focal_px)
     if len(points) < min_points:
         return f"the first frame has {len(points)} stereo points within {MAX_DEPTH_BASELINES:g} baselines, under {min_points}"
     for k, f in enumerate(frames[1:], start=1):
@@ -85,7 +91,7 @@ def stereo_structure(
         if res is None:
             return f"PnP could not place window frame {k} on {len(ids)} stereo points"
         poses.append(res.T_W_C)
-        _stereo_points(f, res.T_W_C, T_L_R, points)
+        _stereo_points(f, res.T_W_C, T_L_R, points, focal_px)
     rms = _rms_px(frames, poses, points, focal_px)
     return SfmResult(
         T_C0_C=tuple(poses), points_C0=points, reference=0, parallax_px=0.0, reprojection_px=rms
