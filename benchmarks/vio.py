@@ -66,50 +66,66 @@ from quadnav.vio import VioConfig, VioEstimator  # noqa: E402
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from tracking import best_stage_s  # noqa: E402
 
-Item = tuple[int, ImuSample | np.ndarray]
+Item = tuple[int, str, ImuSample | np.ndarray]
 
 
-def _items(ds: VisualInertialDataset, camera: str, n_frames: int) -> tuple[list[Item], float]:
-    """The first ``n_frames`` images of ``camera`` (loaded) and the IMU samples up to the last,
-    in time order; and the span in seconds."""
+#: The configurations compared in one run: the window and front end as they were before issue
+#: 22's speed work (batch Levenberg-Marquardt each keyframe, corners detected every frame) and
+#: today's defaults.
+def _before() -> VioConfig:
+    cfg = VioConfig()
+    tracker = cfg.tracker.model_copy(update={"detect_min_new": 1})
+    return cfg.model_copy(update={"smoother": "batch", "tracker": tracker})
+
+
+CONFIGS = {"before (batch, detect every frame)": _before, "default": VioConfig}
+
+
+def _items(
+    ds: VisualInertialDataset, cameras: tuple[str, ...], n_frames: int
+) -> tuple[list[Item], float]:
+    """The first ``n_frames`` images of the first of ``cameras`` (and the others' images up to
+    then, loaded) and the IMU samples up to the last, in time order; and the span in seconds."""
     items: list[Item] = []
     frames = 0
     t0 = None
     for s in ds.stream():
         t0 = s.t_ns if t0 is None else t0
         if isinstance(s, ImuSample):
-            items.append((s.t_ns, s))
-        elif s.camera == camera:
-            items.append((s.t_ns, s.image()))
-            frames += 1
+            items.append((s.t_ns, "", s))
+        elif s.camera in cameras:
             if frames == n_frames:
                 break
+            items.append((s.t_ns, s.camera, s.image()))
+            frames += s.camera == cameras[0]
     return items, (items[-1][0] - (t0 or 0)) * 1e-9
 
 
-def _one_run(ds: VisualInertialDataset, items: list[Item], camera: str) -> dict[str, object]:
-    vio = VioEstimator(ds.rig, VioConfig(), camera=camera)
+def _one_run(
+    ds: VisualInertialDataset, items: list[Item], camera: str, config: VioConfig
+) -> dict[str, object]:
+    vio = VioEstimator(ds.rig, config, camera=camera)
     total = 0.0
     frames = 0
     estimates = 0
-    for t_ns, x in items:
+    for t_ns, cam, x in items:
         t = time.perf_counter()
         if isinstance(x, ImuSample):
             vio.push(x)
         else:
-            frame = ImageFrame(t_ns=t_ns, camera=camera, load=lambda x=x: x)
+            frame = ImageFrame(t_ns=t_ns, camera=cam, load=lambda x=x: x)
             estimates += vio.push(frame) is not None
             vio.keyframes()
-            frames += 1
+            frames += cam == camera
         total += time.perf_counter() - t
     stages = {name: (s, n) for name, s, n in vio.timing().stages}
     return {"total_s": total, "frames": frames, "estimates": estimates, "stages": stages}
 
 
 def _best_in_process(
-    ds: VisualInertialDataset, items: list[Item], camera: str, repeats: int
+    ds: VisualInertialDataset, items: list[Item], camera: str, repeats: int, config: VioConfig
 ) -> dict[str, object]:
-    runs = [_one_run(ds, items, camera) for _ in range(repeats)]
+    runs = [_one_run(ds, items, camera, config) for _ in range(repeats)]
     best = min(runs, key=lambda r: float(r["total_s"]))  # type: ignore[arg-type]
     frames = int(best["frames"])  # type: ignore[call-overload]
     names = list(best["stages"])  # type: ignore[call-overload]
@@ -126,14 +142,14 @@ def _best_in_process(
     }  # fmt: skip
 
 
-def _whole_process(source: Path, span_s: float, repeats: int) -> float:
+def _whole_process(source: Path, span_s: float, repeats: int, stereo: bool) -> float:
     best = float("inf")
     for _ in range(repeats):
         with tempfile.TemporaryDirectory() as out:
             t0 = time.perf_counter()
             subprocess.run(
                 [sys.executable, "-m", "quadnav", "vio", str(source), "--no-video",
-                 "--duration", f"{span_s:.3f}", "--out", out],
+                 "--duration", f"{span_s:.3f}", "--out", out] + (["--stereo"] if stereo else []),
                 check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
             )  # fmt: skip
             best = min(best, time.perf_counter() - t0)
@@ -147,6 +163,7 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=200)
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--core", type=int, default=0)
+    parser.add_argument("--stereo", action="store_true", help="stereo-inertial runs too")
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results/vio.json"))
     args = parser.parse_args()
     if args.dataset is not None and not args.dataset.exists():
@@ -161,39 +178,63 @@ def main() -> None:
         _fail(str(exc))
 
 
+def _configs(stereo: bool) -> dict[str, VioConfig]:
+    out = {}
+    for name, make in CONFIGS.items():
+        cfg = make()
+        out[name] = cfg
+        if stereo:
+            out[f"{name}, stereo"] = cfg.model_copy(update={"stereo": True})
+    return out
+
+
+def _print_table(name: str, vio: dict[str, object]) -> None:
+    print(f"{name}: {vio['frames_per_s']:.1f} frames/s (all repeats: "
+          + ", ".join(f"{x:.1f}" for x in vio["all_frames_per_s"]) + ")")  # type: ignore[attr-defined]  # fmt: skip
+    print(f"  {'stage':<16}{'ms/frame':>10}{'calls':>8}")
+    for n, ms in vio["stage_ms_per_frame"].items():  # type: ignore[attr-defined]
+        print(f"  {n:<16}{ms:>10.2f}{vio['stage_calls'][n]:>8}")  # type: ignore[index]
+
+
 def _measure(args: argparse.Namespace) -> None:
     if args.dataset is None:
         ds = resolve_dataset("room_easy", duration_s=10.0, cache_root=Path("benchmarks/results"))
     else:
         ds = open_dataset(args.dataset)
     cam = ds.rig.camera(args.camera)
-    items, span_s = _items(ds, args.camera, args.frames)
-    images = [x for _, x in items if isinstance(x, np.ndarray)]
-    vio = _best_in_process(ds, items, args.camera, args.repeats)
+    cameras: tuple[str, ...] = (args.camera,)
+    if args.stereo:
+        others = [c.name for c in ds.rig.cameras if c.name != args.camera]
+        if not others:
+            _fail(f"--stereo: the dataset's rig {ds.rig.name!r} has one camera")
+        cameras = (args.camera, others[0])
+    items, span_s = _items(ds, cameras, args.frames)
+    images = [x for _, c, x in items if c == args.camera and isinstance(x, np.ndarray)]
+    w, h = cam.camera.width, cam.camera.height
+    print(f"VIO on {ds.name} ({w}x{h}), {len(images)} frames over {span_s:.1f} s, one core "
+          f"(affinity {sorted(os.sched_getaffinity(0))}), best of {args.repeats}")  # fmt: skip
+    runs = {}
+    for name, cfg in _configs(args.stereo).items():
+        runs[name] = _best_in_process(ds, items, args.camera, args.repeats, cfg)
+        _print_table(name, runs[name])
     tracker = best_stage_s(images, cam.camera, args.repeats)
     tracker_fps = len(images) / tracker["total_s"]
-    process_s = _whole_process(ds.root, span_s, args.repeats)
-    w, h = cam.camera.width, cam.camera.height
-    print(f"VIO on {ds.name} ({w}x{h}), {vio['frames']} frames over {span_s:.1f} s, one core "
-          f"(affinity {sorted(os.sched_getaffinity(0))}), best of {args.repeats}")  # fmt: skip
-    print(f"{'stage':<16}{'ms/frame':>10}{'calls':>8}")
-    for n, ms in vio["stage_ms_per_frame"].items():  # type: ignore[attr-defined]
-        print(f"{n:<16}{ms:>10.2f}{vio['stage_calls'][n]:>8}")  # type: ignore[index]
-    print(f"{'VIO frames/s':<28}{vio['frames_per_s']:>10.1f}   (all repeats: "
-          + ", ".join(f"{x:.1f}" for x in vio["all_frames_per_s"]) + ")")  # type: ignore[attr-defined]  # fmt: skip
+    process = {"mono": _whole_process(ds.root, span_s, args.repeats, False)}
+    if args.stereo:
+        process["stereo"] = _whole_process(ds.root, span_s, args.repeats, True)
+    base = float(runs["default"]["frames_per_s"])  # type: ignore[arg-type]
     print(f"{'tracker alone frames/s':<28}{tracker_fps:>10.1f}")
-    print(f"{'VIO / tracker':<28}{float(vio['frames_per_s']) / tracker_fps:>10.2f}")  # type: ignore[arg-type]
-    print(
-        f"{'whole process (s)':<28}{process_s:>10.2f}   quadnav vio --no-video, start-up included"
-    )
+    print(f"{'VIO / tracker':<28}{base / tracker_fps:>10.2f}")
+    for mode, secs in process.items():
+        print(f"{'whole process ' + mode + ' (s)':<28}{secs:>10.2f}   quadnav vio --no-video")
     write_text(args.out, json.dumps({
         "benchmark": "vio", "python": platform.python_version(), "opencv": cv2.__version__,
         "gtsam": getattr(gtsam, "__version__", "?"), "core": args.core, "repeats": args.repeats,
-        "dataset": str(ds.root), "resolution": [w, h], "span_s": span_s, "vio": vio,
-        "tracker_alone_frames_per_s": tracker_fps,
-        "vio_over_tracker": float(vio["frames_per_s"]) / tracker_fps,  # type: ignore[arg-type]
-        "whole_process_s": process_s,
-        "peer": "VINS-Mono (C++/ROS) cannot be installed here; the tracker alone is the reference",
+        "dataset": str(ds.root), "resolution": [w, h], "span_s": span_s, "frames": len(images),
+        "configs": {n: c.model_dump(mode="json") for n, c in _configs(args.stereo).items()},
+        "vio": runs, "tracker_alone_frames_per_s": tracker_fps,
+        "vio_over_tracker": base / tracker_fps, "whole_process_s": process,
+        "peer": "ORB-SLAM3 on the same data: benchmarks/vio_peer.py",
     }, indent=2) + "\n")  # fmt: skip
     print(f"wrote {args.out}")
 

@@ -16,7 +16,7 @@ from quadnav.errors import VioError
 from quadnav.geometry.multiview import triangulate
 from quadnav.io.datasets import VisualInertialDataset
 from quadnav.messages import ImageFrame, ImuSample
-from quadnav.odometry import OdometryState
+from quadnav.odometry import FrameFeatures, OdometryState
 from quadnav.rig import rig_named
 from quadnav.vio import VioConfig, VioEstimator
 from quadnav.vio.stereo import partner_camera
@@ -34,20 +34,22 @@ def stereo_ds(tmp_path_factory: pytest.TempPathFactory) -> VisualInertialDataset
 class _Out:
     vio: VioEstimator
     states: list[OdometryState]
-    stereo_share: list[float]
+    stereo_share: list[float]  # at keyframes (the only frames matched in the right image)
+    last_keyframe: tuple[OdometryState, FrameFeatures] | None = None
 
 
 def _run(stream: Iterator[Sample], ds: VisualInertialDataset) -> _Out:
     vio = VioEstimator(ds.rig, VioConfig(stereo=True))
-    states, share = [], []
+    out = _Out(vio=vio, states=[], stereo_share=[])
     for s in stream:
         st = vio.push(s)
         if st is not None and st.status == "tracking":
-            states.append(st)
+            out.states.append(st)
             f = vio.last_features
-            if f is not None and len(f.ids):
-                share.append(len(f.stereo_ids) / len(f.ids))
-    return _Out(vio=vio, states=states, stereo_share=share)
+            if st.keyframe and f is not None and len(f.ids):
+                out.stereo_share.append(len(f.stereo_ids) / len(f.ids))
+                out.last_keyframe = (st, f)
+    return out
 
 
 def test_a_rig_that_cannot_pair_is_one_line_naming_stereo() -> None:
@@ -71,9 +73,9 @@ def test_the_right_cameras_points_agree_with_the_mono_landmarks(
     rig = stereo_ds.rig
     T_B_L, T_B_R = rig.camera("cam0").T_B_C, rig.camera("cam1").T_B_C
     ratios = []
-    f = out.vio.last_features
-    assert f is not None
-    T_W_B = out.states[-1].T_W_B
+    assert out.last_keyframe is not None
+    st, f = out.last_keyframe
+    T_W_B = st.T_W_B
     P = np.array([(T_W_B @ T).inverse().matrix()[:3] for T in (T_B_L, T_B_R)])
     at = {int(j): k for k, j in enumerate(f.ids)}
     for j, xy_r in zip(f.stereo_ids.tolist(), f.stereo_xy, strict=True):

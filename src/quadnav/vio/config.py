@@ -3,6 +3,8 @@ the front end, the landmarks, the static start, the failure thresholds and the t
 
 from __future__ import annotations
 
+from typing import Literal
+
 from pydantic import Field
 
 from quadnav.config_model import ConfigModel
@@ -56,7 +58,17 @@ class VioConfig(ConfigModel):
     max_reprojection_px: float = Field(
         4.0, gt=0.0, le=100.0, description="landmarks worse than this after a solve are dropped"
     )
-    optimizer_iterations: int = Field(4, ge=1, le=100, description="Levenberg-Marquardt steps")
+    smoother: Literal["isam2", "batch"] = Field(
+        "isam2",
+        description="the window's fixed-lag smoother: isam2 (incremental) or batch "
+        "(Levenberg-Marquardt over the window each keyframe; slower, the reference)",
+    )
+    isam2_relinearize_threshold: float = Field(
+        0.01, gt=0.0, le=1.0, description="isam2: relinearise a variable that moved this much"
+    )
+    optimizer_iterations: int = Field(
+        4, ge=1, le=100, description="batch: Levenberg-Marquardt steps per keyframe"
+    )
     static_window_s: float = Field(
         1.0, gt=0.1, le=30.0, description="IMU at rest this long for a static start"
     )

@@ -16,7 +16,6 @@ raised.
 
 from __future__ import annotations
 
-import bisect
 import dataclasses
 import itertools
 import time
@@ -47,7 +46,8 @@ from quadnav.vio.config import VioConfig
 from quadnav.vio.failure import InputLog, SolvedState, state_failure, tracking_failure
 from quadnav.vio.frontend import FeatureManager, Frontend, median_motion_px
 from quadnav.vio.initialization import visual_inertial_init
-from quadnav.vio.preintegration import imu_params, preintegrate
+from quadnav.vio.preintegration import imu_params, zero_bias
+from quadnav.vio.propagator import ImuPropagator
 from quadnav.vio.static_init import StaticStart, imu_stillness, is_still, static_start
 from quadnav.vio.stereo import PendingFrame, StereoFrontend
 from quadnav.vio.time_offset import TimeOffsetEstimator
@@ -98,8 +98,7 @@ class VioEstimator:
         self.frontend = Frontend(spec.camera, cfg)
         self.features = FeatureManager()
         self.input = InputLog()
-        self._imu: list[ImuSample] = []
-        self._imu_t: list[int] = []
+        self.imu = ImuPropagator(self._params)
         self._events: list[OdometryEvent] = []
         self._stages: dict[str, list[float]] = {}
         self._recent: deque[FrameFeatures] = deque()
@@ -111,7 +110,6 @@ class VioEstimator:
         self._next_kf = 0
         self._cov_pose = np.eye(6) * 1e-6
         self._cov_v = np.eye(3) * 1e-6
-        self._prop: gtsam.PreintegratedCombinedMeasurements | None = None
         self._last_p = np.zeros(3)
         self._td_s = cfg.td_s
         self._td = (
@@ -127,6 +125,7 @@ class VioEstimator:
         self._done: list[KeyframeRecord] = []
         self._image: ImageFrame | None = None  # the frame being pushed
         self._image_px: NDArray[np.uint8] | None = None
+        self._right_px: NDArray[np.uint8] | None = None  # its stereo partner's pixels
         self.stereo = StereoFrontend(rig, camera, cfg) if cfg.stereo else None
         self.window = self._new_window()
 
@@ -185,22 +184,15 @@ class VioEstimator:
         """Buffer an IMU sample; once initialised, the state propagated to its time."""
         if not self.input.imu_ok(sample):
             return None
-        prev = self._imu[-1] if self._imu else None
-        self._imu.append(sample)
-        self._imu_t.append(sample.t_ns)
+        self.imu.push(sample)  # (the running propagation carried to it)
         if self.stereo is not None and self.stereo.overdue(sample.t_ns):
             return self._unpaired()  # the stream moved past a left frame: it goes on as mono
         if self._td is not None:  # the online time offset compares the gyro with vision
             self._td.push_gyro(sample.t_ns, np.asarray(sample.gyro_rad_s))
-        if not self._initialized or self._prop is None or prev is None:
+        run = self.imu.running
+        if not self._initialized or run is None:
             return None
-        kf = self.window.newest
-        a = max(prev.t_ns, kf.t_ns)
-        if sample.t_ns > a:
-            self._prop.integrateMeasurement(
-                prev.accel_m_s2, prev.gyro_rad_s, (sample.t_ns - a) * 1e-9
-            )
-        return self._predicted_state(sample.t_ns, self._prop, "propagated", tracked=0)
+        return self._predicted_state(sample.t_ns, run, "propagated", tracked=0)
 
     def _push_frame(self, frame: ImageFrame) -> OdometryState | None:
         """A camera frame stamped in the camera's clock (``td_s`` moves it to the IMU's)."""
@@ -263,11 +255,23 @@ class VioEstimator:
         self, features: FrameFeatures, left: NDArray[np.uint8], right: NDArray[np.uint8],
         source: ImageFrame,
     ) -> OdometryState | None:  # fmt: skip
-        assert self.stereo is not None
+        """A stereo pair: the right image is matched only if the frame becomes a keyframe
+        (the window takes the second camera's observations at keyframes only)."""
+        self._right_px = right
+        try:
+            return self._estimate_with(features, left, source)
+        finally:
+            self._right_px = None
+
+    def _with_stereo(self, frame: FrameFeatures) -> FrameFeatures:
+        """A keyframe's features with its corners found in the right image (as they are
+        without a stereo partner)."""
+        if self.stereo is None or self._right_px is None or self._image_px is None:
+            return frame
         with self._stage("stereo"):
-            features = self.stereo.match(features, left, right)
-        self._last_features = features
-        return self._estimate_with(features, left, source)
+            frame = self.stereo.match(frame, self._image_px, self._right_px)
+        self._last_features = frame
+        return frame
 
     def _estimate_with(
         self, features: FrameFeatures, image: NDArray[np.uint8], source: ImageFrame
@@ -320,13 +324,14 @@ class VioEstimator:
         span_ns = s_to_ns(cfg.static_window_s)
         if tracking_failure(len(frame.ids), cfg) is not None:
             return None
-        start = static_start(self._imu, frame.t_ns, cfg)
+        start = static_start(self.imu.samples, frame.t_ns, cfg)
         if start is not None and self._image_still(frame, frame.t_ns - span_ns // 2):
             return self._start_static(frame, start)
         return self._try_visual_init(frame)
 
     def _start_static(self, frame: FrameFeatures, start: StaticStart) -> OdometryState:
         cfg = self.config
+        frame = self._with_stereo(frame)
         k = self._new_kf_index()
         pose = gtsam.Pose3(gtsam.Rot3(start.R_W_B.as_matrix()), self._last_p)
         bias = gtsam.imuBias.ConstantBias(np.zeros(3), start.gyro_bias)
@@ -350,7 +355,7 @@ class VioEstimator:
         self.frontend.mark_keyframe(frame)
         self._initialized = True
         self._init_frames = []
-        self._prop = self._span(self.window.newest, self._imu_t[-1])
+        self._run_from(self.window.newest)
         if self._failures:
             self._reset_counter += 1
             detail = f"{how} (reset {self._reset_counter})"
@@ -380,6 +385,7 @@ class VioEstimator:
         dec = self.frontend.decide(frame)
         if not dec.keyframe:
             return None
+        frame = self._with_stereo(frame)
         self.frontend.mark_keyframe(frame)
         need = self._init_keyframes()
         self._init_frames = (self._init_frames + [frame])[-need:]
@@ -391,8 +397,7 @@ class VioEstimator:
         frames = tuple(self._init_frames)
         try:
             pims = tuple(
-                preintegrate(self._params, self._imu, a.t_ns, b.t_ns)
-                for a, b in itertools.pairwise(frames)
+                self.imu.span(a.t_ns, b.t_ns, zero_bias()) for a, b in itertools.pairwise(frames)
             )
         except VioError:
             return None
@@ -450,12 +455,15 @@ class VioEstimator:
     # -- tracking ---------------------------------------------------------------------------
     def _span(self, kf: Keyframe, t1_ns: int) -> gtsam.PreintegratedCombinedMeasurements:
         """The IMU from keyframe ``kf`` to ``t1_ns`` with its bias (empty for no span)."""
-        if t1_ns <= kf.t_ns:
-            return gtsam.PreintegratedCombinedMeasurements(self._params, kf.bias)
-        i = max(bisect.bisect_right(self._imu_t, kf.t_ns) - 1, 0)
-        # an image the time offset moves ahead of the newest IMU: its last sample holds
-        hold = max(s_to_ns(self._td_s), 0) + (2_000_000 if self._td is not None else 0)
-        return preintegrate(self._params, self._imu[i:], kf.t_ns, t1_ns, kf.bias, hold_ns=hold)
+        return self.imu.span(kf.t_ns, t1_ns, kf.bias, hold_ns=self._hold_ns())
+
+    def _hold_ns(self) -> int:
+        """An image the time offset moves ahead of the newest IMU: its last sample holds."""
+        return max(s_to_ns(self._td_s), 0) + (2_000_000 if self._td is not None else 0)
+
+    def _run_from(self, kf: Keyframe) -> None:
+        """The state between frames: the newest keyframe propagated at the IMU's rate."""
+        self.imu.run_from(kf.t_ns, kf.bias, hold_ns=self._hold_ns())
 
     def _predicted_state(
         self,
@@ -468,13 +476,9 @@ class VioEstimator:
         """The newest keyframe carried to ``t_ns`` by ``pim``; its covariance grown by the
         preintegration's (rotation, position; velocity in the world)."""
         kf = self.window.newest
-        nav = pim.predict(gtsam.NavState(kf.pose, kf.velocity), kf.bias)
-        Q = np.asarray(pim.preintMeasCov())
-        R = nav.pose().rotation().matrix()
-        cov_pose = self._cov_pose + Q[0:6, 0:6]
-        cov_v = self._cov_v + R @ Q[6:9, 6:9] @ R.T
+        pr = ImuPropagator.predict(kf.pose, kf.velocity, kf.bias, pim, self._cov_pose, self._cov_v)
         return self._state(
-            t_ns, nav.pose(), nav.velocity(), kf.bias, cov_pose, cov_v, status, False, tracked
+            t_ns, pr.pose, pr.velocity, kf.bias, pr.cov_pose, pr.cov_v, status, False, tracked
         )
 
     def _state(
@@ -527,7 +531,7 @@ class VioEstimator:
     def _still_since(self, kf: Keyframe, frame: FrameFeatures) -> bool:
         """At rest from keyframe ``kf`` to this frame: a quiet IMU and features that stood."""
         cfg = self.config
-        st = imu_stillness(self._imu, kf.t_ns, frame.t_ns, cfg.static_lowpass_s)
+        st = imu_stillness(self.imu.samples, kf.t_ns, frame.t_ns, cfg.static_lowpass_s)
         span = (frame.t_ns - kf.t_ns) * 1e-9
         if not is_still(st, cfg, span):
             return False
@@ -558,6 +562,7 @@ class VioEstimator:
         self, frame: FrameFeatures, prev: Keyframe, pim: gtsam.PreintegratedCombinedMeasurements
     ) -> OdometryState | None:
         cfg = self.config
+        frame = self._with_stereo(frame)
         nav = pim.predict(gtsam.NavState(prev.pose, prev.velocity), prev.bias)
         bias0 = prev.bias
         still = self._still_since(prev, frame)
@@ -587,7 +592,7 @@ class VioEstimator:
             return self._fail(frame.t_ns, reason)
         self._cov_pose, self._cov_v = res.cov_pose, res.cov_v
         self._retire()
-        self._prop = self._span(new, self._imu_t[-1])
+        self._run_from(new)
         self._feed_time_offset(prev, new)
         self._prune_imu()
         return self._keyframe_state(frame)
@@ -677,15 +682,13 @@ class VioEstimator:
 
     def _prune_imu(self) -> None:
         """Keep the IMU the window and a static start may still need."""
-        if not self._imu_t:
+        last = self.imu.last_t_ns
+        if last is None:
             return
-        keep_ns = self._imu_t[-1] - s_to_ns(self.config.static_window_s + 0.5)
+        keep_ns = last - s_to_ns(self.config.static_window_s + 0.5)
         if self.window.keyframes:
             keep_ns = min(keep_ns, self.window.keyframes[0].t_ns)
-        i = max(bisect.bisect_right(self._imu_t, keep_ns) - 2, 0)
-        if i > 1000:
-            del self._imu[:i]
-            del self._imu_t[:i]
+        self.imu.prune(keep_ns)
 
     def _fail(self, t_ns: int, reason: str) -> OdometryState | None:
         """A failure: reported, the window reset; the next frames re-initialise."""
@@ -701,5 +704,5 @@ class VioEstimator:
         self._recent.clear()
         self._init_frames = []
         self._initialized = False
-        self._prop = None
+        self.imu.stop()
         return None

@@ -1,0 +1,306 @@
+"""The landmark life cycle of the sliding window (thesis 003 §3.3), without a solver: which
+tracks enter as landmarks and with which point, which observations are new for the graph, which
+landmarks go bad, and what happens to a landmark when its first keyframe is marginalised.
+
+A track enters once seen in ``landmark_min_observations`` keyframes (or two with enough
+parallax), triangulated (DLT) from the current estimates, only with a positive depth in every
+view, a sane range and a small reprojection error; with a stereo rig a pair of views near enough
+(``stereo_max_depth_baselines``) is enough. A landmark is anchored in its first keyframe and
+leaves with it, as VINS-Mono marginalises the features anchored in its oldest frame. A track
+still seen goes on as a new landmark once the observations the marginal prior does not hold yet
+would make one: the old estimate is its starting value only (a prior from it would count those
+observations twice and, fixed in the world, tie the window's position and yaw, which the data
+cannot observe). After each solve, the landmarks behind a camera or far from their pixels are
+marked bad for good: the graph drops their projections.
+
+Everything here works on 3x4 camera matrices ``[R_C_W | t_C_W]`` of the window's keyframes and
+on the :class:`~quadnav.vio.frontend.FeatureManager`'s tracks; :mod:`quadnav.vio.window` turns
+what it decides into factors.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from quadnav.geometry.multiview import reprojection_errors, triangulate_track
+from quadnav.vio.config import VioConfig
+from quadnav.vio.frontend import FeatureManager
+
+__all__ = ["Admission", "LandmarkBook", "NewLandmark", "Observation"]
+
+FloatArray = NDArray[np.float64]
+Cameras = dict[int, FloatArray]  # keyframe index -> 3x4 [R_C_W | t_C_W]
+
+
+@dataclass(frozen=True, slots=True)
+class NewLandmark:
+    """A track that enters: its landmark's key number, first point (``W``) and the keyframe it
+    is anchored in (the first of its views the marginal prior does not hold)."""
+
+    track: int
+    key: int
+    point_W: FloatArray
+    anchor: int
+
+
+@dataclass(frozen=True, slots=True)
+class Observation:
+    """A projection factor to add: landmark key number, keyframe, normalised point, camera
+    (0 the window's camera, 1 a stereo rig's second)."""
+
+    key: int
+    keyframe: int
+    xy: FloatArray
+    side: int
+
+
+@dataclass(slots=True)
+class Admission:
+    """What a solve adds: new landmarks and the new observations of every landmark."""
+
+    new: list[NewLandmark] = field(default_factory=list)
+    observations: list[Observation] = field(default_factory=list)
+
+
+def camera_centres(P: Cameras) -> dict[int, FloatArray]:
+    """Each camera's centre in ``W`` from its ``[R_C_W | t_C_W]``."""
+    return {k: -Pk[:, :3].T @ Pk[:, 3] for k, Pk in P.items()}
+
+
+def _bearing_angle(obs: dict[int, FloatArray], P: Cameras) -> float:
+    """The angle (rad) between the world bearings of a track's first and last observations."""
+    k0, k1 = min(obs), max(obs)
+    b0 = P[k0][:, :3].T @ np.array([obs[k0][0], obs[k0][1], 1.0])
+    b1 = P[k1][:, :3].T @ np.array([obs[k1][0], obs[k1][1], 1.0])
+    c = float(b0 @ b1) / float(np.linalg.norm(b0) * np.linalg.norm(b1))
+    return float(np.arccos(min(1.0, max(-1.0, c))))
+
+
+class LandmarkBook:
+    """The window's landmarks and what it knows of each track (see the module)."""
+
+    def __init__(self, config: VioConfig, focal_px: float, baseline_m: float = 0.0) -> None:
+        self.config = config
+        self.focal_px = float(focal_px)
+        self.baseline_m = float(baseline_m)
+        self.landmarks: dict[int, FloatArray] = {}
+        self.bad_tracks: set[int] = set()
+        self._seed: dict[int, FloatArray] = {}  # starting points (an initialisation's, a
+        # marginalised landmark's last estimate)
+        self._next_key = 0
+        self.clear()
+
+    def clear(self) -> None:
+        """A new window: no landmarks, nothing in a prior (seeds stay: an initialisation's)."""
+        self.landmarks = {}
+        self._seen: dict[int, set[int]] = {}  # track -> keyframes with its factor in
+        self._seen_r: dict[int, set[int]] = {}  # the same in the second camera
+        self._key: dict[int, int] = {}  # track -> the number of its landmark's key
+        self._used: dict[int, set[int]] = {}  # track -> keyframes already in the prior
+        self._used_r: dict[int, set[int]] = {}  # the same in the second camera
+
+    def seed(self, points_W: dict[int, FloatArray]) -> None:
+        """Points (an initialisation's) to start tracks from instead of triangulating them."""
+        self._seed.update({int(j): np.asarray(p, np.float64) for j, p in points_W.items()})
+
+    def key(self, track: int) -> int:
+        """The key number of a track's landmark (a landmark in the window)."""
+        return self._key[track]
+
+    @property
+    def sizes(self) -> dict[str, int]:
+        """What is kept per track: every book must stay bounded on a long run."""
+        return {
+            "landmarks": len(self.landmarks), "seed": len(self._seed), "used": len(self._used),
+            "bad": len(self.bad_tracks),
+        }  # fmt: skip
+
+    def position(self, track: int) -> FloatArray | None:
+        """Where the window puts a track's landmark (in ``W``): its estimate, or the last one
+        it had when its first keyframe was marginalised; None if it has none (or a bad one)."""
+        if track in self.bad_tracks:
+            return None
+        p = self.landmarks.get(track)
+        return p if p is not None else self._seed.get(track)
+
+    # -- admission --------------------------------------------------------------------------
+    def admit(self, features: FeatureManager, P: Cameras, PR: Cameras) -> Admission:
+        """New landmarks, and the observations of landmarks not in the graph yet, given the
+        window's camera matrices (``PR``: the second camera's, empty for mono)."""
+        out = Admission()
+        centres = camera_centres(P)
+        for j, obs_all in features.tracks.items():
+            if j in self.bad_tracks:
+                continue
+            obs = {k: xy for k, xy in obs_all.items() if k in P}
+            robs = {k: xy for k, xy in features.right.get(j, {}).items() if k in PR}
+            if j not in self.landmarks:
+                new = self._enter(j, obs, robs, P, PR, centres)
+                if new is None:
+                    continue
+                out.new.append(new)
+            key, seen = self._key[j], self._seen[j]
+            for k, xy in obs.items():
+                if k not in seen:
+                    out.observations.append(Observation(key, k, xy, 0))
+                    seen.add(k)
+            seen_r = self._seen_r.setdefault(j, set())
+            for k, xy in robs.items():
+                if k not in seen_r:
+                    out.observations.append(Observation(key, k, xy, 1))
+                    seen_r.add(k)
+        return out
+
+    def _enter(
+        self,
+        j: int,
+        obs: dict[int, FloatArray],
+        robs: dict[int, FloatArray],
+        P: Cameras,
+        PR: Cameras,
+        centres: dict[int, FloatArray],
+    ) -> NewLandmark | None:
+        """A track's landmark if it may enter (from the views the prior does not hold: a track
+        whose landmark was marginalised enters again as a new track would, no prior from the old
+        estimate)."""
+        used, used_r = self._used.get(j, set()), self._used_r.get(j, set())
+        fresh = {k: xy for k, xy in obs.items() if k not in used}
+        rfresh = {k: xy for k, xy in robs.items() if k not in used_r}
+        mono = len(fresh) >= 2 and (not used or self._enough_parallax(fresh, P))
+        if not mono and not rfresh:
+            return None
+        p = self._seed.get(j)
+        if p is None or not fresh or not self._landmark_ok(p, fresh, P):
+            p = self._triangulated(fresh, P, centres) if mono else None
+        if p is None and rfresh:
+            p = self._stereo_point(fresh, rfresh, P, PR)
+        if p is None:
+            return None
+        self._seed.pop(j, None)
+        self.landmarks[j] = p
+        self._seen[j] = set(used)  # already in the prior: not again
+        self._seen_r[j] = set(used_r)
+        self._key[j] = self._next_key
+        self._next_key += 1
+        return NewLandmark(track=j, key=self._key[j], point_W=p, anchor=min(fresh))
+
+    def _parallax_needed(self, views: int) -> float:
+        """The angle (rad) between a track's first and last views it needs to enter."""
+        cfg = self.config
+        px = 3.0 if views >= cfg.landmark_min_observations else cfg.landmark_min_parallax_px
+        return px / cfg.parallax_focal_px
+
+    def _enough_parallax(self, obs: dict[int, FloatArray], P: Cameras) -> bool:
+        return len(obs) >= 2 and _bearing_angle(obs, P) >= self._parallax_needed(len(obs))
+
+    def _triangulated(
+        self, obs: dict[int, FloatArray], P: Cameras, centres: dict[int, FloatArray]
+    ) -> FloatArray | None:
+        """A track's point if it may enter: enough views or parallax, in front, near its pixels."""
+        if not self._enough_parallax(obs, P):  # not worth a triangulation
+            return None
+        need = self._parallax_needed(len(obs))
+        p = triangulate_track(obs, P)
+        if p is None or not np.isfinite(p).all():
+            return None
+        rays = [p - centres[k] for k in obs]
+        norms = [float(np.linalg.norm(r)) for r in rays]
+        if min(norms) < 1e-9:
+            return None
+        cosang = min(
+            float(rays[0] @ r) / (norms[0] * n) for r, n in zip(rays[1:], norms[1:], strict=True)
+        )
+        if float(np.arccos(np.clip(cosang, -1.0, 1.0))) < need:
+            return None
+        return p if self._landmark_ok(p, obs, P) else None
+
+    def _landmark_ok(self, p: FloatArray, obs: dict[int, FloatArray], P: Cameras) -> bool:
+        """In front of every camera at a sane range and near every pixel it was seen at."""
+        cfg = self.config
+        Ps = np.array([P[k] for k in obs])
+        err, z = reprojection_errors(Ps, p, np.array(list(obs.values())))
+        if not (np.all(z >= cfg.landmark_min_depth_m) and np.all(z <= cfg.landmark_max_depth_m)):
+            return False
+        return bool(np.all(err * self.focal_px <= cfg.max_reprojection_px))
+
+    def _stereo_point(
+        self, obs: dict[int, FloatArray], robs: dict[int, FloatArray], P: Cameras, PR: Cameras
+    ) -> FloatArray | None:
+        """A track's point from its views in both cameras (a stereo pair is enough), if it is
+        within ``stereo_max_depth_baselines`` of a camera that sees it in stereo, in front of
+        every view and near every pixel."""
+        cfg = self.config
+        views: dict[tuple[int, int], FloatArray] = {(k, 0): xy for k, xy in obs.items()}
+        views.update({(k, 1): xy for k, xy in robs.items()})
+        Pv = {(k, 0): P[k] for k in obs} | {(k, 1): PR[k] for k in robs}
+        p = triangulate_track(views, Pv)
+        if p is None:
+            return None
+        err, z = reprojection_errors(
+            np.array([Pv[v] for v in views]), p, np.array(list(views.values()))
+        )
+        far = min(cfg.landmark_max_depth_m, cfg.stereo_max_depth_baselines * self.baseline_m)
+        near_pair = any(
+            zz <= far for (k, c), zz in zip(views, z, strict=True) if c == 1 and (k, 0) in views
+        )
+        if not near_pair or not np.all(z >= cfg.landmark_min_depth_m):
+            return None
+        return p if bool(np.all(err * self.focal_px <= cfg.max_reprojection_px)) else None
+
+    # -- after a solve ----------------------------------------------------------------------
+    def read_back(
+        self, estimate: Callable[[int], FloatArray | None], features: FeatureManager
+    ) -> None:
+        """The solved points in (``estimate(key)``, None once marginalised); a landmark
+        marginalised with its first keyframe goes on as a track to enter again, from the
+        observations the prior does not hold yet; ended tracks leave every book."""
+        for j in list(self.landmarks):
+            p = estimate(self._key[j])
+            if p is not None:
+                self.landmarks[j] = p
+                continue
+            self._seed[j] = self.landmarks.pop(j)
+            self._used[j] = self._seen.pop(j)
+            self._used_r[j] = self._seen_r.pop(j, set())
+            del self._key[j]
+        for j in [j for j in self._used if j not in features.tracks]:
+            del self._used[j]
+            self._used_r.pop(j, None)
+            self._seed.pop(j, None)
+        self.bad_tracks.intersection_update(features.tracks)  # an ended track's verdict goes
+
+    def mark_bad(self, features: FeatureManager, P: Cameras, PR: Cameras) -> set[int]:
+        """The landmarks behind or too near or far from a camera, or too far from a pixel, in
+        the views they have projection factors in (either camera), marked bad for good: the
+        key numbers whose projections the graph must drop."""
+        cfg = self.config
+        owner, cams, meas = [], [], []
+        for j in self.landmarks:
+            if j in self.bad_tracks:
+                continue
+            used, used_r = self._used.get(j, ()), self._used_r.get(j, ())  # held by the prior
+            for book, views, held in (
+                (features.observations(j), P, used),
+                (features.right.get(j, {}), PR, used_r),
+            ):
+                for k, xy in book.items():
+                    if k in views and k not in held:
+                        owner.append(j)
+                        cams.append(views[k])
+                        meas.append(xy)
+        if not owner:
+            return set()
+        pts = np.array([self.landmarks[j] for j in owner])
+        e, z = reprojection_errors(np.array(cams), pts, np.array(meas))
+        wrong = ~(
+            (z >= cfg.landmark_min_depth_m)
+            & (z <= cfg.landmark_max_depth_m)
+            & (e * self.focal_px <= cfg.max_reprojection_px)
+        )
+        bad = {owner[i] for i in np.flatnonzero(wrong)}
+        self.bad_tracks.update(bad)
+        return {self._key[j] for j in bad}
