@@ -137,7 +137,9 @@ class KeyframeRecord:
     (undistorted normalised coordinates) and ``descriptors`` (``(N, 32)`` uint8 ORB/BRIEF, or
     None when the odometry describes none; a keypoint it could not describe has a row of
     zeros and ``described`` False). The landmarks it sees: ``landmark_ids`` (track ids, a subset
-    of ``ids``) and their positions ``landmarks_W`` in the odometry's world."""
+    of ``ids``) and their positions ``landmarks_W`` in the odometry's world. ``T_B_C``: the
+    camera's extrinsic as the odometry had it (refined online, it differs from the rig's
+    stated one; None: the rig's)."""
 
     index: int
     t_ns: int
@@ -153,6 +155,7 @@ class KeyframeRecord:
     described: NDArray[np.bool_] | None = None
     landmark_ids: IntArray = field(default_factory=lambda: np.zeros(0, np.int64))
     landmarks_W: FloatArray = field(default_factory=lambda: np.zeros((0, 3)))
+    T_B_C: Pose | None = None
 
     def __post_init__(self) -> None:
         ids = _rows(self.ids, None, np.int64, "ids")

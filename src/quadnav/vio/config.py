@@ -133,6 +133,39 @@ class VioConfig(ConfigModel):
     imu_walk_scale: float = Field(
         1.0, ge=0.01, le=100.0, description="multiplies the rig's stated IMU bias random walks"
     )
+    estimate_extrinsic: bool = Field(
+        True,
+        description="refine the camera-IMU extrinsic online around the stated one (VINS' "
+        "estimate_extrinsic 1): a calibration a few tenths of a degree off costs decimetres",
+    )
+    extrinsic_sigma_deg: float = Field(
+        1.0, gt=0.0, le=30.0, description="how far the stated extrinsic's rotation may be off"
+    )
+    extrinsic_sigma_m: float = Field(
+        0.02, gt=0.0, le=1.0, description="how far the stated extrinsic's translation may be off"
+    )
+    estimate_intrinsics: bool = Field(
+        False,
+        description="refine each camera's focal lengths and principal point online (a focal "
+        "length 1 % off bends every bearing); off by default: on realistic data it helped one "
+        "sequence and hurt another (docs/results/2026-12-02-issue22-part2.md)",
+    )
+    intrinsics_focal_sigma: float = Field(
+        0.01, gt=0.0, le=0.5, description="how far a stated focal length may be off, relative"
+    )
+    intrinsics_principal_sigma_px: float = Field(
+        3.0, gt=0.0, le=100.0, description="how far a stated principal point may be off (px)"
+    )
+    stereo_extrinsic_sigma_deg: float = Field(
+        0.1,
+        gt=0.0,
+        le=10.0,
+        description="stereo: how far the stated camera-to-camera rotation "
+        "may be off (the pair moves with the estimated extrinsic)",
+    )
+    stereo_extrinsic_sigma_m: float = Field(
+        0.001, gt=0.0, le=0.1, description="stereo: the same for the baseline vector"
+    )
     stereo: bool = Field(
         False, description="use the rig's second camera: depth at once and stereo factors"
     )

@@ -678,6 +678,7 @@ class VioEstimator:
             xy=f.xy, descriptors=info.descriptors, described=info.described,
             landmark_ids=np.array([j for j, _ in seen], np.int64),
             landmarks_W=np.array([p for _, p in seen], np.float64).reshape(-1, 3),
+            T_B_C=self.window.extrinsic,
         )  # fmt: skip
 
     def _prune_imu(self) -> None:

@@ -79,11 +79,16 @@ class WindowGraph:
     def insert(
         self,
         key: int,
-        value: gtsam.Pose3 | gtsam.imuBias.ConstantBias | FloatArray,
+        value: gtsam.Pose3 | gtsam.imuBias.ConstantBias | gtsam.Cal3_S2 | FloatArray,
         stamp: float,
     ) -> None:
         """A new variable with its starting value, stamped (it leaves the lag with it)."""
         self._values.insert(key, value)
+        self._stamps[key] = float(stamp)
+
+    def restamp(self, key: int, stamp: float) -> None:
+        """A variable already in the graph made as new as ``stamp`` (one that must never leave
+        the lag, such as a calibration, is restamped with each new keyframe)."""
         self._stamps[key] = float(stamp)
 
     def add(self, factor: gtsam.NonlinearFactor) -> None:

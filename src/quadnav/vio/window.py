@@ -30,13 +30,15 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import gtsam
+import gtsam_unstable
 import numpy as np
-from gtsam.symbol_shorthand import B, L, V, X
+from gtsam.symbol_shorthand import B, C, L, V, X
+from gtsam.symbol_shorthand import K as Kc
 from numpy.typing import NDArray
 
 from quadnav.errors import VioError
 from quadnav.geometry import Pose
-from quadnav.geometry.gtsam_bridge import pose3
+from quadnav.geometry.gtsam_bridge import pose3, to_pose
 from quadnav.vio.config import VioConfig
 from quadnav.vio.frontend import FeatureManager
 from quadnav.vio.graph import GTSAM_ERRORS, WindowGraph
@@ -105,6 +107,17 @@ class SolveResult:
     error: float = 0.0
 
 
+#: the projection factors: with a fixed extrinsic (``body_P_sensor``) or with the extrinsic a
+#: variable ``C(0)`` (``C(1)`` the second camera's) of the window
+PROJECTIONS = (
+    gtsam.GenericProjectionFactorCal3_S2,
+    gtsam_unstable.ProjectionFactorPPPCal3_S2,
+    gtsam_unstable.ProjectionFactorPPPCCal3_S2,
+)
+#: the stated extrinsic's prior when only the intrinsics are refined online (held, not refined)
+HELD_SIGMA = 1e-4
+
+
 def _camera_poses(kfs: dict[int, gtsam.Pose3], T_B_C: gtsam.Pose3) -> dict[int, FloatArray]:
     """The 3x4 ``[R_C_W | t_C_W]`` of each keyframe's camera."""
     return {k: T_W_B.compose(T_B_C).inverse().matrix()[:3, :] for k, T_W_B in kfs.items()}
@@ -117,9 +130,16 @@ class SlidingWindow:
         self, config: VioConfig, T_B_C: Pose, focal_px: float, T_B_R: Pose | None = None
     ) -> None:
         self.config = config
+        #: the camera-IMU extrinsic: as stated, then as estimated online
+        #: (``estimate_extrinsic``), kept from one window to the next
         self.T_B_C = pose3(T_B_C)
         #: a stereo rig's second camera: its observations are projection factors too
         self.T_B_R = None if T_B_R is None else pose3(T_B_R)
+        self._T_L_R = None if self.T_B_R is None else self.T_B_C.between(self.T_B_R)
+        #: each camera's intrinsics correction on the normalised coordinates its stated
+        #: intrinsics give (identity: as stated; refined online with ``estimate_intrinsics``)
+        self.K_fix = [gtsam.Cal3_S2(1.0, 1.0, 0.0, 0.0, 0.0) for _ in range(2)]
+        self._online = config.estimate_extrinsic or config.estimate_intrinsics
         baseline = 0.0 if T_B_R is None else float(np.linalg.norm((T_B_C.inverse() @ T_B_R).p_A_B))
         self.focal_px = float(focal_px)
         self.K = gtsam.Cal3_S2(1.0, 1.0, 0.0, 0.0, 0.0)
@@ -154,6 +174,12 @@ class SlidingWindow:
         :meth:`LandmarkBook.position`)."""
         return self.book.position(track)
 
+    @property
+    def extrinsic(self) -> Pose:
+        """The camera's ``T_B_C`` as the window has it (the stated one, refined online with
+        ``estimate_extrinsic``)."""
+        return to_pose(self.T_B_C)
+
     def add_hook(self, hook: FactorHook) -> None:
         """Call ``hook`` for each keyframe entering the window (the first included) and add
         the factors it returns (a GPS fix, a loop-closure prior)."""
@@ -172,7 +198,37 @@ class SlidingWindow:
             gtsam.PriorFactorVector(v, kf.velocity, gauss(prior.cov_v)),
             gtsam.PriorFactorConstantBias(b, kf.bias, gauss(prior.cov_bias)),
         ])  # fmt: skip
+        if self._online:
+            self._start_calibration()
         self._insert_state(kf)
+
+    def _cameras_used(self) -> range:
+        return range(1 if self.T_B_R is None else 2)
+
+    def _start_calibration(self) -> None:
+        """The extrinsic as a variable: a prior around the window's value (the stated one,
+        or the last window's estimate), and a stereo pair's second camera tied to the first by
+        the stated camera-to-camera pose; each camera's intrinsics correction likewise."""
+        assert self.graph is not None
+        cfg = self.config
+        diag = gtsam.noiseModel.Diagonal.Sigmas
+        sig = np.array([np.radians(cfg.extrinsic_sigma_deg)] * 3 + [cfg.extrinsic_sigma_m] * 3)
+        if not cfg.estimate_extrinsic:
+            sig = np.full(6, HELD_SIGMA)
+        for n in self._cameras_used() if cfg.estimate_intrinsics else ():
+            self.graph.insert(Kc(n), self.K_fix[n], 0.0)
+            f, c = cfg.intrinsics_focal_sigma, cfg.intrinsics_principal_sigma_px / self.focal_px
+            k_sig = np.array([f, f, HELD_SIGMA, c, c])  # (no skew)
+            self.graph.add(gtsam.PriorFactorCal3_S2(Kc(n), self.K_fix[n], diag(k_sig)))
+        self.graph.insert(C(0), self.T_B_C, 0.0)
+        self.graph.add(gtsam.PriorFactorPose3(C(0), self.T_B_C, diag(sig)))
+        if self.T_B_R is not None and self._T_L_R is not None:
+            pair = np.array(
+                [np.radians(cfg.stereo_extrinsic_sigma_deg)] * 3
+                + [cfg.stereo_extrinsic_sigma_m] * 3
+            )
+            self.graph.insert(C(1), self.T_B_C.compose(self._T_L_R), 0.0)
+            self.graph.add(gtsam.BetweenFactorPose3(C(0), C(1), self._T_L_R, diag(pair)))
 
     def seed_landmarks(self, points_W: dict[int, FloatArray]) -> None:
         """Points (an initialisation's) to start tracks from instead of triangulating them."""
@@ -183,6 +239,11 @@ class SlidingWindow:
         x, v, b = state_keys(kf.index)
         for key, value in ((x, kf.pose), (v, kf.velocity), (b, kf.bias)):
             self.graph.insert(key, value, kf.index)
+        if self._online:  # never marginalised: always as new as the newest
+            for n in self._cameras_used():
+                self.graph.restamp(C(n), kf.index)
+                if self.config.estimate_intrinsics:
+                    self.graph.restamp(Kc(n), kf.index)
         for hook in self._hooks:
             self.graph.add_all(hook(kf))
 
@@ -229,13 +290,23 @@ class SlidingWindow:
                     self._landmark_prior,
                 )
             )  # fmt: skip
+        online = self._online
         for ob in adm.observations:
-            T = self.T_B_R if ob.side == 1 and self.T_B_R is not None else self.T_B_C
-            self.graph.add(
-                gtsam.GenericProjectionFactorCal3_S2(
-                    ob.xy, self._pixel_noise, X(ob.keyframe), L(ob.key), self.K, T
+            side = 1 if ob.side == 1 and self.T_B_R is not None else 0
+            x, lm = X(ob.keyframe), L(ob.key)
+            f: gtsam.NonlinearFactor
+            if online and self.config.estimate_intrinsics:
+                f = gtsam_unstable.ProjectionFactorPPPCCal3_S2(
+                    ob.xy, self._pixel_noise, x, C(side), lm, Kc(side)
                 )
-            )
+            elif online:
+                f = gtsam_unstable.ProjectionFactorPPPCal3_S2(
+                    ob.xy, self._pixel_noise, x, C(side), lm, self.K
+                )
+            else:
+                T = self.T_B_R if side == 1 and self.T_B_R is not None else self.T_B_C
+                f = gtsam.GenericProjectionFactorCal3_S2(ob.xy, self._pixel_noise, x, lm, self.K, T)
+            self.graph.add(f)
         return len(adm.new)
 
     # -- solving ----------------------------------------------------------------------------
@@ -251,6 +322,13 @@ class SlidingWindow:
             kf.pose = est.atPose3(X(kf.index))
             kf.velocity = np.asarray(est.atVector(V(kf.index)), np.float64)
             kf.bias = est.atConstantBias(B(kf.index))
+        if est.exists(C(0)):
+            self.T_B_C = est.atPose3(C(0))
+        if est.exists(C(1)):
+            self.T_B_R = est.atPose3(C(1))
+        for n in self._cameras_used():
+            if est.exists(Kc(n)):
+                self.K_fix[n] = est.atCal3_S2(Kc(n))
 
         def point(n: int) -> FloatArray | None:
             key = L(n)
@@ -261,11 +339,7 @@ class SlidingWindow:
         if bad:
             keys = {L(n) for n in bad}
             self.graph.remove_where(
-                lambda f: (
-                    not (
-                        isinstance(f, gtsam.GenericProjectionFactorCal3_S2) and f.keys()[1] in keys
-                    )
-                )
+                lambda f: not (isinstance(f, PROJECTIONS) and not keys.isdisjoint(f.keys()))
             )
         return len(bad)
 
