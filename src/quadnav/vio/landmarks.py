@@ -102,6 +102,7 @@ class LandmarkBook:
         self._key: dict[int, int] = {}  # track -> the number of its landmark's key
         self._used: dict[int, set[int]] = {}  # track -> keyframes already in the prior
         self._used_r: dict[int, set[int]] = {}  # the same in the second camera
+        self._tried: dict[int, tuple[int, ...]] = {}  # track -> its views when it last failed
 
     def seed(self, points_W: dict[int, FloatArray]) -> None:
         """Points (an initialisation's) to start tracks from instead of triangulating them."""
@@ -116,7 +117,7 @@ class LandmarkBook:
         """What is kept per track: every book must stay bounded on a long run."""
         return {
             "landmarks": len(self.landmarks), "seed": len(self._seed), "used": len(self._used),
-            "bad": len(self.bad_tracks),
+            "bad": len(self.bad_tracks), "tried": len(self._tried),
         }  # fmt: skip
 
     def position(self, track: int) -> FloatArray | None:
@@ -133,15 +134,22 @@ class LandmarkBook:
         window's camera matrices (``PR``: the second camera's, empty for mono)."""
         out = Admission()
         centres = camera_centres(P)
+        right = features.right
         for j, obs_all in features.tracks.items():
             if j in self.bad_tracks:
                 continue
+            r = right.get(j, {})
+            views = (max(obs_all, default=-1), len(obs_all), max(r, default=-1), len(r))
+            if j not in self.landmarks and self._tried.get(j) == views:
+                continue  # it could not enter with these views: it waits for another
             obs = {k: xy for k, xy in obs_all.items() if k in P}
-            robs = {k: xy for k, xy in features.right.get(j, {}).items() if k in PR}
+            robs = {k: xy for k, xy in r.items() if k in PR}
             if j not in self.landmarks:
                 new = self._enter(j, obs, robs, P, PR, centres)
                 if new is None:
+                    self._tried[j] = views
                     continue
+                self._tried.pop(j, None)
                 out.new.append(new)
             key, seen = self._key[j], self._seen[j]
             for k, xy in obs.items():
@@ -272,6 +280,8 @@ class LandmarkBook:
             self._used_r.pop(j, None)
             self._seed.pop(j, None)
         self.bad_tracks.intersection_update(features.tracks)  # an ended track's verdict goes
+        for j in [j for j in self._tried if j not in features.tracks]:
+            del self._tried[j]
 
     def mark_bad(self, features: FeatureManager, P: Cameras, PR: Cameras) -> set[int]:
         """The landmarks behind or too near or far from a camera, or too far from a pixel, in
