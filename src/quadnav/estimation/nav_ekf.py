@@ -11,7 +11,9 @@ same semi-implicit step as the planar filter::
     R' = R Exp(w dt);  v' = v + dt (R' f + g_W);  p' = p + dt v'
 
 Observations: world position, external pose (position and yaw), external odometry (PX4's
-``ODOMETRY`` from a VIO: position, world velocity and yaw with the message's covariance),
+``ODOMETRY`` from a VIO: position, world velocity and yaw with the message's covariance; with
+``odometry_mode="relative"`` the odometry frame's drift, position and yaw, is four random-walk
+states beside the 15, so a drifting odometry's motion is taken and its drift not averaged),
 height, range, heading, velocity, optical flow (PX4's model,
 :mod:`quadnav.estimation.flow_model`). Each update is gated
 with a chi-square test on its innovation, applied in Joseph form and injected into the nominal
