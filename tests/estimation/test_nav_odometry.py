@@ -272,7 +272,8 @@ def test_odometry_settings_are_validated_by_name() -> None:
         NavEkfConfig(odometry_mode="relative", vision_frame="rotate")
 
 
-DRIFT_M_SQRT_S = 0.02  # the drifting odometry's frame: a random walk of its origin
+# The drifting odometry's frame: random walks of its origin and its yaw
+DRIFT_M_SQRT_S, DRIFT_YAW_RAD_SQRT_S = 0.02, 0.004
 
 
 def _error_state(ekf: NavEkf, motion: SplineMotion, imu: object, t_ns: int) -> np.ndarray:
@@ -285,10 +286,11 @@ def _error_state(ekf: NavEkf, motion: SplineMotion, imu: object, t_ns: int) -> n
     return np.concatenate([dth, v - ekf.v, p[0] - ekf.p, bg - ekf.bg, ba - ekf.ba])
 
 
-def drifting_nees(seed: int, mode: str, *, seconds: float = 12.0) -> float:
-    """The mean NEES (15 states) of the filter fed an odometry whose frame drifts as a random
-    walk of ``DRIFT_M_SQRT_S`` (a VIO's position is unobservable to it) and whose message
-    states only its white noise, as a VIO's does; sampled each odometry period after 2 s."""
+def drifting_nees(seed: int, mode: str, *, seconds: float = 10.0) -> float:
+    """The mean NEES (15 states) of the filter fed an odometry whose frame drifts, its origin
+    and its yaw as random walks (a VIO's position and yaw are unobservable to it), and whose
+    message states only its white noise, as a VIO's does; sampled each odometry period after
+    2 s."""
     rng = np.random.default_rng(100 + seed)
     motion = _motion(seconds)
     series = synthesize_imu(motion, rate_hz=RATE_HZ, noise=NOISE, rng=rng)
@@ -300,6 +302,7 @@ def drifting_nees(seed: int, mode: str, *, seconds: float = 12.0) -> float:
         accel_bias_rw_m_s2_sqrt_s=NOISE.accel_random_walk * 3,
         odometry_mode=mode,
         odometry_drift_m_sqrt_s=DRIFT_M_SQRT_S,
+        odometry_drift_yaw_rad_sqrt_s=DRIFT_YAW_RAD_SQRT_S,
     )
     P0 = np.diag([0.02**2] * 3 + [0.05**2] * 6 + [1e-3**2] * 3 + [0.02**2] * 3)
     ekf = NavEkf(cfg, p0=p0[0], v0=motion.velocity(np.array([t0]))[0], q0_xyzw=q0[0], P0=P0)
@@ -307,12 +310,13 @@ def drifting_nees(seed: int, mode: str, *, seconds: float = 12.0) -> float:
         ekf, HorizonConfig(imu_period_ns=4_000_000, max_delay_ns=100_000_000), t0_ns=t0
     )
     pending: list[tuple[int, Sample]] = []
-    drift, nees = np.zeros(3), []
+    drift, nees = np.zeros(4), []
+    step = np.array([DRIFT_M_SQRT_S] * 3 + [DRIFT_YAW_RAD_SQRT_S]) * math.sqrt(ODO_PERIOD_NS * 1e-9)
     for s in imu[1:]:
         if (s.t_ns - t0) % ODO_PERIOD_NS == 0:
-            drift += rng.normal(0, DRIFT_M_SQRT_S * math.sqrt(ODO_PERIOD_NS * 1e-9), 3)
+            drift += rng.normal(0, 1, 4) * step
             o = odometry_of(motion, s.t_ns, rng)
-            pending.append((s.t_ns + DELAY_NS, _moved(o, drift)))
+            pending.append((s.t_ns + DELAY_NS, _moved(o, drift, p0[0])))
         while pending and pending[0][0] <= s.t_ns:
             est.push(pending.pop(0)[1])
         est.push(s)
@@ -322,9 +326,14 @@ def drifting_nees(seed: int, mode: str, *, seconds: float = 12.0) -> float:
     return float(np.mean(nees))
 
 
-def _moved(o: OdometrySample, dp: np.ndarray) -> OdometrySample:
+def _moved(o: OdometrySample, drift: np.ndarray, p0: np.ndarray) -> OdometrySample:
+    """The odometry in a frame turned by ``drift[3]`` about the start ``p0`` and moved by
+    ``drift[:3]`` (its covariance, the white noise's, as it was)."""
+    Rz = Rotation.from_euler("z", drift[3])
+    M = Rz.as_matrix()
     return OdometrySample(
-        t_ns=o.t_ns, p_W_B=o.p_W_B + dp, q_W_B_xyzw=o.q_W_B_xyzw, v_W_B=o.v_W_B,
+        t_ns=o.t_ns, p_W_B=p0 + M @ (o.p_W_B - p0) + drift[:3],
+        q_W_B_xyzw=(Rz * Rotation.from_quat(o.q_W_B_xyzw)).as_quat(), v_W_B=M @ o.v_W_B,
         cov_pose=o.cov_pose, cov_v=o.cov_v,
     )  # fmt: skip
 
