@@ -344,8 +344,8 @@ class NavEkfConfig:
     # of these rates from where the frame was anchored: the filter takes the odometry's
     # motion, its absolute position and yaw only as far as the drift allows.
     odometry_mode: str = "absolute"
-    odometry_drift_m_sqrt_s: float = 0.01
-    odometry_drift_yaw_rad_sqrt_s: float = 0.002
+    odometry_drift_m_sqrt_s: float = 0.02
+    odometry_drift_yaw_rad_sqrt_s: float = 0.004
 
     def __post_init__(self) -> None:
         require_positive(

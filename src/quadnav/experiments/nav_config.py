@@ -139,8 +139,8 @@ class VioSection(VioConfig):
         "frame (PX4); relative: its frame's drift (position and yaw) estimated beside the state "
         "as a random walk, so its motion is taken and its drift is not averaged as noise",
     )
-    # The VIO of indoor_vio drifts 0.07-0.39 m and 0.3-4 degrees in its 34.5 s (10 flights):
-    # about 0.02 m/sqrt(s) per axis and 0.004 rad/sqrt(s)
+    # indoor_vio's VIO ends its 34.5 s 0.07-0.39 m and 0.2-4 degrees off the truth (seeds 0-4,
+    # two flights each): about 0.02 m/sqrt(s) per axis and 0.004 rad/sqrt(s)
     frame_drift_m_sqrt_s: float = Field(
         0.02, ge=MIN_SIGMA, description="EKF, relative: random walk of the odometry frame's origin"
     )
