@@ -66,6 +66,7 @@ UNIT_SUFFIXES: tuple[tuple[str, str], ...] = (
     ("_m_s2_sqrt_s", "m/s²/√s"),
     ("_rad_s_sqrt_s", "rad/s/√s"),
     ("_m_sqrt_s", "m/√s"),
+    ("_rad_sqrt_s", "rad/√s"),
     ("_kg_m2", "kg·m²"),
     ("_m_s3", "m/s³"),
     ("_m_s2", "m/s²"),

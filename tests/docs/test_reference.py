@@ -27,6 +27,7 @@ ref = _reference()
         ("gyro_noise_rad_s", "rad/s"),
         ("accel_bias_noise_m_s3", "m/s³"),
         ("drift_m_sqrt_s", "m/√s"),
+        ("frame_drift_yaw_rad_sqrt_s", "rad/√s"),
         ("gyro_bias_rw_rad_s_sqrt_s", "rad/s/√s"),
         ("inertia_kg_m2", "kg·m²"),
         ("seeds", ""),

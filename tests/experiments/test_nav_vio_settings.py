@@ -46,12 +46,28 @@ def test_the_vio_settings_reach_the_estimator() -> None:
         # ... and the VIO on rendered images does not read the shortcut's noise
         ("indoor_vio", "vio.sigma_m=0.1", "vio.sigma_m is a setting of the odometry shortcut"),
         ("indoor_vio", "vio.rate_hz=30", "vio.rate_hz is a setting of the odometry shortcut"),
+        # how the EKF takes the odometry (issue 22, item 5): named, validated, not ignored
+        ("indoor_vio", "vio.odometry_mode=delta", "vio.odometry_mode: Input should be 'absolute'"),
+        ("indoor_vio", "vio.frame_drift_m_sqrt_s=0", "vio.frame_drift_m_sqrt_s: Input should be"),
+        (
+            "indoor_vio_odometry",
+            ["vio.odometry_mode=absolute", "vio.frame_drift_yaw_rad_sqrt_s=0.01"],
+            "vio.frame_drift_yaw_rad_sqrt_s is a setting of vio.odometry_mode=relative",
+        ),
+        (
+            "indoor_vio_odometry",
+            ["estimator.vision_frame=rotate", "mag.enabled=true"],
+            "vio.odometry_mode=relative estimates the odometry frame's yaw drift",
+        ),
     ],
 )
 def test_a_bad_or_unused_vio_setting_is_one_line_naming_it(
-    tmp_path: Path, scenario: str, override: str, named: str
+    tmp_path: Path, scenario: str, override: str | list[str], named: str
 ) -> None:
-    result = CliRunner().invoke(app, ["run", scenario, "--set", override, "--out", str(tmp_path)])
+    sets = [
+        x for o in ([override] if isinstance(override, str) else override) for x in ("--set", o)
+    ]
+    result = CliRunner().invoke(app, ["run", scenario, *sets, "--out", str(tmp_path)])
     assert result.exit_code == 2, result.output
     out = result.output.strip()
     assert "Traceback" not in out and len(out.splitlines()) == 1

@@ -11,7 +11,9 @@ same semi-implicit step as the planar filter::
     R' = R Exp(w dt);  v' = v + dt (R' f + g_W);  p' = p + dt v'
 
 Observations: world position, external pose (position and yaw), external odometry (PX4's
-``ODOMETRY`` from a VIO: position, world velocity and yaw with the message's covariance),
+``ODOMETRY`` from a VIO: position, world velocity and yaw with the message's covariance; with
+``odometry_mode="relative"`` the odometry frame's drift, position and yaw, is four random-walk
+states beside the 15, so a drifting odometry's motion is taken and its drift not averaged),
 height, range, heading, velocity, optical flow (PX4's model,
 :mod:`quadnav.estimation.flow_model`). Each update is gated
 with a chi-square test on its innovation, applied in Joseph form and injected into the nominal
@@ -68,6 +70,7 @@ from quadnav.messages import (
 from quadnav.units import GRAVITY_M_S2
 
 __all__ = [
+    "ODOMETRY_MODES",
     "ODOMETRY_PARTS",
     "NavEkf",
     "NavEkfConfig",
@@ -97,6 +100,11 @@ _I3 = np.eye(3)
 # An odometry observation's rows (position, velocity, yaw) by part
 _ODO_ROWS = {"pos": np.arange(0, 3), "vel": np.arange(3, 6), "yaw": np.arange(6, 7)}
 _VAR_COLS = np.r_[_ATT, _BG, _BA]  # columns of F's velocity/position rows that change every step
+# The odometry frame's drift (odometry_mode="relative"), after the 15: its position offset and
+# its yaw, ``p_odo = p + d_p``, ``yaw_odo = yaw + d_yaw``, ``v_odo = Rz(d_yaw) v``
+_DP = slice(_N, _N + 3)
+_DYAW = _N + 3
+_N_DRIFT = 4
 
 
 def skew(a: FloatArray) -> FloatArray:
@@ -214,6 +222,8 @@ def gate_thresholds(gate_sigma: float, dims: tuple[int, ...]) -> dict[int, float
 #: What of an :class:`~quadnav.messages.OdometrySample` the filter can fuse (PX4's
 #: ``EKF2_EV_CTRL`` bits): its position, its world velocity, its yaw.
 ODOMETRY_PARTS = ("pos", "vel", "yaw")
+#: How the filter takes an odometry (:attr:`NavEkfConfig.odometry_mode`).
+ODOMETRY_MODES = ("absolute", "relative")
 
 
 def world_yaw_jacobian(R: FloatArray) -> FloatArray:
@@ -328,6 +338,14 @@ class NavEkfConfig:
     odometry_yaw_noise_rad: float = 0.05
     odometry_gate_sigma: float = 5.0
     odometry_quality_min: int = 0
+    # How the odometry is taken. "absolute" (PX4's): its position and yaw as fixes of the
+    # navigation frame's. "relative": a VIO's position and yaw drift (they are unobservable to
+    # it), so its frame's offset (position and yaw) is four states beside the 15, a random walk
+    # of these rates from where the frame was anchored: the filter takes the odometry's
+    # motion, its absolute position and yaw only as far as the drift allows.
+    odometry_mode: str = "absolute"
+    odometry_drift_m_sqrt_s: float = 0.02
+    odometry_drift_yaw_rad_sqrt_s: float = 0.004
 
     def __post_init__(self) -> None:
         require_positive(
@@ -389,6 +407,17 @@ class NavEkfConfig:
             raise EstimationError(
                 f"NavEkfConfig.odometry_quality_min must lie in 0..100, got {self.odometry_quality_min}"
             )
+        if self.odometry_mode not in ODOMETRY_MODES:
+            raise EstimationError(
+                f"NavEkfConfig.odometry_mode must be one of {', '.join(ODOMETRY_MODES)}, "
+                f"got {self.odometry_mode!r}"
+            )
+        require_positive(self, ("odometry_drift_m_sqrt_s", "odometry_drift_yaw_rad_sqrt_s"))
+        if self.odometry_mode == "relative" and self.vision_frame != "world":
+            raise EstimationError(
+                "NavEkfConfig.odometry_mode='relative' estimates the odometry frame's yaw drift "
+                "and needs vision_frame='world'"
+            )
 
 
 class NavEkf:
@@ -426,6 +455,12 @@ class NavEkf:
         self.bg = np.zeros(3) if bg0 is None else np.asarray(bg0, dtype=np.float64).copy()
         self.ba = np.zeros(3) if ba0 is None else np.asarray(ba0, dtype=np.float64).copy()
         self._P = 0.5 * (P0 + P0.T)
+        # The odometry frame's drift (relative mode): d_p (3) and d_yaw, zero where the frame is
+        # anchored; its covariance extends P (the 15 first, as the P the filter reports).
+        self.odometry_drift = np.zeros(_N_DRIFT)
+        self._relative = config.odometry_mode == "relative"
+        if self._relative:
+            self._P = np.pad(self._P, (0, _N_DRIFT))
         self._gates = (
             {k: float(chi2_ppf(config.gate_probability, k)) for k in (1, 2, 3, 4, 6)}
             if config.gate_sigma is None
@@ -474,7 +509,8 @@ class NavEkf:
 
     @property
     def P(self) -> FloatArray:
-        return self._P
+        """The covariance of the 15 error states (without the odometry drift's)."""
+        return self._P[:_N, :_N]
 
     @property
     def q_xyzw(self) -> FloatArray:
@@ -547,7 +583,10 @@ class NavEkf:
                 if clipped >> k & 1:
                     i = _N_A.start + k
                     q[i] = max(q[i], self.config.clipped_accel_sigma_m_s2**2)
-        P = F @ self._P @ F.T + (G * q) @ G.T
+        if self._relative:
+            P = self._predict_with_drift(F, G, q, dt_s)
+        else:
+            P = F @ self._P @ F.T + (G * q) @ G.T
         if self.bias_gate is not None:
             self.bias_gate.apply(P, _BA.start, self.bias_gate.update(w, f, clipped, dt_s))
         self._n_predict += 1
@@ -564,6 +603,24 @@ class NavEkf:
                 self._relevel(imu.t_ns, f_rest, self.releveller)
         if self.baro_bias is not None:
             self.baro_bias.predict(dt_s)
+
+    def _predict_with_drift(
+        self, F: FloatArray, G: FloatArray, q: FloatArray, dt_s: float
+    ) -> FloatArray:
+        """The covariance predicted with the odometry frame's drift beside the 15 states: a
+        random walk, its position offset also growing as the frame's yaw error turns the motion
+        (``d_p' = d_p + dt d_yaw z x v``)."""
+        c = self.config
+        zxv = np.array([-self.v[1], self.v[0], 0.0])
+        self.odometry_drift[0:3] += dt_s * self.odometry_drift[3] * zxv
+        Fa = np.eye(_N + _N_DRIFT)
+        Fa[:_N, :_N] = F
+        Fa[_DP, _DYAW] = dt_s * zxv
+        P = Fa @ self._P @ Fa.T
+        P[:_N, :_N] += (G * q) @ G.T
+        P[_DP, _DP] += np.eye(3) * c.odometry_drift_m_sqrt_s**2 * dt_s
+        P[_DYAW, _DYAW] += c.odometry_drift_yaw_rad_sqrt_s**2 * dt_s
+        return P
 
     def _relevel(self, t_ns: int, f_mean: FloatArray, rl: Releveller) -> None:
         """Roll and pitch from the mean specific force at rest (less the bias from before the
@@ -739,6 +796,8 @@ class NavEkf:
                 self.events.append(
                     (obs.t_ns, f"{src}: reset counter {obs.reset_counter}, frame re-anchored")
                 )
+                if self._relative and isinstance(obs, OdometrySample):
+                    self._reanchor_drift()
         self._ev_anchor[src] = anchor
         if anchor.n < n_avg:
             # A single noisy pose would freeze its noise into the frame for good: average the
@@ -809,6 +868,8 @@ class NavEkf:
         H[0:3, _POS] = np.eye(3)
         H[3:6, _VEL] = np.eye(3)
         H[6, _ATT] = yaw_jacobian(self.R)
+        if self._relative:
+            r, H = self._drift_terms(r, H)
         j = world_yaw_jacobian(R_meas)
         Rn = np.zeros((7, 7))
         Rn[0:3, 0:3] = Rz @ obs.cov_pose[0:3, 0:3] @ Rz.T
@@ -826,12 +887,43 @@ class NavEkf:
         rows = np.concatenate([_ODO_ROWS[p] for p in parts])
         Rn = Rn[np.ix_(rows, rows)]
         yaw_row = len(rows) - 1 if "yaw" in parts else None  # (the parts in their order)
-        p_meas = anchor.p_W0 + d_W if "pos" in parts else None
+        # (what a reset after persistent rejections sets: the odometry less its frame's drift)
+        d = self.odometry_drift
+        p_meas = anchor.p_W0 + d_W - d[0:3] if "pos" in parts else None
+        v_W = so3_exp(np.array([0.0, 0.0, -d[3]])) @ v_W
         v_meas = v_W if "vel" in parts and p_meas is None else None
         gate = self._odometry_gates[len(rows)]
         return self._gated(
             obs, r[rows], H[rows], Rn, p_meas, yaw_row=yaw_row, v_meas=v_meas, gate=gate
         )
+
+    def _drift_terms(self, r: FloatArray, H: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """Relative mode: an odometry's innovation ``r`` (position, velocity, yaw) and its
+        Jacobian ``H`` (7x15) with the frame's drift: ``p_odo = p + d_p``, ``v_odo = Rz(d_yaw)
+        v``, ``yaw_odo = yaw + d_yaw`` (H becomes 7x19)."""
+        d = self.odometry_drift
+        Rd = so3_exp(np.array([0.0, 0.0, d[3]]))
+        v_pred = Rd @ self.v
+        r = r.copy()
+        r[0:3] -= d[0:3]
+        r[3:6] += self.v - v_pred
+        r[6] = math.remainder(r[6] - d[3], 2 * math.pi)
+        H[3:6, _VEL] = Rd
+        Hd = np.zeros((7, _N_DRIFT))
+        Hd[0:3, 0:3] = np.eye(3)
+        Hd[3:6, 3] = [-v_pred[1], v_pred[0], 0.0]
+        Hd[6, 3] = 1.0
+        return r, np.hstack([H, Hd])
+
+    def _reanchor_drift(self) -> None:
+        """A re-anchored odometry frame starts where the filter is: its drift is zero, its error
+        the filter's position and heading error (so the new frame adds no information)."""
+        P = self._P
+        self.odometry_drift[:] = 0.0
+        src = np.r_[np.arange(_POS.start, _POS.stop), _YAW]
+        dst = np.r_[np.arange(_DP.start, _DP.stop), _DYAW]
+        P[dst, :] = -P[src, :]
+        P[:, dst] = -P[:, src]  # (the drift block becomes P[src, src])
 
     def _gated(
         self,
@@ -910,6 +1002,8 @@ class NavEkf:
         self, r: FloatArray, H: FloatArray, Rn: FloatArray, *, gate: float | None = None
     ) -> FusionResult:
         P = self._P
+        if H.shape[1] < P.shape[0]:  # (an observation of the 15 alone, beside the drift)
+            H = np.pad(H, ((0, 0), (0, P.shape[0] - H.shape[1])))
         PHt = P @ H.T
         S = H @ PHt + Rn
         # scalar observations (height, range, heading) need no matrix inverse
@@ -930,6 +1024,8 @@ class NavEkf:
         self.p = self.p + dx[_POS]
         self.bg = self.bg + dx[_BG]
         self.ba = self.ba + dx[_BA]
+        if self._relative:
+            self.odometry_drift += dx[_N:]
         B = _I3 - 0.5 * skew(dx[_ATT])
         P[_ATT, :] = B @ P[_ATT, :]
         P[:, _ATT] = P[:, _ATT] @ B.T
