@@ -145,13 +145,12 @@ class VioConfig(ConfigModel):
         0.02, gt=0.0, le=1.0, description="how far the stated extrinsic's translation may be off"
     )
     estimate_intrinsics: bool = Field(
-        False,
-        description="refine each camera's focal lengths and principal point online (a focal "
-        "length 1 % off bends every bearing); off by default: on realistic data it helped one "
-        "sequence and hurt another (docs/results/2026-12-02-issue22-part2.md)",
+        True,
+        description="refine each camera's focal lengths and principal point online: a focal "
+        "length 1 % off bends every bearing",
     )
     intrinsics_focal_sigma: float = Field(
-        0.01, gt=0.0, le=0.5, description="how far a stated focal length may be off, relative"
+        0.02, gt=0.0, le=0.5, description="how far a stated focal length may be off, relative"
     )
     intrinsics_principal_sigma_px: float = Field(
         3.0, gt=0.0, le=100.0, description="how far a stated principal point may be off (px)"

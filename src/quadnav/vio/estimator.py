@@ -675,7 +675,7 @@ class VioEstimator:
         return KeyframeRecord(
             index=k, t_ns=kf.t_ns, reset_counter=self._reset_counter, T_W_B=to_pose(kf.pose),
             cov_pose=cov, camera=self.camera, image=info.image, ids=f.ids, uv_px=f.uv_px,
-            xy=f.xy, descriptors=info.descriptors, described=info.described,
+            xy=self.window.corrected_xy(f.xy), descriptors=info.descriptors, described=info.described,
             landmark_ids=np.array([j for j, _ in seen], np.int64),
             landmarks_W=np.array([p for _, p in seen], np.float64).reshape(-1, 3),
             T_B_C=self.window.extrinsic,

@@ -13,8 +13,9 @@ observations twice and, fixed in the world, tie the window's position and yaw, w
 cannot observe). After each solve, the landmarks behind a camera or far from their pixels are
 marked bad for good: the graph drops their projections.
 
-Everything here works on 3x4 camera matrices ``[R_C_W | t_C_W]`` of the window's keyframes and
-on the :class:`~quadnav.vio.frontend.FeatureManager`'s tracks; :mod:`quadnav.vio.window` turns
+Everything here works on 3x4 camera matrices ``K [R_C_W | t_C_W]`` of the window's keyframes
+(``K`` the correction the window has for the stated intrinsics, the identity unless
+``estimate_intrinsics``: the observations are normalised with the stated ones) and on the :class:`~quadnav.vio.frontend.FeatureManager`'s tracks; :mod:`quadnav.vio.window` turns
 what it decides into factors.
 """
 
@@ -67,15 +68,16 @@ class Admission:
 
 
 def camera_centres(P: Cameras) -> dict[int, FloatArray]:
-    """Each camera's centre in ``W`` from its ``[R_C_W | t_C_W]``."""
-    return {k: -Pk[:, :3].T @ Pk[:, 3] for k, Pk in P.items()}
+    """Each camera's centre in ``W`` from its ``K [R_C_W | t_C_W]`` (``K`` an intrinsics
+    correction, or the identity)."""
+    return {k: np.asarray(-np.linalg.solve(Pk[:, :3], Pk[:, 3]), np.float64) for k, Pk in P.items()}
 
 
 def _bearing_angle(obs: dict[int, FloatArray], P: Cameras) -> float:
     """The angle (rad) between the world bearings of a track's first and last observations."""
     k0, k1 = min(obs), max(obs)
-    b0 = P[k0][:, :3].T @ np.array([obs[k0][0], obs[k0][1], 1.0])
-    b1 = P[k1][:, :3].T @ np.array([obs[k1][0], obs[k1][1], 1.0])
+    b0 = np.linalg.solve(P[k0][:, :3], np.array([obs[k0][0], obs[k0][1], 1.0]))
+    b1 = np.linalg.solve(P[k1][:, :3], np.array([obs[k1][0], obs[k1][1], 1.0]))
     c = float(b0 @ b1) / float(np.linalg.norm(b0) * np.linalg.norm(b1))
     return float(np.arccos(min(1.0, max(-1.0, c))))
 

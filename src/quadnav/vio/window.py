@@ -180,6 +180,17 @@ class SlidingWindow:
         ``estimate_extrinsic``)."""
         return to_pose(self.T_B_C)
 
+    def corrected_xy(self, xy: FloatArray, side: int = 0) -> FloatArray:
+        """Normalised coordinates (from the stated intrinsics) as the window's refined
+        intrinsics have them (unchanged without ``estimate_intrinsics``)."""
+        if not self.config.estimate_intrinsics:
+            return xy
+        k = self.K_fix[side]
+        xy = np.asarray(xy, np.float64).reshape(-1, 2)
+        y = (xy[:, 1] - k.py()) / k.fy()
+        x = (xy[:, 0] - k.px() - k.skew() * y) / k.fx()
+        return np.column_stack([x, y])
+
     def add_hook(self, hook: FactorHook) -> None:
         """Call ``hook`` for each keyframe entering the window (the first included) and add
         the factors it returns (a GPS fix, a loop-closure prior)."""
@@ -272,6 +283,10 @@ class SlidingWindow:
         poses = {kf.index: kf.pose for kf in self.keyframes}
         P = _camera_poses(poses, self.T_B_C)
         PR = _camera_poses(poses, self.T_B_R) if self.T_B_R is not None else {}
+        if self.config.estimate_intrinsics:  # in the stated intrinsics' normalised coordinates
+            K0, K1 = (np.asarray(k.K(), np.float64) for k in self.K_fix)
+            P = {k: K0 @ Pk for k, Pk in P.items()}
+            PR = {k: K1 @ Pk for k, Pk in PR.items()}
         return P, PR
 
     def _add_landmarks(self, features: FeatureManager) -> int:
