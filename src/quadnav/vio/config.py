@@ -40,6 +40,12 @@ class VioConfig(ConfigModel):
     keyframe_max_interval_s: float = Field(
         0.5, gt=0.0, le=10.0, description="longest time between keyframes (at rest too)"
     )
+    drop_second_newest: bool = Field(
+        True,
+        description="a keyframe made by time alone (little parallax) has the previous newest "
+        "marginalised rather than the oldest, so a hover keeps the window's baseline (VINS' "
+        "MARGIN_SECOND_NEW)",
+    )
     # VINS-Mono's EuRoC value (1.5 px at focal 460). The KLT residuals after a solve are 0.36 px
     # (rendered room_medium), but a track's errors are not independent from keyframe to
     # keyframe: with 1 px the pose NEES / 6 on corridor1's motion was 2.2 (3 seeds), 1.6 now

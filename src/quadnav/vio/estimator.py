@@ -556,10 +556,17 @@ class VioEstimator:
             dec = self.frontend.decide(frame, R_BC.T @ R_B @ R_BC)
         if not dec.keyframe:
             return self._predicted_state(frame.t_ns, pim, "tracking", tracked=len(frame.ids))
-        return self._add_keyframe(frame, kf, pim)
+        return self._add_keyframe(
+            frame, kf, pim, drop_previous=dec.by_time and cfg.drop_second_newest
+        )
 
     def _add_keyframe(
-        self, frame: FrameFeatures, prev: Keyframe, pim: gtsam.PreintegratedCombinedMeasurements
+        self,
+        frame: FrameFeatures,
+        prev: Keyframe,
+        pim: gtsam.PreintegratedCombinedMeasurements,
+        *,
+        drop_previous: bool = False,
     ) -> OdometryState | None:
         cfg = self.config
         frame = self._with_stereo(frame)
@@ -571,7 +578,7 @@ class VioEstimator:
             index=k, t_ns=frame.t_ns, pose=nav.pose(), velocity=np.asarray(nav.velocity()),
             bias=prev.bias, pim=pim, still=still,
         )  # fmt: skip
-        self.window.push(kf)
+        self.window.push(kf, drop_previous=drop_previous)
         self._add_features(kf, frame)
         self.frontend.mark_keyframe(frame)
         with self._stage("optimize"):

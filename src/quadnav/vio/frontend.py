@@ -79,9 +79,13 @@ def median_motion_px(ref: FrameFeatures, frame: FrameFeatures) -> tuple[float, i
 
 @dataclass(frozen=True, slots=True)
 class KeyframeDecision:
+    """A keyframe or not; ``by_time``: one only because ``keyframe_max_interval_s`` passed
+    (little parallax, enough tracks)."""
+
     keyframe: bool
     parallax_px: float
     common: int
+    by_time: bool = False
 
 
 class Frontend:
@@ -132,12 +136,9 @@ class Frontend:
         par, n = mean_parallax(kf.ids, kf.xy, frame.ids, frame.xy, R_kf_cur)
         par_px = par * cfg.parallax_focal_px
         dt_s = (frame.t_ns - kf.t_ns) * 1e-9
-        key = (
-            n < cfg.keyframe_min_tracked
-            or par_px >= cfg.keyframe_parallax_px
-            or dt_s >= cfg.keyframe_max_interval_s
-        )
-        return KeyframeDecision(key, par_px, n)
+        seen = n < cfg.keyframe_min_tracked or par_px >= cfg.keyframe_parallax_px
+        by_time = not seen and dt_s >= cfg.keyframe_max_interval_s
+        return KeyframeDecision(seen or by_time, par_px, n, by_time)
 
     def mark_keyframe(self, frame: FrameFeatures) -> None:
         self._kf = frame

@@ -114,6 +114,8 @@ PROJECTIONS = (
     gtsam_unstable.ProjectionFactorPPPCal3_S2,
     gtsam_unstable.ProjectionFactorPPPCCal3_S2,
 )
+#: the stamp of a keyframe marginalised out of turn: older than any lag
+DROPPED = -1e9
 #: the stated extrinsic's prior when only the intrinsics are refined online (held, not refined)
 HELD_SIGMA = 1e-4
 
@@ -155,6 +157,8 @@ class SlidingWindow:
         self.book = LandmarkBook(config, focal_px, baseline)
         self._hooks: list[FactorHook] = []
         self.graph: WindowGraph | None = None
+        self._clock = 0.0
+        self._stamp_of: dict[int, float] = {}
 
     # -- what the rest of the VIO reads -----------------------------------------------------
     @property
@@ -202,6 +206,10 @@ class SlidingWindow:
         self.graph = WindowGraph(self.config, self.config.window_keyframes - 0.5)
         self.keyframes = [kf]
         self.book.clear()
+        #: the smoother's clock: one tick per keyframe kept (a keyframe that replaces the
+        #: newest takes its tick), so the oldest leaves when the window is full
+        self._clock = 0.0
+        self._stamp_of = {}
         x, v, b = state_keys(kf.index)
         gauss = gtsam.noiseModel.Gaussian.Covariance
         self.graph.add_all([
@@ -248,19 +256,22 @@ class SlidingWindow:
     def _insert_state(self, kf: Keyframe) -> None:
         assert self.graph is not None
         x, v, b = state_keys(kf.index)
+        self._stamp_of[kf.index] = self._clock
         for key, value in ((x, kf.pose), (v, kf.velocity), (b, kf.bias)):
-            self.graph.insert(key, value, kf.index)
+            self.graph.insert(key, value, self._clock)
         if self._online:  # never marginalised: always as new as the newest
             for n in self._cameras_used():
-                self.graph.restamp(C(n), kf.index)
+                self.graph.restamp(C(n), self._clock)
                 if self.config.estimate_intrinsics:
-                    self.graph.restamp(Kc(n), kf.index)
+                    self.graph.restamp(Kc(n), self._clock)
         for hook in self._hooks:
             self.graph.add_all(hook(kf))
 
-    def push(self, kf: Keyframe) -> None:
+    def push(self, kf: Keyframe, *, drop_previous: bool = False) -> None:
         """The next keyframe, joined to the newest by its preintegrated IMU (and, at rest, by
-        zero-velocity and no-motion constraints)."""
+        zero-velocity and no-motion constraints). ``drop_previous``: the newest keyframe so far
+        is marginalised at the next solve instead of the oldest (its information stays, as a
+        prior joining its neighbours), unless the window is too short for it."""
         if not self.keyframes or kf.pim is None or self.graph is None:
             raise VioError("a keyframe after the first needs its preintegration")
         j, k = self.keyframes[-1].index, kf.index
@@ -275,6 +286,11 @@ class SlidingWindow:
                 gtsam.PriorFactorVector(V(j), np.zeros(3), still_v),
                 gtsam.PriorFactorVector(V(k), np.zeros(3), still_v),
             ])  # fmt: skip
+        if drop_previous and len(self.keyframes) >= 3:
+            for key in state_keys(j):
+                self.graph.restamp(key, DROPPED)  # out at the next solve
+        else:
+            self._clock += 1.0
         self.keyframes.append(kf)
         self._insert_state(kf)
 
@@ -297,7 +313,7 @@ class SlidingWindow:
         poses = {kf.index: kf.pose for kf in self.keyframes}
         for new in adm.new:
             key = L(new.key)
-            self.graph.insert(key, new.point_W, new.anchor)  # it leaves with its anchor
+            self.graph.insert(key, new.point_W, self._stamp_of[new.anchor])  # leaves with it
             T_W_B = poses[new.anchor]
             self.graph.add(
                 gtsam.BearingRangeFactor3D(
@@ -333,6 +349,8 @@ class SlidingWindow:
             if not est.exists(X(kf.index)):
                 features.drop_keyframe(kf.index)
         self.keyframes = [kf for kf in self.keyframes if est.exists(X(kf.index))]
+        inside = {kf.index for kf in self.keyframes}
+        self._stamp_of = {k: t for k, t in self._stamp_of.items() if k in inside}
         for kf in self.keyframes:
             kf.pose = est.atPose3(X(kf.index))
             kf.velocity = np.asarray(est.atVector(V(kf.index)), np.float64)
