@@ -150,10 +150,11 @@ class VioConfig(ConfigModel):
     extrinsic_sigma_m: float = Field(
         0.02, gt=0.0, le=1.0, description="how far the stated extrinsic's translation may be off"
     )
-    estimate_intrinsics: bool = Field(
-        True,
-        description="refine each camera's focal lengths and principal point online: a focal "
-        "length 1 % off bends every bearing",
+    estimate_intrinsics: bool | None = Field(
+        None,
+        description="refine each camera's focal lengths and principal point online (a focal "
+        "length 1 % off bends every bearing); default: with a stereo pair only (alone, the "
+        "focal length trades against the scale: on realistic MH_01 a wrong correction diverged)",
     )
     intrinsics_focal_sigma: float = Field(
         0.02, gt=0.0, le=0.5, description="how far a stated focal length may be off, relative"

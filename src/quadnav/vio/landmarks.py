@@ -15,8 +15,9 @@ marked bad for good: the graph drops their projections.
 
 Everything here works on 3x4 camera matrices ``K [R_C_W | t_C_W]`` of the window's keyframes
 (``K`` the correction the window has for the stated intrinsics, the identity unless
-``estimate_intrinsics``: the observations are normalised with the stated ones) and on the :class:`~quadnav.vio.frontend.FeatureManager`'s tracks; :mod:`quadnav.vio.window` turns
-what it decides into factors.
+the intrinsics are refined: the observations are normalised with the stated ones) and on the
+:class:`~quadnav.vio.frontend.FeatureManager`'s tracks; :mod:`quadnav.vio.window` turns what it
+decides into factors.
 """
 
 from __future__ import annotations

@@ -141,7 +141,14 @@ class SlidingWindow:
         #: each camera's intrinsics correction on the normalised coordinates its stated
         #: intrinsics give (identity: as stated; refined online with ``estimate_intrinsics``)
         self.K_fix = [gtsam.Cal3_S2(1.0, 1.0, 0.0, 0.0, 0.0) for _ in range(2)]
-        self._online = config.estimate_extrinsic or config.estimate_intrinsics
+        #: refine the intrinsics: as configured; by default with a stereo pair only (alone, a
+        #: camera's focal length trades against the scale, and a wrong correction can diverge)
+        self._intrinsics = (
+            config.estimate_intrinsics
+            if config.estimate_intrinsics is not None
+            else self.T_B_R is not None
+        )
+        self._online = config.estimate_extrinsic or self._intrinsics
         baseline = 0.0 if T_B_R is None else float(np.linalg.norm((T_B_C.inverse() @ T_B_R).p_A_B))
         self.focal_px = float(focal_px)
         self.K = gtsam.Cal3_S2(1.0, 1.0, 0.0, 0.0, 0.0)
@@ -187,7 +194,7 @@ class SlidingWindow:
     def corrected_xy(self, xy: FloatArray, side: int = 0) -> FloatArray:
         """Normalised coordinates (from the stated intrinsics) as the window's refined
         intrinsics have them (unchanged without ``estimate_intrinsics``)."""
-        if not self.config.estimate_intrinsics:
+        if not self._intrinsics:
             return xy
         k = self.K_fix[side]
         xy = np.asarray(xy, np.float64).reshape(-1, 2)
@@ -234,7 +241,7 @@ class SlidingWindow:
         sig = np.array([np.radians(cfg.extrinsic_sigma_deg)] * 3 + [cfg.extrinsic_sigma_m] * 3)
         if not cfg.estimate_extrinsic:
             sig = np.full(6, HELD_SIGMA)
-        for n in self._cameras_used() if cfg.estimate_intrinsics else ():
+        for n in self._cameras_used() if self._intrinsics else ():
             self.graph.insert(Kc(n), self.K_fix[n], 0.0)
             f, c = cfg.intrinsics_focal_sigma, cfg.intrinsics_principal_sigma_px / self.focal_px
             k_sig = np.array([f, f, HELD_SIGMA, c, c])  # (no skew)
@@ -262,7 +269,7 @@ class SlidingWindow:
         if self._online:  # never marginalised: always as new as the newest
             for n in self._cameras_used():
                 self.graph.restamp(C(n), self._clock)
-                if self.config.estimate_intrinsics:
+                if self._intrinsics:
                     self.graph.restamp(Kc(n), self._clock)
         for hook in self._hooks:
             self.graph.add_all(hook(kf))
@@ -299,7 +306,7 @@ class SlidingWindow:
         poses = {kf.index: kf.pose for kf in self.keyframes}
         P = _camera_poses(poses, self.T_B_C)
         PR = _camera_poses(poses, self.T_B_R) if self.T_B_R is not None else {}
-        if self.config.estimate_intrinsics:  # in the stated intrinsics' normalised coordinates
+        if self._intrinsics:  # in the stated intrinsics' normalised coordinates
             K0, K1 = (np.asarray(k.K(), np.float64) for k in self.K_fix)
             P = {k: K0 @ Pk for k, Pk in P.items()}
             PR = {k: K1 @ Pk for k, Pk in PR.items()}
@@ -326,7 +333,7 @@ class SlidingWindow:
             side = 1 if ob.side == 1 and self.T_B_R is not None else 0
             x, lm = X(ob.keyframe), L(ob.key)
             f: gtsam.NonlinearFactor
-            if online and self.config.estimate_intrinsics:
+            if online and self._intrinsics:
                 f = gtsam_unstable.ProjectionFactorPPPCCal3_S2(
                     ob.xy, self._pixel_noise, x, C(side), lm, Kc(side)
                 )
