@@ -284,24 +284,36 @@ def main() -> None:
         except QuadnavError as exc:
             _fail(str(exc))
         return
-    runs = [_run_child(args, m) for m in sorted(args.minutes)]
     print(f"VIO memory on {args.sequence}'s motion, rig {args.rig}, {args.sensors} sensors, "
-          f"seed {args.seed}, one core (affinity {sorted(os.sched_getaffinity(0))}); RSS in MB")  # fmt: skip
+          f"seed {args.seed}, one core (affinity {sorted(os.sched_getaffinity(0))}); RSS in MB",
+          flush=True)  # fmt: skip
+    runs: list[dict[str, object]] = []
+    for minutes in sorted(args.minutes):
+        runs.append(_run_child(args, minutes))
+        print(table(runs)[-1], flush=True)  # each run as it ends; the JSON so far
+        result = _result(args, runs)
     print("\n".join(table(runs)))
+    r = result.get("ratios_longest_over_shortest")
+    if isinstance(r, Mapping):
+        print("longest / shortest: " + ", ".join(
+            f"{k} {v:.2f}" if isinstance(v, float) else f"{k} {v}" for k, v in r.items()
+        ))  # fmt: skip
+    print(f"wrote {args.out}")
+
+
+def _result(args: argparse.Namespace, runs: list[dict[str, object]]) -> dict[str, object]:
+    """The JSON of the runs so far, written (a stopped long run leaves the shorter ones')."""
+    from quadnav.io.run_folder import write_text
+
     result: dict[str, object] = {
         "benchmark": "vio_memory", "python": platform.python_version(),
         "sequence": args.sequence, "rig": args.rig, "sensors": args.sensors, "seed": args.seed,
         "core": args.core, "every_frames": args.every, "runs": runs,
     }  # fmt: skip
     if len(runs) >= 2:
-        result["ratios_longest_over_shortest"] = r = ratios(runs[0], runs[-1])
-        print("longest / shortest: " + ", ".join(
-            f"{k} {v:.2f}" if isinstance(v, float) else f"{k} {v}" for k, v in r.items()
-        ))  # fmt: skip
-    from quadnav.io.run_folder import write_text
-
+        result["ratios_longest_over_shortest"] = ratios(runs[0], runs[-1])
     write_text(args.out, json.dumps(result, indent=2) + "\n")
-    print(f"wrote {args.out}")
+    return result
 
 
 if __name__ == "__main__":
