@@ -101,6 +101,7 @@ def test_ratios_table_and_json(
         (["--minutes", "45"], "error: --minutes 45: from 0.5 to 30"),
         (["--sequence", "moon"], "error: --sequence 'moon': one of room_easy"),
         (["--every", "0"], "error: --every must be at least 1, got 0"),
+        (["--scale", "2"], "error: --scale 2: from 0.25 to 1"),
         (["--core", "9999"], "error: --core 9999: not one of this machine's cores"),
     ],
 )

@@ -242,3 +242,14 @@ def test_a_rendered_dataset_is_the_made_one_rendered_when_read(tmp_path: Path) -
     again = live.frames[0].image()  # a second read renders again: nothing was kept
     assert again.shape == made.frames[0].image().shape
     assert live.groundtruth is not None and len(live.groundtruth) > 200  # 100 Hz
+
+
+def test_a_rendered_dataset_can_be_smaller() -> None:
+    spec = sequence_spec("room", {"duration_s": 1.5, **MOVING, "rig": "euroc_mono"})
+    full, half = (rendered_dataset(spec, scale=s) for s in (1.0, 0.5))
+    cam, small = full.rig.camera("cam0").camera, half.rig.camera("cam0").camera
+    assert (small.width, small.height) == (cam.width // 2, cam.height // 2)
+    assert small.K[0, 0] == pytest.approx(cam.K[0, 0] / 2)
+    assert half.frames[0].image().shape == (small.height, small.width)
+    with pytest.raises(ConfigError, match=r"scale must be from 0\.25 to 1, got 2"):
+        rendered_dataset(spec, scale=2.0)

@@ -787,17 +787,36 @@ class _LiveCamera:
         return self._stream.shoot(self._motion, int(self._stamps[k]), float(self._light[k])).image
 
 
-def rendered_dataset(spec: SequenceSpec, *, name: str = "") -> VisualInertialDataset:
+def _scaled_rig(rig: Rig, scale: float) -> Rig:
+    """``rig`` with every camera's image ``scale`` times as wide and high (its intrinsics too)."""
+    if scale == 1.0:
+        return rig
+    cams = tuple(
+        replace(
+            c, camera=c.camera.scaled(round(c.camera.width * scale), round(c.camera.height * scale))
+        )
+        for c in rig.cameras
+    )
+    return replace(rig, cameras=cams)
+
+
+def rendered_dataset(
+    spec: SequenceSpec, *, name: str = "", scale: float = 1.0
+) -> VisualInertialDataset:
     """``spec`` as :func:`make_dataset` makes it, held in memory instead of written: the IMU as
     a table, the ground truth at 100 Hz (``groundtruth.tum``'s rate), and each frame rendered
     when its pixels are read, none kept (36,000 images for 30 minutes at 20 Hz would be
     ~13 GB). Read each camera's frames in time order, as a run does: its auto exposure and
-    motion blur follow the frames before, as when the dataset is made."""
+    motion blur follow the frames before, as when the dataset is made. ``scale`` (0.25-1)
+    shrinks the images (and the intrinsics) for a faster run."""
     from quadnav.io.datasets import GroundTruth, ImuTable, VisualInertialDataset
     from quadnav.messages import ImageFrame
 
+    if not 0.25 <= scale <= 1.0:
+        raise ConfigError(f"scale must be from 0.25 to 1, got {scale:g}")
     spec = with_profile(spec)
     plan = plan_dataset(spec)
+    plan = replace(plan, rig=_scaled_rig(plan.rig, scale), stated=_scaled_rig(plan.stated, scale))
     motion = replace(plan.motion, poses=None)  # the poses it was fitted to: not needed to render
     scene = _world(spec, motion, *plan.span)
     imu = synthesize_dataset_imu(plan, spec.seed)
