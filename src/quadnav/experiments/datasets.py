@@ -24,6 +24,7 @@ import math
 import time
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import asdict, dataclass, replace
+from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING, Literal
 
@@ -48,7 +49,7 @@ from quadnav.sim.render import RenderedFrame, RenderEffects, depth_noise
 from quadnav.units import NS_PER_S, s_to_ns
 
 if TYPE_CHECKING:
-    from quadnav.io.datasets import EurocWriter
+    from quadnav.io.datasets import EurocWriter, VisualInertialDataset
     from quadnav.sim.scene import Scene
 
 __all__ = [
@@ -58,6 +59,7 @@ __all__ = [
     "SequenceSpec",
     "make_dataset",
     "plan_dataset",
+    "rendered_dataset",
     "sequence_spec",
     "stream_rng",
     "synthesize_dataset_imu",
@@ -691,6 +693,18 @@ class _CameraStream:
         return RenderedFrame(effects.apply(frame.image, self.rng), frame.depth_m)
 
 
+def _frame_times(
+    rig: Rig, spec: SequenceSpec, span: tuple[int, int]
+) -> tuple[NDArray[np.int64], FloatArray, FloatArray]:
+    """The cameras' stamps (their clock) in ``span`` of IMU time, the seconds from the first,
+    and the lighting's gain at each."""
+    td = rig.cameras[0].time_offset_ns
+    stamps = _camera_times(span[0] + max(-td, 0), span[1] - max(td, 0), rig.cameras[0])
+    t_s = (stamps - stamps[0]) / NS_PER_S
+    light = _lighting_gain(t_s, spec.lighting or 0.0, stream_rng(spec.seed, "lighting"))
+    return stamps, t_s, light
+
+
 def _write_frames(
     writer: EurocWriter,
     motion: SplineMotion,
@@ -703,10 +717,7 @@ def _write_frames(
     """Every camera's images, rendered at its stamps (plus its time offset), blurred over its
     exposure, under the slow lighting changes and its auto exposure, with its own noise."""
     cameras = [_CameraStream(c, scene, spec) for c in rig.cameras]
-    td = rig.cameras[0].time_offset_ns
-    stamps = _camera_times(span[0] + max(-td, 0), span[1] - max(td, 0), rig.cameras[0])
-    t_s = (stamps - stamps[0]) / NS_PER_S
-    light = _lighting_gain(t_s, spec.lighting or 0.0, stream_rng(spec.seed, "lighting"))
+    stamps, t_s, light = _frame_times(rig, spec, span)
     depth_rng = stream_rng(spec.seed, "depth0")
     written = 0
     for k, t_cam in enumerate(stamps):
@@ -756,3 +767,74 @@ def make_dataset(
     )  # fmt: skip
     _write_manifest(root, spec, made.sequence, made, plan.sensors)
     return made
+
+
+class _LiveCamera:
+    """One camera's frames rendered when their pixels are read (:func:`rendered_dataset`)."""
+
+    __slots__ = ("_light", "_motion", "_stamps", "_stream")
+
+    def __init__(
+        self,
+        stream: _CameraStream,
+        motion: SplineMotion,
+        stamps: NDArray[np.int64],
+        light: FloatArray,
+    ) -> None:
+        self._stream, self._motion, self._stamps, self._light = stream, motion, stamps, light
+
+    def image(self, k: int) -> U8:
+        return self._stream.shoot(self._motion, int(self._stamps[k]), float(self._light[k])).image
+
+
+def _scaled_rig(rig: Rig, scale: float) -> Rig:
+    """``rig`` with every camera's image ``scale`` times as wide and high (its intrinsics too)."""
+    if scale == 1.0:
+        return rig
+    cams = tuple(
+        replace(
+            c, camera=c.camera.scaled(round(c.camera.width * scale), round(c.camera.height * scale))
+        )
+        for c in rig.cameras
+    )
+    return replace(rig, cameras=cams)
+
+
+def rendered_dataset(
+    spec: SequenceSpec, *, name: str = "", scale: float = 1.0
+) -> VisualInertialDataset:
+    """``spec`` as :func:`make_dataset` makes it, held in memory instead of written: the IMU as
+    a table, the ground truth at 100 Hz (``groundtruth.tum``'s rate), and each frame rendered
+    when its pixels are read, none kept (36,000 images for 30 minutes at 20 Hz would be
+    ~13 GB). Read each camera's frames in time order, as a run does: its auto exposure and
+    motion blur follow the frames before, as when the dataset is made. ``scale`` (0.25-1)
+    shrinks the images (and the intrinsics) for a faster run."""
+    from quadnav.io.datasets import GroundTruth, ImuTable, VisualInertialDataset
+    from quadnav.messages import ImageFrame
+
+    if not 0.25 <= scale <= 1.0:
+        raise ConfigError(f"scale must be from 0.25 to 1, got {scale:g}")
+    spec = with_profile(spec)
+    plan = plan_dataset(spec)
+    plan = replace(plan, rig=_scaled_rig(plan.rig, scale), stated=_scaled_rig(plan.stated, scale))
+    motion = replace(plan.motion, poses=None)  # the poses it was fitted to: not needed to render
+    scene = _world(spec, motion, *plan.span)
+    imu = synthesize_dataset_imu(plan, spec.seed)
+    stamps, _, light = _frame_times(plan.rig, spec, plan.span)
+    live = [
+        (c.name, _LiveCamera(_CameraStream(c, scene, spec), motion, stamps, light))
+        for c in plan.rig.cameras
+    ]
+    frames = tuple(
+        ImageFrame(t_ns=int(t), camera=cam, load=partial(camera.image, k), origin=f"{cam} rendered")
+        for k, t in enumerate(stamps)
+        for cam, camera in live
+    )
+    t = np.arange(plan.span[0], plan.span[1], s_to_ns(0.01), dtype=np.int64)
+    p, q = motion.pose(t)
+    truth = Trajectory(t_ns=t, p_W_B=p, q_W_B_xyzw=q, name=name or spec.world)
+    return VisualInertialDataset(
+        name=name or spec.world, root=Path(name or spec.world), kind="rendered", rig=plan.stated,
+        frames=frames, imu=ImuTable(imu.t_ns, imu.gyro_rad_s, imu.accel_m_s2),
+        groundtruth=GroundTruth(truth, source="rendered"),
+    )  # fmt: skip

@@ -278,8 +278,7 @@ def _caption(image: NDArray[np.uint8], text: str) -> NDArray[np.uint8]:
 class _Record:
     """What the loop collects: the camera-rate states, the counts, the events written."""
 
-    #: the camera-rate states, kept compact (stamp, position, quaternion, pose covariance): a
-    #: state object a frame would make a 30-minute run's memory grow by tens of megabytes
+    #: the camera-rate states, kept compact (see :class:`_States`)
     states: _States = field(default_factory=lambda: _States())
     frames: int = 0
     rejected: int = 0
@@ -291,19 +290,54 @@ class _Record:
     keyframes: _KeyframePoses = field(default_factory=lambda: _KeyframePoses())
 
 
+#: Rows a block of :class:`_States` holds (one allocation per 4096 camera frames).
+_STATE_BLOCK = 4096
+_TRIU = np.triu_indices(6)
+_WIDTH = 7 + len(_TRIU[0])  # position (3), quaternion xyzw (4), the covariance's triangle (21)
+
+
 @dataclass(slots=True)
 class _States:
-    t_ns: list[int] = field(default_factory=list)
-    rows: list[FloatArray] = field(default_factory=list)  # p (3), q xyzw (4), cov (36)
+    """The camera-rate states a run writes, in blocks of :data:`_STATE_BLOCK` rows: stamp,
+    position, quaternion and the pose covariance's upper triangle, 232 bytes a frame (a row
+    array a frame took 474; a state object several kB), 8 MB for 30 minutes at 20 Hz: the
+    trajectory it writes, which grows with the run as nothing else the runner keeps does."""
+
+    stamps: list[NDArray[np.int64]] = field(default_factory=list)
+    blocks: list[FloatArray] = field(default_factory=list)
+    n: int = 0
 
     def append(self, st: OdometryState) -> None:
-        self.t_ns.append(int(st.t_ns))
-        self.rows.append(
-            np.concatenate([st.T_W_B.p_A_B, st.T_W_B.R_A_B.as_quat(), np.ravel(st.cov_pose)])
-        )
+        k = self.n % _STATE_BLOCK
+        if k == 0:
+            self.stamps.append(np.empty(_STATE_BLOCK, dtype=np.int64))
+            self.blocks.append(np.empty((_STATE_BLOCK, _WIDTH), dtype=np.float64))
+        self.stamps[-1][k] = st.t_ns
+        row = self.blocks[-1][k]
+        row[:3] = st.T_W_B.p_A_B
+        row[3:7] = st.T_W_B.R_A_B.as_quat()
+        row[7:] = np.asarray(st.cov_pose, dtype=np.float64)[_TRIU]
+        self.n += 1
 
     def __bool__(self) -> bool:
-        return bool(self.t_ns)
+        return self.n > 0
+
+    def __len__(self) -> int:
+        return self.n
+
+    @property
+    def first_t_ns(self) -> int | None:
+        return int(self.stamps[0][0]) if self.n else None
+
+    def arrays(self) -> tuple[NDArray[np.int64], FloatArray, FloatArray, FloatArray]:
+        """Stamps (N,), positions (N, 3), quaternions xyzw (N, 4) and pose covariances
+        (N, 6, 6), in the order appended."""
+        t = np.concatenate(self.stamps)[: self.n] if self.n else np.zeros(0, dtype=np.int64)
+        rows = np.concatenate(self.blocks)[: self.n] if self.n else np.zeros((0, _WIDTH))
+        cov = np.zeros((self.n, 6, 6))
+        cov[:, _TRIU[0], _TRIU[1]] = rows[:, 7:]
+        cov[:, _TRIU[1], _TRIU[0]] = rows[:, 7:]
+        return t, rows[:, :3], rows[:, 3:7], cov
 
 
 @dataclass(slots=True)
@@ -421,12 +455,11 @@ def _loop(
 
 def _estimate(states: _States) -> tuple[Trajectory, FloatArray]:
     """The camera-rate estimate (time-ordered, one pose per stamp) and its pose covariances."""
-    kept = {t: k for k, t in enumerate(states.t_ns)}  # a repeated stamp: the later state
-    order = [kept[t] for t in sorted(kept)]
-    rows = np.array([states.rows[k] for k in order], dtype=np.float64).reshape(-1, 43)
+    t_all, p, q, cov = states.arrays()
+    kept = {int(t): k for k, t in enumerate(t_all)}  # a repeated stamp: the later state
     t = np.array(sorted(kept), dtype=np.int64)
-    cov = rows[:, 7:].reshape(-1, 6, 6)
-    return Trajectory(t_ns=t, p_W_B=rows[:, :3], q_W_B_xyzw=rows[:, 3:7], name="vio"), cov
+    order = np.array([kept[int(x)] for x in t], dtype=np.int64)
+    return Trajectory(t_ns=t, p_W_B=p[order], q_W_B_xyzw=q[order], name="vio"), cov[order]
 
 
 def _timing(vio: VisualOdometry, rec: _Record, wall_s: float) -> OdometryTiming:
@@ -483,7 +516,7 @@ def _score(
 
 def _counts(rec: _Record, vio: VisualOdometry, t0: int) -> RunCounts:
     kinds = [e.kind for e in vio.events]
-    first = rec.states.t_ns[0] if rec.states else None
+    first = rec.states.first_t_ns
     after: Metric = (
         ns_to_s(first - (rec.first_frame_ns or t0))
         if first is not None
