@@ -166,6 +166,7 @@ class SlidingWindow:
         self.graph: WindowGraph | None = None
         self._clock = 0.0
         self._stamp_of: dict[int, float] = {}
+        self._anchored: dict[int, list[int]] = {}  # keyframe -> its landmarks' key numbers
 
     # -- what the rest of the VIO reads -----------------------------------------------------
     @property
@@ -217,6 +218,7 @@ class SlidingWindow:
         #: newest takes its tick), so the oldest leaves when the window is full
         self._clock = 0.0
         self._stamp_of = {}
+        self._anchored = {}
         x, v, b = state_keys(kf.index)
         gauss = gtsam.noiseModel.Gaussian.Covariance
         self.graph.add_all([
@@ -277,8 +279,9 @@ class SlidingWindow:
     def push(self, kf: Keyframe, *, drop_previous: bool = False) -> None:
         """The next keyframe, joined to the newest by its preintegrated IMU (and, at rest, by
         zero-velocity and no-motion constraints). ``drop_previous``: the newest keyframe so far
-        is marginalised at the next solve instead of the oldest (its information stays, as a
-        prior joining its neighbours), unless the window is too short for it."""
+        leaves at the next solve instead of the oldest, unless the window is too short for it:
+        its projections are dropped and its state marginalised (its IMU stays, as a prior
+        joining its neighbours)."""
         if not self.keyframes or kf.pim is None or self.graph is None:
             raise VioError("a keyframe after the first needs its preintegration")
         j, k = self.keyframes[-1].index, kf.index
@@ -294,7 +297,16 @@ class SlidingWindow:
                 gtsam.PriorFactorVector(V(k), np.zeros(3), still_v),
             ])  # fmt: skip
         if drop_previous and len(self.keyframes) >= 3:
-            for key in state_keys(j):
+            # its visual measurements are discarded, as VINS-Mono does: marginalised, they would
+            # tie every landmark it saw to every other (a dense prior that grows with each drop)
+            xj = X(j)
+            self.graph.remove_where(
+                lambda f: not (isinstance(f, PROJECTIONS) and not {xj}.isdisjoint(f.keys()))
+            )
+            # and the landmarks anchored in it leave with it (the clock stands still: they
+            # would stay for as long as the vehicle hovers)
+            keys = [*state_keys(j), *(L(n) for n in self._anchored.pop(j, ()))]
+            for key in keys:
                 self.graph.restamp(key, DROPPED)  # out at the next solve
         else:
             self._clock += 1.0
@@ -321,6 +333,7 @@ class SlidingWindow:
         for new in adm.new:
             key = L(new.key)
             self.graph.insert(key, new.point_W, self._stamp_of[new.anchor])  # leaves with it
+            self._anchored.setdefault(new.anchor, []).append(new.key)
             T_W_B = poses[new.anchor]
             self.graph.add(
                 gtsam.BearingRangeFactor3D(
@@ -358,6 +371,7 @@ class SlidingWindow:
         self.keyframes = [kf for kf in self.keyframes if est.exists(X(kf.index))]
         inside = {kf.index for kf in self.keyframes}
         self._stamp_of = {k: t for k, t in self._stamp_of.items() if k in inside}
+        self._anchored = {k: v for k, v in self._anchored.items() if k in inside}
         for kf in self.keyframes:
             kf.pose = est.atPose3(X(kf.index))
             kf.velocity = np.asarray(est.atVector(V(kf.index)), np.float64)
