@@ -119,7 +119,8 @@ def _ekf_estimator(sc: NavScenario, gravity_m_s2: float, max_delay_ns: int) -> N
         odometry_vel_noise_m_s=sc.vio.vel_noise_m_s,
         odometry_yaw_noise_rad=sc.vio.yaw_noise_rad,
         odometry_gate_sigma=sc.vio.gate_sigma,
-        odometry_mode=sc.vio.odometry_mode,
+        # without a VIO no odometry is fused: its frame's drift is not estimated
+        odometry_mode=sc.vio.odometry_mode if sc.vio.enabled else "absolute",
         odometry_drift_m_sqrt_s=sc.vio.frame_drift_m_sqrt_s,
         odometry_drift_yaw_rad_sqrt_s=sc.vio.frame_drift_yaw_rad_sqrt_s,
     )
