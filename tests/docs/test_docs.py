@@ -28,6 +28,7 @@ from tests.docs.examples import (
     quadnav_argv,
     shell_line,
 )
+from tests.script_module import load_script
 from tests.shared_data import SHARED
 
 TIMEOUT_S = 300
@@ -36,12 +37,7 @@ LINK = re.compile(r"\]\(([^)\s]+)\)")
 
 def _reference() -> Any:
     """docs/gen/reference.py, the generated pages' maker."""
-    spec = importlib.util.spec_from_file_location("docs_reference", DOCS / "gen" / "reference.py")
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
-    return module
+    return load_script(DOCS / "gen" / "reference.py", "docs_reference")
 
 
 def _quiet_env() -> dict[str, str]:
