@@ -30,6 +30,7 @@ from quadnav.geometry.rotations import Pose
 from quadnav.messages import ImageFrame, ImuSample, OdometrySample
 
 __all__ = [
+    "TRACKING_EVENTS",
     "EventKind",
     "FrameFeatures",
     "KeyframeRecord",
@@ -44,7 +45,10 @@ FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 
 Status = Literal["tracking", "propagated"]
-EventKind = Literal["initialized", "failure", "reinitialized", "td", "stereo"]
+EventKind = Literal["initialized", "failure", "reinitialized", "td", "stereo", "imu_noise"]
+#: The events that start or break the estimate's continuity; the others ("td", "stereo",
+#: "imu_noise") report what the odometry measured about its sensors.
+TRACKING_EVENTS: tuple[EventKind, ...] = ("initialized", "failure", "reinitialized")
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

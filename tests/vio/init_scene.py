@@ -61,7 +61,11 @@ def make_scene(
     cruise: bool = False,
     n_points: int = 300,
     imu_rate_hz: float = 200.0,
+    depth_m: tuple[float, float] = (2.0, 10.0),
+    stereo_baseline_m: float | None = None,
 ) -> Scene:
+    """``stereo_baseline_m``: a second camera that far to the right of the first (EuRoC's is
+    0.11 m), seeing every point the first sees."""
     rng = np.random.default_rng(seed)
     cam = euroc_mono().cameras[0]
     T_B_C = cam.T_B_C
@@ -81,7 +85,7 @@ def make_scene(
     T_W_B = [Pose(Rotation.from_quat(quat[k]), pos[k]) for k in range(n_frames)]
     # points ahead of the first camera, 3-8 m away, spread across the view
     T_W_C0 = T_W_B[0] @ T_B_C
-    depth = rng.uniform(2.0, 10.0, n_points)
+    depth = rng.uniform(*depth_m, n_points)
     xy0 = rng.uniform(-0.7, 0.7, (n_points, 2))
     P_W = T_W_C0 @ np.column_stack([xy0 * depth[:, None], depth])
     frames = []
@@ -91,6 +95,11 @@ def make_scene(
         vis = (Pc[:, 2] > 0.3) & (np.abs(xy[:, 0]) < 0.8) & (np.abs(xy[:, 1]) < 0.55)
         ids = np.flatnonzero(vis).astype(np.int64)
         obs = xy[vis] + rng.normal(0.0, pixel_sigma / FOCAL_PX, (len(ids), 2))
+        stereo: dict[str, np.ndarray] = {}
+        if stereo_baseline_m is not None:
+            Pr = Pc[vis] - [stereo_baseline_m, 0.0, 0.0]
+            xr = Pr[:, :2] / Pr[:, 2:3] + rng.normal(0.0, pixel_sigma / FOCAL_PX, (len(ids), 2))
+            stereo = {"stereo_ids": ids.copy(), "stereo_xy": xr}
         frames.append(
             FrameFeatures(
                 t_ns=stamps[k],
@@ -99,14 +108,18 @@ def make_scene(
                 xy=obs,
                 velocity_xy_s=np.zeros_like(obs),
                 keyframe=True,
+                **stereo,
             )
         )
     params = imu_params(noise)
     pims = tuple(
         preintegrate(params, samples, stamps[k], stamps[k + 1]) for k in range(n_frames - 1)
     )
+    T_L_R = (
+        None if stereo_baseline_m is None else Pose(Rotation.identity(), [stereo_baseline_m, 0, 0])
+    )
     window = InitWindow(
-        frames=tuple(frames), preintegrations=pims, T_B_C=T_B_C, g_norm=GRAVITY_M_S2
+        frames=tuple(frames), preintegrations=pims, T_B_C=T_B_C, g_norm=GRAVITY_M_S2, T_L_R=T_L_R
     )
     v = motion.velocity(np.asarray(stamps, dtype=np.int64))
     b_true = bg + imu.gyro_bias_rad_s[np.searchsorted(imu.t_ns, stamps[0])]

@@ -137,6 +137,15 @@ class VioConfig(ConfigModel):
         le=100.0,
         description="multiplies the rig's stated IMU white-noise densities (a datasheet's leave out vibration)",
     )
+    imu_noise_online: bool = Field(
+        True,
+        description="measure the IMU's white noise in flight from its readings (second "
+        "differences over imu_noise_window_s) and use it on each axis where it exceeds the "
+        "stated one times imu_noise_scale",
+    )
+    imu_noise_window_s: float = Field(
+        2.0, ge=0.2, le=60.0, description="the readings the in-flight noise is measured over (s)"
+    )
     imu_walk_scale: float = Field(
         1.0, ge=0.01, le=100.0, description="multiplies the rig's stated IMU bias random walks"
     )

@@ -41,10 +41,11 @@ from quadnav.odometry import (
     StageTiming,
 )
 from quadnav.rig import Rig
-from quadnav.units import s_to_ns
+from quadnav.units import NS_PER_S, s_to_ns
 from quadnav.vio.config import VioConfig
 from quadnav.vio.failure import InputLog, SolvedState, state_failure, tracking_failure
 from quadnav.vio.frontend import FeatureManager, Frontend, median_motion_px
+from quadnav.vio.imu_noise import ImuNoiseMonitor, MeasuredNoise
 from quadnav.vio.initialization import visual_inertial_init
 from quadnav.vio.preintegration import imu_params, zero_bias
 from quadnav.vio.propagator import ImuPropagator
@@ -94,7 +95,16 @@ class VioEstimator:
             n, gyro_noise_density=a * n.gyro_noise_density, accel_noise_density=a * n.accel_noise_density,
             gyro_random_walk=w * n.gyro_random_walk, accel_random_walk=w * n.accel_random_walk,
         )  # fmt: skip
+        self._noise = noise  # stated, times the user's scales
         self._params = imu_params(noise, g_norm=cfg.g_norm)
+        self.noise_monitor = (
+            ImuNoiseMonitor(cfg.imu_noise_window_s, rig.imu.rate_hz)
+            if cfg.imu_noise_online
+            else None
+        )
+        self._noise_checked_ns = 0
+        self.imu_noise: MeasuredNoise | None = None  # the in-flight noise in use, if measured
+        self._noise_reported: FloatArray | None = None  # gyro and accel RMS last reported
         self.frontend = Frontend(spec.camera, cfg)
         self.features = FeatureManager()
         self.input = InputLog()
@@ -185,6 +195,8 @@ class VioEstimator:
         if not self.input.imu_ok(sample):
             return None
         self.imu.push(sample)  # (the running propagation carried to it)
+        if self.noise_monitor is not None:
+            self.noise_monitor.push(sample.t_ns, sample.gyro_rad_s, sample.accel_m_s2)
         if self.stereo is not None and self.stereo.overdue(sample.t_ns):
             return self._unpaired()  # the stream moved past a left frame: it goes on as mono
         if self._td is not None:  # the online time offset compares the gyro with vision
@@ -395,6 +407,7 @@ class VioEstimator:
         if len(self._init_frames) < need:
             return None
         frames = tuple(self._init_frames)
+        self._refresh_imu_noise(frame.t_ns)
         try:
             pims = tuple(
                 self.imu.span(a.t_ns, b.t_ns, zero_bias()) for a, b in itertools.pairwise(frames)
@@ -455,7 +468,51 @@ class VioEstimator:
     # -- tracking ---------------------------------------------------------------------------
     def _span(self, kf: Keyframe, t1_ns: int) -> gtsam.PreintegratedCombinedMeasurements:
         """The IMU from keyframe ``kf`` to ``t1_ns`` with its bias (empty for no span)."""
+        self._refresh_imu_noise(t1_ns)
         return self.imu.span(kf.t_ns, t1_ns, kf.bias, hold_ns=self._hold_ns())
+
+    def _refresh_imu_noise(self, t_ns: int) -> None:
+        """At most every half second: the IMU noise measured in flight, where it exceeds the
+        stated one, in the preintegration from now on (a change of over 10 % on any axis)."""
+        if self.noise_monitor is None or t_ns - self._noise_checked_ns < NS_PER_S // 2:
+            return
+        self._noise_checked_ns = t_ns
+        measured = self.noise_monitor.noise()
+        if measured is None:
+            return
+        old = self.imu_noise
+        if old is not None:
+            was = np.maximum(np.concatenate([old.gyro, old.accel]), 1e-12)
+            rel = np.concatenate([measured.gyro, measured.accel]) / was
+            if np.all(np.abs(rel - 1.0) < 0.1):
+                return
+        self.imu_noise = measured
+        self._params = imu_params(self._noise, g_norm=self.config.g_norm, measured=measured)
+        self.imu.params = self._params
+        self._report_imu_noise(t_ns, measured)
+
+    def _report_imu_noise(self, t_ns: int, measured: MeasuredNoise) -> None:
+        """An event when the measured noise first exceeds the stated one, and again at each
+        change by a factor of 1.5 (a take-off, a landing)."""
+        n = self._noise
+        rms = np.sqrt(
+            np.mean(np.concatenate([measured.gyro, measured.accel]).reshape(2, 3) ** 2, 1)
+        )
+        ratio = rms / np.maximum([n.gyro_noise_density, n.accel_noise_density], 1e-12)
+        last = self._noise_reported
+        if last is None:
+            news = bool(np.any(ratio > 1.0))
+        else:
+            change = np.maximum(rms, 1e-12) / np.maximum(last, 1e-12)
+            news = bool(np.any(np.abs(np.log(change)) >= np.log(1.5)))
+        if not news:
+            return
+        self._noise_reported = rms
+        detail = (
+            f"IMU noise in flight: gyro {rms[0]:.2g} rad/s/sqrt(Hz) ({ratio[0]:.1f}x the stated), "
+            f"accelerometer {rms[1]:.2g} m/s^2/sqrt(Hz) ({ratio[1]:.1f}x)"
+        )
+        self._events.append(OdometryEvent(t_ns=int(t_ns), kind="imu_noise", detail=detail))
 
     def _hold_ns(self) -> int:
         """An image the time offset moves ahead of the newest IMU: its last sample holds."""

@@ -136,11 +136,16 @@ def try_visual_inertial_init(
     _check_window(window)
     cfg = settings or InitSettings()
     stereo = window.T_L_R is not None and len(window.frames[0].stereo_ids) > 0
+    sfm: SfmResult | str = "no stereo pair"
+    why_not_stereo = ""
     if window.T_L_R is not None and stereo:
         sfm = stereo_structure(
             window.frames, window.T_L_R, focal_px=cfg.focal_px, min_points=cfg.min_features
         )
-    else:
+    if isinstance(sfm, str):  # one camera, or too few stereo points: the structure from motion
+        if stereo:
+            why_not_stereo = f" (stereo: {sfm})"
+        stereo = False
         sfm = vision_sfm(
             window.frames,
             focal_px=cfg.focal_px,
@@ -149,7 +154,7 @@ def try_visual_inertial_init(
             min_translation_px=cfg.min_translation_px,
         )
     if isinstance(sfm, str):
-        return InitFailure(stage="sfm", reason=sfm)
+        return InitFailure(stage="sfm", reason=sfm + why_not_stereo)
     R_C_B = window.T_B_C.R_A_B.inv()
     R_C0_B = [T.R_A_B * R_C_B for T in sfm.T_C0_C]
     pims = window.preintegrations
@@ -183,7 +188,7 @@ def try_visual_inertial_init(
         scale=1.0 if stereo else None,
     )
     if isinstance(al, str):
-        return InitFailure(stage="alignment", reason=al)
+        return InitFailure(stage="alignment", reason=al + why_not_stereo)
     if stereo:
         detail = (
             f"stereo: {len(window.frames)} keyframes, {len(sfm.points_C0)} landmarks, "
@@ -194,6 +199,7 @@ def try_visual_inertial_init(
         f"visual: reference frame {sfm.reference} ({sfm.parallax_px:.0f} px parallax), "
         f"{len(sfm.points_C0)} landmarks, reprojection {sfm.reprojection_px:.2f} px, "
         f"scale {al.scale:.3f} (sigma {al.scale_sigma / al.scale:.1%}), gyro bias {np.round(bias, 4).tolist()} rad/s"
+        f"{why_not_stereo}"
     )
     return _to_world(window, sfm, al, bias, detail)
 

@@ -23,6 +23,7 @@ from quadnav.errors import VioError
 from quadnav.messages import ImuSample
 from quadnav.rig import ImuNoiseModel
 from quadnav.units import GRAVITY_M_S2, NS_PER_S
+from quadnav.vio.imu_noise import MeasuredNoise
 
 __all__ = ["imu_params", "preintegrate", "zero_bias"]
 
@@ -35,16 +36,25 @@ _MIN_WALK = 1e-7
 
 
 def imu_params(
-    noise: ImuNoiseModel, *, g_norm: float = GRAVITY_M_S2, integration_sigma: float = 1e-4
+    noise: ImuNoiseModel,
+    *,
+    g_norm: float = GRAVITY_M_S2,
+    integration_sigma: float = 1e-4,
+    measured: MeasuredNoise | None = None,
 ) -> gtsam.PreintegrationCombinedParams:
     """GTSAM's combined-IMU parameters from the densities (their squares are the continuous-
-    time covariances GTSAM wants), gravity ``g_norm`` along -z."""
+    time covariances GTSAM wants), gravity ``g_norm`` along -z. With ``measured`` (the noise
+    the IMU shows in flight, per axis), each axis takes the larger of the two."""
     if not np.isfinite(g_norm) or not 9.0 < g_norm < 10.5:
         raise VioError(f"g_norm must be Earth's gravity (9-10.5 m/s^2), got {g_norm}")
     p = gtsam.PreintegrationCombinedParams.MakeSharedU(float(g_norm))
     I3 = np.eye(3)
-    p.setGyroscopeCovariance(I3 * max(noise.gyro_noise_density, _MIN_NOISE) ** 2)
-    p.setAccelerometerCovariance(I3 * max(noise.accel_noise_density, _MIN_NOISE) ** 2)
+    gyro = np.full(3, max(noise.gyro_noise_density, _MIN_NOISE))
+    accel = np.full(3, max(noise.accel_noise_density, _MIN_NOISE))
+    if measured is not None:
+        gyro, accel = np.maximum(gyro, measured.gyro), np.maximum(accel, measured.accel)
+    p.setGyroscopeCovariance(np.diag(gyro**2))
+    p.setAccelerometerCovariance(np.diag(accel**2))
     p.setBiasOmegaCovariance(I3 * max(noise.gyro_random_walk, _MIN_WALK) ** 2)
     p.setBiasAccCovariance(I3 * max(noise.accel_random_walk, _MIN_WALK) ** 2)
     p.setIntegrationCovariance(I3 * integration_sigma**2)

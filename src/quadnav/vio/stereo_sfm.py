@@ -23,10 +23,14 @@ __all__ = ["stereo_structure"]
 
 FloatArray = NDArray[np.float64]
 
-#: The nearest and farthest a stereo point may be, in baselines (ORB-SLAM's close points are
-#: within 40 baselines; beyond, the depth is too uncertain to start on).
+#: The nearest and farthest a stereo point may be, in baselines: ORB-SLAM's close points are
+#: within 40 baselines. Where the first frame has too few of them (a large hall, a corridor's far
+#: end), far points up to ``FAR_DEPTH_BASELINES`` are taken as well (ORB-SLAM2's stereo start
+#: takes every point with a depth): at EuRoC's 0.11 m baseline and 458 px focal length, 150
+#: baselines is a disparity of 3 px.
 MIN_DEPTH_BASELINES = 1.0
 MAX_DEPTH_BASELINES = 40.0
+FAR_DEPTH_BASELINES = 150.0
 #: The largest reprojection error (px) of a new stereo point in either view.
 MAX_REPROJECTION_PX = 1.5
 
@@ -37,6 +41,7 @@ def _stereo_points(
     T_L_R: Pose,
     points: dict[int, FloatArray],
     focal_px: float,
+    max_depth_baselines: float = MAX_DEPTH_BASELINES,
 ) -> None:
     """Add the frame's stereo corners that have no point yet (in ``C0``), checked for depth
     and reprojection in both views (``MAX_REPROJECTION_PX`` at ``focal_px``)."""
@@ -56,7 +61,7 @@ def _stereo_points(
     ok = (
         np.isfinite(pts).all(axis=1)
         & (np.nan_to_num(z[:, 0]) > MIN_DEPTH_BASELINES * b)
-        & (np.nan_to_num(z[:, 0]) < MAX_DEPTH_BASELINES * b)
+        & (np.nan_to_num(z[:, 0]) < max_depth_baselines * b)
         & (err * focal_px < MAX_REPROJECTION_PX)
     )
     for k in np.flatnonzero(ok):
@@ -76,9 +81,13 @@ def stereo_structure(
         return f"a stereo window needs at least 2 frames, got {len(frames)}"
     points: dict[int, FloatArray] = {}
     poses = [Pose.identity()]
-    _stereo_points(frames[0], poses[0], T_L_R, points, focal_px)
+    far = MAX_DEPTH_BASELINES
+    _stereo_points(frames[0], poses[0], T_L_R, points, focal_px, far)
     if len(points) < min_points:
-        return f"the first frame has {len(points)} stereo points within {MAX_DEPTH_BASELINES:g} baselines, under {min_points}"
+        far = FAR_DEPTH_BASELINES
+        _stereo_points(frames[0], poses[0], T_L_R, points, focal_px, far)
+    if len(points) < min_points:
+        return f"the first frame has {len(points)} stereo points within {far:g} baselines, under {min_points}"
     for k, f in enumerate(frames[1:], start=1):
         ids = [int(j) for j in f.ids if int(j) in points]
         at = {int(j): i for i, j in enumerate(f.ids)}
@@ -91,7 +100,7 @@ def stereo_structure(
         if res is None:
             return f"PnP could not place window frame {k} on {len(ids)} stereo points"
         poses.append(res.T_W_C)
-        _stereo_points(f, res.T_W_C, T_L_R, points, focal_px)
+        _stereo_points(f, res.T_W_C, T_L_R, points, focal_px, far)
     rms = _rms_px(frames, poses, points, focal_px)
     return SfmResult(
         T_C0_C=tuple(poses), points_C0=points, reference=0, parallax_px=0.0, reprojection_px=rms
