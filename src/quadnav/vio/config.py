@@ -127,8 +127,12 @@ class VioConfig(ConfigModel):
         0.1, gt=0.0, le=100.0, description="gyro bias change in one keyframe"
     )
     estimate_td: bool = Field(False, description="estimate the camera-IMU time offset online")
-    td_s: float = Field(
-        0.0, ge=-0.1, le=0.1, description="camera-IMU offset: image taken at stamp + td_s"
+    td_s: float | None = Field(
+        None,
+        ge=-0.1,
+        le=0.1,
+        description="camera-IMU offset: image taken at stamp + td_s (None: the camera's "
+        "calibration, its sensor.yaml's time_offset_ns or Kalibr's timeshift_cam_imu)",
     )
     g_norm: float = Field(GRAVITY_M_S2, ge=9.0, le=10.5, description="gravity (m/s^2)")
     imu_noise_scale: float = Field(

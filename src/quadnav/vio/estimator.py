@@ -41,7 +41,7 @@ from quadnav.odometry import (
     StageTiming,
 )
 from quadnav.rig import Rig
-from quadnav.units import NS_PER_S, s_to_ns
+from quadnav.units import NS_PER_S, ns_to_s, s_to_ns
 from quadnav.vio.config import VioConfig
 from quadnav.vio.failure import InputLog, SolvedState, state_failure, tracking_failure
 from quadnav.vio.frontend import FeatureManager, Frontend, median_motion_px
@@ -121,7 +121,7 @@ class VioEstimator:
         self._cov_pose = np.eye(6) * 1e-6
         self._cov_v = np.eye(3) * 1e-6
         self._last_p = np.zeros(3)
-        self._td_s = cfg.td_s
+        self._td_s = ns_to_s(spec.time_offset_ns) if cfg.td_s is None else cfg.td_s
         self._td = (
             _time_offset_estimator(rig.camera(camera).T_B_C.R_A_B) if cfg.estimate_td else None
         )
