@@ -15,8 +15,12 @@ __all__ = ["VioConfig"]
 
 
 def _tracker() -> TrackerConfig:
-    """VINS-Mono's EuRoC front end: 150 features, 30 px apart, F threshold 1 px."""
-    return TrackerConfig(max_features=150, min_distance_px=30.0, ransac_threshold_px=1.0)
+    """VINS-Mono's EuRoC front end: 150 features, 30 px apart, F threshold 1 px; corners
+    detected once 20 are missing (VINS: every frame; on ideal room_medium_60 the same ATE,
+    0.022 m, with 144 features a frame instead of 149 and about half the detections)."""
+    return TrackerConfig(
+        max_features=150, min_distance_px=30.0, ransac_threshold_px=1.0, detect_min_new=20
+    )
 
 
 class VioConfig(ConfigModel):
