@@ -70,3 +70,42 @@ def test_admission_lets_in_the_tracks_that_should_enter_at_their_points() -> Non
     )
     again = book.admit(fm, P, {})
     assert again.new == [] and again.observations == []
+
+
+#: A stereo rig's second camera 0.11 m to the right of each keyframe's first.
+PR = {k: np.hstack([np.eye(3), -(c + [0.11, 0.0, 0.0])[:, None]]) for k, c in CENTRES.items()}
+
+
+def _seen_right(X: FloatArray, ks: list[int]) -> dict[int, FloatArray]:
+    return {k: (X - CENTRES[k] - [0.11, 0.0, 0.0])[:2] / (X - CENTRES[k])[2] for k in ks}
+
+
+def test_stereo_views_triangulated_at_once_give_each_tracks_own_point() -> None:
+    rng = np.random.default_rng(5)
+    Pv = {(k, 0): m for k, m in P.items()} | {(k, 1): m for k, m in PR.items()}
+    tracks = []
+    for _ in range(40):
+        X = rng.uniform([-2.0, -1.5, 1.0], [2.0, 1.5, 5.0])
+        left = sorted(rng.choice(6, size=int(rng.integers(0, 4)), replace=False).tolist())
+        right = sorted(rng.choice(6, size=int(rng.integers(1, 3)), replace=False).tolist())
+        views = {(k, 0): xy for k, xy in _seen(X, left).items()}
+        views |= {(k, 1): xy + rng.normal(0.0, 1e-3, 2) for k, xy in _seen_right(X, right).items()}
+        tracks.append(views)
+    for views, p in zip(tracks, _dlt_points(tracks, Pv), strict=True):
+        one = triangulate_track(views, Pv)
+        assert (p is None) == (one is None)
+        assert p is None or one is None or np.array_equal(p, one)
+
+
+def test_a_near_point_seen_in_stereo_enters_from_one_keyframe() -> None:
+    """One keyframe's views in both cameras let a point 2 m away in (0.11 m baseline); one
+    60 m away (beyond ``stereo_max_depth_baselines``) waits."""
+    near, far = np.array([0.3, 0.2, 2.0]), np.array([-1.0, 0.5, 59.0])
+    fm = FeatureManager()
+    fm.tracks = {1: _seen(near, [2]), 2: _seen(far, [2])}
+    fm.right = {1: _seen_right(near, [2]), 2: _seen_right(far, [2])}
+    book = LandmarkBook(VioConfig(), focal_px=460.0, baseline_m=0.11)
+    adm = book.admit(fm, P, PR)
+    assert [n.track for n in adm.new] == [1]
+    assert np.linalg.norm(adm.new[0].point_W - near) < 1e-9
+    assert sorted((o.keyframe, o.side) for o in adm.observations) == [(2, 0), (2, 1)]

@@ -22,13 +22,14 @@ decides into factors.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Hashable, Mapping
 from dataclasses import dataclass, field
+from typing import TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
 
-from quadnav.geometry.multiview import reprojection_errors, triangulate, triangulate_track
+from quadnav.geometry.multiview import reprojection_errors, triangulate
 from quadnav.vio.config import VioConfig
 from quadnav.vio.frontend import FeatureManager
 
@@ -38,6 +39,8 @@ FloatArray = NDArray[np.float64]
 Cameras = dict[int, FloatArray]  # keyframe index -> 3x4 [R_C_W | t_C_W]
 #: A track an admission looks at: its id, its views in both cameras, and its views' summary.
 _Candidate = tuple[int, dict[int, FloatArray], dict[int, FloatArray], tuple[int, int, int, int]]
+#: A view: a keyframe index, or (keyframe index, camera) for a stereo rig's two cameras.
+V = TypeVar("V", bound=Hashable)
 
 
 @dataclass(frozen=True, slots=True)
@@ -92,7 +95,9 @@ def _bearing_angles(tracks: list[dict[int, FloatArray]], P: Cameras) -> FloatArr
     return out
 
 
-def _dlt_points(tracks: list[dict[int, FloatArray]], P: Cameras) -> list[FloatArray | None]:
+def _dlt_points(
+    tracks: list[dict[V, FloatArray]], P: Mapping[V, FloatArray]
+) -> list[FloatArray | None]:
     """Each track's DLT point from its views (None if degenerate), triangulated together by
     number of views: the same point, to the bit, as one at a time."""
     out: list[FloatArray | None] = [None] * len(tracks)
@@ -113,10 +118,12 @@ def _dlt_points(tracks: list[dict[int, FloatArray]], P: Cameras) -> list[FloatAr
 @dataclass(slots=True)
 class _Geometry:
     """Per track, computed for all tracks of an admission at once: the parallax angle of its
-    fresh views and, where it is enough to triangulate, their DLT point."""
+    fresh views and, where it is enough to triangulate, their DLT point; with views in the
+    second camera too, the DLT point of all its fresh views in both."""
 
     angle: dict[int, float] = field(default_factory=dict)
     point: dict[int, FloatArray | None] = field(default_factory=dict)
+    stereo_point: dict[int, FloatArray | None] = field(default_factory=dict)
 
 
 class LandmarkBook:
@@ -174,7 +181,7 @@ class LandmarkBook:
         out = Admission()
         centres = camera_centres(P)
         todo = self._candidates(features, P, PR)
-        geo = self._geometry([(j, obs) for j, obs, _, _ in todo if j not in self.landmarks], P)
+        geo = self._geometry([c for c in todo if c[0] not in self.landmarks], P, PR)
         for j, obs, robs, views in todo:
             if j not in self.landmarks:
                 new = self._enter(j, obs, robs, P, PR, centres, geo)
@@ -213,20 +220,32 @@ class LandmarkBook:
             out.append((j, obs, robs, views))
         return out
 
-    def _fresh(self, j: int, obs: dict[int, FloatArray]) -> dict[int, FloatArray]:
-        """A track's views the marginal prior does not hold."""
-        used = self._used.get(j, set())
+    def _fresh(self, j: int, obs: dict[int, FloatArray], side: int = 0) -> dict[int, FloatArray]:
+        """A track's views (in camera ``side``) the marginal prior does not hold."""
+        used = (self._used if side == 0 else self._used_r).get(j, set())
         return {k: xy for k, xy in obs.items() if k not in used}
 
-    def _geometry(self, tracks: list[tuple[int, dict[int, FloatArray]]], P: Cameras) -> _Geometry:
-        """The parallax of the tracks' fresh views, and the DLT point of those with enough."""
-        fresh = [(j, f) for j, f in ((j, self._fresh(j, obs)) for j, obs in tracks) if len(f) >= 2]
+    def _geometry(self, tracks: list[_Candidate], P: Cameras, PR: Cameras) -> _Geometry:
+        """The parallax of the tracks' fresh views, and the DLT point of those with enough;
+        the DLT point of the fresh views in both cameras of those seen in the second."""
         geo = _Geometry()
-        angles = _bearing_angles([f for _, f in fresh], P)
-        geo.angle = {j: float(a) for (j, _), a in zip(fresh, angles, strict=True)}
-        enough = [(j, f) for j, f in fresh if geo.angle[j] >= self._parallax_needed(len(f))]
+        fresh = {j: self._fresh(j, obs) for j, obs, _, _ in tracks}
+        mono = [(j, f) for j, f in fresh.items() if len(f) >= 2]
+        angles = _bearing_angles([f for _, f in mono], P)
+        geo.angle = {j: float(a) for (j, _), a in zip(mono, angles, strict=True)}
+        enough = [(j, f) for j, f in mono if geo.angle[j] >= self._parallax_needed(len(f))]
         points = _dlt_points([f for _, f in enough], P)
         geo.point = {j: p for (j, _), p in zip(enough, points, strict=True)}
+        both: list[tuple[int, dict[tuple[int, int], FloatArray]]] = []
+        for j, _, robs, _ in tracks:
+            rfresh = self._fresh(j, robs, 1)
+            if rfresh:
+                views = {(k, 0): xy for k, xy in fresh[j].items()}
+                both.append((j, views | {(k, 1): xy for k, xy in rfresh.items()}))
+        if both:
+            Pv = {(k, 0): Pk for k, Pk in P.items()} | {(k, 1): Pk for k, Pk in PR.items()}
+            points = _dlt_points([v for _, v in both], Pv)
+            geo.stereo_point = {j: p for (j, _), p in zip(both, points, strict=True)}
         return geo
 
     def _enter(
@@ -252,7 +271,7 @@ class LandmarkBook:
         if p is None or not fresh or not self._landmark_ok(p, fresh, P):
             p = self._triangulated(j, fresh, P, centres, geo) if mono else None
         if p is None and rfresh:
-            p = self._stereo_point(fresh, rfresh, P, PR)
+            p = self._stereo_point(j, fresh, rfresh, P, PR, geo)
         if p is None:
             return None
         self._seed.pop(j, None)
@@ -310,16 +329,22 @@ class LandmarkBook:
         return bool(np.all(err * self.focal_px <= cfg.max_reprojection_px))
 
     def _stereo_point(
-        self, obs: dict[int, FloatArray], robs: dict[int, FloatArray], P: Cameras, PR: Cameras
+        self,
+        j: int,
+        obs: dict[int, FloatArray],
+        robs: dict[int, FloatArray],
+        P: Cameras,
+        PR: Cameras,
+        geo: _Geometry,
     ) -> FloatArray | None:
-        """A track's point from its views in both cameras (a stereo pair is enough), if it is
-        within ``stereo_max_depth_baselines`` of a camera that sees it in stereo, in front of
-        every view and near every pixel."""
+        """Track ``j``'s point from its fresh views in both cameras (a stereo pair is enough),
+        if it is within ``stereo_max_depth_baselines`` of a camera that sees it in stereo, in
+        front of every view and near every pixel."""
         cfg = self.config
         views: dict[tuple[int, int], FloatArray] = {(k, 0): xy for k, xy in obs.items()}
         views.update({(k, 1): xy for k, xy in robs.items()})
         Pv = {(k, 0): P[k] for k in obs} | {(k, 1): PR[k] for k in robs}
-        p = triangulate_track(views, Pv)
+        p = geo.stereo_point[j]
         if p is None:
             return None
         err, z = reprojection_errors(
