@@ -520,12 +520,12 @@ def test_spacing_keeps_what_the_greedy_pass_keeps(seed: int) -> None:
 
 def test_a_one_level_backward_pass_keeps_the_full_pyramids_tracks() -> None:
     """``fb_pyramid_levels``: the backward pass starts at the feature's start, so one pyramid
-    level (VINS-Fusion's) drops the same features as the forward pass's three, on a pan of 8 px
-    a frame (where the forward pass needs its pyramid)."""
+    level (VINS-Fusion's) drops the same features as the default, the forward pass's three, on
+    a pan of 8 px a frame (where the forward pass needs its pyramid)."""
     frames = _pan(3, 8, step_px=8.0)
-    full = TrackerConfig(fb_pyramid_levels=3)
-    one = TrackerConfig()
-    assert one.fb_pyramid_levels == 1
+    full = TrackerConfig()
+    one = TrackerConfig(fb_pyramid_levels=1)
+    assert full.fb_pyramid_levels is None and full.pyramid_levels == 3
     differ = tracked = 0
     for a, b in itertools.pairwise(frames):
         kept = []
