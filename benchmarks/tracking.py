@@ -56,13 +56,17 @@ def moving(first: np.ndarray, n: int) -> list[np.ndarray]:
 
 
 def best_stage_s(
-    frames: list[np.ndarray], cam: PinholeCamera | None, repeats: int
+    frames: list[np.ndarray],
+    cam: PinholeCamera | None,
+    repeats: int,
+    config: TrackerConfig | None = None,
 ) -> dict[str, float]:
     """Per stage, the sum over the frames of each frame's least time among ``repeats`` runs
-    (a run tracks the same frames the same way, so the least is the least disturbed)."""
+    (a run tracks the same frames the same way, so the least is the least disturbed), with
+    ``config`` (default: ``TrackerConfig()``)."""
     t = np.full((repeats, len(frames), len(STAGES) + 1), np.inf)
     for r in range(repeats):
-        tr = FeatureTracker(TrackerConfig(), cam)
+        tr = FeatureTracker(config or TrackerConfig(), cam)
         for k, img in enumerate(frames):
             t0 = time.perf_counter()
             tr.track(k * 50_000_000, img)

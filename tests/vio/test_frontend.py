@@ -94,3 +94,27 @@ def test_feature_manager_forgets_a_keyframe() -> None:
                             xy=np.zeros((1, 2)), velocity_xy_s=np.zeros((1, 2))))  # fmt: skip
     fm.drop_keyframe(0)
     assert list(fm.tracks) == [0] and list(fm.observations(0)) == [1]
+
+
+def test_the_vios_tracker_detects_only_when_enough_are_missing_and_stays_near_full() -> None:
+    """The VIO's default ``detect_min_new`` (20): on a pan of 9 px a frame (features leave the
+    image every frame), a frame that detects nothing still holds more than 130 of its 150
+    features, a few frames detect (5 of 23; with VINS' 1 all 23 do), and the mean stays near
+    the full 150 (140; 150 with VINS' 1)."""
+    from quadnav.vision.tracking import FeatureTracker
+    from tests.vision.tracking_scenes import canvas, view
+
+    cfg = VioConfig().tracker
+    assert cfg.detect_min_new == 20 and cfg.max_features == 150
+    tex = canvas(np.random.default_rng(2))
+    tracker = FeatureTracker(cfg)
+    frames = []
+    for k in range(24):
+        D = np.array([[1.0, 0.0, 9.0 * k], [0.0, 1.0, -5.0 * k], [0.0, 0.0, 1.0]])
+        frames.append(tracker.track(k * 50_000_000, view(tex, D)))
+    later = frames[1:]
+    for f in later:
+        assert f.counts.new > 0 or len(f) > cfg.max_features - cfg.detect_min_new
+    detecting = sum(f.counts.new > 0 for f in later)
+    assert 3 <= detecting <= 0.5 * len(later)
+    assert np.mean([len(f) for f in later]) >= 135

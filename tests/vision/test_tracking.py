@@ -492,3 +492,47 @@ def test_a_reused_image_buffer_does_not_change_the_previous_frame() -> None:
         b = tr_new.track(k, img.copy())
     np.testing.assert_array_equal(a.ids, b.ids)
     np.testing.assert_allclose(a.pixels, b.pixels)
+
+
+def _greedy_spacing(pts: np.ndarray, order: np.ndarray, min_dist: float) -> np.ndarray:
+    """VINS' setMask by the book: in order, keep a point no kept one is closer to."""
+    keep = np.zeros(len(pts), bool)
+    for i in order:
+        kept = pts[keep]
+        keep[i] = not len(kept) or np.hypot(*(kept - pts[i]).T).min() >= min_dist
+    return keep
+
+
+@pytest.mark.parametrize("seed", SEEDS)
+def test_spacing_keeps_what_the_greedy_pass_keeps(seed: int) -> None:
+    """The spacing check (run over the crowded features only) keeps exactly the features VINS'
+    one-by-one pass keeps, crowded or not, in any order."""
+    from quadnav.vision.tracking import _spaced
+
+    rng = np.random.default_rng(seed)
+    for n, side in ((150, 752.0), (150, 200.0), (40, 1000.0), (1, 10.0), (0, 10.0)):
+        pts = rng.uniform(0.0, side, (n, 2))
+        order = rng.permutation(n)
+        want = _greedy_spacing(pts, order, 30.0)
+        assert np.array_equal(_spaced(pts, order, 30.0), want)
+    assert not _greedy_spacing(rng.uniform(0.0, 200.0, (150, 2)), np.arange(150), 30.0).all()
+
+
+def test_a_one_level_backward_pass_keeps_the_full_pyramids_tracks() -> None:
+    """``fb_pyramid_levels``: the backward pass starts at the feature's start, so one pyramid
+    level (VINS-Fusion's) drops the same features as the default, the forward pass's three, on
+    a pan of 8 px a frame (where the forward pass needs its pyramid)."""
+    frames = _pan(3, 8, step_px=8.0)
+    full = TrackerConfig()
+    one = TrackerConfig(fb_pyramid_levels=1)
+    assert full.fb_pyramid_levels is None and full.pyramid_levels == 3
+    differ = tracked = 0
+    for a, b in itertools.pairwise(frames):
+        kept = []
+        for cfg in (full, one):
+            f1 = _track_pair(a, b, cfg)[1]
+            kept.append(set(f1.ids[~f1.is_new].tolist()))
+        differ += len(kept[0] ^ kept[1])
+        tracked += len(kept[0])
+    assert tracked >= 7 * 140
+    assert differ <= 0.01 * tracked

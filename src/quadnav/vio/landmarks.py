@@ -22,13 +22,14 @@ decides into factors.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Hashable, Mapping
 from dataclasses import dataclass, field
+from typing import TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
 
-from quadnav.geometry.multiview import reprojection_errors, triangulate_track
+from quadnav.geometry.multiview import reprojection_errors, triangulate
 from quadnav.vio.config import VioConfig
 from quadnav.vio.frontend import FeatureManager
 
@@ -36,6 +37,10 @@ __all__ = ["Admission", "LandmarkBook", "NewLandmark", "Observation"]
 
 FloatArray = NDArray[np.float64]
 Cameras = dict[int, FloatArray]  # keyframe index -> 3x4 [R_C_W | t_C_W]
+#: A track an admission looks at: its id, its views in both cameras, and its views' summary.
+_Candidate = tuple[int, dict[int, FloatArray], dict[int, FloatArray], tuple[int, int, int, int]]
+#: A view: a keyframe index, or (keyframe index, camera) for a stereo rig's two cameras.
+V = TypeVar("V", bound=Hashable)
 
 
 @dataclass(frozen=True, slots=True)
@@ -74,13 +79,51 @@ def camera_centres(P: Cameras) -> dict[int, FloatArray]:
     return {k: np.asarray(-np.linalg.solve(Pk[:, :3], Pk[:, 3]), np.float64) for k, Pk in P.items()}
 
 
-def _bearing_angle(obs: dict[int, FloatArray], P: Cameras) -> float:
-    """The angle (rad) between the world bearings of a track's first and last observations."""
-    k0, k1 = min(obs), max(obs)
-    b0 = np.linalg.solve(P[k0][:, :3], np.array([obs[k0][0], obs[k0][1], 1.0]))
-    b1 = np.linalg.solve(P[k1][:, :3], np.array([obs[k1][0], obs[k1][1], 1.0]))
-    c = float(b0 @ b1) / float(np.linalg.norm(b0) * np.linalg.norm(b1))
-    return float(np.arccos(min(1.0, max(-1.0, c))))
+def _bearing_angles(tracks: list[dict[int, FloatArray]], P: Cameras) -> FloatArray:
+    """The angle (rad) between the world bearings of each track's first and last observations
+    (each track seen in at least one view)."""
+    if not tracks:
+        return np.zeros(0)
+    ends = [(min(obs), max(obs)) for obs in tracks]
+    A = np.array([[P[k0][:, :3], P[k1][:, :3]] for k0, k1 in ends])  # (n, 2, 3, 3)
+    x = np.array([[obs[k0], obs[k1]] for obs, (k0, k1) in zip(tracks, ends, strict=True)])
+    rays = np.concatenate([x, np.ones((*x.shape[:2], 1))], axis=2)[..., None]
+    b = np.linalg.solve(A, rays)[..., 0]  # (n, 2, 3)
+    norms = np.linalg.norm(b, axis=2)
+    c = np.einsum("ij,ij->i", b[:, 0], b[:, 1]) / (norms[:, 0] * norms[:, 1])
+    out: FloatArray = np.arccos(np.clip(c, -1.0, 1.0))
+    return out
+
+
+def _dlt_points(
+    tracks: list[dict[V, FloatArray]], P: Mapping[V, FloatArray]
+) -> list[FloatArray | None]:
+    """Each track's DLT point from its views (None if degenerate), triangulated together by
+    number of views: the same point, to the bit, as one at a time."""
+    out: list[FloatArray | None] = [None] * len(tracks)
+    by_views: dict[int, list[int]] = {}
+    for i, obs in enumerate(tracks):
+        by_views.setdefault(len(obs), []).append(i)
+    for v, idx in by_views.items():
+        if v < 2:
+            continue
+        xy = np.array([list(tracks[i].values()) for i in idx], np.float64)
+        Pm = np.array([[P[k] for k in tracks[i]] for i in idx], np.float64)
+        pts, _ = triangulate(xy, Pm)
+        for i, p in zip(idx, pts, strict=True):
+            out[i] = p if bool(np.isfinite(p).all()) else None
+    return out
+
+
+@dataclass(slots=True)
+class _Geometry:
+    """Per track, computed for all tracks of an admission at once: the parallax angle of its
+    fresh views and, where it is enough to triangulate, their DLT point; with views in the
+    second camera too, the DLT point of all its fresh views in both."""
+
+    angle: dict[int, float] = field(default_factory=dict)
+    point: dict[int, FloatArray | None] = field(default_factory=dict)
+    stereo_point: dict[int, FloatArray | None] = field(default_factory=dict)
 
 
 class LandmarkBook:
@@ -137,18 +180,11 @@ class LandmarkBook:
         window's camera matrices (``PR``: the second camera's, empty for mono)."""
         out = Admission()
         centres = camera_centres(P)
-        right = features.right
-        for j, obs_all in features.tracks.items():
-            if j in self.bad_tracks:
-                continue
-            r = right.get(j, {})
-            views = (max(obs_all, default=-1), len(obs_all), max(r, default=-1), len(r))
-            if j not in self.landmarks and self._tried.get(j) == views:
-                continue  # it could not enter with these views: it waits for another
-            obs = {k: xy for k, xy in obs_all.items() if k in P}
-            robs = {k: xy for k, xy in r.items() if k in PR}
+        todo = self._candidates(features, P, PR)
+        geo = self._geometry([c for c in todo if c[0] not in self.landmarks], P, PR)
+        for j, obs, robs, views in todo:
             if j not in self.landmarks:
-                new = self._enter(j, obs, robs, P, PR, centres)
+                new = self._enter(j, obs, robs, P, PR, centres, geo)
                 if new is None:
                     self._tried[j] = views
                     continue
@@ -166,6 +202,52 @@ class LandmarkBook:
                     seen_r.add(k)
         return out
 
+    def _candidates(self, features: FeatureManager, P: Cameras, PR: Cameras) -> list[_Candidate]:
+        """The tracks an admission looks at, with their views in the window's keyframes (both
+        cameras) and what it remembers them by: not bad, and a landmark or with views it has
+        not failed to enter with."""
+        right = features.right
+        out: list[_Candidate] = []
+        for j, obs_all in features.tracks.items():
+            if j in self.bad_tracks:
+                continue
+            r = right.get(j, {})
+            views = (max(obs_all, default=-1), len(obs_all), max(r, default=-1), len(r))
+            if j not in self.landmarks and self._tried.get(j) == views:
+                continue  # it could not enter with these views: it waits for another
+            obs = {k: xy for k, xy in obs_all.items() if k in P}
+            robs = {k: xy for k, xy in r.items() if k in PR}
+            out.append((j, obs, robs, views))
+        return out
+
+    def _fresh(self, j: int, obs: dict[int, FloatArray], side: int = 0) -> dict[int, FloatArray]:
+        """A track's views (in camera ``side``) the marginal prior does not hold."""
+        used = (self._used if side == 0 else self._used_r).get(j, set())
+        return {k: xy for k, xy in obs.items() if k not in used}
+
+    def _geometry(self, tracks: list[_Candidate], P: Cameras, PR: Cameras) -> _Geometry:
+        """The parallax of the tracks' fresh views, and the DLT point of those with enough;
+        the DLT point of the fresh views in both cameras of those seen in the second."""
+        geo = _Geometry()
+        fresh = {j: self._fresh(j, obs) for j, obs, _, _ in tracks}
+        mono = [(j, f) for j, f in fresh.items() if len(f) >= 2]
+        angles = _bearing_angles([f for _, f in mono], P)
+        geo.angle = {j: float(a) for (j, _), a in zip(mono, angles, strict=True)}
+        enough = [(j, f) for j, f in mono if geo.angle[j] >= self._parallax_needed(len(f))]
+        points = _dlt_points([f for _, f in enough], P)
+        geo.point = {j: p for (j, _), p in zip(enough, points, strict=True)}
+        both: list[tuple[int, dict[tuple[int, int], FloatArray]]] = []
+        for j, _, robs, _ in tracks:
+            rfresh = self._fresh(j, robs, 1)
+            if rfresh:
+                views = {(k, 0): xy for k, xy in fresh[j].items()}
+                both.append((j, views | {(k, 1): xy for k, xy in rfresh.items()}))
+        if both:
+            Pv = {(k, 0): Pk for k, Pk in P.items()} | {(k, 1): Pk for k, Pk in PR.items()}
+            points = _dlt_points([v for _, v in both], Pv)
+            geo.stereo_point = {j: p for (j, _), p in zip(both, points, strict=True)}
+        return geo
+
     def _enter(
         self,
         j: int,
@@ -174,6 +256,7 @@ class LandmarkBook:
         P: Cameras,
         PR: Cameras,
         centres: dict[int, FloatArray],
+        geo: _Geometry,
     ) -> NewLandmark | None:
         """A track's landmark if it may enter (from the views the prior does not hold: a track
         whose landmark was marginalised enters again as a new track would, no prior from the old
@@ -181,14 +264,14 @@ class LandmarkBook:
         used, used_r = self._used.get(j, set()), self._used_r.get(j, set())
         fresh = {k: xy for k, xy in obs.items() if k not in used}
         rfresh = {k: xy for k, xy in robs.items() if k not in used_r}
-        mono = len(fresh) >= 2 and (not used or self._enough_parallax(fresh, P))
+        mono = len(fresh) >= 2 and (not used or self._enough_parallax(j, fresh, geo))
         if not mono and not rfresh:
             return None
         p = self._seed.get(j)
         if p is None or not fresh or not self._landmark_ok(p, fresh, P):
-            p = self._triangulated(fresh, P, centres) if mono else None
+            p = self._triangulated(j, fresh, P, centres, geo) if mono else None
         if p is None and rfresh:
-            p = self._stereo_point(fresh, rfresh, P, PR)
+            p = self._stereo_point(j, fresh, rfresh, P, PR, geo)
         if p is None:
             return None
         self._seed.pop(j, None)
@@ -205,17 +288,24 @@ class LandmarkBook:
         px = 3.0 if views >= cfg.landmark_min_observations else cfg.landmark_min_parallax_px
         return px / cfg.parallax_focal_px
 
-    def _enough_parallax(self, obs: dict[int, FloatArray], P: Cameras) -> bool:
-        return len(obs) >= 2 and _bearing_angle(obs, P) >= self._parallax_needed(len(obs))
+    def _enough_parallax(self, j: int, fresh: dict[int, FloatArray], geo: _Geometry) -> bool:
+        """Track ``j``'s fresh views (those :meth:`_geometry` measured) are far enough apart."""
+        return len(fresh) >= 2 and geo.angle[j] >= self._parallax_needed(len(fresh))
 
     def _triangulated(
-        self, obs: dict[int, FloatArray], P: Cameras, centres: dict[int, FloatArray]
+        self,
+        j: int,
+        obs: dict[int, FloatArray],
+        P: Cameras,
+        centres: dict[int, FloatArray],
+        geo: _Geometry,
     ) -> FloatArray | None:
-        """A track's point if it may enter: enough views or parallax, in front, near its pixels."""
-        if not self._enough_parallax(obs, P):  # not worth a triangulation
+        """Track ``j``'s point from its fresh views ``obs`` if it may enter: enough views or
+        parallax, in front, near its pixels."""
+        if not self._enough_parallax(j, obs, geo):  # not worth a triangulation
             return None
         need = self._parallax_needed(len(obs))
-        p = triangulate_track(obs, P)
+        p = geo.point[j]
         if p is None or not np.isfinite(p).all():
             return None
         rays = [p - centres[k] for k in obs]
@@ -239,16 +329,22 @@ class LandmarkBook:
         return bool(np.all(err * self.focal_px <= cfg.max_reprojection_px))
 
     def _stereo_point(
-        self, obs: dict[int, FloatArray], robs: dict[int, FloatArray], P: Cameras, PR: Cameras
+        self,
+        j: int,
+        obs: dict[int, FloatArray],
+        robs: dict[int, FloatArray],
+        P: Cameras,
+        PR: Cameras,
+        geo: _Geometry,
     ) -> FloatArray | None:
-        """A track's point from its views in both cameras (a stereo pair is enough), if it is
-        within ``stereo_max_depth_baselines`` of a camera that sees it in stereo, in front of
-        every view and near every pixel."""
+        """Track ``j``'s point from its fresh views in both cameras (a stereo pair is enough),
+        if it is within ``stereo_max_depth_baselines`` of a camera that sees it in stereo, in
+        front of every view and near every pixel."""
         cfg = self.config
         views: dict[tuple[int, int], FloatArray] = {(k, 0): xy for k, xy in obs.items()}
         views.update({(k, 1): xy for k, xy in robs.items()})
         Pv = {(k, 0): P[k] for k in obs} | {(k, 1): PR[k] for k in robs}
-        p = triangulate_track(views, Pv)
+        p = geo.stereo_point[j]
         if p is None:
             return None
         err, z = reprojection_errors(

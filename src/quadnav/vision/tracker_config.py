@@ -23,6 +23,14 @@ class TrackerConfig(ConfigModel):
         0.5, gt=0.0, le=5.0, description="forward-backward check: most a feature may miss its start"
     )
     forward_backward: bool = Field(True, description="track back and drop the inconsistent")
+    fb_pyramid_levels: int | None = Field(
+        None,
+        ge=0,
+        le=6,
+        description="pyramid levels of the backward pass, which starts at the feature's known "
+        "start (None: pyramid_levels; VINS-Fusion: 1, faster, but on realistic MH_01 seed 0 the "
+        "mono ATE went from 0.022 to 0.027 m)",
+    )
     ransac_threshold_px: float = Field(
         1.0, gt=0.0, le=10.0, description="fundamental-matrix RANSAC (VINS' F_threshold)"
     )

@@ -212,10 +212,16 @@ def fundamental_inliers(
 
 
 def _klt(
-    img_a: Image, img_b: Image, pts: FloatArray, cfg: TrackerConfig, guess: FloatArray | None = None
+    img_a: Image,
+    img_b: Image,
+    pts: FloatArray,
+    cfg: TrackerConfig,
+    guess: FloatArray | None = None,
+    levels: int | None = None,
 ) -> tuple[FloatArray, BoolArray]:
-    """Pyramidal KLT of ``pts`` from image ``a`` into image ``b`` (from ``guess`` when given):
-    new positions and status. (OpenCV's Python binding takes no prebuilt pyramid.)"""
+    """Pyramidal KLT of ``pts`` from image ``a`` into image ``b`` (from ``guess`` when given,
+    over ``levels`` pyramid levels, default the config's): new positions and status. (OpenCV's
+    Python binding takes no prebuilt pyramid, so each call builds both images' pyramids.)"""
     crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, cfg.klt_iterations, 0.01)
     p0 = pts.astype(np.float32).reshape(-1, 1, 2)
     flags = 0
@@ -229,7 +235,7 @@ def _klt(
         p0,
         p1,  # type: ignore[arg-type]
         winSize=(cfg.window_px, cfg.window_px),
-        maxLevel=cfg.pyramid_levels,
+        maxLevel=cfg.pyramid_levels if levels is None else levels,
         criteria=crit,
         flags=flags,
     )
@@ -237,17 +243,24 @@ def _klt(
 
 
 def _spaced(pts: FloatArray, order: IntArray, min_dist: float) -> BoolArray:
-    """Greedy in ``order``: keep a point when no kept one is closer than ``min_dist``."""
-    keep = np.zeros(len(pts), bool)
-    if len(pts) == 0:
+    """Greedy in ``order``: keep a point when no kept one is closer than ``min_dist``. A point
+    with no neighbour that close is kept whatever the order, so the greedy pass runs over the
+    few that have one (tracked features mostly stay apart)."""
+    keep = np.ones(len(pts), bool)
+    if len(pts) < 2:
         return keep
     d = pts[:, None, :] - pts[None, :, :]
     near = np.einsum("ijk,ijk->ij", d, d) < min_dist * min_dist
+    np.fill_diagonal(near, False)
+    crowded = near.any(axis=1)
+    if not crowded.any():
+        return keep
     free = np.ones(len(pts), bool)
-    for i in order:
+    for i in order[crowded[order]].tolist():
         if free[i]:
-            keep[i] = True
             free &= ~near[i]
+        else:
+            keep[i] = False
     return keep
 
 
@@ -332,7 +345,7 @@ class FeatureTracker:
         t1 = time.perf_counter()
         times["klt_s"] = t1 - t0
         if cfg.forward_backward and len(s.cur):
-            back, ok_b = _klt(img, st.image, s.cur, cfg, guess=s.prev)
+            back, ok_b = _klt(img, st.image, s.cur, cfg, guess=s.prev, levels=cfg.fb_pyramid_levels)
             err = np.linalg.norm(back - s.prev, axis=1)
             s.keep(ok_b & (err <= cfg.fb_threshold_px), "fb")
         t2 = time.perf_counter()
@@ -620,7 +633,7 @@ def track_stereo(
         s.cur = cur
         s.keep(ok & _in_border(cur, shape), "klt")
     if len(s.cur):
-        back, ok_b = _klt(b, a, s.cur, cfg, guess=s.prev)
+        back, ok_b = _klt(b, a, s.cur, cfg, guess=s.prev, levels=cfg.fb_pyramid_levels)
         s.keep(ok_b & (np.linalg.norm(back - s.prev, axis=1) <= cfg.fb_threshold_px), "fb")
     if len(s.cur) and geometry is None:
         row = np.abs(s.cur[:, 1] - s.prev[:, 1]) <= max_error_px
