@@ -383,16 +383,21 @@ def _vehicle_motion(spec: SequenceSpec) -> bool:
 
 def _rig_body_motion(motion: SplineMotion, T_V_B: Pose) -> SplineMotion:
     """The motion of a rig carried at ``T_V_B`` by a vehicle that makes ``motion``: its poses
-    sampled at 1 kHz and fitted again (the rig's lever arm and turned axes included)."""
+    sampled at 1 kHz and fitted again (the rig's lever arm and turned axes included), a chunk
+    at a time (:meth:`~quadnav.sim.motion.SplineMotion.fit_sampled`: 30 minutes of 1 kHz
+    poses in one piece took ~500 MB)."""
     if np.allclose(T_V_B.matrix(), np.eye(4)):
         return motion
-    t = np.arange(motion.t_start_ns, motion.t_end_ns, s_to_ns(0.001), dtype=np.int64)
-    p, q = motion.pose(t)
-    R_W_V = Rotation.from_quat(q)
-    R_W_B = R_W_V * T_V_B.R_A_B
-    p_W_B = p + R_W_V.apply(T_V_B.p_A_B)
-    traj = Trajectory(t_ns=t, p_W_B=p_W_B, q_W_B_xyzw=R_W_B.as_quat(), name=motion.name)
-    return SplineMotion.fit(traj, knot_spacing_s=motion.knot_spacing_s, trim_s=0.0)
+
+    def body(t: NDArray[np.int64]) -> tuple[FloatArray, FloatArray]:
+        p, q = motion.pose(t)
+        R_W_V = Rotation.from_quat(q)
+        return p + R_W_V.apply(T_V_B.p_A_B), (R_W_V * T_V_B.R_A_B).as_quat()
+
+    return SplineMotion.fit_sampled(
+        body, motion.t_start_ns, motion.t_end_ns, s_to_ns(0.001),
+        knot_spacing_s=motion.knot_spacing_s, name=motion.name,
+    )  # fmt: skip
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
