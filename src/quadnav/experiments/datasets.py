@@ -579,9 +579,14 @@ FLYING_SPEED_M_S, FLYING_RATE_RAD_S, ROTORS_AHEAD_S = 0.05, 0.05, 1.0
 
 def flying(motion: SplineMotion, t_ns: NDArray[np.int64]) -> NDArray[np.bool_]:
     """Whether the rotors run at ``t_ns``: within :data:`ROTORS_AHEAD_S` of the body moving."""
-    moving = (np.linalg.norm(motion.velocity(t_ns), axis=1) > FLYING_SPEED_M_S) | (
-        np.linalg.norm(motion.angular_rate_B(t_ns), axis=1) > FLYING_RATE_RAD_S
-    )
+    from quadnav.sim.motion import CHUNK_ROWS
+
+    moving = np.empty(len(t_ns), dtype=np.bool_)
+    for a in range(0, len(t_ns), CHUNK_ROWS):  # a chunk at a time: bounded temporaries
+        t = t_ns[a : a + CHUNK_ROWS]
+        moving[a : a + CHUNK_ROWS] = (
+            np.linalg.norm(motion.velocity(t), axis=1) > FLYING_SPEED_M_S
+        ) | (np.linalg.norm(motion.angular_rate_B(t), axis=1) > FLYING_RATE_RAD_S)
     t_moving = t_ns[moving]
     if not t_moving.size:
         return np.zeros(len(t_ns), dtype=np.bool_)
@@ -619,9 +624,11 @@ def synthesize_dataset_imu(plan: DatasetPlan, seed: int) -> ImuSeries:
         )
     ]
     rng = stream_rng(seed, "imu_vibration")
-    g = imu.gyro_rad_s + extra[0] * on * rng.standard_normal(imu.gyro_rad_s.shape)
-    a = imu.accel_m_s2 + extra[1] * on * rng.standard_normal(imu.accel_m_s2.shape)
-    return replace(imu, gyro_rad_s=g, accel_m_s2=a)
+    for out, sigma in ((imu.gyro_rad_s, extra[0]), (imu.accel_m_s2, extra[1])):
+        shake = rng.standard_normal(out.shape)
+        shake *= sigma * on  # in place (the same numbers as with copies)
+        out += shake
+    return imu
 
 
 def _write_imu(
