@@ -57,7 +57,7 @@ def associate(
             f"--t-offset {t_offset_s} s moves the estimate's timestamps out of range "
             "(signed 64-bit nanoseconds)"
         )
-    shifted = est.shifted(offset_ns)
+    shifted = est.shifted(offset_ns) if offset_ns else est  # no copy of a long estimate
     t_e = shifted.t_ns
     t_r = ref.t_ns
     max_diff = s_to_ns(t_max_diff_s)
@@ -77,7 +77,8 @@ def associate(
         idx_e = np.flatnonzero(ok)
         if len(idx_e) == 0:
             raise _no_overlap(ref, est, t_max_diff_s)
-        return ref.interpolate(t_e[idx_e]), shifted.select(idx_e)
+        matched = shifted if len(idx_e) == len(shifted) else shifted.select(idx_e)
+        return ref.interpolate(t_e[idx_e]), matched
     idx_e = np.flatnonzero(ok)
     if len(idx_e) == 0:
         raise _no_overlap(ref, est, t_max_diff_s)

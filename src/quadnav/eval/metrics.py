@@ -13,6 +13,7 @@ from typing import Literal
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
 
 from quadnav.errors import EvalError
 from quadnav.geometry.trajectory import Trajectory
@@ -76,6 +77,10 @@ class ErrorStats:
 def error_stats(errors: FloatArray) -> dict[str, float]:
     """:class:`ErrorStats` of an error array, as a mapping by evo's names."""
     return ErrorStats.of(errors).as_dict()
+
+
+#: Pairs whose relative errors :func:`rpe` makes at once.
+RPE_CHUNK = 8192
 
 
 def _rotation_angle(R: FloatArray) -> FloatArray:
@@ -222,10 +227,23 @@ def rpe_matrices(
         raise EvalError(
             f"RPE delta {delta} {unit} gives no pairs on a trajectory of {len(est)} poses"
         )
-    Q, P = ref.matrices(), est.matrices()
-    Q_rel = _inv_se3(Q[i]) @ Q[j]
-    P_rel = _inv_se3(P[i]) @ P[j]
-    return np.asarray(_inv_se3(Q_rel) @ P_rel, dtype=np.float64), j
+    return _relative_errors(ref, est, i, j), j
+
+
+def _matrices(traj: Trajectory, idx: IntArray) -> FloatArray:
+    """``traj.matrices()[idx]``, built for those rows only."""
+    T = np.zeros((len(idx), 4, 4))
+    T[:, :3, :3] = Rotation.from_quat(traj.q_W_B_xyzw[idx]).as_matrix()
+    T[:, :3, 3] = traj.p_W_B[idx]
+    T[:, 3, 3] = 1.0
+    return T
+
+
+def _relative_errors(ref: Trajectory, est: Trajectory, i: IntArray, j: IntArray) -> FloatArray:
+    """``E = (Q_i^-1 Q_j)^-1 (P_i^-1 P_j)`` (M, 4, 4) of the pairs (i, j)."""
+    Q_rel = _inv_se3(_matrices(ref, i)) @ _matrices(ref, j)
+    P_rel = _inv_se3(_matrices(est, i)) @ _matrices(est, j)
+    return np.asarray(_inv_se3(Q_rel) @ P_rel, dtype=np.float64)
 
 
 def rpe(
@@ -238,11 +256,21 @@ def rpe(
     all_pairs: bool = False,
     pairs_from: Literal["estimate", "reference"] = "estimate",
 ) -> tuple[FloatArray, IntArray]:
-    """Relative pose error per pair, and each pair's end index (for plotting against time)."""
-    E, j = rpe_matrices(
-        ref, est, delta=delta, unit=unit, all_pairs=all_pairs, pairs_from=pairs_from
-    )
-    return _relation(E, relation), j
+    """Relative pose error per pair, and each pair's end index (for plotting against time).
+    The pairs' error poses are made :data:`RPE_CHUNK` at a time: all pairs of a 30-minute run
+    at once were ~1 kB a pose."""
+    if len(ref) != len(est):
+        raise EvalError("RPE needs matched trajectories of equal length; associate them first")
+    i, j = rpe_pairs(est if pairs_from == "estimate" else ref, delta, unit, all_pairs=all_pairs)
+    if len(i) == 0:
+        raise EvalError(
+            f"RPE delta {delta} {unit} gives no pairs on a trajectory of {len(est)} poses"
+        )
+    out = np.empty(len(i))
+    for s in range(0, len(i), RPE_CHUNK):
+        c = slice(s, s + RPE_CHUNK)
+        out[c] = _relation(_relative_errors(ref, est, i[c], j[c]), relation)
+    return out, j
 
 
 def _normalized_squared(e: FloatArray, cov: FloatArray, what: str) -> FloatArray:

@@ -19,14 +19,18 @@ from numpy.typing import NDArray
 
 from quadnav.geometry.trajectory import Trajectory
 
-__all__ = ["plot_errors", "plot_trajectories", "plot_xyz"]
+__all__ = ["MAX_PLOT_POINTS", "plot_errors", "plot_trajectories", "plot_xyz", "thinned"]
 
 FloatArray = NDArray[np.float64]
-_MAX_POINTS = 20_000  # thin long trajectories for drawing; metrics use every pose
+#: The most points a line of a figure draws (a figure is ~1,400 pixels wide): long trajectories
+#: are thinned for drawing, the metrics use every pose; a coloured line keeps a segment object a
+#: point, so what a figure costs stays bounded however long the run.
+MAX_PLOT_POINTS = 5000
 
 
-def _thin(n: int) -> slice:
-    return slice(None, None, max(1, n // _MAX_POINTS))
+def thinned(n: int) -> slice:
+    """Every k-th of ``n`` points, at most :data:`MAX_PLOT_POINTS` of them."""
+    return slice(None, None, max(1, -(-n // MAX_PLOT_POINTS)))
 
 
 def _plane_axes(traj: Trajectory) -> tuple[int, int]:
@@ -49,7 +53,7 @@ def plot_xyz(ref: Trajectory, ests: list[Trajectory], path: Path) -> None:
     t0 = int(ref.t_ns[0])
     for traj, style in [(ref, "--"), *[(e, "-") for e in ests]]:
         t, label = _time_axis(traj, t0)
-        s = _thin(len(traj))
+        s = thinned(len(traj))
         for k, ax in enumerate(axes):
             ax.plot(t[s], traj.p_W_B[s, k], style, lw=1.2, label=traj.name or "?")
     for k, ax in enumerate(axes):
@@ -69,7 +73,7 @@ def plot_trajectories(ref: Trajectory, ests: list[Trajectory], path: Path) -> No
     ax2 = fig.add_subplot(1, 2, 2)
     a, b = _plane_axes(ref)
     for traj, style in [(ref, "--"), *[(e, "-") for e in ests]]:
-        s = _thin(len(traj))
+        s = thinned(len(traj))
         p = traj.p_W_B[s]
         ax3.plot(p[:, 0], p[:, 1], p[:, 2], style, lw=1.0, label=traj.name or "?")
         ax2.plot(p[:, a], p[:, b], style, lw=1.0, label=traj.name or "?")
@@ -95,7 +99,7 @@ def plot_errors(
     """Error against time, and the trajectory from above coloured by the error's size."""
     fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(14, 5), constrained_layout=True)
     t, label = _time_axis(est, int(ref.t_ns[0]))
-    s = _thin(len(est))
+    s = thinned(len(est))
     e = errors[s]
     pts = np.column_stack([t[s], e])
     norm = Normalize(
@@ -122,7 +126,7 @@ def plot_errors(
     ax1.grid(True, alpha=0.3)
     p = est.p_W_B[s]
     a, b = _plane_axes(ref)
-    pr = ref.p_W_B[_thin(len(ref))]
+    pr = ref.p_W_B[thinned(len(ref))]
     ax2.plot(pr[:, a], pr[:, b], "--", color="0.5", lw=1, label="reference")
     sc = ax2.scatter(p[:, a], p[:, b], c=e, cmap="viridis", norm=norm, s=4)
     fig.colorbar(sc, ax=ax2, label=what)

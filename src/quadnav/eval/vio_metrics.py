@@ -52,6 +52,7 @@ __all__ = [
     "final_error_m",
     "gravity_error_deg",
     "nees_band",
+    "pose_covariances",
     "pose_nees",
     "pose_nees_summary",
     "vio_metrics",
@@ -228,16 +229,43 @@ def gravity_error_deg(R_W_B_est: Rotation, R_W_B_ref: Rotation) -> float:
     return float(np.degrees(math.atan2(np.linalg.norm(np.cross(a, b)), float(np.dot(a, b)))))
 
 
+_TRIU = np.triu_indices(POSE_DOF)
+#: Poses the NEES takes at once: its temporaries are ~1 kB a pose.
+NEES_CHUNK = 8192
+
+
+def pose_covariances(triu: FloatArray) -> FloatArray:
+    """Symmetric (N, 6, 6) covariances from their upper triangles (N, 21), each row in
+    ``np.triu_indices(6)``'s order (how a run keeps them: 168 bytes a pose, not 288)."""
+    rows = np.asarray(triu, dtype=np.float64)
+    cov = np.zeros((len(rows), POSE_DOF, POSE_DOF))
+    cov[:, _TRIU[0], _TRIU[1]] = rows
+    cov[:, _TRIU[1], _TRIU[0]] = rows
+    return cov
+
+
 def pose_nees(ref: Trajectory, est: Trajectory, cov_pose: FloatArray) -> FloatArray:
-    """NEES per matched pose of the body-frame (rot, trans) covariances ``cov_pose`` (N, 6, 6):
-    ``xi = (Log(R_est^T R_ref), R_est^T (p_ref - p_est))``, GTSAM's right perturbation to first
-    order in the translation."""
+    """NEES per matched pose of the body-frame (rot, trans) covariances ``cov_pose``, (N, 6, 6)
+    or their upper triangles (N, 21; :func:`pose_covariances`): ``xi = (Log(R_est^T R_ref),
+    R_est^T (p_ref - p_est))``, GTSAM's right perturbation to first order in the translation.
+    Taken :data:`NEES_CHUNK` poses at a time."""
     cov = np.asarray(cov_pose, dtype=np.float64)
-    if len(ref) != len(est) or cov.shape != (len(est), POSE_DOF, POSE_DOF):
+    n = len(est)
+    if len(ref) != n or cov.shape not in ((n, POSE_DOF, POSE_DOF), (n, len(_TRIU[0]))):
         raise EvalError(
-            f"pose NEES needs matched poses and (N, 6, 6) covariances, got {len(ref)}, "
-            f"{len(est)} poses and {cov.shape}"
+            f"pose NEES needs matched poses and (N, 6, 6) or (N, 21) covariances, got "
+            f"{len(ref)}, {n} poses and {cov.shape}"
         )
+    out = np.empty(n)
+    for s in range(0, n, NEES_CHUNK):
+        c = slice(s, s + NEES_CHUNK)
+        out[c] = _nees_rows(ref.select(c), est.select(c), cov[c])
+    return out
+
+
+def _nees_rows(ref: Trajectory, est: Trajectory, cov: FloatArray) -> FloatArray:
+    if cov.ndim == 2:
+        cov = pose_covariances(cov)
     R_est = est.R_W_B
     xi = np.hstack(
         [(R_est.inv() * ref.R_W_B).as_rotvec(), R_est.inv().apply(ref.p_W_B - est.p_W_B)]
@@ -329,7 +357,7 @@ def vio_metrics(
 ) -> VioMetrics:
     """Every metric of a run: ``ref`` the ground truth matched to ``est`` (equal length, same
     times; None when there is none to match, ``unscored`` saying why), ``cov_pose`` the
-    estimate's (N, 6, 6)."""
+    estimate's (N, 6, 6), or their upper triangles (N, 21; :func:`pose_covariances`)."""
     if ref is None:
         return _without_truth(est, counts, unscored)
     if len(est) < MIN_SCORED_POSES:

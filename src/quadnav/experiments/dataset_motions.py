@@ -10,6 +10,7 @@ The poses are sampled densely and go through the same spline as a recorded motio
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -80,16 +81,36 @@ def _rate_for_speed(path: FlightPath) -> float:
     return path.mean_speed_m_s / speed1
 
 
-def _attitude(p: FloatArray, t: FloatArray, path: FlightPath) -> Rotation:
-    """A multirotor's attitude along positions ``p``: thrust axis along ``a + g e_z``, heading
-    towards the travel direction (smoothed) plus a sway."""
-    dt = float(t[1] - t[0])
+#: Samples the path's attitude works on at once (its arrays of (N, 3, 3) for 30 minutes at
+#: 200 Hz took ~200 MB in one piece); the derivatives look 2 samples either side.
+CHUNK = 32768
+_HALO = 2
+
+
+def _chunks(n: int) -> Iterator[tuple[int, int, int, int]]:
+    """``(a, b, lo, hi)``: the samples ``a:b`` of each chunk and the span ``lo:hi`` around it
+    whose second differences hold at ``a:b`` as over the whole path (``np.gradient``'s one-sided
+    ends only at the path's own ends)."""
+    for a in range(0, n, CHUNK):
+        b = min(a + CHUNK, n)
+        yield a, b, max(a - _HALO, 0), min(b + _HALO, n)
+
+
+def _derivatives(p: FloatArray, dt: float) -> tuple[FloatArray, FloatArray]:
     v = np.gradient(p, dt, axis=0)
-    a = np.gradient(v, dt, axis=0)
-    z_B = a + np.array([0.0, 0.0, GRAVITY_M_S2])
-    z_B /= np.linalg.norm(z_B, axis=1, keepdims=True)
-    speed = np.linalg.norm(v[:, :2], axis=1)
-    heading = np.unwrap(np.arctan2(v[:, 1], v[:, 0]))
+    return v, np.gradient(v, dt, axis=0)
+
+
+def _heading(path: FlightPath, t: FloatArray, rate: float) -> FloatArray:
+    """The heading (rad): towards the travel direction (held where the vehicle hardly moves,
+    smoothed over 2 s: it lags the path), plus the sway, blended in over the ramp."""
+    dt = float(t[1] - t[0])
+    speed, heading = np.empty(len(t)), np.empty(len(t))
+    for a, b, lo, hi in _chunks(len(t)):
+        v = _derivatives(_lissajous(path, t[lo:hi], rate), dt)[0][a - lo : b - lo]
+        speed[a:b] = np.linalg.norm(v[:, :2], axis=1)
+        heading[a:b] = np.arctan2(v[:, 1], v[:, 0])
+    heading = np.unwrap(heading)
     # Where the vehicle hardly moves, hold the heading it had when it was moving.
     moving = speed > 0.3 * path.mean_speed_m_s
     if moving.any():
@@ -103,12 +124,22 @@ def _attitude(p: FloatArray, t: FloatArray, path: FlightPath) -> Rotation:
     heading = np.convolve(np.pad(heading, (k // 2, k - 1 - k // 2), mode="edge"), kernel, "valid")
     sway = np.radians(path.yaw_sway_deg) * np.sin(2.0 * math.pi * t / path.yaw_sway_period_s)
     ramp = _smoothstep((t - path.still_s) / path.ramp_s)
-    yaw = heading[0] + ramp * (heading - heading[0] + sway)
-    x_c = np.column_stack([np.cos(yaw), np.sin(yaw), np.zeros_like(yaw)])
+    return np.asarray(heading[0] + ramp * (heading - heading[0] + sway), dtype=np.float64)
+
+
+def _attitude_xyzw(
+    path: FlightPath, t: FloatArray, rate: float, yaw: FloatArray, a: int, b: int, lo: int, hi: int
+) -> FloatArray:
+    """A multirotor's attitude at samples ``a:b`` (quaternions xyzw): thrust axis along ``a +
+    g e_z``, x as near the heading ``yaw`` as that allows."""
+    acc = _derivatives(_lissajous(path, t[lo:hi], rate), float(t[1] - t[0]))[1][a - lo : b - lo]
+    z_B = acc + np.array([0.0, 0.0, GRAVITY_M_S2])
+    z_B /= np.linalg.norm(z_B, axis=1, keepdims=True)
+    x_c = np.column_stack([np.cos(yaw[a:b]), np.sin(yaw[a:b]), np.zeros(b - a)])
     y_B = np.cross(z_B, x_c)
     y_B /= np.linalg.norm(y_B, axis=1, keepdims=True)
     x_B = np.cross(y_B, z_B)
-    return Rotation.from_matrix(np.stack([x_B, y_B, z_B], axis=2))
+    return np.asarray(Rotation.from_matrix(np.stack([x_B, y_B, z_B], axis=2)).as_quat())
 
 
 def flight_path_trajectory(
@@ -117,11 +148,15 @@ def flight_path_trajectory(
     """The path's poses at ``rate_hz`` from ``t0_ns``."""
     n = int(path.duration_s * rate_hz) + 1
     t = np.arange(n) / rate_hz
-    p = _lissajous(path, t, _rate_for_speed(path))
-    R = _attitude(p, t, path)
+    rate = _rate_for_speed(path)
+    yaw = _heading(path, t, rate)
+    p, q = np.empty((n, 3)), np.empty((n, 4))
+    for a, b, lo, hi in _chunks(n):  # a few MB at a time, however long the flight
+        p[a:b] = _lissajous(path, t[a:b], rate)
+        q[a:b] = _attitude_xyzw(path, t, rate, yaw, a, b, lo, hi)
     return Trajectory(
         t_ns=t0_ns + np.round(t * NS_PER_S).astype(np.int64),
         p_W_B=p,
-        q_W_B_xyzw=R.as_quat(),
+        q_W_B_xyzw=q,
         name="flight_path",
     )

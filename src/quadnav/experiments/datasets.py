@@ -24,7 +24,6 @@ import math
 import time
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import asdict, dataclass, replace
-from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING, Literal
 
@@ -383,16 +382,21 @@ def _vehicle_motion(spec: SequenceSpec) -> bool:
 
 def _rig_body_motion(motion: SplineMotion, T_V_B: Pose) -> SplineMotion:
     """The motion of a rig carried at ``T_V_B`` by a vehicle that makes ``motion``: its poses
-    sampled at 1 kHz and fitted again (the rig's lever arm and turned axes included)."""
+    sampled at 1 kHz and fitted again (the rig's lever arm and turned axes included), a chunk
+    at a time (:meth:`~quadnav.sim.motion.SplineMotion.fit_sampled`: 30 minutes of 1 kHz
+    poses in one piece took ~500 MB)."""
     if np.allclose(T_V_B.matrix(), np.eye(4)):
         return motion
-    t = np.arange(motion.t_start_ns, motion.t_end_ns, s_to_ns(0.001), dtype=np.int64)
-    p, q = motion.pose(t)
-    R_W_V = Rotation.from_quat(q)
-    R_W_B = R_W_V * T_V_B.R_A_B
-    p_W_B = p + R_W_V.apply(T_V_B.p_A_B)
-    traj = Trajectory(t_ns=t, p_W_B=p_W_B, q_W_B_xyzw=R_W_B.as_quat(), name=motion.name)
-    return SplineMotion.fit(traj, knot_spacing_s=motion.knot_spacing_s, trim_s=0.0)
+
+    def body(t: NDArray[np.int64]) -> tuple[FloatArray, FloatArray]:
+        p, q = motion.pose(t)
+        R_W_V = Rotation.from_quat(q)
+        return p + R_W_V.apply(T_V_B.p_A_B), (R_W_V * T_V_B.R_A_B).as_quat()
+
+    return SplineMotion.fit_sampled(
+        body, motion.t_start_ns, motion.t_end_ns, s_to_ns(0.001),
+        knot_spacing_s=motion.knot_spacing_s, name=motion.name,
+    )  # fmt: skip
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -574,9 +578,14 @@ FLYING_SPEED_M_S, FLYING_RATE_RAD_S, ROTORS_AHEAD_S = 0.05, 0.05, 1.0
 
 def flying(motion: SplineMotion, t_ns: NDArray[np.int64]) -> NDArray[np.bool_]:
     """Whether the rotors run at ``t_ns``: within :data:`ROTORS_AHEAD_S` of the body moving."""
-    moving = (np.linalg.norm(motion.velocity(t_ns), axis=1) > FLYING_SPEED_M_S) | (
-        np.linalg.norm(motion.angular_rate_B(t_ns), axis=1) > FLYING_RATE_RAD_S
-    )
+    from quadnav.sim.motion import CHUNK_ROWS
+
+    moving = np.empty(len(t_ns), dtype=np.bool_)
+    for a in range(0, len(t_ns), CHUNK_ROWS):  # a chunk at a time: bounded temporaries
+        t = t_ns[a : a + CHUNK_ROWS]
+        moving[a : a + CHUNK_ROWS] = (
+            np.linalg.norm(motion.velocity(t), axis=1) > FLYING_SPEED_M_S
+        ) | (np.linalg.norm(motion.angular_rate_B(t), axis=1) > FLYING_RATE_RAD_S)
     t_moving = t_ns[moving]
     if not t_moving.size:
         return np.zeros(len(t_ns), dtype=np.bool_)
@@ -614,24 +623,30 @@ def synthesize_dataset_imu(plan: DatasetPlan, seed: int) -> ImuSeries:
         )
     ]
     rng = stream_rng(seed, "imu_vibration")
-    g = imu.gyro_rad_s + extra[0] * on * rng.standard_normal(imu.gyro_rad_s.shape)
-    a = imu.accel_m_s2 + extra[1] * on * rng.standard_normal(imu.accel_m_s2.shape)
-    return replace(imu, gyro_rad_s=g, accel_m_s2=a)
+    for out, sigma in ((imu.gyro_rad_s, extra[0]), (imu.accel_m_s2, extra[1])):
+        shake = rng.standard_normal(out.shape)
+        shake *= sigma * on  # in place (the same numbers as with copies)
+        out += shake
+    return imu
 
 
 def _write_imu(
     writer: EurocWriter, motion: SplineMotion, plan: DatasetPlan, spec: SequenceSpec
 ) -> int:
     """The IMU and the ground truth at its stamps (pose, velocity, the true biases)."""
+    from quadnav.sim.motion import CHUNK_ROWS
+
     imu = synthesize_dataset_imu(plan, spec.seed)
     for s in imu.samples():
         writer.add_imu(s)
-    p, q = motion.pose(imu.t_ns)
-    v = motion.velocity(imu.t_ns)
-    for k, t in enumerate(imu.t_ns):
-        writer.add_groundtruth(
-            int(t), p[k], q[k], v[k], imu.gyro_bias_rad_s[k], imu.accel_bias_m_s2[k]
-        )
+    for a in range(0, len(imu), CHUNK_ROWS):  # the truth's rows a chunk at a time
+        t_chunk = imu.t_ns[a : a + CHUNK_ROWS]
+        p, q = motion.pose(t_chunk)
+        v = motion.velocity(t_chunk)
+        for k, t in enumerate(t_chunk):
+            writer.add_groundtruth(
+                int(t), p[k], q[k], v[k], imu.gyro_bias_rad_s[a + k], imu.accel_bias_m_s2[a + k]
+            )
     return len(imu)
 
 
@@ -787,6 +802,19 @@ class _LiveCamera:
         return self._stream.shoot(self._motion, int(self._stamps[k]), float(self._light[k])).image
 
 
+class _LiveFrame:
+    """The loader of one rendered frame: its camera and index, ~50 bytes (a ``partial`` took
+    ~150; a 30-minute sequence has 36,000 frames a camera)."""
+
+    __slots__ = ("_camera", "_k")
+
+    def __init__(self, camera: _LiveCamera, k: int) -> None:
+        self._camera, self._k = camera, k
+
+    def __call__(self) -> U8:
+        return self._camera.image(self._k)
+
+
 def _scaled_rig(rig: Rig, scale: float) -> Rig:
     """``rig`` with every camera's image ``scale`` times as wide and high (its intrinsics too)."""
     if scale == 1.0:
@@ -825,8 +853,9 @@ def rendered_dataset(
         (c.name, _LiveCamera(_CameraStream(c, scene, spec), motion, stamps, light))
         for c in plan.rig.cameras
     ]
+    origin = {cam: f"{cam} rendered" for cam, _ in live}  # one string, not one a frame
     frames = tuple(
-        ImageFrame(t_ns=int(t), camera=cam, load=partial(camera.image, k), origin=f"{cam} rendered")
+        ImageFrame(t_ns=int(t), camera=cam, load=_LiveFrame(camera, k), origin=origin[cam])
         for k, t in enumerate(stamps)
         for cam, camera in live
     )

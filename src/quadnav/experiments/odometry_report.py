@@ -27,13 +27,17 @@ def _pyplot() -> Any:
 def _plot_path(path: Path, truth: Trajectory | None, est: Trajectory, t0_ns: int) -> Path:
     """Top view and height against time: the estimate (4-DoF aligned when there is a truth)
     and the ground truth dashed."""
+    from quadnav.eval.plots import thinned
+
     plt = _pyplot()
     fig, (top, up) = plt.subplots(1, 2, figsize=(14, 5.5), constrained_layout=True)
     for tr, style, label in ((truth, "--", "ground truth"), (est, "-", "VIO")):
         if tr is None or len(tr) == 0:
             continue
-        top.plot(tr.p_W_B[:, 0], tr.p_W_B[:, 1], style, lw=1.2, label=label)
-        up.plot((tr.t_ns - t0_ns) * 1e-9, tr.p_W_B[:, 2], style, lw=1.2, label=label)
+        s = thinned(len(tr))  # a bounded number of points however long the run
+        p = tr.p_W_B[s]
+        top.plot(p[:, 0], p[:, 1], style, lw=1.2, label=label)
+        up.plot((tr.t_ns[s] - t0_ns) * 1e-9, p[:, 2], style, lw=1.2, label=label)
     top.set_aspect("equal", adjustable="datalim")
     top.set_xlabel("x (m)")
     top.set_ylabel("y (m)")

@@ -15,13 +15,14 @@ Body rate from the normalised quaternion ``q`` (xyzw) and its derivative:
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.random import Generator
 from numpy.typing import ArrayLike, NDArray
 from scipy.interpolate import BSpline, make_lsq_spline
+from scipy.linalg import cho_solve_banded, cholesky_banded
 from scipy.spatial.transform import Rotation
 
 from quadnav.errors import SimError
@@ -48,6 +49,11 @@ DEGREE = 5
 #: The default knot spacing is at least this, and at least this many pose periods.
 MIN_KNOT_SPACING_S = 0.1
 POSES_PER_KNOT = 4
+#: Rows a motion evaluates, or a sampled fit takes, at once: the splines' temporaries stay a few
+#: MB however long the span (30 minutes of 1 kHz poses in one piece took ~500 MB).
+CHUNK_ROWS = 32768
+#: A sampler of poses: ``p_W_B`` (N, 3) and ``q_W_B_xyzw`` (N, 4) at ``t_ns`` (N,).
+PoseSampler = Callable[[NDArray[np.int64]], tuple[NDArray[np.float64], NDArray[np.float64]]]
 
 
 def imu_errors(noise: ImuNoiseModel, rate_hz: float) -> ImuErrors:
@@ -118,6 +124,38 @@ def _knots(t_s: FloatArray, spacing_s: float) -> FloatArray:
             f"{spacing_s:g}: raise knot_spacing_s"
         )
     return np.concatenate([np.zeros(DEGREE + 1), interior, np.full(DEGREE + 1, span)])
+
+
+def _knots_of_span(span_s: float, spacing_s: float) -> FloatArray:
+    """:func:`_knots` of poses from 0 to ``span_s`` that fill every knot span."""
+    n_spans = max(1, round(span_s / spacing_s))
+    interior = np.linspace(0.0, span_s, n_spans + 1)[1:-1]
+    return np.concatenate([np.zeros(DEGREE + 1), interior, np.full(DEGREE + 1, span_s)])
+
+
+class _NormalEquations:
+    """The banded normal equations of a least-squares spline on ``knots``, summed chunk by
+    chunk (the lower band, as :func:`scipy.linalg.cholesky_banded` takes it), then solved."""
+
+    def __init__(self, knots: FloatArray, *, width: int) -> None:
+        self.knots = knots
+        self.n = len(knots) - DEGREE - 1
+        self.band = np.zeros((DEGREE + 1, self.n))
+        self.rhs = np.zeros((self.n, width))
+
+    def add(self, x: FloatArray, y: FloatArray) -> None:
+        A = BSpline.design_matrix(x, self.knots, DEGREE).tocsr()
+        AtA = (A.T @ A).tocsr()
+        for d in range(DEGREE + 1):
+            self.band[d, : self.n - d] += AtA.diagonal(-d)
+        self.rhs += np.asarray(A.T @ y)
+
+    def solve(self) -> FloatArray:
+        try:
+            factor = cholesky_banded(self.band, lower=True)
+            return np.asarray(cho_solve_banded((factor, True), self.rhs), dtype=np.float64)
+        except (ValueError, np.linalg.LinAlgError) as exc:
+            raise SimError(f"motion: the spline fit failed ({exc}); raise knot_spacing_s") from None
 
 
 def _lsq(t_s: FloatArray, y: FloatArray, knots: FloatArray) -> BSpline:
@@ -233,6 +271,52 @@ class SplineMotion:
             name=name,
         )
 
+    @classmethod
+    def fit_sampled(
+        cls,
+        sample: PoseSampler,
+        t_start_ns: int,
+        t_end_ns: int,
+        period_ns: int,
+        *,
+        knot_spacing_s: float,
+        name: str = "",
+    ) -> SplineMotion:
+        """:meth:`from_arrays` (no trim) on the poses ``sample`` gives at ``t_start_ns + k
+        period_ns`` before ``t_end_ns``, taken :data:`CHUNK_ROWS` at a time into the normal
+        equations, so that the memory does not grow with the span (the same spline, to
+        floating-point round-off). Every knot span holds a pose: the period is below the
+        spacing."""
+        n = -(-(int(t_end_ns) - int(t_start_ns)) // int(period_ns))
+        if not (period_ns > 0 and n >= 2 and period_ns < s_to_ns(knot_spacing_s)):
+            raise SimError(
+                f"motion: {n} poses {period_ns} ns apart, too few or too sparse for "
+                f"knot_spacing_s = {knot_spacing_s:g}"
+            )
+        t0, t_last = int(t_start_ns), int(t_start_ns) + (n - 1) * int(period_ns)
+        knots = _knots_of_span((t_last - t0) / NS_PER_S, knot_spacing_s)
+        normal = _NormalEquations(knots, width=7)
+        q_before: FloatArray | None = None
+        for k in range(0, n, CHUNK_ROWS):
+            t = t0 + period_ns * np.arange(k, min(k + CHUNK_ROWS, n), dtype=np.int64)
+            p, q = sample(t)
+            if q_before is not None:  # the sign continues from the chunk before
+                q = _continuous_quaternions(np.vstack([q_before, q]))[1:]
+            else:
+                q = _continuous_quaternions(q)
+            q_before = q[-1:]
+            normal.add(np.asarray((t - t0) / NS_PER_S, dtype=np.float64), np.hstack([p, q]))
+        c = normal.solve()
+        return cls(
+            t0_ns=t0,
+            position=BSpline(knots, np.ascontiguousarray(c[:, :3]), DEGREE),
+            quaternion=BSpline(knots, np.ascontiguousarray(c[:, 3:]), DEGREE),
+            t_start_ns=t0,
+            t_end_ns=t_last,
+            knot_spacing_s=float(knot_spacing_s),
+            name=name,
+        )
+
     @property
     def knots_ns(self) -> IntArray:
         """The interior knots (where a quintic's fifth derivative may jump)."""
@@ -250,6 +334,17 @@ class SplineMotion:
             )
         return np.asarray((t.astype(np.int64) - self.t0_ns) / NS_PER_S, dtype=np.float64)
 
+    def _rows(
+        self, t_ns: ArrayLike, width: int, fn: Callable[[FloatArray], FloatArray]
+    ) -> FloatArray:
+        """``fn`` (a pointwise function of the spline time) at ``t_ns``, :data:`CHUNK_ROWS`
+        rows at a time into one (N, ``width``) array: the same numbers as in one piece."""
+        t = self._t(t_ns)
+        out = np.empty((len(t), width), dtype=np.float64)
+        for s in range(0, len(t), CHUNK_ROWS):
+            out[s : s + CHUNK_ROWS] = fn(t[s : s + CHUNK_ROWS])
+        return out
+
     def _quaternion(self, t_s: FloatArray, order: int) -> list[FloatArray]:
         """The unit quaternion and its derivatives up to ``order`` (at most 2)."""
         s = np.asarray(self.quaternion(t_s), dtype=np.float64)
@@ -258,32 +353,38 @@ class SplineMotion:
         ds, dds = (np.asarray(self.quaternion(t_s, nu=k), dtype=np.float64) for k in (1, 2))
         return _unit_derivatives(s, ds, dds)[: order + 1]
 
+    def _derivative(self, nu: int) -> Callable[[FloatArray], FloatArray]:
+        return lambda t: np.asarray(self.position(t, nu=nu), dtype=np.float64)
+
     def pose(self, t_ns: ArrayLike) -> tuple[FloatArray, FloatArray]:
         """``p_W_B`` (N, 3) and ``q_W_B_xyzw`` (N, 4) at ``t_ns``."""
-        t = self._t(t_ns)
-        return np.asarray(self.position(t), dtype=np.float64), self._quaternion(t, 0)[0]
+        p = self._rows(t_ns, 3, self._derivative(0))
+        return p, self._rows(t_ns, 4, lambda t: self._quaternion(t, 0)[0])
 
     def velocity(self, t_ns: ArrayLike) -> FloatArray:
         """``v_W_B`` (N, 3), m/s."""
-        return np.asarray(self.position(self._t(t_ns), nu=1), dtype=np.float64)
+        return self._rows(t_ns, 3, self._derivative(1))
 
     def acceleration(self, t_ns: ArrayLike) -> FloatArray:
         """``a_W_B`` (N, 3), m/s^2 (kinematic: no gravity)."""
-        return np.asarray(self.position(self._t(t_ns), nu=2), dtype=np.float64)
+        return self._rows(t_ns, 3, self._derivative(2))
 
     def jerk(self, t_ns: ArrayLike) -> FloatArray:
         """The world acceleration's rate (N, 3), m/s^3."""
-        return np.asarray(self.position(self._t(t_ns), nu=3), dtype=np.float64)
+        return self._rows(t_ns, 3, self._derivative(3))
 
     def angular_rate_B(self, t_ns: ArrayLike) -> FloatArray:
         """Body rate ``omega_B`` (N, 3), rad/s, body FLU."""
-        q, dq = self._quaternion(self._t(t_ns), 1)
-        return _conj_product_vec(q, dq)
+        return self._rows(t_ns, 3, lambda t: _conj_product_vec(*self._quaternion(t, 1)))
 
     def angular_accel_B(self, t_ns: ArrayLike) -> FloatArray:
         """Body angular acceleration (N, 3), rad/s^2: the derivative of ``angular_rate_B``."""
-        q, _, ddq = self._quaternion(self._t(t_ns), 2)
-        return _conj_product_vec(q, ddq)
+
+        def alpha(t: FloatArray) -> FloatArray:
+            q, _, ddq = self._quaternion(t, 2)
+            return _conj_product_vec(q, ddq)
+
+        return self._rows(t_ns, 3, alpha)
 
     def fit_to(self, traj: Trajectory) -> MotionFit:
         """Residuals against ``traj``'s poses inside the span: position and rotation angle."""
@@ -345,6 +446,20 @@ def _imu_times(
     return start + period_ns * np.arange(n, dtype=np.int64)
 
 
+def _exact_imu(
+    motion: SplineMotion, t_true: IntArray, r: FloatArray, gravity_m_s2: float
+) -> tuple[FloatArray, FloatArray]:
+    """Gyro and specific force without errors at ``t_true`` (see :func:`synthesize_imu`)."""
+    _, q = motion.pose(t_true)
+    w = motion.angular_rate_B(t_true)
+    a = motion.acceleration(t_true)
+    a[:, 2] += gravity_m_s2
+    f = Rotation.from_quat(q).apply(a, inverse=True)
+    if r.any():
+        f = f + np.cross(motion.angular_accel_B(t_true), r) + np.cross(w, np.cross(w, r))
+    return w, f
+
+
 def synthesize_imu(
     motion: SplineMotion,
     *,
@@ -368,19 +483,19 @@ def synthesize_imu(
     if r.shape != (3,) or not np.isfinite(r).all():
         raise SimError(f"IMU lever_arm_m must be 3 finite numbers, got {lever_arm_m}")
     t_true = _imu_times(motion, rate_hz, t_start_ns, t_end_ns)
-    _, q = motion.pose(t_true)
-    w = motion.angular_rate_B(t_true)
-    a = motion.acceleration(t_true)
-    a[:, 2] += gravity_m_s2
-    f = Rotation.from_quat(q).apply(a, inverse=True)
-    if r.any():
-        f = f + np.cross(motion.angular_accel_B(t_true), r) + np.cross(w, np.cross(w, r))
+    w, f = np.empty((len(t_true), 3)), np.empty((len(t_true), 3))
+    for s in range(0, len(t_true), CHUNK_ROWS):  # a few MB at a time, however long the span
+        w[s : s + CHUNK_ROWS], f[s : s + CHUNK_ROWS] = _exact_imu(
+            motion, t_true[s : s + CHUNK_ROWS], r, gravity_m_s2
+        )
     bg, ba = np.zeros_like(w), np.zeros_like(w)
     if noise is not None and rng is not None:
         err = imu_errors(noise, rate_hz).draw(len(t_true), 1.0 / rate_hz, rng)
         bg, ba = err.gyro_bias_rad_s, err.accel_bias_m_s2
-        w = w + bg + err.gyro_noise_rad_s
-        f = f + ba + err.accel_noise_m_s2
+        w += bg  # in place, as (w + bg) + noise: the same sums, no copies
+        w += err.gyro_noise_rad_s
+        f += ba
+        f += err.accel_noise_m_s2
     return ImuSeries(
         t_ns=t_true + int(t_offset_ns),
         t_true_ns=t_true,

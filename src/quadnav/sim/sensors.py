@@ -202,6 +202,18 @@ class ImuErrorDraw:
     accel_noise_m_s2: FloatArray
 
 
+def _walk(steps: FloatArray, sigma: float, start: FloatArray) -> FloatArray:
+    """Turn standard normal ``steps`` (N, 3), in place, into a random walk from ``start`` with
+    steps of ``sigma``: row k the bias before step k; returns the bias after the last."""
+    steps *= sigma
+    np.cumsum(steps, axis=0, out=steps)
+    end = start + steps[-1]
+    steps[1:] = steps[:-1]
+    steps[0] = 0.0
+    steps += start
+    return np.asarray(end, dtype=np.float64)
+
+
 class ImuErrors:
     """An IMU's errors: white noise of a standard deviation per sample and biases that start at
     ``*_bias0`` and random-walk (``rw * sqrt(dt)`` per sample, ``rw`` a continuous density).
@@ -236,20 +248,20 @@ class ImuErrors:
     def draw(self, n: int, dt_s: float, rng: Generator) -> ImuErrorDraw:
         """The errors of the next ``n`` samples, ``dt_s`` apart; the biases move on past them.
         (One sample draws gyro noise, accel noise, gyro step, accel step: 3 normals each.)"""
+        # In place, the same numbers as with copies: a dataset's 30 minutes at 200 Hz draw
+        # 360,000 rows of each (8.6 MB), which copies made ~90 MB at once.
         noise_g, noise_a = rng.standard_normal((n, 3)), rng.standard_normal((n, 3))
+        noise_g *= self.sg
+        noise_a *= self.sa
         sq = math.sqrt(dt_s)
-        walk_g = self.rw_g * sq * rng.standard_normal((n, 3))
-        walk_a = self.rw_a * sq * rng.standard_normal((n, 3))
-        sum_g, sum_a = np.cumsum(walk_g, axis=0), np.cumsum(walk_a, axis=0)
-        bg = self.bias_g + np.vstack([np.zeros((1, 3)), sum_g[:-1]])
-        ba = self.bias_a + np.vstack([np.zeros((1, 3)), sum_a[:-1]])
-        self.bias_g = self.bias_g + sum_g[-1]
-        self.bias_a = self.bias_a + sum_a[-1]
+        bg, ba = rng.standard_normal((n, 3)), rng.standard_normal((n, 3))
+        self.bias_g = _walk(bg, self.rw_g * sq, self.bias_g)
+        self.bias_a = _walk(ba, self.rw_a * sq, self.bias_a)
         return ImuErrorDraw(
             gyro_bias_rad_s=bg,
             accel_bias_m_s2=ba,
-            gyro_noise_rad_s=self.sg * noise_g,
-            accel_noise_m_s2=self.sa * noise_a,
+            gyro_noise_rad_s=noise_g,
+            accel_noise_m_s2=noise_a,
         )
 
 
