@@ -161,3 +161,34 @@ def test_tum_repeated_timestamps_keep_the_first_pose(tmp_path: Path) -> None:
     np.testing.assert_array_equal(tr.p_W_B[:, 0], [0.0, 1.0, 2.0])  # the first of each
     assert tr.meta["repeated_timestamps"] == "3"
     assert "dup.txt: 3 pose(s) repeat" in tr.meta["note"] and "line 3" in tr.meta["note"]
+
+
+def test_a_long_tum_is_written_a_block_at_a_time(tmp_path: Path) -> None:
+    """180,000 rows (30 minutes at 200 Hz): the writing's peak traced memory stays under 10 MB
+    above the trajectory's arrays (it was 98 MB as one string), and the file is every row,
+    identical to the short file's rows where they overlap."""
+    import tracemalloc
+
+    n = 180_000
+    rng = np.random.default_rng(1)
+    q = rng.normal(size=(n, 4))
+    traj = Trajectory(
+        t_ns=np.arange(n, dtype=np.int64) * 5_000_000 + 1_403_715_273_262_142_976,
+        p_W_B=rng.normal(size=(n, 3)),
+        q_W_B_xyzw=q / np.linalg.norm(q, axis=1, keepdims=True),
+    )
+    tracemalloc.start()
+    try:
+        write_tum(tmp_path / "long.tum", traj)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 10e6, peak
+    short = Trajectory(
+        t_ns=traj.t_ns[:100], p_W_B=traj.p_W_B[:100], q_W_B_xyzw=traj.q_W_B_xyzw[:100]
+    )
+    write_tum(tmp_path / "short.tum", short)
+    lines = (tmp_path / "long.tum").read_text().splitlines()
+    assert len(lines) == n and lines[:100] == (tmp_path / "short.tum").read_text().splitlines()
+    back = read_trajectory(tmp_path / "long.tum")
+    assert np.array_equal(back.t_ns, traj.t_ns)

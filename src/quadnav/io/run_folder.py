@@ -16,7 +16,7 @@ import math
 import os
 import re
 import shutil
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 from types import TracebackType
@@ -189,6 +189,17 @@ def _replace_atomically(path: Path, write: Any) -> None:
 
 def write_text(path: Path, text: str) -> None:
     _replace_atomically(Path(path), lambda tmp: tmp.write_text(text, encoding="utf-8"))
+
+
+def write_text_chunks(path: Path, chunks: Iterable[str]) -> None:
+    """:func:`write_text` a piece at a time (a long trajectory is never one string in memory)."""
+
+    def write(tmp: Path) -> None:
+        with tmp.open("w", encoding="utf-8") as f:
+            for chunk in chunks:
+                f.write(chunk)
+
+    _replace_atomically(Path(path), write)
 
 
 def append_jsonl(path: Path, record: Mapping[str, Any]) -> None:
