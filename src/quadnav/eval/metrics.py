@@ -209,6 +209,26 @@ def _nearest_pairs(
     return i[ok], cand[i, best][ok]
 
 
+def _checked_pairs(
+    ref: Trajectory,
+    est: Trajectory,
+    delta: float,
+    unit: RpeUnit,
+    all_pairs: bool,
+    pairs_from: Literal["estimate", "reference"],
+) -> tuple[IntArray, IntArray]:
+    """:func:`rpe_pairs` on matched trajectories; an ``EvalError`` when they are not matched or
+    no pair is ``delta`` apart."""
+    if len(ref) != len(est):
+        raise EvalError("RPE needs matched trajectories of equal length; associate them first")
+    i, j = rpe_pairs(est if pairs_from == "estimate" else ref, delta, unit, all_pairs=all_pairs)
+    if len(i) == 0:
+        raise EvalError(
+            f"RPE delta {delta} {unit} gives no pairs on a trajectory of {len(est)} poses"
+        )
+    return i, j
+
+
 def rpe_matrices(
     ref: Trajectory,
     est: Trajectory,
@@ -220,13 +240,7 @@ def rpe_matrices(
 ) -> tuple[FloatArray, IntArray]:
     """Relative error poses ``E = (Q_i^-1 Q_j)^-1 (P_i^-1 P_j)`` (M, 4, 4) over the pairs of
     :func:`rpe_pairs`, and each pair's end index ``j``."""
-    if len(ref) != len(est):
-        raise EvalError("RPE needs matched trajectories of equal length; associate them first")
-    i, j = rpe_pairs(est if pairs_from == "estimate" else ref, delta, unit, all_pairs=all_pairs)
-    if len(i) == 0:
-        raise EvalError(
-            f"RPE delta {delta} {unit} gives no pairs on a trajectory of {len(est)} poses"
-        )
+    i, j = _checked_pairs(ref, est, delta, unit, all_pairs, pairs_from)
     return _relative_errors(ref, est, i, j), j
 
 
@@ -259,13 +273,7 @@ def rpe(
     """Relative pose error per pair, and each pair's end index (for plotting against time).
     The pairs' error poses are made :data:`RPE_CHUNK` at a time: all pairs of a 30-minute run
     at once were ~1 kB a pose."""
-    if len(ref) != len(est):
-        raise EvalError("RPE needs matched trajectories of equal length; associate them first")
-    i, j = rpe_pairs(est if pairs_from == "estimate" else ref, delta, unit, all_pairs=all_pairs)
-    if len(i) == 0:
-        raise EvalError(
-            f"RPE delta {delta} {unit} gives no pairs on a trajectory of {len(est)} poses"
-        )
+    i, j = _checked_pairs(ref, est, delta, unit, all_pairs, pairs_from)
     out = np.empty(len(i))
     for s in range(0, len(i), RPE_CHUNK):
         c = slice(s, s + RPE_CHUNK)
