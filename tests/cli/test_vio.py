@@ -109,7 +109,17 @@ def test_a_full_disk_is_one_error_and_the_run_is_marked_failed(
             raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(self))
         return real(self, *a, **kw)
 
+    real_open = Path.open
+
+    def open_(self: Path, mode: str = "r", *a: Any, **kw: Any) -> Any:
+        if "w" in mode and self.name == ".estimate.tum.partial":  # written a block at a time
+            full["now"] = True
+        if "w" in mode and full["now"]:
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(self))
+        return real_open(self, mode, *a, **kw)
+
     monkeypatch.setattr(Path, "write_text", write_text)
+    monkeypatch.setattr(Path, "open", open_)
     result = runner.invoke(
         app, ["vio", str(EUROC_MICRO), "--no-video", "--duration", "1", "--out", str(tmp_path)]
     )

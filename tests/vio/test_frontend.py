@@ -10,6 +10,7 @@ from quadnav.odometry import FrameFeatures
 from quadnav.rig import rig_named
 from quadnav.vio.config import VioConfig
 from quadnav.vio.frontend import FeatureManager, Frontend, mean_parallax, normalised
+from quadnav.vision.tracker_config import TrackerConfig
 
 
 def _frame(t_ns: int, pts_W: np.ndarray, R_W_C: np.ndarray, p_W_C: np.ndarray) -> FrameFeatures:
@@ -118,3 +119,19 @@ def test_the_vios_tracker_detects_only_when_enough_are_missing_and_stays_near_fu
     detecting = sum(f.counts.new > 0 for f in later)
     assert 3 <= detecting <= 0.5 * len(later)
     assert np.mean([len(f) for f in later]) >= 135
+
+
+def test_a_partial_tracker_setting_keeps_the_vios_own_tracker_defaults() -> None:
+    """``--set tracker.max_features=200`` changes that key only: the VIO's corner detection
+    (once 20 are missing) stays, where it had fallen back to the standalone tracker's (every
+    frame) as the section was rebuilt from the given keys; and in ``quadnav run``, setting a
+    tracker key to its documented default is no change."""
+    from quadnav.experiments.nav_config import NavScenario
+    from quadnav.io.config import load_config
+
+    vio_default = VioConfig().tracker
+    c = load_config(VioConfig, None, ["tracker.max_features=200"])
+    assert c.tracker.max_features == 200
+    assert c.tracker.detect_min_new == vio_default.detect_min_new != TrackerConfig().detect_min_new
+    same = load_config(NavScenario, None, [f"vio.tracker.max_features={vio_default.max_features}"])
+    assert same.vio.tracker == vio_default
