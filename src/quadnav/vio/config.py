@@ -115,7 +115,11 @@ class VioConfig(ConfigModel):
         0.002, gt=0.0, le=1.0, description="no-motion constraint at rest (and rad)"
     )
     init_attitude_sigma_rad: float = Field(
-        0.01, gt=0.0, le=1.0, description="prior on the first state's roll and pitch"
+        0.01,
+        gt=0.0,
+        le=1.0,
+        description="prior on the first state's roll and pitch, besides what the unknown "
+        "accelerometer bias adds (init_accel_bias_sigma_m_s2 / g)",
     )
     init_accel_bias_sigma_m_s2: float = Field(
         0.2, gt=0.0, le=10.0, description="prior on the accelerometer bias at the start"
@@ -143,7 +147,17 @@ class VioConfig(ConfigModel):
     fail_max_gyro_bias_jump_rad_s: float = Field(
         0.1, gt=0.0, le=100.0, description="gyro bias change in one keyframe"
     )
-    estimate_td: bool = Field(False, description="estimate the camera-IMU time offset online")
+    estimate_td: bool = Field(
+        True,
+        description="estimate the camera-IMU time offset online (VINS' estimate_td): a few "
+        "milliseconds unstated cost a hand-held corridor decimetres",
+    )
+    td_window_s: float = Field(
+        30.0,
+        ge=6.0,
+        le=300.0,
+        description="seconds of gyro and vision rotations the online time offset compares",
+    )
     td_s: float | None = Field(
         None,
         ge=-0.1,
