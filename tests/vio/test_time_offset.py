@@ -4,14 +4,21 @@ early (``t_imu = t_image + td``)."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
 from quadnav.errors import VioError
+from quadnav.io.datasets import VisualInertialDataset
+from quadnav.messages import ImageFrame
 from quadnav.rig import euroc_mono
+from quadnav.units import NS_PER_S
+from quadnav.vio import VioEstimator
 from quadnav.vio.config import VioConfig
 from quadnav.vio.time_offset import TdEstimate, TimeOffsetEstimator
+from tests.vio.rendered import rendered
 
 R_B_C = euroc_mono().cameras[0].T_B_C.R_A_B
 _H_S = 1e-4
@@ -134,3 +141,34 @@ def test_bad_input_is_refused_and_old_stamps_are_counted() -> None:
     assert est.rejected == {"gyro_out_of_order": 1, "rotation_out_of_order": 1}
     a, b = est.estimate(), twin.estimate()
     assert a is not None and a == b
+
+
+@pytest.fixture(scope="module")
+def room8(tmp_path_factory: pytest.TempPathFactory) -> VisualInertialDataset:
+    """8 s in the room, a start in motion, EuRoC's left camera, ideal sensors."""
+    return rendered(
+        tmp_path_factory, "room_medium", duration_s=8.0, still_s=0.0, rig="euroc_mono", seed=4
+    )
+
+
+@pytest.mark.parametrize("early_ns", [0, 8_000_000])
+def test_the_vio_finds_an_unstated_offset_by_default(
+    room8: VisualInertialDataset, early_ns: int
+) -> None:
+    """Rendered images of a start in motion, stamped ``early_ns`` before the IMU's clock
+    says they were taken, with a calibration that does not say so (as the realistic datasets
+    make them): the VIO's default estimates the offset within 1.5 ms (measured: 0.9 ms for 0,
+    8.7 for 8), and says so in a ``td`` event."""
+    vio = VioEstimator(room8.rig)
+    moved = (
+        dataclasses.replace(s, t_ns=s.t_ns - early_ns) if isinstance(s, ImageFrame) else s
+        for s in room8.stream()
+        if not (isinstance(s, ImageFrame) and s.camera != "cam0")
+    )
+    last = None
+    for s in sorted(moved, key=lambda s: s.t_ns):  # in the order of the stamps
+        state = vio.push(s)
+        last = state if state is not None else last
+    assert last is not None and last.td_s is not None
+    assert abs(last.td_s - early_ns / NS_PER_S) < 1.5e-3, last.td_s
+    assert any(e.kind == "td" for e in vio.events), vio.events
