@@ -152,6 +152,13 @@ class VioConfig(ConfigModel):
         description="estimate the camera-IMU time offset online (VINS' estimate_td): a few "
         "milliseconds unstated cost a hand-held corridor decimetres",
     )
+    td_prior_sigma_s: float = Field(
+        0.003,
+        gt=0.0,
+        le=0.1,
+        description="how far the stated camera-IMU offset may be off (s): the online estimate "
+        "is weighed against it by their variances",
+    )
     td_window_s: float = Field(
         30.0,
         ge=6.0,

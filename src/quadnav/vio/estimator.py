@@ -130,6 +130,7 @@ class VioEstimator:
         self._cov_v = np.eye(3) * 1e-6
         self._last_p = np.zeros(3)
         self._td_s = ns_to_s(spec.time_offset_ns) if cfg.td_s is None else cfg.td_s
+        self._td_stated_s = self._td_s  # what the online estimate is weighed against
         self._td = (
             _time_offset_estimator(rig.camera(camera).T_B_C.R_A_B, cfg.td_window_s)
             if cfg.estimate_td
@@ -695,6 +696,7 @@ class VioEstimator:
         estimate, once it has one, is the offset later images get (VINS' ``estimate_td``)."""
         if self._td is None:
             return
+        cfg = self.config
         R_C0_C1 = self._vision_rotation(a.index, b.index)
         applied = self._td_applied_ns
         t0 = a.t_ns - applied.get(a.t_ns, s_to_ns(self._td_s))
@@ -708,13 +710,18 @@ class VioEstimator:
         if est is None or not np.isfinite(est.td_s) or abs(est.td_s) > 0.1:
             return
         first = self._td_reported_s is None
-        self._td_s = float(est.td_s)
+        # weighed against the stated offset (its prior): a wandering early estimate moves little
+        w = cfg.td_prior_sigma_s**2 / (cfg.td_prior_sigma_s**2 + est.sigma_s**2)
+        self._td_s = self._td_stated_s + w * (float(est.td_s) - self._td_stated_s)
         settled = est.converged and not self._td_settled
         moved = not first and abs(self._td_s - float(self._td_reported_s or 0.0)) > 1e-3
         if first or settled or moved:  # the first estimate, a move of over 1 ms, settling
             self._td_settled = self._td_settled or est.converged
             self._td_reported_s = self._td_s
-            detail = f"camera-IMU offset {1e3 * est.td_s:.2f} ms (sigma {1e3 * est.sigma_s:.2f} ms)"
+            detail = (
+                f"camera-IMU offset {1e3 * self._td_s:.2f} ms (measured {1e3 * est.td_s:.2f}, "
+                f"sigma {1e3 * est.sigma_s:.2f} ms)"
+            )
             self._events.append(OdometryEvent(t_ns=b.t_ns, kind="td", detail=detail))
 
     def _vision_rotation(self, ka: int, kb: int) -> FloatArray | None:
