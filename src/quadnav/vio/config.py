@@ -43,6 +43,12 @@ class VioConfig(ConfigModel):
             return {**_tracker().model_dump(), **value}
         return value
 
+    predict_flow: bool = Field(
+        False,
+        description="KLT starts each feature where the gyro's rotation since the last frame "
+        "moves it (VINS-Fusion, OpenVINS), over tracker.predicted_pyramid_levels",
+    )
+
     # VINS-Mono uses 10 px (at focal 460); 16 px measured better here on V1_02's motion (40 s:
     # ATE 0.032 against 0.036 m) and on room_medium, with 30 % fewer solves
     keyframe_parallax_px: float = Field(

@@ -4,7 +4,10 @@ Per frame: pyramidal Lucas-Kanade (``cv2.calcOpticalFlowPyrLK``) moves the previ
 features into the new image; a feature is dropped when KLT loses it, when it leaves the image
 border, when tracking it back to the previous image misses its start by more than
 ``fb_threshold_px`` (the forward-backward check of VINS-Fusion), or when it is an outlier of a
-fundamental matrix fitted by RANSAC on undistorted pixels (VINS' ``rejectWithF``). The survivors
+fundamental matrix fitted by RANSAC on undistorted pixels (VINS' ``rejectWithF``). Given the
+camera's rotation since the previous frame (the gyro's), KLT starts each feature where that
+rotation alone would move it (VINS-Fusion's and OpenVINS' predicted flow), over
+``predicted_pyramid_levels`` levels: a fast turn then stays within the search. The survivors
 are kept longest-track first with at least ``min_distance_px`` between any two (VINS'
 ``setMask``), and Shi-Tomasi corners (``cv2.goodFeaturesToTrack``) outside circles of that radius
 top the frame up to ``max_features``. Each feature has an id for life and a length: the number of
@@ -45,6 +48,7 @@ __all__ = [
     "TrackerConfig",
     "as_grey",
     "fundamental_inliers",
+    "rotated_pixels",
     "track_sequence",
     "track_stereo",
 ]
@@ -121,6 +125,7 @@ class _State:
     pts: FloatArray
     ids: IntArray
     lengths: IntArray
+    undistorted: FloatArray
 
 
 def _clahe() -> cv2.CLAHE:
@@ -208,6 +213,24 @@ def fundamental_inliers(
     if status is None:
         return np.ones(n, bool)
     out: BoolArray = status.ravel().astype(bool)
+    return out
+
+
+def rotated_pixels(
+    camera: PinholeCamera, px: FloatArray, undistorted_px: FloatArray, R_a_b: FloatArray
+) -> FloatArray:
+    """Where pixels ``px`` (``undistorted_px`` without the lens) of camera pose ``a`` fall in the
+    image of pose ``b`` when the camera only rotated, by ``R_a_b`` (b's orientation in a): KLT's
+    prediction from the gyro. A point that would fall behind the camera keeps its pixel."""
+    u = np.asarray(undistorted_px, np.float64)
+    K = camera.K
+    y = (u[:, 1] - K[1, 2]) / K[1, 1]
+    x = (u[:, 0] - K[0, 2] - K[0, 1] * y) / K[0, 0]
+    rays = np.column_stack([x, y, np.ones(len(u))]) @ np.asarray(R_a_b)  # R_a_b^T f, per row
+    ahead = rays[:, 2] > 1e-3
+    out = np.array(px, np.float64)
+    if ahead.any():
+        out[ahead] = camera.project(rays[ahead])
     return out
 
 
@@ -331,14 +354,21 @@ class FeatureTracker:
         # kept as the next frame's previous image: a copy, should the caller reuse its buffer
         return img.copy() if img is image else img
 
-    def _carry(self, st: _State, img: Image, times: dict[str, float]) -> _Survivors:
-        """The previous features through KLT, the border, the forward-backward check and RANSAC."""
+    def _carry(
+        self, st: _State, img: Image, times: dict[str, float], R_prev_cur: FloatArray | None
+    ) -> _Survivors:
+        """The previous features through KLT (from their rotated pixels when the rotation is
+        given), the border, the forward-backward check and RANSAC."""
         cfg = self.config
         s = _Survivors(st.pts, st.pts, st.ids, st.lengths)
         if len(st.pts) == 0:
             return s
         t0 = time.perf_counter()
-        cur, ok = _klt(st.image, img, st.pts, cfg)
+        guess, levels = None, None
+        if R_prev_cur is not None and self.camera is not None:
+            guess = rotated_pixels(self.camera, st.pts, st.undistorted, R_prev_cur)
+            levels = cfg.predicted_pyramid_levels
+        cur, ok = _klt(st.image, img, st.pts, cfg, guess=guess, levels=levels)
         s.cur = cur
         s.keep(ok, "klt")
         s.keep(_in_border(s.cur, st.shape), "border")
@@ -358,8 +388,13 @@ class FeatureTracker:
         times["ransac_s"] = time.perf_counter() - t2
         return s
 
-    def track(self, t_ns: int, image: object) -> TrackedFrame:
-        """The features of ``image`` taken at ``t_ns`` (after the previous frame's)."""
+    def track(
+        self, t_ns: int, image: object, *, R_prev_cur: FloatArray | None = None
+    ) -> TrackedFrame:
+        """The features of ``image`` taken at ``t_ns`` (after the previous frame's); with
+        ``R_prev_cur``, the camera's rotation since the previous frame (this frame's orientation
+        in the previous one's, from the gyro), KLT starts from the features' rotated pixels
+        (without a camera the rotation is not used)."""
         cfg = self.config
         times: dict[str, float] = {}
         t0 = time.perf_counter()
@@ -369,7 +404,7 @@ class FeatureTracker:
         if st is None:
             s = _Survivors(np.zeros((0, 2)), np.zeros((0, 2)), _empty_int(), _empty_int())
         else:
-            s = self._carry(st, img, times)
+            s = self._carry(st, img, times, R_prev_cur)
         n_prev = 0 if st is None else len(st.pts)
         t1 = time.perf_counter()
         lengths = s.lengths + 1
@@ -386,7 +421,9 @@ class FeatureTracker:
         pts = np.vstack([s.cur, new])
         ids = np.concatenate([s.ids, new_ids])
         lens = np.concatenate([s.lengths, np.ones(len(new), np.int64)])
-        self._state = _State(img, (img.shape[0], img.shape[1]), int(t_ns), pts, ids, lens)
+        und = pts if self.camera is None or not len(pts) else self.camera.undistort_pixels(pts)
+        shape = (img.shape[0], img.shape[1])
+        self._state = _State(img, shape, int(t_ns), pts, ids, lens, und)
         self.last_times = StageTimes(**times)
         counts = FrameCounts(
             previous=n_prev,
@@ -398,7 +435,6 @@ class FeatureTracker:
             lost_spacing=s.losses.get("spacing", 0),
             new=len(new),
         )
-        und = pts if self.camera is None or not len(pts) else self.camera.undistort_pixels(pts)
         for a in (pts, ids, lens, und):  # shared with the tracker's state: read-only
             a.flags.writeable = False
         return TrackedFrame(
