@@ -74,7 +74,8 @@ Item = tuple[int, str, ImuSample | np.ndarray]
 #: (batch Levenberg-Marquardt over the window at each keyframe, the extrinsic fixed), today's
 #: window with the front end's setting as it was before (VINS-Mono's: corners detected whenever
 #: one is missing), and today's defaults (iSAM2, the extrinsic refined online, corners detected
-#: once 20 are missing). All match a stereo frame's corners in the right image at
+#: once 20 are missing), and today's defaults with KLT started from the gyro's prediction
+#: (``predict_flow``). All match a stereo frame's corners in the right image at
 #: keyframes only (before, every frame was matched: about 25 ms a frame more). The vectorised
 #: spacing check and landmark admission give the same results and are in all three.
 def _before() -> VioConfig:
@@ -87,10 +88,16 @@ def _front_end_before() -> VioConfig:
     return cfg.model_copy(update={"tracker": vins})
 
 
+def _predicted_flow() -> VioConfig:
+    """KLT started from the gyro's rotation of each feature (VINS-Fusion's, OpenVINS')."""
+    return VioConfig(predict_flow=True)
+
+
 CONFIGS = {
     "before (batch smoother, fixed extrinsic)": _before,
     "front end before (VINS' settings)": _front_end_before,
     "default": VioConfig,
+    "gyro-predicted flow": _predicted_flow,
 }
 
 

@@ -4,6 +4,7 @@ black (failure, reset, re-initialisation), and bad input counted rather than rai
 from __future__ import annotations
 
 import dataclasses
+import itertools
 
 import cv2
 import numpy as np
@@ -14,6 +15,7 @@ from quadnav.messages import ImageFrame, ImuSample
 from quadnav.odometry import TRACKING_EVENTS, OdometryState
 from quadnav.rig import rig_named
 from quadnav.vio import VioConfig, VioEstimator
+from quadnav.vision.tracking import TrackedFrame
 from tests.shared_data import SHARED, needs
 
 EUROC_MICRO = SHARED / "euroc_micro"
@@ -224,3 +226,51 @@ def test_the_first_states_tilt_covers_the_accelerometer_bias_and_its_yaw_is_the_
         yaw_sigma.append(float(np.degrees(np.sqrt(P_W[2, 2]))))
     assert 0.4 <= float(np.mean(nees)) <= 1.9, nees
     assert max(yaw_sigma) < 0.1, yaw_sigma
+
+
+def test_the_predicted_flow_is_given_the_cameras_turn_between_frames(
+    tmp_path_factory: pytest.TempPathFactory,
+) -> None:
+    """``predict_flow``: the tracker is handed, at each frame but the first, the camera's
+    rotation since the previous frame, which on a rendered flight is the true one (ideal IMU:
+    within a milliradian, before and after initialisation); without it, no rotation."""
+    from tests.vio.rendered import rendered
+
+    ds = rendered(tmp_path_factory, "room_easy", duration_s=4.0, still_s=1.0, rig="euroc_mono")
+    assert ds.groundtruth is not None
+    truth = ds.groundtruth.trajectory
+    R_B_C = ds.rig.camera("cam0").T_B_C.R_A_B.as_matrix()
+    for predict in (True, False):
+        vio = VioEstimator(ds.rig, VioConfig(predict_flow=predict))
+        given = _spy_rotations(vio)
+        for item in ds.stream():
+            vio.push(item)
+        assert len(given) >= 70 and vio.initialized
+        if not predict:
+            assert all(R is None for _, R in given)
+            continue
+        assert given[0][1] is None and all(R is not None for _, R in given[1:])
+        worst, turned = 0.0, 0.0
+        for (t0, _), (t1, R) in itertools.pairwise(given):
+            assert R is not None
+            q = truth.interpolate(np.array([t0, t1])).R_W_B.as_matrix()
+            R_C0_C1 = R_B_C.T @ q[0].T @ q[1] @ R_B_C
+            worst = max(
+                worst, float(np.linalg.norm(Rotation.from_matrix(R.T @ R_C0_C1).as_rotvec()))
+            )
+            turned = max(turned, float(np.linalg.norm(Rotation.from_matrix(R_C0_C1).as_rotvec())))
+        assert worst < 1e-3, worst
+        assert turned > 0.01
+
+
+def _spy_rotations(vio: VioEstimator) -> list[tuple[int, np.ndarray | None]]:
+    """(t_ns, R_prev_cur) of each frame the estimator's tracker is given, as it runs."""
+    given: list[tuple[int, np.ndarray | None]] = []
+    track = vio.frontend.tracker.track
+
+    def spy(t_ns: int, image: object, *, R_prev_cur: np.ndarray | None = None) -> TrackedFrame:
+        given.append((t_ns, R_prev_cur))
+        return track(t_ns, image, R_prev_cur=R_prev_cur)
+
+    vio.frontend.tracker.track = spy  # type: ignore[method-assign]
+    return given

@@ -5,6 +5,8 @@ statistics, bad input."""
 from __future__ import annotations
 
 import itertools
+import subprocess
+import sys
 from collections.abc import Iterator
 
 import cv2
@@ -13,17 +15,30 @@ import pytest
 from numpy.typing import NDArray
 
 from quadnav.errors import VisionError
+from quadnav.geometry.camera import PinholeCamera
+from quadnav.geometry.rotations import so3_exp
 from quadnav.vision.tracking import (
     FeatureTracker,
     StereoGeometry,
     TrackedFrame,
     TrackerConfig,
     fundamental_inliers,
+    rotated_pixels,
     track_sequence,
     track_stereo,
 )
 from tests.shared_data import SHARED, needs
-from tests.vision.tracking_scenes import TwoPlanes, apply, canvas, texture, two_planes, view
+from tests.vision.tracking_scenes import (
+    H,
+    K,
+    TwoPlanes,
+    W,
+    apply,
+    canvas,
+    texture,
+    two_planes,
+    view,
+)
 
 FloatArray = NDArray[np.float64]
 SEEDS = range(5)
@@ -536,3 +551,96 @@ def test_a_one_level_backward_pass_keeps_the_full_pyramids_tracks() -> None:
         tracked += len(kept[0])
     assert tracked >= 7 * 140
     assert differ <= 0.01 * tracked
+
+
+def _turn(seed: int) -> tuple[np.ndarray, np.ndarray, FloatArray, FloatArray]:
+    """Two frames of a canvas seen before and after a fast turn of the camera alone (15 deg of
+    yaw and 2 of roll between frames: 107 px of image motion at the centre, beyond the 3-level
+    pyramid's reach), the homography of frame-0 pixels, and R_0_1 (frame 1's orientation in
+    frame 0's camera)."""
+    R_1_0 = so3_exp(np.array([0.0, np.deg2rad(-15.0), np.deg2rad(2.0)]))
+    D = K @ R_1_0 @ np.linalg.inv(K)
+    tex = canvas(np.random.default_rng(seed))
+    return view(tex, np.eye(3)), view(tex, D), D, R_1_0.T
+
+
+def test_rotated_pixels_of_a_pure_rotation_follow_its_homography() -> None:
+    cam = PinholeCamera(K, np.zeros(0), W, H)
+    R_1_0 = so3_exp(np.array([0.05, -0.2, 0.07]))
+    px = np.random.default_rng(0).uniform([0.0, 0.0], [W, H], (50, 2))
+    want = apply(K @ R_1_0 @ np.linalg.inv(K), px)
+    assert np.allclose(rotated_pixels(cam, px, px, R_1_0.T), want, atol=1e-6)
+    behind = rotated_pixels(cam, px, px, so3_exp(np.array([0.0, np.pi, 0.0])))
+    assert np.array_equal(behind, px)  # a turn that puts them behind the camera: no prediction
+
+
+@pytest.mark.parametrize("seed", SEEDS)
+def test_the_gyros_prediction_keeps_the_tracks_a_fast_turn_loses(seed: int) -> None:
+    """Without the rotation KLT loses nearly every feature in a 107 px turn; started from
+    their rotated pixels it keeps most that stay in view, where the turn moves them, with its
+    3 pyramid levels or 1."""
+    a, b, D, R_0_1 = _turn(seed)
+    cam = PinholeCamera(K, np.zeros(0), W, H)
+    kept = {}
+    for name, cfg, R in (
+        ("plain", TrackerConfig(), None),
+        ("predicted", TrackerConfig(), R_0_1),
+        ("predicted, 1 level", TrackerConfig(predicted_pyramid_levels=1), R_0_1),
+    ):
+        tr = FeatureTracker(cfg, cam)
+        f0 = tr.track(0, a)
+        f1 = tr.track(1, b, R_prev_cur=R)
+        p0, p1 = _pairs(f0, f1)
+        err = np.linalg.norm(p1 - apply(D, p0), axis=1)
+        right = err < 2.0  # the turn also shears KLT's window: up to 2 px off at the edges
+        assert name == "plain" or (right.all() and np.median(err) < 0.3), name
+        stays = apply(D, f0.pixels)
+        in_view = ((stays >= 12) & (stays < [W - 12, H - 12])).all(axis=1).sum()
+        kept[name] = right.sum() / in_view
+    assert kept["plain"] < 0.2
+    assert kept["predicted"] > 0.75  # the rest: lost at the edges or too close after the turn
+    assert kept["predicted, 1 level"] > 0.75
+
+
+def test_an_identity_rotation_tracks_as_no_rotation() -> None:
+    """The prediction of no turn is the feature's own pixel, where KLT starts without one."""
+    frames = _pan(4, 5, step_px=4.0)
+    cam = PinholeCamera(K, np.zeros(0), W, H)
+    plain, still = FeatureTracker(camera=cam), FeatureTracker(camera=cam)
+    for k, img in enumerate(frames):
+        f = plain.track(k, img)
+        g = still.track(k, img, R_prev_cur=np.eye(3))
+        assert np.array_equal(f.ids, g.ids)
+        assert np.array_equal(f.pixels, g.pixels)
+
+
+_FAULTS = """
+import resource, sys
+import cv2, numpy as np
+from quadnav.vision.tracking import keep_freed_memory
+kept = keep_freed_memory() if sys.argv[1] == "keep" else False
+img = np.random.default_rng(0).integers(0, 255, (480, 752), np.uint8)
+cv2.setNumThreads(1)
+cv2.goodFeaturesToTrack(img, 50, 0.01, 30.0)
+before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+for _ in range(20):
+    cv2.goodFeaturesToTrack(img, 50, 0.01, 30.0)
+print(kept, resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before)
+"""
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc's mallopt")
+def test_the_tracker_keeps_the_memory_opencv_frees_between_frames() -> None:
+    """``keep_freed_memory`` (a tracker sets it): a corner detection on a 752x480 image faults
+    in fresh pages for its buffers each time by default (some 2,000 page faults, 8 MB), none
+    once freed memory is kept. (Page faults are counted, not time.)"""
+    faults = {}
+    for mode in ("keep", "default"):
+        out = subprocess.run(
+            [sys.executable, "-c", _FAULTS, mode], capture_output=True, text=True, check=True
+        )
+        kept, n = out.stdout.split()
+        assert kept == str(mode == "keep")
+        faults[mode] = int(n)
+    assert faults["default"] > 20 * 500, faults  # a 4 MB buffer alone is 1,000 pages
+    assert faults["keep"] < 0.05 * faults["default"], faults

@@ -314,12 +314,26 @@ class VioEstimator:
             self._td_applied_ns[t] = t - int(t_ns)
         try:
             with self._stage("track"):
-                frame = self.frontend.track(t, image)
+                frame = self.frontend.track(t, image, self._camera_rotation(t))
         except VisionError:
             self.input.counts["image"] += 1
             return None
         self._last_features = frame
         return frame
+
+    def _camera_rotation(self, t_ns: int) -> FloatArray | None:
+        """The camera's rotation since the last frame by the gyro (the newest keyframe's bias
+        taken off once initialised), when ``predict_flow`` is on and the IMU covers it."""
+        t0 = self.frontend.last_t_ns
+        if not self.config.predict_flow or t0 is None:
+            return None
+        bias = np.asarray(self.window.newest.bias.gyroscope()) if self._initialized else np.zeros(3)
+        R_B = self.imu.gyro_rotation(t0, t_ns, bias, hold_ns=self._hold_ns())
+        if R_B is None:
+            return None
+        R_BC = self.camera_spec.T_B_C.R_A_B.as_matrix()
+        out: FloatArray = R_BC.T @ R_B @ R_BC
+        return out
 
     def _estimate(self, frame: FrameFeatures) -> OdometryState | None:
         t = frame.t_ns

@@ -107,9 +107,17 @@ class Frontend:
     def last_keyframe(self) -> FrameFeatures | None:
         return self._kf
 
-    def track(self, t_ns: int, image: object) -> FrameFeatures:
-        """The features of an image (a :class:`VisionError` for one the tracker cannot use)."""
-        tf: TrackedFrame = self.tracker.track(t_ns, image)
+    @property
+    def last_t_ns(self) -> int | None:
+        """The time of the last frame tracked (None after a reset)."""
+        return None if self._prev is None else self._prev.t_ns
+
+    def track(
+        self, t_ns: int, image: object, R_prev_cur: FloatArray | None = None
+    ) -> FrameFeatures:
+        """The features of an image (a :class:`VisionError` for one the tracker cannot use);
+        ``R_prev_cur``: the camera's rotation since the last frame, KLT's prediction."""
+        tf: TrackedFrame = self.tracker.track(t_ns, image, R_prev_cur=R_prev_cur)
         xy = normalised(self.camera, tf.pixels_undistorted)
         vel = np.zeros_like(xy)
         prev = self._prev

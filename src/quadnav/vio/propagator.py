@@ -15,6 +15,7 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
+from quadnav.geometry.rotations import so3_exp
 from quadnav.messages import ImuSample
 from quadnav.units import NS_PER_S
 from quadnav.vio.preintegration import preintegrate
@@ -76,6 +77,28 @@ class ImuPropagator:
             return gtsam.PreintegratedCombinedMeasurements(self.params, bias)
         i = max(bisect.bisect_right(self._t, t0_ns) - 1, 0)
         return preintegrate(self.params, self.samples[i:], t0_ns, t1_ns, bias, hold_ns=hold_ns)
+
+    def gyro_rotation(
+        self, t0_ns: int, t1_ns: int, gyro_bias: FloatArray, *, hold_ns: int = 0
+    ) -> FloatArray | None:
+        """The body's rotation from ``t0_ns`` to ``t1_ns`` (R_B0_B1) by the gyro alone, its
+        bias taken off: readings interpolated to the middle of each piece between samples and
+        summed into one rotation vector (to first order, enough for a prediction). None when
+        the buffer does not cover the span (the newest sample may hold ``hold_ns`` past it)."""
+        t = self._t
+        i = bisect.bisect_right(t, t0_ns) - 1
+        if i < 0 or t1_ns <= t0_ns or t[-1] + hold_ns < t1_ns:
+            return None
+        j = bisect.bisect_left(t, t1_ns, lo=i)
+        ts = np.asarray(t[i : j + 1], np.float64)
+        g = np.array([s.gyro_rad_s for s in self.samples[i : j + 1]], np.float64)
+        if ts[-1] < t1_ns:  # the newest sample holds
+            ts, g = np.append(ts, float(t1_ns)), np.vstack([g, g[-1]])
+        a, b = np.maximum(ts[:-1], t0_ns), np.minimum(ts[1:], t1_ns)
+        u = ((0.5 * (a + b) - ts[:-1]) / (ts[1:] - ts[:-1]))[:, None]
+        rates = g[:-1] + u * (g[1:] - g[:-1])
+        rotvec = ((b - a)[:, None] * (rates - np.asarray(gyro_bias))).sum(axis=0) / NS_PER_S
+        return so3_exp(rotvec)
 
     def run_from(self, t0_ns: int, bias: gtsam.imuBias.ConstantBias, *, hold_ns: int = 0) -> None:
         """Start the running propagation from a state at ``t0_ns`` (to the newest sample; each

@@ -36,6 +36,13 @@ class TrackerConfig(ConfigModel):
     )
     ransac: bool = Field(True, description="drop outliers of a fundamental matrix")
     pyramid_levels: int = Field(3, ge=0, le=6, description="KLT pyramid levels above the image")
+    predicted_pyramid_levels: int | None = Field(
+        None,
+        ge=0,
+        le=6,
+        description="pyramid levels of the forward pass when it starts from the gyro's "
+        "prediction (None: pyramid_levels)",
+    )
     window_px: int = Field(21, ge=3, le=61, description="KLT window side, odd")
     klt_iterations: int = Field(30, ge=1, le=100, description="KLT iterations per level")
     quality_level: float = Field(
