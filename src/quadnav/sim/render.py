@@ -389,7 +389,7 @@ class Renderer:
         image = self._to_lens(img) if not blur_poses else img
         if self._maps is not None:
             depth = np.asarray(
-                cv2.remap(  # type: ignore[call-overload]  # map2 may be None (integer map1)
+                cv2.remap(  # type: ignore[call-overload, unused-ignore]  # map2 may be None (integer map1)
                     depth,
                     self._depth_map,
                     None,

@@ -288,7 +288,7 @@ def _klt(
         img_a,
         img_b,
         p0,
-        p1,  # type: ignore[arg-type]
+        p1,  # type: ignore[arg-type, unused-ignore]
         winSize=(cfg.window_px, cfg.window_px),
         maxLevel=cfg.pyramid_levels if levels is None else levels,
         criteria=crit,
