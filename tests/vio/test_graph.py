@@ -44,7 +44,7 @@ def _check(graph: WindowGraph, last: int) -> None:
 def test_cholesky_refuses_a_stiff_chain_and_qr_solves_it(smoother: str) -> None:
     """Steps 1e8 times stiffer (in information) than the prior: Cholesky throws, the fallback
     solves it; then each solve adds a variable, stays on QR for 3 solves, goes back to
-    Cholesky (which throws again on this chain) and falls back again."""
+    Cholesky (which throws again on this chain) and falls back again, for 6 solves."""
     cfg = VioConfig(smoother=smoother, qr_fallback_solves=3)
     graph = WindowGraph(cfg, lag=6.0)
     _chain(graph, 0, 5, sigma=0.01)
@@ -55,9 +55,16 @@ def test_cholesky_refuses_a_stiff_chain_and_qr_solves_it(smoother: str) -> None:
         _check(graph, k)
         assert graph.fallbacks == 1
     assert graph.on_qr
-    _chain(graph, 9, 9, sigma=0.01)  # Cholesky again: refused, QR again
+    _chain(graph, 9, 9, sigma=0.01)  # Cholesky again: refused, QR again, twice as long
     _check(graph, 9)
     assert graph.fallbacks == 2 and graph.on_qr
+    for k in range(10, 16):  # six solves on QR
+        _chain(graph, k, k, sigma=0.01)
+        _check(graph, k)
+    assert graph.fallbacks == 2
+    _chain(graph, 16, 16, sigma=0.01)
+    _check(graph, 16)
+    assert graph.fallbacks == 3
 
 
 def test_without_the_fallback_the_stiff_chain_fails() -> None:

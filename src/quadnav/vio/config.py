@@ -96,7 +96,8 @@ class VioConfig(ConfigModel):
         le=1000,
         description="a solve whose Cholesky factorisation fails (an ill-conditioned window) is "
         "redone with QR from the last good solve, and this many solves stay on QR before "
-        "Cholesky again; 0: no fallback (the solve fails)",
+        "Cholesky again (twice as many each time Cholesky is refused again, up to 64 times); "
+        "0: no fallback (the solve fails)",
     )
     restart_in_place: bool = Field(
         True,

@@ -12,13 +12,15 @@ Two smoothers (``VioConfig.smoother``):
   (``optimizer_iterations`` steps), marginal covariances from a full ``Marginals``. Slower;
   kept as the reference.
 
-Either factorises the linearised window with Cholesky (iSAM2's default, the faster). On a long
-run the window can be too badly conditioned for it (the gyro bias's random walk between keyframes
-0.1 s apart weighs up to 1e11 against 1e-2 for the weakest direction; GTSAM then throws
-"Indeterminate linear system"): the solve is redone with QR on a smoother rebuilt from the last
-good solve's factors and linearisation point with what was pending, and the next ``qr_fallback_solves``
-solves stay on QR before a rebuild puts Cholesky back (:attr:`WindowGraph.fallbacks` counts
-them). A solve that fails with QR too passes GTSAM's error on.
+Either factorises the linearised window with Cholesky (iSAM2's default, the faster). Since
+GTSAM 4.3 a frontal block whose reciprocal condition number, its diagonal equilibrated, is under
+sqrt(eps) (1.5e-8) is "Indeterminate linear system": on a long run the window gets there (the
+gyro bias's random walk between keyframes 0.1 s apart weighs up to 1e11, the weakest direction
+1e-2). The solve is then redone with QR on a smoother rebuilt from the last good solve's factors
+and linearisation point with what was pending; the next ``qr_fallback_solves`` solves stay on
+QR, then a rebuild tries Cholesky again; refused again, QR holds twice as long (up to 64 times).
+:attr:`WindowGraph.fallbacks` counts them. A solve that fails with QR too passes GTSAM's error
+on.
 
 Other parts of the system add factors through :meth:`WindowGraph.add` (one-off) or through a
 hook the window calls for each new keyframe (GPS, loop-closure priors: see
@@ -73,6 +75,7 @@ class WindowGraph:
         #: linearisation point and stamps: what a rebuilt smoother starts from
         self._kept = _Kept(gtsam.NonlinearFactorGraph(), gtsam.Values(), {})
         self._qr_left = 0  # solves left on QR after a fallback (0: on Cholesky)
+        self._qr_hold = config.qr_fallback_solves  # QR solves after the next fallback
         #: solves that Cholesky failed and QR redid
         self.fallbacks = 0
 
@@ -170,7 +173,11 @@ class WindowGraph:
             sm = self._rebuilt(pending, qr=True)
             sol = dataclasses.replace(self._solution(sm, covariance_of, qr=True), qr_fallback=True)
             self.fallbacks += 1
-            self._qr_left = self.config.qr_fallback_solves + 1
+            # a window Cholesky refuses again when retried stays on QR twice as long (up to
+            # 64 times): each retry costs two full factorisations
+            base = self.config.qr_fallback_solves
+            self._qr_hold = min(2 * self._qr_hold, 64 * base) if back_to_cholesky else base
+            self._qr_left = self._qr_hold + 1
         self._smoother = sm
         # copies (the smoother returns its own graph and values, which change in place); the
         # linearisation point, not the estimate: the marginal factors iSAM2 keeps are linear
