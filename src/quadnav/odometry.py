@@ -45,9 +45,12 @@ FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 
 Status = Literal["tracking", "propagated"]
-EventKind = Literal["initialized", "failure", "reinitialized", "td", "stereo", "imu_noise"]
-#: The events that start or break the estimate's continuity; the others ("td", "stereo",
-#: "imu_noise") report what the odometry measured about its sensors.
+EventKind = Literal[
+    "initialized", "failure", "reinitialized", "recovered", "td", "stereo", "imu_noise"
+]
+#: The events that start or break the estimate's continuity; "recovered" (a solve redone another
+#: way, or the window restarted from the last good state: the output goes on) does not;
+#: the others ("td", "stereo", "imu_noise") report what the odometry measured about its sensors.
 TRACKING_EVENTS: tuple[EventKind, ...] = ("initialized", "failure", "reinitialized")
 
 

@@ -100,6 +100,27 @@ class VioConfig(ConfigModel):
     isam2_relinearize_threshold: float = Field(
         0.01, gt=0.0, le=1.0, description="isam2: relinearise a variable that moved this much"
     )
+    qr_fallback_solves: int = Field(
+        10,
+        ge=0,
+        le=1000,
+        description="a solve whose Cholesky factorisation fails (an ill-conditioned window) is "
+        "redone with QR from the last good solve, and this many solves stay on QR before "
+        "Cholesky again (twice as many each time Cholesky is refused again, up to 64 times); "
+        "0: no fallback (the solve fails)",
+    )
+    restart_in_place: bool = Field(
+        True,
+        description="a solve that does not go through restarts the window from the last good "
+        "state (no re-initialisation, the output goes on); off: a failure",
+    )
+    restart_inflation: float = Field(
+        2.0,
+        ge=1.0,
+        le=1e4,
+        description="restart in place: the last good state's covariances times this (on the "
+        "rendered room flights, 1-16 gave a worst error after the restart of 0.06-0.13 m)",
+    )
     optimizer_iterations: int = Field(
         4, ge=1, le=100, description="batch: Levenberg-Marquardt steps per keyframe"
     )

@@ -7,11 +7,17 @@ the IMU's rate: status ``propagated``). Each image is tracked; before the start 
 waits for the vehicle at rest (the static start) or, moving, calls the visual-inertial
 initialisation over a window of keyframes; then each frame is predicted by the IMU from the
 newest keyframe, and a keyframe (by parallax, few tracks or time) is added to the sliding
-window and optimised. A failure (too few tracks, an implausible state, a solve that did not go
-through) resets the window and re-initialises, with ``reset_counter`` + 1. Bad input (a
-non-finite IMU sample, time going backwards, an image that cannot be read or tracked, a frame
-of a camera it does not use) is rejected and counted in :attr:`VioEstimator.rejected`, never
-raised.
+window and optimised. A window too ill-conditioned for Cholesky is solved with QR
+(:mod:`quadnav.vio.graph`; event ``recovered``). A solve that does not go through even so
+(GTSAM throws, or the error is not finite) restarts the window in place from the last good
+state (``restart_in_place``): the newest keyframe solved, its marginal covariances inflated, and
+the new keyframe joined to it by its IMU; the landmarks start from their last estimates; the
+output goes on from where it was, so ``reset_counter`` stays (event ``recovered``). A failure
+(too few tracks, an implausible state, a restart that does not go through either, or a second
+one within a window) resets the window and re-initialises, with ``reset_counter`` + 1. Bad
+input (a non-finite IMU sample, time going backwards, an image that cannot be read or tracked,
+a frame of a camera it does not use) is rejected and counted in
+:attr:`VioEstimator.rejected`, never raised.
 """
 
 from __future__ import annotations
@@ -54,7 +60,7 @@ from quadnav.vio.static_init import StaticStart, imu_stillness, is_still, static
 from quadnav.vio.stereo import PendingFrame, StereoFrontend
 from quadnav.vio.time_offset import TimeOffsetEstimator
 from quadnav.vio.types import InitResult, InitWindow
-from quadnav.vio.window import Keyframe, SlidingWindow, StatePrior
+from quadnav.vio.window import Keyframe, SlidingWindow, SolveResult, StatePrior
 from quadnav.vision.descriptors import orb_at
 
 __all__ = ["VioEstimator"]
@@ -128,6 +134,8 @@ class VioEstimator:
         self._next_kf = 0
         self._cov_pose = np.eye(6) * 1e-6
         self._cov_v = np.eye(3) * 1e-6
+        self._cov_bias = np.eye(6) * 1e-6
+        self._restarted_kf: int | None = None  # the keyframe of the last restart in place
         self._last_p = np.zeros(3)
         self._td_s = ns_to_s(spec.time_offset_ns) if cfg.td_s is None else cfg.td_s
         self._td_stated_s = self._td_s  # what the online estimate is weighed against
@@ -382,7 +390,7 @@ class VioEstimator:
             ),
         )
         self.window.start(kf, prior)
-        self._cov_pose, self._cov_v = prior.cov_pose, prior.cov_v
+        self._cov_pose, self._cov_v, self._cov_bias = prior.cov_pose, prior.cov_v, prior.cov_bias
         self._add_features(kf, frame)
         self._begin(frame, "static")
         return self._keyframe_state(frame)
@@ -503,7 +511,7 @@ class VioEstimator:
         self.window.seed_landmarks(dict(result.landmarks_W))
         res = self.window.solve(self.features)
         if res.ok:
-            self._cov_pose, self._cov_v = res.cov_pose, res.cov_v
+            self._cov_pose, self._cov_v, self._cov_bias = res.cov_pose, res.cov_v, res.cov_bias
         self._retire()
         self._begin(frames[-1], "visual" if self.stereo is None else "visual, stereo")
         return self._keyframe_state(frames[-1])
@@ -684,7 +692,12 @@ class VioEstimator:
         with self._stage("optimize"):
             res = self.window.solve(self.features)
         if not res.ok:
+            res = self._restart_in_place(prev, kf, res.reason)
+        if not res.ok:
             return self._fail(frame.t_ns, res.reason)
+        if res.qr_fallback:
+            detail = "Cholesky refused the window (ill-conditioned): solved with QR"
+            self._events.append(OdometryEvent(t_ns=frame.t_ns, kind="recovered", detail=detail))
         new = self.window.newest
         solved = SolvedState(
             p_W=np.asarray(new.pose.translation()), v_W=new.velocity,
@@ -697,12 +710,73 @@ class VioEstimator:
         reason = state_failure(solved, cfg)
         if reason is not None:
             return self._fail(frame.t_ns, reason)
-        self._cov_pose, self._cov_v = res.cov_pose, res.cov_v
+        self._cov_pose, self._cov_v, self._cov_bias = res.cov_pose, res.cov_v, res.cov_bias
         self._retire()
         self._run_from(new)
         self._feed_time_offset(prev, new)
         self._prune_imu()
         return self._keyframe_state(frame)
+
+    def _restart_in_place(self, prev: Keyframe, kf: Keyframe, reason: str) -> SolveResult:
+        """The window restarted in place after ``kf``'s solve failed: a new graph over the
+        window's keyframes at their last good estimates (``kf`` at its IMU prediction from
+        ``prev``, the newest solved), the IMU between them integrated again, their
+        observations, the landmarks starting from their last estimates, and on the oldest a
+        prior with ``prev``'s marginal covariances times ``restart_inflation`` (the newest's:
+        the oldest is known no worse); only the marginalised past is lost. If that does not
+        solve, the same from ``prev`` and ``kf`` alone. Not done (a failed result) when off,
+        or a second time within a window's keyframes of the last restart."""
+        cfg = self.config
+        last = self._restarted_kf
+        if not cfg.restart_in_place:
+            return SolveResult(ok=False, reason=reason)
+        if last is not None and kf.index - last < cfg.window_keyframes:
+            return SolveResult(ok=False, reason=f"{reason} (again within a window of a restart)")
+        window = self.window
+        points = {j: p for j in window.landmarks if (p := window.landmark_position(j)) is not None}
+        a = cfg.restart_inflation
+        prior = StatePrior(
+            cov_pose=a * self._cov_pose, cov_v=a * self._cov_v, cov_bias=a * self._cov_bias
+        )
+        tries = [list(window.keyframes), [prev, kf]]
+        for kfs in tries if len(window.keyframes) > 2 else tries[1:]:
+            res = self._restart_with(kfs, prior, points)
+            if res.ok:
+                break
+        if not res.ok:
+            return SolveResult(
+                ok=False, reason=f"{reason}; the restart in place failed: {res.reason}"
+            )
+        self._restarted_kf = kf.index
+        detail = f"window restarted from the last good state ({reason})"
+        self._events.append(OdometryEvent(t_ns=kf.t_ns, kind="recovered", detail=detail))
+        self._retire()  # the keyframes the restart left out
+        return res
+
+    def _restart_with(
+        self, kfs: list[Keyframe], prior: StatePrior, points: dict[int, FloatArray]
+    ) -> SolveResult:
+        """A new graph over ``kfs`` (see :meth:`_restart_in_place`); the observations of the
+        window's other keyframes dropped; the landmarks of tracks seen in two of ``kfs`` start
+        from ``points``."""
+        window, features = self.window, self.features
+        keep = {k.index for k in kfs}
+        for old in window.keyframes:
+            if old.index not in keep:
+                features.drop_keyframe(old.index)
+        try:
+            for k0, k1 in itertools.pairwise(kfs):
+                k1.pim = self.imu.span(k0.t_ns, k1.t_ns, k0.bias, hold_ns=self._hold_ns())
+        except VioError as exc:
+            return SolveResult(ok=False, reason=str(exc))
+        window.start(kfs[0], prior)
+        window.seed_landmarks({
+            j: p for j, p in points.items() if len(keep.intersection(features.observations(j))) >= 2
+        })  # fmt: skip
+        for k1 in kfs[1:]:
+            window.push(k1)
+        with self._stage("optimize"):
+            return window.solve(features)
 
     def _feed_time_offset(self, a: Keyframe, b: Keyframe) -> None:
         """The rotation of consecutive optimised camera poses, at the images' own stamps (the

@@ -12,6 +12,16 @@ Two smoothers (``VioConfig.smoother``):
   (``optimizer_iterations`` steps), marginal covariances from a full ``Marginals``. Slower;
   kept as the reference.
 
+Either factorises the linearised window with Cholesky (iSAM2's default, the faster). Since
+GTSAM 4.3 a frontal block whose reciprocal condition number, its diagonal equilibrated, is under
+sqrt(eps) (1.5e-8) is "Indeterminate linear system": on a long run the window gets there (the
+gyro bias's random walk between keyframes 0.1 s apart weighs up to 1e11, the weakest direction
+1e-2). The solve is then redone with QR on a smoother rebuilt from the last good solve's factors
+and linearisation point with what was pending; the next ``qr_fallback_solves`` solves stay on
+QR, then a rebuild tries Cholesky again; refused again, QR holds twice as long (up to 64 times).
+:attr:`WindowGraph.fallbacks` counts them. A solve that fails with QR too passes GTSAM's error
+on.
+
 Other parts of the system add factors through :meth:`WindowGraph.add` (one-off) or through a
 hook the window calls for each new keyframe (GPS, loop-closure priors: see
 :class:`~quadnav.vio.window.SlidingWindow`).
@@ -19,9 +29,9 @@ hook the window calls for each new keyframe (GPS, loop-closure priors: see
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import SupportsFloat, SupportsInt
 
 import gtsam
 import numpy as np
@@ -39,12 +49,13 @@ GTSAM_ERRORS = (RuntimeError, IndexError, ValueError)
 
 @dataclass(frozen=True, slots=True)
 class GraphSolution:
-    """A solve's estimate, the graph's total error there, and the marginal covariances asked
-    for (by key)."""
+    """A solve's estimate, the graph's total error there, the marginal covariances asked
+    for (by key), and whether Cholesky failed and QR redid it."""
 
     estimate: gtsam.Values
     error: float
     covariances: dict[int, FloatArray]
+    qr_fallback: bool = False
 
 
 class WindowGraph:
@@ -58,22 +69,40 @@ class WindowGraph:
         self._smoother = self._new_smoother()
         self._graph = gtsam.NonlinearFactorGraph()
         self._values = gtsam.Values()
-        self._stamps: dict[SupportsInt, SupportsFloat] = {}
+        self._stamps: dict[int, float] = {}
         self._remove: list[int] = []
+        #: the last good solve's factors (their slots as the smoother numbers them),
+        #: linearisation point and stamps: what a rebuilt smoother starts from
+        self._kept = _Kept(gtsam.NonlinearFactorGraph(), gtsam.Values(), {})
+        self._qr_left = 0  # solves left on QR after a fallback (0: on Cholesky)
+        self._qr_hold = config.qr_fallback_solves  # QR solves after the next fallback
+        #: solves that Cholesky failed and QR redid
+        self.fallbacks = 0
 
-    def _new_smoother(self) -> gtsam.BatchFixedLagSmoother | gtsam.IncrementalFixedLagSmoother:
+    def _new_smoother(
+        self, *, qr: bool = False
+    ) -> gtsam.BatchFixedLagSmoother | gtsam.IncrementalFixedLagSmoother:
         cfg = self.config
         if cfg.smoother == "isam2":
             p = gtsam.ISAM2Params()
             p.setRelinearizeThreshold(cfg.isam2_relinearize_threshold)
             p.relinearizeSkip = 1
             p.findUnusedFactorSlots = True  # removed factors' slots are reused: bounded
+            if qr:
+                p.setFactorization("QR")
             return gtsam.IncrementalFixedLagSmoother(self.lag, p)
         lm = gtsam.LevenbergMarquardtParams()
         lm.setMaxIterations(cfg.optimizer_iterations)
         lm.setRelativeErrorTol(1e-3)
         lm.setlambdaUpperBound(1e6)
+        if qr:
+            lm.setLinearSolverType("MULTIFRONTAL_QR")
         return gtsam.BatchFixedLagSmoother(self.lag, lm)
+
+    @property
+    def on_qr(self) -> bool:
+        """The smoother factorises with QR (after a Cholesky failure, for a while)."""
+        return self._qr_left > 0
 
     # -- building ---------------------------------------------------------------------------
     def insert(
@@ -120,21 +149,107 @@ class WindowGraph:
     # -- solving ----------------------------------------------------------------------------
     def solve(self, covariance_of: Sequence[int] = ()) -> GraphSolution:
         """Add what is pending, optimise, marginalise what left the lag; the marginal
-        covariances of ``covariance_of`` (keys still in the window). GTSAM's errors pass
-        through (:data:`GTSAM_ERRORS`): the caller says why a solve failed."""
-        graph, values, stamps, remove = self._graph, self._values, self._stamps, self._remove
+        covariances of ``covariance_of`` (keys still in the window). A Cholesky failure is
+        redone with QR (see the module); GTSAM's errors otherwise pass through
+        (:data:`GTSAM_ERRORS`): the caller says why a solve failed."""
+        pending = _Pending(self._graph, self._values, dict(self._stamps.items()), self._remove)
         self._graph, self._values, self._stamps, self._remove = (
             gtsam.NonlinearFactorGraph(), gtsam.Values(), {}, []
         )  # fmt: skip
-        sm = self._smoother
-        sm.update(graph, values, dict(stamps.items()), remove)
+        back_to_cholesky = self._qr_left == 1
+        try:
+            if back_to_cholesky:
+                sm = self._rebuilt(pending, qr=False)
+            else:
+                sm = self._smoother
+                sm.update(
+                    pending.graph, pending.values, dict(pending.stamps.items()), pending.remove
+                )
+            sol = self._solution(sm, covariance_of, qr=self._qr_left > 1)
+            self._qr_left = max(self._qr_left - 1, 0)
+        except GTSAM_ERRORS:
+            if self._qr_left > 1 or self.config.qr_fallback_solves == 0:
+                raise  # QR failed too, or no fallback
+            sm = self._rebuilt(pending, qr=True)
+            sol = dataclasses.replace(self._solution(sm, covariance_of, qr=True), qr_fallback=True)
+            self.fallbacks += 1
+            # a window Cholesky refuses again when retried stays on QR twice as long (up to
+            # 64 times): each retry costs two full factorisations
+            base = self.config.qr_fallback_solves
+            self._qr_hold = min(2 * self._qr_hold, 64 * base) if back_to_cholesky else base
+            self._qr_left = self._qr_hold + 1
+        self._smoother = sm
+        # copies (the smoother returns its own graph and values, which change in place); the
+        # linearisation point, not the estimate: the marginal factors iSAM2 keeps are linear
+        # in the step from it (rebuilt at the estimate, a window's error triples)
+        kept = gtsam.NonlinearFactorGraph()
+        kept.push_back(sm.getFactors())
+        stamps = {int(k): float(t) for k, t in sm.timestamps().items()}
+        self._kept = _Kept(kept, gtsam.Values(sm.getLinearizationPoint()), stamps)
+        return sol
+
+    def _rebuilt(
+        self, pending: _Pending, *, qr: bool
+    ) -> gtsam.BatchFixedLagSmoother | gtsam.IncrementalFixedLagSmoother:
+        """A new smoother (QR or Cholesky) from the last good solve and what is pending, updated
+        once (it marginalises what is older than the lag at that update)."""
+        kept, gone = self._kept, set(pending.remove)
+        graph = gtsam.NonlinearFactorGraph()
+        for i in range(kept.factors.size()):
+            f = kept.factors.at(i)
+            if f is not None and i not in gone:
+                graph.add(f)
+        graph.push_back(pending.graph)
+        values = gtsam.Values(kept.theta)
+        values.insert(pending.values)
+        sm = self._new_smoother(qr=qr)
+        sm.update(graph, values, dict({**kept.stamps, **pending.stamps}.items()))
+        return sm
+
+    @staticmethod
+    def _solution(
+        sm: gtsam.BatchFixedLagSmoother | gtsam.IncrementalFixedLagSmoother,
+        covariance_of: Sequence[int],
+        *,
+        qr: bool,
+    ) -> GraphSolution:
+        """The smoother's estimate, error and marginal covariances (iSAM2's from its Bayes
+        tree, factorised as the smoother is; the batch smoother's from the whole window, with
+        QR when ``qr``: ``Marginals`` would use Cholesky)."""
         est = sm.calculateEstimate()
         error = float(sm.getFactors().error(est))
         covs: dict[int, FloatArray] = {}
         if covariance_of and np.isfinite(error):
             if isinstance(sm, gtsam.IncrementalFixedLagSmoother):
                 covs = {k: np.asarray(sm.marginalCovariance(k)) for k in covariance_of}
+            elif qr:
+                lin = sm.getFactors().linearize(est)
+                covs = {
+                    k: np.asarray(
+                        np.linalg.inv(lin.marginal([k], gtsam.EliminateQR).hessian()[0]), np.float64
+                    )
+                    for k in covariance_of
+                }
             else:
                 marg = gtsam.Marginals(sm.getFactors(), est)
                 covs = {k: np.asarray(marg.marginalCovariance(k)) for k in covariance_of}
         return GraphSolution(estimate=est, error=error, covariances=covs)
+
+
+@dataclass(frozen=True, slots=True)
+class _Pending:
+    """What a solve adds: factors, new values, stamps, the smoother's factor slots to drop."""
+
+    graph: gtsam.NonlinearFactorGraph
+    values: gtsam.Values
+    stamps: dict[int, float]
+    remove: list[int]
+
+
+@dataclass(frozen=True, slots=True)
+class _Kept:
+    """A good solve's smoother factors (slots kept), linearisation point and stamps."""
+
+    factors: gtsam.NonlinearFactorGraph
+    theta: gtsam.Values
+    stamps: dict[int, float]

@@ -95,16 +95,19 @@ class StatePrior:
 @dataclass(frozen=True, slots=True, kw_only=True)
 class SolveResult:
     """How a solve went: ``ok`` and ``reason`` (why not), the newest keyframe's marginal
-    covariances, landmark counts and the final error."""
+    covariances (pose, velocity, IMU bias), landmark counts and the final error."""
 
     ok: bool
     reason: str = ""
     cov_pose: FloatArray = field(default_factory=lambda: np.eye(6))
     cov_v: FloatArray = field(default_factory=lambda: np.eye(3))
+    cov_bias: FloatArray = field(default_factory=lambda: np.eye(6))
     landmarks: int = 0
     added: int = 0
     dropped: int = 0
     error: float = 0.0
+    #: Cholesky refused the window and QR solved it (see :mod:`quadnav.vio.graph`)
+    qr_fallback: bool = False
 
 
 #: the projection factors: with a fixed extrinsic (``body_P_sensor``) or with the extrinsic a
@@ -403,9 +406,9 @@ class SlidingWindow:
         if self.graph is None:
             raise VioError("the window has not been started")
         added = self._add_landmarks(features)
-        x, v, _ = state_keys(self.newest.index)
+        x, v, b = state_keys(self.newest.index)
         try:
-            sol = self.graph.solve(covariance_of=(x, v))
+            sol = self.graph.solve(covariance_of=(x, v, b))
             if not np.isfinite(sol.error):
                 return SolveResult(ok=False, reason="the optimisation diverged (non-finite error)")
             dropped = self._read_back(sol.estimate, features)
@@ -414,5 +417,5 @@ class SlidingWindow:
             return SolveResult(ok=False, reason=f"optimisation failed: {line.strip()}")
         return SolveResult(
             ok=True, cov_pose=sol.covariances[x], cov_v=sol.covariances[v],
-            landmarks=len(self.landmarks), added=added, dropped=dropped, error=sol.error,
+            cov_bias=sol.covariances[b], qr_fallback=sol.qr_fallback, landmarks=len(self.landmarks), added=added, dropped=dropped, error=sol.error,
         )  # fmt: skip

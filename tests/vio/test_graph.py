@@ -1,0 +1,93 @@
+"""The window's smoother on a badly conditioned chain: GTSAM's Cholesky refuses it (since 4.3 a
+frontal block whose equilibrated reciprocal condition number is under sqrt(eps) is
+"indeterminate"), the solve is redone with QR from the last good solve, and Cholesky is tried
+again after ``qr_fallback_solves`` solves."""
+
+from __future__ import annotations
+
+import gtsam
+import numpy as np
+import pytest
+
+from quadnav.vio.config import VioConfig
+from quadnav.vio.graph import GTSAM_ERRORS, WindowGraph
+
+STEP = np.array([0.1, -0.05, 0.02])
+START = np.array([1.0, 2.0, 3.0])
+
+
+def _chain(graph: WindowGraph, first: int, last: int, sigma: float) -> None:
+    """Variables ``first..last`` (3-vectors, stamped with their number) joined by exact steps
+    of ``STEP`` with ``sigma``; the first of all also gets a weak prior (sigma 100) at
+    ``START``. Starting values off by 0.3 so the solve has work to do."""
+    for k in range(first, last + 1):
+        graph.insert(k, START + k * STEP + 0.3, float(k))
+        if k == 0:
+            graph.add(gtsam.PriorFactorVector(0, START, gtsam.noiseModel.Isotropic.Sigma(3, 100)))
+        else:
+            noise = gtsam.noiseModel.Isotropic.Sigma(3, sigma)
+            graph.add(gtsam.BetweenFactorVector(k - 1, k, STEP, noise))
+
+
+def _check(graph: WindowGraph, last: int) -> None:
+    sol = graph.solve(covariance_of=(last,))
+    x = {k: sol.estimate.atVector(k) for k in range(max(0, last - 3), last + 1)}
+    for k in list(x)[1:]:  # the stiff steps are exact
+        np.testing.assert_allclose(x[k] - x[k - 1], STEP, atol=1e-6)
+    for k in x:  # the chain is START + k STEP (the weak prior: LM may stop a little short)
+        np.testing.assert_allclose(x[k], START + k * STEP, atol=0.01)
+    # the weak prior's 100 carries to the newest (the stiff steps add next to nothing)
+    assert 99.0 < float(np.sqrt(sol.covariances[last][0, 0])) < 101.0
+
+
+@pytest.mark.parametrize("smoother", ["isam2", "batch"])
+def test_cholesky_refuses_a_stiff_chain_and_qr_solves_it(smoother: str) -> None:
+    """Steps 1e8 times stiffer (in information) than the prior: Cholesky throws, the fallback
+    solves it; then each solve adds a variable, stays on QR for 3 solves, goes back to
+    Cholesky (which throws again on this chain) and falls back again, for 6 solves."""
+    cfg = VioConfig(smoother=smoother, qr_fallback_solves=3)
+    graph = WindowGraph(cfg, lag=6.0)
+    _chain(graph, 0, 5, sigma=0.01)
+    _check(graph, 5)
+    assert graph.fallbacks == 1 and graph.on_qr
+    for k in range(6, 9):  # three solves on QR
+        _chain(graph, k, k, sigma=0.01)
+        _check(graph, k)
+        assert graph.fallbacks == 1
+    assert graph.on_qr
+    _chain(graph, 9, 9, sigma=0.01)  # Cholesky again: refused, QR again, twice as long
+    _check(graph, 9)
+    assert graph.fallbacks == 2 and graph.on_qr
+    for k in range(10, 16):  # six solves on QR
+        _chain(graph, k, k, sigma=0.01)
+        _check(graph, k)
+    assert graph.fallbacks == 2
+    _chain(graph, 16, 16, sigma=0.01)
+    _check(graph, 16)
+    assert graph.fallbacks == 3
+
+
+def test_without_the_fallback_the_stiff_chain_fails() -> None:
+    graph = WindowGraph(VioConfig(qr_fallback_solves=0), lag=6.0)
+    _chain(graph, 0, 5, sigma=0.01)
+    with pytest.raises(GTSAM_ERRORS, match="Indeterminate"):
+        graph.solve()
+
+
+def test_a_well_conditioned_chain_stays_on_cholesky() -> None:
+    """Steps of sigma 1 (1e4 times the prior's information): no fallback, back on Cholesky
+    after a fallback's solves."""
+    graph = WindowGraph(VioConfig(qr_fallback_solves=2), lag=6.0)
+    _chain(graph, 0, 5, sigma=1.0)
+    for k in range(6, 12):
+        _chain(graph, k, k, sigma=1.0)
+        graph.solve()
+    assert graph.fallbacks == 0 and not graph.on_qr
+    # a stiff step now: QR for two solves, then Cholesky takes the mild chain again
+    _chain(graph, 12, 12, sigma=1e-4)
+    graph.solve()
+    assert graph.fallbacks == 1 and graph.on_qr
+    for k in range(13, 16):
+        _chain(graph, k, k, sigma=1.0)
+        graph.solve()
+    assert graph.fallbacks == 1 and not graph.on_qr
