@@ -188,7 +188,7 @@ class VioConfig(ConfigModel):
         gt=0.0,
         le=0.1,
         description="how far the stated camera-IMU offset may be off (s): the online estimate "
-        "is weighed against it by their variances",
+        "is weighed against it by their variances, and not used while its sigma is larger",
     )
     td_window_s: float = Field(
         30.0,

@@ -797,6 +797,8 @@ class VioEstimator:
         est = self._td.estimate()
         if est is None or not np.isfinite(est.td_s) or abs(est.td_s) > 0.1:
             return
+        if not est.sigma_s <= cfg.td_prior_sigma_s:  # less sure than the stated offset
+            return
         first = self._td_reported_s is None
         # weighed against the stated offset (its prior): a wandering early estimate moves little
         w = cfg.td_prior_sigma_s**2 / (cfg.td_prior_sigma_s**2 + est.sigma_s**2)
