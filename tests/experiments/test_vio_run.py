@@ -106,6 +106,18 @@ def test_run_folder_holds_every_output_and_is_complete(made: Path, tmp_path: Pat
     video.release()
 
 
+def test_a_recovery_is_counted_and_breaks_nothing(made: Path, tmp_path: Path) -> None:
+    """A ``recovered`` event (a solve redone with QR, or the window restarted in place) is
+    counted in the metrics and the report; the estimate goes on at every frame, no failure."""
+    ds = open_dataset(made)
+    run = _run(ds, tmp_path, _double(ds, recover_at_s=1.0))
+    m = run.metrics
+    assert (m.recoveries, m.failures, m.reinitializations) == (1, 0, 0)
+    assert m.frames_with_estimate == _phase_counts(ds, 0.5, 1e9, 0.0)
+    assert json.loads((run.run_dir / "metrics.json").read_text())["recoveries"] == 1
+    assert "failures, re-initialisations, recoveries" in (run.run_dir / "report.html").read_text()
+
+
 def test_the_report_rounds_its_numbers_and_the_json_keeps_them(made: Path, tmp_path: Path) -> None:
     """Issue 21, item 14: the report printed metrics with 15 digits."""
     ds = open_dataset(made)

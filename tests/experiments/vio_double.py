@@ -37,6 +37,7 @@ class TruthPlusNoise:
         fail_at_s: float | None = None,
         reinit_after_s: float = 0.3,
         interrupt_at_frame: int | None = None,
+        recover_at_s: float | None = None,
     ) -> None:
         self.truth = truth
         self.rng = np.random.default_rng(seed)
@@ -45,6 +46,7 @@ class TruthPlusNoise:
         self.fail_at_s = fail_at_s
         self.reinit_after_s = reinit_after_s
         self.interrupt_at_frame = interrupt_at_frame
+        self.recover_at_s = recover_at_s  # a "recovered" event then (the output goes on)
         self._events: list[OdometryEvent] = []
         self._features: FrameFeatures | None = None
         self.frames = 0
@@ -109,6 +111,8 @@ class TruthPlusNoise:
         elif kinds[-1] == "failure":
             self.reset += 1
             self._event(t_ns, "reinitialized", "static (scheduled)")
+        if self.recover_at_s is not None and t_s >= self.recover_at_s and "recovered" not in kinds:
+            self._event(t_ns, "recovered", "QR fallback (scheduled)")
         return self._state(t_ns)
 
     def _state(self, t_ns: int) -> OdometryState:

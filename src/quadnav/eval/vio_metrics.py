@@ -122,6 +122,8 @@ class VioMetrics:
     reinitializations: int
     rejected_images: int
     initialized_after_s: Metric
+    #: solves the estimator recovered from without breaking its output (``recovered`` events)
+    recoveries: int = 0
     distance_m: Metric
     ape_4dof: ApeSummary | str
     ape_se3: ApeSummary | str
@@ -313,6 +315,7 @@ class RunCounts:
     reinitializations: int
     rejected_images: int
     initialized_after_s: Metric
+    recoveries: int = 0
 
 
 def _without_truth(est: Trajectory, counts: RunCounts, reason: str) -> VioMetrics:
@@ -321,6 +324,7 @@ def _without_truth(est: Trajectory, counts: RunCounts, reason: str) -> VioMetric
         fraction_with_estimate=len(est) / counts.frames if counts.frames else 0.0,
         failures=counts.failures, reinitializations=counts.reinitializations,
         rejected_images=counts.rejected_images, initialized_after_s=counts.initialized_after_s,
+        recoveries=counts.recoveries,
         distance_m=na(reason), ape_4dof=na(reason), ape_se3=na(reason), ape_sim3=na(reason),
         rpe_1m=na(reason), rpe_10m=na(reason), final_error_m=na(reason),
         drift_final_pct=na(reason),
@@ -374,6 +378,7 @@ def vio_metrics(
         fraction_with_estimate=len(est) / counts.frames if counts.frames else 0.0,
         failures=counts.failures, reinitializations=counts.reinitializations,
         rejected_images=counts.rejected_images, initialized_after_s=counts.initialized_after_s,
+        recoveries=counts.recoveries,
         distance_m=ref.path_length_m(),
         ape_4dof=_aligned_or_na(ref, est, "4dof"), ape_se3=_aligned_or_na(ref, est, "se3"),
         ape_sim3=_aligned_or_na(ref, est, "sim3"), rpe_1m=rpe_1, rpe_10m=rpe_10,

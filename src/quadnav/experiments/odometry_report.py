@@ -122,7 +122,7 @@ def _metric_rows(m: VioMetrics) -> list[list[object]]:
         ["distance travelled (m)", cell(m.distance_m)],
         ["frames with an estimate", f"{m.frames_with_estimate} of {m.frames} ({100 * m.fraction_with_estimate:.1f} %)"],
         ["initialised after (s)", cell(m.initialized_after_s)],
-        ["failures, re-initialisations", f"{m.failures}, {m.reinitializations}"],
+        ["failures, re-initialisations, recoveries", f"{m.failures}, {m.reinitializations}, {m.recoveries}"],
         ["rejected images", m.rejected_images],
     ]  # fmt: skip
 

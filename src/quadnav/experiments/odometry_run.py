@@ -532,7 +532,7 @@ def _counts(rec: _Record, vio: VisualOdometry, t0: int) -> RunCounts:
     return RunCounts(
         frames=rec.frames + rec.rejected, failures=kinds.count("failure"),
         reinitializations=kinds.count("reinitialized"), rejected_images=rec.rejected,
-        initialized_after_s=after,
+        initialized_after_s=after, recoveries=kinds.count("recovered"),
     )  # fmt: skip
 
 
