@@ -21,6 +21,8 @@ __all__ = ["DISTORTION_MODELS", "DistortionModel", "PinholeCamera", "thesis_came
 FloatArray = NDArray[np.float64]
 DistortionModel = Literal["radtan", "equidistant"]
 DISTORTION_MODELS: tuple[DistortionModel, ...] = ("radtan", "equidistant")
+#: when undistorting points stops: converged to 1e-10, or after 30 iterations
+UNDISTORT = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 1e-10)
 
 
 @dataclass(frozen=True, slots=True)
@@ -83,14 +85,21 @@ class PinholeCamera:
         """Whether any distortion coefficient is non-zero."""
         return bool(np.any(self.dist))
 
-    def undistort_pixels(self, px: FloatArray) -> FloatArray:
-        """Ideal (distortion-free) pixels of distorted ones, in the same camera matrix."""
+    def undistort_pixels(
+        self, px: FloatArray, R: FloatArray | None = None, P: FloatArray | None = None
+    ) -> FloatArray:
+        """Ideal (distortion-free) pixels of distorted ones, in the same camera matrix (or, with
+        a rectification ``R`` and new camera matrix ``P``, in those).
+
+        Iterated to convergence: OpenCV's default for the radial-tangential model stops after 5
+        iterations, which leaves 0.1 px RMS and 0.3 px at the corners of EuRoC's lens
+        (k1 = -0.28), a bias the same in every frame."""
         p = np.asarray(px, dtype=np.float64).reshape(-1, 1, 2)
+        P = self.K if P is None else P
         if self.model == "equidistant":
-            crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 1e-10)
-            out = cv2.fisheye.undistortPoints(p, self.K, self.dist, P=self.K, criteria=crit)
+            out = cv2.fisheye.undistortPoints(p, self.K, self.dist, R=R, P=P, criteria=UNDISTORT)
         else:
-            out = cv2.undistortPoints(p, self.K, self.dist, P=self.K)
+            out = cv2.undistortPoints(p, self.K, self.dist, None, R, P, criteria=UNDISTORT)
         return np.asarray(out.reshape(-1, 2), dtype=np.float64)
 
     def scaled(self, width: int, height: int) -> PinholeCamera:

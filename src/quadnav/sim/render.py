@@ -219,41 +219,6 @@ class _Item:
     inv_z_max: float  # the polygon's nearest point's 1/z
 
 
-def _ideal_pixels(cam: PinholeCamera, px: FloatArray, iterations: int = 4) -> FloatArray:
-    """The ideal pixels of distorted ones: ``camera.undistort_pixels`` refined by Newton steps
-    on ``camera.project`` where it is more than 1e-3 px off (OpenCV's undistortion stops after
-    a few iterations, a tenth of a pixel off near the corners of a strong lens); a step that
-    does not help is not taken."""
-    ideal = cam.undistort_pixels(px)
-    Kinv = np.linalg.inv(cam.K)
-
-    def project(q: FloatArray) -> FloatArray:
-        return cam.project(np.column_stack([q, np.ones(len(q))]) @ Kinv.T)
-
-    todo = np.flatnonzero(np.isfinite(ideal).all(axis=1))
-    r = project(ideal[todo]) - px[todo]
-    for _ in range(iterations):
-        off = np.linalg.norm(r, axis=1) > 1e-3
-        todo, r = todo[off], r[off]
-        if not len(todo):
-            break
-        q = ideal[todo]
-        jx, jy = ((project(q + d) - project(q)) / 1e-3 for d in ([1e-3, 0.0], [0.0, 1e-3]))
-        det = jx[:, 0] * jy[:, 1] - jy[:, 0] * jx[:, 1]
-        step = (
-            np.column_stack(
-                [jy[:, 1] * r[:, 0] - jy[:, 0] * r[:, 1], -jx[:, 1] * r[:, 0] + jx[:, 0] * r[:, 1]]
-            )
-            / np.where(np.abs(det) > 1e-9, det, np.inf)[:, None]
-        )
-        r_new = project(q - step) - px[todo]
-        better = np.linalg.norm(r_new, axis=1) < np.linalg.norm(r, axis=1)
-        ideal[todo[better]] -= step[better]
-        r[better] = r_new[better]
-        todo, r = todo[better], r[better]
-    return ideal
-
-
 def look_at(eye_W: FloatArray, target_W: FloatArray, up_W: FloatArray | None = None) -> Pose:
     """``T_W_C`` of a camera at ``eye_W`` looking at ``target_W`` (image up towards ``up_W``,
     default world z; x if the view is vertical)."""
@@ -325,7 +290,7 @@ class Renderer:
             self._K, self._w, self._h = K, w, h
             return
         u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
-        ideal = _ideal_pixels(cam, np.column_stack([u.ravel(), v.ravel()])).reshape(h, w, 2)
+        ideal = cam.undistort_pixels(np.column_stack([u.ravel(), v.ravel()])).reshape(h, w, 2)
         ok = np.asarray(np.isfinite(ideal).all(axis=2), bool)
         lo = np.where(ok[..., None], ideal, np.inf).reshape(-1, 2).min(axis=0)
         hi = np.where(ok[..., None], ideal, -np.inf).reshape(-1, 2).max(axis=0)

@@ -424,8 +424,10 @@ class VioEstimator:
 
     def _new_window(self) -> SlidingWindow:
         spec = self.camera_spec
-        right = None if self.stereo is None else self.stereo.right.T_B_C
-        return SlidingWindow(self.config, spec.T_B_C, spec.camera.fx, right)
+        right = None if self.stereo is None else self.stereo.right
+        cams = [spec.camera] + ([] if right is None else [right.camera])
+        T_B_R = None if right is None else right.T_B_C
+        return SlidingWindow(self.config, spec.T_B_C, spec.camera.fx, T_B_R, cams)
 
     def _init_keyframes(self) -> int:
         """Keyframes a start in motion waits for: a window's (mono: the parallax that gives the

@@ -108,7 +108,12 @@ class WindowGraph:
     def insert(
         self,
         key: int,
-        value: gtsam.Pose3 | gtsam.imuBias.ConstantBias | gtsam.Cal3_S2 | FloatArray,
+        value: gtsam.Pose3
+        | gtsam.imuBias.ConstantBias
+        | gtsam.Cal3_S2
+        | gtsam.Cal3DS2
+        | gtsam.Cal3Fisheye
+        | FloatArray,
         stamp: float,
     ) -> None:
         """A new variable with its starting value, stamped (it leaves the lag with it)."""

@@ -38,9 +38,10 @@ from numpy.typing import NDArray
 
 from quadnav.errors import VioError
 from quadnav.geometry import Pose
+from quadnav.geometry.camera import PinholeCamera
 from quadnav.geometry.gtsam_bridge import pose3, to_pose
 from quadnav.vio.config import VioConfig
-from quadnav.vio.frontend import FeatureManager
+from quadnav.vio.frontend import FeatureManager, normalised
 from quadnav.vio.graph import GTSAM_ERRORS, WindowGraph
 from quadnav.vio.landmarks import Admission, LandmarkBook
 
@@ -54,6 +55,8 @@ __all__ = [
 ]
 
 FloatArray = NDArray[np.float64]
+#: a camera's intrinsics with its lens, as GTSAM holds them
+Lens = gtsam.Cal3DS2 | gtsam.Cal3Fisheye
 
 LANDMARK_PRIOR_M = 10.0
 LANDMARK_PRIOR_RAD = 1.0
@@ -111,16 +114,53 @@ class SolveResult:
 
 
 #: the projection factors: with a fixed extrinsic (``body_P_sensor``) or with the extrinsic a
-#: variable ``C(0)`` (``C(1)`` the second camera's) of the window
+#: variable ``C(0)`` (``C(1)`` the second camera's) of the window; with the intrinsics refined,
+#: on the raw pixels through the lens model (``Cal3DS2``, ``Cal3Fisheye``)
 PROJECTIONS = (
     gtsam.GenericProjectionFactorCal3_S2,
     gtsam_unstable.ProjectionFactorPPPCal3_S2,
     gtsam_unstable.ProjectionFactorPPPCCal3_S2,
+    gtsam_unstable.ProjectionFactorPPPCCal3DS2,
+    gtsam_unstable.ProjectionFactorPPPCCal3Fisheye,
 )
+#: a lens model's GTSAM calibration, projection factor and prior
+_LENS = {
+    "radtan": (
+        gtsam.Cal3DS2, gtsam_unstable.ProjectionFactorPPPCCal3DS2, gtsam.PriorFactorCal3DS2,
+    ),
+    "equidistant": (
+        gtsam.Cal3Fisheye, gtsam_unstable.ProjectionFactorPPPCCal3Fisheye,
+        gtsam.PriorFactorCal3Fisheye,
+    ),
+}  # fmt: skip
 #: the stamp of a keyframe marginalised out of turn: older than any lag
 DROPPED = -1e9
 #: the stated extrinsic's prior when only the intrinsics are refined online (held, not refined)
 HELD_SIGMA = 1e-4
+
+
+def _lens_calibration(cam: PinholeCamera) -> Lens | None:
+    """A camera's intrinsics and lens as GTSAM's calibration, or None where GTSAM's models do
+    not hold it (a radial-tangential lens with ``k3`` or more)."""
+    d = np.zeros(4)
+    n = min(cam.dist.size, 4)
+    d[:n] = cam.dist[:n]
+    if cam.model == "radtan" and np.any(cam.dist[4:]):
+        return None
+    K = cam.K
+    lens: Lens = _LENS[cam.model][0](K[0, 0], K[1, 1], K[0, 1], K[0, 2], K[1, 2], *d)
+    return lens
+
+
+def _refined_camera(cam: PinholeCamera, k: Lens) -> PinholeCamera:
+    """``cam`` with the intrinsics of a refined calibration (its lens coefficients held)."""
+    K = np.array([[k.fx(), k.skew(), k.px()], [0.0, k.fy(), k.py()], [0.0, 0.0, 1.0]])
+    return PinholeCamera(K, cam.dist, cam.width, cam.height, cam.model)
+
+
+def _normalised(cam: PinholeCamera, px: FloatArray) -> FloatArray:
+    """Undistorted normalised coordinates of raw pixels."""
+    return normalised(cam, cam.undistort_pixels(px))
 
 
 def _camera_poses(kfs: dict[int, gtsam.Pose3], T_B_C: gtsam.Pose3) -> dict[int, FloatArray]:
@@ -132,8 +172,17 @@ class SlidingWindow:
     """Keyframes and landmarks of a fixed-lag window (see the module)."""
 
     def __init__(
-        self, config: VioConfig, T_B_C: Pose, focal_px: float, T_B_R: Pose | None = None
+        self,
+        config: VioConfig,
+        T_B_C: Pose,
+        focal_px: float,
+        T_B_R: Pose | None = None,
+        cameras: Sequence[PinholeCamera] = (),
     ) -> None:
+        """``cameras``: the stated intrinsics and lens of the camera (and the second camera):
+        given, the intrinsics are refined on the raw pixels through the lens model; without
+        them, as a correction of the undistorted normalised coordinates (an approximation: a
+        focal length 1 % off leaves up to 3 px through EuRoC's lens)."""
         self.config = config
         #: the camera-IMU extrinsic: as stated, then as estimated online
         #: (``estimate_extrinsic``), kept from one window to the next
@@ -152,10 +201,16 @@ class SlidingWindow:
             else self.T_B_R is not None
         )
         self._online = config.estimate_extrinsic or self._intrinsics
+        #: the intrinsics refined through the lens: each camera as stated, and its calibration
+        #: as the window has it (GTSAM's ``Cal3DS2`` or ``Cal3Fisheye``)
+        self._cams = list(cameras)
+        lens = [_lens_calibration(c) for c in self._cams]
+        self.K_lens: list[Lens] = [k for k in lens if k is not None]
+        self._lens = bool(self._intrinsics and lens and len(self.K_lens) == len(lens))
         baseline = 0.0 if T_B_R is None else float(np.linalg.norm((T_B_C.inverse() @ T_B_R).p_A_B))
         self.focal_px = float(focal_px)
         self.K = gtsam.Cal3_S2(1.0, 1.0, 0.0, 0.0, 0.0)
-        sigma = config.pixel_sigma_px / self.focal_px
+        sigma = config.pixel_sigma_px / (1.0 if self._lens else self.focal_px)
         self._pixel_noise = gtsam.noiseModel.Robust.Create(
             gtsam.noiseModel.mEstimator.Huber.Create(config.huber_k),
             gtsam.noiseModel.Isotropic.Sigma(2, sigma),
@@ -200,11 +255,26 @@ class SlidingWindow:
         intrinsics have them (unchanged without ``estimate_intrinsics``)."""
         if not self._intrinsics:
             return xy
-        k = self.K_fix[side]
         xy = np.asarray(xy, np.float64).reshape(-1, 2)
+        if self._lens:
+            cam = self._cams[side]
+            return _normalised(_refined_camera(cam, self.K_lens[side]), self._pixels(xy, side))
+        k = self.K_fix[side]
         y = (xy[:, 1] - k.py()) / k.fy()
         x = (xy[:, 0] - k.px() - k.skew() * y) / k.fx()
         return np.column_stack([x, y])
+
+    def _affine_fix(self, side: int) -> gtsam.Cal3_S2:
+        """The refined lens as the nearest correction of the stated normalised coordinates
+        (least squares over the image): what the landmark book's checks use."""
+        cam = self._cams[side]
+        u, v = np.meshgrid(np.linspace(0, cam.width, 9), np.linspace(0, cam.height, 7))
+        px = np.column_stack([u.ravel(), v.ravel()])
+        stated = _normalised(cam, px)
+        true = _normalised(_refined_camera(cam, self.K_lens[side]), px)
+        fx, px_ = np.polyfit(true[:, 0], stated[:, 0], 1)
+        fy, py = np.polyfit(true[:, 1], stated[:, 1], 1)
+        return gtsam.Cal3_S2(float(fx), float(fy), 0.0, float(px_), float(py))
 
     def add_hook(self, hook: FactorHook) -> None:
         """Call ``hook`` for each keyframe entering the window (the first included) and add
@@ -247,8 +317,18 @@ class SlidingWindow:
         if not cfg.estimate_extrinsic:
             sig = np.full(6, HELD_SIGMA)
         for n in self._cameras_used() if self._intrinsics else ():
-            self.graph.insert(Kc(n), self.K_fix[n], 0.0)
             f, c = cfg.intrinsics_focal_sigma, cfg.intrinsics_principal_sigma_px / self.focal_px
+            if self._lens:  # in pixels; the lens's coefficients held
+                k = self.K_lens[n]
+                lens_sig = np.array(
+                    [f * k.fx(), f * k.fy(), HELD_SIGMA, c * self.focal_px, c * self.focal_px]
+                    + [HELD_SIGMA] * 4,
+                    np.float64,
+                )
+                self.graph.insert(Kc(n), k, 0.0)
+                self.graph.add(_LENS[self._cams[n].model][2](Kc(n), k, diag(lens_sig)))
+                continue
+            self.graph.insert(Kc(n), self.K_fix[n], 0.0)
             k_sig = np.array([f, f, HELD_SIGMA, c, c])  # (no skew)
             self.graph.add(gtsam.PriorFactorCal3_S2(Kc(n), self.K_fix[n], diag(k_sig)))
         self.graph.insert(C(0), self.T_B_C, 0.0)
@@ -345,6 +425,9 @@ class SlidingWindow:
                 )
             )  # fmt: skip
         online = self._online
+        if self._lens:
+            self._add_lens_projections(adm)
+            return len(adm.new)
         for ob in adm.observations:
             side = 1 if ob.side == 1 and self.T_B_R is not None else 0
             x, lm = X(ob.keyframe), L(ob.key)
@@ -362,6 +445,30 @@ class SlidingWindow:
                 f = gtsam.GenericProjectionFactorCal3_S2(ob.xy, self._pixel_noise, x, lm, self.K, T)
             self.graph.add(f)
         return len(adm.new)
+
+    def _pixels(self, xy: FloatArray, side: int) -> FloatArray:
+        """The raw pixels of normalised coordinates of the stated intrinsics (the front end's
+        undistortion inverted: its features' own pixels)."""
+        xy = np.asarray(xy, np.float64).reshape(-1, 2)
+        return self._cams[side].project(np.column_stack([xy, np.ones(len(xy))]))
+
+    def _add_lens_projections(self, adm: Admission) -> None:
+        """Projection factors on the raw pixels through each camera's refined lens model."""
+        assert self.graph is not None
+        obs = adm.observations
+        if not obs:
+            return
+        sides = np.array([1 if o.side == 1 and self.T_B_R is not None else 0 for o in obs])
+        px = np.zeros((len(obs), 2))
+        for n in self._cameras_used():
+            at = np.flatnonzero(sides == n)
+            if at.size:
+                px[at] = self._pixels(np.array([obs[i].xy for i in at]), n)
+        for ob, side, uv in zip(obs, sides.tolist(), px, strict=True):
+            factor = _LENS[self._cams[side].model][1]
+            self.graph.add(
+                factor(uv, self._pixel_noise, X(ob.keyframe), C(side), L(ob.key), Kc(side))
+            )
 
     # -- solving ----------------------------------------------------------------------------
     def _read_back(self, est: gtsam.Values, features: FeatureManager) -> int:
@@ -384,7 +491,11 @@ class SlidingWindow:
         if est.exists(C(1)):
             self.T_B_R = est.atPose3(C(1))
         for n in self._cameras_used():
-            if est.exists(Kc(n)):
+            if est.exists(Kc(n)) and self._lens:
+                get = est.atCal3DS2 if self._cams[n].model == "radtan" else est.atCal3Fisheye
+                self.K_lens[n] = get(Kc(n))
+                self.K_fix[n] = self._affine_fix(n)
+            elif est.exists(Kc(n)):
                 self.K_fix[n] = est.atCal3_S2(Kc(n))
 
         def point(n: int) -> FloatArray | None:

@@ -96,13 +96,7 @@ class StereoRectifier:
         """Rectified pixels (N, 2) of original ones of camera ``which`` (0 left, 1 right)."""
         spec = (self.left, self.right)[which]
         R, P = (self.R0, self.P0) if which == 0 else (self.R1, self.P1)
-        pts = np.asarray(px, dtype=np.float64).reshape(-1, 1, 2)
-        cam = spec.camera
-        if cam.model == "equidistant":
-            out = cv2.fisheye.undistortPoints(pts, cam.K, cam.dist, R=R, P=P)
-        else:
-            out = cv2.undistortPoints(pts, cam.K, cam.dist, R=R, P=P)
-        return np.asarray(out.reshape(-1, 2), dtype=np.float64)
+        return spec.camera.undistort_pixels(px, R=R, P=P)
 
 
 def _rectify(
