@@ -235,8 +235,9 @@ class VioConfig(ConfigModel):
     )
     estimate_intrinsics: bool | None = Field(
         True,
-        description="refine each camera's focal lengths and principal point online (a focal "
-        "length 1 % off bends every bearing); None: with a stereo pair only (alone, the focal "
+        description="refine each camera's focal lengths and principal point online, on the raw "
+        "pixels through the lens model (a focal length 1 % off bends every bearing); None: with "
+        "a stereo pair only (alone, the focal "
         "length trades against the scale; with the IMU's noise understated it diverged once on "
         "realistic MH_01, with it measured it helped on 6 of 7 realistic mono runs)",
     )
