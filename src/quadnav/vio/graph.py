@@ -184,7 +184,7 @@ class WindowGraph:
         # in the step from it (rebuilt at the estimate, a window's error triples)
         kept = gtsam.NonlinearFactorGraph()
         kept.push_back(sm.getFactors())
-        stamps = {int(k): float(t) for k, t in sm.timestamps().items()}
+        stamps = dict(sm.timestamps())  # (a copy: keys and stamps as Python numbers)
         self._kept = _Kept(kept, gtsam.Values(sm.getLinearizationPoint()), stamps)
         return sol
 

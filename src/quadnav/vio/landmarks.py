@@ -432,19 +432,24 @@ class LandmarkBook:
         key numbers whose projections the graph must drop."""
         cfg = self.config
         # the views as rows of one stack of camera matrices, the landmarks as rows of another
-        row = {(k, 0): i for i, k in enumerate(P)} | {(k, 1): len(P) + i for i, k in enumerate(PR)}
+        rows = ({k: i for i, k in enumerate(P)}, {k: len(P) + i for i, k in enumerate(PR)})
         none: dict[int, FloatArray] = {}
         owner = [j for j in self.landmarks if j not in self.bad_tracks]
-        owners, cams, meas = [], [], []
-        for i, j in enumerate(owner):
-            used, used_r = self._used.get(j, ()), self._used_r.get(j, ())  # held by the prior
-            for side, book, held in (
-                (0, features.tracks.get(j, none), used),
-                (1, features.right.get(j, none), used_r),
-            ):
-                for k, xy in book.items():
-                    c = row.get((k, side))
-                    if c is not None and k not in held:
+        owners: list[int] = []
+        cams: list[int] = []
+        meas: list[FloatArray] = []
+        for side, book, held_of in (
+            (0, features.tracks, self._used),
+            (1, features.right, self._used_r),
+        ):
+            row = rows[side]
+            if not row:
+                continue
+            for i, j in enumerate(owner):
+                held = held_of.get(j)
+                for k, xy in book.get(j, none).items():
+                    c = row.get(k)
+                    if c is not None and (not held or k not in held):
                         owners.append(i)
                         cams.append(c)
                         meas.append(xy)

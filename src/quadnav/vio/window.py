@@ -344,23 +344,34 @@ class SlidingWindow:
                     self._landmark_prior,
                 )
             )  # fmt: skip
-        online = self._online
-        for ob in adm.observations:
-            side = 1 if ob.side == 1 and self.T_B_R is not None else 0
-            x, lm = X(ob.keyframe), L(ob.key)
-            f: gtsam.NonlinearFactor
-            if online and self._intrinsics:
-                f = gtsam_unstable.ProjectionFactorPPPCCal3_S2(
-                    ob.xy, self._pixel_noise, x, C(side), lm, Kc(side)
+        # per camera (the second one's only with a stereo rig): the factor for a keyframe's
+        # observation of a landmark
+        project: list[Callable[[FloatArray, int, int], gtsam.NonlinearFactor]] = []
+        noise, K = self._pixel_noise, self.K
+        for side, T in ((0, self.T_B_C), (1, self.T_B_R if self.T_B_R is not None else self.T_B_C)):
+            side = side if self.T_B_R is not None else 0
+            c, k = C(side), Kc(side)
+            if self._online and self._intrinsics:
+                project.append(
+                    lambda xy, x, lm, c=c, k=k: gtsam_unstable.ProjectionFactorPPPCCal3_S2(
+                        xy, noise, x, c, lm, k
+                    )
                 )
-            elif online:
-                f = gtsam_unstable.ProjectionFactorPPPCal3_S2(
-                    ob.xy, self._pixel_noise, x, C(side), lm, self.K
+            elif self._online:
+                project.append(
+                    lambda xy, x, lm, c=c: gtsam_unstable.ProjectionFactorPPPCal3_S2(
+                        xy, noise, x, c, lm, K
+                    )
                 )
             else:
-                T = self.T_B_R if side == 1 and self.T_B_R is not None else self.T_B_C
-                f = gtsam.GenericProjectionFactorCal3_S2(ob.xy, self._pixel_noise, x, lm, self.K, T)
-            self.graph.add(f)
+                project.append(
+                    lambda xy, x, lm, T=T: gtsam.GenericProjectionFactorCal3_S2(
+                        xy, noise, x, lm, K, T
+                    )
+                )
+        add = self.graph.add
+        for ob in adm.observations:
+            add(project[ob.side == 1](ob.xy, X(ob.keyframe), L(ob.key)))
         return len(adm.new)
 
     # -- solving ----------------------------------------------------------------------------
