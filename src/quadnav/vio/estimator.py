@@ -862,8 +862,8 @@ class VioEstimator:
     def _record(self, k: int, info: _KeyframeInfo) -> KeyframeRecord:
         kf, f = info.keyframe, info.features
         assert kf is not None
-        lm = [(int(j), self.window.landmark_position(int(j))) for j in f.ids]
-        seen = [(j, p) for j, p in lm if p is not None]
+        position = self.window.landmark_position
+        seen = [(j, p) for j in f.ids.tolist() if (p := position(j)) is not None]
         cov = info.cov_pose if info.cov_pose is not None else self._cov_pose
         return KeyframeRecord(
             index=k, t_ns=kf.t_ns, reset_counter=self._reset_counter, T_W_B=to_pose(kf.pose),

@@ -127,14 +127,15 @@ class _Geometry:
     """Per track, computed for all tracks of an admission at once: its fresh views (those the
     marginal prior does not hold; in the second camera, for a track seen there), their parallax
     angle and, where it is enough to triangulate, their DLT point; with views in the second
-    camera too, the DLT point of all its fresh views in both."""
+    camera too, the DLT point of all its fresh views in both, where it may enter."""
 
     fresh: dict[int, dict[int, FloatArray]] = field(default_factory=dict)
     rfresh: dict[int, dict[int, FloatArray]] = field(default_factory=dict)
     angle: dict[int, float] = field(default_factory=dict)
     point: dict[int, FloatArray | None] = field(default_factory=dict)
     #: the DLT points that may enter (:meth:`LandmarkBook._triangulated`), and whether each
-    #: track's seed may (:meth:`LandmarkBook._landmarks_ok` on its fresh views)
+    #: track's seed may (:meth:`LandmarkBook._landmarks_ok` on its fresh views); the stereo
+    #: points that may (:meth:`LandmarkBook._stereo_points`)
     triangulated: dict[int, FloatArray | None] = field(default_factory=dict)
     seed_ok: dict[int, bool] = field(default_factory=dict)
     stereo_point: dict[int, FloatArray | None] = field(default_factory=dict)
@@ -232,7 +233,7 @@ class LandmarkBook:
             if j in landmarks:
                 out.append((j, obs_all, r, None))
                 continue
-            views = (max(obs_all, default=-1), len(obs_all), max(r, default=-1), len(r))
+            views = (max(obs_all, default=-1), len(obs_all), *((max(r), len(r)) if r else (-1, 0)))
             if tried.get(j) == views:
                 continue  # it could not enter with these views: it waits for another
             obs = {k: xy for k, xy in obs_all.items() if k in P}
@@ -272,8 +273,7 @@ class LandmarkBook:
         geo.seed_ok = {j: bool(good) for (j, _, _), good in zip(seeded, ok, strict=True)}
         if both:
             Pv = {(k, 0): Pk for k, Pk in P.items()} | {(k, 1): Pk for k, Pk in PR.items()}
-            points = _dlt_points([v for _, v in both], Pv)
-            geo.stereo_point = {j: p for (j, _), p in zip(both, points, strict=True)}
+            geo.stereo_point = self._stereo_points(both, Pv, _dlt_points([v for _, v in both], Pv))
         return geo
 
     def _enter(
@@ -295,7 +295,7 @@ class LandmarkBook:
         if p is None or not geo.seed_ok.get(j, False):
             p = geo.triangulated.get(j) if mono else None
         if p is None and rfresh:
-            p = self._stereo_point(j, fresh, rfresh, P, PR, geo)
+            p = geo.stereo_point[j]
         if p is None:
             return None
         self._seed.pop(j, None)
@@ -372,35 +372,40 @@ class LandmarkBook:
             )
         return ok
 
-    def _stereo_point(
+    def _stereo_points(
         self,
-        j: int,
-        obs: dict[int, FloatArray],
-        robs: dict[int, FloatArray],
-        P: Cameras,
-        PR: Cameras,
-        geo: _Geometry,
-    ) -> FloatArray | None:
-        """Track ``j``'s point from its fresh views in both cameras (a stereo pair is enough),
-        if it is within ``stereo_max_depth_baselines`` of a camera that sees it in stereo, in
-        front of every view and near every pixel."""
+        tracks: list[tuple[int, dict[tuple[int, int], FloatArray]]],
+        Pv: dict[tuple[int, int], FloatArray],
+        points: list[FloatArray | None],
+    ) -> dict[int, FloatArray | None]:
+        """Each track's DLT point from its fresh views in both cameras (a stereo pair is
+        enough) if it may enter: within ``stereo_max_depth_baselines`` of a camera that sees it
+        in stereo, in front of every view and near every pixel; together by number of views."""
         cfg = self.config
-        views: dict[tuple[int, int], FloatArray] = {(k, 0): xy for k, xy in obs.items()}
-        views.update({(k, 1): xy for k, xy in robs.items()})
-        Pv = {(k, 0): P[k] for k in obs} | {(k, 1): PR[k] for k in robs}
-        p = geo.stereo_point[j]
-        if p is None:
-            return None
-        err, z = reprojection_errors(
-            np.array([Pv[v] for v in views]), p, np.array(list(views.values()))
-        )
         far = min(cfg.landmark_max_depth_m, cfg.stereo_max_depth_baselines * self.baseline_m)
-        near_pair = any(
-            zz <= far for (k, c), zz in zip(views, z, strict=True) if c == 1 and (k, 0) in views
-        )
-        if not near_pair or not np.all(z >= cfg.landmark_min_depth_m):
-            return None
-        return p if bool(np.all(err * self.focal_px <= cfg.max_reprojection_px)) else None
+        out: dict[int, FloatArray | None] = {j: None for j, _ in tracks}
+        found = [(j, p, v) for (j, v), p in zip(tracks, points, strict=True) if p is not None]
+        by_views: dict[int, list[int]] = {}
+        for i, (_, _, views) in enumerate(found):
+            by_views.setdefault(len(views), []).append(i)
+        for idx in by_views.values():
+            group = [found[i] for i in idx]
+            err, z = reprojection_errors(
+                np.array([[Pv[v] for v in views] for _, _, views in group]),
+                np.array([p for _, p, _ in group])[:, None, :],
+                np.array([list(views.values()) for _, _, views in group]),
+            )
+            # the second camera's views whose keyframe's first camera saw the track too
+            pair = np.array(
+                [[c == 1 and (k, 0) in views for k, c in views] for _, _, views in group]
+            )
+            ok = (
+                (pair & (z <= far)).any(axis=1)
+                & (z >= cfg.landmark_min_depth_m).all(axis=1)
+                & (err * self.focal_px <= cfg.max_reprojection_px).all(axis=1)
+            )
+            out.update({j: p for (j, p, _), good in zip(group, ok, strict=True) if good})
+        return out
 
     # -- after a solve ----------------------------------------------------------------------
     def read_back(

@@ -326,8 +326,8 @@ def _detect(img: Image, kept: FloatArray, n_want: int, cfg: TrackerConfig) -> Fl
         return np.zeros((0, 2))
     mask = np.full(img.shape, 255, np.uint8)
     r = math.ceil(cfg.min_distance_px)
-    for x, y in np.rint(kept).astype(int):
-        cv2.circle(mask, (int(x), int(y)), r, 0, -1)
+    for x, y in np.rint(kept).astype(int).tolist():  # (Python ints: no numpy scalars)
+        cv2.circle(mask, (x, y), r, 0, -1)
     corners = cv2.goodFeaturesToTrack(
         img, n_want, cfg.quality_level, cfg.min_distance_px, mask=mask, blockSize=3
     )
