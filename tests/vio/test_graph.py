@@ -91,3 +91,25 @@ def test_a_well_conditioned_chain_stays_on_cholesky() -> None:
         _chain(graph, k, k, sigma=1.0)
         graph.solve()
     assert graph.fallbacks == 1 and not graph.on_qr
+
+
+@pytest.mark.parametrize("stiff", [False, True])
+def test_the_marginal_covariances_of_several_keys_are_each_keys_own(stiff: bool) -> None:
+    """Several keys' covariances at once (iSAM2's joint marginal on Cholesky, one key at a time
+    on QR) are each key's own marginal: as the whole graph's QR elimination gives them, and each
+    under its own key (the chain's newest is the least certain, its oldest the most)."""
+    graph = WindowGraph(VioConfig(qr_fallback_solves=3), lag=20.0)
+    _chain(graph, 0, 5, sigma=0.01 if stiff else 1.0)
+    graph.solve()
+    for k in range(6, 9):
+        _chain(graph, k, k, sigma=1.0)
+        keys = (k, k - 2, 1)
+        sol = graph.solve(covariance_of=keys)
+        assert graph.on_qr == stiff
+        # the whole window (nothing left the lag yet), linearised and eliminated by QR
+        lin = graph._smoother.getFactors().linearize(sol.estimate)
+        for key in keys:
+            want = np.linalg.inv(lin.marginal([key], gtsam.EliminateQR).hessian()[0])
+            np.testing.assert_allclose(sol.covariances[key], want, rtol=1e-6, atol=1e-9)
+        variances = [float(sol.covariances[key][0, 0]) for key in keys]
+        assert variances == sorted(variances, reverse=True)
