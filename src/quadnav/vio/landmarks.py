@@ -399,10 +399,11 @@ class LandmarkBook:
             pair = np.array(
                 [[c == 1 and (k, 0) in views for k, c in views] for _, _, views in group]
             )
-            ok = (
+            ok = np.asarray(
                 (pair & (z <= far)).any(axis=1)
                 & (z >= cfg.landmark_min_depth_m).all(axis=1)
-                & (err * self.focal_px <= cfg.max_reprojection_px).all(axis=1)
+                & (err * self.focal_px <= cfg.max_reprojection_px).all(axis=1),
+                dtype=bool,
             )
             out.update({j: p for (j, p, _), good in zip(group, ok, strict=True) if good})
         return out

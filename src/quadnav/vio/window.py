@@ -344,35 +344,36 @@ class SlidingWindow:
                     self._landmark_prior,
                 )
             )  # fmt: skip
-        # per camera (the second one's only with a stereo rig): the factor for a keyframe's
-        # observation of a landmark
-        project: list[Callable[[FloatArray, int, int], gtsam.NonlinearFactor]] = []
-        noise, K = self._pixel_noise, self.K
-        for side, T in ((0, self.T_B_C), (1, self.T_B_R if self.T_B_R is not None else self.T_B_C)):
-            side = side if self.T_B_R is not None else 0
-            c, k = C(side), Kc(side)
-            if self._online and self._intrinsics:
-                project.append(
-                    lambda xy, x, lm, c=c, k=k: gtsam_unstable.ProjectionFactorPPPCCal3_S2(
-                        xy, noise, x, c, lm, k
-                    )
-                )
-            elif self._online:
-                project.append(
-                    lambda xy, x, lm, c=c: gtsam_unstable.ProjectionFactorPPPCal3_S2(
-                        xy, noise, x, c, lm, K
-                    )
-                )
-            else:
-                project.append(
-                    lambda xy, x, lm, T=T: gtsam.GenericProjectionFactorCal3_S2(
-                        xy, noise, x, lm, K, T
-                    )
-                )
+        project = [self._projection(0), self._projection(1)]
         add = self.graph.add
         for ob in adm.observations:
             add(project[ob.side == 1](ob.xy, X(ob.keyframe), L(ob.key)))
         return len(adm.new)
+
+    def _projection(self, side: int) -> Callable[[FloatArray, int, int], gtsam.NonlinearFactor]:
+        """The factor of an observation (normalised point, pose key, landmark key) in camera
+        ``side`` (the second camera's with a stereo rig only): with the extrinsic (and the
+        intrinsics correction) as variables of the window, or fixed."""
+        side = side if self.T_B_R is not None else 0
+        noise, K, c, k = self._pixel_noise, self.K, C(side), Kc(side)
+        T = self.T_B_R if side == 1 and self.T_B_R is not None else self.T_B_C
+        PPPC, PPP = (
+            gtsam_unstable.ProjectionFactorPPPCCal3_S2,
+            gtsam_unstable.ProjectionFactorPPPCal3_S2,
+        )
+
+        def with_intrinsics(xy: FloatArray, x: int, lm: int) -> gtsam.NonlinearFactor:
+            return PPPC(xy, noise, x, c, lm, k)
+
+        def with_extrinsic(xy: FloatArray, x: int, lm: int) -> gtsam.NonlinearFactor:
+            return PPP(xy, noise, x, c, lm, K)
+
+        def fixed(xy: FloatArray, x: int, lm: int) -> gtsam.NonlinearFactor:
+            return gtsam.GenericProjectionFactorCal3_S2(xy, noise, x, lm, K, T)
+
+        if self._online:
+            return with_intrinsics if self._intrinsics else with_extrinsic
+        return fixed
 
     # -- solving ----------------------------------------------------------------------------
     def _read_back(self, est: gtsam.Values, features: FeatureManager) -> int:
