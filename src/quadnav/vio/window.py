@@ -304,7 +304,8 @@ class SlidingWindow:
             # tie every landmark it saw to every other (a dense prior that grows with each drop)
             xj = X(j)
             self.graph.remove_where(
-                lambda f: not (isinstance(f, PROJECTIONS) and not {xj}.isdisjoint(f.keys()))
+                lambda f: not (isinstance(f, PROJECTIONS) and not {xj}.isdisjoint(f.keys())),
+                touching=(xj,),
             )
             # and the landmarks anchored in it leave with it (the clock stands still: they
             # would stay for as long as the vehicle hovers)
@@ -408,7 +409,8 @@ class SlidingWindow:
         if bad:
             keys = {L(n) for n in bad}
             self.graph.remove_where(
-                lambda f: not (isinstance(f, PROJECTIONS) and not keys.isdisjoint(f.keys()))
+                lambda f: not (isinstance(f, PROJECTIONS) and not keys.isdisjoint(f.keys())),
+                touching=keys,
             )
         return len(bad)
 

@@ -314,9 +314,9 @@ def _spaced(pts: FloatArray, order: IntArray, min_dist: float) -> BoolArray:
     keep = np.ones(len(pts), bool)
     if len(pts) < 2:
         return keep
-    near = _squared_distances(pts, pts) < min_dist * min_dist
+    near: BoolArray = np.asarray(_squared_distances(pts, pts) < min_dist * min_dist)
     np.fill_diagonal(near, False)
-    crowded = near.any(axis=1)
+    crowded: BoolArray = np.asarray(near.any(axis=1))
     if not crowded.any():
         return keep
     free = np.ones(len(pts), bool)
