@@ -8,6 +8,7 @@ from scipy.spatial.transform import Rotation
 
 from quadnav.errors import GeometryError
 from quadnav.geometry import Pose, geodesic_angle_rad, quat_wxyz_to_xyzw, quat_xyzw_to_wxyz, rot_y
+from quadnav.geometry.rotations import compose_quats_xyzw, unit_quats_xyzw
 
 finite = st.floats(-100.0, 100.0, allow_nan=False)
 vec3 = st.tuples(finite, finite, finite).map(np.array)
@@ -104,3 +105,20 @@ def test_so3_exp_log_and_quaternion_helpers_match_scipy(rv: np.ndarray) -> None:
         np.testing.assert_allclose(so3_log(R.as_matrix()), rv, atol=1e-9)
     q = quat_xyzw_from_matrix(R.as_matrix())
     assert geodesic_angle_rad(Rotation.from_quat(q), R) < 1e-9
+
+
+def test_composed_quaternions_are_scipys_to_the_bit() -> None:
+    """compose_quats_xyzw stands in for Rotation.__mul__ where its results feed an estimate
+    (the time offset's prefix scan): it must round as SciPy does, near the identity too, and
+    broadcast one rotation over many."""
+    rng = np.random.default_rng(7)
+    for scale in (1.0, 1e-4):
+        a, b = rng.normal(size=(5000, 4)), rng.normal(size=(5000, 4))
+        a[:, :3] *= scale
+        b[:, :3] *= scale * 3.0
+        want = (Rotation.from_quat(a) * Rotation.from_quat(b)).as_quat()
+        got = compose_quats_xyzw(unit_quats_xyzw(a), unit_quats_xyzw(b))
+        assert np.array_equal(got, want)
+        assert np.array_equal(unit_quats_xyzw(a), Rotation.from_quat(a).as_quat())
+    one = (Rotation.from_quat(a[0]) * Rotation.from_quat(b)).as_quat()
+    assert np.array_equal(compose_quats_xyzw(unit_quats_xyzw(a[0]), unit_quats_xyzw(b)), one)

@@ -5,6 +5,8 @@ again after ``qr_fallback_solves`` solves."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import gtsam
 import numpy as np
 import pytest
@@ -91,3 +93,54 @@ def test_a_well_conditioned_chain_stays_on_cholesky() -> None:
         _chain(graph, k, k, sigma=1.0)
         graph.solve()
     assert graph.fallbacks == 1 and not graph.on_qr
+
+
+@pytest.mark.parametrize("stiff", [False, True])
+def test_the_marginal_covariances_of_several_keys_are_each_keys_own(stiff: bool) -> None:
+    """Several keys' covariances at once (iSAM2's joint marginal on Cholesky, one key at a time
+    on QR) are each key's own marginal: as the whole graph's QR elimination gives them, and each
+    under its own key (the chain's newest is the least certain, its oldest the most)."""
+    graph = WindowGraph(VioConfig(qr_fallback_solves=3), lag=20.0)
+    _chain(graph, 0, 5, sigma=0.01 if stiff else 1.0)
+    graph.solve()
+    for k in range(6, 9):
+        _chain(graph, k, k, sigma=1.0)
+        keys = (k, k - 2, 1)
+        sol = graph.solve(covariance_of=keys)
+        assert graph.on_qr == stiff
+        # the whole window (nothing left the lag yet), linearised and eliminated by QR
+        lin = graph._smoother.getFactors().linearize(sol.estimate)
+        for key in keys:
+            want = np.linalg.inv(lin.marginal([key], gtsam.EliminateQR).hessian()[0])
+            np.testing.assert_allclose(sol.covariances[key], want, rtol=1e-6, atol=1e-9)
+        variances = [float(sol.covariances[key][0, 0]) for key in keys]
+        assert variances == sorted(variances, reverse=True)
+
+
+def test_removing_the_factors_on_some_keys_finds_those_a_full_look_finds() -> None:
+    """remove_where(touching=...) looks only at the factors on the given keys (by GTSAM's
+    variable index) and drops the same ones as a look at every factor; a key the smoother does
+    not hold is no error."""
+
+    def chain() -> WindowGraph:  # each variable with a prior too: it stays determinate
+        g = WindowGraph(VioConfig(), lag=20.0)
+        _chain(g, 0, 7, sigma=1.0)
+        for k in range(8):
+            prior = gtsam.noiseModel.Isotropic.Sigma(3, 10.0)
+            g.add(gtsam.PriorFactorVector(k, START + k * STEP, prior))
+        g.solve()
+        return g
+
+    def steps_on(keys: set[int]) -> Callable[[gtsam.NonlinearFactor], bool]:
+        return lambda f: (
+            not (isinstance(f, gtsam.BetweenFactorVector) and bool(keys & set(f.keys())))
+        )
+
+    graph, full = chain(), chain()
+    assert full.remove_where(steps_on({3, 6})) == 4  # 2-3, 3-4, 5-6, 6-7
+    assert graph.remove_where(steps_on({3, 6}), touching=(3, 6, 99)) == 4
+    assert graph._remove == full._remove
+    graph.solve()
+    left = graph._smoother.getFactors()
+    kept = [left.at(i) for i in range(left.size()) if left.at(i) is not None]
+    assert not any(isinstance(f, gtsam.BetweenFactorVector) and 3 in list(f.keys()) for f in kept)

@@ -104,6 +104,7 @@ class VioEstimator:
         spec = rig.camera(camera)
         self.camera_spec = spec
         self.camera = camera
+        self._R_BC = spec.T_B_C.R_A_B.as_matrix()  # the camera's mount (stated: it is fixed)
         n, a, w = rig.imu.noise, cfg.imu_noise_scale, cfg.imu_walk_scale
         noise = dataclasses.replace(
             n, gyro_noise_density=a * n.gyro_noise_density, accel_noise_density=a * n.accel_noise_density,
@@ -339,7 +340,7 @@ class VioEstimator:
         R_B = self.imu.gyro_rotation(t0, t_ns, bias, hold_ns=self._hold_ns())
         if R_B is None:
             return None
-        R_BC = self.camera_spec.T_B_C.R_A_B.as_matrix()
+        R_BC = self._R_BC
         out: FloatArray = R_BC.T @ R_B @ R_BC
         return out
 
@@ -662,7 +663,7 @@ class VioEstimator:
             return None
         with self._stage("keyframe"):
             R_B = pim.deltaRij().matrix()
-            R_BC = self.camera_spec.T_B_C.R_A_B.as_matrix()
+            R_BC = self._R_BC
             dec = self.frontend.decide(frame, R_BC.T @ R_B @ R_BC)
         if not dec.keyframe:
             return self._predicted_state(frame.t_ns, pim, "tracking", tracked=len(frame.ids))
@@ -864,8 +865,8 @@ class VioEstimator:
     def _record(self, k: int, info: _KeyframeInfo) -> KeyframeRecord:
         kf, f = info.keyframe, info.features
         assert kf is not None
-        lm = [(int(j), self.window.landmark_position(int(j))) for j in f.ids]
-        seen = [(j, p) for j, p in lm if p is not None]
+        position = self.window.landmark_position
+        seen = [(j, p) for j in f.ids.tolist() if (p := position(j)) is not None]
         cov = info.cov_pose if info.cov_pose is not None else self._cov_pose
         return KeyframeRecord(
             index=k, t_ns=kf.t_ns, reset_counter=self._reset_counter, T_W_B=to_pose(kf.pose),

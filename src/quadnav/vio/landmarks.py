@@ -37,8 +37,11 @@ __all__ = ["Admission", "LandmarkBook", "NewLandmark", "Observation"]
 
 FloatArray = NDArray[np.float64]
 Cameras = dict[int, FloatArray]  # keyframe index -> 3x4 [R_C_W | t_C_W]
-#: A track an admission looks at: its id, its views in both cameras, and its views' summary.
-_Candidate = tuple[int, dict[int, FloatArray], dict[int, FloatArray], tuple[int, int, int, int]]
+#: A track an admission looks at: its id, its views in both cameras, and its views' summary
+#: (None for a landmark, whose views are all it has, those outside the window included).
+_Candidate = tuple[
+    int, dict[int, FloatArray], dict[int, FloatArray], tuple[int, int, int, int] | None
+]
 #: A view: a keyframe index, or (keyframe index, camera) for a stereo rig's two cameras.
 V = TypeVar("V", bound=Hashable)
 
@@ -76,7 +79,11 @@ class Admission:
 def camera_centres(P: Cameras) -> dict[int, FloatArray]:
     """Each camera's centre in ``W`` from its ``K [R_C_W | t_C_W]`` (``K`` an intrinsics
     correction, or the identity)."""
-    return {k: np.asarray(-np.linalg.solve(Pk[:, :3], Pk[:, 3]), np.float64) for k, Pk in P.items()}
+    if not P:
+        return {}
+    Ps = np.array(list(P.values()))
+    c = -np.linalg.solve(Ps[:, :, :3], Ps[:, :, 3:])[..., 0]  # each matrix as on its own
+    return {k: np.asarray(ck, np.float64) for k, ck in zip(P, c, strict=True)}
 
 
 def _bearing_angles(tracks: list[dict[int, FloatArray]], P: Cameras) -> FloatArray:
@@ -117,12 +124,20 @@ def _dlt_points(
 
 @dataclass(slots=True)
 class _Geometry:
-    """Per track, computed for all tracks of an admission at once: the parallax angle of its
-    fresh views and, where it is enough to triangulate, their DLT point; with views in the
-    second camera too, the DLT point of all its fresh views in both."""
+    """Per track, computed for all tracks of an admission at once: its fresh views (those the
+    marginal prior does not hold; in the second camera, for a track seen there), their parallax
+    angle and, where it is enough to triangulate, their DLT point; with views in the second
+    camera too, the DLT point of all its fresh views in both, where it may enter."""
 
+    fresh: dict[int, dict[int, FloatArray]] = field(default_factory=dict)
+    rfresh: dict[int, dict[int, FloatArray]] = field(default_factory=dict)
     angle: dict[int, float] = field(default_factory=dict)
     point: dict[int, FloatArray | None] = field(default_factory=dict)
+    #: the DLT points that may enter (:meth:`LandmarkBook._triangulated`), and whether each
+    #: track's seed may (:meth:`LandmarkBook._landmarks_ok` on its fresh views); the stereo
+    #: points that may (:meth:`LandmarkBook._stereo_points`)
+    triangulated: dict[int, FloatArray | None] = field(default_factory=dict)
+    seed_ok: dict[int, bool] = field(default_factory=dict)
     stereo_point: dict[int, FloatArray | None] = field(default_factory=dict)
 
 
@@ -179,105 +194,114 @@ class LandmarkBook:
         """New landmarks, and the observations of landmarks not in the graph yet, given the
         window's camera matrices (``PR``: the second camera's, empty for mono)."""
         out = Admission()
-        centres = camera_centres(P)
         todo = self._candidates(features, P, PR)
-        geo = self._geometry([c for c in todo if c[0] not in self.landmarks], P, PR)
+        geo = self._geometry([c for c in todo if c[3] is not None], P, PR)
+        keys, seen_of, seen_r_of = self._key, self._seen, self._seen_r
+        add = out.observations.append
         for j, obs, robs, views in todo:
-            if j not in self.landmarks:
-                new = self._enter(j, obs, robs, P, PR, centres, geo)
+            if views is not None:  # not a landmark yet
+                new = self._enter(j, P, PR, geo)
                 if new is None:
                     self._tried[j] = views
                     continue
                 self._tried.pop(j, None)
                 out.new.append(new)
-            key, seen = self._key[j], self._seen[j]
+            key, seen = keys[j], seen_of[j]
             for k, xy in obs.items():
-                if k not in seen:
-                    out.observations.append(Observation(key, k, xy, 0))
+                if k not in seen and k in P:
+                    add(Observation(key, k, xy, 0))
                     seen.add(k)
-            seen_r = self._seen_r.setdefault(j, set())
+            seen_r = seen_r_of.setdefault(j, set())
             for k, xy in robs.items():
-                if k not in seen_r:
-                    out.observations.append(Observation(key, k, xy, 1))
+                if k not in seen_r and k in PR:
+                    add(Observation(key, k, xy, 1))
                     seen_r.add(k)
         return out
 
     def _candidates(self, features: FeatureManager, P: Cameras, PR: Cameras) -> list[_Candidate]:
-        """The tracks an admission looks at, with their views in the window's keyframes (both
-        cameras) and what it remembers them by: not bad, and a landmark or with views it has
-        not failed to enter with."""
-        right = features.right
+        """The tracks an admission looks at, in the feature manager's order: the landmarks (with
+        all their views: the admission takes those in the window's keyframes), and the tracks
+        not bad with views they have not failed to enter with (their views in the window's
+        keyframes, both cameras, and what the book remembers them by)."""
+        right, bad, landmarks, tried = features.right, self.bad_tracks, self.landmarks, self._tried
+        none: dict[int, FloatArray] = {}
         out: list[_Candidate] = []
         for j, obs_all in features.tracks.items():
-            if j in self.bad_tracks:
+            if j in bad:
                 continue
-            r = right.get(j, {})
-            views = (max(obs_all, default=-1), len(obs_all), max(r, default=-1), len(r))
-            if j not in self.landmarks and self._tried.get(j) == views:
+            r = right.get(j, none)
+            if j in landmarks:
+                out.append((j, obs_all, r, None))
+                continue
+            views = (max(obs_all, default=-1), len(obs_all), *((max(r), len(r)) if r else (-1, 0)))
+            if tried.get(j) == views:
                 continue  # it could not enter with these views: it waits for another
             obs = {k: xy for k, xy in obs_all.items() if k in P}
-            robs = {k: xy for k, xy in r.items() if k in PR}
+            robs = {k: xy for k, xy in r.items() if k in PR} if r else none
             out.append((j, obs, robs, views))
         return out
 
-    def _fresh(self, j: int, obs: dict[int, FloatArray], side: int = 0) -> dict[int, FloatArray]:
-        """A track's views (in camera ``side``) the marginal prior does not hold."""
-        used = (self._used if side == 0 else self._used_r).get(j, set())
-        return {k: xy for k, xy in obs.items() if k not in used}
-
     def _geometry(self, tracks: list[_Candidate], P: Cameras, PR: Cameras) -> _Geometry:
-        """The parallax of the tracks' fresh views, and the DLT point of those with enough;
-        the DLT point of the fresh views in both cameras of those seen in the second."""
+        """The views of the tracks the marginal prior does not hold (their fresh views), their
+        parallax, and the DLT point of those with enough; the DLT point of the fresh views in
+        both cameras of those seen in the second."""
         geo = _Geometry()
-        fresh = {j: self._fresh(j, obs) for j, obs, _, _ in tracks}
-        mono = [(j, f) for j, f in fresh.items() if len(f) >= 2]
+        used_of, used_r_of = self._used, self._used_r
+        mono: list[tuple[int, dict[int, FloatArray]]] = []
+        both: list[tuple[int, dict[tuple[int, int], FloatArray]]] = []
+        for j, obs, robs, _ in tracks:
+            used = used_of.get(j)
+            fresh = {k: xy for k, xy in obs.items() if k not in used} if used else obs
+            geo.fresh[j] = fresh
+            if len(fresh) >= 2:
+                mono.append((j, fresh))
+            if robs:
+                used_r = used_r_of.get(j)
+                rfresh = {k: xy for k, xy in robs.items() if k not in used_r} if used_r else robs
+                geo.rfresh[j] = rfresh
+                if rfresh:
+                    views = {(k, 0): xy for k, xy in fresh.items()}
+                    both.append((j, views | {(k, 1): xy for k, xy in rfresh.items()}))
         angles = _bearing_angles([f for _, f in mono], P)
         geo.angle = {j: float(a) for (j, _), a in zip(mono, angles, strict=True)}
         enough = [(j, f) for j, f in mono if geo.angle[j] >= self._parallax_needed(len(f))]
         points = _dlt_points([f for _, f in enough], P)
         geo.point = {j: p for (j, _), p in zip(enough, points, strict=True)}
-        both: list[tuple[int, dict[tuple[int, int], FloatArray]]] = []
-        for j, _, robs, _ in tracks:
-            rfresh = self._fresh(j, robs, 1)
-            if rfresh:
-                views = {(k, 0): xy for k, xy in fresh[j].items()}
-                both.append((j, views | {(k, 1): xy for k, xy in rfresh.items()}))
+        geo.triangulated = self._triangulated(enough, P, geo)
+        seeded = [(j, self._seed[j], f) for j, f in geo.fresh.items() if f and j in self._seed]
+        ok = self._landmarks_ok([(p, f) for _, p, f in seeded], P)
+        geo.seed_ok = {j: bool(good) for (j, _, _), good in zip(seeded, ok, strict=True)}
         if both:
             Pv = {(k, 0): Pk for k, Pk in P.items()} | {(k, 1): Pk for k, Pk in PR.items()}
-            points = _dlt_points([v for _, v in both], Pv)
-            geo.stereo_point = {j: p for (j, _), p in zip(both, points, strict=True)}
+            geo.stereo_point = self._stereo_points(both, Pv, _dlt_points([v for _, v in both], Pv))
         return geo
 
     def _enter(
         self,
         j: int,
-        obs: dict[int, FloatArray],
-        robs: dict[int, FloatArray],
         P: Cameras,
         PR: Cameras,
-        centres: dict[int, FloatArray],
         geo: _Geometry,
     ) -> NewLandmark | None:
-        """A track's landmark if it may enter (from the views the prior does not hold: a track
-        whose landmark was marginalised enters again as a new track would, no prior from the old
-        estimate)."""
-        used, used_r = self._used.get(j, set()), self._used_r.get(j, set())
-        fresh = {k: xy for k, xy in obs.items() if k not in used}
-        rfresh = {k: xy for k, xy in robs.items() if k not in used_r}
+        """A track's landmark if it may enter (from its fresh views, which :meth:`_geometry`
+        found: a track whose landmark was marginalised enters again as a new track would, no
+        prior from the old estimate)."""
+        used = self._used.get(j)
+        fresh, rfresh = geo.fresh[j], geo.rfresh.get(j)
         mono = len(fresh) >= 2 and (not used or self._enough_parallax(j, fresh, geo))
         if not mono and not rfresh:
             return None
         p = self._seed.get(j)
-        if p is None or not fresh or not self._landmark_ok(p, fresh, P):
-            p = self._triangulated(j, fresh, P, centres, geo) if mono else None
+        if p is None or not geo.seed_ok.get(j, False):
+            p = geo.triangulated.get(j) if mono else None
         if p is None and rfresh:
-            p = self._stereo_point(j, fresh, rfresh, P, PR, geo)
+            p = geo.stereo_point[j]
         if p is None:
             return None
         self._seed.pop(j, None)
         self.landmarks[j] = p
-        self._seen[j] = set(used)  # already in the prior: not again
-        self._seen_r[j] = set(used_r)
+        self._seen[j] = set(used or ())  # already in the prior: not again
+        self._seen_r[j] = set(self._used_r.get(j, ()))
         self._key[j] = self._next_key
         self._next_key += 1
         return NewLandmark(track=j, key=self._key[j], point_W=p, anchor=min(fresh))
@@ -293,70 +317,96 @@ class LandmarkBook:
         return len(fresh) >= 2 and geo.angle[j] >= self._parallax_needed(len(fresh))
 
     def _triangulated(
-        self,
-        j: int,
-        obs: dict[int, FloatArray],
-        P: Cameras,
-        centres: dict[int, FloatArray],
-        geo: _Geometry,
-    ) -> FloatArray | None:
-        """Track ``j``'s point from its fresh views ``obs`` if it may enter: enough views or
-        parallax, in front, near its pixels."""
-        if not self._enough_parallax(j, obs, geo):  # not worth a triangulation
-            return None
-        need = self._parallax_needed(len(obs))
-        p = geo.point[j]
-        if p is None or not np.isfinite(p).all():
-            return None
-        rays = [p - centres[k] for k in obs]
-        norms = [float(np.linalg.norm(r)) for r in rays]
-        if min(norms) < 1e-9:
-            return None
-        cosang = min(
-            float(rays[0] @ r) / (norms[0] * n) for r, n in zip(rays[1:], norms[1:], strict=True)
-        )
-        if float(np.arccos(np.clip(cosang, -1.0, 1.0))) < need:
-            return None
-        return p if self._landmark_ok(p, obs, P) else None
+        self, tracks: list[tuple[int, dict[int, FloatArray]]], P: Cameras, geo: _Geometry
+    ) -> dict[int, FloatArray | None]:
+        """Each track's DLT point (``geo.point``) from its fresh views if it may enter: the
+        angle between its first view's ray to the point and another's at least the parallax it
+        needs, in front, near its pixels; together by number of views."""
+        centres = camera_centres(P)
+        out: dict[int, FloatArray | None] = {}
+        found: list[tuple[int, FloatArray, dict[int, FloatArray]]] = []
+        for j, fresh in tracks:
+            p = geo.point[j]
+            if p is None or not np.isfinite(p).all():
+                out[j] = None
+            else:
+                found.append((j, p, fresh))
+        by_views: dict[int, list[int]] = {}
+        for i, (_, _, fresh) in enumerate(found):
+            by_views.setdefault(len(fresh), []).append(i)
+        seen = np.zeros(len(found), dtype=bool)
+        for idx in by_views.values():
+            pts = np.array([found[i][1] for i in idx])
+            rays = pts[:, None, :] - np.array([[centres[k] for k in found[i][2]] for i in idx])
+            norms = np.linalg.norm(rays, axis=2)  # (tracks, views)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                cos = np.einsum("nj,nvj->nv", rays[:, 0], rays[:, 1:]) / (
+                    norms[:, :1] * norms[:, 1:]
+                )
+            angle = np.arccos(np.clip(cos.min(axis=1), -1.0, 1.0))
+            need = np.array([self._parallax_needed(len(found[i][2])) for i in idx])
+            seen[idx] = (norms.min(axis=1) >= 1e-9) & (angle >= need)
+        ok = self._landmarks_ok([(p, f) for _, p, f in found], P) & seen
+        out.update({j: p if good else None for (j, p, _), good in zip(found, ok, strict=True)})
+        return out
 
-    def _landmark_ok(self, p: FloatArray, obs: dict[int, FloatArray], P: Cameras) -> bool:
-        """In front of every camera at a sane range and near every pixel it was seen at."""
+    def _landmarks_ok(
+        self, points: list[tuple[FloatArray, dict[int, FloatArray]]], P: Cameras
+    ) -> NDArray[np.bool_]:
+        """Each point in front of every camera it was seen in (its views, at least one) at a
+        sane range and near every pixel it was seen at; together by number of views."""
         cfg = self.config
-        Ps = np.array([P[k] for k in obs])
-        err, z = reprojection_errors(Ps, p, np.array(list(obs.values())))
-        if not (np.all(z >= cfg.landmark_min_depth_m) and np.all(z <= cfg.landmark_max_depth_m)):
-            return False
-        return bool(np.all(err * self.focal_px <= cfg.max_reprojection_px))
+        ok = np.zeros(len(points), dtype=bool)
+        by_views: dict[int, list[int]] = {}
+        for i, (_, obs) in enumerate(points):
+            by_views.setdefault(len(obs), []).append(i)
+        for idx in by_views.values():
+            Ps = np.array([[P[k] for k in points[i][1]] for i in idx])  # (n, views, 3, 4)
+            pts = np.array([points[i][0] for i in idx])[:, None, :]
+            xy = np.array([list(points[i][1].values()) for i in idx])
+            err, z = reprojection_errors(Ps, pts, xy)
+            ok[idx] = (
+                (z >= cfg.landmark_min_depth_m).all(axis=1)
+                & (z <= cfg.landmark_max_depth_m).all(axis=1)
+                & (err * self.focal_px <= cfg.max_reprojection_px).all(axis=1)
+            )
+        return ok
 
-    def _stereo_point(
+    def _stereo_points(
         self,
-        j: int,
-        obs: dict[int, FloatArray],
-        robs: dict[int, FloatArray],
-        P: Cameras,
-        PR: Cameras,
-        geo: _Geometry,
-    ) -> FloatArray | None:
-        """Track ``j``'s point from its fresh views in both cameras (a stereo pair is enough),
-        if it is within ``stereo_max_depth_baselines`` of a camera that sees it in stereo, in
-        front of every view and near every pixel."""
+        tracks: list[tuple[int, dict[tuple[int, int], FloatArray]]],
+        Pv: dict[tuple[int, int], FloatArray],
+        points: list[FloatArray | None],
+    ) -> dict[int, FloatArray | None]:
+        """Each track's DLT point from its fresh views in both cameras (a stereo pair is
+        enough) if it may enter: within ``stereo_max_depth_baselines`` of a camera that sees it
+        in stereo, in front of every view and near every pixel; together by number of views."""
         cfg = self.config
-        views: dict[tuple[int, int], FloatArray] = {(k, 0): xy for k, xy in obs.items()}
-        views.update({(k, 1): xy for k, xy in robs.items()})
-        Pv = {(k, 0): P[k] for k in obs} | {(k, 1): PR[k] for k in robs}
-        p = geo.stereo_point[j]
-        if p is None:
-            return None
-        err, z = reprojection_errors(
-            np.array([Pv[v] for v in views]), p, np.array(list(views.values()))
-        )
         far = min(cfg.landmark_max_depth_m, cfg.stereo_max_depth_baselines * self.baseline_m)
-        near_pair = any(
-            zz <= far for (k, c), zz in zip(views, z, strict=True) if c == 1 and (k, 0) in views
-        )
-        if not near_pair or not np.all(z >= cfg.landmark_min_depth_m):
-            return None
-        return p if bool(np.all(err * self.focal_px <= cfg.max_reprojection_px)) else None
+        out: dict[int, FloatArray | None] = {j: None for j, _ in tracks}
+        found = [(j, p, v) for (j, v), p in zip(tracks, points, strict=True) if p is not None]
+        by_views: dict[int, list[int]] = {}
+        for i, (_, _, views) in enumerate(found):
+            by_views.setdefault(len(views), []).append(i)
+        for idx in by_views.values():
+            group = [found[i] for i in idx]
+            err, z = reprojection_errors(
+                np.array([[Pv[v] for v in views] for _, _, views in group]),
+                np.array([p for _, p, _ in group])[:, None, :],
+                np.array([list(views.values()) for _, _, views in group]),
+            )
+            # the second camera's views whose keyframe's first camera saw the track too
+            pair = np.array(
+                [[c == 1 and (k, 0) in views for k, c in views] for _, _, views in group]
+            )
+            ok = np.asarray(
+                (pair & (z <= far)).any(axis=1)
+                & (z >= cfg.landmark_min_depth_m).all(axis=1)
+                & (err * self.focal_px <= cfg.max_reprojection_px).all(axis=1),
+                dtype=bool,
+            )
+            out.update({j: p for (j, p, _), good in zip(group, ok, strict=True) if good})
+        return out
 
     # -- after a solve ----------------------------------------------------------------------
     def read_back(
@@ -387,29 +437,38 @@ class LandmarkBook:
         the views they have projection factors in (either camera), marked bad for good: the
         key numbers whose projections the graph must drop."""
         cfg = self.config
-        owner, cams, meas = [], [], []
-        for j in self.landmarks:
-            if j in self.bad_tracks:
+        # the views as rows of one stack of camera matrices, the landmarks as rows of another
+        rows = ({k: i for i, k in enumerate(P)}, {k: len(P) + i for i, k in enumerate(PR)})
+        none: dict[int, FloatArray] = {}
+        owner = [j for j in self.landmarks if j not in self.bad_tracks]
+        owners: list[int] = []
+        cams: list[int] = []
+        meas: list[FloatArray] = []
+        for side, book, held_of in (
+            (0, features.tracks, self._used),
+            (1, features.right, self._used_r),
+        ):
+            row = rows[side]
+            if not row:
                 continue
-            used, used_r = self._used.get(j, ()), self._used_r.get(j, ())  # held by the prior
-            for book, views, held in (
-                (features.observations(j), P, used),
-                (features.right.get(j, {}), PR, used_r),
-            ):
-                for k, xy in book.items():
-                    if k in views and k not in held:
-                        owner.append(j)
-                        cams.append(views[k])
+            for i, j in enumerate(owner):
+                held = held_of.get(j)
+                for k, xy in book.get(j, none).items():
+                    c = row.get(k)
+                    if c is not None and (not held or k not in held):
+                        owners.append(i)
+                        cams.append(c)
                         meas.append(xy)
-        if not owner:
+        if not owners:
             return set()
-        pts = np.array([self.landmarks[j] for j in owner])
-        e, z = reprojection_errors(np.array(cams), pts, np.array(meas))
+        stack = np.array([*P.values(), *PR.values()])
+        pts = np.array([self.landmarks[j] for j in owner])[owners]
+        e, z = reprojection_errors(stack[cams], pts, np.array(meas))
         wrong = ~(
             (z >= cfg.landmark_min_depth_m)
             & (z <= cfg.landmark_max_depth_m)
             & (e * self.focal_px <= cfg.max_reprojection_px)
         )
-        bad = {owner[i] for i in np.flatnonzero(wrong)}
+        bad = {owner[owners[i]] for i in np.flatnonzero(wrong)}
         self.bad_tracks.update(bad)
         return {self._key[j] for j in bad}

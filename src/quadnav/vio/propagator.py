@@ -128,9 +128,10 @@ class ImuPropagator:
         position; velocity turned into the world)."""
         nav = pim.predict(gtsam.NavState(pose, velocity), bias)
         Q = np.asarray(pim.preintMeasCov())
-        R = nav.pose().rotation().matrix()
+        pose_1 = nav.pose()
+        R = pose_1.rotation().matrix()
         return Prediction(
-            pose=nav.pose(),
+            pose=pose_1,
             velocity=np.asarray(nav.velocity(), np.float64),
             cov_pose=cov_pose + Q[0:6, 0:6],
             cov_v=cov_v + R @ Q[6:9, 6:9] @ R.T,

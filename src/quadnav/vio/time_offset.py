@@ -33,6 +33,7 @@ from scipy.spatial.transform import Rotation
 
 from quadnav.errors import VioError
 from quadnav.geometry.multiview import kabsch
+from quadnav.geometry.rotations import compose_quats_xyzw, unit_quats_xyzw
 from quadnav.units import NS_PER_S
 
 __all__ = ["TdEstimate", "TimeOffsetEstimator"]
@@ -91,13 +92,14 @@ def _slopes(tg: FloatArray, wg: FloatArray) -> FloatArray:
 def _attitudes(tg: FloatArray, wg: FloatArray) -> Rotation:
     """The gyro's attitude at each sample, the rate linear between samples (a sample is the
     rate at its instant: holding it would shift the gyro by half a period). The running product
-    of the steps by a prefix scan: log2(n) vectorised compositions, not n single ones."""
+    of the steps by a prefix scan: log2(n) vectorised compositions, not n single ones (each
+    SciPy's to the bit: :func:`~quadnav.geometry.rotations.compose_quats_xyzw`)."""
     q = np.empty((len(tg), 4))
     q[0] = [0.0, 0.0, 0.0, 1.0]
     q[1:] = Rotation.from_rotvec(0.5 * (wg[:-1] + wg[1:]) * np.diff(tg)[:, None]).as_quat()
     d = 1
     while d < len(q):
-        q[d:] = (Rotation.from_quat(q[:-d]) * Rotation.from_quat(q[d:])).as_quat()
+        q[d:] = compose_quats_xyzw(unit_quats_xyzw(q[:-d]), unit_quats_xyzw(q[d:]))
         d *= 2
     return Rotation.from_quat(q)
 
@@ -106,13 +108,19 @@ def _gyro_rates(buf: _Buffer, td: FloatArray) -> FloatArray:
     """The gyro's mean rate over each span shifted by each offset: (len(td), spans, 3)."""
     a = (buf.t0[None, :] + td[:, None]).ravel()
     b = (buf.t1[None, :] + td[:, None]).ravel()
+    Q = buf.Q.as_quat()
 
-    def at(t: FloatArray) -> Rotation:
+    def at(t: FloatArray) -> FloatArray:
         k = np.clip(np.searchsorted(buf.tg, t, side="right") - 1, 0, len(buf.tg) - 1)
         u = (t - buf.tg[k])[:, None]
-        return buf.Q[k] * Rotation.from_rotvec((buf.wg[k] + 0.5 * buf.dw[k] * u) * u)
+        step = Rotation.from_rotvec((buf.wg[k] + 0.5 * buf.dw[k] * u) * u).as_quat()
+        return compose_quats_xyzw(Q[k], step)
 
-    rel = (at(a).inv() * at(b)).as_rotvec() / (b - a)[:, None]
+    qa = at(a)
+    qa[:, :3] = -qa[:, :3]  # the inverse
+    # the product as the unit quaternion it is (no second normalisation)
+    rel_q = Rotation(compose_quats_xyzw(qa, at(b)), normalize=False, copy=False)
+    rel = rel_q.as_rotvec() / (b - a)[:, None]
     return np.asarray(rel.reshape(len(td), len(buf.t0), 3), dtype=np.float64)
 
 
@@ -191,22 +199,28 @@ class TimeOffsetEstimator:
             self._gyro.popleft()
 
     def _usable(self) -> _Buffer | None:
+        """The buffer the search runs on, or None: fewer than ``min_rotations`` spans inside
+        the gyro's cover, or too little change of rate (:meth:`_excited`). Both are known from
+        the spans: the gyro's arrays are built only for a search."""
         if len(self._gyro) < 3:
             return None
         base = self._gyro[0][0]
-        tg = np.array([(t - base) / NS_PER_S for t, _ in self._gyro])
-        wg = np.array([w for _, w in self._gyro])
+        first, last = (self._gyro[0][0] - base) / NS_PER_S, (self._gyro[-1][0] - base) / NS_PER_S
         m = self._max_td_s
         spans = [
             ((a - base) / NS_PER_S, (b - base) / NS_PER_S, w)
             for a, b, w in self._spans
-            if (a - base) / NS_PER_S - m >= tg[0] and (b - base) / NS_PER_S + m <= tg[-1]
+            if (a - base) / NS_PER_S - m >= first and (b - base) / NS_PER_S + m <= last
         ]
         if len(spans) < self._min_rotations:
             return None
         w_cam = np.array([s[2] for s in spans])
         if self._R_B_C is not None:
             w_cam = self._R_B_C.apply(w_cam)
+        if not self._excited(w_cam):
+            return None
+        tg = np.array([(t - base) / NS_PER_S for t, _ in self._gyro])
+        wg = np.array([w for _, w in self._gyro])
         return _Buffer(
             tg=tg,
             wg=wg,
@@ -255,7 +269,7 @@ class TimeOffsetEstimator:
         if self._last is not None and self._new_spans < self._refresh_spans:
             return self._last
         buf = self._usable()
-        if buf is None or not self._excited(buf.w_cam):
+        if buf is None:
             return None
         self._new_spans = 0
         fine = np.asarray(self._search(buf) + np.arange(-10, 11) * (_GRID_S / 10), dtype=np.float64)

@@ -384,7 +384,8 @@ class SlidingWindow:
             # tie every landmark it saw to every other (a dense prior that grows with each drop)
             xj = X(j)
             self.graph.remove_where(
-                lambda f: not (isinstance(f, PROJECTIONS) and not {xj}.isdisjoint(f.keys()))
+                lambda f: not (isinstance(f, PROJECTIONS) and not {xj}.isdisjoint(f.keys())),
+                touching=(xj,),
             )
             # and the landmarks anchored in it leave with it (the clock stands still: they
             # would stay for as long as the vehicle hovers)
@@ -424,26 +425,13 @@ class SlidingWindow:
                     self._landmark_prior,
                 )
             )  # fmt: skip
-        online = self._online
         if self._lens:
             self._add_lens_projections(adm)
             return len(adm.new)
+        project = [self._projection(0), self._projection(1)]
+        add = self.graph.add
         for ob in adm.observations:
-            side = 1 if ob.side == 1 and self.T_B_R is not None else 0
-            x, lm = X(ob.keyframe), L(ob.key)
-            f: gtsam.NonlinearFactor
-            if online and self._intrinsics:
-                f = gtsam_unstable.ProjectionFactorPPPCCal3_S2(
-                    ob.xy, self._pixel_noise, x, C(side), lm, Kc(side)
-                )
-            elif online:
-                f = gtsam_unstable.ProjectionFactorPPPCal3_S2(
-                    ob.xy, self._pixel_noise, x, C(side), lm, self.K
-                )
-            else:
-                T = self.T_B_R if side == 1 and self.T_B_R is not None else self.T_B_C
-                f = gtsam.GenericProjectionFactorCal3_S2(ob.xy, self._pixel_noise, x, lm, self.K, T)
-            self.graph.add(f)
+            add(project[ob.side == 1](ob.xy, X(ob.keyframe), L(ob.key)))
         return len(adm.new)
 
     def _pixels(self, xy: FloatArray, side: int) -> FloatArray:
@@ -469,6 +457,31 @@ class SlidingWindow:
             self.graph.add(
                 factor(uv, self._pixel_noise, X(ob.keyframe), C(side), L(ob.key), Kc(side))
             )
+
+    def _projection(self, side: int) -> Callable[[FloatArray, int, int], gtsam.NonlinearFactor]:
+        """The factor of an observation (normalised point, pose key, landmark key) in camera
+        ``side`` (the second camera's with a stereo rig only): with the extrinsic (and the
+        intrinsics correction) as variables of the window, or fixed."""
+        side = side if self.T_B_R is not None else 0
+        noise, K, c, k = self._pixel_noise, self.K, C(side), Kc(side)
+        T = self.T_B_R if side == 1 and self.T_B_R is not None else self.T_B_C
+        PPPC, PPP = (
+            gtsam_unstable.ProjectionFactorPPPCCal3_S2,
+            gtsam_unstable.ProjectionFactorPPPCal3_S2,
+        )
+
+        def with_intrinsics(xy: FloatArray, x: int, lm: int) -> gtsam.NonlinearFactor:
+            return PPPC(xy, noise, x, c, lm, k)
+
+        def with_extrinsic(xy: FloatArray, x: int, lm: int) -> gtsam.NonlinearFactor:
+            return PPP(xy, noise, x, c, lm, K)
+
+        def fixed(xy: FloatArray, x: int, lm: int) -> gtsam.NonlinearFactor:
+            return gtsam.GenericProjectionFactorCal3_S2(xy, noise, x, lm, K, T)
+
+        if self._online:
+            return with_intrinsics if self._intrinsics else with_extrinsic
+        return fixed
 
     # -- solving ----------------------------------------------------------------------------
     def _read_back(self, est: gtsam.Values, features: FeatureManager) -> int:
@@ -507,7 +520,8 @@ class SlidingWindow:
         if bad:
             keys = {L(n) for n in bad}
             self.graph.remove_where(
-                lambda f: not (isinstance(f, PROJECTIONS) and not keys.isdisjoint(f.keys()))
+                lambda f: not (isinstance(f, PROJECTIONS) and not keys.isdisjoint(f.keys())),
+                touching=keys,
             )
         return len(bad)
 

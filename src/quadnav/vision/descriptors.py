@@ -40,7 +40,8 @@ def orb_at(
         raise VisionError(f"an image of {grey.shape} is too small to describe keypoints in")
     finite = np.flatnonzero(np.isfinite(uv).all(axis=1))
     kps = [
-        cv2.KeyPoint(float(uv[i, 0]), float(uv[i, 1]), _PATCH_PX, 0.0, 0, 0, int(i)) for i in finite
+        cv2.KeyPoint(x, y, _PATCH_PX, 0.0, 0, 0, i)
+        for (x, y), i in zip(uv[finite].tolist(), finite.tolist(), strict=True)
     ]
     orb = cv2.ORB.create(edgeThreshold=_BORDER_PX, patchSize=_PATCH_PX)
     kept, desc = orb.compute(grey, kps)
