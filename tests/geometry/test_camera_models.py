@@ -58,10 +58,14 @@ def test_radial_tangential_undistortion_inverts_a_strong_lens_to_its_corners() -
     """EuRoC's cam0 (k1 = -0.28): OpenCV's default of 5 iterations leaves 0.3 px at the
     corners, the same bias in every frame; the camera's undistortion must invert projection."""
     K = np.array([[458.654, 0.0, 367.215], [0.0, 457.296, 248.375], [0.0, 0.0, 1.0]])
-    cam = PinholeCamera(K, np.array([-0.28340811, 0.07395907, 0.00019359, 1.76187114e-05]), 752, 480)
+    cam = PinholeCamera(
+        K, np.array([-0.28340811, 0.07395907, 0.00019359, 1.76187114e-05]), 752, 480
+    )
     rng = np.random.default_rng(5)
     # bearings whose pixels fill the image, corners included
-    p = np.column_stack([rng.uniform(-0.95, 0.95, 400), rng.uniform(-0.62, 0.62, 400), np.ones(400)])
+    p = np.column_stack(
+        [rng.uniform(-0.95, 0.95, 400), rng.uniform(-0.62, 0.62, 400), np.ones(400)]
+    )
     px = cam.project(p)
     inside = (px[:, 0] >= 0) & (px[:, 0] < 752) & (px[:, 1] >= 0) & (px[:, 1] < 480)
     assert inside.sum() > 300
