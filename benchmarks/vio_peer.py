@@ -1,7 +1,8 @@
 """quadnav's VIO side by side with ORB-SLAM3 (the field's reference) on the same EuRoC-format
 datasets, in one run: quadnav's mono and stereo VIO (``quadnav vio DATASET [--stereo]
---no-video``) and ORB-SLAM3's mono-inertial and stereo-inertial modes, unpaced, through
-``../shared/peers/orbslam3/`` (``make_settings.py``, ``run_orb.py --no-pace``) in its own venv,
+--no-video``) and ORB-SLAM3's mono-inertial and stereo-inertial modes, unpaced (``--paced``: at the camera's
+rate, as its examples run, for its accuracy rather than its speed), through
+``../shared/peers/orbslam3/`` (``make_settings.py``, ``run_orb.py [--no-pace]``) in its own venv,
 each as a subprocess with a timeout; ``--repeats`` runs of each, median reported.
 
 Accuracy is measured on the CAUSAL trajectory, the pose each frame got when it was processed:
@@ -25,7 +26,7 @@ says so and quadnav's side runs alone.
 
     python benchmarks/vio_peer.py DATASET [DATASET ...] [--systems quadnav_mono,quadnav_stereo,
         orb_mono_inertial,orb_stereo_inertial] [--repeats 3] [--timeout 900]
-        [--orb-venv ../orb-venv] [--orb-dir ../shared/peers/orbslam3] [--keep DIR]
+        [--orb-venv ../orb-venv] [--orb-dir ../shared/peers/orbslam3] [--keep DIR] [--paced]
         [--out benchmarks/results/vio_peer.json]
 
 DATASET: an EuRoC folder with ``groundtruth.tum`` and two cameras, as
@@ -218,11 +219,19 @@ def _orb_failure(code: int | str, log: str, resets: int) -> str:
 
 
 def run_orb(
-    dataset: Path, mode: str, peer: OrbPeer, settings: Path, work: Path, timeout_s: float
+    dataset: Path,
+    mode: str,
+    peer: OrbPeer,
+    settings: Path,
+    work: Path,
+    timeout_s: float,
+    *,
+    paced: bool = False,
 ) -> dict[str, Metric]:
-    """One ``run_orb.py --no-pace`` process in the peer's venv; its trajectories scored."""
+    """One ``run_orb.py`` process in the peer's venv (``--no-pace`` unless ``paced``: then it
+    sleeps to the camera rate, as ORB-SLAM3's examples do); its trajectories scored."""
     cmd = [str(peer.python), str(peer.dir / "run_orb.py"), str(dataset), mode, str(peer.vocab),
-           str(settings / f"{mode}.yaml"), str(work / "out"), "--no-pace"]  # fmt: skip
+           str(settings / f"{mode}.yaml"), str(work / "out")] + ([] if paced else ["--no-pace"])  # fmt: skip
     code, wall = _run(cmd, work / "log.txt", timeout_s)
     return orb_metrics(dataset, mode, work, code, wall)
 
@@ -286,6 +295,12 @@ def _arguments() -> argparse.Namespace:
     parser.add_argument("--orb-venv", type=Path, default=ROOT.parent / "orb-venv")
     parser.add_argument("--orb-dir", type=Path, default=ROOT.parent / "shared/peers/orbslam3")
     parser.add_argument("--keep", type=Path, default=None, help="keep every run's output here")
+    parser.add_argument(
+        "--paced",
+        action="store_true",
+        help="ORB-SLAM3 sleeps to the camera rate, as its examples do (its mapping threads get "
+        "the time; its accuracy, not its speed)",
+    )
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results/vio_peer.json"))
     args = parser.parse_args()
     try:
@@ -351,7 +366,7 @@ def _run_dataset(
             if kind == "quadnav":
                 r = run_quadnav(ds, mode, run_dir, args.timeout)
             else:
-                r = run_orb(ds, mode, peer, settings, run_dir, args.timeout)
+                r = run_orb(ds, mode, peer, settings, run_dir, args.timeout, paced=args.paced)
             r["load_1min_before"] = load
             runs.append(r)
             print(f"  {ds.name} {name} run {k + 1}/{args.repeats}: "
@@ -404,7 +419,7 @@ def main() -> None:
     write_text(args.out, json.dumps({
         "benchmark": "vio_peer", "commit": _git_commit(), "python": platform.python_version(),
         "pyorbslam3": peer.version() if orb else None, "cpus": os.cpu_count(),
-        "repeats": args.repeats, "systems": {s: SYSTEMS[s][0] for s in systems},
+        "repeats": args.repeats, "orb_paced": args.paced, "systems": {s: SYSTEMS[s][0] for s in systems},
         "causal": "quadnav estimate.tum; ORB-SLAM3 orb_online.tum (orb_saved.tum is BA-refined)",
         "results": results, "table_markdown": text,
     }, indent=2) + "\n")  # fmt: skip

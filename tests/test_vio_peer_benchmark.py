@@ -88,3 +88,23 @@ def test_bad_input_is_one_line(args: list[str], message: str) -> None:
     assert done.returncode == 2, done.stderr
     lines = done.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith(message), done.stderr
+
+
+@pytest.mark.parametrize("paced", [False, True])
+def test_orb_slam3_is_paced_only_when_asked(
+    peer: ModuleType, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, paced: bool
+) -> None:
+    """Unpaced by default (its speed); ``--paced`` runs it at the camera's rate, as its
+    examples do (its accuracy, its mapping threads given the time)."""
+    seen: list[list[str]] = []
+
+    def fake_run(cmd: list[str], log: Path, timeout_s: float) -> tuple[int, float]:
+        seen.append(cmd)
+        log.write_text("", encoding="utf-8")
+        return -11, 1.0
+
+    monkeypatch.setattr(peer, "_run", fake_run)
+    orb = peer.OrbPeer(tmp_path / "venv", tmp_path / "scripts")
+    r = peer.run_orb(tmp_path, "stereo_inertial", orb, tmp_path, tmp_path, 10.0, paced=paced)
+    assert ("--no-pace" in seen[0]) is not paced
+    assert str(r["ape_se3_m"]).startswith("n/a: ORB-SLAM3 exit -11")
