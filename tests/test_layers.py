@@ -18,7 +18,7 @@ SRC = Path(__file__).resolve().parents[1] / "src" / "quadnav"
 # errors, config_model, units and lazy import nothing from quadnav; the root package only errors.
 _BASE = frozenset({"errors", "config_model", "units", "lazy", "__init__"})
 _CORE = _BASE | {"geometry", "messages", "vehicle", "rig", "odometry"}  # the base (and geometry)
-_IO = _CORE | {"sim", "estimation", "vision", "control", "vio", "slam"}
+_IO = _CORE | {"sim", "estimation", "vision", "control", "vio", "slam", "place"}
 _EVAL = _IO | {"io"}
 _EXPERIMENTS = _EVAL | {"eval"}
 _CLI = _EXPERIMENTS | {"experiments"}
@@ -42,7 +42,10 @@ ALLOWED: dict[str, frozenset[str]] = {
     "control": _CORE,
     # Visual-inertial odometry and SLAM build on vision and estimation.
     "vio": _CORE | {"vision", "estimation"},
-    "slam": _CORE | {"vision", "estimation", "vio"},
+    "slam": _CORE | {"vision", "estimation", "vio", "place"},
+    # Place recognition (vocabulary, database, loop candidates) builds on vision alone: the
+    # loop closer and the SLAM both use it.
+    "place": _CORE | {"vision"},
     "io": _IO,
     "eval": _EVAL,
     "experiments": _EXPERIMENTS,

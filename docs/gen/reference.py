@@ -37,6 +37,7 @@ API_PACKAGES = (
     "vision",
     "control",
     "vio",
+    "place",
     "io",
     "eval",
     "experiments",

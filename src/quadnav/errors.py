@@ -14,6 +14,7 @@ __all__ = [
     "ExperimentError",
     "GeometryError",
     "IoError",
+    "PlaceError",
     "QuadnavError",
     "SampleError",
     "SimError",
@@ -68,3 +69,8 @@ class VisionError(QuadnavError):
 
 class VioError(QuadnavError):
     """Visual-inertial odometry was misconfigured or fed a camera or IMU it cannot use."""
+
+
+class PlaceError(QuadnavError):
+    """Place recognition was given descriptors it cannot use, or a vocabulary file that is
+    missing, corrupt or not a quadnav vocabulary."""
