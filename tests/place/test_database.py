@@ -118,3 +118,7 @@ def test_bad_input_is_one_line() -> None:
     with pytest.raises(PlaceError, match="direct_level"):
         Database(default_vocabulary(), direct_level=9)
     assert len(det.database) == 0  # nothing was added
+    with pytest.raises(PlaceError, match="temporal_consistency must be an integer >= 1"):
+        LoopDetectorConfig(temporal_consistency=0)
+    with pytest.raises(PlaceError, match="min_normalised_score must be finite"):
+        LoopDetectorConfig(min_normalised_score=float("nan"))

@@ -13,13 +13,13 @@ islands of ``temporal_consistency`` successive queries overlap or lie within
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
-from pydantic import Field
 
-from quadnav.config_model import ConfigModel
+from quadnav.errors import PlaceError
 from quadnav.place.database import Database, QueryResult
 from quadnav.place.vocabulary import BowVector, Vocabulary, check_descriptors, l1_score
 
@@ -36,33 +36,35 @@ DetectionStatus = Literal[
 ]
 
 
-class LoopDetectorConfig(ConfigModel):
+@dataclass(frozen=True, slots=True, kw_only=True)
+class LoopDetectorConfig:
     """DLoopDetector's parameters. Its defaults (``min_normalised_score`` 0.3, 3 consistent
     queries) are for frames at video rate, where the previous frame scores high; keyframes lie
     further apart, so both are stricter here: 0.7 and 5, chosen on seeds 10-12 of
-    ``benchmarks/place.py``'s two laps in the room and the hall (not the seeds it reports)."""
+    ``benchmarks/place.py``'s two laps in the room and the hall (not the seeds it reports).
+    (A plain dataclass until a command's configuration carries it.)"""
 
-    exclude_recent: int = Field(
-        30, ge=0, le=100_000, description="most recent entries a query leaves out (dislocal)"
-    )
-    max_results: int = Field(50, ge=1, le=10_000, description="database results per query")
-    min_normalised_score: float = Field(
-        0.7, ge=0.0, le=10.0, description="least score divided by the prior score (alpha)"
-    )
-    min_prior_score: float = Field(
-        0.005, ge=0.0, le=1.0, description="least score against the previous keyframe"
-    )
-    island_gap: int = Field(3, ge=0, le=1000, description="largest id gap inside an island")
-    min_island_size: int = Field(1, ge=1, le=1000, description="fewest entries of an island")
-    temporal_consistency: int = Field(
-        5, ge=1, le=100, description="successive consistent queries before a loop (k)"
-    )
-    island_distance: int = Field(
-        3, ge=0, le=1000, description="largest id gap between consistent islands"
-    )
-    max_query_gap: int = Field(
-        2, ge=1, le=1000, description="largest entry gap between queries kept consistent"
-    )
+    exclude_recent: int = 30  # most recent entries a query leaves out (dislocal)
+    max_results: int = 50  # database results per query
+    min_normalised_score: float = 0.7  # least score divided by the prior score (alpha)
+    min_prior_score: float = 0.005  # least score against the previous keyframe
+    island_gap: int = 3  # largest id gap inside an island
+    min_island_size: int = 1  # fewest entries of an island
+    temporal_consistency: int = 5  # successive consistent queries before a loop (k)
+    island_distance: int = 3  # largest id gap between consistent islands
+    max_query_gap: int = 2  # largest entry gap between queries kept consistent
+
+    def __post_init__(self) -> None:
+        least = {"exclude_recent": 0, "max_results": 1, "island_gap": 0, "min_island_size": 1,
+                 "temporal_consistency": 1, "island_distance": 0, "max_query_gap": 1}  # fmt: skip
+        for name, lo in least.items():
+            value = getattr(self, name)
+            if not isinstance(value, int) or value < lo:
+                raise PlaceError(f"loop detector: {name} must be an integer >= {lo}, got {value}")
+        for name in ("min_normalised_score", "min_prior_score"):
+            value = getattr(self, name)
+            if not (isinstance(value, int | float) and math.isfinite(value) and value >= 0):
+                raise PlaceError(f"loop detector: {name} must be finite and >= 0, got {value}")
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
