@@ -24,6 +24,7 @@ from __future__ import annotations
 import argparse
 import json
 import platform
+import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -173,10 +174,14 @@ def speed(n_keyframes: int, n_queries: int, views: int, seed: int) -> dict[str, 
         stages[q, :3] = np.diff(t) * 1e3
         stages[q, 3] = (t[-1] - t[0]) * 1e3
     names = ("transform", "query", "insert", "total")
+    post = det.database._postings  # the inverted index's two pools, as allocated
+    n = len(det.database)
     return {
         "keyframes": n_keyframes, "queries": n_queries, "pool_views": len(source),
         "descriptors_per_keyframe": float(np.mean([len(keyframe(source, rng)) for _ in range(100)])),
         "fill_s": fill_s, "words": vocab.n_words, "depth": vocab.depth,
+        "inverted_index_bytes_per_keyframe": (post.entries.nbytes + post.weights.nbytes) / n,
+        "postings_per_keyframe": post.end and float(post.size.sum()) / n,
         "median_ms": dict(zip(names, np.median(stages, axis=0).tolist(), strict=True)),
         "p95_ms": dict(zip(names, np.percentile(stages, 95, axis=0).tolist(), strict=True)),
     }  # fmt: skip
@@ -186,6 +191,7 @@ def _print_speed(s: dict[str, object]) -> None:
     med, p95 = s["median_ms"], s["p95_ms"]
     assert isinstance(med, dict) and isinstance(p95, dict)
     print(f"database of {s['keyframes']} keyframes ({s['descriptors_per_keyframe']:.0f} descriptors each), {s['queries']} pushes")  # fmt: skip
+    print(f"inverted index: {s['inverted_index_bytes_per_keyframe']:.0f} bytes a keyframe allocated ({s['postings_per_keyframe']:.0f} postings of 8 bytes)")  # fmt: skip
     print(f"{'stage':<10} {'median ms':>10} {'p95 ms':>10}")
     for k in med:
         print(f"{k:<10} {med[k]:>10.3f} {p95[k]:>10.3f}")
@@ -199,6 +205,11 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, default=5)
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results/place.json"))
     args = parser.parse_args()
+    for option, value, least in [("--keyframes", args.keyframes, 1), ("--queries", args.queries, 1),
+                                 ("--views", args.views, 2), ("--seeds", args.seeds, 0)]:  # fmt: skip
+        if value < least:
+            print(f"error: {option} must be at least {least}, got {value}", file=sys.stderr)
+            raise SystemExit(2)
     cv2.setNumThreads(1)
     s = speed(args.keyframes, args.queries, args.views, seed=0)
     _print_speed(s)

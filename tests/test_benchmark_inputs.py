@@ -29,3 +29,20 @@ def test_vio_benchmark_refuses_bad_input_in_one_line(args: list[str], message: s
     assert done.returncode == 2, done.stderr
     lines = done.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith(message), done.stderr
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--keyframes", "0"], "error: --keyframes must be at least 1, got 0"),
+        (["--views", "1"], "error: --views must be at least 2, got 1"),
+        (["--seeds", "-1"], "error: --seeds must be at least 0, got -1"),
+    ],
+)
+def test_place_benchmark_refuses_bad_input_in_one_line(args: list[str], message: str) -> None:
+    done = subprocess.run(
+        [sys.executable, str(ROOT / "benchmarks" / "place.py"), *args],
+        cwd=ROOT, capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert done.returncode == 2, done.stderr
+    assert done.stderr.strip().splitlines() == [message], done.stderr

@@ -122,3 +122,14 @@ def test_bad_input_is_one_line() -> None:
         LoopDetectorConfig(temporal_consistency=0)
     with pytest.raises(PlaceError, match="min_normalised_score must be finite"):
         LoopDetectorConfig(min_normalised_score=float("nan"))
+
+
+def test_a_keyframe_without_descriptors_is_added_and_matches_nothing() -> None:
+    det = LoopDetector(config=LoopDetectorConfig(exclude_recent=0, temporal_consistency=1))
+    strip = _strip(4)
+    rng = np.random.default_rng(4)
+    det.push(_view(strip, 0, rng))
+    empty = det.push(np.zeros((0, 32), np.uint8))
+    assert empty.entry == 1 and empty.status == "no_results" and len(det.database.bow(1)) == 0
+    after = det.push(_view(strip, 0, rng))  # its prior (the empty keyframe) scores 0
+    assert after.status == "low_prior_score" and after.results[0].entry == 0

@@ -35,6 +35,7 @@ __all__ = [
     "Vocabulary",
     "check_descriptors",
     "default_vocabulary",
+    "hamming",
     "l1_score",
     "load_vocabulary",
 ]
