@@ -14,6 +14,7 @@ __all__ = [
     "ExperimentError",
     "GeometryError",
     "IoError",
+    "PoseGraphError",
     "QuadnavError",
     "SampleError",
     "SimError",
@@ -68,3 +69,7 @@ class VisionError(QuadnavError):
 
 class VioError(QuadnavError):
     """Visual-inertial odometry was misconfigured or fed a camera or IMU it cannot use."""
+
+
+class PoseGraphError(QuadnavError):
+    """A pose graph was misconfigured or given a pose, an edge or a covariance it cannot use."""
