@@ -105,3 +105,36 @@ def test_bad_input_is_refused_and_counted() -> None:
         assert set(graph.keyframe_poses()) == {0, 1, 2, 3, 4, 7}
     with pytest.raises(PoseGraphError):
         BackgroundPoseGraph(PoseGraphConfig(kind="sim3"), executor="thread")
+
+
+def test_a_loop_joins_a_restarted_odometry_frame_to_the_map() -> None:
+    """The odometry restarts at keyframe 100 in a frame turned 0.5 rad and moved 3 m: until a
+    loop reaches it, its T_M_O is the identity; after, T_M_O maps it back onto the first frame."""
+    d = drifting_loop(
+        np.random.default_rng(3),
+        keyframes=N,
+        per_lap=100,
+        loops=4,
+        sigma_step_m=0.002,
+        sigma_step_yaw_rad=0.0004,
+    )
+    T_O1_O0 = Pose(Rotation.from_euler("z", 0.5), np.array([3.0, -1.0, 0.5]))
+    restart = d.odometry[100]
+    second = [T_O1_O0 @ restart @ restart.inverse() @ p for p in d.odometry[100:]]
+    with BackgroundPoseGraph(executor="thread") as graph:
+        for k in range(N):
+            graph.add_pose(
+                k, d.odometry[k] if k < 100 else second[k - 100], reset_counter=int(k >= 100)
+            )
+        np.testing.assert_array_equal(graph.T_M_O(1).matrix(), np.eye(4))
+        for e in d.loops:
+            assert graph.add_loop(e)
+        graph.wait(timeout_s=60)
+        T_M_O1 = graph.T_M_O(1)
+        out = graph.correct(_state(second[-1], reset_counter=1))
+    expected = T_O1_O0.inverse()  # the first frame is the map (its first keyframe held)
+    # within the drift of a lap (the map is the first frame as it drifted), against 3 m and 0.5 rad
+    np.testing.assert_allclose(T_M_O1.p_A_B, expected.p_A_B, atol=0.1)
+    assert (T_M_O1.R_A_B.inv() * expected.R_A_B).magnitude() < 0.02
+    np.testing.assert_allclose(out.T_W_B.p_A_B, d.truth[-1].p_A_B, atol=0.1)
+    assert out.reset_counter >= 1 + 1  # the restart's own and the correction's jump

@@ -20,7 +20,6 @@ work with ``if __name__ == "__main__":`` (Python's rule for any spawned process)
 from __future__ import annotations
 
 import dataclasses
-import math
 import multiprocessing
 import threading
 from collections import Counter
@@ -240,14 +239,12 @@ class BackgroundPoseGraph:
         newest keyframe solved, and a jump of the newest keyframe against the previous
         correction raising the reset counter."""
         rcs = self._reset_counters[:n]
-        for rc in set(rcs):
-            last = max(m for m in range(n) if rcs[m] == rc)
-            self._T_M_O[rc] = result.poses[last] @ self._poses[last].inverse()
         newest, rc = n - 1, rcs[n - 1]
-        before = (
-            self._latest.T_M_O if self._latest.odometry_reset_counter == rc else Pose.identity()
-        )
-        old, new = before @ self._poses[newest], result.poses[newest]
+        old = self._T_M_O.get(rc, Pose.identity()) @ self._poses[newest]  # the output until now
+        for frame in set(rcs):
+            last = max(m for m in range(n) if rcs[m] == frame)
+            self._T_M_O[frame] = result.poses[last] @ self._poses[last].inverse()
+        new = result.poses[newest]
         jump_m = float(np.linalg.norm(new.p_A_B - old.p_A_B))
         jump_rad = float(geodesic_angle_rad(old.R_A_B, new.R_A_B))
         jumped = jump_m > self.config.reset_jump_m or jump_rad > self.config.reset_jump_rad
@@ -259,6 +256,6 @@ class BackgroundPoseGraph:
             T_M_O=self._T_M_O[rc],
             reset_counter=self._latest.reset_counter + int(jumped),
             jump_m=jump_m,
-            jump_rad=jump_rad if math.isfinite(jump_rad) else math.pi,
+            jump_rad=jump_rad,
             result=result,
         )

@@ -104,7 +104,7 @@ def _finite_pose(p: Pose, name: str) -> None:
         raise PoseGraphError(f"{name} has a non-finite rotation")
 
 
-def checked_covariance(cov: object, name: str) -> FloatArray:
+def _checked_covariance(cov: object, name: str) -> FloatArray:
     """``cov`` as a finite, symmetric, positive-definite square matrix, or a one-line error."""
     c = np.asarray(cov, dtype=np.float64)
     if c.ndim != 2 or c.shape[0] != c.shape[1] or not np.isfinite(c).all():
@@ -138,7 +138,7 @@ class LoopEdge:
         if not (math.isfinite(self.scale) and self.scale > 0):
             raise PoseGraphError(f"LoopEdge.scale must be positive and finite, got {self.scale}")
         if self.cov is not None:
-            object.__setattr__(self, "cov", checked_covariance(self.cov, "LoopEdge.cov"))
+            object.__setattr__(self, "cov", _checked_covariance(self.cov, "LoopEdge.cov"))
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
