@@ -20,9 +20,9 @@ import platform
 import statistics
 import sys
 import time
+from importlib.metadata import version
 from pathlib import Path
 
-import gtsam
 import numpy as np
 
 from quadnav.posegraph import BackgroundPoseGraph, PoseGraphConfig, PoseGraphProblem, solve
@@ -114,7 +114,7 @@ def main() -> None:
     for ex, r in beside.items():
         print(f"{ex:<10} {r['solve_s']:>8.3f} {r['longest_pause_ms']:>17.1f} {r['loops_per_s']:>15.0f} {r['loops_per_s'] / n_alone:>9.2f}")  # fmt: skip
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps({"benchmark": "posegraph", "python": platform.python_version(), "gtsam": getattr(gtsam, "__version__", "?"),
+    args.out.write_text(json.dumps({"benchmark": "posegraph", "python": platform.python_version(), "gtsam": version("gtsam"),
                                     "keyframes": KEYFRAMES, "loops": LOOPS, "repeats": args.repeats, "graphs": results,
                                     "caller_alone_loops_per_s": n_alone, "caller_beside": beside}, indent=2) + "\n")  # fmt: skip
 
