@@ -13,7 +13,13 @@ from quadnav.posegraph.fourdof import (
     four_dof_factor,
     split_yaw,
 )
-from quadnav.posegraph.graphs import anchors, sequential_pairs, solve
+from quadnav.posegraph.graphs import (
+    anchors,
+    build_graph,
+    levenberg_marquardt,
+    sequential_pairs,
+    solve,
+)
 from quadnav.posegraph.types import (
     DriftCorrection,
     FourDofFactor,
@@ -39,8 +45,10 @@ __all__ = [
     "PoseGraphResult",
     "RobustKernel",
     "anchors",
+    "build_graph",
     "four_dof_error",
     "four_dof_factor",
+    "levenberg_marquardt",
     "sequential_pairs",
     "solve",
     "split_yaw",

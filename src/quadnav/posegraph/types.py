@@ -58,7 +58,7 @@ class PoseGraphConfig:
     Loop edges get the ``loop_*`` sigmas (or their own covariance) under the ``robust`` kernel
     (``robust_k`` in sigmas of the whitened residual). A 4-DoF graph's ``four_dof_factor``:
     ``custom`` (our factor of VINS-Mono's error) or ``native`` (GTSAM's ``Pose2`` and height
-    factors, the same error to first order, about 20 times faster; see :func:`solve`). The first keyframe of each connected
+    factors, the same error to first order, 4 to 6 times faster; see :func:`solve`). The first keyframe of each connected
     part of the graph is held fixed. ``max_iterations`` bounds Levenberg-Marquardt (VINS-Mono
     stops Ceres at 5). A published correction that moves the newest keyframe by more than
     ``reset_jump_m`` or turns it by more than ``reset_jump_rad`` raises the output's reset
