@@ -77,6 +77,7 @@ class BackgroundPoseGraph:
         self._t_ns: list[int] = []
         self._reset_counters: list[int] = []
         self._poses: list[Pose] = []
+        self._quats: list[np.ndarray] = []
         self._loops: list[LoopEdge] = []
         self._pending = False
         self._busy = False
@@ -100,7 +101,8 @@ class BackgroundPoseGraph:
         """Take keyframe ``index`` at odometry pose ``T_O_B``; refused and counted: a non-finite
         pose (``nonfinite_pose``), an index not above the last (``index_order``)."""
         with self._cv:
-            if not np.isfinite(T_O_B.R_A_B.as_quat()).all():
+            q = T_O_B.R_A_B.as_quat()
+            if not np.isfinite(q).all():
                 self._rejected["nonfinite_pose"] += 1
                 return False
             if self._indices and index <= self._indices[-1]:
@@ -111,6 +113,7 @@ class BackgroundPoseGraph:
             self._t_ns.append(int(t_ns))
             self._reset_counters.append(int(reset_counter))
             self._poses.append(T_O_B)
+            self._quats.append(q)
             return True
 
     def add_loop(self, edge: LoopEdge) -> bool:
@@ -193,10 +196,15 @@ class BackgroundPoseGraph:
 
     # ------------------------------------------------------------------ the optimiser's thread
     def _snapshot(self) -> tuple[PoseGraphProblem, int]:
-        problem = PoseGraphProblem.from_poses(
-            self._indices, self._poses, self._loops,
-            reset_counters=self._reset_counters, config=self.config,
-        )  # fmt: skip
+        """The graph as it stands (its inputs checked as they came): arrays, under the lock."""
+        problem = PoseGraphProblem(
+            indices=np.array(self._indices, np.int64),
+            reset_counters=np.array(self._reset_counters, np.int64),
+            positions=np.array([p.p_A_B for p in self._poses], np.float64),
+            quats_xyzw=np.array(self._quats, np.float64),
+            loops=tuple(self._loops),
+            config=self.config,
+        )
         return problem, len(self._indices)
 
     def _run(self) -> None:
