@@ -46,3 +46,12 @@ def test_place_benchmark_refuses_bad_input_in_one_line(args: list[str], message:
     )  # fmt: skip
     assert done.returncode == 2, done.stderr
     assert done.stderr.strip().splitlines() == [message], done.stderr
+
+
+def test_posegraph_benchmark_refuses_bad_repeats_in_one_line() -> None:
+    done = subprocess.run(
+        [sys.executable, str(ROOT / "benchmarks" / "posegraph.py"), "--repeats", "0"],
+        cwd=ROOT, capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert done.returncode == 2, done.stderr
+    assert done.stderr.strip() == "error: --repeats must be at least 1, got 0"

@@ -18,7 +18,7 @@ SRC = Path(__file__).resolve().parents[1] / "src" / "quadnav"
 # errors, config_model, units and lazy import nothing from quadnav; the root package only errors.
 _BASE = frozenset({"errors", "config_model", "units", "lazy", "__init__"})
 _CORE = _BASE | {"geometry", "messages", "vehicle", "rig", "odometry"}  # the base (and geometry)
-_IO = _CORE | {"sim", "estimation", "vision", "control", "vio", "slam", "place"}
+_IO = _CORE | {"sim", "estimation", "vision", "control", "posegraph", "vio", "slam", "place"}
 _EVAL = _IO | {"io"}
 _EXPERIMENTS = _EVAL | {"eval"}
 _CLI = _EXPERIMENTS | {"experiments"}
@@ -40,9 +40,11 @@ ALLOWED: dict[str, frozenset[str]] = {
     "estimation": _CORE,
     "vision": _CORE,
     "control": _CORE,
-    # Visual-inertial odometry and SLAM build on vision and estimation.
+    # Pose graphs (GTSAM): poses, keyframe records and the odometry's state, nothing above.
+    "posegraph": _CORE,
+    # Visual-inertial odometry and SLAM build on vision and estimation (SLAM on pose graphs too).
     "vio": _CORE | {"vision", "estimation"},
-    "slam": _CORE | {"vision", "estimation", "vio", "place"},
+    "slam": _CORE | {"vision", "estimation", "vio", "place", "posegraph"},
     # Place recognition (vocabulary, database, loop candidates) builds on vision alone: the
     # loop closer and the SLAM both use it.
     "place": _CORE | {"vision"},

@@ -36,6 +36,7 @@ API_PACKAGES = (
     "estimation",
     "vision",
     "control",
+    "posegraph",
     "vio",
     "place",
     "io",

@@ -15,6 +15,7 @@ __all__ = [
     "GeometryError",
     "IoError",
     "PlaceError",
+    "PoseGraphError",
     "QuadnavError",
     "SampleError",
     "SimError",
@@ -74,3 +75,7 @@ class VioError(QuadnavError):
 class PlaceError(QuadnavError):
     """Place recognition was given descriptors it cannot use, or a vocabulary file that is
     missing, corrupt or not a quadnav vocabulary."""
+
+
+class PoseGraphError(QuadnavError):
+    """A pose graph was misconfigured or given a pose, an edge or a covariance it cannot use."""

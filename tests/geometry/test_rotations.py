@@ -8,7 +8,7 @@ from scipy.spatial.transform import Rotation
 
 from quadnav.errors import GeometryError
 from quadnav.geometry import Pose, geodesic_angle_rad, quat_wxyz_to_xyzw, quat_xyzw_to_wxyz, rot_y
-from quadnav.geometry.rotations import compose_quats_xyzw, unit_quats_xyzw
+from quadnav.geometry.rotations import compose_quats_xyzw, rot_z, unit_quats_xyzw, yaw_of
 
 finite = st.floats(-100.0, 100.0, allow_nan=False)
 vec3 = st.tuples(finite, finite, finite).map(np.array)
@@ -122,3 +122,11 @@ def test_composed_quaternions_are_scipys_to_the_bit() -> None:
         assert np.array_equal(unit_quats_xyzw(a), Rotation.from_quat(a).as_quat())
     one = (Rotation.from_quat(a[0]) * Rotation.from_quat(b)).as_quat()
     assert np.array_equal(compose_quats_xyzw(unit_quats_xyzw(a[0]), unit_quats_xyzw(b)), one)
+
+
+@given(st.floats(-3.1, 3.1), st.floats(-1.5, 1.5), st.floats(-3.1, 3.1))
+@settings(max_examples=50, deadline=None)
+def test_rot_z_and_yaw_of_agree_with_scipy_zyx(yaw: float, pitch: float, roll: float) -> None:
+    R = Rotation.from_euler("ZYX", [yaw, pitch, roll])
+    np.testing.assert_allclose(rot_z(yaw), Rotation.from_euler("z", yaw).as_matrix(), atol=1e-12)
+    assert yaw_of(R.as_matrix()) == pytest.approx(yaw, abs=1e-9)

@@ -51,6 +51,7 @@ from quadnav.geometry.rotations import (
     rotation_matrix_xyzw,
     so3_exp,
     so3_log,
+    yaw_of,
 )
 from quadnav.messages import (
     FlowSample,
@@ -231,10 +232,6 @@ def world_yaw_jacobian(R: FloatArray) -> FloatArray:
     odometry message's attitude covariance carries to its yaw)."""
     den = R[0, 0] ** 2 + R[1, 0] ** 2
     return np.array([-R[2, 0] * R[0, 0] / den, -R[2, 0] * R[1, 0] / den, 1.0])
-
-
-def yaw_of(R: FloatArray) -> float:
-    return math.atan2(R[1, 0], R[0, 0])
 
 
 def yaw_jacobian(R: FloatArray) -> FloatArray:

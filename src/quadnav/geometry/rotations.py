@@ -25,8 +25,10 @@ __all__ = [
     "quat_wxyz_to_xyzw",
     "quat_xyzw_to_wxyz",
     "rot_y",
+    "rot_z",
     "rotation_matrix_xyzw",
     "unit_quats_xyzw",
+    "yaw_of",
 ]
 
 FloatArray = NDArray[np.float64]
@@ -97,6 +99,25 @@ def rot_y(angle_rad: ArrayLike) -> FloatArray:
     out[..., 2, 0] = -s
     out[..., 2, 2] = c
     return out
+
+
+def rot_z(angle_rad: ArrayLike) -> FloatArray:
+    """Rotation matrices about +z, shape (..., 3, 3): a yaw (ENU, counter-clockwise from above)."""
+    a = np.asarray(angle_rad, dtype=np.float64)
+    c, s = np.cos(a), np.sin(a)
+    out = np.zeros((*a.shape, 3, 3))
+    out[..., 0, 0] = c
+    out[..., 0, 1] = -s
+    out[..., 1, 0] = s
+    out[..., 1, 1] = c
+    out[..., 2, 2] = 1.0
+    return out
+
+
+def yaw_of(R: FloatArray) -> float:
+    """The yaw of a rotation matrix in the z-y-x (yaw, pitch, roll) Euler convention:
+    ``atan2(R10, R00)``, so that ``R = rot_z(yaw) @ R_tilt`` with ``R_tilt`` a pitch and a roll."""
+    return math.atan2(R[1, 0], R[0, 0])
 
 
 def rotation_matrix_xyzw(q: FloatArray) -> FloatArray:
