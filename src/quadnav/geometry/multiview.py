@@ -37,6 +37,7 @@ __all__ = [
     "kabsch",
     "nearest_rotation",
     "pnp",
+    "pnp_covariance",
     "projection",
     "reprojection_errors",
     "triangulate",
@@ -247,3 +248,41 @@ def pnp(
     if not (np.isfinite(rv).all() and np.isfinite(tv).all()):
         return None
     return PnpResult(T_W_C=Pose(Rotation.from_rotvec(rv), tv).inverse(), inliers=inl)
+
+
+def pnp_covariance(
+    T_W_C: Pose, points_W: FloatArray, xy: FloatArray, *, min_sigma: float = 0.0
+) -> FloatArray:
+    """The covariance (6x6) of a camera pose fitted to points and their normalised
+    observations: ``sigma**2 (J^T J)^-1`` with ``J`` the reprojection's Jacobian (central
+    differences) with respect to a perturbation of ``T_W_C`` in the world frame (rotation
+    ``dtheta``: ``R' = Exp(dtheta) R``; then position ``dp``: ``p' = p + dp``), and ``sigma`` the
+    residuals' own (over ``2N - 6`` degrees of freedom), at least ``min_sigma`` (normalised
+    units). A :class:`GeometryError` with fewer than 4 points or a degenerate configuration."""
+    X = np.asarray(points_W, dtype=np.float64).reshape(-1, 3)
+    x = _as_points(xy, "xy")
+    if len(X) != len(x) or len(X) < 4:
+        raise GeometryError(
+            f"pnp_covariance needs 4 or more points with observations, got {len(X)}"
+        )
+    R, p = T_W_C.R_A_B.as_matrix(), T_W_C.p_A_B
+
+    def project(R_: FloatArray, p_: FloatArray) -> FloatArray:
+        c = (X - p_) @ R_
+        return c[:, :2] / c[:, 2:3]
+
+    r = (project(R, p) - x).ravel()
+    h = 1e-6
+    J = np.empty((2 * len(X), 6))
+    for k in range(6):
+        d = np.zeros(6)
+        d[k] = h
+        plus = project(Rotation.from_rotvec(d[:3]).as_matrix() @ R, p + d[3:])
+        minus = project(Rotation.from_rotvec(-d[:3]).as_matrix() @ R, p - d[3:])
+        J[:, k] = ((plus - minus) / (2 * h)).ravel()
+    dof = max(2 * len(X) - 6, 1)
+    sigma2 = max(float(r @ r) / dof, min_sigma**2)
+    info = J.T @ J
+    if not np.isfinite(info).all() or np.linalg.cond(info) > 1e12:
+        raise GeometryError("pnp_covariance: the points do not fix the pose (degenerate)")
+    return np.asarray(sigma2 * np.linalg.inv(info), dtype=np.float64)
