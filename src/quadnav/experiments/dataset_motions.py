@@ -5,6 +5,12 @@ EuRoC's do, so a static initialization has something to work on), with the headi
 towards the direction of travel plus a sway, and roll and pitch those of a multirotor that
 makes the path's acceleration: the thrust axis along ``a + g e_z`` (differential flatness).
 The poses are sampled densely and go through the same spline as a recorded motion.
+
+``kind="laps"`` flies laps of the ellipse inscribed in the box instead, anticlockwise, the speed
+swinging and the height bobbing as a pilot's do: the first lap in the lower half of the box, the
+later ones in the upper half and looking ``lap_heading_deg`` further left (the change made over
+the last sixth of the first lap), so that a loop closer meets the first lap's places again from
+another height and heading.
 """
 
 from __future__ import annotations
@@ -41,6 +47,8 @@ class FlightPath:
     ramp_s: float = 3.0
     duration_s: float = 60.0
     seed: int = 0
+    kind: str = "lissajous"
+    lap_heading_deg: float = 25.0
 
     def __post_init__(self) -> None:
         if not (0.0 < self.mean_speed_m_s <= 10.0):
@@ -52,6 +60,8 @@ class FlightPath:
                 f"duration_s ({self.duration_s}) and ramp_s ({self.ramp_s}) must be > 0 and "
                 f"still_s ({self.still_s}) >= 0"
             )
+        if self.kind not in ("lissajous", "laps"):
+            raise ConfigError(f"a flight path's kind is lissajous or laps, got {self.kind!r}")
 
 
 def _smoothstep(x: FloatArray) -> FloatArray:
@@ -60,8 +70,51 @@ def _smoothstep(x: FloatArray) -> FloatArray:
     return np.asarray(x**4 * (35.0 - 84.0 * x + 70.0 * x**2 - 20.0 * x**3), dtype=np.float64)
 
 
+def _ramped_angle(tau: FloatArray, ramp_s: float) -> FloatArray:
+    """The integral of :func:`_smoothstep` over ``[0, tau / ramp_s]`` times ``ramp_s``: how far a
+    rate that ramps up from rest has turned by ``tau`` (``tau - ramp_s / 2`` after the ramp)."""
+    x = np.clip(tau / ramp_s, 0.0, 1.0)
+    inside = ramp_s * x**5 * (7.0 - 14.0 * x + 10.0 * x**2 - 2.5 * x**3)
+    return np.asarray(np.where(tau < ramp_s, inside, tau - 0.5 * ramp_s), dtype=np.float64)
+
+
+def _lap_change(turned: FloatArray) -> FloatArray:
+    """0 on the first lap, 1 from the second: the change made over the last sixth of the first."""
+    return _smoothstep((turned / (2.0 * math.pi) - 5.0 / 6.0) * 6.0)
+
+
+#: The laps' speed swings by this fraction over this period, and the height bobs by this fraction
+#: of the box's half-height over that one: a flight at constant speed round a circle keeps its
+#: acceleration constant in the body, which a monocular VIO cannot tell from a bias (its scale
+#: drifted to 0.65 on such laps of the hall); a pilot's laps are not that regular.
+LAP_SPEED_SWING, LAP_SPEED_PERIOD_S = 0.4, 5.0
+LAP_BOB, LAP_BOB_PERIOD_S = 0.3, 7.0
+
+
+def _lap_angle(path: FlightPath, t: FloatArray, rate: float) -> FloatArray:
+    """How far round the laps the vehicle is at ``t``: the rate ramps up from rest, then swings."""
+    tau = np.clip(t - path.still_s, 0.0, None)
+    w = 2.0 * math.pi / LAP_SPEED_PERIOD_S
+    swing = LAP_SPEED_SWING / w * np.sin(w * tau) * _smoothstep(tau / path.ramp_s - 1.0)
+    return np.asarray(rate * (_ramped_angle(tau, path.ramp_s) + swing), dtype=np.float64)
+
+
+def _laps(path: FlightPath, t: FloatArray, rate: float) -> FloatArray:
+    """Laps of the ellipse inscribed in the box (90 % of it), the first low, the next high."""
+    c, a = np.asarray(path.centre_m), np.asarray(path.half_extent_m)
+    turned = _lap_angle(path, t, rate)
+    tau = np.clip(t - path.still_s, 0.0, None)
+    bob = LAP_BOB * np.sin(2.0 * math.pi * tau / LAP_BOB_PERIOD_S) * _smoothstep(tau / path.ramp_s)
+    z = 0.7 * (-0.5 + _lap_change(turned)) + bob
+    ring = np.column_stack([np.cos(turned), np.sin(turned), z])
+    return np.asarray(c + 0.9 * a * ring, dtype=np.float64)
+
+
 def _lissajous(path: FlightPath, t: FloatArray, rate: float) -> FloatArray:
-    """Positions on the path at times ``t`` (s) with the frequency scale ``rate``."""
+    """Positions on the path at times ``t`` (s) with the frequency scale ``rate`` (the laps'
+    positions for ``kind="laps"``)."""
+    if path.kind == "laps":
+        return _laps(path, t, rate)
     rng = np.random.default_rng(path.seed)
     phase = rng.uniform(0.0, 2.0 * math.pi, 3)
     freq = np.array([1.0, 1.0 / 1.6, 1.0 / 2.3]) * rate
@@ -123,6 +176,9 @@ def _heading(path: FlightPath, t: FloatArray, rate: float) -> FloatArray:
     kernel = np.ones(k) / k
     heading = np.convolve(np.pad(heading, (k // 2, k - 1 - k // 2), mode="edge"), kernel, "valid")
     sway = np.radians(path.yaw_sway_deg) * np.sin(2.0 * math.pi * t / path.yaw_sway_period_s)
+    if path.kind == "laps":  # the later laps look another way
+        turned = _lap_angle(path, t, rate)
+        sway = sway + np.radians(path.lap_heading_deg) * _lap_change(turned)
     ramp = _smoothstep((t - path.still_s) / path.ramp_s)
     return np.asarray(heading[0] + ramp * (heading - heading[0] + sway), dtype=np.float64)
 

@@ -77,7 +77,8 @@ class SequenceSpec(ConfigModel):
     """What a sequence is made of: the world, the rig, the motion and the image conditions.
 
     ``motion`` is ``flight_path`` (the Lissajous flight of ``flight_*`` and ``mean_speed_m_s``,
-    standing still for ``still_s`` first, as EuRoC's sequences do),
+    standing still for ``still_s`` first, as EuRoC's sequences do), ``laps`` (laps of the box's
+    ellipse, the later ones higher and turned: see :mod:`quadnav.experiments.dataset_motions`),
     a trajectory file (TUM, EuRoC ground truth...) or a ``quadnav run``/``sim`` scenario name.
     ``exposure_s`` sets the motion blur (0: none), ``lighting`` the depth of the slow exposure
     changes (0: constant, 0.5: from half to one and a half), ``texture_poor`` the fraction of
@@ -137,6 +138,10 @@ class SequenceSpec(ConfigModel):
     description: str = ""
 
 
+#: The built-in motions through the flight box, by ``SequenceSpec.motion``: the kind of path.
+BUILT_IN_PATHS: Mapping[str, str] = {"flight_path": "lissajous", "laps": "laps"}
+
+
 def _seq(**kw: object) -> SequenceSpec:
     return SequenceSpec.model_validate(kw)
 
@@ -169,6 +174,19 @@ SEQUENCES: Mapping[str, SequenceSpec] = {
         yaw_sway_period_s=4.0, flight_centre_m=(0.0, 0.0, 2.0),
         flight_half_extent_m=(5.0, 3.5, 1.2), exposure_s=0.008, lighting=0.5, texture_poor=0.3,
         read_noise=3.0, description="the hall at 1.3 m/s, blur, dark spells, bare surfaces",
+    ),
+    "room_laps": _seq(
+        world="room", motion="laps", duration_s=42.0, mean_speed_m_s=0.6, yaw_sway_deg=10.0,
+        exposure_s=0.003, lighting=0.1,
+        description="two laps of the room at 0.6 m/s, the second 0.3 m higher and turned "
+        "25 degrees (loop closure)",
+    ),
+    "hall_laps": _seq(
+        world="hall", motion="laps", duration_s=75.0, mean_speed_m_s=0.8, yaw_sway_deg=10.0,
+        flight_centre_m=(0.0, 0.0, 2.0), flight_half_extent_m=(5.0, 3.5, 1.0), exposure_s=0.003,
+        lighting=0.1,
+        description="two laps of the hall at 0.8 m/s, the second 0.6 m higher and turned 25 "
+        "degrees (loop closure)",
     ),
     "yard": _seq(
         world="yard", duration_s=120.0, mean_speed_m_s=1.5, yaw_sway_deg=25.0,
@@ -343,8 +361,9 @@ def _motion(spec: SequenceSpec) -> SplineMotion:
         motion_scenarios,
     )
 
-    if spec.motion == "flight_path":
+    if spec.motion in BUILT_IN_PATHS:
         path = FlightPath(
+            kind=BUILT_IN_PATHS[spec.motion],
             centre_m=spec.flight_centre_m,
             half_extent_m=spec.flight_half_extent_m,
             mean_speed_m_s=spec.mean_speed_m_s,
@@ -362,7 +381,7 @@ def _motion(spec: SequenceSpec) -> SplineMotion:
         path_ = Path(spec.motion)
         if not path_.exists():
             raise ConfigError(
-                f"--motion {spec.motion!r} is neither flight_path, a scenario "
+                f"--motion {spec.motion!r} is neither flight_path, laps, a scenario "
                 f"({', '.join(motion_scenarios())}) nor a file"
             )
         return motion_from_file(path_, max_gap_s=spec.max_gap_s, knot_spacing_s=spec.knot_spacing_s)
@@ -377,7 +396,7 @@ def _vehicle_motion(spec: SequenceSpec) -> bool:
         return spec.motion_frame == "vehicle"
     from quadnav.experiments.motions import motion_scenarios
 
-    return spec.motion == "flight_path" or spec.motion in motion_scenarios()
+    return spec.motion in BUILT_IN_PATHS or spec.motion in motion_scenarios()
 
 
 def _rig_body_motion(motion: SplineMotion, T_V_B: Pose) -> SplineMotion:
