@@ -18,7 +18,17 @@ SRC = Path(__file__).resolve().parents[1] / "src" / "quadnav"
 # errors, config_model, units and lazy import nothing from quadnav; the root package only errors.
 _BASE = frozenset({"errors", "config_model", "units", "lazy", "__init__"})
 _CORE = _BASE | {"geometry", "messages", "vehicle", "rig", "odometry"}  # the base (and geometry)
-_IO = _CORE | {"sim", "estimation", "vision", "control", "posegraph", "vio", "slam", "place"}
+_IO = _CORE | {
+    "sim",
+    "estimation",
+    "vision",
+    "control",
+    "posegraph",
+    "vio",
+    "slam",
+    "place",
+    "loop",
+}
 _EVAL = _IO | {"io"}
 _EXPERIMENTS = _EVAL | {"eval"}
 _CLI = _EXPERIMENTS | {"experiments"}
@@ -48,6 +58,9 @@ ALLOWED: dict[str, frozenset[str]] = {
     # Place recognition (vocabulary, database, loop candidates) builds on vision alone: the
     # loop closer and the SLAM both use it.
     "place": _CORE | {"vision"},
+    # Loop closure and relocalization for any odometry: keyframes through the odometry
+    # interface, place recognition and a pose graph; no estimator in it.
+    "loop": _CORE | {"vision", "place", "posegraph"},
     "io": _IO,
     "eval": _EVAL,
     "experiments": _EXPERIMENTS,

@@ -39,6 +39,7 @@ API_PACKAGES = (
     "posegraph",
     "vio",
     "place",
+    "loop",
     "io",
     "eval",
     "experiments",

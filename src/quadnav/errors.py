@@ -14,6 +14,7 @@ __all__ = [
     "ExperimentError",
     "GeometryError",
     "IoError",
+    "LoopError",
     "PlaceError",
     "PoseGraphError",
     "QuadnavError",
@@ -79,3 +80,7 @@ class PlaceError(QuadnavError):
 
 class PoseGraphError(QuadnavError):
     """A pose graph was misconfigured or given a pose, an edge or a covariance it cannot use."""
+
+
+class LoopError(QuadnavError):
+    """Loop closure was misconfigured, or given a map it cannot use."""

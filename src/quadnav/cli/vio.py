@@ -65,6 +65,7 @@ def resolve_request(
     video_every: int = 1,
     calibration: Path | None = None,
     stereo: bool = False,
+    loop: bool = False,
 ) -> VioRequest:
     """The validated request (no dataset read, no folder made). ``--stereo`` uses the rig's
     second camera; a built-in sequence is then made with EuRoC's stereo rig unless ``--rig``
@@ -82,7 +83,7 @@ def resolve_request(
         sources=tuple(datasets), config=config,
         overrides=(*set_, "stereo=true") if stereo else tuple(set_), options=options,
         seed=seed, seeds=parse_seeds(seeds) if seeds is not None else None, rig=rig_name,
-        out=out, calibration=calibration,
+        out=out, calibration=calibration, loop=loop,
     )  # fmt: skip
     check_request(request)
     return request
@@ -98,7 +99,7 @@ def check_example(params: CommandParams) -> None:
         optional_param(params, "rig", str), param(params, "out", Path),
         video=param(params, "video", bool), video_every=param(params, "video_every", int),
         calibration=optional_param(params, "calibration", Path),
-        stereo=param(params, "stereo", bool),
+        stereo=param(params, "stereo", bool), loop=param(params, "loop", bool),
     )  # fmt: skip
 
 
@@ -109,6 +110,7 @@ EXAMPLES = (
     "quadnav vio ../shared/data/euroc_micro --set window_keyframes=8",
     "quadnav vio room_easy hall_easy --seeds 0-4 --out /tmp/runs",
     "quadnav vio room_medium --stereo --duration 30 --no-video",
+    "quadnav vio room_laps --stereo --loop --no-video",
 )
 
 
@@ -186,6 +188,14 @@ def vio_command(
     stereo: Annotated[
         bool, typer.Option("--stereo", help="stereo-inertial: the rig's second camera too")
     ] = False,
+    loop: Annotated[
+        bool,
+        typer.Option(
+            "--loop",
+            help="loop closure: recognise revisited places, verify them, correct the drift "
+            "with a 4-DoF pose graph",
+        ),
+    ] = False,
     out: OutOpt = Path("runs"),
     video: Annotated[
         bool, typer.Option("--video/--no-video", help="write tracks.mp4 of the features")
@@ -196,7 +206,7 @@ def vio_command(
 ) -> None:
     request = resolve_request(
         datasets, config, list(set_ or []), camera, start_s, duration_s, seed, seeds, rig, out,
-        video=video, video_every=video_every, calibration=calibration, stereo=stereo,
+        video=video, video_every=video_every, calibration=calibration, stereo=stereo, loop=loop,
     )  # fmt: skip
     if len(datasets) == 1 and seeds is None:
         with progress_bar("vio") as update:

@@ -583,7 +583,23 @@ def run_odometry(
         est, cov = _estimate(rec.states)
         write_tum(run_dir / "estimate.tum", est)
         write_tum(run_dir / "keyframes.tum", rec.keyframes.trajectory())
+        _loop_outputs(vio, rec, run_dir)
     return _finish(dataset, vio, rec, run_dir, est, cov, (t0, t1), opt, time.perf_counter() - start)
+
+
+def _loop_outputs(vio: VisualOdometry, rec: _Record, run_dir: Path) -> None:
+    """With loop closure: the keyframes as the final pose graph has them
+    (``keyframes_loop.tum``), its counts (``loop.json``); the graph's worker stopped."""
+    from quadnav.loop import LoopClosure
+
+    if not isinstance(vio, LoopClosure):
+        return
+    try:
+        vio.graph.wait(timeout_s=60.0)
+        write_tum(run_dir / "keyframes_loop.tum", vio.corrected_keyframes())
+    finally:
+        vio.close()
+    write_json(run_dir / "loop.json", vio.stats.as_json())
 
 
 def _finish(

@@ -195,6 +195,17 @@ _VIO = RunFolderKind(
         RunFile("report.html", "the report: metrics, plots, configuration"),
         RunFile("plots/*.png", "trajectory, error and timing plots"),
         RunFile("tracks.mp4", "the tracked features drawn (without --no-video)", False),
+        RunFile(
+            "keyframes_loop.tum",
+            "with --loop: the keyframes as the last pose graph has them (TUM)",
+            False,
+        ),
+        RunFile(
+            "loop.json",
+            "with --loop: keyframes, places recognised, loops accepted and their keyframes, "
+            "rejections by verification stage",
+            False,
+        ),
     ),
 )
 

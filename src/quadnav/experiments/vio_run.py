@@ -21,6 +21,7 @@ from quadnav.experiments.odometry_run import (
     run_odometry,
 )
 from quadnav.io.config import load_config
+from quadnav.odometry import VisualOdometry
 from quadnav.rig import Rig
 from quadnav.units import ns_to_s
 
@@ -97,7 +98,8 @@ def check_vio_rig(rig: Rig, source: str) -> None:
 class VioRequest:
     """What ``quadnav vio`` was asked: the datasets (folders, bags or built-in sequence names),
     the estimator's configuration file and ``--set`` overrides, the span and outputs, the seed
-    (``seeds`` for a study), the rig a built-in sequence is made with, the runs' folder."""
+    (``seeds`` for a study), the rig a built-in sequence is made with, the runs' folder, and
+    whether loop closure runs on the odometry (``loop``)."""
 
     sources: tuple[str, ...]
     config: Path | None = None
@@ -108,6 +110,7 @@ class VioRequest:
     rig: str = "euroc_mono"
     out: Path = Path("runs")
     calibration: Path | None = None
+    loop: bool = False
 
 
 def check_request(request: VioRequest) -> None:
@@ -152,7 +155,16 @@ def run_vio_source(
     check_vio_rig(rig, source)
     text = f"# dataset: {dataset.root}\n# rig: {rig.name}\n{dump_config(cfg)}"
     name = Path(source).name if Path(source).exists() else f"{source}_s{seed}"
+
+    def make(r: Rig) -> VisualOdometry:
+        vio = VioEstimator(r, cfg, camera=opt.camera)
+        if not request.loop:
+            return vio
+        from quadnav.loop import LoopClosure
+
+        return LoopClosure(vio, r.camera(opt.camera))
+
     return run_odometry(
-        dataset, rig, lambda r: VioEstimator(r, cfg, camera=opt.camera), out,
-        config_text=text, options=opt, name=name, progress=progress,
+        dataset, rig, make, out, config_text=text, options=opt, name=name,
+        progress=progress,
     )  # fmt: skip
