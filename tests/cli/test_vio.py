@@ -57,6 +57,25 @@ def test_the_sequence_is_made_once(first_run: tuple[Path, Path]) -> None:
     assert not (Path(result.stdout.strip().splitlines()[-1]) / "tracks.mp4").exists()
 
 
+def test_loop_closure_without_a_revisit_leaves_the_estimate_and_reports(
+    first_run: tuple[Path, Path],
+) -> None:
+    """``--loop`` on 4 s that revisit nothing: the same estimate to the last digit, every
+    keyframe in the pose graph's file, the counts in loop.json, the graph's worker stopped."""
+    out, plain = first_run
+    result = runner.invoke(app, ["vio", "room_easy", "--duration", "4", "--no-video", "--loop",
+                                 "--out", str(out)])  # fmt: skip
+    assert result.exit_code == 0, result.output
+    run_dir = Path(result.stdout.strip().splitlines()[-1])
+    assert read_run_status(run_dir) == "complete"
+    assert (run_dir / "estimate.tum").read_text() == (plain / "estimate.tum").read_text()
+    loop = json.loads((run_dir / "loop.json").read_text())
+    keyframes = (run_dir / "keyframes.tum").read_text().splitlines()
+    assert loop["keyframes"] == len(keyframes) > 3 and loop["accepted"] == 0
+    assert loop["undescribed"] == 0 and loop["graph_failures"] == 0
+    assert (run_dir / "keyframes_loop.tum").read_text().splitlines() == keyframes
+
+
 @pytest.mark.parametrize(
     ("args", "message"),
     [

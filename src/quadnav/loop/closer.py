@@ -80,7 +80,7 @@ class LoopConfig:
     detector: LoopDetectorConfig = field(default_factory=lambda: LOOP_DETECTOR)
     verification: VerificationConfig = field(default_factory=VerificationConfig)
     graph: PoseGraphConfig = field(default_factory=lambda: LOOP_GRAPH)
-    min_keyframes_between: int = 20
+    min_keyframes_between: int = 5
     extra_corners: int = 400
     local_map_keyframes: int = 5
     executor: Executor = "process"
@@ -112,6 +112,9 @@ class LoopStats:
     accepted: int = 0
     rejected: Counter[str] = field(default_factory=Counter)
     loops: list[tuple[int, int]] = field(default_factory=list)  # (old, new) keyframe indices
+    #: each loop's keyframe times (old, new) and measured pose of new in old (x, y, z, qx, qy,
+    #: qz, qw)
+    measured: list[tuple[int, int, list[float]]] = field(default_factory=list)
     optimizations: int = 0
     failures: int = 0
     last_error: str = ""
@@ -122,6 +125,9 @@ class LoopStats:
             "unreadable_images": self.unreadable,
             "recognised": self.recognised, "accepted": self.accepted,
             "rejected_by_stage": dict(self.rejected), "loops": [list(x) for x in self.loops],
+            "loop_measurements": [
+                {"t_old_ns": a, "t_new_ns": b, "T_old_new_xyz_qxyzw": T} for a, b, T in self.measured
+            ],
             "graph_optimizations": self.optimizations, "graph_failures": self.failures,
             "graph_last_error": self.last_error,
         }  # fmt: skip
@@ -281,6 +287,10 @@ class LoopClosure:
             return
         self.stats.accepted += 1
         self.stats.loops.append((old.index, rec.index))
+        T = v.loop.T_Bo_Bq
+        self.stats.measured.append(
+            (old.t_ns, rec.t_ns, [*T.p_A_B.tolist(), *T.R_A_B.as_quat().tolist()])
+        )
         self._last_loop = rec.index
         cov = v.loop.cov_4dof if self.config.graph.kind == "4dof" else None
         self.graph.add_loop(
