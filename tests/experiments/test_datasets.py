@@ -146,7 +146,7 @@ def test_bad_requests_are_one_line_errors(tmp_path: Path) -> None:
         sequence_spec("room", {"duration_s": float("inf")})
     with pytest.raises(ConfigError, match="lighting"):
         sequence_spec("room", overrides=["lighting=2"])
-    with pytest.raises(ConfigError, match="neither flight_path, a scenario"):
+    with pytest.raises(ConfigError, match="neither flight_path, laps, a scenario"):
         make_dataset(sequence_spec("room", {"motion": str(tmp_path / "none.txt")}), tmp_path / "x")
     assert not (tmp_path / "x" / "mav0").exists()
 

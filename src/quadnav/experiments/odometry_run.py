@@ -591,11 +591,12 @@ def _loop_outputs(vio: VisualOdometry, rec: _Record, run_dir: Path) -> None:
     """With loop closure: the keyframes as the final pose graph has them
     (``keyframes_loop.tum``), its counts (``loop.json``); the graph's worker stopped."""
     from quadnav.loop import LoopClosure
+    from quadnav.loop.closer import FINAL_WAIT_S
 
     if not isinstance(vio, LoopClosure):
         return
     try:
-        vio.graph.wait(timeout_s=60.0)
+        vio.graph.wait(timeout_s=FINAL_WAIT_S)
         write_tum(run_dir / "keyframes_loop.tum", vio.corrected_keyframes())
     finally:
         vio.close()

@@ -50,6 +50,9 @@ from quadnav.rig import CameraSpec
 
 FloatArray = NDArray[np.float64]
 
+#: The longest the last keyframes wait for the pose graph's solve (s): a run never hangs on it.
+FINAL_WAIT_S = 60.0
+
 __all__ = ["LOOP_GRAPH", "LoopClosure", "LoopConfig", "LoopStats", "local_map"]
 
 #: The pose graph of loop closure. A loop edge carries the covariance its PnP fixes (a few
@@ -206,7 +209,7 @@ class LoopClosure:
         if final:
             for rec in self.odometry.keyframes(final=True):
                 self._take(rec)
-            self.graph.wait()
+            self.graph.wait(timeout_s=FINAL_WAIT_S)
         out, self._out = self._out, []
         return out
 
