@@ -36,8 +36,7 @@ from numpy.typing import NDArray
 from quadnav.geometry.camera import PinholeCamera
 from quadnav.place import LoopDetector, LoopDetectorConfig, default_vocabulary, describe_image
 from quadnav.sim.render import RenderEffects, Renderer, look_at
-from quadnav.sim.scene import WORLDS, Scene, Texture, WorldPlan, box, tessellate
-from quadnav.sim.textures import make_texture
+from quadnav.sim.scene import WORLDS, WorldPlan
 
 CAMERA = PinholeCamera(
     K=np.array([[420.0, 0.0, 320.0], [0.0, 420.0, 240.0], [0.0, 0.0, 1.0]]),
@@ -51,19 +50,6 @@ RADIUS_M = 1.5
 #: Exclude a third of a lap (120 degrees back: no overlap with a 75-degree view).
 EXCLUDE = PER_LAP // 3
 CORRECT_DEG, FALSE_DEG = 15.0, 90.0
-
-
-def aliased_world(plan: WorldPlan) -> Scene:
-    """A room whose every surface, crates included, has the same brick texture."""
-    tex = Texture(make_texture("bricks", 3, 512), 0.004, "bricks:3")
-    f_lo, f_hi = np.asarray(plan.flight_min_m), np.asarray(plan.flight_max_m)
-    lo, hi = f_lo - np.array([1.5, 1.5, 0.5]), f_hi + np.array([1.5, 1.5, 1.0])
-    rng = np.random.default_rng(plan.seed)
-    faces = box(lo, hi, tex, inward=True, rng=rng, name="enclosure")
-    for i, (x, y) in enumerate([(lo[0] + 0.2, lo[1] + 0.2), (hi[0] - 1.0, hi[1] - 1.0)]):
-        c = np.array([x, y, lo[2]])
-        faces += box(c, c + np.array([0.8, 0.8, 0.9]), tex, rng=rng, name=f"crate {i}")
-    return Scene(tuple(c for p in faces for c in tessellate(p, 2.0)), "aliased")
 
 
 def lap_poses(lap: int) -> list[tuple[float, np.ndarray, np.ndarray]]:
@@ -85,7 +71,7 @@ def revisit_views(world: str, seed: int) -> tuple[NDArray[np.float64], list[NDAr
     path = np.array([eye for _, eye, _ in poses])
     plan = WorldPlan(flight_min_m=(-2.0, -2.0, 0.5), flight_max_m=(2.0, 2.0, 2.0), seed=seed,
                      path_W=path)  # fmt: skip
-    scene = aliased_world(plan) if world == "aliased" else WORLDS[world](plan)
+    scene = WORLDS[world](plan)
     renderer = Renderer(scene, CAMERA)
     effects, rng = (
         RenderEffects(read_noise_sigma=2.0, shot_noise_dn=0.3),

@@ -46,7 +46,9 @@ class _DriftingOdometry:
     """Two laps of a circle in a room whose walls carry points with descriptors; the odometry's
     poses and its landmarks drift by a random walk in position and yaw. One keyframe a frame."""
 
-    def __init__(self, seed: int, laps: int = 2, *, another_room: bool = False) -> None:
+    def __init__(
+        self, seed: int, laps: int = 2, *, another_room: bool = False, shift_m: float = 0.0
+    ) -> None:
         rng = np.random.default_rng(seed)
         self.rng = rng
         n = 1500
@@ -58,6 +60,8 @@ class _DriftingOdometry:
         self.desc_later = (
             rng.integers(0, 256, (n, 32), dtype=np.uint8) if another_room else self.desc
         )
+        #: the later laps in a copy of the room ``shift_m`` along x that looks the same
+        self.shift = np.array([shift_m, 0.0, 0.0])
         self.truth: list[Pose] = []
         self.odo: list[Pose] = []
         D = Pose.identity()
@@ -67,6 +71,8 @@ class _DriftingOdometry:
                 Rotation.from_euler("z", a + np.pi / 2),
                 np.array([np.cos(a), np.sin(a), 0.2 * (k >= PER_LAP)]),
             )
+            if k >= PER_LAP:
+                T = Pose(T.R_A_B, T.p_A_B + self.shift)
             step = Pose(Rotation.from_euler("z", rng.normal(0, 0.006)), rng.normal(0, 0.015, 3))
             D = step @ D if k else D
             self.truth.append(T)
@@ -77,7 +83,8 @@ class _DriftingOdometry:
     def record(self, k: int) -> KeyframeRecord:
         T, T_odo = self.truth[k], self.odo[k]
         D = T_odo @ T.inverse()
-        Xc = (T @ T_B_C).inverse() @ self.X
+        X_seen = self.X + (self.shift if k >= PER_LAP else 0.0)
+        Xc = (T @ T_B_C).inverse() @ X_seen
         vis = np.flatnonzero(Xc[:, 2] > 0.5)
         xy = Xc[vis, :2] / Xc[vis, 2:]
         inside = np.abs(xy).max(axis=1) < 0.7
@@ -89,7 +96,7 @@ class _DriftingOdometry:
             index=k, t_ns=k * 200_000_000, reset_counter=0, T_W_B=T_odo, cov_pose=np.eye(6) * 1e-4,
             camera="cam0", image=None, ids=vis.astype(np.int64), uv_px=xy * FOCAL_PX + 376, xy=xy,
             descriptors=_flip((self.desc if k < PER_LAP else self.desc_later)[vis], 4, self.rng), described=np.ones(len(vis), bool),
-            landmark_ids=vis.astype(np.int64), landmarks_W=D @ self.X[vis],
+            landmark_ids=vis.astype(np.int64), landmarks_W=D @ X_seen[vis],
         )  # fmt: skip
 
     # -- the odometry interface ------------------------------------------------------------
@@ -208,3 +215,21 @@ def test_the_local_map_joins_the_neighbours_landmarks_once_seen_from_the_old_cam
     other = dataclasses.replace(recs[0], reset_counter=1)
     alone = local_map(old, [other, old], T_B_C)
     assert set(alone.landmark_ids.tolist()) == own
+
+
+def test_a_look_alike_room_metres_away_passes_the_geometry_but_not_the_drift_check() -> None:
+    """Perceptual aliasing: the second lap flies an identical room 3 m along; the pictures and
+    their geometry agree with the first lap's, but the loop would move the odometry by metres
+    after a few of flight."""
+    odo = _DriftingOdometry(6, shift_m=3.0)
+    loop = LoopClosure(odo, CAMERA, config=LOOP)
+    try:
+        for k in range(len(odo.truth)):
+            loop.push(_frame(k))
+        loop.keyframes(final=True)
+        across = [(o, n) for o, n in loop.stats.loops if (o < PER_LAP) != (n < PER_LAP)]
+        assert not across, loop.stats
+        assert loop.stats.rejected["drift"] >= 1, loop.stats
+        assert any("drift" in e.detail for e in loop.events if e.kind == "loop_rejected")
+    finally:
+        loop.close()

@@ -20,6 +20,7 @@ PLANS = {
     "hall": WorldPlan(flight_min_m=(-4, -3, 0.5), flight_max_m=(4, 3, 3.0), seed=3),
     "yard": WorldPlan(flight_min_m=(-4, -4, 1.0), flight_max_m=(4, 4, 4.0), seed=3),
     "marker_floor": WorldPlan(flight_min_m=(-1, -1, 0.5), flight_max_m=(1, 1, 2.0), seed=3),
+    "aliased": WorldPlan(flight_min_m=(-1.5, -1.5, 0.4), flight_max_m=(1.5, 1.5, 1.8), seed=3),
 }
 WIDE = PinholeCamera(np.array([[40.0, 0, 39.5], [0, 40.0, 29.5], [0, 0, 1]]), np.zeros(0), 80, 60)
 

@@ -76,7 +76,10 @@ class LoopConfig:
     keyframes between two loops closed (``min_keyframes_between``), the corners of its own a
     keyframe's image adds to its tracked ones for recognition and verification
     (``extra_corners``: VINS-Mono adds 500; 0: none), the keyframes either side of a recognised
-    one whose landmarks it is verified against (``local_map_keyframes``), the pose graph (4-DoF by default, loop
+    one whose landmarks it is verified against (``local_map_keyframes``), the most drift a loop
+    may say the odometry made since the old keyframe (``max_drift_m`` plus ``max_drift_fraction``
+    of the path flown in between: a place that only looks like the old one, in a world of
+    repeated textures, passes the geometric checks with a correction of metres), the pose graph (4-DoF by default, loop
     edges held to ``graph``'s loop sigmas) and where it solves (``executor``: a worker process
     by default, GTSAM holding the GIL while it solves)."""
 
@@ -86,6 +89,8 @@ class LoopConfig:
     min_keyframes_between: int = 5
     extra_corners: int = 400
     local_map_keyframes: int = 5
+    max_drift_fraction: float = 0.1
+    max_drift_m: float = 0.3
     executor: Executor = "process"
 
     def __post_init__(self) -> None:
@@ -96,6 +101,11 @@ class LoopConfig:
         if not 0 <= self.local_map_keyframes <= 100:
             raise LoopError(
                 f"LoopConfig.local_map_keyframes must be 0-100, got {self.local_map_keyframes}"
+            )
+        if not (0.0 <= self.max_drift_fraction <= 10.0 and 0.0 <= self.max_drift_m <= 1e4):
+            raise LoopError(
+                "LoopConfig.max_drift_fraction must be 0-10 and max_drift_m 0-10000, got "
+                f"{self.max_drift_fraction} and {self.max_drift_m}"
             )
         if not 0 <= self.extra_corners <= 5000:
             raise LoopError(f"LoopConfig.extra_corners must be 0-5000, got {self.extra_corners}")
@@ -191,6 +201,8 @@ class LoopClosure:
         self._odometry_events = 0  # how many of the odometry's events are in ``_events``
         self._last_loop = -(10**9)
         self._t_of: dict[int, int] = {}  # keyframe index -> its time
+        self._path_m: dict[int, float] = {}  # keyframe index -> path flown since the first
+        self._last_kf: KeyframeRecord | None = None
 
     # -- the odometry interface -------------------------------------------------------------
     @property
@@ -260,6 +272,7 @@ class LoopClosure:
     def _take(self, rec: KeyframeRecord) -> None:
         self._out.append(rec)
         self._t_of[rec.index] = rec.t_ns
+        self._note_path(rec)
         self.stats.keyframes += 1
         self.graph.add_keyframe(rec)
         query = self._described(rec)
@@ -288,6 +301,11 @@ class LoopClosure:
             self._event(rec, "loop_rejected", f"keyframe {old.index}: {v.stage} "
                         f"({v.n_matches} matches, {v.n_fundamental} F, {v.n_pnp} PnP inliers)")  # fmt: skip
             return
+        drift = self._implied_drift(rec, old, v.loop.T_Wo_Bq)
+        if drift is not None:
+            self.stats.rejected["drift"] += 1
+            self._event(rec, "loop_rejected", f"keyframe {old.index}: drift ({drift})")
+            return
         self.stats.accepted += 1
         self.stats.loops.append((old.index, rec.index))
         T = v.loop.T_Bo_Bq
@@ -301,6 +319,27 @@ class LoopClosure:
         )
         self._event(rec, "loop", f"keyframe {old.index}: {v.n_pnp} inliers, yaw "
                     f"{v.yaw_deg:.1f} deg, {v.translation_m:.2f} m apart")  # fmt: skip
+
+    def _note_path(self, rec: KeyframeRecord) -> None:
+        last = self._last_kf
+        step = 0.0
+        if last is not None and last.reset_counter == rec.reset_counter:
+            step = float(np.linalg.norm(rec.T_W_B.p_A_B - last.T_W_B.p_A_B))
+        before = self._path_m.get(last.index, 0.0) if last is not None else 0.0
+        self._path_m[rec.index] = before + step
+        self._last_kf = rec
+
+    def _implied_drift(self, rec: KeyframeRecord, old: KeyframeRecord, T_Wo_Bq: Pose) -> str | None:
+        """Why a verified loop implies more drift than the odometry can have made since the old
+        keyframe, or None (also across a reset, where the odometry's frames are unrelated)."""
+        if rec.reset_counter != old.reset_counter:
+            return None
+        moved = float(np.linalg.norm(T_Wo_Bq.p_A_B - rec.T_W_B.p_A_B))
+        flown = self._path_m.get(rec.index, 0.0) - self._path_m.get(old.index, 0.0)
+        allowed = self.config.max_drift_m + self.config.max_drift_fraction * max(flown, 0.0)
+        if moved <= allowed:
+            return None
+        return f"{moved:.2f} m after {flown:.1f} m flown, at most {allowed:.2f} m"
 
     def _described(self, rec: KeyframeRecord) -> KeyframeRecord:
         """The keyframe with ``extra_corners`` corners of its own image described too (ids

@@ -629,6 +629,21 @@ def build_marker_floor(plan: WorldPlan) -> Scene:
     return add_markers(Scene(tuple(enc), "marker_floor"), markers)
 
 
+def build_aliased(plan: WorldPlan) -> Scene:
+    """Perceptual aliasing: a room whose every surface, two crates included (outside the
+    flight box), has the same brick texture, so that different places look alike to a place
+    recogniser (a loop closer must not close a loop on looks alone)."""
+    tex = Texture(make_texture("bricks", 3, 512), 0.004, "bricks:3")
+    f_lo, f_hi = np.asarray(plan.flight_min_m), np.asarray(plan.flight_max_m)
+    lo, hi = f_lo - np.array([1.5, 1.5, 0.5]), f_hi + np.array([1.5, 1.5, 1.0])
+    rng = np.random.default_rng(plan.seed)
+    faces = box(lo, hi, tex, inward=True, rng=rng, name="enclosure")
+    for i, (x, y) in enumerate([(lo[0] + 0.2, lo[1] + 0.2), (hi[0] - 1.0, hi[1] - 1.0)]):
+        c = np.array([x, y, lo[2]])
+        faces += box(c, c + np.array([0.8, 0.8, 0.9]), tex, rng=rng, name=f"crate {i}")
+    return Scene(tuple(c for p in faces for c in tessellate(p, 2.0)), "aliased")
+
+
 #: The built-in worlds by name: each builds a :class:`Scene` from a :class:`WorldPlan`.
 WORLDS: Mapping[str, Callable[[WorldPlan], Scene]] = MappingProxyType(
     {
@@ -636,5 +651,6 @@ WORLDS: Mapping[str, Callable[[WorldPlan], Scene]] = MappingProxyType(
         "hall": build_hall,
         "yard": build_yard,
         "marker_floor": build_marker_floor,
+        "aliased": build_aliased,
     }
 )
