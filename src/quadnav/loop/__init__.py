@@ -2,6 +2,13 @@
 from the odometry interface, place recognition (:mod:`quadnav.place`) and a pose graph
 (:mod:`quadnav.posegraph`)."""
 
-from quadnav.loop.closer import LOOP_GRAPH, LoopClosure, LoopConfig, LoopStats, local_map
+from quadnav.loop.closer import (
+    LOOP_GRAPH,
+    LoopClosure,
+    LoopConfig,
+    LoopStats,
+    PlaceEvent,
+    local_map,
+)
 
-__all__ = ["LOOP_GRAPH", "LoopClosure", "LoopConfig", "LoopStats", "local_map"]
+__all__ = ["LOOP_GRAPH", "LoopClosure", "LoopConfig", "LoopStats", "PlaceEvent", "local_map"]

@@ -53,7 +53,7 @@ FloatArray = NDArray[np.float64]
 #: The longest the last keyframes wait for the pose graph's solve (s): a run never hangs on it.
 FINAL_WAIT_S = 60.0
 
-__all__ = ["LOOP_GRAPH", "LoopClosure", "LoopConfig", "LoopStats", "local_map"]
+__all__ = ["LOOP_GRAPH", "LoopClosure", "LoopConfig", "LoopStats", "PlaceEvent", "local_map"]
 
 #: The pose graph of loop closure. A loop edge carries the covariance its PnP fixes (a few
 #: centimetres and a degree on 25-50 inliers); the odometry between keyframes is held to 5 mm
@@ -113,10 +113,38 @@ class LoopConfig:
             raise LoopError(f"LoopConfig.executor must be process or thread, got {self.executor!r}")
 
 
+@dataclass(frozen=True, slots=True, kw_only=True)
+class PlaceEvent:
+    """One recognised place: the keyframes (``old``, ``new``: indices and times), what each
+    verification step kept, the ``stage`` it stopped at (``accepted``, a verification stage, or
+    ``drift``), and for an accepted loop the measured pose of new in old, ``T_old_new``
+    (x, y, z, qx, qy, qz, qw), and its 4-DoF sigmas (m, m, m, rad)."""
+
+    old: int
+    new: int
+    t_old_ns: int
+    t_new_ns: int
+    stage: str
+    n_matches: int
+    n_fundamental: int
+    n_pnp: int
+    T_old_new: tuple[float, ...] | None = None
+    sigma_4dof: tuple[float, ...] | None = None
+
+    def as_json(self) -> dict[str, object]:
+        return {
+            "old": self.old, "new": self.new, "t_old_ns": self.t_old_ns, "t_new_ns": self.t_new_ns,
+            "stage": self.stage, "matches": self.n_matches, "fundamental_inliers": self.n_fundamental,
+            "pnp_inliers": self.n_pnp,
+            "T_old_new_xyz_qxyzw": None if self.T_old_new is None else list(self.T_old_new),
+            "sigma_4dof": None if self.sigma_4dof is None else list(self.sigma_4dof),
+        }  # fmt: skip
+
+
 @dataclass(slots=True)
 class LoopStats:
     """Keyframes seen, places recognised, loops verified and accepted, and the rejections by
-    verification stage."""
+    verification stage; each recognised place as a :class:`PlaceEvent`."""
 
     keyframes: int = 0
     undescribed: int = 0
@@ -124,13 +152,15 @@ class LoopStats:
     recognised: int = 0
     accepted: int = 0
     rejected: Counter[str] = field(default_factory=Counter)
-    loops: list[tuple[int, int]] = field(default_factory=list)  # (old, new) keyframe indices
-    #: each loop's keyframe times (old, new) and measured pose of new in old (x, y, z, qx, qy,
-    #: qz, qw)
-    measured: list[tuple[int, int, list[float]]] = field(default_factory=list)
+    places: list[PlaceEvent] = field(default_factory=list)
     optimizations: int = 0
     failures: int = 0
     last_error: str = ""
+
+    @property
+    def loops(self) -> list[tuple[int, int]]:
+        """The accepted loops' keyframes (old, new)."""
+        return [(e.old, e.new) for e in self.places if e.stage == "accepted"]
 
     def as_json(self) -> dict[str, object]:
         return {
@@ -138,9 +168,7 @@ class LoopStats:
             "unreadable_images": self.unreadable,
             "recognised": self.recognised, "accepted": self.accepted,
             "rejected_by_stage": dict(self.rejected), "loops": [list(x) for x in self.loops],
-            "loop_measurements": [
-                {"t_old_ns": a, "t_new_ns": b, "T_old_new_xyz_qxyzw": T} for a, b, T in self.measured
-            ],
+            "places": [e.as_json() for e in self.places],
             "graph_optimizations": self.optimizations, "graph_failures": self.failures,
             "graph_last_error": self.last_error,
         }  # fmt: skip
@@ -296,22 +324,24 @@ class LoopClosure:
             query, old_map, focal_px=self._focal_px, T_B_C=self._T_B_C,
             config=self.config.verification,
         )  # fmt: skip
+        place = PlaceEvent(old=old.index, new=rec.index, t_old_ns=old.t_ns, t_new_ns=rec.t_ns,
+                           stage=v.stage, n_matches=v.n_matches, n_fundamental=v.n_fundamental,
+                           n_pnp=v.n_pnp)  # fmt: skip
         if v.loop is None:
-            self.stats.rejected[v.stage] += 1
-            self._event(rec, "loop_rejected", f"keyframe {old.index}: {v.stage} "
-                        f"({v.n_matches} matches, {v.n_fundamental} F, {v.n_pnp} PnP inliers)")  # fmt: skip
+            self._reject(rec, place, f"{v.stage} ({v.n_matches} matches, {v.n_fundamental} F, "
+                         f"{v.n_pnp} PnP inliers)")  # fmt: skip
             return
         drift = self._implied_drift(rec, old, v.loop.T_Wo_Bq)
         if drift is not None:
-            self.stats.rejected["drift"] += 1
-            self._event(rec, "loop_rejected", f"keyframe {old.index}: drift ({drift})")
+            self._reject(rec, replace(place, stage="drift"), f"drift ({drift})")
             return
         self.stats.accepted += 1
-        self.stats.loops.append((old.index, rec.index))
         T = v.loop.T_Bo_Bq
-        self.stats.measured.append(
-            (old.t_ns, rec.t_ns, [*T.p_A_B.tolist(), *T.R_A_B.as_quat().tolist()])
-        )
+        sigma = np.sqrt(np.clip(np.diag(v.loop.cov_4dof), 0.0, None))
+        self.stats.places.append(replace(
+            place, T_old_new=(*T.p_A_B.tolist(), *T.R_A_B.as_quat().tolist()),
+            sigma_4dof=tuple(sigma.tolist()),
+        ))  # fmt: skip
         self._last_loop = rec.index
         cov = v.loop.cov_4dof if self.config.graph.kind == "4dof" else None
         self.graph.add_loop(
@@ -319,6 +349,11 @@ class LoopClosure:
         )
         self._event(rec, "loop", f"keyframe {old.index}: {v.n_pnp} inliers, yaw "
                     f"{v.yaw_deg:.1f} deg, {v.translation_m:.2f} m apart")  # fmt: skip
+
+    def _reject(self, rec: KeyframeRecord, place: PlaceEvent, why: str) -> None:
+        self.stats.rejected[place.stage] += 1
+        self.stats.places.append(place)
+        self._event(rec, "loop_rejected", f"keyframe {place.old}: {why}")
 
     def _note_path(self, rec: KeyframeRecord) -> None:
         last = self._last_kf
