@@ -225,6 +225,9 @@ class VisualOdometry(Protocol):
     # the keyframes finished since the last call, each once; ``final``: the window's too
     def keyframes(self, *, final: bool = False) -> Sequence[KeyframeRecord]: ...
 
+    # the newest keyframe as it stands, provisional (``keyframes`` hands it out once final)
+    def newest_keyframe(self) -> KeyframeRecord | None: ...
+
     @property
     def events(self) -> tuple[OdometryEvent, ...]: ...
 

@@ -76,6 +76,30 @@ def test_loop_closure_without_a_revisit_leaves_the_estimate_and_reports(
     assert (run_dir / "keyframes_loop.tum").read_text().splitlines() == keyframes
 
 
+def test_a_map_saved_by_one_run_is_where_the_next_reports(
+    first_run: tuple[Path, Path], tmp_path: Path
+) -> None:
+    """``--save-map`` writes the run's keyframes; ``--load-map`` starts the next run on them:
+    over the same images it is recognised within its first keyframes and joined."""
+    out, _ = first_run
+    folder = tmp_path / "map"
+    base = ["vio", "room_easy", "--duration", "4", "--no-video", "--stereo", "--out", str(out)]
+    result = runner.invoke(app, [*base, "--save-map", str(folder)])
+    assert result.exit_code == 0, result.output
+    saved = json.loads((folder / "map.json").read_text())
+    first = Path(result.stdout.strip().splitlines()[-1])
+    assert (
+        json.loads((first / "loop.json").read_text())["map_saved_keyframes"]
+        == saved["keyframes"]
+        > 3
+    )
+    result = runner.invoke(app, [*base, "--load-map", str(folder)])
+    assert result.exit_code == 0, result.output
+    second = json.loads((Path(result.stdout.strip().splitlines()[-1]) / "loop.json").read_text())
+    assert second["map_keyframes"] == saved["keyframes"]
+    assert second["joins"] and second["joins"][0]["how"] == "relocalized", second["joins"]
+
+
 @pytest.mark.parametrize(
     ("args", "message"),
     [
@@ -89,6 +113,10 @@ def test_loop_closure_without_a_revisit_leaves_the_estimate_and_reports(
         (["room_easy", "--rig", "nope"], "--rig"),
         (["room_easy", "--config", "/no/vio.yaml"], "--config /no/vio.yaml"),
         (["room_easy", "--calibration", "/no/cam.yaml"], "--calibration /no/cam.yaml"),
+        (["room_easy", "--load-map", "/no/map"], "--load-map /no/map: no such folder"),
+        (["room_easy", "--seeds", "0-1", "--save-map", "/no/map"], "one run saves one map"),
+        (["room_easy", "--blackout", "20"], "--blackout '20': give START:SECONDS"),
+        (["room_easy", "--blackout", "20:-3"], "--blackout's length"),
     ],
 )
 def test_bad_input_is_one_line_naming_the_option(

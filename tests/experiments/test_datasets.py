@@ -253,3 +253,19 @@ def test_a_rendered_dataset_can_be_smaller() -> None:
     assert half.frames[0].image().shape == (small.height, small.width)
     with pytest.raises(ConfigError, match=r"scale must be from 0\.25 to 1, got 2"):
         rendered_dataset(spec, scale=2.0)
+
+
+def test_a_second_flight_in_the_world_of_another_is_in_the_same_world() -> None:
+    """``world_seed``: the flight of seed 7 in the world of seed 2 sees seed 2's walls,
+    furniture and textures, not those of its own seed."""
+    from quadnav.experiments.datasets import _motion, _span, _world
+
+    def scene(seed: int, world_seed: int | None) -> list[tuple[str, bytes]]:
+        spec = SEQUENCES["room_laps"].model_copy(update={"seed": seed, "world_seed": world_seed})
+        motion = _motion(spec)
+        made = _world(spec, motion, *_span(spec, motion))
+        return [(p.texture.name, np.round(p.points_W, 9).tobytes()) for p in made.polygons]
+
+    first = scene(2, None)
+    assert scene(7, 2) == first
+    assert scene(7, None) != first

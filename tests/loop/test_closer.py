@@ -4,125 +4,16 @@ closed, and the corrected keyframes are far nearer the truth than the odometry's
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 
 import numpy as np
 import pytest
-from scipy.spatial.transform import Rotation
 
-from quadnav.geometry.camera import PinholeCamera
 from quadnav.geometry.rotations import Pose
 from quadnav.loop import LoopClosure, LoopConfig
-from quadnav.messages import ImageFrame, ImuSample
-from quadnav.odometry import (
-    FrameFeatures,
-    KeyframeRecord,
-    OdometryEvent,
-    OdometryState,
-    StageTiming,
-)
+from quadnav.messages import ImageFrame
 from quadnav.posegraph import PoseGraphConfig
-from quadnav.rig import CameraSpec
-
-FOCAL_PX = 460.0
-T_B_C = Pose(Rotation.from_matrix([[0, 0, 1], [-1, 0, 0], [0, -1, 0]]), np.array([0.1, 0, 0]))
-PER_LAP = 40
-CAMERA = CameraSpec(
-    name="cam0",
-    camera=PinholeCamera(K=np.array([[FOCAL_PX, 0, 376], [0, FOCAL_PX, 240], [0, 0, 1.0]]),
-                         dist=np.zeros(4), width=752, height=480),
-    T_B_C=T_B_C, rate_hz=5.0,
-)  # fmt: skip
-
-
-def _flip(desc: np.ndarray, n_bits: int, rng: np.random.Generator) -> np.ndarray:
-    bits = np.unpackbits(desc, axis=1)
-    for row in bits:
-        row[rng.choice(256, n_bits, replace=False)] ^= 1
-    return np.packbits(bits, axis=1)
-
-
-class _DriftingOdometry:
-    """Two laps of a circle in a room whose walls carry points with descriptors; the odometry's
-    poses and its landmarks drift by a random walk in position and yaw. One keyframe a frame."""
-
-    def __init__(
-        self, seed: int, laps: int = 2, *, another_room: bool = False, shift_m: float = 0.0
-    ) -> None:
-        rng = np.random.default_rng(seed)
-        self.rng = rng
-        n = 1500
-        ang, z = rng.uniform(0, 2 * np.pi, n), rng.uniform(-1.0, 2.5, n)
-        r = rng.uniform(4.5, 6.0, n)
-        self.X = np.column_stack([r * np.cos(ang), r * np.sin(ang), z])
-        self.desc = rng.integers(0, 256, (n, 32), dtype=np.uint8)
-        #: the later laps in a room of the same shape whose walls look otherwise
-        self.desc_later = (
-            rng.integers(0, 256, (n, 32), dtype=np.uint8) if another_room else self.desc
-        )
-        #: the later laps in a copy of the room ``shift_m`` along x that looks the same
-        self.shift = np.array([shift_m, 0.0, 0.0])
-        self.truth: list[Pose] = []
-        self.odo: list[Pose] = []
-        D = Pose.identity()
-        for k in range(laps * PER_LAP):
-            a = 2 * np.pi * k / PER_LAP
-            T = Pose(
-                Rotation.from_euler("z", a + np.pi / 2),
-                np.array([np.cos(a), np.sin(a), 0.2 * (k >= PER_LAP)]),
-            )
-            if k >= PER_LAP:
-                T = Pose(T.R_A_B, T.p_A_B + self.shift)
-            step = Pose(Rotation.from_euler("z", rng.normal(0, 0.006)), rng.normal(0, 0.015, 3))
-            D = step @ D if k else D
-            self.truth.append(T)
-            self.odo.append(D @ T)
-        self._k = 0
-        self._pending: list[KeyframeRecord] = []
-
-    def record(self, k: int) -> KeyframeRecord:
-        T, T_odo = self.truth[k], self.odo[k]
-        D = T_odo @ T.inverse()
-        X_seen = self.X + (self.shift if k >= PER_LAP else 0.0)
-        Xc = (T @ T_B_C).inverse() @ X_seen
-        vis = np.flatnonzero(Xc[:, 2] > 0.5)
-        xy = Xc[vis, :2] / Xc[vis, 2:]
-        inside = np.abs(xy).max(axis=1) < 0.7
-        vis, xy = (
-            vis[inside],
-            xy[inside] + self.rng.normal(0, 0.7 / FOCAL_PX, (int(inside.sum()), 2)),
-        )
-        return KeyframeRecord(
-            index=k, t_ns=k * 200_000_000, reset_counter=0, T_W_B=T_odo, cov_pose=np.eye(6) * 1e-4,
-            camera="cam0", image=None, ids=vis.astype(np.int64), uv_px=xy * FOCAL_PX + 376, xy=xy,
-            descriptors=_flip((self.desc if k < PER_LAP else self.desc_later)[vis], 4, self.rng), described=np.ones(len(vis), bool),
-            landmark_ids=vis.astype(np.int64), landmarks_W=D @ X_seen[vis],
-        )  # fmt: skip
-
-    # -- the odometry interface ------------------------------------------------------------
-    cameras = ("cam0",)
-    events: tuple[OdometryEvent, ...] = ()
-    last_features: FrameFeatures | None = None
-    rejected: Mapping[str, int] = {}
-
-    def push(self, sample: ImuSample | ImageFrame) -> OdometryState | None:
-        k = self._k
-        self._k += 1
-        if k >= len(self.truth):
-            return None
-        self._pending.append(self.record(k))
-        return OdometryState(
-            t_ns=k * 200_000_000, T_W_B=self.odo[k], v_W_B=np.zeros(3), gyro_bias=np.zeros(3),
-            accel_bias=np.zeros(3), cov_pose=np.eye(6) * 1e-4, cov_v=np.eye(3) * 1e-4,
-        )  # fmt: skip
-
-    def keyframes(self, *, final: bool = False) -> Sequence[KeyframeRecord]:
-        out, self._pending = self._pending, []
-        return out
-
-    def timing(self) -> StageTiming:
-        return StageTiming()
-
+from tests.loop.drifting import CAMERA, PER_LAP, T_B_C, DriftingOdometry
 
 #: the graph told the simulated odometry's own drift per keyframe
 LOOP = LoopConfig(
@@ -143,7 +34,7 @@ def _rmse(poses: Sequence[Pose], truth: Sequence[Pose]) -> float:
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_a_revisit_is_closed_and_the_keyframes_corrected(seed: int) -> None:
-    odo = _DriftingOdometry(seed)
+    odo = DriftingOdometry(seed)
     loop = LoopClosure(odo, CAMERA, config=LOOP)
     try:
         outputs = []
@@ -177,7 +68,7 @@ def test_a_revisit_is_closed_and_the_keyframes_corrected(seed: int) -> None:
 
 @pytest.mark.parametrize("seed", [3, 4])
 def test_a_lap_in_another_room_of_the_same_shape_closes_no_loop_to_the_first(seed: int) -> None:
-    odo = _DriftingOdometry(seed, another_room=True)
+    odo = DriftingOdometry(seed, another_room=True)
     loop = LoopClosure(odo, CAMERA, config=LOOP)
     try:
         for k in range(len(odo.truth)):
@@ -193,7 +84,7 @@ def test_a_lap_in_another_room_of_the_same_shape_closes_no_loop_to_the_first(see
 def test_the_local_map_joins_the_neighbours_landmarks_once_seen_from_the_old_camera() -> None:
     from quadnav.loop import local_map
 
-    odo = _DriftingOdometry(5)
+    odo = DriftingOdometry(5)
     recs = [odo.record(k) for k in range(8, 13)]
     old = recs[2]
     merged = local_map(old, recs, T_B_C)
@@ -221,7 +112,7 @@ def test_a_look_alike_room_metres_away_passes_the_geometry_but_not_the_drift_che
     """Perceptual aliasing: the second lap flies an identical room 3 m along; the pictures and
     their geometry agree with the first lap's, but the loop would move the odometry by metres
     after a few of flight."""
-    odo = _DriftingOdometry(6, shift_m=3.0)
+    odo = DriftingOdometry(6, shift_m=3.0)
     loop = LoopClosure(odo, CAMERA, config=LOOP)
     try:
         for k in range(len(odo.truth)):

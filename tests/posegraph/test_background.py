@@ -138,3 +138,33 @@ def test_a_loop_joins_a_restarted_odometry_frame_to_the_map() -> None:
     assert (T_M_O1.R_A_B.inv() * expected.R_A_B).magnitude() < 0.02
     np.testing.assert_allclose(out.T_W_B.p_A_B, d.truth[-1].p_A_B, atol=0.1)
     assert out.reset_counter >= 1 + 1  # the restart's own and the correction's jump
+
+
+def test_held_keyframes_stay_and_a_new_frame_starts_where_it_is_put() -> None:
+    """A loaded map: its keyframes (frame -1) held where they are; a run's frame 0 starts at the
+    transform it is given (``start_frame``), is moved by ``set_frame`` before any loop, and is
+    solved against the map by a loop."""
+    d = drifting_loop(np.random.default_rng(3), keyframes=120, per_lap=60, loops=1)
+    with BackgroundPoseGraph(executor="thread") as graph:
+        for k in range(60):  # the map: the first lap's truth
+            assert graph.add_pose(k, d.truth[k], reset_counter=-1, fixed=True)
+        start = Pose(Rotation.from_euler("z", 0.3), np.array([1.0, -2.0, 0.0]))
+        graph.start_frame(0, start)
+        for k in range(60, 120):  # the run: the second lap in a frame of its own
+            graph.add_pose(k, d.odometry[k], reset_counter=0)
+        assert graph.T_M_O(0) is start
+        moved = Pose(Rotation.from_euler("z", -0.1), np.array([0.5, 0.5, 0.0]))
+        graph.set_frame(0, moved)
+        assert graph.T_M_O(0) is moved
+        got = graph.pose_of(70)
+        assert got is not None
+        np.testing.assert_allclose(got.p_A_B, (moved @ d.odometry[70]).p_A_B, atol=1e-12)
+        # a loop: keyframe 90 of the run is where keyframe 30 of the map is, seen as truth
+        edge = LoopEdge(old=30, new=90, T_old_new=d.truth[30].inverse() @ d.truth[90])
+        assert graph.add_loop(edge)
+        assert graph.wait(timeout_s=60) and graph.failures == 0, graph.last_error
+        poses = graph.keyframe_poses()
+    for k in range(0, 60, 7):  # the map did not move
+        np.testing.assert_allclose(poses[k].p_A_B, d.truth[k].p_A_B, atol=1e-5)
+    # the run's keyframe at the loop is now where the truth has it
+    assert np.linalg.norm(poses[90].p_A_B - d.truth[90].p_A_B) < 0.05

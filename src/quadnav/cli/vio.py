@@ -66,6 +66,9 @@ def resolve_request(
     calibration: Path | None = None,
     stereo: bool = False,
     loop: bool = False,
+    blackout: str | None = None,
+    save_map: Path | None = None,
+    load_map: Path | None = None,
 ) -> VioRequest:
     """The validated request (no dataset read, no folder made). ``--stereo`` uses the rig's
     second camera; a built-in sequence is then made with EuRoC's stereo rig unless ``--rig``
@@ -76,17 +79,32 @@ def resolve_request(
     if duration_s is not None:
         check_range(duration_s, "--duration", 0.0, 1e6, "s", low_open=True)
     options = OdometryRunOptions(
-        camera=camera, start_s=start_s, duration_s=duration_s, video=video, video_every=video_every
-    )
+        camera=camera, start_s=start_s, duration_s=duration_s, video=video,
+        video_every=video_every, blackout_s=parse_blackout(blackout), save_map=save_map,
+    )  # fmt: skip
     rig_name = rig or ("euroc" if stereo else "euroc_mono")
     request = VioRequest(
         sources=tuple(datasets), config=config,
         overrides=(*set_, "stereo=true") if stereo else tuple(set_), options=options,
         seed=seed, seeds=parse_seeds(seeds) if seeds is not None else None, rig=rig_name,
-        out=out, calibration=calibration, loop=loop,
+        out=out, calibration=calibration, loop=loop or save_map is not None or load_map is not None,
+        load_map=load_map,
     )  # fmt: skip
     check_request(request)
     return request
+
+
+def parse_blackout(text: str | None) -> tuple[float, float] | None:
+    """``--blackout START:SECONDS`` (s after the first image; a length over 0)."""
+    if text is None:
+        return None
+    try:
+        a, d = (float(x) for x in text.split(":"))
+    except ValueError:
+        raise ConfigError(f"--blackout {text!r}: give START:SECONDS, e.g. 20:3") from None
+    check_range(a, "--blackout's start", 0.0, 1e6, "s")
+    check_range(d, "--blackout's length", 0.0, 1e4, "s", low_open=True)
+    return a, d
 
 
 def check_example(params: CommandParams) -> None:
@@ -100,6 +118,9 @@ def check_example(params: CommandParams) -> None:
         video=param(params, "video", bool), video_every=param(params, "video_every", int),
         calibration=optional_param(params, "calibration", Path),
         stereo=param(params, "stereo", bool), loop=param(params, "loop", bool),
+        blackout=optional_param(params, "blackout", str),
+        save_map=optional_param(params, "save_map", Path),
+        load_map=optional_param(params, "load_map", Path),
     )  # fmt: skip
 
 
@@ -111,6 +132,9 @@ EXAMPLES = (
     "quadnav vio room_easy hall_easy --seeds 0-4 --out /tmp/runs",
     "quadnav vio room_medium --stereo --duration 30 --no-video",
     "quadnav vio room_laps --stereo --loop --no-video",
+    "quadnav vio room_laps --stereo --save-map /tmp/room_map --no-video",
+    "quadnav vio room_laps --seed 1 --stereo --load-map /tmp/room_map --no-video",
+    "quadnav vio hall_laps --stereo --loop --blackout 50:3 --no-video",
 )
 
 
@@ -196,6 +220,30 @@ def vio_command(
             "with a 4-DoF pose graph",
         ),
     ] = False,
+    save_map: Annotated[
+        Path | None,
+        typer.Option(
+            "--save-map",
+            help="save loop closure's map (keyframes, descriptors, landmarks, loops) to this "
+            "folder at the end (turns --loop on)",
+        ),
+    ] = None,
+    load_map: Annotated[
+        Path | None,
+        typer.Option(
+            "--load-map",
+            help="start on a map saved by --save-map: held fixed, the run relocalizes in it and "
+            "reports in its frame (turns --loop on)",
+        ),
+    ] = None,
+    blackout: Annotated[
+        str | None,
+        typer.Option(
+            "--blackout",
+            help="withhold the cameras' images for SECONDS from START (s after the first "
+            "image), START:SECONDS: a test of relocalization",
+        ),
+    ] = None,
     out: OutOpt = Path("runs"),
     video: Annotated[
         bool, typer.Option("--video/--no-video", help="write tracks.mp4 of the features")
@@ -207,6 +255,7 @@ def vio_command(
     request = resolve_request(
         datasets, config, list(set_ or []), camera, start_s, duration_s, seed, seeds, rig, out,
         video=video, video_every=video_every, calibration=calibration, stereo=stereo, loop=loop,
+        blackout=blackout, save_map=save_map, load_map=load_map,
     )  # fmt: skip
     if len(datasets) == 1 and seeds is None:
         with progress_bar("vio") as update:

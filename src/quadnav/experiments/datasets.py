@@ -100,7 +100,9 @@ class SequenceSpec(ConfigModel):
     ``shot_noise_dn`` its photon noise (variance per grey level: 0.03 gives 2 grey levels at
     mid-grey), ``target_grey`` and ``auto_exposure_s`` the mean its auto exposure aims at and how
     fast it gets there (0: no auto exposure, the light as it is), ``vignetting`` the light lost in
-    the corners (EuRoC's MT9M034 images darken towards them)."""
+    the corners (EuRoC's MT9M034 images darken towards them). ``world_seed`` draws the world
+    (its textures and furniture, clear of the flight of that seed): a second flight in the
+    world of another (None: ``seed``'s own), as thesis 003's flights on a saved map."""
 
     world: str
     rig: str = "euroc"
@@ -135,6 +137,7 @@ class SequenceSpec(ConfigModel):
     knot_spacing_s: float | None = Field(default=None, gt=0.0, le=10.0)
     max_gap_s: float = Field(default=1.0, gt=0.0, le=60.0)
     seed: int = Field(default=0, ge=0, le=2**31 - 1)
+    world_seed: int | None = Field(default=None, ge=0, le=2**31 - 1)
     description: str = ""
 
 
@@ -469,12 +472,16 @@ def _span(spec: SequenceSpec, motion: SplineMotion) -> tuple[int, int]:
 def _world(spec: SequenceSpec, motion: SplineMotion, t0: int, t1: int) -> Scene:
     from quadnav.sim.scene import WORLDS, WorldPlan
 
+    if spec.world_seed is not None and spec.world_seed != spec.seed:  # another flight's world
+        other = spec.model_copy(update={"seed": spec.world_seed, "world_seed": None})
+        motion = _motion(other)
+        t0, t1 = _span(other, motion)
     t = np.arange(t0, t1, s_to_ns(0.1), dtype=np.int64)
     p, _ = motion.pose(t)
     plan = WorldPlan(
         flight_min_m=tuple(p.min(axis=0)),
         flight_max_m=tuple(p.max(axis=0)),
-        seed=spec.seed,
+        seed=spec.seed if spec.world_seed is None else spec.world_seed,
         path_W=p,
         texture_poor=spec.texture_poor,
     )

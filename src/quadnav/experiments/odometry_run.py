@@ -71,7 +71,10 @@ class OdometryRunOptions:
     rig), ``start_s`` and ``duration_s`` (from the camera's first image; None: to its last),
     ``imu_lead_s`` the IMU fed before the first image (a static start looks at it),
     ``video`` every ``video_every`` frames, ``drift_first_s`` the span the final drift aligns
-    on, ``t_max_diff_s`` how far an estimate may be from a ground-truth sample to be scored."""
+    on, ``t_max_diff_s`` how far an estimate may be from a ground-truth sample to be scored,
+    ``blackout_s`` a camera blackout (start after the first image, length; s): every camera's
+    images withheld in it, the IMU not (a test of relocalization); ``save_map`` the folder loop
+    closure's map is saved to at the end (with loop closure only)."""
 
     camera: str = "cam0"
     start_s: float = 0.0
@@ -81,6 +84,8 @@ class OdometryRunOptions:
     video_every: int = 1
     drift_first_s: float = 2.0
     t_max_diff_s: float = 0.02
+    blackout_s: tuple[float, float] | None = None
+    save_map: Path | None = None
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -214,6 +219,13 @@ def _span_frames(
     return t0, t1, chosen
 
 
+def _blackout_ns(options: OdometryRunOptions, t0: int) -> tuple[int, int] | None:
+    if options.blackout_s is None:
+        return None
+    a, d = options.blackout_s
+    return t0 + s_to_ns(a), t0 + s_to_ns(a + d)
+
+
 def _cameras(vio: VisualOdometry, primary: str) -> tuple[str, ...]:
     """The cameras whose frames the odometry is given: the run's, then the others it uses."""
     return (primary, *[c for c in vio.cameras if c != primary])
@@ -225,14 +237,17 @@ def _stream(
     t0: int,
     t1: int,
     imu_lead_ns: int,
+    blackout_ns: tuple[int, int] | None = None,
 ) -> Iterator[ImageFrame | ImuSample]:
-    """The cameras' frames in ``[t0, t1]`` and the IMU from ``imu_lead_ns`` before ``t0``."""
+    """The cameras' frames in ``[t0, t1]`` (none in ``blackout_ns``, absolute times) and the IMU
+    from ``imu_lead_ns`` before ``t0``."""
+    b0, b1 = blackout_ns or (0, -1)
     for s in dataset.stream():
         if s.t_ns < t0 - imu_lead_ns or (s.t_ns < t0 and not isinstance(s, ImuSample)):
             continue
         if s.t_ns > t1:
             return
-        if isinstance(s, ImuSample) or s.camera in cameras:
+        if isinstance(s, ImuSample) or (s.camera in cameras and not b0 <= s.t_ns < b1):
             yield s
 
 
@@ -567,7 +582,14 @@ def run_odometry(
     try:
         _loop(
             vio,
-            _stream(dataset, _cameras(vio, opt.camera), t0, t1, s_to_ns(opt.imu_lead_s)),
+            _stream(
+                dataset,
+                _cameras(vio, opt.camera),
+                t0,
+                t1,
+                s_to_ns(opt.imu_lead_s),
+                _blackout_ns(opt, t0),
+            ),
             len(frames),
             run_dir,
             tracks,
@@ -583,24 +605,31 @@ def run_odometry(
         est, cov = _estimate(rec.states)
         write_tum(run_dir / "estimate.tum", est)
         write_tum(run_dir / "keyframes.tum", rec.keyframes.trajectory())
-        _loop_outputs(vio, rec, run_dir)
+        _loop_outputs(vio, rec, run_dir, opt.save_map)
     return _finish(dataset, vio, rec, run_dir, est, cov, (t0, t1), opt, time.perf_counter() - start)
 
 
-def _loop_outputs(vio: VisualOdometry, rec: _Record, run_dir: Path) -> None:
+def _loop_outputs(vio: VisualOdometry, rec: _Record, run_dir: Path, save_map: Path | None) -> None:
     """With loop closure: the keyframes as the final pose graph has them
-    (``keyframes_loop.tum``), its counts (``loop.json``); the graph's worker stopped."""
+    (``keyframes_loop.tum``), its counts (``loop.json``), the map saved if asked; the graph's
+    worker stopped."""
+    from quadnav.io.loop_map import save_loop_map
     from quadnav.loop import LoopClosure
     from quadnav.loop.closer import FINAL_WAIT_S
 
     if not isinstance(vio, LoopClosure):
         return
+    saved: dict[str, object] = {}
     try:
         vio.graph.wait(timeout_s=FINAL_WAIT_S)
         write_tum(run_dir / "keyframes_loop.tum", vio.corrected_keyframes())
+        if save_map is not None:
+            the_map = vio.export_map()
+            save_loop_map(save_map, the_map)
+            saved = {"map_saved": str(save_map), "map_saved_keyframes": len(the_map.keyframes)}
     finally:
         vio.close()
-    write_json(run_dir / "loop.json", vio.stats.as_json())
+    write_json(run_dir / "loop.json", {**vio.stats.as_json(), **saved})
 
 
 def _finish(

@@ -99,7 +99,8 @@ class VioRequest:
     """What ``quadnav vio`` was asked: the datasets (folders, bags or built-in sequence names),
     the estimator's configuration file and ``--set`` overrides, the span and outputs, the seed
     (``seeds`` for a study), the rig a built-in sequence is made with, the runs' folder, and
-    whether loop closure runs on the odometry (``loop``)."""
+    whether loop closure runs on the odometry (``loop``), on a map saved before (``load_map``;
+    ``options.save_map`` saves one)."""
 
     sources: tuple[str, ...]
     config: Path | None = None
@@ -111,6 +112,7 @@ class VioRequest:
     out: Path = Path("runs")
     calibration: Path | None = None
     loop: bool = False
+    load_map: Path | None = None
 
 
 def check_request(request: VioRequest) -> None:
@@ -126,6 +128,13 @@ def check_request(request: VioRequest) -> None:
     except GeometryError as exc:
         raise ConfigError(f"--rig: {exc}") from None
     cfg, _ = resolve_vio_config(VioConfig, request.config, request.overrides, rig)
+    several = len(request.sources) > 1 or (request.seeds is not None and len(request.seeds) > 1)
+    if request.options.save_map is not None and several:
+        raise ConfigError(
+            f"--save-map {request.options.save_map}: one run saves one map; give one dataset "
+            "and one seed"
+        )
+
     from quadnav.experiments.datasets import SEQUENCES
 
     builtin = [s for s in request.sources if s in SEQUENCES and not Path(s).exists()]
@@ -145,6 +154,11 @@ def run_vio_source(
     from quadnav.vio import VioConfig, VioEstimator
 
     opt = request.options
+    loop_map = None
+    if request.load_map is not None:  # a missing or corrupt map fails before anything is made
+        from quadnav.io.loop_map import load_loop_map
+
+        loop_map = load_loop_map(request.load_map)
     dataset = resolve_dataset(
         source, seed=seed, rig=request.rig, duration_s=opt.duration_s, start_s=opt.start_s,
         cache_root=request.out, calibration=request.calibration, progress=progress,
@@ -160,9 +174,13 @@ def run_vio_source(
         vio = VioEstimator(r, cfg, camera=opt.camera)
         if not request.loop:
             return vio
+        from quadnav.errors import LoopError
         from quadnav.loop import LoopClosure
 
-        return LoopClosure(vio, r.camera(opt.camera))
+        try:
+            return LoopClosure(vio, r.camera(opt.camera), loop_map=loop_map)
+        except LoopError as exc:
+            raise LoopError(f"--load-map {request.load_map}: {exc}") from None
 
     return run_odometry(
         dataset, rig, make, out, config_text=text, options=opt, name=name,

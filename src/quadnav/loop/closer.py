@@ -22,6 +22,7 @@ an event (``loop`` or ``loop_rejected``, with the stage it failed at) and counte
 
 from __future__ import annotations
 
+import math
 from collections import Counter
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
@@ -32,6 +33,8 @@ from numpy.typing import NDArray
 from quadnav.errors import LoopError, QuadnavError
 from quadnav.geometry.rotations import Pose
 from quadnav.geometry.trajectory import Trajectory
+from quadnav.loop.map import MAP_FRAME, LoopMap, MapCamera, MapKeyframe
+from quadnav.loop.relocalize import RelocCandidate, Segment, Segments, four_dof, transform_gap
 from quadnav.messages import ImageFrame, ImuSample
 from quadnav.odometry import (
     FrameFeatures,
@@ -43,10 +46,12 @@ from quadnav.odometry import (
 )
 from quadnav.place.detector import LoopDetector, LoopDetectorConfig
 from quadnav.place.features import describe_image
-from quadnav.place.verification import VerificationConfig, verify_place
+from quadnav.place.verification import Verification, VerificationConfig, verify_place
+from quadnav.place.vocabulary import BowVector
 from quadnav.posegraph.background import BackgroundPoseGraph, Executor
 from quadnav.posegraph.types import LoopEdge, PoseGraphConfig
 from quadnav.rig import CameraSpec
+from quadnav.units import NS_PER_S, s_to_ns
 
 FloatArray = NDArray[np.float64]
 
@@ -79,9 +84,11 @@ class LoopConfig:
     one whose landmarks it is verified against (``local_map_keyframes``), the most drift a loop
     may say the odometry made since the old keyframe (``max_drift_m`` plus ``max_drift_fraction``
     of the path flown in between: a place that only looks like the old one, in a world of
-    repeated textures, passes the geometric checks with a correction of metres), the pose graph (4-DoF by default, loop
-    edges held to ``graph``'s loop sigmas) and where it solves (``executor``: a worker process
-    by default, GTSAM holding the GIL while it solves)."""
+    repeated textures, passes the geometric checks with a correction of metres), the pose graph
+    (4-DoF by default, loop edges held to ``graph``'s loop sigmas), where it solves
+    (``executor``: a worker process by default, GTSAM holding the GIL while it solves), and
+    relocalization (:mod:`quadnav.loop.relocalize`: the gap in images that starts a new segment
+    ``image_gap_s``, and the agreement and jump limits of a relocalization)."""
 
     detector: LoopDetectorConfig = field(default_factory=lambda: LOOP_DETECTOR)
     verification: VerificationConfig = field(default_factory=VerificationConfig)
@@ -92,6 +99,12 @@ class LoopConfig:
     max_drift_fraction: float = 0.1
     max_drift_m: float = 0.3
     executor: Executor = "process"
+    image_gap_s: float = 0.5
+    relocalize_window_s: float = 2.0
+    relocalize_agree_m: float = 0.3
+    relocalize_agree_rad: float = 0.1
+    relocalize_max_jump_m: float = 1.5
+    relocalize_max_jump_rad: float = 0.35
 
     def __post_init__(self) -> None:
         if not 0 <= self.min_keyframes_between <= 100_000:
@@ -109,6 +122,11 @@ class LoopConfig:
             )
         if not 0 <= self.extra_corners <= 5000:
             raise LoopError(f"LoopConfig.extra_corners must be 0-5000, got {self.extra_corners}")
+        for name in ("image_gap_s", "relocalize_window_s", "relocalize_agree_m",
+                     "relocalize_agree_rad", "relocalize_max_jump_m", "relocalize_max_jump_rad"):  # fmt: skip
+            v = getattr(self, name)
+            if not (math.isfinite(v) and 0.0 < v <= 1e4):
+                raise LoopError(f"LoopConfig.{name} must be in (0, 10000], got {v}")
         if self.executor not in ("process", "thread"):
             raise LoopError(f"LoopConfig.executor must be process or thread, got {self.executor!r}")
 
@@ -153,6 +171,13 @@ class LoopStats:
     accepted: int = 0
     rejected: Counter[str] = field(default_factory=Counter)
     places: list[PlaceEvent] = field(default_factory=list)
+    segments: int = 0
+    map_keyframes: int = 0
+    #: each segment joined to the map: time, segment, how (``relocalized``: two agreeing
+    #: matches of the newest keyframe; ``loop``: a loop of a finished one), the map keyframe,
+    #: and the jump of the output (m, deg)
+    joins: list[dict[str, object]] = field(default_factory=list)
+    relocalize_rejected: Counter[str] = field(default_factory=Counter)
     optimizations: int = 0
     failures: int = 0
     last_error: str = ""
@@ -169,6 +194,8 @@ class LoopStats:
             "recognised": self.recognised, "accepted": self.accepted,
             "rejected_by_stage": dict(self.rejected), "loops": [list(x) for x in self.loops],
             "places": [e.as_json() for e in self.places],
+            "segments": self.segments, "map_keyframes": self.map_keyframes,
+            "joins": self.joins, "relocalize_rejected": dict(self.relocalize_rejected),
             "graph_optimizations": self.optimizations, "graph_failures": self.failures,
             "graph_last_error": self.last_error,
         }  # fmt: skip
@@ -206,14 +233,17 @@ def local_map(old: KeyframeRecord, near: Sequence[KeyframeRecord], T_B_C: Pose) 
 
 
 class LoopClosure:
-    """An odometry with loop closure (see the module). ``camera``: the rig's camera the
-    keyframes are taken with (its lens undistorts the extra corners, its focal length turns the
-    verification's pixel thresholds into normalised ones, its extrinsic stands where a keyframe
-    carries none)."""
+    """An odometry with loop closure and relocalization (see the module and
+    :mod:`quadnav.loop.relocalize`). ``camera``: the rig's camera the keyframes are taken with
+    (its lens undistorts the extra corners, its focal length turns the verification's pixel
+    thresholds into normalised ones, its extrinsic stands where a keyframe carries none).
+    ``loop_map``: a map saved by an earlier run (:meth:`export_map`), held fixed; the run
+    reports in its frame once its first place is recognised."""
 
     def __init__(
-        self, odometry: VisualOdometry, camera: CameraSpec, *, config: LoopConfig | None = None
-    ) -> None:
+        self, odometry: VisualOdometry, camera: CameraSpec, *, config: LoopConfig | None = None,
+        loop_map: LoopMap | None = None,
+    ) -> None:  # fmt: skip
         self.config = config or LoopConfig()
         self.odometry = odometry
         self._camera = camera
@@ -222,15 +252,29 @@ class LoopClosure:
         self.detector = LoopDetector(config=self.config.detector)
         self.graph = BackgroundPoseGraph(self.config.graph, executor=self.config.executor)
         self.stats = LoopStats()
-        self._records: dict[int, KeyframeRecord] = {}  # database entry -> keyframe
-        self._by_index: dict[int, KeyframeRecord] = {}  # keyframe index -> keyframe
+        self._records: dict[int, KeyframeRecord] = {}  # database entry -> keyframe (graph index)
+        self._entry_of: dict[int, int] = {}  # graph index -> database entry
+        self._by_index: dict[int, KeyframeRecord] = {}  # graph index -> keyframe
+        self._segment_of: dict[int, int] = {}  # graph index -> segment (MAP_FRAME: the map's)
+        self._raw: dict[int, Pose] = {}  # graph index -> its odometry pose
         self._out: list[KeyframeRecord] = []
         self._events: list[OdometryEvent] = []
         self._odometry_events = 0  # how many of the odometry's events are in ``_events``
         self._last_loop = -(10**9)
-        self._t_of: dict[int, int] = {}  # keyframe index -> its time
-        self._path_m: dict[int, float] = {}  # keyframe index -> path flown since the first
+        self._t_of: dict[int, int] = {}  # graph index -> its time
+        self._path_m: dict[int, float] = {}  # graph index -> path flown since the first
         self._last_kf: KeyframeRecord | None = None
+        self._map_loops: tuple[LoopEdge, ...] = ()
+        self._offset = 0  # graph index = the odometry's keyframe index + offset
+        self.segments = Segments()
+        self._last_image_ns: int | None = None
+        self._reloc_last: RelocCandidate | None = None
+        self._reloc_edges: dict[int, list[RelocCandidate]] = {}  # odometry index -> matches
+        self._reloc_tried = -1  # the newest keyframe last looked up
+        self._jumps = 0  # output jumps at relocalization
+        self.map_camera = MapCamera.of(camera)
+        if loop_map is not None:
+            self._load(loop_map)
 
     # -- the odometry interface -------------------------------------------------------------
     @property
@@ -238,12 +282,18 @@ class LoopClosure:
         return self.odometry.cameras
 
     def push(self, sample: ImuSample | ImageFrame) -> OdometryState | None:
+        if isinstance(sample, ImageFrame) and sample.camera == self._camera.name:
+            self._note_image(sample.t_ns)
         state = self.odometry.push(sample)
         self._take_events()
+        if state is not None and state.reset_counter != self.segments.current.reset_counter:
+            self._new_segment(state.reset_counter, state.t_ns, prior=None)
         if isinstance(sample, ImageFrame):
             for rec in self.odometry.keyframes():
                 self._take(rec)
-        return None if state is None else self.graph.correct(state)
+            if not self.segments.current.joined:
+                self._relocalize()
+        return None if state is None else self._corrected(state)
 
     def keyframes(self, *, final: bool = False) -> Sequence[KeyframeRecord]:
         if final:
@@ -252,6 +302,9 @@ class LoopClosure:
             self.graph.wait(timeout_s=FINAL_WAIT_S)
         out, self._out = self._out, []
         return out
+
+    def newest_keyframe(self) -> KeyframeRecord | None:
+        return self.odometry.newest_keyframe()
 
     @property
     def events(self) -> tuple[OdometryEvent, ...]:
@@ -283,12 +336,17 @@ class LoopClosure:
         self.stats.optimizations = self.graph.optimizations
         self.stats.failures = self.graph.failures
         self.stats.last_error = self.graph.last_error
+        self.stats.segments = len(self.segments.items)
         self.graph.close()
 
     def corrected_keyframes(self) -> Trajectory:
-        """Every keyframe as the latest pose graph has it, in time order."""
+        """This run's keyframes (not a loaded map's) as the latest pose graph has them, in time
+        order."""
         poses = self.graph.keyframe_poses()
-        keep = sorted((self._t_of[k], k) for k in poses if k in self._t_of)
+        keep = sorted(
+            (self._t_of[k], k) for k in poses
+            if k in self._t_of and self._segment_of.get(k) != MAP_FRAME
+        )  # fmt: skip
         return Trajectory(
             t_ns=np.array([t for t, _ in keep], dtype=np.int64),
             p_W_B=np.array([poses[k].p_A_B for _, k in keep]).reshape(-1, 3),
@@ -296,13 +354,189 @@ class LoopClosure:
             name="keyframes_loop",
         )
 
+    # -- the map ----------------------------------------------------------------------------
+    def _load(self, loop_map: LoopMap) -> None:
+        """A saved map as the root: its keyframes held in the graph, in the database."""
+        if (why := loop_map.camera.mismatch(self.map_camera)) is not None:
+            raise LoopError(f"the map was made with another camera ({why})")
+        if loop_map.vocabulary != self.detector.database.vocabulary.fingerprint:
+            raise LoopError("the map was made with another vocabulary")
+        for kf in loop_map.keyframes:
+            rec = kf.record
+            self.graph.add_pose(rec.index, rec.T_W_B, t_ns=rec.t_ns, reset_counter=MAP_FRAME,
+                                fixed=True)  # fmt: skip
+            entry = self.detector.database.add_bow(kf.bow, kf.direct)
+            self._records[entry] = rec
+            self._entry_of[rec.index] = entry
+            self._by_index[rec.index] = rec
+            self._segment_of[rec.index] = MAP_FRAME
+            self._raw[rec.index] = rec.T_W_B
+            self._t_of[rec.index] = rec.t_ns
+        self._map_loops = loop_map.loops
+        self._offset = loop_map.next_index
+        self.stats.map_keyframes = len(loop_map.keyframes)
+        self.segments.items[:] = []  # a run on a map starts unjoined, at an unknown transform
+
+    def export_map(self) -> LoopMap:
+        """The map to save: every keyframe joined to the map (a loaded map's and this run's), at
+        its pose in the latest pose graph, its landmarks moved with it, and the loops between
+        them. Call after the last keyframes (``keyframes(final=True)``)."""
+        self.graph.wait(timeout_s=FINAL_WAIT_S)
+        poses = self.graph.keyframe_poses()
+        joined = {s.id for s in self.segments.items if s.joined} | {MAP_FRAME}
+        keep = [k for k in sorted(self._by_index) if self._segment_of.get(k) in joined]
+        out = []
+        for k in keep:
+            rec = self._by_index[k]
+            T = rec.T_W_B if self._segment_of[k] == MAP_FRAME else poses.get(k)  # a map's: held
+            if T is None:
+                continue
+            move = T @ self._raw[k].inverse()
+            rec = replace(rec, index=k, reset_counter=MAP_FRAME, T_W_B=T, image=None,
+                          landmarks_W=move @ rec.landmarks_W if len(rec.landmarks_W) else rec.landmarks_W)  # fmt: skip
+            entry = self._entry_of[k]
+            out.append(MapKeyframe(record=rec, bow=self.detector.database.bow(entry),
+                                   direct=self.detector.database.direct(entry)))  # fmt: skip
+        kept = {m.record.index for m in out}
+        loops = tuple(e for e in (*self._map_loops, *self.graph.loops())
+                      if e.old in kept and e.new in kept)  # fmt: skip
+        return LoopMap(keyframes=tuple(out), loops=loops, camera=self.map_camera,
+                       vocabulary=self.detector.database.vocabulary.fingerprint)  # fmt: skip
+
+    # -- segments ---------------------------------------------------------------------------
+    def _note_image(self, t_ns: int) -> None:
+        last, self._last_image_ns = self._last_image_ns, t_ns
+        if not self.segments.items:  # the first image: the first segment
+            self._new_segment(0, t_ns, prior=None, first=True)
+            return
+        if last is not None and t_ns - last > s_to_ns(self.config.image_gap_s):
+            cur = self.segments.current
+            prior = self.graph.T_M_O(cur.id) if cur.joined or cur.prior is not None else None
+            self._new_segment(cur.reset_counter, t_ns, prior=prior)
+            self._event_at(t_ns, "image_gap", f"no image for {(t_ns - last) / NS_PER_S:.2f} s: "
+                           f"segment {self.segments.current.id}, relocalizing")  # fmt: skip
+
+    def _new_segment(
+        self, reset_counter: int, t_ns: int, *, prior: Pose | None, first: bool = False
+    ) -> None:
+        root = first and self.stats.map_keyframes == 0
+        seg = self.segments.start(reset_counter, t_ns, joined=root, prior=prior)
+        if prior is not None:
+            self.graph.start_frame(seg.id, prior)
+        elif not root and self.segments.items[:-1]:
+            # after a reset: until joined, the output goes on from where it was
+            self.graph.start_frame(seg.id, self.graph.T_M_O(self.segments.items[-2].id))
+        self._reloc_last = None
+
+    def _corrected(self, state: OdometryState) -> OdometryState:
+        seg = self.segments.current.id if self.segments.items else 0
+        T = self.graph.T_M_O(seg)
+        jumps = self.graph.correction().reset_counter + self._jumps
+        return replace(
+            state, T_W_B=T @ state.T_W_B, v_W_B=T.R_A_B.apply(state.v_W_B),
+            reset_counter=state.reset_counter + jumps,
+        )  # fmt: skip
+
+    # -- relocalization ---------------------------------------------------------------------
+    def _relocalize(self) -> None:
+        """Look the odometry's newest keyframe up in the map (once each) and join the segment
+        when two matches agree."""
+        rec = self.odometry.newest_keyframe()
+        if rec is None or rec.index == self._reloc_tried or not self.segments.items:
+            return
+        self._reloc_tried = rec.index
+        seg = self.segments.current
+        if rec.reset_counter != seg.reset_counter or rec.t_ns < seg.t_start_ns:
+            return  # a keyframe from before the segment began
+        query = self._described(rec)
+        if query.descriptors is None or len(query.descriptors) == 0:
+            return
+        desc = query.descriptors if query.described is None else query.descriptors[query.described]
+        bow, _ = self.detector.database.transform(desc)
+        found = self._reloc_match(query, bow)
+        if found is None:
+            return
+        old, v = found
+        assert v.loop is not None
+        T_M_Bold = self.graph.pose_of(old.index)
+        if T_M_Bold is None:
+            return
+        T_M_O = four_dof(T_M_Bold @ v.loop.T_Bo_Bq @ rec.T_W_B.inverse())
+        cand = RelocCandidate(segment=seg.id, t_ns=rec.t_ns, old=old.index, new=rec.index,
+                              T_old_new=v.loop.T_Bo_Bq, cov_4dof=v.loop.cov_4dof, T_M_O=T_M_O,
+                              inliers=v.n_pnp)  # fmt: skip
+        if seg.prior is not None:
+            dm, dr = transform_gap(seg.prior, T_M_O)
+            if dm > self.config.relocalize_max_jump_m or dr > self.config.relocalize_max_jump_rad:
+                self.stats.relocalize_rejected["jump"] += 1
+                return
+        last, self._reloc_last = self._reloc_last, cand
+        if last is None or last.segment != seg.id:
+            return
+        if cand.t_ns - last.t_ns > s_to_ns(self.config.relocalize_window_s):
+            return
+        dm, dr = transform_gap(last.T_M_O, cand.T_M_O)
+        if dm > self.config.relocalize_agree_m or dr > self.config.relocalize_agree_rad:
+            self.stats.relocalize_rejected["disagree"] += 1
+            return
+        self._join(seg, cand, (last, cand))
+
+    def _reloc_match(
+        self, query: KeyframeRecord, bow: BowVector
+    ) -> tuple[KeyframeRecord, Verification] | None:
+        """The best of the database's three best entries in a joined segment that verifies."""
+        joined = {s.id for s in self.segments.items if s.joined} | {MAP_FRAME}
+        results = self.detector.database.query(bow, max_results=10)
+        tried = 0
+        for r in results:
+            old = self._records.get(r.entry)
+            if old is None or self._segment_of.get(old.index) not in joined:
+                continue
+            tried += 1
+            k = self.config.local_map_keyframes
+            gi = old.index
+            near = [x for i in range(gi - k, gi + k + 1) if (x := self._by_index.get(i))]
+            v = verify_place(query, local_map(old, near, self._T_B_C), focal_px=self._focal_px,
+                             T_B_C=self._T_B_C, config=self.config.verification)  # fmt: skip
+            if v.loop is not None:
+                return old, v
+            self.stats.relocalize_rejected[v.stage] += 1
+            if tried == 3:
+                break
+        return None
+
+    def _join(
+        self, seg: Segment, cand: RelocCandidate, matches: tuple[RelocCandidate, ...]
+    ) -> None:
+        before = self.graph.T_M_O(seg.id)
+        self.graph.set_frame(seg.id, cand.T_M_O)
+        seg.joined = True
+        dm, dr = transform_gap(before, cand.T_M_O)
+        self._jumps += 1
+        for m in matches:
+            self._reloc_edges.setdefault(m.new, []).append(m)
+        self.stats.joins.append({"t_ns": cand.t_ns, "segment": seg.id, "how": "relocalized",
+                                 "map_keyframe": cand.old, "inliers": cand.inliers,
+                                 "jump_m": dm, "jump_deg": math.degrees(dr)})  # fmt: skip
+        self._event_at(cand.t_ns, "relocalized", f"segment {seg.id} on keyframe {cand.old} "
+                       f"({cand.inliers} inliers; output moved {dm:.2f} m, {math.degrees(dr):.1f} deg)")  # fmt: skip
+
     # -- each finished keyframe -------------------------------------------------------------
-    def _take(self, rec: KeyframeRecord) -> None:
-        self._out.append(rec)
-        self._t_of[rec.index] = rec.t_ns
-        self._note_path(rec)
+    def _take(self, odo: KeyframeRecord) -> None:
+        self._out.append(odo)
+        if not self.segments.items:  # a keyframe before any image: cannot be
+            self._new_segment(odo.reset_counter, odo.t_ns, prior=None, first=True)
+        seg = self.segments.of(odo.reset_counter, odo.t_ns)
+        rec = replace(odo, index=odo.index + self._offset)
+        k_new = rec.index
+        self._t_of[k_new] = rec.t_ns
+        self._segment_of[k_new] = seg.id
+        self._raw[k_new] = rec.T_W_B
+        self._note_path(rec, seg.id)
         self.stats.keyframes += 1
-        self.graph.add_keyframe(rec)
+        self.graph.add_pose(k_new, rec.T_W_B, t_ns=rec.t_ns, reset_counter=seg.id)
+        for m in self._reloc_edges.pop(odo.index, []):
+            self._add_loop(m.old, k_new, m.T_old_new, m.cov_4dof)
         query = self._described(rec)
         if query.descriptors is None or len(query.descriptors) == 0:
             self.stats.undescribed += 1
@@ -310,19 +544,28 @@ class LoopClosure:
         desc = query.descriptors if query.described is None else query.descriptors[query.described]
         found = self.detector.push(desc)
         self._records[found.entry] = rec
-        self._by_index[rec.index] = rec
+        self._entry_of[k_new] = found.entry
+        self._by_index[k_new] = rec
         if not found.detected or found.match is None:
             return
-        if rec.index - self._last_loop < self.config.min_keyframes_between:
-            return
-        self.stats.recognised += 1
         old = self._records[found.match]
+        old_seg = self._segment_of.get(old.index)
+        joined = {s.id for s in self.segments.items if s.joined} | {MAP_FRAME}
+        if old_seg != seg.id and old_seg not in joined:
+            return  # two segments not in the map: nothing to tie them to
+        if k_new - self._last_loop < self.config.min_keyframes_between:
+            return
+        self._verify_loop(rec, query, old, same_frame=old_seg == seg.id)
+
+    def _verify_loop(
+        self, rec: KeyframeRecord, query: KeyframeRecord, old: KeyframeRecord, *, same_frame: bool
+    ) -> None:
+        self.stats.recognised += 1
         k = self.config.local_map_keyframes
         near = [r for i in range(old.index - k, old.index + k + 1) if (r := self._by_index.get(i))]
-        old_map = local_map(old, near, self._T_B_C)
         v = verify_place(
-            query, old_map, focal_px=self._focal_px, T_B_C=self._T_B_C,
-            config=self.config.verification,
+            query, local_map(old, near, self._T_B_C), focal_px=self._focal_px,
+            T_B_C=self._T_B_C, config=self.config.verification,
         )  # fmt: skip
         place = PlaceEvent(old=old.index, new=rec.index, t_old_ns=old.t_ns, t_new_ns=rec.t_ns,
                            stage=v.stage, n_matches=v.n_matches, n_fundamental=v.n_fundamental,
@@ -331,7 +574,7 @@ class LoopClosure:
             self._reject(rec, place, f"{v.stage} ({v.n_matches} matches, {v.n_fundamental} F, "
                          f"{v.n_pnp} PnP inliers)")  # fmt: skip
             return
-        drift = self._implied_drift(rec, old, v.loop.T_Wo_Bq)
+        drift = self._implied_drift(rec, old, v.loop.T_Wo_Bq) if same_frame else None
         if drift is not None:
             self._reject(rec, replace(place, stage="drift"), f"drift ({drift})")
             return
@@ -343,32 +586,36 @@ class LoopClosure:
             sigma_4dof=tuple(sigma.tolist()),
         ))  # fmt: skip
         self._last_loop = rec.index
-        cov = v.loop.cov_4dof if self.config.graph.kind == "4dof" else None
-        self.graph.add_loop(
-            LoopEdge(old=old.index, new=rec.index, T_old_new=v.loop.T_Bo_Bq, cov=cov)
-        )
+        self._add_loop(old.index, rec.index, T, v.loop.cov_4dof)
+        seg = self.segments.items[self._segment_of[rec.index]]
+        if not seg.joined:
+            seg.joined = True
+            self.stats.joins.append({"t_ns": rec.t_ns, "segment": seg.id, "how": "loop",
+                                     "map_keyframe": old.index, "inliers": v.n_pnp})  # fmt: skip
         self._event(rec, "loop", f"keyframe {old.index}: {v.n_pnp} inliers, yaw "
                     f"{v.yaw_deg:.1f} deg, {v.translation_m:.2f} m apart")  # fmt: skip
+
+    def _add_loop(self, old: int, new: int, T_old_new: Pose, cov_4dof: FloatArray) -> None:
+        cov = cov_4dof if self.config.graph.kind == "4dof" else None
+        self.graph.add_loop(LoopEdge(old=old, new=new, T_old_new=T_old_new, cov=cov))
 
     def _reject(self, rec: KeyframeRecord, place: PlaceEvent, why: str) -> None:
         self.stats.rejected[place.stage] += 1
         self.stats.places.append(place)
         self._event(rec, "loop_rejected", f"keyframe {place.old}: {why}")
 
-    def _note_path(self, rec: KeyframeRecord) -> None:
+    def _note_path(self, rec: KeyframeRecord, segment: int) -> None:
         last = self._last_kf
         step = 0.0
-        if last is not None and last.reset_counter == rec.reset_counter:
+        if last is not None and self._segment_of.get(last.index) == segment:
             step = float(np.linalg.norm(rec.T_W_B.p_A_B - last.T_W_B.p_A_B))
         before = self._path_m.get(last.index, 0.0) if last is not None else 0.0
         self._path_m[rec.index] = before + step
         self._last_kf = rec
 
     def _implied_drift(self, rec: KeyframeRecord, old: KeyframeRecord, T_Wo_Bq: Pose) -> str | None:
-        """Why a verified loop implies more drift than the odometry can have made since the old
-        keyframe, or None (also across a reset, where the odometry's frames are unrelated)."""
-        if rec.reset_counter != old.reset_counter:
-            return None
+        """Why a verified loop within one segment implies more drift than the odometry can have
+        made since the old keyframe, or None."""
         moved = float(np.linalg.norm(T_Wo_Bq.p_A_B - rec.T_W_B.p_A_B))
         flown = self._path_m.get(rec.index, 0.0) - self._path_m.get(old.index, 0.0)
         allowed = self.config.max_drift_m + self.config.max_drift_fraction * max(flown, 0.0)
@@ -420,3 +667,7 @@ class LoopClosure:
     def _event(self, rec: KeyframeRecord, kind: str, detail: str) -> None:
         self._take_events()
         self._events.append(OdometryEvent(t_ns=rec.t_ns, kind=kind, detail=detail))  # type: ignore[arg-type]
+
+    def _event_at(self, t_ns: int, kind: str, detail: str) -> None:
+        self._take_events()
+        self._events.append(OdometryEvent(t_ns=t_ns, kind=kind, detail=detail))  # type: ignore[arg-type]

@@ -16,6 +16,7 @@ The shipped vocabulary (``data/orb_vocabulary.npz``, trained by
 
 from __future__ import annotations
 
+import hashlib
 import zipfile
 from dataclasses import dataclass
 from functools import lru_cache
@@ -194,6 +195,12 @@ class Vocabulary:
             return BowVector(np.zeros(0, np.int32), np.zeros(0))
         return BowVector(uniq[keep].astype(np.int32), w[keep] / total)
 
+    @property
+    def fingerprint(self) -> str:
+        """A short hash of the tree and its weights: a map's bags of words are only good with
+        the vocabulary they were made with."""
+        return _fingerprint(self.centres.tobytes(), self.parent.tobytes(), self.idf.tobytes())
+
     def to_arrays(self) -> dict[str, Any]:
         """What :func:`load_vocabulary` reads back (``numpy.savez_compressed(path, **...)``)."""
         return {
@@ -203,6 +210,13 @@ class Vocabulary:
             "idf": self.idf,
             "branching": np.array(self.branching),
         }
+
+
+def _fingerprint(*parts: bytes) -> str:
+    h = hashlib.sha256()
+    for part in parts:
+        h.update(part)
+    return h.hexdigest()[:16]
 
 
 def load_vocabulary(path: Path | str) -> Vocabulary:

@@ -84,6 +84,8 @@ class BackgroundPoseGraph:
         self._closed = False
         self._rejected: Counter[str] = Counter()
         self._T_M_O: dict[int, Pose] = {}
+        self._T_init: dict[int, Pose] = {}  # each frame's T_M_O until a loop joins it
+        self._fixed: list[bool] = []
         self._latest = DriftCorrection()
         self.optimizations = 0
         self.failures = 0
@@ -97,9 +99,28 @@ class BackgroundPoseGraph:
         """Take a finished keyframe of the odometry; False (and counted) if refused."""
         return self.add_pose(kf.index, kf.T_W_B, t_ns=kf.t_ns, reset_counter=kf.reset_counter)
 
-    def add_pose(self, index: int, T_O_B: Pose, *, t_ns: int = 0, reset_counter: int = 0) -> bool:
-        """Take keyframe ``index`` at odometry pose ``T_O_B``; refused and counted: a non-finite
-        pose (``nonfinite_pose``), an index not above the last (``index_order``)."""
+    def start_frame(self, reset_counter: int, T_M_O: Pose) -> None:
+        """Odometry frame ``reset_counter`` is taken to be at ``T_M_O`` in the map until a loop
+        joins it (its first keyframe is held there): the correction of the frame before it, when
+        the odometry went on in the same frame after a gap. Before its first keyframe only."""
+        with self._cv:
+            if reset_counter not in self._reset_counters:
+                self._T_init[reset_counter] = T_M_O
+
+    def set_frame(self, reset_counter: int, T_M_O: Pose) -> None:
+        """Odometry frame ``reset_counter``, not yet joined to the map by a loop, is at
+        ``T_M_O`` (a relocalization found it): its keyframes move there, its output at once."""
+        with self._cv:
+            self._T_init[reset_counter] = T_M_O
+            self._T_M_O[reset_counter] = T_M_O
+
+    def add_pose(
+        self, index: int, T_O_B: Pose, *, t_ns: int = 0, reset_counter: int = 0,
+        fixed: bool = False,
+    ) -> bool:  # fmt: skip
+        """Take keyframe ``index`` at odometry pose ``T_O_B`` (``fixed``: held there, a loaded
+        map's); refused and counted: a non-finite pose (``nonfinite_pose``), an index not above
+        the last (``index_order``)."""
         with self._cv:
             q = T_O_B.R_A_B.as_quat()
             if not np.isfinite(q).all():
@@ -114,6 +135,7 @@ class BackgroundPoseGraph:
             self._reset_counters.append(int(reset_counter))
             self._poses.append(T_O_B)
             self._quats.append(q)
+            self._fixed.append(bool(fixed))
             return True
 
     def add_loop(self, edge: LoopEdge) -> bool:
@@ -148,13 +170,17 @@ class BackgroundPoseGraph:
         """The map-to-odometry transform of odometry frame ``reset_counter`` (identity until a
         loop reaches it)."""
         with self._cv:
-            return self._T_M_O.get(reset_counter, Pose.identity())
+            return self._frame_T(reset_counter)
+
+    def _frame_T(self, reset_counter: int) -> Pose:
+        got = self._T_M_O.get(reset_counter)
+        return got if got is not None else self._T_init.get(reset_counter, Pose.identity())
 
     def correct(self, state: OdometryState) -> OdometryState:
         """The odometry's state in the map: pose ``T_M_O @ T_O_B``, velocity turned with it (the
         body-frame covariance is unchanged), reset counter the odometry's plus the jumps."""
         with self._cv:
-            T = self._T_M_O.get(state.reset_counter, Pose.identity())
+            T = self._frame_T(state.reset_counter)
             jumps = self._latest.reset_counter
         return dataclasses.replace(
             state,
@@ -162,6 +188,24 @@ class BackgroundPoseGraph:
             v_W_B=T.R_A_B.apply(state.v_W_B),
             reset_counter=state.reset_counter + jumps,
         )
+
+    def loops(self) -> tuple[LoopEdge, ...]:
+        """The loop edges taken so far."""
+        with self._cv:
+            return tuple(self._loops)
+
+    def pose_of(self, index: int) -> Pose | None:
+        """Keyframe ``index``'s corrected pose (as :meth:`keyframe_poses`), or None."""
+        with self._cv:
+            res = self._latest.result
+            if res is not None:
+                n = int(np.searchsorted(res.indices, index))
+                if n < len(res.indices) and res.indices[n] == index:
+                    return res.poses[n]
+            n = int(np.searchsorted(self._indices, index))
+            if n == len(self._indices) or self._indices[n] != index:
+                return None
+            return self._frame_T(self._reset_counters[n]) @ self._poses[n]
 
     def keyframe_poses(self) -> dict[int, Pose]:
         """Every keyframe's corrected pose: the optimised ones as solved, the later ones through
@@ -171,7 +215,7 @@ class BackgroundPoseGraph:
             out = {} if res is None else dict(zip(res.indices.tolist(), res.poses, strict=True))
             for k, rc, p in zip(self._indices, self._reset_counters, self._poses, strict=True):
                 if k not in out:
-                    out[k] = self._T_M_O.get(rc, Pose.identity()) @ p
+                    out[k] = self._frame_T(rc) @ p
             return out
 
     def wait(self, timeout_s: float | None = None) -> bool:
@@ -197,13 +241,18 @@ class BackgroundPoseGraph:
     # ------------------------------------------------------------------ the optimiser's thread
     def _snapshot(self) -> tuple[PoseGraphProblem, int]:
         """The graph as it stands (its inputs checked as they came): arrays, under the lock."""
+        start = [
+            p if fixed or rc not in self._T_init else self._T_init[rc] @ p
+            for p, rc, fixed in zip(self._poses, self._reset_counters, self._fixed, strict=True)
+        ]
         problem = PoseGraphProblem(
             indices=np.array(self._indices, np.int64),
             reset_counters=np.array(self._reset_counters, np.int64),
-            positions=np.array([p.p_A_B for p in self._poses], np.float64),
-            quats_xyzw=np.array(self._quats, np.float64),
+            positions=np.array([p.p_A_B for p in start], np.float64),
+            quats_xyzw=np.array([p.R_A_B.as_quat() for p in start], np.float64),
             loops=tuple(self._loops),
             config=self.config,
+            fixed=np.array(self._fixed, bool) if any(self._fixed) else None,
         )
         return problem, len(self._indices)
 
@@ -248,7 +297,7 @@ class BackgroundPoseGraph:
         correction raising the reset counter."""
         rcs = self._reset_counters[:n]
         newest, rc = n - 1, rcs[n - 1]
-        old = self._T_M_O.get(rc, Pose.identity()) @ self._poses[newest]  # the output until now
+        old = self._frame_T(rc) @ self._poses[newest]  # the output until now
         for frame in set(rcs):
             last = max(m for m in range(n) if rcs[m] == frame)
             self._T_M_O[frame] = result.poses[last] @ self._poses[last].inverse()

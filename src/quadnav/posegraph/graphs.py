@@ -38,12 +38,14 @@ _FIXED_SIGMA = 1e-6  # the prior that holds an anchor keyframe
 
 def sequential_pairs(problem: PoseGraphProblem) -> list[tuple[int, int, int]]:
     """The sequential edges ``(i, j, k)`` (positions in the problem, ``j = i + k``): each
-    keyframe to its ``sequential_edges`` predecessors in the same odometry frame."""
+    keyframe to its ``sequential_edges`` predecessors in the same odometry frame (none between
+    two held keyframes)."""
     rc = problem.reset_counters
+    held = problem.fixed if problem.fixed is not None else np.zeros(len(rc), bool)
     out = []
     for j in range(len(rc)):
         for k in range(1, problem.config.sequential_edges + 1):
-            if j - k >= 0 and rc[j - k] == rc[j]:
+            if j - k >= 0 and rc[j - k] == rc[j] and not (held[j] and held[j - k]):
                 out.append((j - k, j, k))
     return out
 
@@ -255,7 +257,10 @@ def build_graph(
         i, j, cov = pos[e.old], pos[e.new], _loop_cov(config, e)
         factors += edge(i, j, pose3(e.T_old_new), e.scale, cov, True)
         plain.append(edge(i, j, pose3(e.T_old_new), e.scale, cov, False))
-    for n in anchors(problem):
+    held = set(anchors(problem))
+    if problem.fixed is not None:
+        held |= set(np.flatnonzero(problem.fixed).tolist())
+    for n in sorted(held):
         factors += fixed(n)
     for f in factors:
         graph.add(f)

@@ -145,8 +145,10 @@ class LoopEdge:
 class PoseGraphProblem:
     """What one optimisation solves: keyframe ``indices`` (increasing), the odometry frame of
     each (``reset_counters``), their odometry poses ``T_O_B`` as ``positions`` (N, 3) and
-    ``quats_xyzw`` (N, 4), the ``loops`` and the configuration. Build it with
-    :meth:`from_poses`, which refuses bad input with a one-line :class:`PoseGraphError`."""
+    ``quats_xyzw`` (N, 4), the ``loops`` and the configuration; ``fixed`` (N,) the keyframes
+    held where they are (a map loaded from disk, as VINS-Mono holds its previous pose graph;
+    None: only the first of each connected part). Build it with :meth:`from_poses`, which
+    refuses bad input with a one-line :class:`PoseGraphError`."""
 
     indices: IntArray
     reset_counters: IntArray
@@ -154,6 +156,7 @@ class PoseGraphProblem:
     quats_xyzw: FloatArray
     loops: tuple[LoopEdge, ...] = ()
     config: PoseGraphConfig = field(default_factory=PoseGraphConfig)
+    fixed: NDArray[np.bool_] | None = None
 
     @classmethod
     def from_poses(
@@ -164,6 +167,7 @@ class PoseGraphProblem:
         *,
         reset_counters: Sequence[int] | None = None,
         config: PoseGraphConfig | None = None,
+        fixed: Sequence[bool] | None = None,
     ) -> PoseGraphProblem:
         """The problem of keyframes ``indices`` at odometry poses ``poses`` with ``loops``."""
         idx = np.asarray(indices, dtype=np.int64)
@@ -182,6 +186,9 @@ class PoseGraphProblem:
         )
         if rc.shape != idx.shape:
             raise PoseGraphError("reset_counters needs one value per keyframe")
+        held = None if fixed is None else np.asarray(fixed, dtype=bool)
+        if held is not None and held.shape != idx.shape:
+            raise PoseGraphError("fixed needs one value per keyframe")
         known = set(idx.tolist())
         for e in loops:
             if e.old not in known or e.new not in known:
@@ -193,6 +200,7 @@ class PoseGraphProblem:
             quats_xyzw=np.array([p.R_A_B.as_quat() for p in poses], dtype=np.float64),
             loops=tuple(loops),
             config=config or PoseGraphConfig(),
+            fixed=held,
         )
 
     def poses(self) -> tuple[Pose, ...]:

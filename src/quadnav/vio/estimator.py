@@ -211,6 +211,15 @@ class VioEstimator:
         done, self._done = self._done, []
         return done
 
+    def newest_keyframe(self) -> KeyframeRecord | None:
+        """The window's newest keyframe as it stands (its pose and landmarks still change
+        until it leaves; :meth:`keyframes` hands it out then), or None before a start."""
+        if not self._initialized or not self.window.keyframes:
+            return None
+        k = self.window.keyframes[-1].index
+        info = self._kf_info.get(k)
+        return None if info is None or info.keyframe is None else self._record(k, info)
+
     def _push_imu(self, sample: ImuSample) -> OdometryState | None:
         """Buffer an IMU sample; once initialised, the state propagated to its time."""
         if not self.input.imu_ok(sample):

@@ -1,0 +1,112 @@
+"""Loop closure's map on disk (``quadnav vio --save-map DIR`` / ``--load-map DIR``).
+
+A map is a folder of two files:
+
+- ``map.json``: ``format`` (``quadnav-loop-map``), ``version`` (1), the number of ``keyframes``
+  and ``loops``, the ``vocabulary``'s fingerprint (the bags of words are only good with it),
+  the ``camera`` (name, image size, fx, fy, cx, cy in pixels), and ``quadnav`` (the version
+  that wrote it).
+- ``keyframes.npz`` (NumPy, uncompressed, no pickles): per keyframe ``index``, ``t_ns``,
+  ``pose`` (x, y, z, qx, qy, qz, qw of the body in the map: ENU, metres), ``T_B_C`` (the
+  camera's extrinsic, NaN: the rig's), ``cov_pose`` (6x6, body frame, rotation first); its
+  keypoints concatenated over keyframes with ``n_keypoints`` each: ``ids``, ``uv_px``
+  (distorted pixels), ``xy`` (undistorted normalised), ``descriptors`` (32 bytes, ORB/BRIEF),
+  ``described``; its landmarks with ``n_landmarks`` each: ``landmark_ids``, ``landmarks``
+  (map frame, m); its bag of words with ``n_words`` each: ``words``, ``weights``; its direct
+  index with ``n_nodes`` and ``n_features`` each: ``direct_nodes``, ``direct_offsets``
+  (``n_nodes + 1`` each), ``direct_features``; and the loops: ``loop_ends`` (old, new keyframe
+  index), ``loop_pose`` (new in old's body, as ``pose``), ``loop_scale``, ``loop_cov`` (36 per
+  loop, the covariance's entries row by row then NaN; all NaN: none).
+
+A map is written to a temporary folder and renamed into place, so a folder that exists is
+complete. A missing, truncated, corrupt or foreign map, one of another version, vocabulary or
+camera is a one-line :class:`~quadnav.errors.LoopError` naming the folder.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import zipfile
+from pathlib import Path
+
+import numpy as np
+
+from quadnav.errors import LoopError
+from quadnav.loop.map import MAP_FORMAT, MAP_VERSION, LoopMap, MapCamera
+
+__all__ = ["load_loop_map", "save_loop_map"]
+
+_HEAD = "map.json"
+_ARRAYS = "keyframes.npz"
+
+
+def save_loop_map(folder: Path, loop_map: LoopMap) -> Path:
+    """Write ``loop_map`` to ``folder`` (replacing a map there; refusing a folder that holds
+    anything else)."""
+    from quadnav import __version__
+
+    folder = Path(folder)
+    if folder.exists() and not folder.is_dir():
+        raise LoopError(f"--save-map {folder}: is a file, not a folder")
+    if folder.is_dir() and any(folder.iterdir()) and not (folder / _HEAD).exists():
+        raise LoopError(f"--save-map {folder}: the folder holds something other than a map")
+    head, arrays = loop_map.to_arrays()
+    head["quadnav"] = __version__
+    tmp = folder.with_name(folder.name + ".writing")
+    try:
+        shutil.rmtree(tmp, ignore_errors=True)
+        tmp.mkdir(parents=True)
+        np.savez(tmp / _ARRAYS, **arrays)  # type: ignore[arg-type]
+        (tmp / _HEAD).write_text(json.dumps(head, indent=2) + "\n", encoding="utf-8")
+        if folder.exists():
+            shutil.rmtree(folder)
+        tmp.rename(folder)
+    except OSError as exc:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise LoopError(f"--save-map {folder}: cannot write ({exc.strerror or exc})") from None
+    return folder
+
+
+def load_loop_map(
+    folder: Path, *, vocabulary: str | None = None, camera: MapCamera | None = None
+) -> LoopMap:
+    """The map in ``folder``, checked against the ``vocabulary`` fingerprint and the ``camera``
+    of the run that will use it (None: not checked)."""
+    folder = Path(folder)
+    where = f"--load-map {folder}"
+    if not folder.is_dir():
+        raise LoopError(f"{where}: no such folder")
+    try:
+        head = json.loads((folder / _HEAD).read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise LoopError(f"{where}: no {_HEAD}: not a quadnav map") from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise LoopError(f"{where}: {_HEAD} is corrupt ({type(exc).__name__})") from None
+    if not isinstance(head, dict) or head.get("format") != MAP_FORMAT:
+        raise LoopError(f"{where}: {_HEAD} is not a quadnav map ({MAP_FORMAT})")
+    if head.get("version") != MAP_VERSION:
+        raise LoopError(
+            f"{where}: map version {head.get('version')}, this quadnav reads {MAP_VERSION}"
+        )
+    if vocabulary is not None and head.get("vocabulary") != vocabulary:
+        raise LoopError(
+            f"{where}: made with another vocabulary ({head.get('vocabulary')}, "
+            f"this run's {vocabulary})"
+        )
+    try:
+        with np.load(folder / _ARRAYS, allow_pickle=False) as z:
+            arrays = {k: z[k] for k in z.files}
+    except FileNotFoundError:
+        raise LoopError(f"{where}: no {_ARRAYS}") from None
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
+        raise LoopError(
+            f"{where}: {_ARRAYS} is truncated or corrupt ({type(exc).__name__})"
+        ) from None
+    try:
+        loop_map = LoopMap.from_arrays(head, arrays)
+    except LoopError as exc:
+        raise LoopError(f"{where}: {exc}") from None
+    if camera is not None and (why := loop_map.camera.mismatch(camera)) is not None:
+        raise LoopError(f"{where}: made with another camera ({why})")
+    return loop_map
