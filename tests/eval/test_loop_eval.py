@@ -201,3 +201,25 @@ def test_nonsense_thresholds_are_refused() -> None:
         LoopEvalConfig(same_place_m=-1.0)
     with pytest.raises(EvalError, match="exclude_keyframes"):
         LoopEvalConfig(exclude_keyframes=0)
+
+
+def test_revisits_over_many_keyframes_match_a_pair_by_pair_count() -> None:
+    """Three laps of 90 keyframes (more than a block of the comparison), against a count pair
+    by pair from the laps' own arc angles (heading = arc angle + 90 degrees)."""
+    times = np.arange(270) * LAP_S / 90
+    keyframes = _trajectory(times, "keyframes")
+    truth = _trajectory(np.arange(0.0, 3 * LAP_S, 0.05), "truth")
+    arc = 2.0 * np.pi * times / LAP_S
+    expected = 0
+    for j in range(len(times)):
+        for i in range(j - 30 + 1):
+            turn = abs((arc[j] - arc[i] + np.pi) % (2 * np.pi) - np.pi)
+            apart = np.linalg.norm(keyframes.p_W_B[j] - keyframes.p_W_B[i])
+            if apart < 1.0 and turn < np.radians(30.0):
+                expected += 1
+                break
+    ev = evaluate_loops([], keyframes, keyframes, truth)
+    assert ev.revisits == expected
+    # the reference itself: the first lap's last 7 keyframes (4 degrees apart: 28 degrees of
+    # arc is a 0.97 m chord) and every keyframe of the later laps
+    assert expected == 7 + 180

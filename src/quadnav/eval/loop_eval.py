@@ -53,8 +53,9 @@ __all__ = [
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
-#: Rows of the keyframe-by-keyframe comparison done at once (memory bounded however long the run).
-_ROW_BLOCK = 512
+#: Keyframes compared with all earlier ones at once (memory bounded however long the run: a
+#: block of 128 against 10,000 keyframes holds 30 MB).
+_ROW_BLOCK = 128
 
 
 class PlaceLike(Protocol):
@@ -132,7 +133,8 @@ class LoopEvaluation:
     """The places judged, the counts, precision and recall (``n/a: why`` without a truth or
     without anything to count), the measurements' median errors, and the keyframes for the
     figure: odometry and corrected, each aligned to the truth in position and yaw as the run's
-    APE is (as they are without a truth), with their position errors (m) at ``error_t_ns``."""
+    APE is (as they are without a truth), with their position errors (m) at ``error_t_ns`` and
+    ``error_after_t_ns``."""
 
     config: LoopEvalConfig
     places: tuple[PlaceScore, ...]
@@ -153,6 +155,7 @@ class LoopEvaluation:
     truth: Trajectory | None
     error_t_ns: IntArray
     error_before_m: FloatArray | None
+    error_after_t_ns: IntArray
     error_after_m: FloatArray | None
 
     def as_metrics(self) -> dict[str, Metric | int]:
@@ -267,9 +270,12 @@ def _revisits(truth_kf: Trajectory, rows: IntArray, cfg: LoopEvalConfig) -> NDAr
     yaw_max = np.radians(cfg.same_place_yaw_deg)
     for a in range(0, n, _ROW_BLOCK):
         b = min(n, a + _ROW_BLOCK)
-        near = np.linalg.norm(p[a:b, None, :] - p[None, :, :], axis=2) < cfg.same_place_m
-        near &= _yaw_between_rad(q, q[a:b]) < yaw_max
-        near &= rows[None, :] <= rows[a:b, None] - cfg.exclude_keyframes
+        m = int(np.searchsorted(rows, rows[b - 1] - cfg.exclude_keyframes, side="right"))
+        if m == 0:
+            continue  # nothing far enough back yet
+        near = np.linalg.norm(p[a:b, None, :] - p[None, :m, :], axis=2) < cfg.same_place_m
+        near &= _yaw_between_rad(q[:m], q[a:b]) < yaw_max
+        near &= rows[None, :m] <= rows[a:b, None] - cfg.exclude_keyframes
         out[a:b] = near.any(axis=1)
     return out
 
@@ -328,8 +334,6 @@ def evaluate_loops(
     accepted = sum(s.accepted for s in scores)
     kf_aligned, before, t_err = _aligned(truth, keyframes)
     corr_aligned, after, t_after = _aligned(truth, corrected)
-    if after is not None and not np.array_equal(t_after, t_err):
-        after = None  # the corrected keyframes are not the odometry's: no comparison
     counts = _counts(truth, keyframes, scores, cfg)
     return LoopEvaluation(
         config=cfg, places=scores, has_truth=truth is not None, accepted=accepted,
@@ -338,7 +342,7 @@ def evaluate_loops(
         error_median_m=counts[7], error_median_deg=counts[8], keyframes=kf_aligned or keyframes,
         corrected=corr_aligned,
         truth=truth.interpolate(t_err) if truth is not None and len(t_err) else None,
-        error_t_ns=t_err, error_before_m=before, error_after_m=after,
+        error_t_ns=t_err, error_before_m=before, error_after_t_ns=t_after, error_after_m=after,
     )  # fmt: skip
 
 
@@ -411,11 +415,12 @@ def _draw_top(ax: Any, ev: LoopEvaluation) -> None:
 
 
 def _draw_errors(ax: Any, ev: LoopEvaluation, t0_ns: int) -> None:
-    t = (ev.error_t_ns - t0_ns) / NS_PER_S
-    for err, colour, label in ((ev.error_before_m, "tab:blue", "odometry"),
-                               (ev.error_after_m, "tab:orange", "after the pose graph")):  # fmt: skip
+    for t_ns, err, colour, label in (
+        (ev.error_t_ns, ev.error_before_m, "tab:blue", "odometry"),
+        (ev.error_after_t_ns, ev.error_after_m, "tab:orange", "after the pose graph"),
+    ):
         if err is not None:
-            ax.plot(t, err, "-", color=colour, lw=1.0, label=label)
+            ax.plot((t_ns - t0_ns) / NS_PER_S, err, "-", color=colour, lw=1.0, label=label)
     for k, s in enumerate(s for s in ev.places if s.accepted):
         ax.axvline((s.t_new_ns - t0_ns) / NS_PER_S, color=_EDGE_STYLE.get(s.verdict, "k"),
                    lw=0.6, alpha=0.6, label="loop closed" if k == 0 else None)  # fmt: skip

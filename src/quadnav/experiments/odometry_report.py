@@ -183,8 +183,8 @@ def _loop_section(loop: LoopEvaluation, path: Path, t0_ns: int) -> ReportSection
         f"{c.max_error_m:g} m and {c.max_error_deg:g} deg of the truth's; a keyframe revisits "
         f"a place when one at least {c.exclude_keyframes} keyframes earlier is that close, and "
         f"is found when a true loop closed within {c.recall_window} keyframes of it. "
-        "Correction: how far the loop moved the new keyframe from where the odometry had it "
-        "relative to the old one."
+        "Correction: how far the loop's measurement puts the new keyframe from where the odometry "
+        "had it, relative to the old keyframe."
     )
     return ReportSection(
         "Loop closure",
