@@ -223,3 +223,16 @@ def test_revisits_over_many_keyframes_match_a_pair_by_pair_count() -> None:
     # the reference itself: the first lap's last 7 keyframes (4 degrees apart: 28 degrees of
     # arc is a 0.97 m chord) and every keyframe of the later laps
     assert expected == 7 + 180
+
+
+def test_a_loop_measured_right_is_true_even_beyond_the_same_place_distance() -> None:
+    """Keyframes 10 and 54: 36 degrees of arc (a 1.24 m chord) and 0.3 m up, turned 36
+    degrees: not the same place by the thresholds, but a loop measuring their relative pose
+    to 1 cm is a right edge; measured as if they coincided it is false."""
+    right = _place(10, 54, dp=(0.01, 0.0, 0.0))
+    wrong = _place(10, 54, measured=(np.zeros(3), Rotation.identity()))
+    ev = evaluate_loops([right, wrong], KEYFRAMES, KEYFRAMES, TRUTH)
+    assert [p.same_place for p in ev.places] == [False, False]
+    assert ev.places[0].truth_distance_m == pytest.approx(np.hypot(4 * np.sin(np.pi / 10), 0.3))
+    assert [p.verdict for p in ev.places] == ["true", "false"]
+    assert ev.precision == pytest.approx(0.5)

@@ -178,10 +178,10 @@ def _loop_section(loop: LoopEvaluation, path: Path, t0_ns: int) -> ReportSection
         for p in loop.places
     ]  # fmt: skip
     text = (
-        f"A loop is true when the truth puts its keyframes under {c.same_place_m:g} m and "
-        f"{c.same_place_yaw_deg:g} deg of yaw apart and its measured pose is within "
-        f"{c.max_error_m:g} m and {c.max_error_deg:g} deg of the truth's; a keyframe revisits "
-        f"a place when one at least {c.exclude_keyframes} keyframes earlier is that close, and "
+        f"A loop is true when its measured pose is within {c.max_error_m:g} m and "
+        f"{c.max_error_deg:g} deg of the truth's; a keyframe revisits a place when the truth "
+        f"puts one at least {c.exclude_keyframes} keyframes earlier under {c.same_place_m:g} m "
+        f"and {c.same_place_yaw_deg:g} deg of yaw from it, and "
         f"is found when a true loop closed within {c.recall_window} keyframes of it. "
         "Correction: how far the loop's measurement puts the new keyframe from where the odometry "
         "had it, relative to the old keyframe."
