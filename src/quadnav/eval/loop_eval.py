@@ -385,6 +385,12 @@ def _positions(traj: Trajectory, t_ns: Sequence[int]) -> FloatArray:
 
 
 _EDGE_STYLE = {"true": "tab:green", "false": "tab:red", "accepted": "k"}
+#: a rejected candidate's marker at its new keyframe: style, colour, legend
+_REJECTED_STYLE = {
+    "rejected": ("x", "tab:purple", "candidate rejected"),
+    "rejected, another place": ("x", "tab:purple", "candidate rejected (another place)"),
+    "rejected, same place": ("o", "tab:brown", "candidate rejected (a real revisit)"),
+}
 
 
 def _draw_top(ax: Any, ev: LoopEvaluation) -> None:
@@ -407,9 +413,10 @@ def _draw_top(ax: Any, ev: LoopEvaluation) -> None:
             drawn.add(s.verdict)
             ax.plot([a[0], b[0]], [a[1], b[1]], "-", color=colour, lw=1.2, label=edge)
         else:
-            mark = None if "rejected" in drawn else "candidate rejected (new keyframe)"
-            drawn.add("rejected")
-            ax.plot([b[0]], [b[1]], "x", color="tab:purple", ms=6, label=mark)
+            look = _REJECTED_STYLE.get(s.verdict, _REJECTED_STYLE["rejected"])
+            mark = None if s.verdict in drawn else look[2]
+            drawn.add(s.verdict)
+            ax.plot([b[0]], [b[1]], look[0], color=look[1], ms=6, mfc="none", label=mark)
     ax.set_aspect("equal", adjustable="datalim")
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
