@@ -74,6 +74,12 @@ def test_loop_closure_without_a_revisit_leaves_the_estimate_and_reports(
     assert loop["keyframes"] == len(keyframes) > 3 and loop["accepted"] == 0
     assert loop["undescribed"] == 0 and loop["graph_failures"] == 0
     assert (run_dir / "keyframes_loop.tum").read_text().splitlines() == keyframes
+    # judged against the truth: nothing accepted, so no precision; the figure and the section
+    m = json.loads((run_dir / "metrics.json").read_text())
+    assert m["loop_accepted"] == 0 and m["loop_precision"].startswith("n/a")
+    assert m["loop_keyframes_ape_rmse_before_m"] == m["loop_keyframes_ape_rmse_after_m"] < 0.05
+    assert (run_dir / "plots" / "loop_graph.png").is_file()
+    assert "Loop closure" in (run_dir / "report.html").read_text()
 
 
 def test_a_map_saved_by_one_run_is_where_the_next_reports(

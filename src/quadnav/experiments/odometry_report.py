@@ -3,16 +3,21 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from quadnav.errors import EvalError, IoError
 from quadnav.eval.na import fmt_metric
 from quadnav.eval.vio_metrics import VioMetrics
 from quadnav.experiments.odometry_run import OdometryRun, OdometryTiming
 from quadnav.geometry.trajectory import Trajectory
+from quadnav.odometry import VisualOdometry
 from quadnav.units import ns_to_s
 
-__all__ = ["write_odometry_outputs"]
+if TYPE_CHECKING:
+    from quadnav.eval.loop_eval import LoopEvaluation
+    from quadnav.eval.report import ReportSection
+
+__all__ = ["loop_evaluation", "write_odometry_outputs"]
 
 
 def _pyplot() -> Any:
@@ -53,6 +58,11 @@ def _plot_path(path: Path, truth: Trajectory | None, est: Trajectory, t0_ns: int
     return path
 
 
+def _t0(truth: Trajectory | None, est: Trajectory) -> int:
+    """The time the plots count from: the truth's start, else the estimate's."""
+    return int(truth.t_ns[0]) if truth is not None else int(est.t_ns[0]) if len(est) else 0
+
+
 def _plot_timing(path: Path, timing: OdometryTiming) -> Path:
     plt = _pyplot()
     names = list(timing.stage_ms_per_frame)
@@ -76,7 +86,7 @@ def _write_plots(
     from quadnav.eval.plots import plot_errors
 
     plots = run.run_dir / "plots"
-    t0 = int(truth.t_ns[0]) if truth is not None else int(est.t_ns[0]) if len(est) else 0
+    t0 = _t0(truth, est)
     images = []
     if ref is not None and est_m is not None and len(est_m) >= 2:
         try:
@@ -127,15 +137,83 @@ def _metric_rows(m: VioMetrics) -> list[list[object]]:
     ]  # fmt: skip
 
 
+_PLACE_HEADERS = (
+    "t (s)", "keyframe", "matched keyframe", "stage", "PnP inliers", "truth distance (m)",
+    "truth yaw (deg)", "correction (m)", "measured error (m)", "measured error (deg)", "verdict",
+)  # fmt: skip
+
+
+def loop_evaluation(
+    vio: VisualOdometry, keyframes: Trajectory, truth: Trajectory | None
+) -> LoopEvaluation | None:
+    """Loop closure's places and keyframes judged against the truth (None: the odometry
+    closes no loops), recall counted over the detector's excluded window and the closer's
+    gap between loops (:mod:`quadnav.eval.loop_eval`)."""
+    from quadnav.eval.loop_eval import LoopEvalConfig, evaluate_loops
+    from quadnav.loop import LoopClosure
+
+    if not isinstance(vio, LoopClosure):
+        return None
+    cfg = LoopEvalConfig(
+        exclude_keyframes=max(1, vio.config.detector.exclude_recent),
+        recall_window=vio.config.min_keyframes_between,
+    )
+    return evaluate_loops(vio.stats.places, keyframes, vio.corrected_keyframes(), truth, cfg)
+
+
+def _loop_section(loop: LoopEvaluation, path: Path, t0_ns: int) -> ReportSection:
+    """The report's loop closure: its metrics, each recognised place, the figure."""
+    from quadnav.eval.loop_eval import plot_loop_graph
+    from quadnav.eval.report import ReportSection, ReportTable
+
+    def num(x: float | None, spec: str = ".3f") -> str:
+        return "" if x is None else format(x, spec)
+
+    c = loop.config
+    metrics = [[k, fmt_metric(v, ".4g")] for k, v in loop.as_metrics().items()]
+    places = [
+        [f"{ns_to_s(p.t_new_ns - t0_ns):.2f}", p.new, p.old, p.stage, p.n_pnp,
+         num(p.truth_distance_m), num(p.truth_yaw_deg, ".1f"), num(p.correction_m),
+         num(p.error_m), num(p.error_deg, ".2f"), p.verdict]
+        for p in loop.places
+    ]  # fmt: skip
+    text = (
+        f"A loop is true when its measured pose is within {c.max_error_m:g} m and "
+        f"{c.max_error_deg:g} deg of the truth's; a keyframe revisits a place when the truth "
+        f"puts one at least {c.exclude_keyframes} keyframes earlier under {c.same_place_m:g} m "
+        f"and {c.same_place_yaw_deg:g} deg of yaw from it, and "
+        f"is found when a true loop closed within {c.recall_window} keyframes of it. "
+        "Correction: how far the loop's measurement puts the new keyframe from where the odometry "
+        "had it, relative to the old keyframe."
+    )
+    return ReportSection(
+        "Loop closure",
+        text=text,
+        tables=[
+            ReportTable("against the ground truth", ["metric", "value"], metrics),
+            ReportTable(
+                "every recognised place (t: s from the run's start)", _PLACE_HEADERS, places
+            ),
+        ],
+        images=[plot_loop_graph(loop, path, t0_ns)],
+    )
+
+
 def write_odometry_outputs(
     run: OdometryRun, ref: Trajectory | None, est_m: Trajectory | None, truth: Trajectory | None,
-    est: Trajectory,
+    est: Trajectory, loop: LoopEvaluation | None = None,
 ) -> None:  # fmt: skip
-    """The plots and ``report.html`` of a finished run."""
+    """The plots and ``report.html`` of a finished run (with loop closure's section when
+    ``loop`` is given)."""
     from quadnav.eval.report import ReportSection, ReportTable, write_report
 
     try:
         images = _write_plots(run, ref, est_m, truth, est)
+        extra = (
+            [_loop_section(loop, run.run_dir / "plots" / "loop_graph.png", _t0(truth, est))]
+            if loop is not None
+            else []
+        )
     except OSError as exc:  # matplotlib and PIL raise it as it is (a full disk, say)
         where = exc.filename or run.run_dir / "plots"
         raise IoError(f"cannot write {where}: {exc.strerror or exc}") from None
@@ -169,6 +247,7 @@ def write_odometry_outputs(
                     )
                 ],
             ),
+            *extra,
             ReportSection(
                 "Timing",
                 text=f"{t.frames} frames, {t.frames_per_s:.1f} frames/s for the estimator, {t.wall_s:.1f} s wall time for the run",

@@ -664,8 +664,9 @@ def _finish(
         input_counts=counts,
     )  # fmt: skip
     write_json(run_dir / "timing.json", dataclasses.asdict(run.timing))
-    write_json(run_dir / "metrics.json", run.as_json())
-    from quadnav.experiments.odometry_report import write_odometry_outputs
+    from quadnav.experiments.odometry_report import loop_evaluation, write_odometry_outputs
 
-    write_odometry_outputs(run, scored.matched_truth, scored.matched_est, scored.truth, est)
+    loop = loop_evaluation(vio, rec.keyframes.trajectory(), scored.truth)  # None without --loop
+    write_json(run_dir / "metrics.json", run.as_json() | (loop.as_metrics() if loop else {}))
+    write_odometry_outputs(run, scored.matched_truth, scored.matched_est, scored.truth, est, loop)
     return run

@@ -191,7 +191,11 @@ _VIO = RunFolderKind(
         RunFile("groundtruth.tum", "the dataset's ground truth (TUM)", False),
         RunFile("events.jsonl", "initialisation, failures, resets, time offset, one a line"),
         RunFile("timing.json", "time per stage"),
-        RunFile("metrics.json", "APE (4-DoF, SE(3), Sim(3)), RPE, drift, NEES, counts"),
+        RunFile(
+            "metrics.json",
+            "APE (4-DoF, SE(3), Sim(3)), RPE, drift, NEES, counts; with --loop the loops "
+            "judged against the truth (loop_precision, loop_recall, ...)",
+        ),
         RunFile("report.html", "the report: metrics, plots, configuration"),
         RunFile("plots/*.png", "trajectory, error and timing plots"),
         RunFile("tracks.mp4", "the tracked features drawn (without --no-video)", False),
