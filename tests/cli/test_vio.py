@@ -89,7 +89,7 @@ def test_a_map_saved_by_one_run_is_where_the_next_reports(
     over the same images it is recognised within its first keyframes and joined."""
     out, _ = first_run
     folder = tmp_path / "map"
-    base = ["vio", "room_easy", "--duration", "4", "--no-video", "--stereo", "--out", str(out)]
+    base = ["vio", "room_easy", "--duration", "4", "--no-video", "--out", str(out)]
     result = runner.invoke(app, [*base, "--save-map", str(folder)])
     assert result.exit_code == 0, result.output
     saved = json.loads((folder / "map.json").read_text())

@@ -158,7 +158,7 @@ def loop_evaluation(
         exclude_keyframes=max(1, vio.config.detector.exclude_recent),
         recall_window=vio.config.min_keyframes_between,
     )
-    return evaluate_loops(vio.stats.places, keyframes, vio.corrected_keyframes(), truth, cfg)
+    return evaluate_loops(vio.own_places(), keyframes, vio.corrected_keyframes(), truth, cfg)
 
 
 def _loop_section(loop: LoopEvaluation, path: Path, t0_ns: int) -> ReportSection:

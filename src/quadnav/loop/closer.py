@@ -354,6 +354,11 @@ class LoopClosure:
             name="keyframes_loop",
         )
 
+    def own_places(self) -> list[PlaceEvent]:
+        """The places recognised between two keyframes of this run (not a loaded map's, whose
+        times are those of the flight that made it)."""
+        return [p for p in self.stats.places if self._segment_of.get(p.old) != MAP_FRAME]
+
     # -- the map ----------------------------------------------------------------------------
     def _load(self, loop_map: LoopMap) -> None:
         """A saved map as the root: its keyframes held in the graph, in the database."""
