@@ -268,9 +268,12 @@ class TimeOffsetEstimator:
 
     def _costs(self, buf: _Buffer, td: FloatArray) -> FloatArray:
         """The cost at each offset of ``td``: squared residuals, bias (and mount) removed."""
-        g = _gyro_rates(buf, td)
+        return self._costs_of(_gyro_rates(buf, td), buf.w_cam)
+
+    def _costs_of(self, g: FloatArray, w_cam: FloatArray) -> FloatArray:
+        """:meth:`_costs` from the gyro's rates ``g`` (offsets, spans, 3) and the camera's."""
         g = g - g.mean(axis=1, keepdims=True)
-        c = np.broadcast_to(buf.w_cam - buf.w_cam.mean(axis=0), g.shape)
+        c = np.broadcast_to(w_cam - w_cam.mean(axis=0), g.shape)
         if self._R_B_C is None:
             c = np.einsum("mij,mnj->mni", kabsch(c, g)[0], c)
         return np.asarray(np.sum((g - c) ** 2, axis=(1, 2)), dtype=np.float64)
@@ -320,13 +323,15 @@ class TimeOffsetEstimator:
         wide = np.asarray(
             np.clip(td + np.arange(-_WIDE, _WIDE + 1) * _GRID_S, -m, m), dtype=np.float64
         )
-        costs = self._costs(buf, wide)
-        curve = _parabola(wide - td, costs)
+        g_wide = _gyro_rates(buf, wide)
+        curve = _parabola(wide - td, self._costs_of(g_wide, buf.w_cam))
         if curve is None:
             return None
         excitation = float(np.sqrt(curve[0] / n))
         var_w = float(curve[2] - curve[1] ** 2 / (4.0 * curve[0])) / dof
-        sigma = max(sigma, float(np.sqrt(max(var_w, 0.0) / curve[0])), self._jackknife(buf, wide))
+        sigma = max(
+            sigma, float(np.sqrt(max(var_w, 0.0) / curve[0])), self._jackknife(buf, wide, g_wide)
+        )
         self._last = TdEstimate(
             td_s=td,
             sigma_s=sigma,
@@ -349,11 +354,12 @@ class TimeOffsetEstimator:
             return None
         return float(fine[k] - fit[1] / (2.0 * fit[0])), fit
 
-    def _jackknife(self, buf: _Buffer, wide: FloatArray) -> float:
+    def _jackknife(self, buf: _Buffer, wide: FloatArray, g_wide: FloatArray) -> float:
         """The offset's standard deviation by the delete-a-group jackknife: the search's last
-        two steps (1 ms on ``wide``, then 0.1 ms) with each quarter of the window left out in
-        turn. Where vision's errors follow the motion the quarters disagree far beyond what the
-        residuals' spread says (infinite if a quarter's answer has no minimum)."""
+        two steps (1 ms on ``wide``, whose gyro rates are ``g_wide``, then 0.1 ms) with each
+        quarter of the window left out in turn. Where vision's errors follow the motion the
+        quarters disagree far beyond what the residuals' spread says (infinite if a quarter's
+        answer has no minimum)."""
         mid = 0.5 * (buf.t0 + buf.t1)
         edges = np.quantile(mid, np.linspace(0.0, 1.0, _QUARTERS + 1))
         part = np.clip(np.searchsorted(edges, mid, side="right") - 1, 0, _QUARTERS - 1)
@@ -361,7 +367,8 @@ class TimeOffsetEstimator:
         for q in range(_QUARTERS):
             keep = part != q
             rest = dataclasses.replace(buf, t0=buf.t0[keep], t1=buf.t1[keep], w_cam=buf.w_cam[keep])
-            fit = self._fine(rest, float(wide[int(np.argmin(self._costs(rest, wide)))]))
+            coarse = self._costs_of(g_wide[:, keep], rest.w_cam)
+            fit = self._fine(rest, float(wide[int(np.argmin(coarse))]))
             if fit is None:
                 return float("inf")
             tds.append(fit[0])
