@@ -827,7 +827,7 @@ class VioEstimator:
         self._td_s = self._td_stated_s + w * (float(est.td_s) - self._td_stated_s)
         settled = est.converged and not self._td_settled
         moved = not first and abs(self._td_s - float(self._td_reported_s or 0.0)) > 1e-3
-        if first or settled or moved or back:  # the first, a move of over 1 ms, settling
+        if first or settled or moved or back:  # first, moved over 1 ms, settled, usable again
             self._td_settled = self._td_settled or est.converged
             self._td_reported_s = self._td_s
             detail = (
