@@ -196,6 +196,14 @@ class VioConfig(ConfigModel):
         le=300.0,
         description="seconds of gyro and vision rotations the online time offset compares",
     )
+    td_min_rate_change_rad_s2: float = Field(
+        0.6,
+        ge=0.0,
+        le=100.0,
+        description="the online time offset is used only while the gyro's rate changes by at "
+        "least this much over the window (RMS, rad/s^2): on steady laps (0.1-0.4) vision's "
+        "errors that follow the motion pass for an offset 10-20 ms off; MH_01 flies 1.3-1.7",
+    )
     td_s: float | None = Field(
         None,
         ge=-0.1,

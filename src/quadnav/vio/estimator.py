@@ -87,11 +87,15 @@ class _KeyframeInfo:
     cov_pose: FloatArray | None = None
 
 
-def _time_offset_estimator(R_B_C: Rotation, window_s: float) -> TimeOffsetEstimator:
+def _time_offset_estimator(R_B_C: Rotation, cfg: VioConfig) -> TimeOffsetEstimator:
     """The online camera-IMU time-offset estimator, told the camera's mount. Its window is
     long (30 s by default): it compares rotations between keyframes, a few a second, and over
     6 s its answer on realistic corridor1 wandered between -1.8 and 3.8 ms (true: 3.9)."""
-    return TimeOffsetEstimator(R_B_C=R_B_C, window_s=window_s)
+    return TimeOffsetEstimator(
+        R_B_C=R_B_C,
+        window_s=cfg.td_window_s,
+        min_rate_slope_rad_s2=cfg.td_min_rate_change_rad_s2,
+    )
 
 
 class VioEstimator:
@@ -141,13 +145,12 @@ class VioEstimator:
         self._td_s = ns_to_s(spec.time_offset_ns) if cfg.td_s is None else cfg.td_s
         self._td_stated_s = self._td_s  # what the online estimate is weighed against
         self._td = (
-            _time_offset_estimator(rig.camera(camera).T_B_C.R_A_B, cfg.td_window_s)
-            if cfg.estimate_td
-            else None
+            _time_offset_estimator(rig.camera(camera).T_B_C.R_A_B, cfg) if cfg.estimate_td else None
         )
         self._td_applied_ns: dict[int, int] = {}  # keyframe stamp -> the offset it was given
         self._td_settled = False
         self._td_reported_s: float | None = None  # the estimate the last ``td`` event gave
+        self._td_observable: bool | None = None  # whether the last estimate was usable
         # the visual-inertial initialisation (a start or re-start while moving)
         self._visual_init: Callable[[InitWindow], InitResult | None] = visual_inertial_init
         # the window's keyframes as the interface publishes them once they leave it
@@ -809,15 +812,31 @@ class VioEstimator:
         est = self._td.estimate()
         if est is None or not np.isfinite(est.td_s) or abs(est.td_s) > 0.1:
             return
-        if not est.sigma_s <= cfg.td_prior_sigma_s:  # less sure than the stated offset
+        # a motion whose rate hardly changes, or an answer less sure than the stated offset
+        if not (est.excited and est.sigma_s <= cfg.td_prior_sigma_s):
+            if self._td_observable is not False:  # said once each time it stops being usable
+                self._td_observable = False
+                measured = f"measured {1e3 * est.td_s:.2f} ms, sigma {1e3 * est.sigma_s:.2f} ms"
+                why = (
+                    f"not observable from this motion (its rate changes by "
+                    f"{est.excitation_rad_s2:.2f} rad/s^2, under "
+                    f"{cfg.td_min_rate_change_rad_s2:.2f}; {measured})"
+                    if not est.excited
+                    else f"the estimate ({measured}) is less sure than the stated offset "
+                    f"({1e3 * cfg.td_prior_sigma_s:.2f} ms)"
+                )
+                detail = f"camera-IMU offset held at {1e3 * self._td_s:.2f} ms: {why}"
+                self._events.append(OdometryEvent(t_ns=b.t_ns, kind="td", detail=detail))
             return
+        back = self._td_observable is False
+        self._td_observable = True
         first = self._td_reported_s is None
         # weighed against the stated offset (its prior): a wandering early estimate moves little
         w = cfg.td_prior_sigma_s**2 / (cfg.td_prior_sigma_s**2 + est.sigma_s**2)
         self._td_s = self._td_stated_s + w * (float(est.td_s) - self._td_stated_s)
         settled = est.converged and not self._td_settled
         moved = not first and abs(self._td_s - float(self._td_reported_s or 0.0)) > 1e-3
-        if first or settled or moved:  # the first estimate, a move of over 1 ms, settling
+        if first or settled or moved or back:  # first, moved over 1 ms, settled, usable again
             self._td_settled = self._td_settled or est.converged
             self._td_reported_s = self._td_s
             detail = (

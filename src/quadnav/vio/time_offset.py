@@ -9,12 +9,23 @@ with the rate linear between samples (so spans of any length, consecutive frames
 less one constant (the gyro bias, a nuisance). Without ``R_B_C`` the rotation between the two
 is fitted too (Kabsch on the centred rates, per candidate offset). The cost is scanned on a
 5 ms grid over ``±max_td_s`` (or, once settled, near the last estimate), then at 1 ms and at
-0.1 ms around its minimum, where a parabola gives the offset and the curvature; ``sigma_s`` comes from that curvature and the residual's
-spread.
+0.1 ms around its minimum, where a parabola gives the offset. ``sigma_s`` is the largest of
+that parabola's, one through ±10 ms (the curvature of a shift, not of the noise of the gyro
+samples the spans end on) and the delete-a-quarter jackknife of the window (a curvature takes
+the residuals as independent; errors that follow the motion are not).
 
 A constant rate says nothing about a shift: while the camera's rate varies by less than
 ``min_rate_change_rad_s`` (RMS about its mean; without ``R_B_C``, on every axis), or fewer
 than ``min_rotations`` spans are buffered, :meth:`TimeOffsetEstimator.estimate` answers None.
+A rate that changes slowly says too little: the estimate's ``excitation_rad_s2`` is the RMS
+change of the gyro's rate over the spans per second of shift (the ±10 ms parabola's curvature
+per span), and under ``min_rate_slope_rad_s2`` it is marked not ``excited``. On steady laps
+(0.1-0.4 rad/s^2; realistic MH_01 1.3-1.7, V1_02 1.9-3.2) vision's errors that follow the
+motion (the translation's share of a rotation follows a lap's sway as a shifted rate would)
+gave answers 10-20 ms off with sigmas of 1-3 ms; no sigma from the residuals can see such an
+error, since it is itself a shift (on motions degenerate for the offset see Yang et al.,
+"Degenerate motion analysis for aided INS with online spatial and temporal sensor
+calibration", RA-L 2019).
 
 Bad input: a non-finite or malformed rate or rotation, or a span with ``t1 <= t0``, is refused
 with a :class:`~quadnav.errors.VioError` naming it; a sample whose stamp is not after the last
@@ -24,6 +35,7 @@ images' own stamps: an estimate is the whole offset, not a correction to one alr
 
 from __future__ import annotations
 
+import dataclasses
 from collections import deque
 from dataclasses import dataclass
 
@@ -42,6 +54,13 @@ FloatArray = NDArray[np.float64]
 
 #: The middle scan's step (s): the wide one is 5 times coarser, the fine one 10 times finer.
 _GRID_S = 1e-3
+#: The steps of ``_GRID_S`` either side of the minimum whose parabola gives the excitation and
+#: the sigma: ±10 ms, the scale of a shift, not of the gyro's sample noise (at 0.1 ms steps the
+#: cost's curvature is mostly the noise of the spans' end samples: 0.4-0.6 rad/s^2 of rate
+#: change on the realistic room laps, 0.2-0.4 at this scale).
+_WIDE = 10
+#: The jackknife's groups (consecutive parts of the window).
+_QUARTERS = 4
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -53,6 +72,12 @@ class TdEstimate:
     sigma_s: float
     converged: bool
     n_rotations: int
+    #: the RMS change of the gyro's rate over the spans per second of shift (rad/s^2): what
+    #: an offset is measured by (the square root of the cost's curvature per span)
+    excitation_rad_s2: float
+    #: ``excitation_rad_s2`` at least the estimator's ``min_rate_slope_rad_s2``; if not, the
+    #: motion does not tell the offset from vision's errors and the answer is not to be used
+    excited: bool
 
 
 @dataclass(frozen=True, slots=True)
@@ -67,6 +92,13 @@ class _Buffer:
     t0: FloatArray
     t1: FloatArray
     w_cam: FloatArray
+
+
+def _parabola(x: FloatArray, y: FloatArray) -> tuple[float, float, float] | None:
+    """``(a2, a1, a0)`` of the least-squares parabola through ``(x, y)``, or None unless it
+    opens upwards."""
+    a2, a1, a0 = (float(v) for v in np.polyfit(x, y, 2))
+    return (a2, a1, a0) if a2 > 0.0 else None
 
 
 def _rotation(R: Rotation | ArrayLike) -> Rotation:
@@ -130,7 +162,8 @@ class TimeOffsetEstimator:
     ``R_B_C`` is the camera's mount (None: fitted from the data, which then needs rotation
     about every axis); ``window_s`` the buffer kept; ``max_td_s`` the search's half range;
     ``converged_sigma_s`` the standard deviation under which an estimate counts as settled;
-    ``refresh_spans`` how many new spans make :meth:`estimate` search again."""
+    ``refresh_spans`` how many new spans make :meth:`estimate` search again;
+    ``min_rate_slope_rad_s2`` the rate's change an estimate needs to be ``excited``."""
 
     def __init__(
         self,
@@ -142,6 +175,7 @@ class TimeOffsetEstimator:
         min_rate_change_rad_s: float = 0.05,
         converged_sigma_s: float = 5e-4,
         refresh_spans: int = 10,
+        min_rate_slope_rad_s2: float = 0.6,
     ) -> None:
         if not (0.0 < max_td_s < window_s / 4):
             raise VioError(f"max_td_s must be in (0, window_s / 4), got {max_td_s}")
@@ -151,6 +185,7 @@ class TimeOffsetEstimator:
         self._min_rotations = int(min_rotations)
         self._min_change = float(min_rate_change_rad_s)
         self._converged_sigma_s = float(converged_sigma_s)
+        self._min_slope = float(min_rate_slope_rad_s2)
         self._gyro: deque[tuple[int, FloatArray]] = deque()
         self._spans: deque[tuple[int, int, FloatArray]] = deque()
         self._rejected = {"gyro_out_of_order": 0, "rotation_out_of_order": 0}
@@ -233,9 +268,12 @@ class TimeOffsetEstimator:
 
     def _costs(self, buf: _Buffer, td: FloatArray) -> FloatArray:
         """The cost at each offset of ``td``: squared residuals, bias (and mount) removed."""
-        g = _gyro_rates(buf, td)
+        return self._costs_of(_gyro_rates(buf, td), buf.w_cam)
+
+    def _costs_of(self, g: FloatArray, w_cam: FloatArray) -> FloatArray:
+        """:meth:`_costs` from the gyro's rates ``g`` (offsets, spans, 3) and the camera's."""
         g = g - g.mean(axis=1, keepdims=True)
-        c = np.broadcast_to(buf.w_cam - buf.w_cam.mean(axis=0), g.shape)
+        c = np.broadcast_to(w_cam - w_cam.mean(axis=0), g.shape)
         if self._R_B_C is None:
             c = np.einsum("mij,mnj->mni", kabsch(c, g)[0], c)
         return np.asarray(np.sum((g - c) ** 2, axis=(1, 2)), dtype=np.float64)
@@ -264,7 +302,7 @@ class TimeOffsetEstimator:
 
     def estimate(self) -> TdEstimate | None:
         """The offset over the buffer, or None while it holds too few spans or too little
-        change of rotation rate. Recomputed once ``refresh_spans`` new spans have come in
+        change of rotation rate (marked not ``excited`` while the rate changes too slowly). Recomputed once ``refresh_spans`` new spans have come in
         (the search costs tens of milliseconds), the last answer returned in between."""
         if self._last is not None and self._new_spans < self._refresh_spans:
             return self._last
@@ -272,18 +310,67 @@ class TimeOffsetEstimator:
         if buf is None:
             return None
         self._new_spans = 0
-        fine = np.asarray(self._search(buf) + np.arange(-10, 11) * (_GRID_S / 10), dtype=np.float64)
-        costs = self._costs(buf, fine)
-        k = int(np.clip(np.argmin(costs), 3, len(fine) - 4))
-        a2, a1, a0 = np.polyfit(fine[k - 3 : k + 4] - fine[k], costs[k - 3 : k + 4], 2)
-        if a2 <= 0.0:
+        fit = self._fine(buf, self._search(buf))
+        if fit is None:
             return None
-        td = float(fine[k] - a1 / (2.0 * a2))
+        td, (a2, a1, a0) = fit
         n = len(buf.t0)
         unknowns = 2 if self._R_B_C is not None else 5
-        var_r = float(a0 - a1**2 / (4.0 * a2)) / max(3 * n - unknowns - 3, 1)
+        dof = max(3 * n - unknowns - 3, 1)
+        var_r = float(a0 - a1**2 / (4.0 * a2)) / dof
         sigma = float(np.sqrt(max(var_r, 0.0) / a2))  # cost'' = 2 a2; var = 2 var_r / cost''
+        m = self._max_td_s
+        wide = np.asarray(
+            np.clip(td + np.arange(-_WIDE, _WIDE + 1) * _GRID_S, -m, m), dtype=np.float64
+        )
+        g_wide = _gyro_rates(buf, wide)
+        curve = _parabola(wide - td, self._costs_of(g_wide, buf.w_cam))
+        if curve is None:
+            return None
+        excitation = float(np.sqrt(curve[0] / n))
+        var_w = float(curve[2] - curve[1] ** 2 / (4.0 * curve[0])) / dof
+        sigma = max(
+            sigma, float(np.sqrt(max(var_w, 0.0) / curve[0])), self._jackknife(buf, wide, g_wide)
+        )
         self._last = TdEstimate(
-            td_s=td, sigma_s=sigma, converged=sigma < self._converged_sigma_s, n_rotations=n
+            td_s=td,
+            sigma_s=sigma,
+            converged=sigma < self._converged_sigma_s,
+            n_rotations=n,
+            excitation_rad_s2=excitation,
+            excited=excitation >= self._min_slope,
         )
         return self._last
+
+    def _fine(self, buf: _Buffer, centre: float) -> tuple[float, tuple[float, float, float]] | None:
+        """The minimum near ``centre`` (the 1 ms scan's best): 0.1 ms steps within 1 ms of it,
+        a parabola through the seven around the least; the offset and the parabola (about the
+        step nearest the minimum), or None where it does not open upwards."""
+        fine = np.asarray(centre + np.arange(-10, 11) * (_GRID_S / 10), dtype=np.float64)
+        costs = self._costs(buf, fine)
+        k = int(np.clip(np.argmin(costs), 3, len(fine) - 4))
+        fit = _parabola(fine[k - 3 : k + 4] - fine[k], costs[k - 3 : k + 4])
+        if fit is None:
+            return None
+        return float(fine[k] - fit[1] / (2.0 * fit[0])), fit
+
+    def _jackknife(self, buf: _Buffer, wide: FloatArray, g_wide: FloatArray) -> float:
+        """The offset's standard deviation by the delete-a-group jackknife: the search's last
+        two steps (1 ms on ``wide``, whose gyro rates are ``g_wide``, then 0.1 ms) with each
+        quarter of the window left out in turn. Where vision's errors follow the motion the
+        quarters disagree far beyond what the residuals' spread says (infinite if a quarter's
+        answer has no minimum)."""
+        mid = 0.5 * (buf.t0 + buf.t1)
+        edges = np.quantile(mid, np.linspace(0.0, 1.0, _QUARTERS + 1))
+        part = np.clip(np.searchsorted(edges, mid, side="right") - 1, 0, _QUARTERS - 1)
+        tds = []
+        for q in range(_QUARTERS):
+            keep = part != q
+            rest = dataclasses.replace(buf, t0=buf.t0[keep], t1=buf.t1[keep], w_cam=buf.w_cam[keep])
+            coarse = self._costs_of(g_wide[:, keep], rest.w_cam)
+            fit = self._fine(rest, float(wide[int(np.argmin(coarse))]))
+            if fit is None:
+                return float("inf")
+            tds.append(fit[0])
+        spread = np.asarray(tds) - np.mean(tds)
+        return float(np.sqrt((_QUARTERS - 1) / _QUARTERS * np.sum(spread**2)))
