@@ -48,6 +48,9 @@ def test_a_revisit_is_closed_and_the_keyframes_corrected(seed: int) -> None:
         assert not loop.stats.rejected, loop.stats  # every place recognised here is real
         kinds = [e.kind for e in loop.events]
         assert kinds.count("loop") == loop.stats.accepted
+        # each loop edge at least as uncertain as the landmarks' own error allows
+        least = [LOOP.loop_floor_m**2] * 3 + [LOOP.loop_floor_yaw_rad**2]
+        assert all(np.all(np.diag(e.cov) >= least) for e in loop.graph.loops())
         poses = loop.graph.keyframe_poses()
         corrected = [poses[k] for k in range(len(odo.truth))]
         second = slice(PER_LAP, None)

@@ -62,13 +62,13 @@ def test_after_a_blackout_the_output_is_back_in_the_map_within_a_second(seed: in
         back_s = (int(joins[0]["t_ns"]) - _frame(BLACKOUT.stop).t_ns) / 1e9  # type: ignore[call-overload]
         assert 0 <= back_s <= 1.0, back_s
         k_in = BLACKOUT.stop + round(back_s / FRAME_S)
-        # before: the dead reckoning's error; once relocalized: the map's own (the first lap's
-        # drift where the keyframe matched), an output that jumped with its reset counter up
-        before = _error(out[BLACKOUT.stop], odo.truth[BLACKOUT.stop])
-        after = _error(out[k_in], odo.truth[k_in])
-        assert before > 0.3
-        assert after < 0.5 * before, (before, after)
-        assert out[k_in].reset_counter > out[BLACKOUT.stop].reset_counter
+        # the output moved back by about what the dead reckoning put it off (0.43 m), to the
+        # map's own error (the first lap's drift where the keyframe matched), with its reset
+        # counter up
+        assert float(joins[0]["jump_m"]) > 0.25, joins  # type: ignore[arg-type]
+        after = [_error(out[k], odo.truth[k]) for k in range(k_in, k_in + 5)]
+        assert after[0] < 0.15 and np.mean(after) < 0.2, after
+        assert out[k_in].reset_counter > out[BLACKOUT.start - 1].reset_counter
         assert len(loop.segments.items) == 2
     finally:
         loop.close()

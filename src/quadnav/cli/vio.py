@@ -133,7 +133,7 @@ EXAMPLES = (
     "quadnav vio room_medium --stereo --duration 30 --no-video",
     "quadnav vio room_laps --stereo --loop --no-video",
     "quadnav vio room_laps --stereo --save-map /tmp/room_map --no-video",
-    "quadnav vio room_laps --seed 1 --stereo --load-map /tmp/room_map --no-video",
+    "quadnav vio data/room_again --stereo --load-map /tmp/room_map --no-video",
     "quadnav vio hall_laps --stereo --loop --blackout 50:3 --no-video",
 )
 

@@ -9,12 +9,14 @@ is *joined* once a verified loop ties it to a joined one.
 
 Until then it is *relocalizing* (VINS-Mono's relocalization, ORB-SLAM's after a loss): every
 new keyframe of the odometry, still in its window, is looked up in the place database without
-waiting for temporal consistency and verified against the map; two verified matches within
-``relocalize_window_s`` whose map-to-odometry transforms agree (``relocalize_agree_m`` and
-``_rad``) join the segment at once, and their loops enter the graph when the keyframe leaves
-the odometry's window. After a gap (the odometry's frame goes on) the transform must also lie
-within ``relocalize_max_jump_m`` / ``_rad`` of the one before the gap: a place that only looks
-like the old one, metres away, is refused there as the drift check refuses it for loops.
+waiting for temporal consistency (the best entries of the three best islands) and verified
+against the map. After a gap (the odometry's frame went on) one verified match joins the
+segment if its map-to-odometry transform lies within ``relocalize_max_jump_m`` / ``_rad`` of the
+one before the gap: a place that only looks like the old one, metres away, is refused there as
+the drift check refuses it for loops. After a reset or on a loaded map (the frame is unrelated:
+no such check) it takes two verified matches within ``relocalize_window_s`` whose transforms
+agree (``relocalize_agree_m`` and ``_rad``). The loops enter the graph when the keyframe leaves
+the odometry's window.
 """
 
 from __future__ import annotations

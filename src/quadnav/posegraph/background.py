@@ -85,6 +85,8 @@ class BackgroundPoseGraph:
         self._rejected: Counter[str] = Counter()
         self._T_M_O: dict[int, Pose] = {}
         self._T_init: dict[int, Pose] = {}  # each frame's T_M_O until a loop joins it
+        self._moved: Counter[int] = Counter()  # how many times set_frame moved each frame
+        self._solved_frames: set[int] = set()  # the frames the latest solve's poses hold for
         self._fixed: list[bool] = []
         self._latest = DriftCorrection()
         self.optimizations = 0
@@ -113,6 +115,7 @@ class BackgroundPoseGraph:
         with self._cv:
             self._T_init[reset_counter] = T_M_O
             self._T_M_O[reset_counter] = T_M_O
+            self._moved[reset_counter] += 1
 
     def add_pose(
         self, index: int, T_O_B: Pose, *, t_ns: int = 0, reset_counter: int = 0,
@@ -197,25 +200,27 @@ class BackgroundPoseGraph:
     def pose_of(self, index: int) -> Pose | None:
         """Keyframe ``index``'s corrected pose (as :meth:`keyframe_poses`), or None."""
         with self._cv:
-            res = self._latest.result
-            if res is not None:
-                n = int(np.searchsorted(res.indices, index))
-                if n < len(res.indices) and res.indices[n] == index:
-                    return res.poses[n]
             n = int(np.searchsorted(self._indices, index))
             if n == len(self._indices) or self._indices[n] != index:
                 return None
-            return self._frame_T(self._reset_counters[n]) @ self._poses[n]
+            rc = self._reset_counters[n]
+            res = self._latest.result
+            if res is not None and rc in self._solved_frames:
+                m = int(np.searchsorted(res.indices, index))
+                if m < len(res.indices) and res.indices[m] == index:
+                    return res.poses[m]
+            return self._frame_T(rc) @ self._poses[n]
 
     def keyframe_poses(self) -> dict[int, Pose]:
-        """Every keyframe's corrected pose: the optimised ones as solved, the later ones through
-        their frame's ``T_M_O``."""
+        """Every keyframe's corrected pose: the optimised ones as solved, the later ones (and
+        those of a frame moved since) through their frame's ``T_M_O``."""
         with self._cv:
             res = self._latest.result
-            out = {} if res is None else dict(zip(res.indices.tolist(), res.poses, strict=True))
+            solved = {} if res is None else dict(zip(res.indices.tolist(), res.poses, strict=True))
+            out = {}
             for k, rc, p in zip(self._indices, self._reset_counters, self._poses, strict=True):
-                if k not in out:
-                    out[k] = self._frame_T(rc) @ p
+                got = solved.get(k) if rc in self._solved_frames else None
+                out[k] = got if got is not None else self._frame_T(rc) @ p
             return out
 
     def wait(self, timeout_s: float | None = None) -> bool:
@@ -239,7 +244,7 @@ class BackgroundPoseGraph:
         self.close()
 
     # ------------------------------------------------------------------ the optimiser's thread
-    def _snapshot(self) -> tuple[PoseGraphProblem, int]:
+    def _snapshot(self) -> tuple[PoseGraphProblem, int, dict[int, int]]:
         """The graph as it stands (its inputs checked as they came): arrays, under the lock."""
         start = [
             p if fixed or rc not in self._T_init else self._T_init[rc] @ p
@@ -254,7 +259,7 @@ class BackgroundPoseGraph:
             config=self.config,
             fixed=np.array(self._fixed, bool) if any(self._fixed) else None,
         )
-        return problem, len(self._indices)
+        return problem, len(self._indices), dict(self._moved)
 
     def _run(self) -> None:
         while True:
@@ -264,7 +269,7 @@ class BackgroundPoseGraph:
                     return
                 self._pending, self._busy = False, True
                 try:
-                    problem, n = self._snapshot()
+                    problem, n, moved = self._snapshot()
                 except Exception as exc:  # a bad snapshot must not end the thread
                     self._fail(exc)
                     continue
@@ -281,7 +286,7 @@ class BackgroundPoseGraph:
                         self._pool = _new_pool()
                 continue
             with self._cv:
-                self._publish(result, n)
+                self._publish(result, n, moved)
                 self._busy = False
                 self._cv.notify_all()
 
@@ -291,17 +296,24 @@ class BackgroundPoseGraph:
         self._busy = False
         self._cv.notify_all()
 
-    def _publish(self, result: PoseGraphResult, n: int) -> None:
+    def _publish(self, result: PoseGraphResult, n: int, moved: dict[int, int]) -> None:
         """Take a solve of the first ``n`` keyframes: ``T_M_O`` of each odometry frame from its
-        newest keyframe solved, and a jump of the newest keyframe against the previous
+        newest keyframe solved (not of a frame :meth:`set_frame` moved while it solved: the
+        solve saw it where it was), and a jump of the newest keyframe against the previous
         correction raising the reset counter."""
         rcs = self._reset_counters[:n]
         newest, rc = n - 1, rcs[n - 1]
         old = self._frame_T(rc) @ self._poses[newest]  # the output until now
+        self._solved_frames = set()
         for frame in set(rcs):
+            if self._moved[frame] != moved.get(frame, 0):
+                continue
+            self._solved_frames.add(frame)
             last = max(m for m in range(n) if rcs[m] == frame)
             self._T_M_O[frame] = result.poses[last] @ self._poses[last].inverse()
-        new = result.poses[newest]
+        new = self._frame_T(rc) @ self._poses[newest]
+        if rc in self._solved_frames:
+            new = result.poses[newest]
         jump_m = float(np.linalg.norm(new.p_A_B - old.p_A_B))
         jump_rad = float(geodesic_angle_rad(old.R_A_B, new.R_A_B))
         jumped = jump_m > self.config.reset_jump_m or jump_rad > self.config.reset_jump_rad
