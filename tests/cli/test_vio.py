@@ -123,6 +123,7 @@ def test_a_map_saved_by_one_run_is_where_the_next_reports(
         (["room_easy", "--seeds", "0-1", "--save-map", "/no/map"], "one run saves one map"),
         (["room_easy", "--blackout", "20"], "--blackout '20': give START:SECONDS"),
         (["room_easy", "--blackout", "20:-3"], "--blackout's length"),
+        (["room_easy", "--loop-set", "nope=1"], "--loop-set nope: unknown key"),
     ],
 )
 def test_bad_input_is_one_line_naming_the_option(

@@ -69,6 +69,7 @@ def resolve_request(
     blackout: str | None = None,
     save_map: Path | None = None,
     load_map: Path | None = None,
+    loop_set: list[str] | None = None,
 ) -> VioRequest:
     """The validated request (no dataset read, no folder made). ``--stereo`` uses the rig's
     second camera; a built-in sequence is then made with EuRoC's stereo rig unless ``--rig``
@@ -87,8 +88,9 @@ def resolve_request(
         sources=tuple(datasets), config=config,
         overrides=(*set_, "stereo=true") if stereo else tuple(set_), options=options,
         seed=seed, seeds=parse_seeds(seeds) if seeds is not None else None, rig=rig_name,
-        out=out, calibration=calibration, loop=loop or save_map is not None or load_map is not None,
-        load_map=load_map,
+        out=out, calibration=calibration,
+        loop=loop or save_map is not None or load_map is not None or bool(loop_set),
+        load_map=load_map, loop_overrides=tuple(loop_set or ()),
     )  # fmt: skip
     check_request(request)
     return request
@@ -121,6 +123,7 @@ def check_example(params: CommandParams) -> None:
         blackout=optional_param(params, "blackout", str),
         save_map=optional_param(params, "save_map", Path),
         load_map=optional_param(params, "load_map", Path),
+        loop_set=strings_param(params, "loop_set"),
     )  # fmt: skip
 
 
@@ -132,6 +135,7 @@ EXAMPLES = (
     "quadnav vio room_easy hall_easy --seeds 0-4 --out /tmp/runs",
     "quadnav vio room_medium --stereo --duration 30 --no-video",
     "quadnav vio room_laps --stereo --loop --no-video",
+    "quadnav vio hall_laps --stereo --loop-set detector.temporal_consistency=3 --no-video",
     "quadnav vio room_laps --stereo --save-map /tmp/room_map --no-video",
     "quadnav vio data/room_again --stereo --load-map /tmp/room_map --no-video",
     "quadnav vio hall_laps --stereo --loop --blackout 50:3 --no-video",
@@ -220,6 +224,14 @@ def vio_command(
             "with a 4-DoF pose graph",
         ),
     ] = False,
+    loop_set: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--loop-set",
+            help="override a loop closure setting, e.g. --loop-set max_drift_m=0.5 or "
+            "graph.loop_sigma_m=0.03 (repeatable; turns --loop on)",
+        ),
+    ] = None,
     save_map: Annotated[
         Path | None,
         typer.Option(
@@ -255,7 +267,7 @@ def vio_command(
     request = resolve_request(
         datasets, config, list(set_ or []), camera, start_s, duration_s, seed, seeds, rig, out,
         video=video, video_every=video_every, calibration=calibration, stereo=stereo, loop=loop,
-        blackout=blackout, save_map=save_map, load_map=load_map,
+        blackout=blackout, save_map=save_map, load_map=load_map, loop_set=loop_set,
     )  # fmt: skip
     if len(datasets) == 1 and seeds is None:
         with progress_bar("vio") as update:

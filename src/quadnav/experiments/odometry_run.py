@@ -629,7 +629,10 @@ def _loop_outputs(vio: VisualOdometry, rec: _Record, run_dir: Path, save_map: Pa
             saved = {"map_saved": str(save_map), "map_saved_keyframes": len(the_map.keyframes)}
     finally:
         vio.close()
-    write_json(run_dir / "loop.json", {**vio.stats.as_json(), **saved})
+    from quadnav.loop.settings import loop_settings
+
+    settings = {"settings": loop_settings(vio.config)}
+    write_json(run_dir / "loop.json", {**vio.stats.as_json(), **saved, **settings})
 
 
 def _finish(

@@ -99,8 +99,8 @@ class VioRequest:
     """What ``quadnav vio`` was asked: the datasets (folders, bags or built-in sequence names),
     the estimator's configuration file and ``--set`` overrides, the span and outputs, the seed
     (``seeds`` for a study), the rig a built-in sequence is made with, the runs' folder, and
-    whether loop closure runs on the odometry (``loop``), on a map saved before (``load_map``;
-    ``options.save_map`` saves one)."""
+    whether loop closure runs on the odometry (``loop``), with ``--loop-set`` overrides
+    (``loop_overrides``), on a map saved before (``load_map``; ``options.save_map`` saves one)."""
 
     sources: tuple[str, ...]
     config: Path | None = None
@@ -113,6 +113,7 @@ class VioRequest:
     calibration: Path | None = None
     loop: bool = False
     load_map: Path | None = None
+    loop_overrides: tuple[str, ...] = ()
 
 
 def check_request(request: VioRequest) -> None:
@@ -128,6 +129,10 @@ def check_request(request: VioRequest) -> None:
     except GeometryError as exc:
         raise ConfigError(f"--rig: {exc}") from None
     cfg, _ = resolve_vio_config(VioConfig, request.config, request.overrides, rig)
+    if request.loop_overrides:
+        from quadnav.loop.settings import loop_config_with
+
+        loop_config_with(request.loop_overrides)
     several = len(request.sources) > 1 or (request.seeds is not None and len(request.seeds) > 1)
     if request.options.save_map is not None and several:
         raise ConfigError(
@@ -176,9 +181,11 @@ def run_vio_source(
             return vio
         from quadnav.errors import LoopError
         from quadnav.loop import LoopClosure
+        from quadnav.loop.settings import loop_config_with
 
+        config = loop_config_with(request.loop_overrides)
         try:
-            return LoopClosure(vio, r.camera(opt.camera), loop_map=loop_map)
+            return LoopClosure(vio, r.camera(opt.camera), config=config, loop_map=loop_map)
         except LoopError as exc:
             raise LoopError(f"--load-map {request.load_map}: {exc}") from None
 
