@@ -55,3 +55,24 @@ def test_posegraph_benchmark_refuses_bad_repeats_in_one_line() -> None:
     )  # fmt: skip
     assert done.returncode == 2, done.stderr
     assert done.stderr.strip() == "error: --repeats must be at least 1, got 0"
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["/no/such/dataset"], "error: DATASET /no/such/dataset: no such file or folder"),
+        ([".", "--map", "/no/such/map"], "error: --map /no/such/map: no such folder"),
+        ([".", "--repeats", "0"], "error: --repeats must be at least 1, got 0"),
+        ([".", "--keyframes", "0"], "error: --keyframes must be at least 1, got 0"),
+        ([".", "--minutes", "0"], "error: --minutes must be in (0, 600], got 0.0"),
+        ([".", "--skip-runs"], "error: --skip-runs needs --map and --keyframes-per-s"),
+        ([".", "--keyframes-per-s", "0"], "error: --keyframes-per-s must be in (0, 1000], got 0.0"),
+    ],
+)
+def test_loop_benchmark_refuses_bad_input_in_one_line(args: list[str], message: str) -> None:
+    done = subprocess.run(
+        [sys.executable, str(ROOT / "benchmarks" / "loop.py"), *args],
+        cwd=ROOT, capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert done.returncode == 2, done.stderr
+    assert done.stderr.strip().splitlines() == [message], done.stderr

@@ -90,6 +90,36 @@ def test_the_map_round_trip_is_exact(saved: tuple[Path, LoopMap], tmp_path: Path
         assert all(np.array_equal(z1[k], z2[k], equal_nan=True) for k in z1.files)
 
 
+def test_every_rotation_survives_the_round_trip_bit_for_bit(
+    saved: tuple[Path, LoopMap], tmp_path: Path
+) -> None:
+    """Scipy normalises a quaternion it is given, and the result may differ in its last bits;
+    for some rotations normalising again does not settle (a cycle, or a walk of many steps), so
+    a map saved, loaded and saved again differed in such a pose (one in 186 of room laps' map).
+    Every pose must come back bit for bit, and stay within 1e-15 of the rotation."""
+    _, the_map = saved
+    rng = np.random.default_rng(5)
+    rotations = Rotation.from_quat(rng.normal(size=(2000, 4)))
+
+    def again(q: np.ndarray) -> np.ndarray:
+        return np.asarray(Rotation.from_quat(q).as_quat())
+
+    cycling = sum(not np.array_equal(again(again(q)), again(q)) for q in rotations.as_quat())
+    assert cycling >= 10  # the case this is about is among them
+    kf = the_map.keyframes[0]
+    keyframes = tuple(
+        dataclasses.replace(kf, record=dataclasses.replace(
+            kf.record, index=i, T_W_B=Pose(rotations[i], np.array([float(i), 0.0, 0.0]))))
+        for i in range(len(rotations))
+    )  # fmt: skip
+    save_loop_map(tmp_path / "a", dataclasses.replace(the_map, keyframes=keyframes, loops=()))
+    save_loop_map(tmp_path / "b", load_loop_map(tmp_path / "a"))
+    save_loop_map(tmp_path / "c", load_loop_map(tmp_path / "b"))
+    poses = [np.load(tmp_path / f / "keyframes.npz")["pose"] for f in "abc"]
+    assert poses[0].tobytes() == poses[1].tobytes() == poses[2].tobytes()
+    assert np.abs(poses[0][:, 3:] - rotations.as_quat()).max() < 1e-15
+
+
 def _copy(folder: Path, to: Path) -> Path:
     to.mkdir()
     for f in folder.iterdir():

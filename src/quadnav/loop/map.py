@@ -8,6 +8,7 @@ puts it on disk (the format is documented there) and reads it back.
 from __future__ import annotations
 
 import itertools
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -109,10 +110,8 @@ class LoopMap:
         arrays: dict[str, NDArray[np.generic]] = {
             "index": np.array([r.index for r in recs], np.int64),
             "t_ns": np.array([r.t_ns for r in recs], np.int64),
-            "pose": np.array([_pose7(r.T_W_B) for r in recs], np.float64).reshape(-1, 7),
-            "T_B_C": np.array(
-                [_pose7(r.T_B_C) if r.T_B_C else [np.nan] * 7 for r in recs], np.float64
-            ).reshape(-1, 7),
+            "pose": _poses7([r.T_W_B for r in recs]),
+            "T_B_C": _poses7([r.T_B_C for r in recs]),
             "cov_pose": np.array([r.cov_pose for r in recs], np.float64).reshape(-1, 6, 6),
             "n_keypoints": np.array([len(r.ids) for r in recs], np.int64),
             "ids": _cat([r.ids for r in recs], np.int64, (0,)),
@@ -132,7 +131,7 @@ class LoopMap:
             "n_features": np.array([len(k.direct.features) for k in self.keyframes], np.int64),
             "direct_features": _cat([k.direct.features for k in self.keyframes], np.int64, (0,)),
             "loop_ends": np.array([[e.old, e.new] for e in self.loops], np.int64).reshape(-1, 2),
-            "loop_pose": np.array([_pose7(e.T_old_new) for e in self.loops]).reshape(-1, 7),
+            "loop_pose": _poses7([e.T_old_new for e in self.loops]),
             "loop_scale": np.array([e.scale for e in self.loops], np.float64),
             "loop_cov": _loop_cov(self.loops),
         }
@@ -154,19 +153,46 @@ class LoopMap:
             raise LoopError(f"inconsistent map ({type(exc).__name__}: {exc})") from None
 
 
-def _pose7(T: Pose) -> list[float]:
-    """x, y, z, qx, qy, qz, qw, the quaternion one that reading back gives bit for bit (scipy
-    normalises what it is given: repeated until it no longer changes it, the round trip of a
-    map is exact)."""
+#: How many ulps :func:`_stable_quats` moves a quaternion's largest component at most (4 were
+#: enough for each of 50,000 random rotations).
+_MAX_ULPS = 16
+
+
+def _poses7(poses: Sequence[Pose | None]) -> FloatArray:
+    """Rows of x, y, z, qx, qy, qz, qw (None: a row of NaN), each quaternion one that reading
+    back gives bit for bit (:func:`_stable_quats`): the round trip of a map is exact."""
+    out = np.full((len(poses), 7), np.nan)
+    have = [k for k, T in enumerate(poses) if T is not None]
+    if have:
+        out[have, :3] = [poses[k].p_A_B for k in have]  # type: ignore[union-attr]
+        out[have, 3:] = _stable_quats(np.array([poses[k].R_A_B.as_quat() for k in have]))  # type: ignore[union-attr]
+    return out
+
+
+def _stable_quats(q: FloatArray) -> FloatArray:
+    """Each quaternion (rows, unit) as one that scipy's normalisation leaves as it is: the row
+    itself, or it with its largest component moved by the fewest ulps. Scipy normalises what
+    it is given, and for about one rotation in three the result differs from the quaternion
+    in its last bits; normalising that again may not come back (a walk of up to hundreds of
+    steps, or a cycle), so a map saved, loaded and saved again differed in such a pose."""
     from scipy.spatial.transform import Rotation
 
-    q = T.R_A_B.as_quat()
-    for _ in range(8):
-        again = Rotation.from_quat(q).as_quat()
-        if np.array_equal(again, q):
+    out = q.copy()
+    todo = np.arange(len(q))
+    big = np.argmax(np.abs(q), axis=1)
+    for k in sorted(range(-_MAX_ULPS, _MAX_ULPS + 1), key=lambda k: (abs(k), k)):
+        if not len(todo):
             break
-        q = again
-    return [*T.p_A_B.tolist(), *q.tolist()]
+        x = q[todo].copy()
+        col = big[todo]
+        v = x[np.arange(len(todo)), col]
+        for _ in range(abs(k)):
+            v = np.nextafter(v, np.inf if k > 0 else -np.inf)
+        x[np.arange(len(todo)), col] = v
+        ok = np.all(Rotation.from_quat(x).as_quat() == x, axis=1)
+        out[todo[ok]] = x[ok]
+        todo = todo[~ok]
+    return out
 
 
 def _pose_of(row: NDArray[np.generic]) -> Pose:
