@@ -106,6 +106,24 @@ def test_a_map_saved_by_one_run_is_where_the_next_reports(
     assert second["joins"] and second["joins"][0]["how"] == "relocalized", second["joins"]
 
 
+def test_a_blackout_withholds_the_images_and_starts_a_segment(
+    first_run: tuple[Path, Path], tmp_path: Path
+) -> None:
+    """``--blackout 2.5:0.6``: no image from 2.5 s to 3.1 s after the first (the IMU goes on);
+    loop closure sees the gap, starts a segment and says when it relocalized (if it did)."""
+    out, _ = first_run
+    base = ["vio", "room_easy", "--duration", "4", "--no-video", "--out", str(out)]
+    result = runner.invoke(app, [*base, "--loop", "--blackout", "2.5:0.6"])
+    assert result.exit_code == 0, result.output
+    run_dir = Path(result.stdout.strip().splitlines()[-1])
+    loop = json.loads((run_dir / "loop.json").read_text())
+    assert loop["blackout"]["start_s"] == 2.5 and abs(loop["blackout"]["end_s"] - 3.1) < 1e-9
+    assert loop["segments"] == 2
+    events = [json.loads(x) for x in (run_dir / "events.jsonl").read_text().splitlines()]
+    gap = [e for e in events if e["kind"] == "image_gap"]
+    assert len(gap) == 1 and 3.1 <= gap[0]["t_s"] < 3.2, gap
+
+
 @pytest.mark.parametrize(
     ("args", "message"),
     [

@@ -605,14 +605,17 @@ def run_odometry(
         est, cov = _estimate(rec.states)
         write_tum(run_dir / "estimate.tum", est)
         write_tum(run_dir / "keyframes.tum", rec.keyframes.trajectory())
-        _loop_outputs(vio, rec, run_dir, opt.save_map)
+        _loop_outputs(vio, rec, run_dir, opt, t0)
     return _finish(dataset, vio, rec, run_dir, est, cov, (t0, t1), opt, time.perf_counter() - start)
 
 
-def _loop_outputs(vio: VisualOdometry, rec: _Record, run_dir: Path, save_map: Path | None) -> None:
+def _loop_outputs(
+    vio: VisualOdometry, rec: _Record, run_dir: Path, opt: OdometryRunOptions, t0: int
+) -> None:
     """With loop closure: the keyframes as the final pose graph has them
-    (``keyframes_loop.tum``), its counts (``loop.json``), the map saved if asked; the graph's
-    worker stopped."""
+    (``keyframes_loop.tum``), its counts (``loop.json``, with the time from a blackout's end to
+    the first relocalization after it), the map saved if asked; the graph's worker stopped."""
+    save_map = opt.save_map
     from quadnav.io.loop_map import save_loop_map
     from quadnav.loop import LoopClosure
     from quadnav.loop.closer import FINAL_WAIT_S
@@ -632,7 +635,25 @@ def _loop_outputs(vio: VisualOdometry, rec: _Record, run_dir: Path, save_map: Pa
     from quadnav.loop.settings import loop_settings
 
     settings = {"settings": loop_settings(vio.config)}
-    write_json(run_dir / "loop.json", {**vio.stats.as_json(), **saved, **settings})
+    blackout = _blackout_json(vio.stats.joins, opt, t0)
+    write_json(run_dir / "loop.json", {**vio.stats.as_json(), **saved, **settings, **blackout})
+
+
+def _blackout_json(
+    joins: Sequence[Mapping[str, object]], opt: OdometryRunOptions, t0: int
+) -> dict[str, object]:
+    """``--blackout``'s window and how long after the images came back the run relocalized
+    (None: it did not)."""
+    window = _blackout_ns(opt, t0)
+    if window is None:
+        return {}
+    after = [int(str(j["t_ns"])) - window[1] for j in joins if int(str(j["t_ns"])) >= window[1]]
+    return {
+        "blackout": {
+            "start_s": ns_to_s(window[0] - t0), "end_s": ns_to_s(window[1] - t0),
+            "relocalized_after_s": ns_to_s(min(after)) if after else None,
+        }
+    }  # fmt: skip
 
 
 def _finish(
