@@ -7,6 +7,7 @@ tilt at rest; it starts at zero and the window estimates it once the vehicle mov
 from __future__ import annotations
 
 import bisect
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -106,10 +107,16 @@ def gravity_rotation(accel_mean_B: FloatArray) -> Rotation:
 
 
 def static_start(
-    samples: Sequence[ImuSample], t_ns: int, config: VioConfig, g_tolerance: float = 0.5
+    samples: Sequence[ImuSample], t_ns: int, config: VioConfig, g_tolerance: float | None = None
 ) -> StaticStart | None:
     """A start at ``t_ns`` when the IMU has been still for the last ``static_window_s`` and
-    reads gravity's magnitude (within ``g_tolerance`` m/s^2); None otherwise."""
+    reads gravity's magnitude within ``g_tolerance`` m/s^2; None otherwise. At rest an
+    accelerometer reads gravity plus its bias: by default the tolerance is what a bias of three
+    times the start's prior (``init_accel_bias_sigma_m_s2`` per axis) can add, 0.5 m/s^2 at
+    least. (A fixed 0.5 refused the start of a realistic IMU whose drawn bias was 0.67 m/s^2: the
+    monocular VIO then never started on those 42 s of laps.)"""
+    if g_tolerance is None:
+        g_tolerance = max(0.5, 3.0 * math.sqrt(3.0) * config.init_accel_bias_sigma_m_s2)
     span = config.static_window_s
     st = imu_stillness(samples, t_ns - s_to_ns(span), t_ns, config.static_lowpass_s)
     if st is None or not is_still(st, config, span):
