@@ -49,6 +49,41 @@ VioSetOpt = Annotated[
 ]
 
 
+#: The loop closure options of ``quadnav vio`` (each turns loop closure on).
+LoopSetOpt = Annotated[
+    list[str] | None,
+    typer.Option(
+        "--loop-set",
+        help="override a loop closure setting, e.g. --loop-set max_drift_m=0.5 or "
+        "graph.loop_sigma_m=0.03 (repeatable; turns --loop on)",
+    ),
+]
+SaveMapOpt = Annotated[
+    Path | None,
+    typer.Option(
+        "--save-map",
+        help="save loop closure's map (keyframes, descriptors, landmarks, loops) to this "
+        "folder at the end (turns --loop on)",
+    ),
+]
+LoadMapOpt = Annotated[
+    Path | None,
+    typer.Option(
+        "--load-map",
+        help="start on a map saved by --save-map: held fixed, the run relocalizes in it and "
+        "reports in its frame (turns --loop on)",
+    ),
+]
+BlackoutOpt = Annotated[
+    str | None,
+    typer.Option(
+        "--blackout",
+        help="withhold the cameras' images for SECONDS from START (s after the first "
+        "image), START:SECONDS: a test of relocalization",
+    ),
+]
+
+
 def resolve_request(
     datasets: list[str],
     config: Path | None,
@@ -224,38 +259,10 @@ def vio_command(
             "with a 4-DoF pose graph",
         ),
     ] = False,
-    loop_set: Annotated[
-        list[str] | None,
-        typer.Option(
-            "--loop-set",
-            help="override a loop closure setting, e.g. --loop-set max_drift_m=0.5 or "
-            "graph.loop_sigma_m=0.03 (repeatable; turns --loop on)",
-        ),
-    ] = None,
-    save_map: Annotated[
-        Path | None,
-        typer.Option(
-            "--save-map",
-            help="save loop closure's map (keyframes, descriptors, landmarks, loops) to this "
-            "folder at the end (turns --loop on)",
-        ),
-    ] = None,
-    load_map: Annotated[
-        Path | None,
-        typer.Option(
-            "--load-map",
-            help="start on a map saved by --save-map: held fixed, the run relocalizes in it and "
-            "reports in its frame (turns --loop on)",
-        ),
-    ] = None,
-    blackout: Annotated[
-        str | None,
-        typer.Option(
-            "--blackout",
-            help="withhold the cameras' images for SECONDS from START (s after the first "
-            "image), START:SECONDS: a test of relocalization",
-        ),
-    ] = None,
+    loop_set: LoopSetOpt = None,
+    save_map: SaveMapOpt = None,
+    load_map: LoadMapOpt = None,
+    blackout: BlackoutOpt = None,
     out: OutOpt = Path("runs"),
     video: Annotated[
         bool, typer.Option("--video/--no-video", help="write tracks.mp4 of the features")
