@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from quadnav.errors import SampleError
+from quadnav.errors import EstimationError, SampleError
 from quadnav.estimation import DelayedHorizonEstimator, HorizonConfig
 from quadnav.estimation.nav_ekf import NavEkf, NavEkfConfig, yaw_of
 from quadnav.messages import OdometrySample, Sample
@@ -346,3 +346,49 @@ def test_relative_odometry_is_consistent_where_absolute_is_not() -> None:
     ab = [drifting_nees(seed, "absolute") for seed in range(3)]
     assert 7.5 <= np.median(rel) <= 30 and np.mean(rel) <= 30, rel
     assert np.median(ab) > 30, ab
+
+
+def _drift_then_correct(at: int, drift_m_per_sample: np.ndarray):  # type: ignore[no-untyped-def]
+    """The odometry drifts by ``drift_m_per_sample`` a sample until sample ``at``, where it is
+    corrected (a loop closure) and its reset counter raised."""
+
+    def edit(k: int, o: OdometrySample) -> OdometrySample:
+        if k >= at:
+            return OdometrySample(
+                t_ns=o.t_ns, p_W_B=o.p_W_B, q_W_B_xyzw=o.q_W_B_xyzw, v_W_B=o.v_W_B,
+                cov_pose=o.cov_pose, cov_v=o.cov_v, reset_counter=1,
+            )  # fmt: skip
+        return OdometrySample(
+            t_ns=o.t_ns, p_W_B=o.p_W_B + k * drift_m_per_sample, q_W_B_xyzw=o.q_W_B_xyzw,
+            v_W_B=o.v_W_B, cov_pose=o.cov_pose, cov_v=o.cov_v,
+        )  # fmt: skip
+
+    return edit
+
+
+@pytest.mark.parametrize("mode", ["absolute", "relative"])
+def test_following_a_corrected_odometry_takes_its_correction(mode: str) -> None:
+    """PX4's EKF2 with external vision leading: a reset counter that changes because the source
+    corrected itself in its frame (loop closure) resets the filter to it (absolute), or
+    restarts the frame's drift from zero (relative). The odometry has drifted 0.5 m over 4.8 s,
+    then jumps back to the truth: following, the filter is on the truth right after (within
+    the odometry's 5 cm noise); re-anchoring (the frame taken as new) keeps what it had of the
+    drift (all of it absolute; relative, the part the drift states did not explain)."""
+    drift = np.array([0.004, -0.003, 0.0])  # 0.5 m after 100 samples
+    said = "position, velocity, heading reset to it" if mode == "absolute" else "frame drift"
+    for seed in range(3):
+        edit = _drift_then_correct(100, drift)
+        run = fly(
+            seed, config=odometry_config(odometry_mode=mode, vision_reset="follow"), edit=edit
+        )
+        assert any(f"reset counter 1, {said}" in e for _, e in run.ekf.events), run.ekf.events
+        assert run.est.stats("vio").rejected_gate == 0
+        followed = run.errors_m[105:]
+        anchored = fly(seed, config=odometry_config(odometry_mode=mode), edit=edit).errors_m[105:]
+        assert max(followed) < 0.1, (seed, max(followed))
+        assert np.median(followed) < 0.6 * np.median(anchored), (seed, followed, anchored)
+
+
+def test_an_unknown_vision_reset_is_a_one_line_error() -> None:
+    with pytest.raises(EstimationError, match="vision_reset must be one of reanchor, follow"):
+        odometry_config(vision_reset="jump")

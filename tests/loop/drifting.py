@@ -45,11 +45,13 @@ class DriftingOdometry:
     def __init__(
         self, seed: int, laps: int = 2, *, another_room: bool = False, shift_m: float = 0.0,
         drift_seed: int | None = None, frame: Pose | None = None, jump_at: int = -1,
-        jump: Pose | None = None,
+        jump: Pose | None = None, reset_at: int = -1,
     ) -> None:  # fmt: skip
         """``drift_seed``: another drift in the same room (a second flight); ``frame``: the
         odometry's frame in the world; ``jump`` added to the drift at keyframe ``jump_at`` (a
-        dead reckoning through a camera blackout)."""
+        dead reckoning through a camera blackout); from keyframe ``reset_at`` on, the odometry
+        has re-initialised (``reset_counter`` 1) in a new frame of its own, whose origin is the
+        body there, its yaw the body's."""
         rng = np.random.default_rng(seed)
         drift_rng = rng if drift_seed is None else np.random.default_rng(drift_seed)
         self.rng = rng
@@ -81,8 +83,12 @@ class DriftingOdometry:
             D = step @ D if k else D
             if k == jump_at and jump is not None:
                 D = jump @ D
+            if k == reset_at:  # the new frame: the body's pose there, its yaw only
+                yaw = float(T.R_A_B.as_euler("zyx")[0])
+                D = Pose(Rotation.from_euler("z", yaw), T.p_A_B).inverse()
             self.truth.append(T)
             self.odo.append(D @ T)
+        self.reset_at = reset_at
         self._pending: list[KeyframeRecord] = []
         self._newest: KeyframeRecord | None = None
 
@@ -99,11 +105,14 @@ class DriftingOdometry:
             xy[inside] + self.rng.normal(0, 0.7 / FOCAL_PX, (int(inside.sum()), 2)),
         )
         return KeyframeRecord(
-            index=k, t_ns=k * 200_000_000, reset_counter=0, T_W_B=T_odo, cov_pose=np.eye(6) * 1e-4,
+            index=k, t_ns=k * 200_000_000, reset_counter=self.reset_counter(k), T_W_B=T_odo, cov_pose=np.eye(6) * 1e-4,
             camera="cam0", image=None, ids=vis.astype(np.int64), uv_px=xy * FOCAL_PX + 376, xy=xy,
             descriptors=_flip((self.desc if k < PER_LAP else self.desc_later)[vis], 4, self.rng), described=np.ones(len(vis), bool),
             landmark_ids=vis.astype(np.int64), landmarks_W=D @ X_seen[vis],
         )  # fmt: skip
+
+    def reset_counter(self, k: int) -> int:
+        return int(0 <= self.reset_at <= k)
 
     # -- the odometry interface ------------------------------------------------------------
     cameras = ("cam0",)
@@ -120,6 +129,7 @@ class DriftingOdometry:
         return OdometryState(
             t_ns=k * 200_000_000, T_W_B=self.odo[k], v_W_B=np.zeros(3), gyro_bias=np.zeros(3),
             accel_bias=np.zeros(3), cov_pose=np.eye(6) * 1e-4, cov_v=np.eye(3) * 1e-4,
+            reset_counter=self.reset_counter(k),
         )  # fmt: skip
 
     def keyframes(self, *, final: bool = False) -> Sequence[KeyframeRecord]:

@@ -99,3 +99,30 @@ def test_without_a_gap_nothing_relocalizes() -> None:
         assert not [e for e in loop.events if e.kind in ("image_gap", "relocalized")]
     finally:
         loop.close()
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_after_an_odometry_reset_the_output_goes_on_then_rejoins_the_map(seed: int) -> None:
+    """The odometry re-initialises in the second lap, in a frame of its own (its origin where
+    the body is, 1-2 m from the first frame's): the output does not jump there (the new frame
+    is taken where the output was, as a navigation filter following it expects), and once two
+    places agree it is back in the map, with its reset counter raised at that jump only."""
+    reset_at = PER_LAP + 10
+    odo = DriftingOdometry(seed, reset_at=reset_at)
+    loop = LoopClosure(odo, CAMERA, config=LOOP)
+    try:
+        out = _fly(loop, odo, range(0))
+        before, first = out[reset_at - 1], out[reset_at]
+        assert odo.odo[reset_at].p_A_B @ odo.odo[reset_at].p_A_B < 1e-12  # (its own origin)
+        # one frame's motion (0.16 m) and the drift, not the 1-2 m between the frames
+        step = float(np.linalg.norm(odo.truth[reset_at].p_A_B - odo.truth[reset_at - 1].p_A_B))
+        assert _error(first, before.T_W_B) < step + 0.1, (_error(first, before.T_W_B), step)
+        assert first.reset_counter == before.reset_counter + 1  # (the odometry's own reset)
+        joins = [j for j in loop.stats.joins if j["how"] == "relocalized"]
+        assert len(joins) == 1, loop.stats.joins
+        k_in = max(k for k in out if out[k].t_ns <= int(joins[0]["t_ns"]))  # type: ignore[call-overload]
+        assert out[k_in].reset_counter == first.reset_counter + 1
+        k_end = len(odo.truth) - 1
+        assert _error(out[k_end], odo.truth[k_end]) < 0.15
+    finally:
+        loop.close()

@@ -223,6 +223,8 @@ def gate_thresholds(gate_sigma: float, dims: tuple[int, ...]) -> dict[int, float
 #: What of an :class:`~quadnav.messages.OdometrySample` the filter can fuse (PX4's
 #: ``EKF2_EV_CTRL`` bits): its position, its world velocity, its yaw.
 ODOMETRY_PARTS = ("pos", "vel", "yaw")
+#: What a source's reset counter changing means (:attr:`NavEkfConfig.vision_reset`).
+VISION_RESETS = ("reanchor", "follow")
 #: How the filter takes an odometry (:attr:`NavEkfConfig.odometry_mode`).
 ODOMETRY_MODES = ("absolute", "relative")
 
@@ -343,6 +345,13 @@ class NavEkfConfig:
     odometry_mode: str = "absolute"
     odometry_drift_m_sqrt_s: float = 0.02
     odometry_drift_yaw_rad_sqrt_s: float = 0.004
+    # What a change of an external pose's or odometry's ``reset_counter`` means. "reanchor": the
+    # source started a new frame (a VIO re-initialised at its own origin): the new frame is
+    # anchored where the filter is, so the jump is not taken as motion. "follow" (PX4's EKF2
+    # when external vision leads): the source corrected itself in the same frame (a loop
+    # closure, a relocalization in a saved map): the filter's position, heading and velocity,
+    # as far as it fuses them, are reset to the measurement and the frame is kept.
+    vision_reset: str = "reanchor"
 
     def __post_init__(self) -> None:
         require_positive(
@@ -377,6 +386,11 @@ class NavEkfConfig:
         if self.vision_frame not in ("world", "rotate"):
             raise EstimationError(
                 f"NavEkfConfig.vision_frame must be 'world' or 'rotate', got {self.vision_frame!r}"
+            )
+        if self.vision_reset not in VISION_RESETS:
+            raise EstimationError(
+                f"NavEkfConfig.vision_reset must be one of {', '.join(VISION_RESETS)}, "
+                f"got {self.vision_reset!r}"
             )
         if self.vision_anchor_samples < 1:
             raise EstimationError("NavEkfConfig.vision_anchor_samples must be >= 1")
@@ -478,6 +492,7 @@ class NavEkf:
         # External-pose frames: per source, the last reset counter and the transform
         # (yaw, offset) that maps its frame onto the filter's, re-anchored on each reset.
         self._ev_anchor: dict[str, _FrameAnchor] = {}
+        self._follow_pending: set[str] = set()  # sources whose next pose resets the filter
         self._last_accepted_ns: dict[str, int] = {}
         self.events: list[tuple[int, str]] = []
         nsd = config.baro_bias_nsd_m_s
@@ -787,6 +802,9 @@ class NavEkf:
         if anchor is None and not rotate:
             # The first frame of an absolute source is the navigation frame itself.
             anchor = _FrameAnchor(obs.reset_counter, 0.0, np.zeros(3), np.zeros(3), n_avg)
+        elif anchor is not None and reset and self.config.vision_reset == "follow":
+            anchor.counter = obs.reset_counter  # the same frame, corrected: reset to it
+            self._follow_pending.add(src)
         elif anchor is None or reset:
             anchor = _FrameAnchor(obs.reset_counter, yaw_now, obs.p_W_B.copy(), self.p.copy(), 0)
             if reset:
@@ -835,6 +853,8 @@ class NavEkf:
             H = np.zeros((3, _N))
             H[:, _POS] = np.eye(3)
             Rn = Rz @ C @ Rz.T + self._frame_yaw_spread(d_W, obs.sigma_yaw_rad)
+            if obs.source in self._follow_pending:
+                return self._follow(obs, np.diag(Rn), p=p_W)
             return self._gated(obs, p_W - self.p, H, Rn, p_W)
         H = np.zeros((4, _N))
         H[0:3, _POS] = np.eye(3)
@@ -844,6 +864,8 @@ class NavEkf:
         Rn = np.zeros((4, 4))
         Rn[0:3, 0:3] = Rz @ C @ Rz.T  # (a full covariance, a marker pose's, into the world)
         Rn[3, 3] = obs.sigma_yaw_rad**2
+        if obs.source in self._follow_pending:
+            return self._follow(obs, np.diag(Rn), p=p_W, dyaw=r_yaw)
         return self._gated(obs, r, H, Rn, p_W, yaw_row=3)
 
     def _fuse_odometry(self, obs: OdometrySample) -> FusionResult:
@@ -865,8 +887,6 @@ class NavEkf:
         H[0:3, _POS] = np.eye(3)
         H[3:6, _VEL] = np.eye(3)
         H[6, _ATT] = yaw_jacobian(self.R)
-        if self._relative:
-            r, H = self._drift_terms(r, H)
         j = world_yaw_jacobian(R_meas)
         Rn = np.zeros((7, 7))
         Rn[0:3, 0:3] = Rz @ obs.cov_pose[0:3, 0:3] @ Rz.T
@@ -881,6 +901,19 @@ class NavEkf:
             sigma_yaw = math.sqrt(Rn[6, 6])
             Rn[0:3, 0:3] += self._frame_yaw_spread(d_W, sigma_yaw)
             Rn[3:6, 3:6] += self._frame_yaw_spread(v_W, sigma_yaw)
+        gate = self._odometry_gates[sum(len(_ODO_ROWS[p]) for p in parts)]
+        if obs.source in self._follow_pending and not self._relative:
+            return self._follow(
+                obs, np.diag(Rn),
+                p=anchor.p_W0 + d_W if "pos" in parts else None,
+                v=v_W if "vel" in parts else None,
+                dyaw=float(r[6]) if "yaw" in parts else None,
+            )  # fmt: skip
+        if obs.source in self._follow_pending:
+            self._restart_drift(obs)
+            gate = math.inf  # (the correction, taken whole)
+        if self._relative:
+            r, H = self._drift_terms(r, H)
         rows = np.concatenate([_ODO_ROWS[p] for p in parts])
         Rn = Rn[np.ix_(rows, rows)]
         yaw_row = len(rows) - 1 if "yaw" in parts else None  # (the parts in their order)
@@ -889,9 +922,57 @@ class NavEkf:
         p_meas = anchor.p_W0 + d_W - d[0:3] if "pos" in parts else None
         v_W = so3_exp(np.array([0.0, 0.0, -d[3]])) @ v_W
         v_meas = v_W if "vel" in parts and p_meas is None else None
-        gate = self._odometry_gates[len(rows)]
         return self._gated(
             obs, r[rows], H[rows], Rn, p_meas, yaw_row=yaw_row, v_meas=v_meas, gate=gate
+        )
+
+    def _follow(
+        self, obs: PoseSample | OdometrySample, var: FloatArray, *, p: FloatArray | None = None,
+        v: FloatArray | None = None, dyaw: float | None = None,
+    ) -> FusionResult:  # fmt: skip
+        """``vision_reset="follow"``: the source's reset counter changed and it corrected
+        itself in its frame; reset what it observes (``p``, ``v``, the heading turned by
+        ``dyaw``) to it with its variances ``var`` (position 0-2, velocity 3-5, yaw 6 of an
+        odometry; position 0-2, yaw 3 of a pose), as PX4's EKF2 does. A relative odometry's
+        frame drift starts again from zero. Counted as accepted, with a zero test ratio."""
+        src = obs.source
+        self._follow_pending.discard(src)
+        what = []
+        if p is not None:
+            self.p = p.copy()
+            self._reset_entries(_POS, var[0:3])
+            what.append("position")
+        if v is not None:
+            self.v = v.copy()
+            self._reset_entries(_VEL, var[3:6])
+            what.append("velocity")
+        if dyaw is not None:
+            self.R = so3_exp(np.array([0.0, 0.0, dyaw])) @ self.R
+            self._reset_entries(slice(_YAW, _YAW + 1), var[-1:])
+            what.append("heading")
+        if self._relative:
+            self._reanchor_drift()
+        self._last_accepted_ns[src] = obs.t_ns
+        self.events.append(
+            (obs.t_ns, f"{src}: reset counter {obs.reset_counter}, "
+             f"{', '.join(what) or 'nothing'} reset to it")
+        )  # fmt: skip
+        return FusionResult(accepted=True, innovation=np.zeros(len(var)), nis=0.0, test_ratio=0.0)
+
+    def _restart_drift(self, obs: OdometrySample) -> None:
+        """``vision_reset="follow"`` of a relative odometry: its frame was corrected, so its
+        drift starts again from zero, known to the odometry's noise floors; the filter then
+        takes the corrected odometry through an ungated update (and the next ones), as far as
+        its own position is uncertain. (A hard reset to one sample would freeze that sample's
+        noise into the position: nothing after it averages it out.)"""
+        c = self.config
+        self._follow_pending.discard(obs.source)
+        self.odometry_drift[:] = 0.0
+        var = [c.odometry_pos_noise_m**2] * 3 + [c.odometry_yaw_noise_rad**2]
+        self._reset_entries(slice(_N, _N + _N_DRIFT), np.array(var))
+        self._last_accepted_ns[obs.source] = obs.t_ns
+        self.events.append(
+            (obs.t_ns, f"{obs.source}: reset counter {obs.reset_counter}, frame drift restarted")
         )
 
     def _drift_terms(self, r: FloatArray, H: FloatArray) -> tuple[FloatArray, FloatArray]:

@@ -34,7 +34,14 @@ from quadnav.errors import LoopError, QuadnavError
 from quadnav.geometry.rotations import Pose
 from quadnav.geometry.trajectory import Trajectory
 from quadnav.loop.map import MAP_FRAME, LoopMap, MapCamera, MapKeyframe
-from quadnav.loop.relocalize import RelocCandidate, Segment, Segments, four_dof, transform_gap
+from quadnav.loop.relocalize import (
+    RelocCandidate,
+    Segment,
+    Segments,
+    continuing_frame,
+    four_dof,
+    transform_gap,
+)
 from quadnav.messages import ImageFrame, ImuSample
 from quadnav.odometry import (
     FrameFeatures,
@@ -281,6 +288,7 @@ class LoopClosure:
         self._reloc_edges: dict[int, list[RelocCandidate]] = {}  # odometry index -> matches
         self._reloc_tried = -1  # the newest keyframe last looked up
         self._jumps = 0  # output jumps at relocalization
+        self._last_output: Pose | None = None  # the last corrected pose given out
         self.map_camera = MapCamera.of(camera)
         if loop_map is not None:
             self._load(loop_map)
@@ -296,7 +304,7 @@ class LoopClosure:
         state = self.odometry.push(sample)
         self._take_events()
         if state is not None and state.reset_counter != self.segments.current.reset_counter:
-            self._new_segment(state.reset_counter, state.t_ns, prior=None)
+            self._new_segment(state.reset_counter, state.t_ns, prior=None, first_pose=state.T_W_B)
         if isinstance(sample, ImageFrame):
             for rec in self.odometry.keyframes():
                 self._take(rec)
@@ -431,21 +439,29 @@ class LoopClosure:
                            f"segment {self.segments.current.id}, relocalizing")  # fmt: skip
 
     def _new_segment(
-        self, reset_counter: int, t_ns: int, *, prior: Pose | None, first: bool = False
-    ) -> None:
+        self, reset_counter: int, t_ns: int, *, prior: Pose | None, first: bool = False,
+        first_pose: Pose | None = None,
+    ) -> None:  # fmt: skip
+        """A new segment; after a reset (``first_pose``: the new odometry frame's first pose)
+        its frame is taken, until joined, where the output goes on from the last one given
+        (gravity-aligned frames: a yaw and a translation), so the output jumps only when the
+        segment is joined to the map."""
         root = first and self.stats.map_keyframes == 0
         seg = self.segments.start(reset_counter, t_ns, joined=root, prior=prior)
         if prior is not None:
             self.graph.start_frame(seg.id, prior)
         elif not root and self.segments.items[:-1]:
-            # after a reset: until joined, the output goes on from where it was
-            self.graph.start_frame(seg.id, self.graph.T_M_O(self.segments.items[-2].id))
+            guess = self.graph.T_M_O(self.segments.items[-2].id)
+            if first_pose is not None and self._last_output is not None:
+                guess = continuing_frame(self._last_output, first_pose)
+            self.graph.start_frame(seg.id, guess)
         self._reloc_last = None
 
     def _corrected(self, state: OdometryState) -> OdometryState:
         seg = self.segments.current.id if self.segments.items else 0
         T = self.graph.T_M_O(seg)
         jumps = self.graph.correction().reset_counter + self._jumps
+        self._last_output = T @ state.T_W_B
         return replace(
             state, T_W_B=T @ state.T_W_B, v_W_B=T.R_A_B.apply(state.v_W_B),
             reset_counter=state.reset_counter + jumps,

@@ -28,7 +28,7 @@ import numpy as np
 
 from quadnav.geometry.rotations import Pose, rot_z, yaw_of
 
-__all__ = ["RelocCandidate", "Segment", "Segments", "four_dof", "transform_gap"]
+__all__ = ["RelocCandidate", "Segment", "Segments", "continuing_frame", "four_dof", "transform_gap"]
 
 
 def four_dof(T: Pose) -> Pose:
@@ -38,6 +38,17 @@ def four_dof(T: Pose) -> Pose:
 
     yaw = yaw_of(T.R_A_B.as_matrix())
     return Pose(R_A_B=Rotation.from_matrix(rot_z(yaw)), p_A_B=np.asarray(T.p_A_B, np.float64))
+
+
+def continuing_frame(T_M_last: Pose, T_O_first: Pose) -> Pose:
+    """The map-to-odometry transform (a yaw and a translation) that puts a new odometry frame's
+    first pose ``T_O_first`` where the output last was, ``T_M_last``: in position, and in
+    heading."""
+    from scipy.spatial.transform import Rotation
+
+    yaw = yaw_of(T_M_last.R_A_B.as_matrix()) - yaw_of(T_O_first.R_A_B.as_matrix())
+    R = rot_z(yaw)
+    return Pose(R_A_B=Rotation.from_matrix(R), p_A_B=T_M_last.p_A_B - R @ T_O_first.p_A_B)
 
 
 def transform_gap(a: Pose, b: Pose) -> tuple[float, float]:
