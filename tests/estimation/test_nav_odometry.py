@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from quadnav.errors import EstimationError, SampleError
+from quadnav.errors import SampleError
 from quadnav.estimation import DelayedHorizonEstimator, HorizonConfig
 from quadnav.estimation.nav_ekf import NavEkf, NavEkfConfig, yaw_of
 from quadnav.messages import OdometrySample, Sample
@@ -379,7 +379,7 @@ def test_following_a_corrected_odometry_takes_its_correction(mode: str) -> None:
     for seed in range(3):
         edit = _drift_then_correct(100, drift)
         run = fly(
-            seed, config=odometry_config(odometry_mode=mode, vision_reset="follow"), edit=edit
+            seed, config=odometry_config(odometry_mode=mode, follow_resets=("vio",)), edit=edit
         )
         assert any(f"reset counter 1, {said}" in e for _, e in run.ekf.events), run.ekf.events
         assert run.est.stats("vio").rejected_gate == 0
@@ -387,8 +387,3 @@ def test_following_a_corrected_odometry_takes_its_correction(mode: str) -> None:
         anchored = fly(seed, config=odometry_config(odometry_mode=mode), edit=edit).errors_m[105:]
         assert max(followed) < 0.1, (seed, max(followed))
         assert np.median(followed) < 0.6 * np.median(anchored), (seed, followed, anchored)
-
-
-def test_an_unknown_vision_reset_is_a_one_line_error() -> None:
-    with pytest.raises(EstimationError, match="vision_reset must be one of reanchor, follow"):
-        odometry_config(vision_reset="jump")

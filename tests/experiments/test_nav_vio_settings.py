@@ -54,6 +54,11 @@ def test_the_vio_settings_reach_the_estimator() -> None:
             ["vio.odometry_mode=absolute", "vio.frame_drift_yaw_rad_sqrt_s=0.01"],
             "vio.frame_drift_yaw_rad_sqrt_s is a setting of vio.odometry_mode=relative",
         ),
+        # loop closure and maps (issue 23, item 6): the VIO's, not the shortcut's
+        ("indoor_vio_odometry", "vio.loop=true", "vio.loop is a setting of the VIO on rendered"),
+        ("indoor_vio", "vio.save_map=true", "vio.save_map saves loop closure's map: set vio.loop"),
+        ("indoor_vio", "vio.load_map=/nonexistent/map", "vio.load_map /nonexistent/map: no such"),
+        ("indoor_vio", "vio.loop=maybe", "vio.loop: Input should be a valid boolean"),
         (
             "indoor_vio_odometry",
             ["estimator.vision_frame=rotate", "mag.enabled=true"],
@@ -90,3 +95,37 @@ def test_a_resolved_config_loads_back(tmp_path: Path, scenario: str) -> None:
     path.write_text(dump_config(sc))
     assert "keyframe_parallax_px" in yaml.safe_load(path.read_text())["vio"]
     assert load_config(NavScenario, path) == sc
+
+
+def test_a_corrupt_map_is_one_line_before_any_flight(tmp_path: Path) -> None:
+    bad = tmp_path / "map"
+    bad.mkdir()
+    (bad / "map.json").write_text("{ not json")
+    out = tmp_path / "runs"
+    result = CliRunner().invoke(
+        app, ["run", "indoor_vio", "--set", f"vio.load_map={bad}", "--out", str(out)]
+    )
+    assert result.exit_code != 0
+    text = result.output.strip()
+    assert "Traceback" not in text and len(text.splitlines()) == 1, text
+    assert f"vio.load_map {bad}: map.json is corrupt" in text
+    assert not out.exists() or not any(out.iterdir())
+
+
+def test_loop_closure_wraps_the_vio_and_the_ekf_follows_it() -> None:
+    from quadnav.estimation.nav_filter import AligningNavFilter
+    from quadnav.experiments.nav import _ekf_estimator
+    from quadnav.loop import LoopClosure
+
+    rng = np.random.default_rng(0)
+    for sets, follows in (([], ()), (["vio.loop=true"], ("vio",))):
+        sc = nav_builtin("indoor_vio", sets)
+        sensor = build_vio_sensor(sc, rng, rng, 9.81, None)
+        assert isinstance(sensor, VioCameraSensor)
+        assert isinstance(sensor.vio, LoopClosure) == bool(sets)
+        if isinstance(sensor.vio, LoopClosure):
+            assert sensor.vio.config.executor == "inline"  # (the same corrections every run)
+            sensor.vio.close()
+        est = _ekf_estimator(sc, 9.81, 200_000_000)
+        assert isinstance(est, AligningNavFilter)
+        assert est.setup.ekf.follow_resets == follows

@@ -120,3 +120,33 @@ def test_a_short_real_closed_loop_on_rendered_images() -> None:
     err = np.linalg.norm(r.output_p - r.truth_p, axis=1)
     assert err.max() < 0.1, err.max()
     assert r.truth_p[-1, 2] > 0.3  # it flew
+
+
+def test_a_second_flight_on_the_first_one_s_map_reports_in_it(tmp_path: Path) -> None:
+    """Thesis 003 section 6.4 on rendered images, short: a first flight with loop closure saves
+    its map; a second flight (another seed: other noise, biases and images, the same world)
+    loads it, relocalizes in it and reports in its frame; the EKF follows the VIO's jump into
+    the map (PX4: a reset to the external odometry when its reset counter changes) instead of
+    re-anchoring the odometry frame where the filter was."""
+    from quadnav.io.loop_map import save_loop_map
+
+    first = run_nav(nav_builtin("indoor_vio", [*SHORT, "vio.loop=true", "vio.save_map=true"]), 0)
+    assert first.vio is not None and first.vio.loop_map is not None
+    n_map = len(first.vio.loop_map.keyframes)
+    assert n_map >= 20
+    save_loop_map(tmp_path / "map", first.vio.loop_map)
+    sc = nav_builtin("indoor_vio", [*SHORT, f"vio.load_map={tmp_path / 'map'}"])
+    r = run_nav(sc, 1)
+    assert r.vio is not None and r.vio.loop is not None
+    assert r.vio.loop["map_keyframes"] == n_map
+    joins = [j for j in r.vio.loop["joins"] if j["how"] == "relocalized"]
+    assert joins, r.vio.loop["relocalize_rejected"]
+    t_join = int(joins[0]["t_ns"])
+    assert t_join < r.t_ns[0] + 10e9  # (within the first 10 s of a 14 s flight)
+    # the odometry's reset counter went up at the join, and the EKF followed it
+    assert r.vio.reset_counter[-1] >= 1
+    followed = [m for _, m in r.events if "vio: reset counter" in m]
+    assert followed and all("re-anchored" not in m for m in followed), r.events
+    after = r.t_ns > t_join + 1e9
+    err = np.linalg.norm(r.output_p[after] - r.truth_p[after], axis=1)
+    assert err.max() < 0.15, err.max()

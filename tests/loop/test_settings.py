@@ -44,7 +44,7 @@ def test_every_setting_is_listed_by_its_dotted_key() -> None:
         ("detector.temporal_consistency=2.5", "not a finite int"),
         ("max_drift_m=-1", "--loop-set max_drift_m: LoopConfig.max_drift_fraction"),
         ("detector.temporal_consistency=0", "temporal_consistency must be an integer >= 1"),
-        ("executor=gpu", "executor must be process or thread"),
+        ("executor=gpu", "executor must be process, thread or inline"),
         ("max_drift_m", "give KEY=VALUE"),
     ],
 )

@@ -223,8 +223,6 @@ def gate_thresholds(gate_sigma: float, dims: tuple[int, ...]) -> dict[int, float
 #: What of an :class:`~quadnav.messages.OdometrySample` the filter can fuse (PX4's
 #: ``EKF2_EV_CTRL`` bits): its position, its world velocity, its yaw.
 ODOMETRY_PARTS = ("pos", "vel", "yaw")
-#: What a source's reset counter changing means (:attr:`NavEkfConfig.vision_reset`).
-VISION_RESETS = ("reanchor", "follow")
 #: How the filter takes an odometry (:attr:`NavEkfConfig.odometry_mode`).
 ODOMETRY_MODES = ("absolute", "relative")
 
@@ -345,13 +343,15 @@ class NavEkfConfig:
     odometry_mode: str = "absolute"
     odometry_drift_m_sqrt_s: float = 0.02
     odometry_drift_yaw_rad_sqrt_s: float = 0.004
-    # What a change of an external pose's or odometry's ``reset_counter`` means. "reanchor": the
+    # What a change of an external pose's or odometry's ``reset_counter`` means. By default the
     # source started a new frame (a VIO re-initialised at its own origin): the new frame is
-    # anchored where the filter is, so the jump is not taken as motion. "follow" (PX4's EKF2
-    # when external vision leads): the source corrected itself in the same frame (a loop
-    # closure, a relocalization in a saved map): the filter's position, heading and velocity,
-    # as far as it fuses them, are reset to the measurement and the frame is kept.
-    vision_reset: str = "reanchor"
+    # anchored where the filter is, so the jump is not taken as motion. The sources named in
+    # ``follow_resets`` (by their ``source``) correct themselves in the same frame when their
+    # counter changes (a loop closure, a relocalization in a saved map): the filter follows
+    # them as PX4's EKF2 follows external vision that leads, resetting its position, heading and
+    # velocity to the measurement as far as it fuses them (absolute), or restarting the frame's
+    # drift from zero (relative).
+    follow_resets: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         require_positive(
@@ -386,11 +386,6 @@ class NavEkfConfig:
         if self.vision_frame not in ("world", "rotate"):
             raise EstimationError(
                 f"NavEkfConfig.vision_frame must be 'world' or 'rotate', got {self.vision_frame!r}"
-            )
-        if self.vision_reset not in VISION_RESETS:
-            raise EstimationError(
-                f"NavEkfConfig.vision_reset must be one of {', '.join(VISION_RESETS)}, "
-                f"got {self.vision_reset!r}"
             )
         if self.vision_anchor_samples < 1:
             raise EstimationError("NavEkfConfig.vision_anchor_samples must be >= 1")
@@ -802,7 +797,7 @@ class NavEkf:
         if anchor is None and not rotate:
             # The first frame of an absolute source is the navigation frame itself.
             anchor = _FrameAnchor(obs.reset_counter, 0.0, np.zeros(3), np.zeros(3), n_avg)
-        elif anchor is not None and reset and self.config.vision_reset == "follow":
+        elif anchor is not None and reset and src in self.config.follow_resets:
             anchor.counter = obs.reset_counter  # the same frame, corrected: reset to it
             self._follow_pending.add(src)
         elif anchor is None or reset:
@@ -930,7 +925,7 @@ class NavEkf:
         self, obs: PoseSample | OdometrySample, var: FloatArray, *, p: FloatArray | None = None,
         v: FloatArray | None = None, dyaw: float | None = None,
     ) -> FusionResult:  # fmt: skip
-        """``vision_reset="follow"``: the source's reset counter changed and it corrected
+        """A source of ``follow_resets``: its reset counter changed and it corrected
         itself in its frame; reset what it observes (``p``, ``v``, the heading turned by
         ``dyaw``) to it with its variances ``var`` (position 0-2, velocity 3-5, yaw 6 of an
         odometry; position 0-2, yaw 3 of a pose), as PX4's EKF2 does. A relative odometry's
@@ -960,7 +955,7 @@ class NavEkf:
         return FusionResult(accepted=True, innovation=np.zeros(len(var)), nis=0.0, test_ratio=0.0)
 
     def _restart_drift(self, obs: OdometrySample) -> None:
-        """``vision_reset="follow"`` of a relative odometry: its frame was corrected, so its
+        """A relative odometry of ``follow_resets``: its frame was corrected, so its
         drift starts again from zero, known to the odometry's noise floors; the filter then
         takes the corrected odometry through an ungated update (and the next ones), as far as
         its own position is uncertain. (A hard reset to one sample would freeze that sample's

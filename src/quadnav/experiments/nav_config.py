@@ -80,6 +80,9 @@ _ODOMETRY_PARTS: tuple[OdometryPart, ...] = ("pos", "vel", "yaw")
 
 #: The ``vio`` keys only the odometry shortcut (``vio.source=odometry``) reads.
 SHORTCUT_ONLY_VIO_KEYS = ("rate_hz", "sigma_m", "sigma_vel_m_s", "yaw_sigma_rad", "drift_m_sqrt_s")
+#: The ``vio`` keys only the VIO on rendered images (``vio.source=camera``) reads, beside
+#: the VIO's own settings.
+CAMERA_ONLY_VIO_KEYS = ("loop", "load_map", "save_map")
 #: The ``vio`` keys only ``vio.odometry_mode=relative`` reads.
 RELATIVE_ONLY_VIO_KEYS = ("frame_drift_m_sqrt_s", "frame_drift_yaw_rad_sqrt_s")
 
@@ -147,6 +150,29 @@ class VioSection(VioConfig):
     frame_drift_yaw_rad_sqrt_s: float = Field(
         0.004, ge=MIN_SIGMA, description="EKF, relative: random walk of the odometry frame's yaw"
     )
+
+    loop: bool = Field(
+        False,
+        description="camera: loop closure around the VIO (place recognition, a 4-DoF pose "
+        "graph, relocalization); the EKF follows its corrections as PX4's EKF2 does (reset to "
+        "the odometry when its reset counter changes)",
+    )
+    load_map: str | None = Field(
+        None,
+        description="camera: a map saved by quadnav vio --save-map or by a run with "
+        "vio.save_map=true, in the same world (turns loop closure on): the flight localises in "
+        "it from its first recognised place",
+    )
+    save_map: bool = Field(
+        False,
+        description="camera, with loop closure: save each seed's map in the run folder "
+        "(maps/seed_<seed>), for a later flight's vio.load_map",
+    )
+
+    @property
+    def loop_closure(self) -> bool:
+        """Whether the VIO runs with loop closure (``loop``, or a map to load)."""
+        return self.loop or self.load_map is not None
 
     def estimator_config(self) -> VioConfig:
         """The VIO's own settings, as the estimator takes them."""
@@ -409,6 +435,15 @@ class NavScenario(ConfigModel):
                 f"vio.{own[0]} is a setting of the VIO, which vio.source=odometry does not run "
                 "(the shortcut): set vio.source=camera or leave it out"
             )
+        camera_only = [k for k in changed if k in CAMERA_ONLY_VIO_KEYS]
+        if v.source == "odometry" and camera_only:
+            return (
+                f"vio.{camera_only[0]} is a setting of the VIO on rendered images, which "
+                "vio.source=odometry does not run (the shortcut): set vio.source=camera or "
+                "leave it out"
+            )
+        if v.save_map and not v.loop_closure:
+            return "vio.save_map saves loop closure's map: set vio.loop=true too"
         drift = [k for k in changed if k in RELATIVE_ONLY_VIO_KEYS]
         if v.odometry_mode == "absolute" and drift:
             return (

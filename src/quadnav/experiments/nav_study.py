@@ -225,6 +225,13 @@ def _vio_metrics(r: NavRunResult) -> dict[str, Any]:
     resets = int(v.reset_counter[-1]) if len(v.reset_counter) else 0
     counts = {"frames": v.frames, "states": v.states, "resets": resets,
               "rejected_invalid": v.rejected_invalid}  # fmt: skip
+    if v.loop is not None:  # (loop closure: its output's resets count its corrections too)
+        lp = v.loop
+        counts |= {
+            "loops": int(lp["accepted"]), "loops_rejected": sum(lp["rejected_by_stage"].values()),
+            "relocalized": len(lp["joins"]), "map_keyframes": int(lp["map_keyframes"]),
+            "graph_failures": int(lp["graph_failures"]),
+        }  # fmt: skip
     return {
         "vio_counts": counts,
         "vio_events": [f"{t * 1e-9:.3f} s: {msg}" for t, msg in v.events],
@@ -676,6 +683,19 @@ def _refusal_section(summary: NavSummary) -> ReportSection:
     )
 
 
+def _write_loop(r: NavRunResult, run_dir: Path) -> None:
+    """With loop closure: each seed's counts (``loop_seed_<seed>.json``) and, with
+    ``vio.save_map``, its map (``maps/seed_<seed>``)."""
+    v = r.vio
+    if v is None or v.loop is None:
+        return
+    write_json(run_dir / f"loop_seed_{r.seed}.json", v.loop)
+    if v.loop_map is not None:
+        from quadnav.io.loop_map import save_loop_map
+
+        save_loop_map(run_dir / "maps" / f"seed_{r.seed}", v.loop_map)
+
+
 def reports_in_flight(sc: NavScenario) -> bool:
     """Whether a flight is long enough to report its progress as it flies (the VIO on
     rendered images: minutes a flight)."""
@@ -696,6 +716,10 @@ def run_nav_study(
     seeds then fly in this process, one after the other)."""
     if mavlink is not None and not sc.vio.enabled:
         raise ConfigError("--mavlink sends the VIO's odometry: this scenario has vio.enabled=false")
+    if sc.vio.enabled and sc.vio.load_map is not None:  # a missing or bad map: before flying
+        from quadnav.io.loop_map import load_loop_map
+
+        load_loop_map(Path(sc.vio.load_map), option="vio.load_map")
     run_dir = create_run_folder(runs_root, sc.name)
     write_text(run_dir / "config.yaml", dump_config(sc))
     seeds = [sc.seed + k for k in range(sc.seeds)]
@@ -707,6 +731,7 @@ def run_nav_study(
     scale = 100 if in_flight else 1  # (in hundredths of seeds: progress within the flight)
 
     def collect(k: int, res: NavRunResult) -> None:
+        _write_loop(res, run_dir)
         results[res.seed] = nav_metrics(res)
         append_jsonl(run_dir / "seeds.jsonl", results[res.seed].to_json())
         if k == 0:

@@ -50,6 +50,7 @@ __all__ = [
     "flight_world",
     "vehicle_odometry",
     "vio_imu",
+    "with_loop_closure",
 ]
 
 FloatArray = NDArray[np.float64]
@@ -72,6 +73,10 @@ class VioRecord:
     states: int = 0
     rejected_invalid: int = 0
     stage_ms: dict[str, float] = field(default_factory=dict)
+    #: with loop closure: its counts (:meth:`quadnav.loop.closer.LoopStats.as_json`), and the
+    #: map to save (``vio.save_map``; a :class:`~quadnav.loop.map.LoopMap`)
+    loop: dict[str, Any] | None = None
+    loop_map: Any = None
 
 
 _TrackRow = tuple[int, FloatArray, FloatArray, int]  # t_ns, p_W_B, q_W_B_xyzw, reset counter
@@ -166,6 +171,7 @@ class VioCameraSensor:
         effects: RenderEffects,
         camera: str = "cam0",
         sink: OdometrySink | None = None,
+        save_map: bool = False,
     ) -> None:
         spec = rig.camera(camera)
         self.vio, self.renderer, self.imu, self.effects = vio, renderer, imu, effects
@@ -175,6 +181,7 @@ class VioCameraSensor:
         self._camera = Ticker(period, first_ns=period)
         self._camera_name = camera
         self._image_rng, self.sink = image_rng, sink
+        self._save_map = save_map
         self._w_B = np.zeros(3)
         self._track: list[_TrackRow] = []
         self.frames = self.states = self.rejected_invalid = 0
@@ -209,6 +216,7 @@ class VioCameraSensor:
         return odo
 
     def record(self) -> VioRecord:
+        loop, loop_map = self._finish_loop()
         return _record(
             self._track,
             events=tuple((e.t_ns, f"{e.kind}: {e.detail}") for e in self.vio.events),
@@ -216,7 +224,24 @@ class VioCameraSensor:
             states=self.states,
             rejected_invalid=self.rejected_invalid,
             stage_ms=self.vio.timing().per_call_ms(),
+            loop=loop,
+            loop_map=loop_map,
         )
+
+    def _finish_loop(self) -> tuple[dict[str, Any] | None, Any]:
+        """With loop closure: the last keyframes into the graph, its counts, the map to save,
+        and its worker stopped."""
+        from quadnav.loop import LoopClosure
+
+        vio = self.vio
+        if not isinstance(vio, LoopClosure):
+            return None, None
+        try:
+            vio.keyframes(final=True)
+            the_map = vio.export_map() if self._save_map else None
+        finally:
+            vio.close()
+        return vio.stats.as_json(), the_map
 
 
 @dataclass
@@ -290,12 +315,34 @@ def build_vio_sensor(
 
     rig = rig_named(v.rig)
     renderer = Renderer(flight_world(sc), rig.camera("cam0").camera)
+    vio: VisualOdometry = VioEstimator(rig, v.estimator_config())
+    if v.loop_closure:
+        vio = with_loop_closure(vio, rig, v.load_map)
     return VioCameraSensor(
         rig=rig,
-        vio=VioEstimator(rig, v.estimator_config()),
+        vio=vio,
+        save_map=v.save_map,
         renderer=renderer,
         imu=vio_imu(rig, bias_rng, gravity_m_s2),
         image_rng=np.random.default_rng(int(rng.integers(2**31))),
         effects=RenderEffects(read_noise_sigma=v.image_noise),
         sink=sink,
     )
+
+
+def with_loop_closure(vio: VisualOdometry, rig: Rig, load_map: str | None) -> VisualOdometry:
+    """The VIO behind loop closure, on the map ``load_map`` (``vio.load_map``) if given. The
+    pose graph solves in the flight's own thread (``inline``): a flight in simulated time gets
+    each correction at the same step on every run."""
+    from pathlib import Path
+
+    from quadnav.errors import LoopError
+    from quadnav.io.loop_map import load_loop_map
+    from quadnav.loop import LoopClosure, LoopConfig
+
+    loop_map = None if load_map is None else load_loop_map(Path(load_map), option="vio.load_map")
+    try:
+        return LoopClosure(vio, rig.camera("cam0"), config=LoopConfig(executor="inline"),
+                           loop_map=loop_map)  # fmt: skip
+    except LoopError as exc:
+        raise LoopError(f"vio.load_map {load_map}: {exc}") from None

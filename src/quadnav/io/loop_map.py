@@ -69,12 +69,14 @@ def save_loop_map(folder: Path, loop_map: LoopMap) -> Path:
 
 
 def load_loop_map(
-    folder: Path, *, vocabulary: str | None = None, camera: MapCamera | None = None
-) -> LoopMap:
+    folder: Path, *, vocabulary: str | None = None, camera: MapCamera | None = None,
+    option: str = "--load-map",
+) -> LoopMap:  # fmt: skip
     """The map in ``folder``, checked against the ``vocabulary`` fingerprint and the ``camera``
-    of the run that will use it (None: not checked)."""
+    of the run that will use it (None: not checked); ``option``: the user's option that named
+    it, for the errors."""
     folder = Path(folder)
-    where = f"--load-map {folder}"
+    where = f"{option} {folder}"
     if not folder.is_dir():
         raise LoopError(f"{where}: no such folder")
     try:

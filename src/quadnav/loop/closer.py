@@ -143,8 +143,10 @@ class LoopConfig:
             least = 0.0 if name.startswith("loop_floor") else 1e-9
             if not (math.isfinite(v) and least <= v <= 1e4):
                 raise LoopError(f"LoopConfig.{name} must be in [{least:g}, 10000], got {v}")
-        if self.executor not in ("process", "thread"):
-            raise LoopError(f"LoopConfig.executor must be process or thread, got {self.executor!r}")
+        if self.executor not in ("process", "thread", "inline"):
+            raise LoopError(
+                f"LoopConfig.executor must be process, thread or inline, got {self.executor!r}"
+            )
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

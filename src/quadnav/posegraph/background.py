@@ -12,7 +12,9 @@ GTSAM's ``optimize`` holds the GIL for its whole run (``benchmarks/posegraph.py`
 longest pause of a Python loop beside it: as long as the solve), so with ``executor="thread"``
 the odometry would stop while the graph solves. The default, ``executor="process"``, solves in
 one worker process (spawned: no fork under threads); the thread then only waits on it, without
-the GIL. Spawning re-imports the caller's main module: a script that makes one must guard its
+the GIL. ``executor="inline"`` solves in the caller's thread when a loop is added: a simulation
+in simulated time gets each correction at the same step on every run (the threaded executors
+publish when the wall clock lets them). Spawning re-imports the caller's main module: a script that makes one must guard its
 work with ``if __name__ == "__main__":`` (Python's rule for any spawned process). Bad input is rejected and counted (``rejected``), a failed solve is counted
 (``failures``, ``last_error``): nothing stops a long run.
 """
@@ -46,7 +48,7 @@ from quadnav.posegraph.types import (
 
 __all__ = ["BackgroundPoseGraph", "Executor"]
 
-Executor = Literal["process", "thread"]
+Executor = Literal["process", "thread", "inline"]
 
 
 def _warm() -> bool:
@@ -93,8 +95,11 @@ class BackgroundPoseGraph:
         self.failures = 0
         self.last_error = ""
         self._pool: _PoolExecutor | None = _new_pool() if executor == "process" else None
-        self._thread = threading.Thread(target=self._run, name="posegraph", daemon=True)
-        self._thread.start()
+        self._inline = executor == "inline"
+        self._thread: threading.Thread | None = None
+        if not self._inline:
+            self._thread = threading.Thread(target=self._run, name="posegraph", daemon=True)
+            self._thread.start()
 
     # ------------------------------------------------------------------ input (any thread)
     def add_keyframe(self, kf: KeyframeRecord) -> bool:
@@ -156,7 +161,9 @@ class BackgroundPoseGraph:
             self._loops.append(edge)
             self._pending = True
             self._cv.notify_all()
-            return True
+        if self._inline:
+            self._step()
+        return True
 
     # ------------------------------------------------------------------ output (any thread)
     @property
@@ -233,7 +240,8 @@ class BackgroundPoseGraph:
         with self._cv:
             self._closed = True
             self._cv.notify_all()
-        self._thread.join()
+        if self._thread is not None:
+            self._thread.join()
         if self._pool is not None:
             self._pool.shutdown(wait=True, cancel_futures=True)
 
@@ -267,28 +275,31 @@ class BackgroundPoseGraph:
                 self._cv.wait_for(lambda: self._pending or self._closed)
                 if self._closed:
                     return
-                self._pending, self._busy = False, True
-                try:
-                    problem, n, moved = self._snapshot()
-                except Exception as exc:  # a bad snapshot must not end the thread
-                    self._fail(exc)
-                    continue
+            self._step()
+
+    def _step(self) -> None:
+        """One solve of the graph as it stands, published (a failure counted)."""
+        with self._cv:
+            self._pending, self._busy = False, True
             try:
-                result = (
-                    solve(problem)
-                    if self._pool is None
-                    else self._pool.submit(solve, problem).result()
-                )
-            except Exception as exc:  # counted; the run goes on without this solve
-                with self._cv:
-                    self._fail(exc)
-                    if isinstance(exc, BrokenProcessPool):  # the worker died: a new one
-                        self._pool = _new_pool()
-                continue
+                problem, n, moved = self._snapshot()
+            except Exception as exc:  # a bad snapshot must not end the thread
+                self._fail(exc)
+                return
+        try:
+            result = (
+                solve(problem) if self._pool is None else self._pool.submit(solve, problem).result()
+            )
+        except Exception as exc:  # counted; the run goes on without this solve
             with self._cv:
-                self._publish(result, n, moved)
-                self._busy = False
-                self._cv.notify_all()
+                self._fail(exc)
+                if isinstance(exc, BrokenProcessPool):  # the worker died: a new one
+                    self._pool = _new_pool()
+            return
+        with self._cv:
+            self._publish(result, n, moved)
+            self._busy = False
+            self._cv.notify_all()
 
     def _fail(self, exc: Exception) -> None:
         self.failures += 1
