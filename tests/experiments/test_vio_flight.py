@@ -150,3 +150,8 @@ def test_a_second_flight_on_the_first_one_s_map_reports_in_it(tmp_path: Path) ->
     after = r.t_ns > t_join + 1e9
     err = np.linalg.norm(r.output_p[after] - r.truth_p[after], axis=1)
     assert err.max() < 0.15, err.max()
+    # the first flight's own places judged against the truth, in its metrics
+    m = nav_metrics(first)
+    assert m.vio_loop["loop_accepted"] == first.vio.loop["accepted"]
+    assert isinstance(m.vio_loop["loop_keyframes_ape_rmse_before_m"], float)
+    assert m.vio_loop["loop_false"] in (0, "n/a: no loop accepted")

@@ -89,6 +89,9 @@ class NavMetrics:
     end_position_error_m: float = math.nan  # 3-D, output predictor against the truth
     vio_counts: dict[str, int] = field(default_factory=dict)  # frames, states, resets...
     vio_events: list[str] = field(default_factory=list)
+    #: with loop closure: its places judged against the truth (``loop_precision``,
+    #: ``loop_recall``, the measurements' median errors; :mod:`quadnav.eval.loop_eval`)
+    vio_loop: dict[str, Any] = field(default_factory=dict)
 
     def to_json(self) -> dict[str, object]:
         """The flat record ``metrics.json`` and ``seeds.jsonl`` hold (``counts`` per source)."""
@@ -235,6 +238,7 @@ def _vio_metrics(r: NavRunResult) -> dict[str, Any]:
     return {
         "vio_counts": counts,
         "vio_events": [f"{t * 1e-9:.3f} s: {msg}" for t, msg in v.events],
+        "vio_loop": dict((v.loop or {}).get("evaluation") or {}),
     }
 
 

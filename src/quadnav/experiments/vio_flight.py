@@ -18,7 +18,7 @@ estimate, events, frames, timing) comes back as a :class:`VioRecord`.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -31,12 +31,13 @@ from quadnav.errors import SampleError
 from quadnav.estimation.nav_ekf import skew
 from quadnav.experiments.nav_config import NavScenario
 from quadnav.geometry.rotations import Pose
+from quadnav.geometry.trajectory import Trajectory
 from quadnav.messages import ImageFrame, ImuSample, OdometrySample, VehicleState
 from quadnav.sim.sensors import IntegratingImu, Ticker
 from quadnav.units import s_to_ns
 
 if TYPE_CHECKING:  # (the rig, the renderer and the VIO load OpenCV and GTSAM: only when used)
-    from quadnav.odometry import OdometryState, VisualOdometry
+    from quadnav.odometry import KeyframeRecord, OdometryState, VisualOdometry
     from quadnav.rig import Rig
     from quadnav.sim.render import RenderEffects, Renderer
     from quadnav.sim.scene import Scene
@@ -80,6 +81,14 @@ class VioRecord:
 
 
 _TrackRow = tuple[int, FloatArray, FloatArray, int]  # t_ns, p_W_B, q_W_B_xyzw, reset counter
+
+
+def _trajectory(rows: list[_TrackRow]) -> Trajectory:
+    return Trajectory(
+        t_ns=np.array([x[0] for x in rows], dtype=np.int64),
+        p_W_B=np.array([x[1] for x in rows]).reshape(-1, 3),
+        q_W_B_xyzw=np.array([x[2] for x in rows]).reshape(-1, 4),
+    )
 
 
 def _record(track: list[_TrackRow], **counts: Any) -> VioRecord:
@@ -182,6 +191,8 @@ class VioCameraSensor:
         self._camera_name = camera
         self._image_rng, self.sink = image_rng, sink
         self._save_map = save_map
+        self._truth_B: list[_TrackRow] = []  # the rig's true pose at each camera frame
+        self._keyframes: list[_TrackRow] = []  # the odometry's keyframes (with loop closure)
         self._w_B = np.zeros(3)
         self._track: list[_TrackRow] = []
         self.frames = self.states = self.rejected_invalid = 0
@@ -196,11 +207,11 @@ class VioCameraSensor:
             self.vio.push(imu_B)
         if not self._camera.due(t_ns):
             return None
-        T_W_C = Pose.from_quat_xyzw(truth.q_W_B_xyzw, truth.p_W_B) @ self.T_V_C
-        image = self.effects.apply(self.renderer.render(T_W_C).image, self._image_rng)
+        T_W_V = Pose.from_quat_xyzw(truth.q_W_B_xyzw, truth.p_W_B)
+        image = self.effects.apply(self.renderer.render(T_W_V @ self.T_V_C).image, self._image_rng)
         self.frames += 1
         state = self.vio.push(ImageFrame(t_ns=t_ns, camera=self._camera_name, load=lambda: image))
-        self.vio.keyframes()  # the flight keeps no map: what the odometry publishes is let go
+        self._take_keyframes(self.vio.keyframes(), t_ns, T_W_V @ self.T_V_B)
         if state is None:
             return None
         self.states += 1
@@ -228,20 +239,44 @@ class VioCameraSensor:
             loop_map=loop_map,
         )
 
+    def _take_keyframes(self, records: Sequence[KeyframeRecord], t_ns: int, T_W_B: Pose) -> None:
+        """The flight keeps no map: of the keyframes the odometry publishes only their poses are
+        kept, with loop closure, to judge its places against the truth (the rig's, ``T_W_B``,
+        at this frame ``t_ns``)."""
+        from quadnav.loop import LoopClosure
+
+        if not isinstance(self.vio, LoopClosure):
+            return
+        self._truth_B.append((t_ns, T_W_B.p_A_B, T_W_B.R_A_B.as_quat(), 0))
+        for rec in records:
+            T = rec.T_W_B
+            self._keyframes.append((rec.t_ns, T.p_A_B, T.R_A_B.as_quat(), rec.reset_counter))
+
     def _finish_loop(self) -> tuple[dict[str, Any] | None, Any]:
-        """With loop closure: the last keyframes into the graph, its counts, the map to save,
-        and its worker stopped."""
+        """With loop closure: the last keyframes into the graph, its counts and its places
+        judged against the truth (``evaluation``: precision, recall, the measurements' errors),
+        the map to save, and its worker stopped."""
+        from quadnav.experiments.odometry_report import loop_evaluation
         from quadnav.loop import LoopClosure
 
         vio = self.vio
         if not isinstance(vio, LoopClosure):
             return None, None
         try:
-            vio.keyframes(final=True)
+            last = self._truth_B[-1] if self._truth_B else None
+            self._keyframes += [
+                (r.t_ns, r.T_W_B.p_A_B, r.T_W_B.R_A_B.as_quat(), r.reset_counter)
+                for r in vio.keyframes(final=True)
+            ]
             the_map = vio.export_map() if self._save_map else None
+            evaluation = None
+            if self._keyframes and last is not None:
+                kf, truth = _trajectory(self._keyframes), _trajectory(self._truth_B)
+                ev = loop_evaluation(vio, kf, truth)
+                evaluation = None if ev is None else ev.as_metrics()
         finally:
             vio.close()
-        return vio.stats.as_json(), the_map
+        return {**vio.stats.as_json(), "evaluation": evaluation}, the_map
 
 
 @dataclass
