@@ -184,3 +184,15 @@ def test_the_pnp_covariance_matches_the_spread_of_poses_over_noise_draws() -> No
     spread = np.sqrt(np.diag(np.cov(E.T)))
     said = np.sqrt(np.diag(np.mean(covs, axis=0)))
     assert np.all(np.abs(spread / said - 1) < 0.3), (spread, said)
+
+
+def test_parallax_is_the_widest_angle_between_the_rays() -> None:
+    from quadnav.geometry.multiview import parallax_rad
+
+    p = np.array([0.0, 0.0, 10.0])
+    two = np.array([[-0.5, 0.0, 0.0], [0.5, 0.0, 0.0]])
+    assert parallax_rad(p, two) == pytest.approx(2 * np.arctan(0.5 / 10.0), rel=1e-12)
+    three = np.vstack([two, [[0.1, 0.0, 0.0]]])  # a middle view widens nothing
+    assert parallax_rad(p, three) == pytest.approx(parallax_rad(p, two), rel=1e-12)
+    assert parallax_rad(p, two[:1]) == 0.0  # one view: no parallax
+    assert parallax_rad(p, np.vstack([two, [p]])) == 0.0  # a camera at the point: none either

@@ -123,3 +123,23 @@ def test_unread_keyframes_are_dropped_and_counted(run: _Run) -> None:
     assert dropped >= len(run.records) - VioConfig().window_keyframes - 2
     # what it kept are its newest published keyframes, as the reading run got them
     assert [k.index for k in kept] == sorted(k.index for k in kept)
+
+
+def test_a_record_carries_only_landmarks_its_views_place(run: _Run) -> None:
+    """A landmark goes out with a keyframe only where the cameras that see it in the window
+    span 1 degree at it: a track seen from one spot (a hover) has no depth to give a loop's
+    PnP. Checked against the published keyframes themselves: each landmark's keyframe and the
+    records about it that see its track (the window it left, or at the end was in) span the
+    angle, as the poses were then (within 10 % of it)."""
+    from quadnav.geometry.multiview import parallax_rad
+
+    need = np.radians(VioConfig().keyframe_landmark_min_parallax_deg)
+    window = VioConfig().window_keyframes
+    centres = [(r.T_W_B @ r.T_B_C).p_A_B for r in run.records]
+    angles = []
+    for n, r in enumerate(run.records):
+        near = range(max(0, n - window), min(len(run.records), n + 1 + window))
+        for j, p in zip(r.landmark_ids.tolist(), r.landmarks_W, strict=True):
+            cs = [centres[m] for m in near if m == n or j in run.records[m].ids]
+            angles.append(parallax_rad(p, np.array(cs)))
+    assert len(angles) > 200 and np.quantile(angles, 0.05) >= 0.9 * need, np.quantile(angles, 0.05)

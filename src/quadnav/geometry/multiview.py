@@ -36,6 +36,7 @@ __all__ = [
     "essential_pose",
     "kabsch",
     "nearest_rotation",
+    "parallax_rad",
     "pnp",
     "pnp_covariance",
     "projection",
@@ -194,6 +195,22 @@ def triangulate_track(obs: Mapping[K, FloatArray], P: Mapping[K, FloatArray]) ->
     )
     p = pts[0]
     return p if bool(np.isfinite(p).all()) else None
+
+
+def parallax_rad(point_W: FloatArray, centres_W: FloatArray) -> float:
+    """The widest angle (rad) between the rays from the camera centres ``centres_W`` (M, 3)
+    that see a point to it: how well the point's depth is fixed by them (about ``depth x pixel
+    noise / angle``; 0 with fewer than two centres)."""
+    c = np.asarray(centres_W, dtype=np.float64).reshape(-1, 3)
+    if len(c) < 2:
+        return 0.0
+    rays = np.asarray(point_W, dtype=np.float64) - c
+    norms = np.linalg.norm(rays, axis=1)
+    if not (norms > 0).all():
+        return 0.0
+    u = rays / norms[:, None]
+    cos = np.clip(u @ u.T, -1.0, 1.0)
+    return float(np.arccos(cos.min()))
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

@@ -87,6 +87,11 @@ class VioConfig(ConfigModel):
     landmark_min_parallax_px: float = Field(
         15.0, gt=0.0, le=500.0, description="parallax that lets a two-view track in"
     )
+    keyframe_landmark_min_parallax_deg: float = Field(
+        1.0, ge=0.0, le=45.0,
+        description="a published keyframe (for loop closure and maps) carries a landmark only "
+        "when the cameras that see it in the window span this angle at it (its depth is fixed)",
+    )  # fmt: skip
     landmark_min_depth_m: float = Field(0.1, gt=0.0, le=10.0, description="nearest landmark")
     landmark_max_depth_m: float = Field(60.0, gt=1.0, le=1e4, description="farthest landmark")
     max_reprojection_px: float = Field(

@@ -38,6 +38,7 @@ from scipy.spatial.transform import Rotation
 
 from quadnav.errors import SampleError, VioError, VisionError
 from quadnav.geometry.gtsam_bridge import pose3, to_pose
+from quadnav.geometry.multiview import parallax_rad
 from quadnav.geometry.multiview import essential_pose
 from quadnav.messages import ImageFrame, ImuSample
 from quadnav.odometry import (
@@ -895,6 +896,7 @@ class VioEstimator:
         assert kf is not None
         position = self.window.landmark_position
         seen = [(j, p) for j in f.ids.tolist() if (p := position(j)) is not None]
+        seen = self._fixed_landmarks(seen, kf, f)
         cov = info.cov_pose if info.cov_pose is not None else self._cov_pose
         return KeyframeRecord(
             index=k, t_ns=kf.t_ns, reset_counter=self._reset_counter, T_W_B=to_pose(kf.pose),
@@ -904,6 +906,36 @@ class VioEstimator:
             landmarks_W=np.array([p for _, p in seen], np.float64).reshape(-1, 3),
             T_B_C=self.window.extrinsic,
         )  # fmt: skip
+
+    def _fixed_landmarks(
+        self, seen: list[tuple[int, FloatArray]], kf: Keyframe, f: FrameFeatures
+    ) -> list[tuple[int, FloatArray]]:
+        """Of a keyframe's landmarks, those whose depth the window's views fix: the cameras that
+        see it (this keyframe's, its second camera's where the track is there, and the window's
+        keyframes that see the track) span ``keyframe_landmark_min_parallax_deg`` at it. A
+        track seen only while hovering has next to no parallax: its point is where the window
+        happened to leave it (in a hover of thesis 003's flight, 1-4 m off at 4.7 m: a landmark
+        that goes on after its first keyframe leaves the window starts from its old estimate,
+        but nothing holds its depth there), harmless to the odometry, not to a loop's PnP
+        against a map."""
+        need = math.radians(self.config.keyframe_landmark_min_parallax_deg)
+        if need <= 0.0 or not seen:
+            return seen
+        T_B_C = self.window.extrinsic
+        T_W_B = to_pose(kf.pose)
+        own = [(T_W_B @ T_B_C).p_A_B]
+        right = set()
+        if self.stereo is not None:
+            own.append((T_W_B @ self.stereo.right.T_B_C).p_A_B)
+            right = set(f.stereo_ids.tolist())
+        centres = {w.index: (to_pose(w.pose) @ T_B_C).p_A_B for w in self.window.keyframes}
+        out = []
+        for j, p in seen:
+            views = [centres[k] for k in self.features.observations(j) if k in centres]
+            cs = [own[0], *([own[1]] if j in right else []), *views]
+            if parallax_rad(p, np.array(cs)) >= need:
+                out.append((j, p))
+        return out
 
     def _prune_imu(self) -> None:
         """Keep the IMU the window and a static start may still need."""
