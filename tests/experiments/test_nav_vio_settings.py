@@ -55,7 +55,7 @@ def test_the_vio_settings_reach_the_estimator() -> None:
             "vio.frame_drift_yaw_rad_sqrt_s is a setting of vio.odometry_mode=relative",
         ),
         # loop closure and maps (issue 23, item 6): the VIO's, not the shortcut's
-        ("indoor_vio_odometry", "vio.loop=true", "vio.loop is a setting of the VIO on rendered"),
+        ("indoor_vio_odometry", "vio.loop=true", "vio.loop is a setting of the VIO, which"),
         ("indoor_vio", "vio.save_map=true", "vio.save_map saves loop closure's map: set vio.loop"),
         ("indoor_vio", "vio.load_map=/nonexistent/map", "vio.load_map /nonexistent/map: no such"),
         ("indoor_vio", "vio.loop=maybe", "vio.loop: Input should be a valid boolean"),

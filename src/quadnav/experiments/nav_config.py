@@ -429,18 +429,11 @@ class NavScenario(ConfigModel):
                 f"vio.{changed[0]} is set, but this scenario runs no VIO (vio.enabled=false): "
                 "set vio.enabled=true or leave the vio section out"
             )
-        own = [k for k in changed if k in VioConfig.model_fields]
+        own = [k for k in changed if k in VioConfig.model_fields or k in CAMERA_ONLY_VIO_KEYS]
         if v.source == "odometry" and own:
             return (
                 f"vio.{own[0]} is a setting of the VIO, which vio.source=odometry does not run "
                 "(the shortcut): set vio.source=camera or leave it out"
-            )
-        camera_only = [k for k in changed if k in CAMERA_ONLY_VIO_KEYS]
-        if v.source == "odometry" and camera_only:
-            return (
-                f"vio.{camera_only[0]} is a setting of the VIO on rendered images, which "
-                "vio.source=odometry does not run (the shortcut): set vio.source=camera or "
-                "leave it out"
             )
         if v.save_map and not v.loop_closure:
             return "vio.save_map saves loop closure's map: set vio.loop=true too"

@@ -38,8 +38,7 @@ from scipy.spatial.transform import Rotation
 
 from quadnav.errors import SampleError, VioError, VisionError
 from quadnav.geometry.gtsam_bridge import pose3, to_pose
-from quadnav.geometry.multiview import parallax_rad
-from quadnav.geometry.multiview import essential_pose
+from quadnav.geometry.multiview import essential_pose, parallax_rad
 from quadnav.messages import ImageFrame, ImuSample
 from quadnav.odometry import (
     FrameFeatures,
