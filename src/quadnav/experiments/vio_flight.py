@@ -263,14 +263,13 @@ class VioCameraSensor:
         if not isinstance(vio, LoopClosure):
             return None, None
         try:
-            last = self._truth_B[-1] if self._truth_B else None
             self._keyframes += [
                 (r.t_ns, r.T_W_B.p_A_B, r.T_W_B.R_A_B.as_quat(), r.reset_counter)
                 for r in vio.keyframes(final=True)
             ]
             the_map = vio.export_map() if self._save_map else None
             evaluation = None
-            if self._keyframes and last is not None:
+            if self._keyframes and self._truth_B:
                 kf, truth = _trajectory(self._keyframes), _trajectory(self._truth_B)
                 ev = loop_evaluation(vio, kf, truth)
                 evaluation = None if ev is None else ev.as_metrics()
