@@ -1,0 +1,223 @@
+"""ORB features in a scale pyramid, spread over the image (ORB-SLAM2's extractor, issue 24): the
+features of the stereo and RGB-D SLAM.
+
+The image is scaled down ``n_levels`` times by ``scale_factor``; each level gets a share of the
+``n_features`` in proportion to its area (ORB-SLAM2: ``n (1 - 1/s^2) / (1 - 1/s^(2 L))`` at level
+0, each next level 1/s^2 of the one before). FAST corners are found at ``min_fast`` and a corner
+counts at ``ini_fast`` when its FAST score reaches it: in each cell of the level's grid (about one
+cell per feature wanted) the corners at ``ini_fast`` are taken first, the weaker ones only where a
+cell has none (ORB-SLAM2 lowers the threshold per cell so). Each cell keeps its best, then the
+level is filled by score: the features spread over the picture, not bunched on its strongest
+texture. Each keypoint gets its orientation (intensity centroid) and rotated BRIEF from OpenCV
+on its level's image; positions are given at level 0.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from quadnav.errors import VisionError
+from quadnav.vision.tracking import as_grey
+
+__all__ = ["OrbConfig", "OrbExtractor", "OrbFeatures", "level_shares"]
+
+FloatArray = NDArray[np.float64]
+#: ORB's patch (pixels at the keypoint's level) and the border it needs.
+PATCH_PX = 31
+EDGE_PX = 19  # ORB-SLAM2's EDGE_THRESHOLD: the patch turned any way, plus the FAST circle
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class OrbConfig:
+    """ORB-SLAM2's ``ORBextractor`` settings (the thesis's Jetson used 1,200 features, section
+    5.7); ``cell_px``: the grid's cell at level 0, about the spacing of the features wanted."""
+
+    n_features: int = 1200
+    scale_factor: float = 1.2
+    n_levels: int = 8
+    ini_fast: int = 20
+    min_fast: int = 7
+
+    def __post_init__(self) -> None:
+        if self.n_features < 1 or self.n_levels < 1:
+            raise VisionError("OrbConfig: n_features and n_levels must be >= 1")
+        if not 1.0 < self.scale_factor <= 4.0:
+            raise VisionError(f"OrbConfig.scale_factor must lie in (1, 4], got {self.scale_factor}")
+        if not 1 <= self.min_fast <= self.ini_fast <= 255:
+            raise VisionError("OrbConfig: 1 <= min_fast <= ini_fast <= 255")
+
+    def scales(self) -> FloatArray:
+        """Each level's scale (level 0: 1)."""
+        return np.asarray(self.scale_factor ** np.arange(self.n_levels), dtype=np.float64)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class OrbFeatures:
+    """Keypoints at level 0: ``uv_px`` (N, 2), ``octave`` (N,), ``angle_deg`` (N,),
+    ``response`` (N,, the FAST score), ``size_px`` (N,, the patch at level 0), and their
+    ``descriptors`` (N, 32) uint8; ``scales`` the pyramid's (a keypoint's scale is
+    ``scales[octave]``)."""
+
+    uv_px: FloatArray
+    octave: NDArray[np.int64]
+    angle_deg: FloatArray
+    response: FloatArray
+    size_px: FloatArray
+    descriptors: NDArray[np.uint8]
+    scales: FloatArray
+
+    def __len__(self) -> int:
+        return len(self.uv_px)
+
+
+def level_shares(config: OrbConfig) -> NDArray[np.int64]:
+    """The features wanted at each level (ORB-SLAM2's geometric series by area, the rest to the
+    last level so that they add up to ``n_features``)."""
+    f = 1.0 / config.scale_factor**2
+    n, L = config.n_features, config.n_levels
+    first = n * (1 - f) / (1 - f**L) if L > 1 else float(n)
+    shares = [round(first * f**k) for k in range(L - 1)]
+    shares.append(max(n - sum(shares), 0))
+    return np.asarray(shares, dtype=np.int64)
+
+
+class OrbExtractor:
+    """ORB in a scale pyramid, spread over a grid (see the module). :meth:`extract` also gives
+    the pyramid, which the stereo matcher reads patches from."""
+
+    def __init__(self, config: OrbConfig | None = None) -> None:
+        import cv2
+
+        self.config = config or OrbConfig()
+        self._fast = cv2.FastFeatureDetector.create(self.config.min_fast, nonmaxSuppression=True)
+        self._orb = cv2.ORB.create(edgeThreshold=EDGE_PX, patchSize=PATCH_PX)
+        self._shares = level_shares(self.config)
+
+    def pyramid(self, image: object) -> list[NDArray[np.uint8]]:
+        """The grey image at each level (level 0: itself)."""
+        import cv2
+
+        grey = as_grey(image)
+        if min(grey.shape) <= 2 * EDGE_PX + 1:
+            raise VisionError(f"an image of {grey.shape} is too small for ORB")
+        levels = [grey]
+        for s in self.config.scales()[1:]:
+            size = (round(grey.shape[1] / s), round(grey.shape[0] / s))
+            if min(size) <= 2 * EDGE_PX + 1:
+                break
+            levels.append(
+                np.asarray(cv2.resize(grey, size, interpolation=cv2.INTER_LINEAR), np.uint8)
+            )
+        return levels
+
+    def extract(self, image: object) -> tuple[OrbFeatures, list[NDArray[np.uint8]]]:
+        """The image's features and its pyramid."""
+        levels = self.pyramid(image)
+        scales = self.config.scales()
+        parts = [self._level(img, k, int(self._shares[k])) for k, img in enumerate(levels)]
+        kps = [kp for part in parts for kp in part[0]]
+        if not kps:
+            return _empty(scales), levels
+        octave = np.concatenate([np.full(len(p[0]), k, np.int64) for k, p in enumerate(parts)])
+        desc = np.concatenate([p[1] for p in parts if len(p[0])]).astype(np.uint8)
+        s = scales[octave]
+        return (
+            OrbFeatures(
+                uv_px=np.array([kp.pt for kp in kps], np.float64) * s[:, None],
+                octave=octave,
+                angle_deg=np.array([kp.angle for kp in kps], np.float64),
+                response=np.array([kp.response for kp in kps], np.float64),
+                size_px=PATCH_PX * s,
+                descriptors=desc,
+                scales=scales,
+            ),
+            levels,
+        )
+
+    def _level(
+        self, img: NDArray[np.uint8], level: int, want: int
+    ) -> tuple[list[Any], NDArray[np.uint8]]:
+        """One level's keypoints (in its pixels) spread over its grid, oriented, described."""
+        del level
+        h, w = img.shape
+        corners = [
+            k for k in self._fast.detect(img)
+            if EDGE_PX <= k.pt[0] < w - EDGE_PX and EDGE_PX <= k.pt[1] < h - EDGE_PX
+        ]  # fmt: skip
+        if want <= 0 or not corners:
+            return [], np.zeros((0, 32), np.uint8)
+        keep = spread(
+            np.array([k.pt for k in corners], np.float64),
+            np.array([k.response for k in corners], np.float64),
+            want, (w, h), self.config.ini_fast,
+        )  # fmt: skip
+        chosen = [corners[i] for i in keep]
+        for k in chosen:
+            k.size = float(PATCH_PX)
+            k.octave = 0  # (described on its own level's image)
+        got, desc = self._orb.compute(img, _oriented(img, chosen))
+        if desc is None or not got:
+            return [], np.zeros((0, 32), np.uint8)
+        return list(got), np.asarray(desc, np.uint8)
+
+
+def spread(
+    uv: FloatArray, score: FloatArray, want: int, size: tuple[int, int], strong: float
+) -> NDArray[np.int64]:
+    """Which of the corners ``uv`` (N, 2) with FAST scores ``score`` to keep, ``want`` at most,
+    spread over a grid of about ``want`` cells in an image of ``size`` (w, h): in each cell its
+    corners scoring ``strong`` or more if it has any (else its weaker ones), the best of each cell
+    first, then the next best of every cell, by rounds, until ``want`` are kept."""
+    n = len(uv)
+    if n <= want:
+        return np.arange(n, dtype=np.int64)
+    w, h = size
+    cell = max(np.sqrt(w * h / max(want, 1)), 8.0)
+    nx = max(int(np.ceil(w / cell)), 1)
+    cid = np.minimum((uv[:, 1] // cell).astype(np.int64), int(np.ceil(h / cell)) - 1) * nx + (
+        np.minimum((uv[:, 0] // cell).astype(np.int64), nx - 1)
+    )
+    has_strong = np.zeros(cid.max() + 1, bool)
+    has_strong[cid[score >= strong]] = True
+    usable = (score >= strong) | ~has_strong[cid]
+    idx = np.flatnonzero(usable)
+    order = idx[np.lexsort((-score[idx], cid[idx]))]  # by cell, best first
+    cells = cid[order]
+    first = np.r_[0, np.flatnonzero(np.diff(cells)) + 1]
+    rank = np.arange(len(order)) - np.repeat(first, np.diff(np.r_[first, len(order)]))
+    # round by round (each cell's best, then its second...), the stronger first in a round
+    picked = order[np.lexsort((-score[order], rank))][:want]
+    if len(picked) < want:  # (too few usable: the weaker corners of strong cells fill in)
+        rest = np.setdiff1d(np.arange(n), picked)
+        picked = np.r_[picked, rest[np.argsort(-score[rest])][: want - len(picked)]]
+    return np.sort(picked).astype(np.int64)
+
+
+def _oriented(img: NDArray[np.uint8], kps: list[Any]) -> list[Any]:
+    """The keypoints with ORB's orientation: the angle of the intensity centroid of the disc of
+    radius 15 around each."""
+    r = PATCH_PX // 2
+    yy, xx = np.mgrid[-r : r + 1, -r : r + 1]
+    disc = (xx**2 + yy**2) <= r * r
+    f = img.astype(np.float64)
+    for k in kps:
+        x, y = round(k.pt[0]), round(k.pt[1])
+        patch = f[y - r : y + r + 1, x - r : x + r + 1]
+        if patch.shape != disc.shape:
+            continue
+        m01 = float((patch * yy)[disc].sum())
+        m10 = float((patch * xx)[disc].sum())
+        k.angle = float(np.degrees(np.arctan2(m01, m10)) % 360.0)
+    return kps
+
+
+def _empty(scales: FloatArray) -> OrbFeatures:
+    z = np.zeros(0)
+    return OrbFeatures(
+        uv_px=np.zeros((0, 2)), octave=np.zeros(0, np.int64), angle_deg=z, response=z,
+        size_px=z, descriptors=np.zeros((0, 32), np.uint8), scales=scales,
+    )  # fmt: skip

@@ -1,0 +1,78 @@
+"""ORB in a scale pyramid, spread over the image (issue 24, item 1): ORB-SLAM2's share of
+features per level, and the spread against OpenCV's plain ORB on the same picture."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+from skimage import data
+
+from quadnav.errors import VisionError
+from quadnav.vision.orb import OrbConfig, OrbExtractor, level_shares, spread
+
+
+@pytest.fixture(scope="module")
+def photo() -> np.ndarray:
+    return cv2.resize(data.camera(), (752, 480))
+
+
+def test_each_level_gets_orb_slam_s_share() -> None:
+    s = level_shares(OrbConfig())
+    # ORB-SLAM2: n (1 - 1/s^2) / (1 - 1/s^16) at level 0, then 1/1.44 of the one before
+    assert s.sum() == 1200 and s[0] == round(1200 * (1 - 1 / 1.44) / (1 - 1.44**-8))
+    assert np.allclose(s[1:7] / s[:6], 1 / 1.44, atol=0.015)  # (rounded to whole features)
+    assert level_shares(OrbConfig(n_features=10, n_levels=1)).tolist() == [10]
+
+
+def test_features_per_level_descriptors_and_positions(photo: np.ndarray) -> None:
+    f, levels = OrbExtractor().extract(photo)
+    assert len(f) == 1200 and len(levels) == 8
+    assert np.bincount(f.octave, minlength=8).tolist() == level_shares(OrbConfig()).tolist()
+    assert f.descriptors.shape == (1200, 32) and f.descriptors.dtype == np.uint8
+    assert ((f.uv_px >= 0) & (f.uv_px < [752, 480])).all()
+    assert np.allclose(f.size_px, 31 * f.scales[f.octave])
+    # a level-3 keypoint read back at level 3 lies on a FAST corner of that level's image
+    k = np.flatnonzero(f.octave == 3)[0]
+    x, y = np.rint(f.uv_px[k] / f.scales[3]).astype(int)
+    fast = cv2.FastFeatureDetector.create(7).detect(levels[3])
+    assert min(np.hypot(p.pt[0] - x, p.pt[1] - y) for p in fast) <= 1.0
+
+
+def test_spread_over_the_picture_better_than_plain_orb(photo: np.ndarray) -> None:
+    """Level 0's features in a 10 x 6 grid: more cells hold one, and the fullest holds fewer,
+    than OpenCV's ORB with the same budget (which takes the strongest corners wherever)."""
+    f, _ = OrbExtractor().extract(photo)
+    ours = f.uv_px[f.octave == 0]
+    plain = cv2.ORB.create(nfeatures=1200, scaleFactor=1.2, nlevels=8).detect(photo)
+    theirs = np.array([k.pt for k in plain if k.octave == 0])
+
+    def cells(uv: np.ndarray) -> np.ndarray:
+        c = (uv[:, 1] // 80).astype(int) * 10 + (uv[:, 0] // 75.2).astype(int)
+        return np.bincount(c, minlength=60)
+
+    a, b = cells(ours), cells(theirs)
+    assert (a > 0).sum() > (b > 0).sum()
+    assert a.max() / len(ours) < 0.7 * b.max() / len(theirs)
+
+
+def test_spread_takes_weak_corners_where_a_cell_has_no_strong_one() -> None:
+    rng = np.random.default_rng(0)
+    strong = rng.uniform(0, 50, (200, 2))  # all in the top-left cell area
+    weak = rng.uniform(50, 400, (100, 2))
+    uv = np.vstack([strong, weak])
+    score = np.r_[np.full(200, 60.0), np.full(100, 10.0)]
+    keep = spread(uv, score, 64, (400, 400), strong=20.0)
+    assert len(keep) == 64
+    assert (keep >= 200).sum() >= 40  # most of the picture is weak texture: it is kept
+
+
+def test_bad_settings_and_images_are_one_line() -> None:
+    with pytest.raises(VisionError, match="scale_factor"):
+        OrbConfig(scale_factor=1.0)
+    with pytest.raises(VisionError, match="min_fast <= ini_fast"):
+        OrbConfig(min_fast=30, ini_fast=20)
+    with pytest.raises(VisionError, match="too small"):
+        OrbExtractor().extract(np.zeros((20, 20), np.uint8))
+    f, _ = OrbExtractor().extract(np.zeros((480, 752), np.uint8))  # no texture: no features
+    assert len(f) == 0 and f.descriptors.shape == (0, 32)
