@@ -20,6 +20,7 @@ __all__ = [
     "QuadnavError",
     "SampleError",
     "SimError",
+    "SlamError",
     "VioError",
     "VisionError",
 ]
@@ -84,3 +85,7 @@ class PoseGraphError(QuadnavError):
 
 class LoopError(QuadnavError):
     """Loop closure was misconfigured, or given a map it cannot use."""
+
+
+class SlamError(QuadnavError):
+    """The visual SLAM (``slam/``): a bad setting, an unusable frame."""

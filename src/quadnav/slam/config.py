@@ -1,0 +1,49 @@
+"""The SLAM's settings (ORB-SLAM2's, and thesis 002's where it changed them)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from quadnav.errors import SlamError
+from quadnav.vision.orb import OrbConfig
+from quadnav.vision.stereo_match import StereoConfig
+
+__all__ = ["SlamConfig"]
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class SlamConfig:
+    """``orb``: the extractor (1,200 features, thesis 002 section 5.7); ``stereo``: the
+    matcher; ``th_depth_baselines``: ThDepth (ORB-SLAM2's 40; 22 was best on the thesis's
+    Jetson); ``init_min_points``: stereo points the first frame needs (ORB-SLAM2: 500);
+    ``search_radius_px``: the projection search's window at level 0 (wider once when too few
+    match); ``max_hamming``: a projection match's descriptor distance (TH_HIGH);
+    ``min_inliers``: below this after the pose optimisation the tracking is lost;
+    ``keyframe_*``: the thesis's keyframe rules (chapter 3): after ``keyframe_max_frames``
+    frames, or when the frame tracks under ``keyframe_ratio`` of its reference keyframe's
+    points, if it tracks at least ``keyframe_min_tracked``; ``local_keyframes``: the map points
+    of the last so many keyframes are projected into each frame."""
+
+    orb: OrbConfig = field(default_factory=OrbConfig)
+    stereo: StereoConfig = field(default_factory=StereoConfig)
+    th_depth_baselines: float = 40.0
+    init_min_points: int = 500
+    search_radius_px: float = 15.0
+    max_hamming: int = 100
+    min_inliers: int = 30
+    keyframe_max_frames: int = 20
+    keyframe_ratio: float = 0.9
+    keyframe_min_tracked: int = 50
+    local_keyframes: int = 10
+
+    def __post_init__(self) -> None:
+        if not self.th_depth_baselines > 0 or not self.search_radius_px > 0:
+            raise SlamError("SlamConfig: th_depth_baselines and search_radius_px must be > 0")
+        if not 0 < self.keyframe_ratio <= 1:
+            raise SlamError(
+                f"SlamConfig.keyframe_ratio must lie in (0, 1], got {self.keyframe_ratio}"
+            )
+        ints = ("init_min_points", "min_inliers", "keyframe_max_frames", "keyframe_min_tracked",
+                "local_keyframes")  # fmt: skip
+        if any(getattr(self, k) < 1 for k in ints) or not 0 <= self.max_hamming <= 256:
+            raise SlamError(f"SlamConfig: {', '.join(ints)} must be >= 1, max_hamming 0-256")
