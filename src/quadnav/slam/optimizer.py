@@ -8,6 +8,7 @@ next (and may come back); the last round has no kernel."""
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
@@ -15,7 +16,10 @@ from scipy.spatial.transform import Rotation
 
 from quadnav.geometry.rotations import Pose
 
-__all__ = ["PoseFit", "optimize_pose"]
+if TYPE_CHECKING:  # (GTSAM loads only for a bundle adjustment)
+    import gtsam
+
+__all__ = ["BundleProblem", "BundleResult", "PoseFit", "local_bundle_adjustment", "optimize_pose"]
 
 FloatArray = NDArray[np.float64]
 CHI2_STEREO, CHI2_MONO = 7.815, 5.991
@@ -93,3 +97,123 @@ def optimize_pose(
         use = (chi2 <= gate) & (X[:, 2] > 0)
     pose = Pose(R_A_B=Rotation.from_matrix(R), p_A_B=t)
     return PoseFit(T_C_W=pose, inliers=use)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class BundleProblem:
+    """A local bundle adjustment: the keyframes' camera poses ``T_W_C`` (K), which are held
+    (``fixed``: those that see the local points but are not local, ORB-SLAM2's), the points
+    ``X_W`` (P, 3), and the observations: keyframe ``obs_kf`` and point ``obs_pt`` (M,) at
+    ``obs_uv`` (M, 2) with ``obs_ur`` (M,; negative: no right coordinate) and the pixel
+    variance ``obs_sigma2`` (M,)."""
+
+    T_W_C: tuple[Pose, ...]
+    fixed: NDArray[np.bool_]
+    X_W: FloatArray
+    obs_kf: NDArray[np.int64]
+    obs_pt: NDArray[np.int64]
+    obs_uv: FloatArray
+    obs_ur: FloatArray
+    obs_sigma2: FloatArray
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class BundleResult:
+    """The adjusted poses and points, and which observations were kept (the rest beyond the
+    chi-square gate after the first pass, ORB-SLAM2's outliers)."""
+
+    T_W_C: tuple[Pose, ...]
+    X_W: FloatArray
+    inliers: NDArray[np.bool_]
+
+
+def local_bundle_adjustment(
+    problem: BundleProblem, cam: tuple[float, float, float, float, float], *, passes: int = 2
+) -> BundleResult:
+    """ORB-SLAM2's ``LocalBundleAdjustment`` in GTSAM: stereo observations as
+    ``GenericStereoFactor3D`` and the others as projection factors, each with its level's
+    sigma under a Huber kernel (the 95 % chi-square gate's square root), the held keyframes
+    fixed; after a pass the observations beyond the gate are dropped and it is solved again
+    (``cam`` = (fx, fy, cx, cy, fx b))."""
+    import gtsam
+
+    from quadnav.geometry.gtsam_bridge import to_pose
+
+    fx, fy, cx, cy, bf = cam
+    Ks = gtsam.Cal3_S2Stereo(fx, fy, 0.0, cx, cy, bf / fx)
+    Km = gtsam.Cal3_S2(fx, fy, 0.0, cx, cy)
+    p = problem
+    keep = np.ones(len(p.obs_kf), bool)
+    poses, points = list(p.T_W_C), np.asarray(p.X_W, np.float64).copy()
+    for _ in range(passes):
+        graph, values = _bundle_graph(p, keep, poses, points, Ks, Km)
+        params = gtsam.LevenbergMarquardtParams()
+        params.setMaxIterations(50)
+        out = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
+        poses = [to_pose(out.atPose3(gtsam.symbol("x", k))) for k in range(len(poses))]
+        points = np.array([out.atPoint3(gtsam.symbol("l", j)) for j in range(len(points))]).reshape(
+            -1, 3
+        )
+        keep = _within_gate(p, poses, points, cam)
+    return BundleResult(T_W_C=tuple(poses), X_W=points, inliers=keep)
+
+
+def _bundle_graph(
+    p: BundleProblem, keep: NDArray[np.bool_], poses: list[Pose], points: FloatArray,
+    Ks: gtsam.Cal3_S2Stereo, Km: gtsam.Cal3_S2,
+) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values]:  # fmt: skip
+    import gtsam
+
+    from quadnav.geometry.gtsam_bridge import pose3
+
+    graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+    for k, T in enumerate(poses):
+        values.insert(gtsam.symbol("x", k), pose3(T))
+        if p.fixed[k]:
+            graph.add(gtsam.NonlinearEqualityPose3(gtsam.symbol("x", k), pose3(T)))
+    for j, X in enumerate(points):
+        values.insert(gtsam.symbol("l", j), np.asarray(X, np.float64))
+    for m in np.flatnonzero(keep):
+        k, j, s = int(p.obs_kf[m]), int(p.obs_pt[m]), float(np.sqrt(p.obs_sigma2[m]))
+        u, v = p.obs_uv[m]
+        if p.obs_ur[m] >= 0:
+            base = gtsam.noiseModel.Isotropic.Sigma(3, s)
+            noise = gtsam.noiseModel.Robust.Create(
+                gtsam.noiseModel.mEstimator.Huber.Create(np.sqrt(CHI2_STEREO)), base
+            )
+            graph.add(gtsam.GenericStereoFactor3D(gtsam.StereoPoint2(u, float(p.obs_ur[m]), v), noise,
+                                                  gtsam.symbol("x", k), gtsam.symbol("l", j), Ks))  # fmt: skip
+        else:
+            base = gtsam.noiseModel.Isotropic.Sigma(2, s)
+            noise = gtsam.noiseModel.Robust.Create(
+                gtsam.noiseModel.mEstimator.Huber.Create(np.sqrt(CHI2_MONO)), base
+            )
+            graph.add(gtsam.GenericProjectionFactorCal3_S2(np.array([u, v]), noise,
+                                                           gtsam.symbol("x", k), gtsam.symbol("l", j), Km))  # fmt: skip
+    return graph, values
+
+
+def _within_gate(
+    p: BundleProblem,
+    poses: list[Pose],
+    points: FloatArray,
+    cam: tuple[float, float, float, float, float],
+) -> NDArray[np.bool_]:
+    """Each observation's chi-square under its level's sigma against its gate, in front."""
+    fx, fy, cx, cy, bf = cam
+    keep = np.zeros(len(p.obs_kf), bool)
+    for k, T in enumerate(poses):
+        m = np.flatnonzero(p.obs_kf == k)
+        if len(m) == 0:
+            continue
+        X = T.inverse() @ points[p.obs_pt[m]]
+        z = X[:, 2]
+        ok = z > 0
+        zz = np.where(ok, z, 1.0)
+        u, v = fx * X[:, 0] / zz + cx, fy * X[:, 1] / zz + cy
+        stereo = p.obs_ur[m] >= 0
+        e2 = (p.obs_uv[m, 0] - u) ** 2 + (p.obs_uv[m, 1] - v) ** 2
+        e2 = e2 + np.where(stereo, (p.obs_ur[m] - (u - bf / zz)) ** 2, 0.0)
+        chi2 = e2 / p.obs_sigma2[m]
+        keep[m] = ok & (chi2 <= np.where(stereo, CHI2_STEREO, CHI2_MONO))
+    return keep
