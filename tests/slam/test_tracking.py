@@ -52,24 +52,40 @@ def _errors(truth: list[Pose], est: list[Pose | None]) -> list[float]:
 
 
 def test_stereo_tracking_follows_the_camera(renderer: Renderer) -> None:
+    """The same frames tracked with local mapping (the default) and without: both follow the
+    camera; with it the recent points seen by fewer than three keyframes are culled, the
+    keyframes adjusted, and the worst error is no larger."""
     cfg = SlamConfig()
-    ex, tracker = OrbExtractor(cfg.orb), StereoTracker(cfg)
+    ex = OrbExtractor(cfg.orb)
     n = 40
-    truth, est, kfs = [], [], 0
+    truth, frames = [], []
     for k in range(n):
         T = _pose(k, n)
         right = T @ Pose(Rotation.identity(), np.array([B, 0.0, 0.0]))
-        frame = stereo_frame(k * 50_000_000, renderer.render(T).image,
-                             renderer.render(right).image, RIG, ex, cfg)  # fmt: skip
-        r = tracker.track(frame)
-        assert r.state == "tracking", (k, r)
+        frames.append(stereo_frame(k * 50_000_000, renderer.render(T).image,
+                                   renderer.render(right).image, RIG, ex, cfg))  # fmt: skip
         truth.append(T)
-        est.append(r.T_W_C)
-        kfs += r.keyframe
-    err = _errors(truth, est)
-    assert len(err) == n and max(err) < 0.02 and err[-1] < 0.015, (max(err), err[-1])
-    # keyframes by the rules (every 20 frames or when the tracking thins), not every frame
-    assert 2 <= kfs <= n // 8, kfs
+    worst = {}
+    for mapping in (True, False):
+        tracker = StereoTracker(SlamConfig(local_mapping=mapping))
+        est, kfs = [], 0
+        for k, frame in enumerate(frames):
+            r = tracker.track(frame)
+            assert r.state == "tracking", (k, r)
+            est.append(r.T_W_C)
+            kfs += r.keyframe
+        err = _errors(truth, est)
+        assert len(err) == n and max(err) < 0.02 and err[-1] < 0.015, (mapping, max(err), err[-1])
+        # keyframes by the rules (every 20 frames or when the tracking thins), not every frame
+        assert 2 <= kfs <= n // 8, kfs
+        worst[mapping] = max(err)
+        if mapping:
+            m = tracker.map
+            assert tracker.last_mapping is not None and tracker.last_mapping.adjusted >= 1
+            assert m.bad.any() and (m.n_obs[~m.bad] >= 1).all()
+            old = m.first_keyframe <= len(m.keyframes) - 3
+            assert (m.n_obs[old & ~m.bad] >= 3).all()  # (what stays of the older points)
+    assert worst[True] <= worst[False] + 0.001, worst
 
 
 def test_rgbd_tracking_and_a_blank_frame_is_a_loss(renderer: Renderer) -> None:

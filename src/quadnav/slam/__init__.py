@@ -7,6 +7,8 @@ relocalization and maps come next."""
 
 from quadnav.slam.config import SlamConfig
 from quadnav.slam.frame import Frame, StereoCamera, rgbd_frame, stereo_frame
+from quadnav.slam.local_mapping import LocalMappingReport, local_mapping
+from quadnav.slam.map import SlamKeyframe, SlamMap
 from quadnav.slam.optimizer import (
     BundleProblem,
     BundleResult,
@@ -14,19 +16,22 @@ from quadnav.slam.optimizer import (
     local_bundle_adjustment,
     optimize_pose,
 )
-from quadnav.slam.tracking import MapBlock, StereoTracker, TrackResult, search_by_projection
+from quadnav.slam.tracking import StereoTracker, TrackResult, search_by_projection
 
 __all__ = [
     "BundleProblem",
     "BundleResult",
     "Frame",
-    "MapBlock",
+    "LocalMappingReport",
     "PoseFit",
     "SlamConfig",
+    "SlamKeyframe",
+    "SlamMap",
     "StereoCamera",
     "StereoTracker",
     "TrackResult",
     "local_bundle_adjustment",
+    "local_mapping",
     "optimize_pose",
     "rgbd_frame",
     "search_by_projection",

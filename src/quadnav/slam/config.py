@@ -35,6 +35,8 @@ class SlamConfig:
     keyframe_ratio: float = 0.9
     keyframe_min_tracked: int = 50
     local_keyframes: int = 10
+    local_mapping: bool = True
+    local_ba_keyframes: int = 5
 
     def __post_init__(self) -> None:
         if not self.th_depth_baselines > 0 or not self.search_radius_px > 0:
@@ -44,6 +46,6 @@ class SlamConfig:
                 f"SlamConfig.keyframe_ratio must lie in (0, 1], got {self.keyframe_ratio}"
             )
         ints = ("init_min_points", "min_inliers", "keyframe_max_frames", "keyframe_min_tracked",
-                "local_keyframes")  # fmt: skip
+                "local_keyframes", "local_ba_keyframes")  # fmt: skip
         if any(getattr(self, k) < 1 for k in ints) or not 0 <= self.max_hamming <= 256:
             raise SlamError(f"SlamConfig: {', '.join(ints)} must be >= 1, max_hamming 0-256")

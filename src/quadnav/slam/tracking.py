@@ -7,9 +7,9 @@ keypoints, the nearest descriptor within ``max_hamming``, one map point per keyp
 is optimised on them (:mod:`quadnav.slam.optimizer`), matched again with the optimised pose
 (the local map) and optimised again. Under ``min_inliers`` it is lost. A keyframe is taken on
 the thesis's rules (:class:`~quadnav.slam.config.SlamConfig`) and adds map points from its close
-stereo points that matched none. Local mapping (bundle adjustment, culling), loop closing and
-relocalization after a loss are the next parts of issue 24: until then a lost tracker stays
-lost.
+stereo points that matched none, and local mapping runs on it
+(:mod:`quadnav.slam.local_mapping`). Loop closing and relocalization after a loss are the next
+parts of issue 24: until then a lost tracker stays lost.
 """
 
 from __future__ import annotations
@@ -23,23 +23,14 @@ from numpy.typing import NDArray
 from quadnav.geometry.rotations import Pose
 from quadnav.slam.config import SlamConfig
 from quadnav.slam.frame import Frame
+from quadnav.slam.local_mapping import LocalMappingReport, local_mapping
+from quadnav.slam.map import SlamMap
 from quadnav.slam.optimizer import optimize_pose
 
-__all__ = ["MapBlock", "StereoTracker", "TrackResult", "search_by_projection"]
+__all__ = ["StereoTracker", "TrackResult", "search_by_projection"]
 
 FloatArray = NDArray[np.float64]
 TrackState = Literal["waiting", "tracking", "lost"]
-
-
-@dataclass(frozen=True, slots=True, kw_only=True)
-class MapBlock:
-    """The map points a keyframe made: positions ``X_W`` (M, 3), descriptors (M, 32), the level
-    they were seen at (``octave``)."""
-
-    keyframe: int
-    X_W: FloatArray
-    descriptors: NDArray[np.uint8]
-    octave: NDArray[np.int64]
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -55,33 +46,34 @@ class TrackResult:
 
 
 def search_by_projection(
-    frame: Frame, block: MapBlock, T_C_W: Pose, radius_px: float, max_hamming: int,
-    taken: NDArray[np.bool_],
+    frame: Frame, X_W: FloatArray, descriptors: NDArray[np.uint8], octave: NDArray[np.int64],
+    T_C_W: Pose, radius_px: float, max_hamming: int, taken: NDArray[np.bool_],
 ) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64]]:  # fmt: skip
-    """Matches of map points to the frame's keypoints not ``taken``: (keypoint, point, Hamming
-    distance), each keypoint to at most one point (the nearest descriptor)."""
+    """Matches of map points (``X_W``, their ``descriptors`` and the ``octave`` they were seen
+    at) to the frame's keypoints not ``taken``: (keypoint, point index, Hamming distance), each
+    keypoint to at most one point (the nearest descriptor)."""
     from scipy.spatial import cKDTree
 
     c, f = frame.camera, frame.features
-    X = T_C_W @ block.X_W if len(block.X_W) else np.zeros((0, 3))
+    X = T_C_W @ X_W if len(X_W) else np.zeros((0, 3))
     z = X[:, 2]
     front = z > 0.1
     u = np.where(front, c.fx * X[:, 0] / np.where(front, z, 1) + c.cx, -1e9)
     v = np.where(front, c.fy * X[:, 1] / np.where(front, z, 1) + c.cy, -1e9)
     ur = u - c.bf / np.where(front, z, 1)
     tree = cKDTree(f.uv_px)
-    scale = f.scales[np.minimum(block.octave, len(f.scales) - 1)]
+    scale = f.scales[np.minimum(octave, len(f.scales) - 1)]
     best: dict[int, tuple[int, int]] = {}
     for p in np.flatnonzero(front):
         cand = np.asarray(tree.query_ball_point((u[p], v[p]), radius_px * scale[p]), np.int64)
         if len(cand) == 0:
             continue
-        cand = cand[~taken[cand] & (np.abs(f.octave[cand] - block.octave[p]) <= 1)]
+        cand = cand[~taken[cand] & (np.abs(f.octave[cand] - octave[p]) <= 1)]
         stereo = frame.stereo.u_right[cand] >= 0
         cand = cand[~stereo | (np.abs(frame.stereo.u_right[cand] - ur[p]) <= radius_px * scale[p])]
         if len(cand) == 0:
             continue
-        d = np.unpackbits(f.descriptors[cand] ^ block.descriptors[p], axis=1).sum(axis=1)
+        d = np.unpackbits(f.descriptors[cand] ^ descriptors[p], axis=1).sum(axis=1)
         k = int(np.argmin(d))
         if d[k] <= max_hamming and (int(cand[k]) not in best or d[k] < best[int(cand[k])][1]):
             best[int(cand[k])] = (int(p), int(d[k]))
@@ -96,7 +88,7 @@ def search_by_projection(
 @dataclass
 class _Matches:
     keypoints: NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, np.int64))
-    X_W: FloatArray = field(default_factory=lambda: np.zeros((0, 3)))
+    points: NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, np.int64))
 
 
 class StereoTracker:
@@ -105,12 +97,12 @@ class StereoTracker:
     def __init__(self, config: SlamConfig | None = None) -> None:
         self.config = config or SlamConfig()
         self.state: TrackState = "waiting"
-        self.blocks: list[MapBlock] = []
+        self.map = SlamMap()
+        self.last_mapping: LocalMappingReport | None = None
         self._T_C_W_last: Pose | None = None
         self._velocity: Pose | None = None  # T_C_W(k) T_W_C(k-1)
         self._since_keyframe = 0
         self._ref_tracked = 0
-        self._keyframes = 0
 
     def track(self, frame: Frame) -> TrackResult:
         if self.state == "waiting":
@@ -132,7 +124,7 @@ class StereoTracker:
         n = len(matches.keypoints)
         keyframe = self._wants_keyframe(n)
         if keyframe:
-            self._add_keyframe(frame, T_C_W, matches.keypoints, n)
+            T_C_W = self._add_keyframe(frame, T_C_W, matches, n)
         return TrackResult(t_ns=frame.t_ns, state="tracking", T_W_C=T_C_W.inverse(), inliers=n,
                            keyframe=keyframe)  # fmt: skip
 
@@ -143,7 +135,7 @@ class StereoTracker:
         self.state = "tracking"
         self._T_C_W_last = Pose.identity()
         idx = np.flatnonzero(frame.stereo.matched)
-        self._add_block(frame, Pose.identity(), idx)
+        self.map.add_points(self.map.add_keyframe(Pose.identity(), frame), idx)
         self._ref_tracked = len(idx)
         return TrackResult(t_ns=frame.t_ns, state="tracking", T_W_C=Pose.identity(),
                            inliers=len(idx), keyframe=True)  # fmt: skip
@@ -160,29 +152,25 @@ class StereoTracker:
                 return None
             f = frame.features
             fit = optimize_pose(
-                T, m.X_W, f.uv_px[m.keypoints], frame.stereo.u_right[m.keypoints],
+                T, self.map.X_W[m.points], f.uv_px[m.keypoints], frame.stereo.u_right[m.keypoints],
                 f.scales[f.octave[m.keypoints]] ** 2,
                 (frame.camera.fx, frame.camera.fy, frame.camera.cx, frame.camera.cy, frame.camera.bf),
             )  # fmt: skip
             T = fit.T_C_W
-            m = _Matches(keypoints=m.keypoints[fit.inliers], X_W=m.X_W[fit.inliers])
+            m = _Matches(keypoints=m.keypoints[fit.inliers], points=m.points[fit.inliers])
             if len(m.keypoints) < cfg.min_inliers:
                 return None
         return T, m
 
     def _match(self, frame: Frame, T_C_W: Pose, radius: float) -> _Matches:
+        m = self.map
+        ids = m.local_points(m.keyframes[-self.config.local_keyframes :])
         taken = np.zeros(len(frame), bool)
-        kps, Xs = [], []
-        for block in reversed(self.blocks[-self.config.local_keyframes :]):
-            kp, pt, _ = search_by_projection(
-                frame, block, T_C_W, radius, self.config.max_hamming, taken
-            )
-            taken[kp] = True
-            kps.append(kp)
-            Xs.append(block.X_W[pt])
-        if not kps:
-            return _Matches()
-        return _Matches(keypoints=np.concatenate(kps), X_W=np.concatenate(Xs).reshape(-1, 3))
+        kp, j, _ = search_by_projection(
+            frame, m.X_W[ids], m.descriptors[ids], m.octave[ids], T_C_W, radius,
+            self.config.max_hamming, taken,
+        )  # fmt: skip
+        return _Matches(keypoints=kp, points=ids[j])
 
     def _wants_keyframe(self, tracked: int) -> bool:
         c = self.config
@@ -190,16 +178,19 @@ class StereoTracker:
         thin = tracked < c.keyframe_ratio * self._ref_tracked
         return (due or thin) and tracked >= c.keyframe_min_tracked
 
-    def _add_keyframe(self, frame: Frame, T_C_W: Pose, tracked: NDArray[np.int64], n: int) -> None:
+    def _add_keyframe(self, frame: Frame, T_C_W: Pose, matches: _Matches, n: int) -> Pose:
+        """The frame as a keyframe: it observes the points it tracked, makes points of its close
+        stereo keypoints that matched none, and local mapping runs; its (adjusted) pose."""
+        kf = self.map.add_keyframe(T_C_W, frame)
+        self.map.observe(kf, matches.keypoints, matches.points)
         fresh = frame.close.copy()
-        fresh[tracked] = False
-        self._add_block(frame, T_C_W, np.flatnonzero(fresh))
+        fresh[matches.keypoints] = False
+        self.map.add_points(kf, np.flatnonzero(fresh))
         self._since_keyframe = 0
         self._ref_tracked = n  # (ORB-SLAM2: the points its reference keyframe tracks)
-
-    def _add_block(self, frame: Frame, T_C_W: Pose, idx: NDArray[np.int64]) -> None:
-        X_W = T_C_W.inverse() @ frame.points_C(idx) if len(idx) else np.zeros((0, 3))
-        self.blocks.append(MapBlock(keyframe=self._keyframes, X_W=X_W,
-                                    descriptors=frame.features.descriptors[idx],
-                                    octave=frame.features.octave[idx]))  # fmt: skip
-        self._keyframes += 1
+        if self.config.local_mapping:
+            self.last_mapping = local_mapping(
+                self.map, local_keyframes=self.config.local_ba_keyframes
+            )
+            self._T_C_W_last = kf.T_C_W
+        return kf.T_C_W

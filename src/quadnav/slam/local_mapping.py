@@ -1,0 +1,91 @@
+"""The SLAM's local mapping (ORB-SLAM2's ``LocalMapping``), run after each keyframe: the recent
+map points culled (a point made two or more keyframes ago that fewer than three keyframes see:
+ORB-SLAM2's stereo rule), then the local bundle adjustment
+(:func:`~quadnav.slam.optimizer.local_bundle_adjustment`) over the newest keyframes and the
+points they see, the other keyframes that see those points held; its outlier observations are
+forgotten and points seen by no keyframe culled."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from quadnav.slam.map import SlamKeyframe, SlamMap
+from quadnav.slam.optimizer import BundleProblem, local_bundle_adjustment
+
+__all__ = ["LocalMappingReport", "local_mapping"]
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class LocalMappingReport:
+    """What one pass did: points culled, keyframes adjusted and held, observations dropped."""
+
+    culled: int
+    adjusted: int
+    held: int
+    dropped: int
+
+
+def local_mapping(
+    slam_map: SlamMap, *, local_keyframes: int = 5, min_observations: int = 3, max_held: int = 5
+) -> LocalMappingReport:
+    """One pass after the newest keyframe (see the module)."""
+    newest = slam_map.keyframes[-1].index
+    m = slam_map
+    recent = (newest - m.first_keyframe >= 2) & (m.n_obs < min_observations) & ~m.bad
+    culled = np.flatnonzero(recent)
+    m.cull(culled)
+    local = slam_map.keyframes[-local_keyframes:]
+    if len(local) < 2:
+        return LocalMappingReport(culled=len(culled), adjusted=0, held=0, dropped=0)
+    pts = m.local_points(local)
+    local_ids = {kf.index for kf in local}
+    held = [kf for kf in reversed(slam_map.keyframes[:-local_keyframes])
+            if kf.index not in local_ids and np.isin(kf.points, pts).any()][:max_held]  # fmt: skip
+    if not held:  # (the first keyframes: the oldest local one holds the frame)
+        held, local = [local[0]], local[1:]
+    kfs = [*held, *local]
+    problem, rows = _problem(m, kfs, pts, n_held=len(held))
+    cam = kfs[0].frame.camera
+    out = local_bundle_adjustment(problem, (cam.fx, cam.fy, cam.cx, cam.cy, cam.bf))
+    for k, kf in enumerate(kfs):
+        if not problem.fixed[k]:
+            kf.T_C_W = out.T_W_C[k].inverse()
+    m.X_W[pts] = out.X_W
+    dropped = 0
+    for k, kf in enumerate(kfs):
+        bad = rows[k][~out.inliers[problem.obs_kf == k]]
+        m.forget(kf, bad)
+        dropped += len(bad)
+    gone = pts[m.n_obs[pts] <= 0]
+    m.cull(gone)
+    return LocalMappingReport(culled=len(culled) + len(gone), adjusted=len(local), held=len(held),
+                              dropped=dropped)  # fmt: skip
+
+
+def _problem(
+    m: SlamMap, kfs: list[SlamKeyframe], pts: np.ndarray, *, n_held: int
+) -> tuple[BundleProblem, list[np.ndarray]]:
+    """The adjustment's problem, and each keyframe's keypoints in its observation order."""
+    where = {int(p): j for j, p in enumerate(pts)}
+    kf_i, pt_i, uv, ur, s2, rows = [], [], [], [], [], []
+    for k, kf in enumerate(kfs):
+        kp, ids = kf.observed
+        sel = np.isin(ids, pts)
+        kp, ids = kp[sel], ids[sel]
+        f = kf.frame.features
+        kf_i.append(np.full(len(kp), k, np.int64))
+        pt_i.append(np.array([where[int(i)] for i in ids], np.int64))
+        uv.append(f.uv_px[kp])
+        ur.append(kf.frame.stereo.u_right[kp])
+        s2.append(f.scales[f.octave[kp]] ** 2)
+        rows.append(kp)
+    problem = BundleProblem(
+        T_W_C=tuple(kf.T_C_W.inverse() for kf in kfs),
+        fixed=np.arange(len(kfs)) < n_held,
+        X_W=m.X_W[pts], obs_kf=np.concatenate(kf_i), obs_pt=np.concatenate(pt_i),
+        obs_uv=np.concatenate(uv).reshape(-1, 2), obs_ur=np.concatenate(ur),
+        obs_sigma2=np.concatenate(s2),
+    )  # fmt: skip
+    return problem, rows
