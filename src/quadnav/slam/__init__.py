@@ -9,6 +9,7 @@ from quadnav.slam.config import SlamConfig
 from quadnav.slam.frame import Frame, StereoCamera, rgbd_frame, stereo_frame
 from quadnav.slam.local_mapping import LocalMappingReport, local_mapping
 from quadnav.slam.map import SlamKeyframe, SlamMap
+from quadnav.slam.odometry import SlamOdometry
 from quadnav.slam.optimizer import (
     BundleProblem,
     BundleResult,
@@ -27,6 +28,7 @@ __all__ = [
     "SlamConfig",
     "SlamKeyframe",
     "SlamMap",
+    "SlamOdometry",
     "StereoCamera",
     "StereoTracker",
     "TrackResult",
