@@ -32,6 +32,7 @@ COMMANDS = {
     ("calibrate",): "quadnav.cli.calibrate",
     ("dataset", "make"): "quadnav.cli.dataset",
     ("vio",): "quadnav.cli.vio",
+    ("slam",): "quadnav.cli.slam",
 }
 
 

@@ -35,6 +35,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "link": ("link", "link_app"),
     "dataset": ("dataset", "dataset_app"),
     "vio": ("vio", "vio_command"),
+    "slam": ("slam", "slam_command"),
 }
 
 

@@ -4,10 +4,11 @@ report) drives it too.
 
 A stereo rig's two cameras are rectified once (:class:`~quadnav.vision.stereo.StereoRectifier`);
 a frame of the first camera waits for its partner of the same time, and the pair is rectified,
-made into a :class:`~quadnav.slam.frame.Frame` and tracked. The odometry's world is the body's
-pose at the first tracked frame (a SLAM without an IMU has no gravity: its world is not
-levelled, unlike the VIO's; evaluate it after an SE(3) alignment); the body's pose is the
-rectified left camera's through the rig's extrinsic. IMU samples are not used. Frames of
+made into a :class:`~quadnav.slam.frame.Frame` and tracked. The odometry's world is the
+vehicle's frame (the rig's ``T_V_B``) at the first tracked frame: a SLAM without an IMU knows no
+gravity, so its world is level only if the vehicle started level (on the ground, as usual);
+otherwise evaluate it after an SE(3) alignment. The body's pose is the rectified left camera's
+through the rig's extrinsic. IMU samples are not used. Frames of
 another camera, a partner that never comes (the next left frame comes first), an image that
 cannot be read: rejected and counted. A loss is an event (``failure``) and the states stop.
 Until the SLAM publishes its keyframes for a loop closer, ``keyframes()`` hands out none.
@@ -61,6 +62,7 @@ class SlamOdometry:
         # the rectified left camera in the body: the original one turned by R0 (x_rect = R0 x)
         self.T_B_C = left.T_B_C @ Pose(Rotation.from_matrix(self.rectifier.R0.T), np.zeros(3))
         self._names = (left.name, rig.cameras[1].name)
+        self.T_V_B = rig.T_V_B
         self.extractor = OrbExtractor(self.config.orb)
         self.tracker = StereoTracker(self.config)
         self._pending: ImageFrame | None = None
@@ -138,8 +140,9 @@ class SlamOdometry:
         if self._T_W_C0 is None:
             self._T_W_C0 = result.T_W_C
             self._events.append(OdometryEvent(t_ns=left.t_ns, kind="initialized", detail="stereo"))
-        # the body in the world of the first body pose
-        T_W_B = self.T_B_C @ self._T_W_C0.inverse() @ result.T_W_C @ self.T_B_C.inverse()
+        # the body in the world of the vehicle's first pose: T_V_B T_B0_Bk
+        T_B0_Bk = self.T_B_C @ self._T_W_C0.inverse() @ result.T_W_C @ self.T_B_C.inverse()
+        T_W_B = self.T_V_B @ T_B0_Bk
         v = np.zeros(3)
         if self._last is not None and left.t_ns > self._last.t_ns:
             v = (T_W_B.p_A_B - self._last.T_W_B.p_A_B) / ((left.t_ns - self._last.t_ns) * 1e-9)

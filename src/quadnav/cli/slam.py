@@ -1,0 +1,114 @@
+"""``quadnav slam DATASET ...``: the stereo SLAM (ORB-SLAM2 class, thesis 002) over a dataset,
+into a run folder with the estimate, metrics against the ground truth, plots and the report."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.table import Table
+
+from quadnav.cli.common import (
+    CommandParams,
+    check_range,
+    command_help,
+    console,
+    handle_errors,
+    optional_param,
+    param,
+    progress_bar,
+)
+from quadnav.cli.planar import OutOpt
+from quadnav.experiments.odometry_run import OdometryRunOptions
+from quadnav.experiments.odometry_study import ROW_HEADER, row_cells, row_of
+from quadnav.experiments.slam_run import SlamRequest, check_slam_request, run_slam_source
+
+__all__ = ["EXAMPLES", "check_example", "resolve_slam_request", "slam_command"]
+
+
+def resolve_slam_request(
+    dataset: str, start_s: float, duration_s: float | None, seed: int, rig: str, out: Path,
+    *, features: int = 1200, th_depth: float = 40.0,
+) -> SlamRequest:  # fmt: skip
+    """The validated request (no dataset read, no folder made)."""
+    check_range(start_s, "--start", 0.0, 1e6, "s")
+    if duration_s is not None:
+        check_range(duration_s, "--duration", 0.0, 1e6, "s", low_open=True)
+    check_range(float(features), "--features", 50.0, 20000.0, "")
+    check_range(th_depth, "--th-depth", 0.0, 1e4, "baselines", low_open=True)
+    request = SlamRequest(
+        source=dataset, seed=seed, rig=rig, out=out, n_features=features,
+        th_depth_baselines=th_depth,
+        options=OdometryRunOptions(start_s=start_s, duration_s=duration_s, video=False),
+    )  # fmt: skip
+    check_slam_request(request)
+    return request
+
+
+def check_example(params: CommandParams) -> None:
+    """Validate an example's options as the command would, without running it."""
+    resolve_slam_request(
+        param(params, "dataset", str), param(params, "start_s", float),
+        optional_param(params, "duration_s", float), param(params, "seed", int),
+        param(params, "rig", str), param(params, "out", Path),
+        features=param(params, "features", int), th_depth=param(params, "th_depth", float),
+    )  # fmt: skip
+
+
+#: The examples of ``quadnav slam --help`` (each parsed and validated by the tests).
+EXAMPLES = (
+    "quadnav slam room_easy --duration 10",
+    "quadnav slam data/MH_01_easy --duration 30 --th-depth 22",
+    "quadnav slam hall_laps --rig zed --features 1000 --out /tmp/runs",
+)
+
+
+@handle_errors
+def slam_command(
+    dataset: Annotated[
+        str,
+        typer.Argument(help="stereo EuRoC folder, ROS bag, or built-in sequence (room_easy...)"),
+    ],
+    start_s: Annotated[float, typer.Option("--start", help="skip this many seconds")] = 0.0,
+    duration_s: Annotated[
+        float | None, typer.Option("--duration", help="seconds to run [default: to the end]")
+    ] = None,
+    seed: Annotated[int, typer.Option("--seed", min=0, help="seed of a built-in sequence")] = 0,
+    rig: Annotated[
+        str, typer.Option("--rig", help="the stereo rig a built-in sequence is made with")
+    ] = "euroc",
+    features: Annotated[
+        int, typer.Option("--features", help="ORB features a frame (thesis 002's Jetson: 1200)")
+    ] = 1200,
+    th_depth: Annotated[
+        float,
+        typer.Option(
+            "--th-depth", help="ThDepth in baselines: nearer points are close (ORB-SLAM2 40)"
+        ),
+    ] = 40.0,
+    out: OutOpt = Path("runs"),
+) -> None:
+    request = resolve_slam_request(dataset, start_s, duration_s, seed, rig, out,
+                                   features=features, th_depth=th_depth)  # fmt: skip
+    with progress_bar("slam") as update:
+        run = run_slam_source(request, update)
+    table = Table(title=f"SLAM on {run.dataset}: {run.timing.frames} frames")
+    for c in ROW_HEADER[2:]:
+        table.add_column(c, justify="right")
+    table.add_row(*row_cells(row_of(run, run.dataset, None))[2:])
+    console.print(table)
+    for n in run.notes:
+        console.print(f"note: {n}", highlight=False)
+    console.print(str(run.run_dir), soft_wrap=True, highlight=False)
+
+
+slam_command.__doc__ = command_help(
+    "Stereo visual SLAM (ORB-SLAM2 class; being built: tracking and local mapping so far) over a dataset: estimate, metrics, report.",
+    "DATASET is a stereo EuRoC ASL folder, a ROS 1/2 bag, or a built-in sequence made once "
+    "per --seed and --rig under OUT/datasets. The pair is rectified, ORB features matched "
+    "across it, the camera tracked on the map of its last keyframes and the keyframes "
+    "adjusted locally. Its world is the first body pose (no IMU): compare after an SE(3) "
+    "alignment. No loop closing, relocalization or map files yet.",
+    examples=EXAMPLES,
+)
