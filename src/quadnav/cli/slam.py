@@ -20,8 +20,7 @@ from quadnav.cli.common import (
     progress_bar,
 )
 from quadnav.cli.planar import OutOpt
-from quadnav.experiments.odometry_run import OdometryRunOptions
-from quadnav.experiments.odometry_study import ROW_HEADER, row_cells, row_of
+from quadnav.experiments.odometry_run import OdometryRun, OdometryRunOptions
 from quadnav.experiments.slam_run import SlamRequest, check_slam_request, run_slam_source
 
 __all__ = ["EXAMPLES", "check_example", "resolve_slam_request", "slam_command"]
@@ -64,6 +63,27 @@ EXAMPLES = (
 )
 
 
+def _table(run: OdometryRun) -> Table:
+    """The run's numbers: the APE after SE(3) and Sim(3) alignment (the SLAM's world is not
+    levelled: a position + yaw alignment would charge it the start's tilt), the frames with an
+    estimate, losses, frames per second."""
+    m = run.metrics
+
+    def ape(a: object) -> str:
+        return a if isinstance(a, str) else f"{a.rmse_m:.4f}"  # type: ignore[attr-defined]
+
+    table = Table(title=f"SLAM on {run.dataset}: {run.timing.frames} frames")
+    cells = {
+        "ATE SE(3) (m)": ape(m.ape_se3), "ATE Sim(3) (m)": ape(m.ape_sim3),
+        "with estimate": f"{100 * m.fraction_with_estimate:.0f} %", "losses": str(m.failures),
+        "frames/s": f"{run.timing.frames_per_s:.1f}",
+    }  # fmt: skip
+    for c in cells:
+        table.add_column(c, justify="right")
+    table.add_row(*cells.values())
+    return table
+
+
 @handle_errors
 def slam_command(
     dataset: Annotated[
@@ -93,11 +113,7 @@ def slam_command(
                                    features=features, th_depth=th_depth)  # fmt: skip
     with progress_bar("slam") as update:
         run = run_slam_source(request, update)
-    table = Table(title=f"SLAM on {run.dataset}: {run.timing.frames} frames")
-    for c in ROW_HEADER[2:]:
-        table.add_column(c, justify="right")
-    table.add_row(*row_cells(row_of(run, run.dataset, None))[2:])
-    console.print(table)
+    console.print(_table(run))
     for n in run.notes:
         console.print(f"note: {n}", highlight=False)
     console.print(str(run.run_dir), soft_wrap=True, highlight=False)

@@ -599,6 +599,8 @@ def run_odometry(
             opt.camera,
         )
         rec.keyframes.extend(vio.keyframes(final=True))
+        # (the last keyframes' loops and events come with them)
+        _flush_events(vio, rec, run_dir / "events.jsonl", t0)
     finally:
         if video is not None:
             video.close()

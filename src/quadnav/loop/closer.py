@@ -627,12 +627,18 @@ class LoopClosure:
         self._last_loop = rec.index
         self._add_loop(old.index, rec.index, T, v.loop.cov_4dof)
         seg = self.segments.items[self._segment_of[rec.index]]
-        if not seg.joined:
+        if not seg.joined and self._in_map(old.index):  # (a loop inside it joins nothing)
             seg.joined = True
             self.stats.joins.append({"t_ns": rec.t_ns, "segment": seg.id, "how": "loop",
                                      "map_keyframe": old.index, "inliers": v.n_pnp})  # fmt: skip
         self._event(rec, "loop", f"keyframe {old.index}: {v.n_pnp} inliers, yaw "
                     f"{v.yaw_deg:.1f} deg, {v.translation_m:.2f} m apart")  # fmt: skip
+
+    def _in_map(self, index: int) -> bool:
+        """Whether keyframe ``index`` is joined to the map (a loaded map's, or of a joined
+        segment)."""
+        seg = self._segment_of.get(index)
+        return seg == MAP_FRAME or (seg is not None and self.segments.items[seg].joined)
 
     def _add_loop(self, old: int, new: int, T_old_new: Pose, cov_4dof: FloatArray) -> None:
         c = self.config

@@ -1,0 +1,37 @@
+"""``quadnav slam``: bad options are one line naming the option, before anything is made."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from quadnav.cli.main import app
+
+
+@pytest.mark.parametrize(
+    ("args", "named"),
+    [
+        (["--rig", "euroc_mono"], "--rig euroc_mono: one camera; the stereo SLAM needs two"),
+        (["--rig", "nope"], "--rig:"),
+        (["--features", "10"], "--features"),
+        (["--th-depth", "0"], "--th-depth"),
+        (["--duration", "-1"], "--duration"),
+    ],
+)
+def test_a_bad_option_is_one_line(tmp_path: Path, args: list[str], named: str) -> None:
+    out = tmp_path / "runs"
+    result = CliRunner().invoke(app, ["slam", "room_easy", *args, "--out", str(out)])
+    assert result.exit_code == 2, result.output
+    text = result.output.strip()
+    assert "Traceback" not in text and len(text.splitlines()) == 1, text
+    assert named in text
+    assert not out.exists()  # (nothing made)
+
+
+def test_an_out_that_is_a_file_is_refused(tmp_path: Path) -> None:
+    f = tmp_path / "file"
+    f.write_text("x")
+    result = CliRunner().invoke(app, ["slam", "room_easy", "--out", str(f)])
+    assert result.exit_code == 2 and "is a file, not a folder" in result.output
