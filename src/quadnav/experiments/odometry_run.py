@@ -159,6 +159,20 @@ def _make_sequence(
     return folder
 
 
+def check_out_and_rig(out: Path, rig: str) -> Rig:
+    """``--out`` (not a file) and ``--rig`` (a rig quadnav knows), checked before anything is
+    read or made; the rig."""
+    from quadnav.errors import ConfigError, GeometryError
+    from quadnav.rig import rig_named
+
+    if out.exists() and not out.is_dir():
+        raise ConfigError(f"--out {out}: is a file, not a folder")
+    try:
+        return rig_named(rig)
+    except GeometryError as exc:
+        raise ConfigError(f"--rig: {exc}") from None
+
+
 def resolve_dataset(
     source: str,
     *,

@@ -8,11 +8,12 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from quadnav.errors import ConfigError, GeometryError
+from quadnav.errors import ConfigError
 from quadnav.experiments.odometry_run import (
     OdometryRun,
     OdometryRunOptions,
     Progress,
+    check_out_and_rig,
     resolve_dataset,
     run_odometry,
 )
@@ -40,14 +41,8 @@ class SlamRequest:
 def check_slam_request(request: SlamRequest) -> None:
     """Refuse a bad rig, setting or ``--out`` before any dataset is read or made."""
     from quadnav.errors import QuadnavError
-    from quadnav.rig import rig_named
 
-    if request.out.exists() and not request.out.is_dir():
-        raise ConfigError(f"--out {request.out}: is a file, not a folder")
-    try:
-        rig = rig_named(request.rig)
-    except GeometryError as exc:
-        raise ConfigError(f"--rig: {exc}") from None
+    rig = check_out_and_rig(request.out, request.rig)
     if not rig.stereo:
         raise ConfigError(
             f"--rig {request.rig}: one camera; the stereo SLAM needs two (euroc, zed)"

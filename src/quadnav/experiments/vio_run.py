@@ -12,11 +12,12 @@ from typing import TypeVar
 
 from pydantic import BaseModel
 
-from quadnav.errors import ConfigError, GeometryError
+from quadnav.errors import ConfigError
 from quadnav.experiments.odometry_run import (
     OdometryRun,
     OdometryRunOptions,
     Progress,
+    check_out_and_rig,
     resolve_dataset,
     run_odometry,
 )
@@ -119,15 +120,9 @@ class VioRequest:
 def check_request(request: VioRequest) -> None:
     """Refuse a bad configuration, ``--set``, rig or ``--out`` before any dataset is read or
     made."""
-    from quadnav.rig import rig_named
     from quadnav.vio import VioConfig
 
-    if request.out.exists() and not request.out.is_dir():
-        raise ConfigError(f"--out {request.out}: is a file, not a folder")
-    try:
-        rig = rig_named(request.rig)
-    except GeometryError as exc:
-        raise ConfigError(f"--rig: {exc}") from None
+    rig = check_out_and_rig(request.out, request.rig)
     cfg, _ = resolve_vio_config(VioConfig, request.config, request.overrides, rig)
     if request.loop_overrides:
         from quadnav.loop.settings import loop_config_with
