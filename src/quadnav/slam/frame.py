@@ -45,6 +45,11 @@ class StereoCamera:
         """``fx b``: disparity (px) times depth (m)."""
         return self.fx * self.baseline_m
 
+    @property
+    def intrinsics(self) -> tuple[float, float, float, float, float]:
+        """(fx, fy, cx, cy, fx b), as the optimisers take them."""
+        return self.fx, self.fy, self.cx, self.cy, self.bf
+
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class Frame:

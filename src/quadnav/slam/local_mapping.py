@@ -47,8 +47,7 @@ def local_mapping(
         held, local = [local[0]], local[1:]
     kfs = [*held, *local]
     problem, rows = _problem(m, kfs, pts, n_held=len(held))
-    cam = kfs[0].frame.camera
-    out = local_bundle_adjustment(problem, (cam.fx, cam.fy, cam.cx, cam.cy, cam.bf))
+    out = local_bundle_adjustment(problem, kfs[0].frame.camera.intrinsics)
     for k, kf in enumerate(kfs):
         if not problem.fixed[k]:
             kf.T_C_W = out.T_W_C[k].inverse()

@@ -47,14 +47,15 @@ class TrackResult:
 
 def search_by_projection(
     frame: Frame, X_W: FloatArray, descriptors: NDArray[np.uint8], octave: NDArray[np.int64],
-    T_C_W: Pose, radius_px: float, max_hamming: int, taken: NDArray[np.bool_],
+    T_C_W: Pose, radius_px: float, max_hamming: int, taken: NDArray[np.bool_] | None = None,
 ) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64]]:  # fmt: skip
     """Matches of map points (``X_W``, their ``descriptors`` and the ``octave`` they were seen
-    at) to the frame's keypoints not ``taken``: (keypoint, point index, Hamming distance), each
+    at) to the frame's keypoints (those not ``taken``): (keypoint, point index, Hamming distance), each
     keypoint to at most one point (the nearest descriptor)."""
     from scipy.spatial import cKDTree
 
     c, f = frame.camera, frame.features
+    taken = np.zeros(len(f), bool) if taken is None else taken
     X = T_C_W @ X_W if len(X_W) else np.zeros((0, 3))
     z = X[:, 2]
     front = z > 0.1
@@ -154,7 +155,7 @@ class StereoTracker:
             fit = optimize_pose(
                 T, self.map.X_W[m.points], f.uv_px[m.keypoints], frame.stereo.u_right[m.keypoints],
                 f.scales[f.octave[m.keypoints]] ** 2,
-                (frame.camera.fx, frame.camera.fy, frame.camera.cx, frame.camera.cy, frame.camera.bf),
+                frame.camera.intrinsics,
             )  # fmt: skip
             T = fit.T_C_W
             m = _Matches(keypoints=m.keypoints[fit.inliers], points=m.points[fit.inliers])
@@ -165,10 +166,9 @@ class StereoTracker:
     def _match(self, frame: Frame, T_C_W: Pose, radius: float) -> _Matches:
         m = self.map
         ids = m.local_points(m.keyframes[-self.config.local_keyframes :])
-        taken = np.zeros(len(frame), bool)
         kp, j, _ = search_by_projection(
             frame, m.X_W[ids], m.descriptors[ids], m.octave[ids], T_C_W, radius,
-            self.config.max_hamming, taken,
+            self.config.max_hamming,
         )  # fmt: skip
         return _Matches(keypoints=kp, points=ids[j])
 

@@ -118,7 +118,7 @@ class OrbExtractor:
         """The image's features and its pyramid."""
         levels = self.pyramid(image)
         scales = self.config.scales()
-        parts = [self._level(img, k, int(self._shares[k])) for k, img in enumerate(levels)]
+        parts = [self._level(img, int(self._shares[k])) for k, img in enumerate(levels)]
         kps = [kp for part in parts for kp in part[0]]
         if not kps:
             return _empty(scales), levels
@@ -138,11 +138,8 @@ class OrbExtractor:
             levels,
         )
 
-    def _level(
-        self, img: NDArray[np.uint8], level: int, want: int
-    ) -> tuple[list[Any], NDArray[np.uint8]]:
+    def _level(self, img: NDArray[np.uint8], want: int) -> tuple[list[Any], NDArray[np.uint8]]:
         """One level's keypoints (in its pixels) spread over its grid, oriented, described."""
-        del level
         h, w = img.shape
         corners = [
             k for k in self._fast.detect(img)
