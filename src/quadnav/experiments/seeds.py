@@ -67,6 +67,12 @@ def _terminate(pool: ProcessPoolExecutor) -> None:
         proc.terminate()
     for proc in procs:
         proc.join(timeout=5)
+    # Its manager thread closes the pool's wake-up pipe as it ends; let it end now, before the
+    # interpreter's exit hook writes to that pipe (under load the two raced: "Bad file
+    # descriptor" and a traceback after a Ctrl-C).
+    manager = getattr(pool, "_executor_manager_thread", None)
+    if manager is not None:
+        manager.join(timeout=5)
 
 
 def run_tasks(
