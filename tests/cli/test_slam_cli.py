@@ -18,6 +18,10 @@ from quadnav.cli.main import app
         (["--features", "10"], "--features"),
         (["--th-depth", "0"], "--th-depth"),
         (["--duration", "-1"], "--duration"),
+        (["--localization-only"], "--localization-only: give the map to localize in"),
+        (["--load-map", "m", "--save-map", "m"], "--save-map m: the map loaded"),
+        (["--loop-set", "nope=1"], "--loop-set nope: unknown key"),
+        (["--blackout", "3"], "--blackout '3': give START:SECONDS"),
     ],
 )
 def test_a_bad_option_is_one_line(tmp_path: Path, args: list[str], named: str) -> None:
@@ -35,3 +39,28 @@ def test_an_out_that_is_a_file_is_refused(tmp_path: Path) -> None:
     f.write_text("x")
     result = CliRunner().invoke(app, ["slam", "room_easy", "--out", str(f)])
     assert result.exit_code == 2 and "is a file, not a folder" in result.output
+
+
+@pytest.mark.parametrize(
+    ("make", "named"),
+    [
+        (lambda d: None, "no such folder"),
+        (lambda d: (d.mkdir(), (d / "map.json").write_text("{")), "map.json is corrupt"),
+        (
+            lambda d: (d.mkdir(), (d / "map.json").write_text('{"format": "quadnav-loop-map"}')),
+            "not a quadnav map of this kind (quadnav-slam-map",
+        ),
+    ],
+)
+def test_a_bad_map_is_one_line_before_any_dataset_is_made(
+    tmp_path: Path, make: object, named: str
+) -> None:
+    out, folder = tmp_path / "runs", tmp_path / "map"
+    make(folder)  # type: ignore[operator]
+    result = CliRunner().invoke(
+        app, ["slam", "room_easy", "--load-map", str(folder), "--out", str(out)]
+    )
+    assert result.exit_code == 2, result.output
+    text = result.output.strip()
+    assert len(text.splitlines()) == 1 and "--load-map" in text and named in text, text
+    assert not (out / "datasets").exists()

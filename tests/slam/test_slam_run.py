@@ -29,11 +29,11 @@ def stereo_run(tmp_path_factory: pytest.TempPathFactory) -> tuple:
 
     run = run_odometry(ds, ds.rig, make, out, options=OdometryRunOptions(video=False),
                        name="room_easy", kind="slam")  # fmt: skip
-    return run, made[0]
+    return run, made[0], ds
 
 
 def test_the_stereo_slam_runs_through_the_common_runner(stereo_run: tuple) -> None:
-    run, slam = stereo_run
+    run, slam, _ = stereo_run
     m = run.metrics
     assert (run.run_dir / "estimate.tum").exists() and (run.run_dir / "metrics.json").exists()
     assert "_slam_" in run.run_dir.name
@@ -56,6 +56,70 @@ def test_frames_that_do_not_pair_are_counted_not_raised() -> None:
     assert slam.push(ImageFrame(t_ns=4, camera="cam0", load=lambda: blank)) is None
     assert slam.push(ImageFrame(t_ns=4, camera="cam1", load=lambda: blank)) is None
     assert slam.tracker.state == "waiting"
+
+
+def test_keyframe_records_put_their_landmarks_where_their_keypoints_see_them(
+    stereo_run: tuple,
+) -> None:
+    """Each published keyframe's landmarks (in the odometry's world) project through its pose
+    and the rig's own left camera (lens included) onto the keypoints that observe them."""
+    _, slam, _ = stereo_run
+    m = slam.tracker.map
+    recs = [slam._record(kf) for kf in m.keyframes]
+    assert len(recs) == len(m.keyframes) >= 2
+    cam = euroc().cameras[0]
+    for rec in recs:
+        assert rec.T_B_C is None and len(rec.landmark_ids) >= 100
+        row = {int(i): k for k, i in enumerate(rec.ids)}
+        k = np.array([row[int(i)] for i in rec.landmark_ids])
+        T_C_W = (rec.T_W_B @ cam.T_B_C).inverse()
+        uv = cam.camera.project(T_C_W @ rec.landmarks_W)
+        err = np.linalg.norm(uv - rec.uv_px[k], axis=1)
+        assert np.median(err) < 1.0 and np.quantile(err, 0.9) < 3.0, np.quantile(err, [0.5, 0.9])
+        assert (rec.ids[np.setdiff1d(np.arange(len(rec.ids)), k)] < -999_999).all()
+
+
+def test_a_saved_map_reloads_exactly_and_a_run_localizes_in_it(
+    stereo_run: tuple, tmp_path: Path
+) -> None:
+    """The map saved and loaded is the same (to the bit but the poses, which go through a
+    rotation: 1e-12); on it, localization only over the
+    same frames relocalizes at the first, adds nothing, and is as accurate as the mapping."""
+    from quadnav.io.slam_map import load_slam_map, save_slam_map
+
+    run, slam, ds = stereo_run
+    save_slam_map(tmp_path / "map", slam.tracker.map, slam.camera)
+    loaded, camera = load_slam_map(tmp_path / "map")
+    head0, a0 = slam.tracker.map.to_arrays(slam.camera)
+    head1, a1 = loaded.to_arrays(camera)
+    assert head0 == head1 and a0.keys() == a1.keys()
+    assert all(np.array_equal(a0[k], a1[k]) for k in a0 if k != "kf_T_C_W")
+    assert np.abs(a0["kf_T_C_W"] - a1["kf_T_C_W"]).max() < 1e-12  # (through a rotation)
+    n_kf = len(loaded.keyframes)
+    made: list[SlamOdometry] = []
+
+    def make(rig: object) -> SlamOdometry:
+        made.append(SlamOdometry(rig, slam_map=loaded, map_camera=camera, mapping=False))  # type: ignore[arg-type]
+        return made[-1]
+
+    again = run_odometry(ds, ds.rig, make, tmp_path / "runs", options=OdometryRunOptions(video=False),
+                         name="room_easy", kind="slam")  # fmt: skip
+    first = made[0].events[0]
+    assert first.kind == "initialized" and "relocalized" in first.detail, made[0].events
+    assert len(loaded.keyframes) == n_kf and made[0].keyframes(final=True) == []
+    m0, m1 = run.metrics, again.metrics
+    assert m1.fraction_with_estimate > 0.95, m1
+    assert not isinstance(m1.ape_se3, str) and not isinstance(m0.ape_se3, str)
+    assert m1.ape_se3.rmse_m < 1.5 * m0.ape_se3.rmse_m + 0.002, (m0.ape_se3, m1.ape_se3)
+
+
+def test_a_map_of_another_camera_is_refused(stereo_run: tuple) -> None:
+    from dataclasses import replace
+
+    _, slam, _ = stereo_run
+    other = replace(slam.camera, fx=slam.camera.fx * 1.05)
+    with pytest.raises(SlamError, match=r"another camera \(fx"):
+        SlamOdometry(euroc(), slam_map=slam.tracker.map, map_camera=other)
 
 
 def test_a_mono_rig_is_a_one_line_error(tmp_path: Path) -> None:

@@ -88,7 +88,9 @@ def test_stereo_tracking_follows_the_camera(renderer: Renderer) -> None:
     assert worst[True] <= worst[False] + 0.001, worst
 
 
-def test_rgbd_tracking_and_a_blank_frame_is_a_loss(renderer: Renderer) -> None:
+def test_rgbd_tracking_a_blank_frame_is_a_loss_and_the_next_relocalizes(
+    renderer: Renderer,
+) -> None:
     cfg = SlamConfig()
     ex, tracker = OrbExtractor(cfg.orb), StereoTracker(cfg)
     blank = np.full((480, 752), 128, np.uint8)
@@ -105,10 +107,12 @@ def test_rgbd_tracking_and_a_blank_frame_is_a_loss(renderer: Renderer) -> None:
     assert len(err) == 12 and max(err) < 0.02, err
     lost = tracker.track(rgbd_frame(10**9, blank, np.full((480, 752), 2.0), RIG, ex, cfg))
     assert lost.state == "lost" and lost.T_W_C is None
-    shot = renderer.render(_pose(12, 40))  # (no relocalization yet: it stays lost)
-    assert (
-        tracker.track(rgbd_frame(10**9 + 1, shot.image, shot.depth_m, RIG, ex, cfg)).state == "lost"
-    )
+    kfs = len(tracker.map.keyframes)
+    shot = renderer.render(_pose(12, 40))  # (relocalized on the map it kept)
+    back = tracker.track(rgbd_frame(10**9 + 1, shot.image, shot.depth_m, RIG, ex, cfg))
+    assert back.state == "tracking" and back.relocalized_on is not None
+    assert _errors([truth[0], _pose(12, 40)], [est[0], back.T_W_C])[1] < 0.02
+    assert tracker.relocalizations == 1 and len(tracker.map.keyframes) == kfs
 
 
 @pytest.mark.parametrize("seed", range(5))

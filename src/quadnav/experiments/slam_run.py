@@ -1,6 +1,9 @@
 """``quadnav slam``: the stereo SLAM (:class:`quadnav.slam.SlamOdometry`) over a dataset, through
 the runner every visual estimator shares (:func:`~quadnav.experiments.odometry_run.run_odometry`:
-the run folder, trajectory, metrics against the ground truth, report)."""
+the run folder, trajectory, metrics against the ground truth, report). With ``loop`` the SLAM
+runs behind the loop closer every odometry shares (:class:`quadnav.loop.LoopClosure`, an SE(3)
+pose graph: a SLAM without an IMU knows no gravity); ``load_map`` starts it on a map saved
+before (by ``save_map``), ``localization_only`` without adding to it."""
 
 from __future__ import annotations
 
@@ -19,7 +22,12 @@ from quadnav.experiments.odometry_run import (
 )
 
 if TYPE_CHECKING:
-    from quadnav.slam import SlamConfig
+    from quadnav.loop import LoopConfig
+    from quadnav.odometry import VisualOdometry
+    from quadnav.rig import Rig
+    from quadnav.slam import SlamConfig, SlamOdometry
+    from quadnav.slam.frame import StereoCamera
+    from quadnav.slam.map import SlamMap
 
 __all__ = ["SlamRequest", "check_slam_request", "run_slam_source"]
 
@@ -27,7 +35,9 @@ __all__ = ["SlamRequest", "check_slam_request", "run_slam_source"]
 @dataclass(frozen=True, slots=True, kw_only=True)
 class SlamRequest:
     """One ``quadnav slam`` run: the source, its span and outputs, the seed and rig of a
-    built-in sequence, the runs' folder, and the SLAM's features and ThDepth."""
+    built-in sequence, the runs' folder, the SLAM's features and ThDepth, loop closure
+    (``loop``, ``loop_overrides``: ``--loop-set``), the map saved at the end (``save_map``) or
+    started on (``load_map``), and ``localization_only``."""
 
     source: str
     options: OdometryRunOptions = field(default_factory=OdometryRunOptions)
@@ -36,6 +46,11 @@ class SlamRequest:
     out: Path = Path("runs")
     n_features: int = 1200
     th_depth_baselines: float = 40.0
+    loop: bool = False
+    loop_overrides: tuple[str, ...] = ()
+    save_map: Path | None = None
+    load_map: Path | None = None
+    localization_only: bool = False
 
 
 def check_slam_request(request: SlamRequest) -> None:
@@ -51,6 +66,25 @@ def check_slam_request(request: SlamRequest) -> None:
         _config(request)
     except QuadnavError as exc:
         raise ConfigError(f"--features/--th-depth: {exc}") from None
+    if request.loop:
+        _loop_config(request)
+    if request.localization_only and request.load_map is None:
+        raise ConfigError("--localization-only: give the map to localize in (--load-map DIR)")
+    if request.localization_only and request.save_map is not None:
+        raise ConfigError("--save-map with --localization-only: the map does not change")
+    if request.save_map is not None and request.save_map == request.load_map:
+        raise ConfigError(f"--save-map {request.save_map}: the map loaded; save to another folder")
+
+
+def _loop_config(request: SlamRequest) -> LoopConfig:
+    """Loop closure for the SLAM: an SE(3) graph, no extra corners (its ORB keypoints are
+    described), then the ``--loop-set`` overrides."""
+    from quadnav.loop import LoopConfig
+    from quadnav.loop.closer import LOOP_GRAPH
+    from quadnav.loop.settings import loop_config_with
+
+    base = LoopConfig(graph=replace(LOOP_GRAPH, kind="se3"), extra_corners=0)
+    return loop_config_with(request.loop_overrides, base)
 
 
 def _config(request: SlamRequest) -> SlamConfig:
@@ -62,15 +96,18 @@ def _config(request: SlamRequest) -> SlamConfig:
 
 
 def run_slam_source(request: SlamRequest, progress: Progress | None = None) -> OdometryRun:
-    """The dataset (made once if a built-in sequence), the SLAM on its rig, into a run folder."""
+    """The dataset (made once if a built-in sequence), the SLAM on its rig, into a run folder;
+    the map saved at the end if asked."""
     import dataclasses
 
     import yaml
 
-    from quadnav.rig import Rig
-    from quadnav.slam import SlamOdometry
-
     opt = request.options
+    loaded = None
+    if request.load_map is not None:  # (a missing or corrupt map fails before anything is made)
+        from quadnav.io.slam_map import load_slam_map
+
+        loaded = load_slam_map(request.load_map)
     dataset = resolve_dataset(
         request.source, seed=request.seed, rig=request.rig, duration_s=opt.duration_s,
         start_s=opt.start_s, cache_root=request.out, progress=progress,
@@ -82,11 +119,39 @@ def run_slam_source(request: SlamRequest, progress: Progress | None = None) -> O
     text = f"# dataset: {dataset.root}\n# rig: {dataset.rig.name}\n{settings}"
     source = request.source
     name = Path(source).name if Path(source).exists() else f"{source}_s{request.seed}"
+    made: list[SlamOdometry] = []
 
-    def make(rig: Rig) -> SlamOdometry:
-        return SlamOdometry(rig, cfg)
+    def make(rig: Rig) -> VisualOdometry:
+        slam = _slam(request, rig, cfg, loaded)
+        made.append(slam)
+        if not request.loop:
+            return slam
+        from quadnav.loop import LoopClosure
 
-    return run_odometry(
+        return LoopClosure(slam, rig.camera(rig.cameras[0].name), config=_loop_config(request))
+
+    run = run_odometry(
         dataset, dataset.rig, make, request.out, config_text=text,
-        options=replace(opt, video=False), name=name, kind="slam", progress=progress,
+        options=replace(opt, video=False, save_map=None), name=name, kind="slam",
+        progress=progress,
     )  # fmt: skip
+    if request.save_map is not None and made:
+        from quadnav.io.slam_map import save_slam_map
+
+        save_slam_map(request.save_map, made[0].slam_map, made[0].camera)
+    return run
+
+
+def _slam(
+    request: SlamRequest, rig: Rig, cfg: SlamConfig, loaded: tuple[SlamMap, StereoCamera] | None
+) -> SlamOdometry:
+    from quadnav.errors import SlamError
+    from quadnav.slam import SlamOdometry
+
+    if loaded is None:
+        return SlamOdometry(rig, cfg)
+    try:
+        return SlamOdometry(rig, cfg, slam_map=loaded[0], map_camera=loaded[1],
+                            mapping=not request.localization_only)  # fmt: skip
+    except SlamError as exc:
+        raise SlamError(f"--load-map {request.load_map}: {exc}") from None

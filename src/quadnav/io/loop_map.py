@@ -25,47 +25,22 @@ camera is a one-line :class:`~quadnav.errors.LoopError` naming the folder.
 
 from __future__ import annotations
 
-import json
-import shutil
-import zipfile
 from pathlib import Path
 
-import numpy as np
-
 from quadnav.errors import LoopError
+from quadnav.io.map_folder import read_map_folder, write_map_folder
 from quadnav.loop.map import MAP_FORMAT, MAP_VERSION, LoopMap, MapCamera
 
 __all__ = ["load_loop_map", "save_loop_map"]
 
-_HEAD = "map.json"
 _ARRAYS = "keyframes.npz"
 
 
 def save_loop_map(folder: Path, loop_map: LoopMap) -> Path:
     """Write ``loop_map`` to ``folder`` (replacing a map there; refusing a folder that holds
     anything else)."""
-    from quadnav import __version__
-
-    folder = Path(folder)
-    if folder.exists() and not folder.is_dir():
-        raise LoopError(f"--save-map {folder}: is a file, not a folder")
-    if folder.is_dir() and any(folder.iterdir()) and not (folder / _HEAD).exists():
-        raise LoopError(f"--save-map {folder}: the folder holds something other than a map")
     head, arrays = loop_map.to_arrays()
-    head["quadnav"] = __version__
-    tmp = folder.with_name(folder.name + ".writing")
-    try:
-        shutil.rmtree(tmp, ignore_errors=True)
-        tmp.mkdir(parents=True)
-        np.savez(tmp / _ARRAYS, **arrays)  # type: ignore[arg-type]
-        (tmp / _HEAD).write_text(json.dumps(head, indent=2) + "\n", encoding="utf-8")
-        if folder.exists():
-            shutil.rmtree(folder)
-        tmp.rename(folder)
-    except OSError as exc:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise LoopError(f"--save-map {folder}: cannot write ({exc.strerror or exc})") from None
-    return folder
+    return write_map_folder(folder, head, arrays, archive=_ARRAYS, error=LoopError)
 
 
 def load_loop_map(
@@ -75,36 +50,14 @@ def load_loop_map(
     """The map in ``folder``, checked against the ``vocabulary`` fingerprint and the ``camera``
     of the run that will use it (None: not checked); ``option``: the user's option that named
     it, for the errors."""
-    folder = Path(folder)
     where = f"{option} {folder}"
-    if not folder.is_dir():
-        raise LoopError(f"{where}: no such folder")
-    try:
-        head = json.loads((folder / _HEAD).read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise LoopError(f"{where}: no {_HEAD}: not a quadnav map") from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise LoopError(f"{where}: {_HEAD} is corrupt ({type(exc).__name__})") from None
-    if not isinstance(head, dict) or head.get("format") != MAP_FORMAT:
-        raise LoopError(f"{where}: {_HEAD} is not a quadnav map ({MAP_FORMAT})")
-    if head.get("version") != MAP_VERSION:
-        raise LoopError(
-            f"{where}: map version {head.get('version')}, this quadnav reads {MAP_VERSION}"
-        )
+    head, arrays = read_map_folder(folder, fmt=MAP_FORMAT, version=MAP_VERSION, archive=_ARRAYS,
+                                   error=LoopError, option=option)  # fmt: skip
     if vocabulary is not None and head.get("vocabulary") != vocabulary:
         raise LoopError(
             f"{where}: made with another vocabulary ({head.get('vocabulary')}, "
             f"this run's {vocabulary})"
         )
-    try:
-        with np.load(folder / _ARRAYS, allow_pickle=False) as z:
-            arrays = {k: z[k] for k in z.files}
-    except FileNotFoundError:
-        raise LoopError(f"{where}: no {_ARRAYS}") from None
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
-        raise LoopError(
-            f"{where}: {_ARRAYS} is truncated or corrupt ({type(exc).__name__})"
-        ) from None
     try:
         loop_map = LoopMap.from_arrays(head, arrays)
     except LoopError as exc:

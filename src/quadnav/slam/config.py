@@ -8,7 +8,32 @@ from quadnav.errors import SlamError
 from quadnav.vision.orb import OrbConfig
 from quadnav.vision.stereo_match import StereoConfig
 
-__all__ = ["SlamConfig"]
+__all__ = ["RelocalizationConfig", "SlamConfig"]
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class RelocalizationConfig:
+    """The relocalization's settings (:mod:`quadnav.slam.relocalization`). ``ransac_px``: PnP's inlier threshold at level 0 (px);
+    ``min_pnp_inliers``: what a candidate's PnP needs before the local map is tried."""
+
+    max_candidates: int = 5
+    min_score_ratio: float = 0.75
+    max_hamming: int = 64
+    ratio: float = 0.8
+    min_matches: int = 15
+    ransac_px: float = 3.0
+    min_pnp_inliers: int = 12
+    min_inliers: int = 50
+
+    def __post_init__(self) -> None:
+        if self.max_candidates < 1 or self.min_matches < 6 or self.min_pnp_inliers < 6:
+            raise SlamError("RelocalizationConfig: max_candidates >= 1, min matches/inliers >= 6")
+        if not 0 < self.min_score_ratio <= 1 or not 0 < self.ratio <= 1:
+            raise SlamError("RelocalizationConfig: min_score_ratio and ratio must lie in (0, 1]")
+        if not 0 <= self.max_hamming <= 256 or not self.ransac_px > 0 or self.min_inliers < 1:
+            raise SlamError(
+                "RelocalizationConfig: max_hamming 0-256, ransac_px > 0, min_inliers >= 1"
+            )
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -22,7 +47,9 @@ class SlamConfig:
     ``keyframe_*``: the thesis's keyframe rules (chapter 3): after ``keyframe_max_frames``
     frames, or when the frame tracks under ``keyframe_ratio`` of its reference keyframe's
     points, if it tracks at least ``keyframe_min_tracked``; ``local_keyframes``: the map points
-    of the last so many keyframes are projected into each frame."""
+    of so many keyframes are projected into each frame (the newest, and those that see most of
+    the last frame's points); ``relocalization``: after a loss
+    (:mod:`quadnav.slam.relocalization`)."""
 
     orb: OrbConfig = field(default_factory=OrbConfig)
     stereo: StereoConfig = field(default_factory=StereoConfig)
@@ -37,6 +64,7 @@ class SlamConfig:
     local_keyframes: int = 10
     local_mapping: bool = True
     local_ba_keyframes: int = 5
+    relocalization: RelocalizationConfig = field(default_factory=RelocalizationConfig)
 
     def __post_init__(self) -> None:
         if not self.th_depth_baselines > 0 or not self.search_radius_px > 0:

@@ -1,18 +1,38 @@
 """The SLAM's map: map points (position, descriptor, the level first seen at, the keyframe that
 made them, how many keyframes observe them, whether culled) and keyframes (their pose, frame
-and, per keypoint, the map point it observes or -1)."""
+and, per keypoint, the map point it observes or -1); which keyframes see the same points (the
+covisibility of ORB-SLAM2, counted when asked); and the map as arrays for a file
+(:mod:`quadnav.io.slam_map`), format ``quadnav-slam-map`` version 1:
+
+- the head: ``format``, ``version``, the numbers of ``keyframes`` and ``points``, and the
+  rectified ``camera`` (fx, fy, cx, cy in px, ``baseline_m``) every keyframe was measured in;
+- the points: ``X_W`` (m, the map's frame: the first keyframe's rectified left camera),
+  ``descriptors`` (32 bytes), ``octave``, ``first_keyframe``, ``n_obs``, ``bad``;
+- the keyframes: ``kf_t_ns``, ``kf_T_C_W`` (4x4), ``kf_n`` (keypoints each), and their keypoints
+  concatenated: ``kp_uv_px``, ``kp_octave``, ``kp_angle_deg``, ``kp_response``, ``kp_size_px``,
+  ``kp_descriptors``, ``kp_u_right``, ``kp_depth_m``, ``kp_close``, ``kp_point`` (the map point
+  or -1); ``scales`` (the pyramid's).
+"""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from quadnav.errors import SlamError
 from quadnav.geometry.rotations import Pose
-from quadnav.slam.frame import Frame
+from quadnav.slam.frame import Frame, StereoCamera
+from quadnav.vision.orb import OrbFeatures
+from quadnav.vision.stereo_match import StereoKeypoints
 
-__all__ = ["SlamKeyframe", "SlamMap"]
+__all__ = ["SLAM_MAP_FORMAT", "SLAM_MAP_VERSION", "SlamKeyframe", "SlamMap"]
+
+SLAM_MAP_FORMAT = "quadnav-slam-map"
+SLAM_MAP_VERSION = 1
+_KP = ("uv_px", "octave", "angle_deg", "response", "size_px", "descriptors")
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -97,3 +117,94 @@ class SlamMap:
             )
         )
         return np.asarray(ids[~self.bad[ids]], np.int64)
+
+    def sharing(self, ids: IntArray, *, among: list[SlamKeyframe] | None = None) -> IntArray:
+        """How many of the points ``ids`` each keyframe (of ``among``; default all) observes."""
+        mark = np.zeros(len(self.X_W) + 1, bool)
+        mark[np.asarray(ids, np.int64)] = True
+        kfs = self.keyframes if among is None else among
+        return np.array([int(mark[kf.points].sum()) for kf in kfs], np.int64)
+
+    def covisible(self, kf: SlamKeyframe, n: int) -> list[SlamKeyframe]:
+        """``kf`` and the ``n - 1`` keyframes that share the most of its points with it (ORB-
+        SLAM2's covisibility), most first; those sharing none left out."""
+        _, ids = kf.observed
+        counts = self.sharing(ids[~self.bad[ids]])
+        counts[kf.index] = -1
+        order = [int(i) for i in np.argsort(-counts, kind="stable")[: max(n - 1, 0)]]
+        return [kf, *(self.keyframes[i] for i in order if counts[i] > 0)]
+
+    # -- as arrays, for a file -----------------------------------------------------------------
+    def to_arrays(self, camera: StereoCamera) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+        """The head and arrays of the map (see the module)."""
+        if not self.keyframes:
+            raise SlamError("the map has no keyframe yet: nothing to save")
+        kfs = self.keyframes
+        head = {
+            "format": SLAM_MAP_FORMAT, "version": SLAM_MAP_VERSION, "keyframes": len(kfs),
+            "points": len(self), "camera": {"fx": camera.fx, "fy": camera.fy, "cx": camera.cx,
+                                             "cy": camera.cy, "baseline_m": camera.baseline_m},
+        }  # fmt: skip
+        arrays: dict[str, np.ndarray] = {
+            "X_W": self.X_W, "descriptors": self.descriptors, "octave": self.octave,
+            "first_keyframe": self.first_keyframe, "n_obs": self.n_obs, "bad": self.bad,
+            "kf_t_ns": np.array([kf.frame.t_ns for kf in kfs], np.int64),
+            "kf_T_C_W": np.stack([kf.T_C_W.matrix() for kf in kfs]),
+            "kf_n": np.array([len(kf.frame) for kf in kfs], np.int64),
+            "kp_u_right": np.concatenate([kf.frame.stereo.u_right for kf in kfs]),
+            "kp_depth_m": np.concatenate([kf.frame.stereo.depth_m for kf in kfs]),
+            "kp_close": np.concatenate([kf.frame.close for kf in kfs]),
+            "kp_point": np.concatenate([kf.points for kf in kfs]),
+            "scales": kfs[0].frame.features.scales,
+        }  # fmt: skip
+        for name in _KP:
+            arrays[f"kp_{name}"] = np.concatenate([getattr(kf.frame.features, name) for kf in kfs])
+        return head, arrays
+
+    @classmethod
+    def from_arrays(
+        cls, head: dict[str, Any], arrays: dict[str, np.ndarray]
+    ) -> tuple[SlamMap, StereoCamera]:
+        """The map and the camera of :meth:`to_arrays`' output; a missing or inconsistent
+        array is a :class:`SlamError`."""
+        try:
+            return _from_arrays(cls(), head, arrays)
+        except (KeyError, ValueError, TypeError, IndexError) as exc:
+            raise SlamError(
+                f"the map's arrays are inconsistent ({type(exc).__name__}: {exc})"
+            ) from None
+
+
+def _from_arrays(
+    m: SlamMap, head: dict[str, Any], a: dict[str, np.ndarray]
+) -> tuple[SlamMap, StereoCamera]:
+    c = head["camera"]
+    camera = StereoCamera(fx=float(c["fx"]), fy=float(c["fy"]), cx=float(c["cx"]),
+                          cy=float(c["cy"]), baseline_m=float(c["baseline_m"]))  # fmt: skip
+    n_pts = len(a["X_W"])
+    m.X_W = np.asarray(a["X_W"], np.float64).reshape(n_pts, 3)
+    m.descriptors = np.asarray(a["descriptors"], np.uint8).reshape(n_pts, 32)
+    for name, dtype in (("octave", np.int64), ("first_keyframe", np.int64), ("n_obs", np.int64),
+                        ("bad", bool)):  # fmt: skip
+        arr = np.asarray(a[name], dtype)
+        if arr.shape != (n_pts,):
+            raise ValueError(f"{name} has {arr.shape}, the map {n_pts} points")
+        setattr(m, name, arr)
+    if not np.isfinite(m.X_W).all():
+        raise ValueError("X_W is not finite")
+    ends = np.cumsum(np.r_[0, a["kf_n"]])
+    if ends[-1] != len(a["kp_point"]) or len(a["kf_t_ns"]) != len(a["kf_n"]):
+        raise ValueError("the keyframes' keypoint counts do not add up")
+    if np.any(a["kp_point"] >= n_pts):
+        raise ValueError("a keypoint observes a point the map has not")
+    for k, T in enumerate(np.asarray(a["kf_T_C_W"], np.float64)):
+        sl = slice(int(ends[k]), int(ends[k + 1]))
+        kp = {name: np.asarray(a[f"kp_{name}"][sl]) for name in _KP}
+        features = OrbFeatures(scales=np.asarray(a["scales"], np.float64), **kp)
+        stereo = StereoKeypoints(u_right=np.asarray(a["kp_u_right"][sl], np.float64),
+                                 depth_m=np.asarray(a["kp_depth_m"][sl], np.float64))  # fmt: skip
+        frame = Frame(t_ns=int(a["kf_t_ns"][k]), features=features, stereo=stereo,
+                      close=np.asarray(a["kp_close"][sl], bool), camera=camera)  # fmt: skip
+        m.keyframes.append(SlamKeyframe(index=k, T_C_W=Pose.from_matrix(T), frame=frame,
+                                        points=np.asarray(a["kp_point"][sl], np.int64)))  # fmt: skip
+    return m, camera

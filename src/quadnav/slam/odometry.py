@@ -10,8 +10,18 @@ gravity, so its world is level only if the vehicle started level (on the ground,
 otherwise evaluate it after an SE(3) alignment. The body's pose is the rectified left camera's
 through the rig's extrinsic. IMU samples are not used. Frames of
 another camera, a partner that never comes (the next left frame comes first), an image that
-cannot be read: rejected and counted. A loss is an event (``failure``) and the states stop.
-Until the SLAM publishes its keyframes for a loop closer, ``keyframes()`` hands out none.
+cannot be read: rejected and counted. A loss is an event (``failure``) and the states stop
+until the tracker relocalizes on the map it kept (an event ``reinitialized``; the world is the
+same, so the reset counter stays).
+
+Each keyframe, once it has left the local bundle adjustment (``local_ba_keyframes`` newer ones),
+is published as a :class:`~quadnav.odometry.KeyframeRecord` for a loop closer or a map (its
+keypoints in the rig's left camera: ``uv_px`` through its lens, ``xy`` undistorted; ids: the map
+point a keypoint observes, or below -1,000,000 for none; its landmarks: those points in the
+odometry's world). On a map saved before (``slam_map``, made with the same rectified camera) the
+odometry starts lost and relocalizes; its world is the map's (the world of the run that made
+it). ``mapping=False``: localization only. A map made with another camera (focal lengths,
+centre or baseline more than 2 % apart) is a :class:`~quadnav.errors.SlamError`.
 """
 
 from __future__ import annotations
@@ -27,6 +37,7 @@ from quadnav.errors import QuadnavError, SlamError
 from quadnav.geometry.rotations import Pose
 from quadnav.messages import ImageFrame, ImuSample
 from quadnav.odometry import (
+    EventKind,
     FrameFeatures,
     KeyframeRecord,
     OdometryEvent,
@@ -36,6 +47,7 @@ from quadnav.odometry import (
 from quadnav.rig import Rig
 from quadnav.slam.config import SlamConfig
 from quadnav.slam.frame import StereoCamera, stereo_frame
+from quadnav.slam.map import SlamKeyframe, SlamMap
 from quadnav.slam.tracking import StereoTracker
 from quadnav.vision.orb import OrbExtractor
 
@@ -43,12 +55,17 @@ __all__ = ["SlamOdometry"]
 
 #: the pose covariance a state is given (no marginals yet): 1 cm and 0.5 degree, body frame
 _COV_POSE = np.diag([np.radians(0.5) ** 2] * 3 + [0.01**2] * 3)
+#: a keypoint that observes no map point has the id ``-(NO_POINT + k)`` (k: its row)
+NO_POINT = 1_000_000
 
 
 class SlamOdometry:
     """Stereo SLAM as an odometry (see the module) on a stereo ``rig``."""
 
-    def __init__(self, rig: Rig, config: SlamConfig | None = None) -> None:
+    def __init__(
+        self, rig: Rig, config: SlamConfig | None = None, *, slam_map: SlamMap | None = None,
+        map_camera: StereoCamera | None = None, mapping: bool = True,
+    ) -> None:  # fmt: skip
         from quadnav.vision.stereo import StereoRectifier
 
         if not rig.stereo:
@@ -63,10 +80,17 @@ class SlamOdometry:
         self.T_B_C = left.T_B_C @ Pose(Rotation.from_matrix(self.rectifier.R0.T), np.zeros(3))
         self._names = (left.name, rig.cameras[1].name)
         self.T_V_B = rig.T_V_B
+        if slam_map is not None:
+            _check_same_camera(self.camera, map_camera)
+        self.left = left
         self.extractor = OrbExtractor(self.config.orb)
-        self.tracker = StereoTracker(self.config)
+        self.tracker = StereoTracker(self.config, slam_map=slam_map, mapping=mapping)
+        # the odometry's world from the SLAM's (the first keyframe's rectified left camera)
+        self.T_O_S = self.T_V_B @ self.T_B_C
+        self._published = len(self.tracker.map.keyframes)  # (a loaded map's are not this run's)
+        self._images: dict[int, ImageFrame] = {}
         self._pending: ImageFrame | None = None
-        self._T_W_C0: Pose | None = None  # (the first tracked camera pose: the world's origin)
+        self._initialized = False
         self._last: OdometryState | None = None
         self._events: list[OdometryEvent] = []
         self._rejected: Counter[str] = Counter()
@@ -96,11 +120,23 @@ class SlamOdometry:
         return self._pair(left, sample)
 
     def keyframes(self, *, final: bool = False) -> Sequence[KeyframeRecord]:
-        del final
-        return []
+        kfs = self.tracker.map.keyframes
+        upto = len(kfs) if final else len(kfs) - self.config.local_ba_keyframes
+        out = [self._record(kf) for kf in kfs[self._published : max(upto, self._published)]]
+        self._published = max(self._published, upto)
+        for rec in out:
+            self._images.pop(rec.index, None)
+        return out
 
     def newest_keyframe(self) -> KeyframeRecord | None:
-        return None
+        kfs = self.tracker.map.keyframes
+        if len(kfs) == 0 or kfs[-1].index < self._published:
+            return None
+        return self._record(kfs[-1])
+
+    @property
+    def slam_map(self) -> SlamMap:
+        return self.tracker.map
 
     @property
     def events(self) -> tuple[OdometryEvent, ...]:
@@ -137,12 +173,10 @@ class SlamOdometry:
             )
         if result.T_W_C is None:
             return None
-        if self._T_W_C0 is None:
-            self._T_W_C0 = result.T_W_C
-            self._events.append(OdometryEvent(t_ns=left.t_ns, kind="initialized", detail="stereo"))
-        # the body in the world of the vehicle's first pose: T_V_B T_B0_Bk
-        T_B0_Bk = self.T_B_C @ self._T_W_C0.inverse() @ result.T_W_C @ self.T_B_C.inverse()
-        T_W_B = self.T_V_B @ T_B0_Bk
+        if result.keyframe:
+            self._images[len(self.tracker.map.keyframes) - 1] = left
+        self._note(left.t_ns, result.relocalized_on)
+        T_W_B = self.T_O_S @ result.T_W_C @ self.T_B_C.inverse()
         v = np.zeros(3)
         if self._last is not None and left.t_ns > self._last.t_ns:
             v = (T_W_B.p_A_B - self._last.T_W_B.p_A_B) / ((left.t_ns - self._last.t_ns) * 1e-9)
@@ -154,6 +188,52 @@ class SlamOdometry:
         )  # fmt: skip
         return self._last
 
+    def _note(self, t_ns: int, relocalized_on: int | None) -> None:
+        """The events of a frame tracked: the first, or one relocalized after a loss."""
+        if relocalized_on is not None:
+            detail = f"relocalized on keyframe {relocalized_on}"
+            kind: EventKind = "reinitialized" if self._initialized else "initialized"
+            self._events.append(OdometryEvent(t_ns=t_ns, kind=kind, detail=detail))
+        elif not self._initialized:
+            self._events.append(OdometryEvent(t_ns=t_ns, kind="initialized", detail="stereo"))
+        self._initialized = True
+
+    def _record(self, kf: SlamKeyframe) -> KeyframeRecord:
+        """Keyframe ``kf`` as a record (see the module)."""
+        m, c, f = self.tracker.map, self.camera, kf.frame.features
+        n = len(f)
+        rect = np.column_stack(
+            [(f.uv_px[:, 0] - c.cx) / c.fx, (f.uv_px[:, 1] - c.cy) / c.fy, np.ones(n)]
+        )
+        rays = rect @ self.rectifier.R0  # (the rectified rays in the left camera: R0^T r)
+        xy = rays[:, :2] / rays[:, 2:3]
+        has = kf.points >= 0
+        has[has] = ~m.bad[kf.points[has]]
+        ids = np.where(has, kf.points, -(NO_POINT + np.arange(n)))
+        lm = np.unique(kf.points[has])
+        T_W_C = self.T_O_S @ kf.T_C_W.inverse()
+        return KeyframeRecord(
+            index=kf.index, t_ns=kf.frame.t_ns, reset_counter=0,
+            T_W_B=T_W_C @ self.T_B_C.inverse(), cov_pose=_COV_POSE, camera=self._names[0],
+            image=self._images.get(kf.index), ids=ids,
+            uv_px=self.left.camera.project(rays) if n else np.zeros((0, 2)), xy=xy,
+            descriptors=f.descriptors, described=np.ones(n, bool), landmark_ids=lm,
+            landmarks_W=self.T_O_S @ m.X_W[lm] if len(lm) else np.zeros((0, 3)),
+        )  # fmt: skip
+
     def _time(self, stage: str, seconds: float) -> None:
         self._seconds[stage] = self._seconds.get(stage, 0.0) + seconds
         self._calls[stage] += 1
+
+
+def _check_same_camera(camera: StereoCamera, made_with: StereoCamera | None) -> None:
+    """A map is only good with the camera it was measured in: focal lengths, centre and
+    baseline within 2 % (a recalibration of the same camera passes, as loop closure's maps)."""
+    if made_with is None:
+        raise SlamError("a loaded map needs the camera it was made with (map_camera)")
+    for name in ("fx", "fy", "cx", "cy", "baseline_m"):
+        a, b = getattr(camera, name), getattr(made_with, name)
+        if abs(a - b) > 0.02 * max(abs(b), 1e-3):
+            raise SlamError(
+                f"the map was made with another camera ({name} {b:.6g} there, {a:.6g} here)"
+            )

@@ -5,11 +5,16 @@ points of the last keyframes are matched to it by projection (a window of ``sear
 times the point's scale around where it projects, the right coordinate too for stereo
 keypoints, the nearest descriptor within ``max_hamming``, one map point per keypoint), its pose
 is optimised on them (:mod:`quadnav.slam.optimizer`), matched again with the optimised pose
-(the local map) and optimised again. Under ``min_inliers`` it is lost. A keyframe is taken on
-the thesis's rules (:class:`~quadnav.slam.config.SlamConfig`) and adds map points from its close
-stereo points that matched none, and local mapping runs on it
-(:mod:`quadnav.slam.local_mapping`). Loop closing and relocalization after a loss are the next
-parts of issue 24: until then a lost tracker stays lost.
+(the local map) and optimised again. The local map is the points of the keyframes that see the
+most of the last frame's points, and of the newest keyframe (ORB-SLAM2's local keyframes, by
+covisibility: a place seen again is tracked on the points first made there). Under
+``min_inliers`` it is lost, and each next frame tries to relocalize on the map
+(:mod:`quadnav.slam.relocalization`); the map is kept. A keyframe is taken on the thesis's
+rules (:class:`~quadnav.slam.config.SlamConfig`; not in the frames just after a
+relocalization), adds map points from its close stereo points that matched none, and local
+mapping runs on it (:mod:`quadnav.slam.local_mapping`). On a map saved before, the tracker
+starts lost and relocalizes; in localization-only mode (``mapping=False``) it never adds a
+keyframe or a point.
 """
 
 from __future__ import annotations
@@ -24,8 +29,9 @@ from quadnav.geometry.rotations import Pose
 from quadnav.slam.config import SlamConfig
 from quadnav.slam.frame import Frame
 from quadnav.slam.local_mapping import LocalMappingReport, local_mapping
-from quadnav.slam.map import SlamMap
+from quadnav.slam.map import SlamKeyframe, SlamMap
 from quadnav.slam.optimizer import optimize_pose
+from quadnav.slam.relocalization import KeyframeDatabase, pnp_candidates
 
 __all__ = ["StereoTracker", "TrackResult", "search_by_projection"]
 
@@ -36,13 +42,15 @@ TrackState = Literal["waiting", "tracking", "lost"]
 @dataclass(frozen=True, slots=True, kw_only=True)
 class TrackResult:
     """What tracking made of a frame: its ``state``, the camera's pose ``T_W_C`` (None unless
-    tracking), the matches kept after the optimisation, and whether it became a keyframe."""
+    tracking), the matches kept after the optimisation, whether it became a keyframe, and the
+    keyframe it was relocalized on (None: tracked as usual)."""
 
     t_ns: int
     state: TrackState
     T_W_C: Pose | None
     inliers: int = 0
     keyframe: bool = False
+    relocalized_on: int | None = None
 
 
 def search_by_projection(
@@ -93,23 +101,40 @@ class _Matches:
 
 
 class StereoTracker:
-    """Tracking (see the module): :meth:`track` each frame in time order."""
+    """Tracking (see the module): :meth:`track` each frame in time order. ``slam_map``: a map
+    saved before, tracked on once relocalized in it; ``mapping``: False for localization only
+    (no keyframe, no map point is added: ORB-SLAM2's localization mode)."""
 
-    def __init__(self, config: SlamConfig | None = None) -> None:
+    def __init__(
+        self, config: SlamConfig | None = None, *, slam_map: SlamMap | None = None,
+        mapping: bool = True,
+    ) -> None:  # fmt: skip
         self.config = config or SlamConfig()
-        self.state: TrackState = "waiting"
-        self.map = SlamMap()
+        self.mapping = mapping
+        self.map = slam_map or SlamMap()
+        self.state: TrackState = "lost" if self.map.keyframes else "waiting"
+        self.database = KeyframeDatabase()
+        for kf in self.map.keyframes:
+            self.database.add(kf)
         self.last_mapping: LocalMappingReport | None = None
+        self.relocalizations = 0
         self._T_C_W_last: Pose | None = None
         self._velocity: Pose | None = None  # T_C_W(k) T_W_C(k-1)
         self._since_keyframe = 0
+        self._since_reloc = 10**9
         self._ref_tracked = 0
+        self._reference: SlamKeyframe | None = (
+            self.map.keyframes[-1] if self.map.keyframes else None
+        )
+        self._last_points = np.zeros(0, np.int64)  # the map points the last frame tracked
 
     def track(self, frame: Frame) -> TrackResult:
         if self.state == "waiting":
+            if not self.mapping:
+                return TrackResult(t_ns=frame.t_ns, state="waiting", T_W_C=None)
             return self._initialize(frame)
         if self.state == "lost" or self._T_C_W_last is None:
-            return TrackResult(t_ns=frame.t_ns, state="lost", T_W_C=None)
+            return self._relocalize(frame)
         last = self._T_C_W_last
         guess = last if self._velocity is None else self._velocity @ last
         fit = self._fit(frame, guess)
@@ -120,14 +145,7 @@ class StereoTracker:
             return TrackResult(t_ns=frame.t_ns, state="lost", T_W_C=None)
         T_C_W, matches = fit
         self._velocity = T_C_W @ last.inverse()
-        self._T_C_W_last = T_C_W
-        self._since_keyframe += 1
-        n = len(matches.keypoints)
-        keyframe = self._wants_keyframe(n)
-        if keyframe:
-            T_C_W = self._add_keyframe(frame, T_C_W, matches, n)
-        return TrackResult(t_ns=frame.t_ns, state="tracking", T_W_C=T_C_W.inverse(), inliers=n,
-                           keyframe=keyframe)  # fmt: skip
+        return self._tracked(frame, T_C_W, matches)
 
     # -- steps --------------------------------------------------------------------------------
     def _initialize(self, frame: Frame) -> TrackResult:
@@ -136,19 +154,63 @@ class StereoTracker:
         self.state = "tracking"
         self._T_C_W_last = Pose.identity()
         idx = np.flatnonzero(frame.stereo.matched)
-        self.map.add_points(self.map.add_keyframe(Pose.identity(), frame), idx)
+        kf = self.map.add_keyframe(Pose.identity(), frame)
+        self._last_points = self.map.add_points(kf, idx)
+        self.database.add(kf)
+        self._reference = kf
         self._ref_tracked = len(idx)
         return TrackResult(t_ns=frame.t_ns, state="tracking", T_W_C=Pose.identity(),
                            inliers=len(idx), keyframe=True)  # fmt: skip
+
+    def _tracked(self, frame: Frame, T_C_W: Pose, matches: _Matches) -> TrackResult:
+        """The frame tracked at ``T_C_W`` on ``matches``: the reference keyframe updated (the
+        one seeing most of its points) and a keyframe taken if the rules want one."""
+        self._T_C_W_last = T_C_W
+        self._last_points = matches.points
+        self._since_keyframe += 1
+        self._since_reloc += 1
+        counts = self.map.sharing(matches.points)
+        if len(counts) and counts.max() > 0:
+            self._reference = self.map.keyframes[int(np.argmax(counts))]
+        n = len(matches.keypoints)
+        keyframe = self._wants_keyframe(n)
+        if keyframe:
+            T_C_W = self._add_keyframe(frame, T_C_W, matches, n)
+        return TrackResult(t_ns=frame.t_ns, state="tracking", T_W_C=T_C_W.inverse(), inliers=n,
+                           keyframe=keyframe)  # fmt: skip
+
+    def _relocalize(self, frame: Frame) -> TrackResult:
+        """After a loss (or on a loaded map): the keyframes that look like the frame, PnP on
+        their points, then the pose confirmed on the local map (see
+        :mod:`quadnav.slam.relocalization`)."""
+        cfg = self.config.relocalization
+        lost = TrackResult(t_ns=frame.t_ns, state="lost", T_W_C=None)
+        cands = self.database.candidates(frame, cfg)
+        for k, T in pnp_candidates(frame, self.map, cands, cfg):
+            self._reference = self.map.keyframes[k]
+            self._last_points = np.zeros(0, np.int64)
+            fit = self._fit(frame, T)
+            if fit is None or len(fit[1].keypoints) < cfg.min_inliers:
+                continue
+            self.state = "tracking"
+            self.relocalizations += 1
+            self._velocity = None
+            self._since_reloc = 0
+            result = self._tracked(frame, *fit)
+            return TrackResult(t_ns=result.t_ns, state="tracking", T_W_C=result.T_W_C,
+                               inliers=result.inliers, keyframe=result.keyframe,
+                               relocalized_on=k)  # fmt: skip
+        return lost
 
     def _fit(self, frame: Frame, guess: Pose) -> tuple[Pose, _Matches] | None:
         """Match and optimise twice (the guess, then the local map from the first fit)."""
         cfg = self.config
         T = guess
+        ids = self._local_points()
         for radius in (cfg.search_radius_px, cfg.search_radius_px / 3):
-            m = self._match(frame, T, radius)
+            m = self._match(frame, T, radius, ids)
             if len(m.keypoints) < cfg.min_inliers:
-                m = self._match(frame, T, 2 * radius)
+                m = self._match(frame, T, 2 * radius, ids)
             if len(m.keypoints) < cfg.min_inliers:
                 return None
             f = frame.features
@@ -163,9 +225,30 @@ class StereoTracker:
                 return None
         return T, m
 
-    def _match(self, frame: Frame, T_C_W: Pose, radius: float) -> _Matches:
+    def local_keyframes(self) -> list[SlamKeyframe]:
+        """The keyframes whose points are searched for in the next frame: the newest, and those
+        that see the most of the last frame's points (or, without any, the reference keyframe's
+        covisible ones), ``local_keyframes`` in all."""
+        m, n = self.map, self.config.local_keyframes
+        if not m.keyframes:
+            return []
+        newest = m.keyframes[-1]
+        counts = m.sharing(self._last_points) if len(self._last_points) else None
+        if counts is None or counts.max() <= 0:
+            ref = self._reference or newest
+            out = m.covisible(ref, n)
+        else:
+            order = [int(i) for i in np.argsort(-counts, kind="stable")[:n] if counts[i] > 0]
+            out = [m.keyframes[i] for i in order]
+        if self.mapping and newest not in out:
+            out = [newest, *out[: n - 1]]
+        return out
+
+    def _local_points(self) -> NDArray[np.int64]:
+        return self.map.local_points(self.local_keyframes())
+
+    def _match(self, frame: Frame, T_C_W: Pose, radius: float, ids: NDArray[np.int64]) -> _Matches:
         m = self.map
-        ids = m.local_points(m.keyframes[-self.config.local_keyframes :])
         kp, j, _ = search_by_projection(
             frame, m.X_W[ids], m.descriptors[ids], m.octave[ids], T_C_W, radius,
             self.config.max_hamming,
@@ -174,6 +257,13 @@ class StereoTracker:
 
     def _wants_keyframe(self, tracked: int) -> bool:
         c = self.config
+        if not self.mapping:
+            return False
+        if (
+            self._since_reloc < c.keyframe_max_frames
+            and len(self.map.keyframes) > c.keyframe_max_frames
+        ):
+            return False  # (ORB-SLAM2: not just after a relocalization)
         due = self._since_keyframe >= c.keyframe_max_frames
         thin = tracked < c.keyframe_ratio * self._ref_tracked
         return (due or thin) and tracked >= c.keyframe_min_tracked
@@ -186,6 +276,8 @@ class StereoTracker:
         fresh = frame.close.copy()
         fresh[matches.keypoints] = False
         self.map.add_points(kf, np.flatnonzero(fresh))
+        self.database.add(kf)
+        self._reference = kf
         self._since_keyframe = 0
         self._ref_tracked = n  # (ORB-SLAM2: the points its reference keyframe tracks)
         if self.config.local_mapping:
