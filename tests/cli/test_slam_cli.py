@@ -20,7 +20,6 @@ from quadnav.cli.main import app
         (["--duration", "-1"], "--duration"),
         (["--localization-only"], "--localization-only: give the map to localize in"),
         (["--load-map", "m", "--save-map", "m"], "--save-map m: the map loaded"),
-        (["--loop-set", "nope=1"], "--loop-set nope: unknown key"),
         (["--blackout", "3"], "--blackout '3': give START:SECONDS"),
     ],
 )

@@ -18,10 +18,9 @@ from quadnav.cli.common import (
     optional_param,
     param,
     progress_bar,
-    strings_param,
 )
 from quadnav.cli.planar import OutOpt
-from quadnav.cli.vio import BlackoutOpt, LoopSetOpt, parse_blackout
+from quadnav.cli.vio import BlackoutOpt, parse_blackout
 from quadnav.experiments.odometry_run import OdometryRun, OdometryRunOptions
 from quadnav.experiments.slam_run import SlamRequest, check_slam_request, run_slam_source
 
@@ -47,14 +46,15 @@ LocalizationOpt = Annotated[
     ),
 ]
 SlamLoopOpt = Annotated[
-    bool, typer.Option("--loop", help="loop closure on the SLAM's keyframes (SE(3) pose graph)")
+    bool,
+    typer.Option("--loop/--no-loop", help="close loops (an SE(3) pose graph, points fused)"),
 ]
 
 
 def resolve_slam_request(
     dataset: str, start_s: float, duration_s: float | None, seed: int, rig: str, out: Path,
-    *, features: int = 1200, th_depth: float = 40.0, loop: bool = False,
-    loop_set: list[str] | None = None, save_map: Path | None = None,
+    *, features: int = 1200, th_depth: float = 40.0, loop: bool = True,
+    save_map: Path | None = None,
     load_map: Path | None = None, localization_only: bool = False, blackout: str | None = None,
 ) -> SlamRequest:  # fmt: skip
     """The validated request (no dataset read, no folder made)."""
@@ -68,7 +68,7 @@ def resolve_slam_request(
         th_depth_baselines=th_depth,
         options=OdometryRunOptions(start_s=start_s, duration_s=duration_s, video=False,
                                    blackout_s=parse_blackout(blackout)),
-        loop=loop or bool(loop_set), loop_overrides=tuple(loop_set or ()), save_map=save_map,
+        loop=loop, save_map=save_map,
         load_map=load_map, localization_only=localization_only,
     )  # fmt: skip
     check_slam_request(request)
@@ -82,7 +82,7 @@ def check_example(params: CommandParams) -> None:
         optional_param(params, "duration_s", float), param(params, "seed", int),
         param(params, "rig", str), param(params, "out", Path),
         features=param(params, "features", int), th_depth=param(params, "th_depth", float),
-        loop=param(params, "loop", bool), loop_set=strings_param(params, "loop_set"),
+        loop=param(params, "loop", bool),
         save_map=optional_param(params, "save_map", Path),
         load_map=optional_param(params, "load_map", Path),
         localization_only=param(params, "localization_only", bool),
@@ -96,7 +96,7 @@ EXAMPLES = (
     "quadnav slam data/MH_01_easy --duration 30 --th-depth 22",
     "quadnav slam room_easy --duration 20 --save-map maps/room",
     "quadnav slam room_easy --seed 1 --load-map maps/room --localization-only",
-    "quadnav slam room_easy --duration 30 --blackout 10:3 --loop",
+    "quadnav slam room_easy --duration 30 --blackout 10:3 --no-loop",
     "quadnav slam hall_laps --rig zed --features 1000 --out /tmp/runs",
 )
 
@@ -145,8 +145,7 @@ def slam_command(
             "--th-depth", help="ThDepth in baselines: nearer points are close (ORB-SLAM2 40)"
         ),
     ] = 40.0,
-    loop: SlamLoopOpt = False,
-    loop_set: LoopSetOpt = None,
+    loop: SlamLoopOpt = True,
     save_map: SlamSaveMapOpt = None,
     load_map: SlamLoadMapOpt = None,
     localization_only: LocalizationOpt = False,
@@ -155,7 +154,7 @@ def slam_command(
 ) -> None:
     request = resolve_slam_request(
         dataset, start_s, duration_s, seed, rig, out, features=features, th_depth=th_depth,
-        loop=loop, loop_set=loop_set, save_map=save_map, load_map=load_map,
+        loop=loop, save_map=save_map, load_map=load_map,
         localization_only=localization_only, blackout=blackout,
     )  # fmt: skip
     with progress_bar("slam") as update:
@@ -172,8 +171,9 @@ slam_command.__doc__ = command_help(
     "per --seed and --rig under OUT/datasets. The pair is rectified, ORB features matched "
     "across it, the camera tracked on the map of its last keyframes and the keyframes "
     "adjusted locally. Its world is the first body pose (no IMU): compare after an SE(3) "
-    "alignment. After a loss it relocalizes on the map it kept. --loop closes loops on its "
-    "keyframes (an SE(3) pose graph); --save-map writes the map, --load-map starts on one "
-    "(relocalizing in it), --localization-only tracks on it without adding to it.",
+    "alignment. After a loss it relocalizes on the map it kept; it closes loops (an SE(3) "
+    "pose graph over its keyframes, the points fused; --no-loop: not). --save-map writes "
+    "the map, --load-map starts on one (relocalizing in it), --localization-only tracks on it "
+    "without adding to it.",
     examples=EXAMPLES,
 )

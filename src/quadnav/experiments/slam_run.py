@@ -1,9 +1,7 @@
 """``quadnav slam``: the stereo SLAM (:class:`quadnav.slam.SlamOdometry`) over a dataset, through
 the runner every visual estimator shares (:func:`~quadnav.experiments.odometry_run.run_odometry`:
-the run folder, trajectory, metrics against the ground truth, report). With ``loop`` the SLAM
-runs behind the loop closer every odometry shares (:class:`quadnav.loop.LoopClosure`, an SE(3)
-pose graph: a SLAM without an IMU knows no gravity); ``load_map`` starts it on a map saved
-before (by ``save_map``), ``localization_only`` without adding to it."""
+the run folder, trajectory, metrics against the ground truth, report). ``load_map`` starts it
+on a map saved before (by ``save_map``), ``localization_only`` without adding to it."""
 
 from __future__ import annotations
 
@@ -22,7 +20,6 @@ from quadnav.experiments.odometry_run import (
 )
 
 if TYPE_CHECKING:
-    from quadnav.loop import LoopConfig
     from quadnav.odometry import VisualOdometry
     from quadnav.rig import Rig
     from quadnav.slam import SlamConfig, SlamOdometry
@@ -35,9 +32,9 @@ __all__ = ["SlamRequest", "check_slam_request", "run_slam_source"]
 @dataclass(frozen=True, slots=True, kw_only=True)
 class SlamRequest:
     """One ``quadnav slam`` run: the source, its span and outputs, the seed and rig of a
-    built-in sequence, the runs' folder, the SLAM's features and ThDepth, loop closure
-    (``loop``, ``loop_overrides``: ``--loop-set``), the map saved at the end (``save_map``) or
-    started on (``load_map``), and ``localization_only``."""
+    built-in sequence, the runs' folder, the SLAM's features and ThDepth, its loop closing
+    (``loop``), the map saved at the end (``save_map``) or started on (``load_map``), and
+    ``localization_only``."""
 
     source: str
     options: OdometryRunOptions = field(default_factory=OdometryRunOptions)
@@ -46,8 +43,7 @@ class SlamRequest:
     out: Path = Path("runs")
     n_features: int = 1200
     th_depth_baselines: float = 40.0
-    loop: bool = False
-    loop_overrides: tuple[str, ...] = ()
+    loop: bool = True
     save_map: Path | None = None
     load_map: Path | None = None
     localization_only: bool = False
@@ -66,8 +62,6 @@ def check_slam_request(request: SlamRequest) -> None:
         _config(request)
     except QuadnavError as exc:
         raise ConfigError(f"--features/--th-depth: {exc}") from None
-    if request.loop:
-        _loop_config(request)
     if request.localization_only and request.load_map is None:
         raise ConfigError("--localization-only: give the map to localize in (--load-map DIR)")
     if request.localization_only and request.save_map is not None:
@@ -76,23 +70,14 @@ def check_slam_request(request: SlamRequest) -> None:
         raise ConfigError(f"--save-map {request.save_map}: the map loaded; save to another folder")
 
 
-def _loop_config(request: SlamRequest) -> LoopConfig:
-    """Loop closure for the SLAM: an SE(3) graph, no extra corners (its ORB keypoints are
-    described), then the ``--loop-set`` overrides."""
-    from quadnav.loop import LoopConfig
-    from quadnav.loop.closer import LOOP_GRAPH
-    from quadnav.loop.settings import loop_config_with
-
-    base = LoopConfig(graph=replace(LOOP_GRAPH, kind="se3"), extra_corners=0)
-    return loop_config_with(request.loop_overrides, base)
-
-
 def _config(request: SlamRequest) -> SlamConfig:
     from quadnav.slam import SlamConfig
+    from quadnav.slam.config import LoopClosingConfig
     from quadnav.vision.orb import OrbConfig
 
     return SlamConfig(orb=OrbConfig(n_features=request.n_features),
-                      th_depth_baselines=request.th_depth_baselines)  # fmt: skip
+                      th_depth_baselines=request.th_depth_baselines,
+                      loop_closing=LoopClosingConfig(enabled=request.loop))  # fmt: skip
 
 
 def run_slam_source(request: SlamRequest, progress: Progress | None = None) -> OdometryRun:
@@ -122,13 +107,8 @@ def run_slam_source(request: SlamRequest, progress: Progress | None = None) -> O
     made: list[SlamOdometry] = []
 
     def make(rig: Rig) -> VisualOdometry:
-        slam = _slam(request, rig, cfg, loaded)
-        made.append(slam)
-        if not request.loop:
-            return slam
-        from quadnav.loop import LoopClosure
-
-        return LoopClosure(slam, rig.camera(rig.cameras[0].name), config=_loop_config(request))
+        made.append(_slam(request, rig, cfg, loaded))
+        return made[-1]
 
     run = run_odometry(
         dataset, dataset.rig, make, request.out, config_text=text,

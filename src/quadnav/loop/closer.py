@@ -44,6 +44,7 @@ from quadnav.loop.relocalize import (
 )
 from quadnav.messages import ImageFrame, ImuSample
 from quadnav.odometry import (
+    EventKind,
     FrameFeatures,
     KeyframeRecord,
     OdometryEvent,
@@ -711,10 +712,10 @@ class LoopClosure:
         M, *_ = np.linalg.lstsq(A, rec.xy, rcond=None)
         return np.asarray(np.column_stack([xy, np.ones(len(xy))]) @ M, dtype=np.float64)
 
-    def _event(self, rec: KeyframeRecord, kind: str, detail: str) -> None:
+    def _event(self, rec: KeyframeRecord, kind: EventKind, detail: str) -> None:
         self._take_events()
-        self._events.append(OdometryEvent(t_ns=rec.t_ns, kind=kind, detail=detail))  # type: ignore[arg-type]
+        self._events.append(OdometryEvent(t_ns=rec.t_ns, kind=kind, detail=detail))
 
-    def _event_at(self, t_ns: int, kind: str, detail: str) -> None:
+    def _event_at(self, t_ns: int, kind: EventKind, detail: str) -> None:
         self._take_events()
-        self._events.append(OdometryEvent(t_ns=t_ns, kind=kind, detail=detail))  # type: ignore[arg-type]
+        self._events.append(OdometryEvent(t_ns=t_ns, kind=kind, detail=detail))

@@ -4,11 +4,47 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import numpy as np
+
 from quadnav.errors import SlamError
 from quadnav.vision.orb import OrbConfig
 from quadnav.vision.stereo_match import StereoConfig
 
-__all__ = ["RelocalizationConfig", "SlamConfig"]
+__all__ = ["LoopClosingConfig", "RelocalizationConfig", "SlamConfig"]
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class LoopClosingConfig:
+    """Loop closing's settings (:mod:`quadnav.slam.loop_closing`). ``covisible``: how many covisible keyframes count as the keyframe's
+    neighbourhood (excluded as candidates) and as the candidate's (whose points are matched);
+    ``max_hamming``, ``ratio``, ``min_matches``, ``ransac_px``: the descriptor matching and PnP;
+    ``loop_sigma_m``, ``loop_sigma_rad``: the loop edge's; ``edge_sigma_m``,
+    ``edge_sigma_rad``: the essential graph's other edges."""
+
+    enabled: bool = True
+    min_gap_keyframes: int = 20
+    consistency: int = 2
+    covisible: int = 10
+    max_hamming: int = 64
+    ratio: float = 0.8
+    min_matches: int = 20
+    ransac_px: float = 3.0
+    min_inliers: int = 40
+    covisibility_edge: int = 100
+    loop_sigma_m: float = 0.003
+    loop_sigma_rad: float = 0.002
+    edge_sigma_m: float = 0.01
+    edge_sigma_rad: float = 0.005
+
+    def __post_init__(self) -> None:
+        ints = (self.min_gap_keyframes, self.consistency, self.covisible, self.min_matches,
+                self.min_inliers, self.covisibility_edge)  # fmt: skip
+        if min(ints) < 1 or not 0 <= self.max_hamming <= 256 or not 0 < self.ratio <= 1:
+            raise SlamError("LoopClosingConfig: counts >= 1, max_hamming 0-256, ratio in (0, 1]")
+        sig = (self.ransac_px, self.loop_sigma_m, self.loop_sigma_rad, self.edge_sigma_m,
+               self.edge_sigma_rad)  # fmt: skip
+        if not all(np.isfinite(s) and s > 0 for s in sig):
+            raise SlamError("LoopClosingConfig: ransac_px and the sigmas must be > 0")
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -49,7 +85,7 @@ class SlamConfig:
     points, if it tracks at least ``keyframe_min_tracked``; ``local_keyframes``: the map points
     of so many keyframes are projected into each frame (the newest, and those that see most of
     the last frame's points); ``relocalization``: after a loss
-    (:mod:`quadnav.slam.relocalization`)."""
+    (:mod:`quadnav.slam.relocalization`); ``loop_closing``: :mod:`quadnav.slam.loop_closing`."""
 
     orb: OrbConfig = field(default_factory=OrbConfig)
     stereo: StereoConfig = field(default_factory=StereoConfig)
@@ -65,6 +101,7 @@ class SlamConfig:
     local_mapping: bool = True
     local_ba_keyframes: int = 5
     relocalization: RelocalizationConfig = field(default_factory=RelocalizationConfig)
+    loop_closing: LoopClosingConfig = field(default_factory=LoopClosingConfig)
 
     def __post_init__(self) -> None:
         if not self.th_depth_baselines > 0 or not self.search_radius_px > 0:

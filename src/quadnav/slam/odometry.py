@@ -26,6 +26,7 @@ centre or baseline more than 2 % apart) is a :class:`~quadnav.errors.SlamError`.
 
 from __future__ import annotations
 
+import math
 import time
 from collections import Counter
 from collections.abc import Mapping, Sequence
@@ -91,6 +92,7 @@ class SlamOdometry:
         self._images: dict[int, ImageFrame] = {}
         self._pending: ImageFrame | None = None
         self._initialized = False
+        self._resets = 0  # (raised at each loop closed: the output jumps)
         self._last: OdometryState | None = None
         self._events: list[OdometryEvent] = []
         self._rejected: Counter[str] = Counter()
@@ -176,6 +178,14 @@ class SlamOdometry:
         if result.keyframe:
             self._images[len(self.tracker.map.keyframes) - 1] = left
         self._note(left.t_ns, result.relocalized_on)
+        if result.loop is not None:
+            lp = result.loop
+            self._resets += 1
+            self._events.append(OdometryEvent(
+                t_ns=left.t_ns, kind="loop",
+                detail=f"keyframe {lp.new} to {lp.old}: {lp.inliers} inliers, moved "
+                f"{lp.moved_m:.3f} m, {math.degrees(lp.turned_rad):.2f} deg, {lp.fused} points fused",
+            ))  # fmt: skip
         T_W_B = self.T_O_S @ result.T_W_C @ self.T_B_C.inverse()
         v = np.zeros(3)
         if self._last is not None and left.t_ns > self._last.t_ns:
@@ -183,6 +193,7 @@ class SlamOdometry:
         self._last = OdometryState(
             t_ns=left.t_ns, T_W_B=T_W_B, v_W_B=v, gyro_bias=np.zeros(3), accel_bias=np.zeros(3),
             cov_pose=_COV_POSE, cov_v=np.eye(3) * 0.05**2, keyframe=result.keyframe,
+            reset_counter=self._resets,
             tracked=result.inliers,
             quality=int(min(100, 100 * result.inliers / max(self.config.orb.n_features / 4, 1))),
         )  # fmt: skip
@@ -213,7 +224,7 @@ class SlamOdometry:
         lm = np.unique(kf.points[has])
         T_W_C = self.T_O_S @ kf.T_C_W.inverse()
         return KeyframeRecord(
-            index=kf.index, t_ns=kf.frame.t_ns, reset_counter=0,
+            index=kf.index, t_ns=kf.frame.t_ns, reset_counter=self._resets,
             T_W_B=T_W_C @ self.T_B_C.inverse(), cov_pose=_COV_POSE, camera=self._names[0],
             image=self._images.get(kf.index), ids=ids,
             uv_px=self.left.camera.project(rays) if n else np.zeros((0, 2)), xy=xy,

@@ -19,6 +19,7 @@ keyframe or a point.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -29,6 +30,7 @@ from quadnav.geometry.rotations import Pose
 from quadnav.slam.config import SlamConfig
 from quadnav.slam.frame import Frame
 from quadnav.slam.local_mapping import LocalMappingReport, local_mapping
+from quadnav.slam.loop_closing import LoopCloser, LoopClosingReport
 from quadnav.slam.map import SlamKeyframe, SlamMap
 from quadnav.slam.optimizer import optimize_pose
 from quadnav.slam.relocalization import KeyframeDatabase, pnp_candidates
@@ -43,7 +45,7 @@ TrackState = Literal["waiting", "tracking", "lost"]
 class TrackResult:
     """What tracking made of a frame: its ``state``, the camera's pose ``T_W_C`` (None unless
     tracking), the matches kept after the optimisation, whether it became a keyframe, and the
-    keyframe it was relocalized on (None: tracked as usual)."""
+    keyframe it was relocalized on (None: tracked as usual) and the loop its keyframe closed."""
 
     t_ns: int
     state: TrackState
@@ -51,6 +53,7 @@ class TrackResult:
     inliers: int = 0
     keyframe: bool = False
     relocalized_on: int | None = None
+    loop: LoopClosingReport | None = None
 
 
 def search_by_projection(
@@ -117,7 +120,9 @@ class StereoTracker:
         for kf in self.map.keyframes:
             self.database.add(kf)
         self.last_mapping: LocalMappingReport | None = None
+        self.loop_closer = LoopCloser(self.config.loop_closing)
         self.relocalizations = 0
+        self._loop: LoopClosingReport | None = None
         self._T_C_W_last: Pose | None = None
         self._velocity: Pose | None = None  # T_C_W(k) T_W_C(k-1)
         self._since_keyframe = 0
@@ -174,10 +179,11 @@ class StereoTracker:
             self._reference = self.map.keyframes[int(np.argmax(counts))]
         n = len(matches.keypoints)
         keyframe = self._wants_keyframe(n)
+        self._loop = None
         if keyframe:
             T_C_W = self._add_keyframe(frame, T_C_W, matches, n)
         return TrackResult(t_ns=frame.t_ns, state="tracking", T_W_C=T_C_W.inverse(), inliers=n,
-                           keyframe=keyframe)  # fmt: skip
+                           keyframe=keyframe, loop=self._loop)  # fmt: skip
 
     def _relocalize(self, frame: Frame) -> TrackResult:
         """After a loss (or on a loaded map): the keyframes that look like the frame, PnP on
@@ -197,16 +203,17 @@ class StereoTracker:
             self._velocity = None
             self._since_reloc = 0
             result = self._tracked(frame, *fit)
-            return TrackResult(t_ns=result.t_ns, state="tracking", T_W_C=result.T_W_C,
-                               inliers=result.inliers, keyframe=result.keyframe,
-                               relocalized_on=k)  # fmt: skip
+            return dataclasses.replace(result, relocalized_on=k)
         return lost
 
-    def _fit(self, frame: Frame, guess: Pose) -> tuple[Pose, _Matches] | None:
-        """Match and optimise twice (the guess, then the local map from the first fit)."""
+    def _fit(
+        self, frame: Frame, guess: Pose, ids: NDArray[np.int64] | None = None
+    ) -> tuple[Pose, _Matches] | None:
+        """Match and optimise twice (the guess, then the local map from the first fit), on the
+        points ``ids`` (default: the local map's)."""
         cfg = self.config
         T = guess
-        ids = self._local_points()
+        ids = self._local_points() if ids is None else ids
         for radius in (cfg.search_radius_px, cfg.search_radius_px / 3):
             m = self._match(frame, T, radius, ids)
             if len(m.keypoints) < cfg.min_inliers:
@@ -224,6 +231,13 @@ class StereoTracker:
             if len(m.keypoints) < cfg.min_inliers:
                 return None
         return T, m
+
+    def _fit_on(
+        self, frame: Frame, guess: Pose, ids: NDArray[np.int64]
+    ) -> tuple[Pose, NDArray[np.int64], NDArray[np.int64]] | None:
+        """:meth:`_fit` on points ``ids``, for loop closing."""
+        fit = self._fit(frame, guess, ids)
+        return None if fit is None else (fit[0], fit[1].keypoints, fit[1].points)
 
     def local_keyframes(self) -> list[SlamKeyframe]:
         """The keyframes whose points are searched for in the next frame: the newest, and those
@@ -284,5 +298,6 @@ class StereoTracker:
             self.last_mapping = local_mapping(
                 self.map, local_keyframes=self.config.local_ba_keyframes
             )
-            self._T_C_W_last = kf.T_C_W
+        self._loop = self.loop_closer.after_keyframe(kf, self.map, self.database, self._fit_on)
+        self._T_C_W_last = kf.T_C_W
         return kf.T_C_W
