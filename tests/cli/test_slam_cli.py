@@ -13,7 +13,7 @@ from quadnav.cli.main import app
 @pytest.mark.parametrize(
     ("args", "named"),
     [
-        (["--rig", "euroc_mono"], "--rig euroc_mono: one camera; the stereo SLAM needs two"),
+        (["--rig", "euroc_mono"], "--rig euroc_mono: one camera and no depth; the SLAM needs"),
         (["--rig", "nope"], "--rig:"),
         (["--features", "10"], "--features"),
         (["--th-depth", "0"], "--th-depth"),

@@ -97,6 +97,7 @@ EXAMPLES = (
     "quadnav slam room_easy --duration 20 --save-map maps/room",
     "quadnav slam room_easy --seed 1 --load-map maps/room --localization-only",
     "quadnav slam room_easy --duration 30 --blackout 10:3 --no-loop",
+    "quadnav slam room_easy --rig rgbd --duration 20",
     "quadnav slam hall_laps --rig zed --features 1000 --out /tmp/runs",
 )
 
@@ -134,7 +135,8 @@ def slam_command(
     ] = None,
     seed: Annotated[int, typer.Option("--seed", min=0, help="seed of a built-in sequence")] = 0,
     rig: Annotated[
-        str, typer.Option("--rig", help="the stereo rig a built-in sequence is made with")
+        str,
+        typer.Option("--rig", help="the stereo or RGB-D rig a built-in sequence is made with"),
     ] = "euroc",
     features: Annotated[
         int, typer.Option("--features", help="ORB features a frame (thesis 002's Jetson: 1200)")
@@ -166,11 +168,11 @@ def slam_command(
 
 
 slam_command.__doc__ = command_help(
-    "Stereo visual SLAM (ORB-SLAM2 class) over a dataset: estimate, metrics, report; maps saved and reused.",
-    "DATASET is a stereo EuRoC ASL folder, a ROS 1/2 bag, or a built-in sequence made once "
-    "per --seed and --rig under OUT/datasets. The pair is rectified, ORB features matched "
-    "across it, the camera tracked on the map of its last keyframes and the keyframes "
-    "adjusted locally. Its world is the first body pose (no IMU): compare after an SE(3) "
+    "Stereo and RGB-D visual SLAM (ORB-SLAM2 class) over a dataset: estimate, metrics, report; maps saved and reused.",
+    "DATASET is a stereo or RGB-D EuRoC ASL folder, a ROS 1/2 bag, or a built-in sequence made "
+    "once per --seed and --rig under OUT/datasets. The pair is rectified (or the image given "
+    "its depth), ORB features matched across it, the camera tracked on the map of its covisible "
+    "keyframes and the keyframes adjusted locally. Its world is the first body pose (no IMU): compare after an SE(3) "
     "alignment. After a loss it relocalizes on the map it kept; it closes loops (an SE(3) "
     "pose graph over its keyframes, the points fused; --no-loop: not). --save-map writes "
     "the map, --load-map starts on one (relocalizing in it), --localization-only tracks on it "

@@ -20,11 +20,16 @@ from quadnav.experiments.odometry_run import (
 )
 
 if TYPE_CHECKING:
+    import numpy as np
+    from numpy.typing import NDArray
+
+    from quadnav.io.datasets.types import VisualInertialDataset
     from quadnav.odometry import VisualOdometry
     from quadnav.rig import Rig
     from quadnav.slam import SlamConfig, SlamOdometry
     from quadnav.slam.frame import StereoCamera
     from quadnav.slam.map import SlamMap
+    from quadnav.slam.odometry import DepthSource
 
 __all__ = ["SlamRequest", "check_slam_request", "run_slam_source"]
 
@@ -54,9 +59,10 @@ def check_slam_request(request: SlamRequest) -> None:
     from quadnav.errors import QuadnavError
 
     rig = check_out_and_rig(request.out, request.rig)
-    if not rig.stereo:
+    if not rig.stereo and rig.depth is None:
         raise ConfigError(
-            f"--rig {request.rig}: one camera; the stereo SLAM needs two (euroc, zed)"
+            f"--rig {request.rig}: one camera and no depth; the SLAM needs a stereo rig (euroc, "
+            "zed) or an RGB-D one (rgbd)"
         )
     try:
         _config(request)
@@ -97,8 +103,10 @@ def run_slam_source(request: SlamRequest, progress: Progress | None = None) -> O
         request.source, seed=request.seed, rig=request.rig, duration_s=opt.duration_s,
         start_s=opt.start_s, cache_root=request.out, progress=progress,
     )  # fmt: skip
-    if not dataset.rig.stereo:
-        raise ConfigError(f"{request.source}: its rig has one camera; the stereo SLAM needs two")
+    if not dataset.rig.stereo and not dataset.depth:
+        raise ConfigError(
+            f"{request.source}: one camera and no depth images; the SLAM needs stereo or RGB-D"
+        )
     cfg = _config(request)
     settings = yaml.safe_dump(dataclasses.asdict(cfg), sort_keys=False)
     text = f"# dataset: {dataset.root}\n# rig: {dataset.rig.name}\n{settings}"
@@ -106,8 +114,10 @@ def run_slam_source(request: SlamRequest, progress: Progress | None = None) -> O
     name = Path(source).name if Path(source).exists() else f"{source}_s{request.seed}"
     made: list[SlamOdometry] = []
 
+    depth = _depth_source(dataset) if not dataset.rig.stereo else None
+
     def make(rig: Rig) -> VisualOdometry:
-        made.append(_slam(request, rig, cfg, loaded))
+        made.append(_slam(request, rig, cfg, loaded, depth))
         return made[-1]
 
     run = run_odometry(
@@ -122,16 +132,28 @@ def run_slam_source(request: SlamRequest, progress: Progress | None = None) -> O
     return run
 
 
+def _depth_source(dataset: VisualInertialDataset) -> DepthSource:
+    """The dataset's depth image at a time (None where it has none)."""
+    by_t = {d.t_ns: d for d in dataset.depth}
+
+    def depth(t_ns: int) -> NDArray[np.floating] | None:
+        d = by_t.get(t_ns)
+        return None if d is None else d.depth_m()
+
+    return depth
+
+
 def _slam(
-    request: SlamRequest, rig: Rig, cfg: SlamConfig, loaded: tuple[SlamMap, StereoCamera] | None
-) -> SlamOdometry:
+    request: SlamRequest, rig: Rig, cfg: SlamConfig, loaded: tuple[SlamMap, StereoCamera] | None,
+    depth: DepthSource | None,
+) -> SlamOdometry:  # fmt: skip
     from quadnav.errors import SlamError
     from quadnav.slam import SlamOdometry
 
     if loaded is None:
-        return SlamOdometry(rig, cfg)
+        return SlamOdometry(rig, cfg, depth=depth)
     try:
         return SlamOdometry(rig, cfg, slam_map=loaded[0], map_camera=loaded[1],
-                            mapping=not request.localization_only)  # fmt: skip
+                            mapping=not request.localization_only, depth=depth)  # fmt: skip
     except SlamError as exc:
         raise SlamError(f"--load-map {request.load_map}: {exc}") from None

@@ -4,7 +4,10 @@ report) drives it too.
 
 A stereo rig's two cameras are rectified once (:class:`~quadnav.vision.stereo.StereoRectifier`);
 a frame of the first camera waits for its partner of the same time, and the pair is rectified,
-made into a :class:`~quadnav.slam.frame.Frame` and tracked. The odometry's world is the
+made into a :class:`~quadnav.slam.frame.Frame` and tracked. An RGB-D rig's camera (a pinhole:
+undistorted images) is tracked with the depth image of the same time that ``depth`` gives (a
+missing one is counted, ``missing_depth``), its keypoints given ORB-SLAM2's virtual right
+coordinate over a baseline of ``RGBD_BASELINE_M``. The odometry's world is the
 vehicle's frame (the rig's ``T_V_B``) at the first tracked frame: a SLAM without an IMU knows no
 gravity, so its world is level only if the vehicle started level (on the ground, as usual);
 otherwise evaluate it after an SE(3) alignment. The body's pose is the rectified left camera's
@@ -29,12 +32,13 @@ from __future__ import annotations
 import math
 import time
 from collections import Counter
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 
 import numpy as np
+from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
-from quadnav.errors import QuadnavError, SlamError
+from quadnav.errors import QuadnavError, SampleError, SlamError
 from quadnav.geometry.rotations import Pose
 from quadnav.messages import ImageFrame, ImuSample
 from quadnav.odometry import (
@@ -47,7 +51,7 @@ from quadnav.odometry import (
 )
 from quadnav.rig import Rig
 from quadnav.slam.config import SlamConfig
-from quadnav.slam.frame import StereoCamera, stereo_frame
+from quadnav.slam.frame import Frame, StereoCamera, rgbd_frame, stereo_frame
 from quadnav.slam.map import SlamKeyframe, SlamMap
 from quadnav.slam.tracking import StereoTracker
 from quadnav.vision.orb import OrbExtractor
@@ -58,32 +62,38 @@ __all__ = ["SlamOdometry"]
 _COV_POSE = np.diag([np.radians(0.5) ** 2] * 3 + [0.01**2] * 3)
 #: a keypoint that observes no map point has the id ``-(NO_POINT + k)`` (k: its row)
 NO_POINT = 1_000_000
+#: an RGB-D camera's virtual baseline (m): ThDepth and the right coordinate's weight are in it
+#: (a RealSense D435's stereo baseline, 50 mm; ORB-SLAM2's TUM settings use 40 / fx = 77 mm)
+RGBD_BASELINE_M = 0.05
+#: an RGB-D rig's depth image (float metres, inf or 0 for no reading) at a time, or None
+DepthSource = Callable[[int], "NDArray[np.floating] | None"]
 
 
 class SlamOdometry:
-    """Stereo SLAM as an odometry (see the module) on a stereo ``rig``."""
+    """The SLAM as an odometry (see the module) on a stereo ``rig``, or on an RGB-D one whose
+    depth images ``depth`` gives by time."""
 
     def __init__(
         self, rig: Rig, config: SlamConfig | None = None, *, slam_map: SlamMap | None = None,
         map_camera: StereoCamera | None = None, mapping: bool = True,
+        depth: DepthSource | None = None,
     ) -> None:  # fmt: skip
-        from quadnav.vision.stereo import StereoRectifier
-
-        if not rig.stereo:
-            raise SlamError(f"rig {rig.name!r} has one camera: the stereo SLAM needs two")
         self.config = config or SlamConfig()
-        self.rectifier = StereoRectifier(rig)
-        K = self.rectifier.K
-        self.camera = StereoCamera(fx=float(K[0, 0]), fy=float(K[1, 1]), cx=float(K[0, 2]),
-                                   cy=float(K[1, 2]), baseline_m=self.rectifier.baseline_m)  # fmt: skip
-        left = rig.cameras[0]
-        # the rectified left camera in the body: the original one turned by R0 (x_rect = R0 x)
-        self.T_B_C = left.T_B_C @ Pose(Rotation.from_matrix(self.rectifier.R0.T), np.zeros(3))
-        self._names = (left.name, rig.cameras[1].name)
+        self._depth = depth
+        self.rectifier = None
+        self._R0 = np.eye(3)  # (the rectification's turn of the left camera: x_rect = R0 x)
+        if rig.stereo:
+            self._stereo_rig(rig)
+        elif rig.depth is not None:
+            self._rgbd_rig(rig)
+        else:
+            raise SlamError(
+                f"rig {rig.name!r} has one camera and no depth: the SLAM needs a stereo or an "
+                "RGB-D rig"
+            )
         self.T_V_B = rig.T_V_B
         if slam_map is not None:
             _check_same_camera(self.camera, map_camera)
-        self.left = left
         self.extractor = OrbExtractor(self.config.orb)
         self.tracker = StereoTracker(self.config, slam_map=slam_map, mapping=mapping)
         # the odometry's world from the SLAM's (the first keyframe's rectified left camera)
@@ -99,6 +109,35 @@ class SlamOdometry:
         self._seconds: dict[str, float] = {}
         self._calls: Counter[str] = Counter()
 
+    def _stereo_rig(self, rig: Rig) -> None:
+        from quadnav.vision.stereo import StereoRectifier
+
+        self.rectifier = StereoRectifier(rig)
+        K = self.rectifier.K
+        self.camera = StereoCamera(fx=float(K[0, 0]), fy=float(K[1, 1]), cx=float(K[0, 2]),
+                                   cy=float(K[1, 2]), baseline_m=self.rectifier.baseline_m)  # fmt: skip
+        self.left = rig.cameras[0]
+        self._R0 = self.rectifier.R0
+        # the rectified left camera in the body: the original one turned by R0
+        self.T_B_C = self.left.T_B_C @ Pose(Rotation.from_matrix(self._R0.T), np.zeros(3))
+        self._names: tuple[str, ...] = (self.left.name, rig.cameras[1].name)
+
+    def _rgbd_rig(self, rig: Rig) -> None:
+        assert rig.depth is not None
+        self.left = rig.camera(rig.depth.camera)
+        if self._depth is None:
+            raise SlamError(f"rig {rig.name!r} is RGB-D: the SLAM needs its depth images (depth=)")
+        if self.left.camera.distorted:
+            raise SlamError(
+                f"rig {rig.name!r}: RGB-D with a distorted lens is not supported yet (undistort "
+                "the images and give a pinhole camera)"
+            )
+        K = self.left.camera.K
+        self.camera = StereoCamera(fx=float(K[0, 0]), fy=float(K[1, 1]), cx=float(K[0, 2]),
+                                   cy=float(K[1, 2]), baseline_m=RGBD_BASELINE_M)  # fmt: skip
+        self.T_B_C = self.left.T_B_C
+        self._names = (self.left.name,)
+
     # -- the odometry interface -------------------------------------------------------------
     @property
     def cameras(self) -> tuple[str, ...]:
@@ -107,6 +146,11 @@ class SlamOdometry:
     def push(self, sample: ImuSample | ImageFrame) -> OdometryState | None:
         if isinstance(sample, ImuSample):
             return None
+        if self.rectifier is None:  # (RGB-D: one camera and its depth)
+            if sample.camera != self._names[0]:
+                self._rejected["other_camera"] += 1
+                return None
+            return self._frame(sample, lambda: self._rgbd_frame(sample))
         if sample.camera == self._names[0]:
             if self._pending is not None:
                 self._rejected["unpaired_frames"] += 1
@@ -119,7 +163,7 @@ class SlamOdometry:
         if left is None or left.t_ns != sample.t_ns:
             self._rejected["unpaired_frames"] += 1
             return None
-        return self._pair(left, sample)
+        return self._frame(left, lambda: self._stereo_frame(left, sample))
 
     def keyframes(self, *, final: bool = False) -> Sequence[KeyframeRecord]:
         kfs = self.tracker.map.keyframes
@@ -155,14 +199,31 @@ class SlamOdometry:
     def timing(self) -> StageTiming:
         return StageTiming(stages=tuple((k, self._seconds[k], self._calls[k]) for k in self._calls))
 
-    # -- a pair -------------------------------------------------------------------------------
-    def _pair(self, left: ImageFrame, right: ImageFrame) -> OdometryState | None:
+    # -- a frame -------------------------------------------------------------------------------
+    def _stereo_frame(self, left: ImageFrame, right: ImageFrame) -> Frame:
+        assert self.rectifier is not None
+        L, R = self.rectifier.rectify(left.image(), right.image())
+        return stereo_frame(left.t_ns, L, R, self.camera, self.extractor, self.config)
+
+    def _rgbd_frame(self, image: ImageFrame) -> Frame | None:
+        assert self._depth is not None
+        depth = self._depth(image.t_ns)
+        if depth is None:
+            self._rejected["missing_depth"] += 1
+            return None
+        if depth.shape[:2] != image.image().shape[:2]:
+            raise SampleError(f"depth at t_ns={image.t_ns}: {depth.shape}, not the image's size")
+        return rgbd_frame(image.t_ns, image.image(), depth, self.camera, self.extractor,
+                          self.config)  # fmt: skip
+
+    def _frame(self, left: ImageFrame, make: Callable[[], Frame | None]) -> OdometryState | None:
         t0 = time.perf_counter()
         try:
-            L, R = self.rectifier.rectify(left.image(), right.image())
-            frame = stereo_frame(left.t_ns, L, R, self.camera, self.extractor, self.config)
+            frame = make()
         except QuadnavError:
             self._rejected["unreadable_images"] += 1
+            return None
+        if frame is None:
             return None
         t1 = time.perf_counter()
         before = self.tracker.state
@@ -216,7 +277,7 @@ class SlamOdometry:
         rect = np.column_stack(
             [(f.uv_px[:, 0] - c.cx) / c.fx, (f.uv_px[:, 1] - c.cy) / c.fy, np.ones(n)]
         )
-        rays = rect @ self.rectifier.R0  # (the rectified rays in the left camera: R0^T r)
+        rays = rect @ self._R0  # (the rectified rays in the left camera: R0^T r)
         xy = rays[:, :2] / rays[:, 2:3]
         has = kf.points >= 0
         has[has] = ~m.bad[kf.points[has]]
