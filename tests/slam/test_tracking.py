@@ -189,3 +189,27 @@ def test_local_bundle_adjustment_pulls_noisy_keyframes_and_points_back(seed: int
         np.linalg.norm(X0 - X, axis=1)
     )
     assert out.inliers[gross].mean() < 0.05 and out.inliers[~gross].mean() > 0.9
+
+
+def test_keyframes_of_a_view_already_mapped_are_culled(renderer: Renderer) -> None:
+    """A camera held still, a keyframe due every 4 frames: the keyframes that only see what
+    three others see are culled (ORB-SLAM2's keyframe culling), the tracking unharmed."""
+    cfg = SlamConfig(keyframe_max_frames=4)
+    ex, tracker = OrbExtractor(cfg.orb), StereoTracker(cfg)
+    T = _pose(5, 40)
+    right = T @ Pose(Rotation.identity(), np.array([B, 0.0, 0.0]))
+    left_img, right_img = renderer.render(T).image, renderer.render(right).image
+    made = culled = 0
+    for k in range(40):
+        r = tracker.track(stereo_frame(k * 50_000_000, left_img, right_img, RIG, ex, cfg))
+        assert r.state == "tracking" and r.T_W_C is not None
+        assert np.linalg.norm(r.T_W_C.p_A_B) < 0.005 and r.T_W_C.R_A_B.magnitude() < 0.005
+        made += r.keyframe
+        if r.keyframe and tracker.last_mapping is not None:
+            culled += tracker.last_mapping.keyframes_culled
+    m = tracker.map
+    bad = [kf.bad for kf in m.keyframes]
+    assert made >= 8 and culled == sum(bad) >= made // 2, (made, culled)
+    assert not bad[0] and not bad[-1]
+    assert all((kf.points < 0).all() for kf in m.keyframes if kf.bad)
+    assert (m.n_obs[~m.bad] >= 1).all()

@@ -3,7 +3,10 @@ map points culled (a point made two or more keyframes ago that fewer than three 
 ORB-SLAM2's stereo rule), then the local bundle adjustment
 (:func:`~quadnav.slam.optimizer.local_bundle_adjustment`) over the newest keyframes and the
 points they see, the other keyframes that see those points held; its outlier observations are
-forgotten and points seen by no keyframe culled."""
+forgotten and points seen by no keyframe culled. Last, the keyframe culling: a keyframe covisible
+with the newest (not the first, not the newest) whose close points are seen by at least three
+other keyframes for ``redundancy`` (90 %) of them or more is culled (ORB-SLAM2's
+``KeyFrameCulling``; the scale condition left out)."""
 
 from __future__ import annotations
 
@@ -14,7 +17,7 @@ import numpy as np
 from quadnav.slam.map import SlamKeyframe, SlamMap
 from quadnav.slam.optimizer import BundleProblem, local_bundle_adjustment
 
-__all__ = ["LocalMappingReport", "local_mapping"]
+__all__ = ["LocalMappingReport", "cull_keyframes", "local_mapping"]
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -25,10 +28,16 @@ class LocalMappingReport:
     adjusted: int
     held: int
     dropped: int
+    keyframes_culled: int = 0
 
 
 def local_mapping(
-    slam_map: SlamMap, *, local_keyframes: int = 5, min_observations: int = 3, max_held: int = 5
+    slam_map: SlamMap,
+    *,
+    local_keyframes: int = 5,
+    min_observations: int = 3,
+    max_held: int = 5,
+    redundancy: float = 0.9,
 ) -> LocalMappingReport:
     """One pass after the newest keyframe (see the module)."""
     newest = slam_map.keyframes[-1].index
@@ -36,7 +45,7 @@ def local_mapping(
     recent = (newest - m.first_keyframe >= 2) & (m.n_obs < min_observations) & ~m.bad
     culled = np.flatnonzero(recent)
     m.cull(culled)
-    local = slam_map.keyframes[-local_keyframes:]
+    local = [kf for kf in slam_map.keyframes[-local_keyframes:] if not kf.bad]
     if len(local) < 2:
         return LocalMappingReport(culled=len(culled), adjusted=0, held=0, dropped=0)
     pts = m.local_points(local)
@@ -59,8 +68,30 @@ def local_mapping(
         dropped += len(bad)
     gone = pts[m.n_obs[pts] <= 0]
     m.cull(gone)
+    n_kf = cull_keyframes(m, m.covisible(m.keyframes[-1], 20)[1:], redundancy=redundancy)
     return LocalMappingReport(culled=len(culled) + len(gone), adjusted=len(local), held=len(held),
-                              dropped=dropped)  # fmt: skip
+                              dropped=dropped, keyframes_culled=n_kf)  # fmt: skip
+
+
+def cull_keyframes(
+    m: SlamMap, candidates: list[SlamKeyframe], *, redundancy: float = 0.9, observers: int = 3
+) -> int:
+    """Cull the ``candidates`` (not the first keyframe) whose close points are seen by
+    ``observers`` other keyframes for ``redundancy`` of them or more: they forget their points
+    and are marked bad; points left unseen are culled. How many were culled."""
+    n = 0
+    for kf in candidates:
+        if kf.bad or kf.index == 0 or kf.index == m.keyframes[-1].index:
+            continue
+        kp, ids = kf.observed
+        sel = ~m.bad[ids] & kf.frame.close[kp]
+        if not sel.any() or np.mean(m.n_obs[ids[sel]] - 1 >= observers) < redundancy:
+            continue
+        m.forget(kf, kp)
+        kf.bad = True
+        n += 1
+        m.cull(ids[(m.n_obs[ids] <= 0) & ~m.bad[ids]])
+    return n
 
 
 def _problem(

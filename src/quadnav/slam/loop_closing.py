@@ -108,7 +108,7 @@ class LoopCloser:
         ok = [
             int(i) for i in np.argsort(-scores[: len(m.keyframes)], kind="stable")
             if i <= kf.index - cfg.min_gap_keyframes and int(i) not in near_ids
-            and scores[i] >= floor and scores[i] > 0
+            and scores[i] >= floor and scores[i] > 0 and not m.keyframes[int(i)].bad
         ][:3]  # fmt: skip
         groups = [(c, {k.index for k in m.covisible(m.keyframes[c], cfg.covisible)}) for c in ok]
         prev = self._streak[-1][1] if self._streak else set()

@@ -8,7 +8,8 @@ covisibility of ORB-SLAM2, counted when asked); and the map as arrays for a file
   rectified ``camera`` (fx, fy, cx, cy in px, ``baseline_m``) every keyframe was measured in;
 - the points: ``X_W`` (m, the map's frame: the first keyframe's rectified left camera),
   ``descriptors`` (32 bytes), ``octave``, ``first_keyframe``, ``n_obs``, ``bad``;
-- the keyframes: ``kf_t_ns``, ``kf_T_C_W`` (4x4), ``kf_n`` (keypoints each), and their keypoints
+- the keyframes: ``kf_t_ns``, ``kf_T_C_W`` (4x4), ``kf_n`` (keypoints each), ``kf_bad``
+  (culled), and their keypoints
   concatenated: ``kp_uv_px``, ``kp_octave``, ``kp_angle_deg``, ``kp_response``, ``kp_size_px``,
   ``kp_descriptors``, ``kp_u_right``, ``kp_depth_m``, ``kp_close``, ``kp_point`` (the map point
   or -1); ``scales`` (the pyramid's).
@@ -41,12 +42,14 @@ IntArray = NDArray[np.int64]
 @dataclass(slots=True)
 class SlamKeyframe:
     """A keyframe: its ``index``, the camera's pose ``T_C_W``, its ``frame`` and ``points``
-    (per keypoint: the map point it observes, -1 for none)."""
+    (per keypoint: the map point it observes, -1 for none); ``bad``: culled (it observes
+    nothing; its index stays taken)."""
 
     index: int
     T_C_W: Pose
     frame: Frame
     points: IntArray
+    bad: bool = False
 
     @property
     def observed(self) -> tuple[IntArray, IntArray]:
@@ -151,6 +154,7 @@ class SlamMap:
             "kf_t_ns": np.array([kf.frame.t_ns for kf in kfs], np.int64),
             "kf_T_C_W": np.stack([kf.T_C_W.matrix() for kf in kfs]),
             "kf_n": np.array([len(kf.frame) for kf in kfs], np.int64),
+            "kf_bad": np.array([kf.bad for kf in kfs], bool),
             "kp_u_right": np.concatenate([kf.frame.stereo.u_right for kf in kfs]),
             "kp_depth_m": np.concatenate([kf.frame.stereo.depth_m for kf in kfs]),
             "kp_close": np.concatenate([kf.frame.close for kf in kfs]),
@@ -197,6 +201,7 @@ def _from_arrays(
         raise ValueError("the keyframes' keypoint counts do not add up")
     if np.any(a["kp_point"] >= n_pts):
         raise ValueError("a keypoint observes a point the map has not")
+    bad = np.asarray(a.get("kf_bad", np.zeros(len(a["kf_n"]), bool)), bool)
     for k, T in enumerate(np.asarray(a["kf_T_C_W"], np.float64)):
         sl = slice(int(ends[k]), int(ends[k + 1]))
         kp = {name: np.asarray(a[f"kp_{name}"][sl]) for name in _KP}
@@ -206,5 +211,6 @@ def _from_arrays(
         frame = Frame(t_ns=int(a["kf_t_ns"][k]), features=features, stereo=stereo,
                       close=np.asarray(a["kp_close"][sl], bool), camera=camera)  # fmt: skip
         m.keyframes.append(SlamKeyframe(index=k, T_C_W=Pose.from_matrix(T), frame=frame,
-                                        points=np.asarray(a["kp_point"][sl], np.int64)))  # fmt: skip
+                                        points=np.asarray(a["kp_point"][sl], np.int64),
+                                        bad=bool(bad[k])))  # fmt: skip
     return m, camera
