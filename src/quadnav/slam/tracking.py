@@ -1,6 +1,7 @@
 """The SLAM's tracking (ORB-SLAM2's ``Tracking``, stereo and RGB-D): the first frame with
 enough stereo points starts the map at the identity; each next frame is predicted by a
-constant-velocity model (or, when too few points match, where the last frame was), the map
+constant-velocity model (or, when too few points match, where the last frame was, or else where
+PnP on the reference keyframe's points matched by descriptor puts it), the map
 points of the last keyframes are matched to it by projection (a window of ``search_radius_px``
 times the point's scale around where it projects, the right coordinate too for stereo
 keypoints, the nearest descriptor within ``max_hamming``, one map point per keypoint), its pose
@@ -146,6 +147,8 @@ class StereoTracker:
         if fit is None and self._velocity is not None:
             fit = self._fit(frame, last)  # (the motion changed: from where the last frame was)
         if fit is None:
+            fit = self._fit_reference(frame)
+        if fit is None:
             self.state = "lost"
             return TrackResult(t_ns=frame.t_ns, state="lost", T_W_C=None)
         T_C_W, matches = fit
@@ -205,6 +208,17 @@ class StereoTracker:
             result = self._tracked(frame, *fit)
             return dataclasses.replace(result, relocalized_on=k)
         return lost
+
+    def _fit_reference(self, frame: Frame) -> tuple[Pose, _Matches] | None:
+        """ORB-SLAM2's ``TrackReferenceKeyFrame``, for a motion no prediction follows: the
+        reference keyframe's points matched to the frame by descriptor, a pose by PnP on them,
+        then the local map from it."""
+        ref = self._reference
+        if ref is None or ref.bad:
+            return None
+        for _, T in pnp_candidates(frame, self.map, [ref.index], self.config.relocalization):
+            return self._fit(frame, T)
+        return None
 
     def _fit(
         self, frame: Frame, guess: Pose, ids: NDArray[np.int64] | None = None
