@@ -51,11 +51,38 @@ def test_frames_that_do_not_pair_are_counted_not_raised() -> None:
     assert slam.push(ImageFrame(t_ns=2, camera="cam0", load=lambda: blank)) is None
     assert slam.push(ImageFrame(t_ns=3, camera="cam1", load=lambda: blank)) is None
     assert slam.push(ImageFrame(t_ns=3, camera="cam7", load=lambda: blank)) is None
-    assert slam.rejected == {"unpaired_frames": 2, "other_camera": 1}
+    # t=1 and t=2 never met a partner: tracked as mono (nothing to start on); the right frame
+    # of t=3 has no left
+    assert slam.rejected == {"stereo_unpaired": 2, "unpaired_frames": 1, "other_camera": 1}
     # a pair of blank images: no texture, the SLAM waits (no state, no error)
     assert slam.push(ImageFrame(t_ns=4, camera="cam0", load=lambda: blank)) is None
     assert slam.push(ImageFrame(t_ns=4, camera="cam1", load=lambda: blank)) is None
     assert slam.tracker.state == "waiting"
+
+
+def test_a_left_frame_whose_partner_is_missing_is_tracked_as_mono(
+    stereo_run: tuple, tmp_path: Path
+) -> None:
+    """Every fourth right frame withheld: those left frames are tracked on the map without
+    stereo points, counted, and the run is as good as with every pair."""
+    run, _, ds = stereo_run
+    dropped: list[int] = []
+
+    class DropRight(SlamOdometry):
+        def push(self, sample: object) -> object:
+            right = isinstance(sample, ImageFrame) and sample.camera == "cam1"
+            late = right and sample.t_ns > ds.frames[40].t_ns  # type: ignore[attr-defined]
+            if late and (sample.t_ns // 50_000_000) % 4 == 1:  # type: ignore[attr-defined]
+                dropped.append(sample.t_ns)  # type: ignore[attr-defined]
+                return None
+            return super().push(sample)  # type: ignore[arg-type]
+
+    again = run_odometry(ds, ds.rig, lambda rig: DropRight(rig), tmp_path,  # type: ignore[arg-type]
+                         options=OdometryRunOptions(video=False), name="drop", kind="slam")  # fmt: skip
+    assert len(dropped) >= 10 and again.input_counts == {"stereo_unpaired": len(dropped)}
+    m0, m1 = run.metrics, again.metrics
+    assert m1.fraction_with_estimate > 0.95 and m1.failures == 0, m1
+    assert m1.ape_se3.rmse_m < 1.5 * m0.ape_se3.rmse_m + 0.002, (m0.ape_se3, m1.ape_se3)
 
 
 def test_keyframe_records_put_their_landmarks_where_their_keypoints_see_them(

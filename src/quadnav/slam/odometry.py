@@ -12,8 +12,9 @@ vehicle's frame (the rig's ``T_V_B``) at the first tracked frame: a SLAM without
 gravity, so its world is level only if the vehicle started level (on the ground, as usual);
 otherwise evaluate it after an SE(3) alignment. The body's pose is the rectified left camera's
 through the rig's extrinsic. IMU samples are not used. Frames of
-another camera, a partner that never comes (the next left frame comes first), an image that
-cannot be read: rejected and counted. A loss is an event (``failure``) and the states stop
+another camera, a right frame without its left, an image that cannot be read: rejected and
+counted. A left frame whose partner never comes (the next left frame, or a later right one,
+comes first) is tracked as mono and counted (``stereo_unpaired``). A loss is an event (``failure``) and the states stop
 until the tracker relocalizes on the map it kept (an event ``reinitialized``; the world is the
 same, so the reset counter stays).
 
@@ -55,6 +56,8 @@ from quadnav.slam.frame import Frame, StereoCamera, rgbd_frame, stereo_frame
 from quadnav.slam.map import SlamKeyframe, SlamMap
 from quadnav.slam.tracking import StereoTracker
 from quadnav.vision.orb import OrbExtractor
+from quadnav.vision.stereo_match import StereoKeypoints
+from quadnav.vision.tracking import as_grey
 
 __all__ = ["SlamOdometry"]
 
@@ -152,18 +155,30 @@ class SlamOdometry:
                 return None
             return self._frame(sample, lambda: self._rgbd_frame(sample))
         if sample.camera == self._names[0]:
-            if self._pending is not None:
-                self._rejected["unpaired_frames"] += 1
+            out = self._alone()  # (the pending left frame's partner never came)
             self._pending = sample
-            return None
+            return out
         if sample.camera != self._names[1]:
             self._rejected["other_camera"] += 1
             return None
-        left, self._pending = self._pending, None
-        if left is None or left.t_ns != sample.t_ns:
+        left = self._pending
+        if left is None or sample.t_ns < left.t_ns:  # (a right frame without its left)
             self._rejected["unpaired_frames"] += 1
             return None
+        if left.t_ns != sample.t_ns:
+            self._rejected["unpaired_frames"] += 1
+            return self._alone()
+        self._pending = None
         return self._frame(left, lambda: self._stereo_frame(left, sample))
+
+    def _alone(self) -> OdometryState | None:
+        """The pending left frame tracked as mono (no stereo points: it tracks, it makes no
+        point), counted ``stereo_unpaired``."""
+        left, self._pending = self._pending, None
+        if left is None:
+            return None
+        self._rejected["stereo_unpaired"] += 1
+        return self._frame(left, lambda: self._mono_frame(left))
 
     def keyframes(self, *, final: bool = False) -> Sequence[KeyframeRecord]:
         kfs = self.tracker.map.keyframes
@@ -204,6 +219,23 @@ class SlamOdometry:
         assert self.rectifier is not None
         L, R = self.rectifier.rectify(left.image(), right.image())
         return stereo_frame(left.t_ns, L, R, self.camera, self.extractor, self.config)
+
+    def _mono_frame(self, left: ImageFrame) -> Frame:
+        import cv2
+
+        assert self.rectifier is not None
+        img = left.image()
+        if img.shape[1::-1] != self.rectifier.size:
+            raise SampleError(
+                f"{left.camera} image at t_ns={left.t_ns}: not the calibration's size"
+            )
+        (m1, m2), _ = self.rectifier.maps
+        L = np.asarray(cv2.remap(as_grey(img), m1, m2, cv2.INTER_LINEAR), np.uint8)
+        f, _levels = self.extractor.extract(L)
+        none = np.full(len(f), -1.0)
+        keys = StereoKeypoints(u_right=none, depth_m=none.copy())
+        return Frame(t_ns=left.t_ns, features=f, stereo=keys, close=np.zeros(len(f), bool),
+                     camera=self.camera)  # fmt: skip
 
     def _rgbd_frame(self, image: ImageFrame) -> Frame | None:
         assert self._depth is not None
