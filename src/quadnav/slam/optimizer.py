@@ -56,7 +56,7 @@ def _residuals(
     S[:, 0, 1], S[:, 0, 2], S[:, 1, 2] = -X[:, 2], X[:, 1], -X[:, 0]
     S[:, 1, 0], S[:, 2, 0], S[:, 2, 1] = X[:, 2], -X[:, 1], X[:, 0]
     # dX_C/dw = -[X_C]x, dX_C/dv = I; r = z - h, so its Jacobian is -dh
-    J_xi = np.concatenate([np.einsum("nij,njk->nik", J_X, S), -J_X], axis=2)
+    J_xi = np.concatenate([np.matmul(J_X, S), -J_X], axis=2)
     return r, J_xi, X
 
 
@@ -83,8 +83,9 @@ def optimize_pose(
                 robust & (chi2 > gate), np.sqrt(gate / np.maximum(chi2, 1e-12)), 1.0
             )
             w = np.where(use & (X[:, 2] > 0), w, 0.0)
-            H = np.einsum("n,nij,nik->jk", w, J, J)
-            g = np.einsum("n,nij,ni->j", w, J, r)
+            WJ = (w[:, None, None] * J).reshape(-1, 6)  # (one matrix product each)
+            H = WJ.T @ J.reshape(-1, 6)
+            g = WJ.T @ r.reshape(-1)
             if not np.isfinite(H).all() or np.linalg.cond(H) > 1e12:
                 break
             dx = -np.linalg.solve(H, g)

@@ -52,7 +52,11 @@ def search_by_projection(
     """Matches of map points (``X_W``, their ``descriptors`` and the ``octave`` they were seen
     at) to the frame's keypoints (those not ``taken``): (keypoint, point index, Hamming distance), each
     keypoint to at most one point (the nearest descriptor)."""
+    import itertools
+
     from scipy.spatial import cKDTree
+
+    from quadnav.place.vocabulary import hamming
 
     c, f = frame.camera, frame.features
     taken = np.zeros(len(f), bool) if taken is None else taken
@@ -62,28 +66,32 @@ def search_by_projection(
     u = np.where(front, c.fx * X[:, 0] / np.where(front, z, 1) + c.cx, -1e9)
     v = np.where(front, c.fy * X[:, 1] / np.where(front, z, 1) + c.cy, -1e9)
     ur = u - c.bf / np.where(front, z, 1)
-    tree = cKDTree(f.uv_px)
     scale = f.scales[np.minimum(octave, len(f.scales) - 1)]
-    best: dict[int, tuple[int, int]] = {}
-    for p in np.flatnonzero(front):
-        cand = np.asarray(tree.query_ball_point((u[p], v[p]), radius_px * scale[p]), np.int64)
-        if len(cand) == 0:
-            continue
-        cand = cand[~taken[cand] & (np.abs(f.octave[cand] - octave[p]) <= 1)]
-        stereo = frame.stereo.u_right[cand] >= 0
-        cand = cand[~stereo | (np.abs(frame.stereo.u_right[cand] - ur[p]) <= radius_px * scale[p])]
-        if len(cand) == 0:
-            continue
-        d = np.unpackbits(f.descriptors[cand] ^ descriptors[p], axis=1).sum(axis=1)
-        k = int(np.argmin(d))
-        if d[k] <= max_hamming and (int(cand[k]) not in best or d[k] < best[int(cand[k])][1]):
-            best[int(cand[k])] = (int(p), int(d[k]))
-    kp = np.array(sorted(best), np.int64)
-    return (
-        kp,
-        np.array([best[k][0] for k in kp], np.int64),
-        np.array([best[k][1] for k in kp], np.int64),
+    none = np.zeros(0, np.int64)
+    P = np.flatnonzero(front)
+    if len(P) == 0 or len(f) == 0:
+        return none, none, none
+    # every point's keypoints within its window at once, each list in the tree's order
+    near = cKDTree(f.uv_px).query_ball_point(
+        np.column_stack([u[P], v[P]]), radius_px * scale[P], return_sorted=False
     )
+    counts = np.fromiter(map(len, near), np.int64, len(near))
+    cand = np.fromiter(itertools.chain.from_iterable(near), np.int64, int(counts.sum()))
+    p = np.repeat(P, counts)
+    rank = np.arange(len(cand)) - np.repeat(np.cumsum(counts) - counts, counts)
+    ok = ~taken[cand] & (np.abs(f.octave[cand] - octave[p]) <= 1)
+    u_r = frame.stereo.u_right[cand]
+    ok &= (u_r < 0) | (np.abs(u_r - ur[p]) <= radius_px * scale[p])
+    cand, p, rank = cand[ok], p[ok], rank[ok]
+    d = hamming(f.descriptors[cand], descriptors[p]).astype(np.int64)
+    # each point's nearest keypoint (the first in its list on a tie) within max_hamming ...
+    o = np.lexsort((rank, d, p))
+    o = o[np.r_[True, p[o][1:] != p[o][:-1]]] if len(o) else o
+    o = o[d[o] <= max_hamming]
+    # ... and each keypoint's nearest point (the lower index on a tie)
+    o = o[np.lexsort((p[o], d[o], cand[o]))]
+    o = o[np.r_[True, cand[o][1:] != cand[o][:-1]]] if len(o) else o
+    return cand[o].astype(np.int64), p[o].astype(np.int64), d[o].astype(np.int64)
 
 
 @dataclass

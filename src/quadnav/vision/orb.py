@@ -23,7 +23,7 @@ from numpy.typing import NDArray
 from quadnav.errors import VisionError
 from quadnav.vision.tracking import as_grey
 
-__all__ = ["OrbConfig", "OrbExtractor", "OrbFeatures", "level_shares"]
+__all__ = ["OrbConfig", "OrbExtractor", "OrbFeatures", "level_shares", "orientations"]
 
 FloatArray = NDArray[np.float64]
 #: ORB's patch (pixels at the keypoint's level) and the border it needs.
@@ -140,23 +140,28 @@ class OrbExtractor:
 
     def _level(self, img: NDArray[np.uint8], want: int) -> tuple[list[Any], NDArray[np.uint8]]:
         """One level's keypoints (in its pixels) spread over its grid, oriented, described."""
+        import cv2
+
         h, w = img.shape
-        corners = [
-            k for k in self._fast.detect(img)
-            if EDGE_PX <= k.pt[0] < w - EDGE_PX and EDGE_PX <= k.pt[1] < h - EDGE_PX
-        ]  # fmt: skip
-        if want <= 0 or not corners:
+        found = self._fast.detect(img)
+        if want <= 0 or not found:
             return [], np.zeros((0, 32), np.uint8)
-        keep = spread(
-            np.array([k.pt for k in corners], np.float64),
-            np.array([k.response for k in corners], np.float64),
-            want, (w, h), self.config.ini_fast,
-        )  # fmt: skip
-        chosen = [corners[i] for i in keep]
-        for k in chosen:
-            k.size = float(PATCH_PX)
-            k.octave = 0  # (described on its own level's image)
-        got, desc = self._orb.compute(img, _oriented(img, chosen))
+        uv = np.asarray(cv2.KeyPoint.convert(found), np.float64).reshape(-1, 2)
+        score = np.fromiter((k.response for k in found), np.float64, len(found))
+        inside = (uv[:, 0] >= EDGE_PX) & (uv[:, 0] < w - EDGE_PX)
+        inside &= (uv[:, 1] >= EDGE_PX) & (uv[:, 1] < h - EDGE_PX)
+        uv, score = uv[inside], score[inside]
+        if len(uv) == 0:
+            return [], np.zeros((0, 32), np.uint8)
+        keep = spread(uv, score, want, (w, h), self.config.ini_fast)
+        uv, score = uv[keep], score[keep]
+        angle = orientations(img, uv)
+        chosen = [
+            cv2.KeyPoint(x, y, float(PATCH_PX), a, r, 0)  # (described on its level's image)
+            for x, y, a, r in zip(uv[:, 0].tolist(), uv[:, 1].tolist(), angle.tolist(),
+                                  score.tolist(), strict=True)
+        ]  # fmt: skip
+        got, desc = self._orb.compute(img, chosen)
         if desc is None or not got:
             return [], np.zeros((0, 32), np.uint8)
         return list(got), np.asarray(desc, np.uint8)
@@ -194,22 +199,32 @@ def spread(
     return np.sort(picked).astype(np.int64)
 
 
-def _oriented(img: NDArray[np.uint8], kps: list[Any]) -> list[Any]:
-    """The keypoints with ORB's orientation: the angle of the intensity centroid of the disc of
-    radius 15 around each."""
+def _disc_moments() -> tuple[FloatArray, FloatArray]:
+    """The x and y weights of the intensity centroid over the disc of radius 15, flattened."""
     r = PATCH_PX // 2
     yy, xx = np.mgrid[-r : r + 1, -r : r + 1]
     disc = (xx**2 + yy**2) <= r * r
-    f = img.astype(np.float64)
-    for k in kps:
-        x, y = round(k.pt[0]), round(k.pt[1])
-        patch = f[y - r : y + r + 1, x - r : x + r + 1]
-        if patch.shape != disc.shape:
-            continue
-        m01 = float((patch * yy)[disc].sum())
-        m10 = float((patch * xx)[disc].sum())
-        k.angle = float(np.degrees(np.arctan2(m01, m10)) % 360.0)
-    return kps
+    return (xx * disc).astype(np.float64).ravel(), (yy * disc).astype(np.float64).ravel()
+
+
+_MOMENT_X, _MOMENT_Y = _disc_moments()
+
+
+def orientations(img: NDArray[np.uint8], uv: FloatArray) -> FloatArray:
+    """ORB's orientation (degrees in [0, 360)) of the keypoints ``uv`` (N, 2) of ``img``: the
+    angle of the intensity centroid of the disc of radius 15 around each (rounded to its pixel);
+    -1 where the disc leaves the image."""
+    r = PATCH_PX // 2
+    x = np.rint(uv[:, 0]).astype(np.int64)
+    y = np.rint(uv[:, 1]).astype(np.int64)
+    h, w = img.shape
+    ok = (x - r >= 0) & (x + r < w) & (y - r >= 0) & (y + r < h)
+    k = np.arange(-r, r + 1)
+    offsets = (k[:, None] * w + k[None, :]).ravel()  # (the disc's square, row by row)
+    flat = img.ravel()[(y[ok] * w + x[ok])[:, None] + offsets].astype(np.float64)
+    angle = np.full(len(uv), -1.0)
+    angle[ok] = np.degrees(np.arctan2(flat @ _MOMENT_Y, flat @ _MOMENT_X)) % 360.0
+    return angle
 
 
 def _empty(scales: FloatArray) -> OrbFeatures:
