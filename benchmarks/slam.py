@@ -48,12 +48,13 @@ for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ[_v] = "1"
 
 import argparse  # noqa: E402
+import functools  # noqa: E402
 import json  # noqa: E402
 import platform  # noqa: E402
 import subprocess  # noqa: E402
 import tempfile  # noqa: E402
 import time  # noqa: E402
-from collections import Counter  # noqa: E402
+from collections import Counter, defaultdict  # noqa: E402
 from collections.abc import Callable  # noqa: E402
 from pathlib import Path  # noqa: E402
 from typing import Any  # noqa: E402
@@ -69,15 +70,24 @@ STAGES = ("rectification", "ORB left", "ORB right", "stereo matching", "search b
 DEFAULTS = {"zed": 4.0, "euroc": 10.0}  # room_easy's seconds per rig (about 200 pairs each)
 
 
-def _timed(fn: Callable[..., Any], seconds: Counter[str], name: Callable[[], str]) -> Any:
+def _timed(fn: Callable[..., Any], seconds: dict[str, float], name: Callable[[], str]) -> Any:
+    """``fn`` adding its wall time to ``seconds[name()]`` and its CPU time to
+    ``seconds["cpu " + name()]``."""
+
     def wrapper(*args: Any, **kwargs: Any) -> Any:
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         try:
             return fn(*args, **kwargs)
         finally:
-            seconds[name()] += time.perf_counter() - t0
+            k = name()
+            seconds[k] += time.perf_counter() - t0
+            seconds["cpu " + k] += time.process_time() - c0
 
     return wrapper
+
+
+def _same(image: Any) -> Any:
+    return image
 
 
 def measure_once(dataset: Path) -> dict[str, object]:
@@ -94,9 +104,10 @@ def measure_once(dataset: Path) -> dict[str, object]:
     cv2.setNumThreads(1)
     ds = open_dataset(dataset)
     names = {c.name for c in ds.rig.cameras[:2]}
-    images = [(s.t_ns, s.camera, s.image()) for s in ds.stream() if getattr(s, "camera", None) in names]  # fmt: skip
+    images = [(s.t_ns, s.camera, s.image()) for s in ds.stream()
+              if isinstance(s, ImageFrame) and s.camera in names]  # fmt: skip
     odo = SlamOdometry(ds.rig)
-    sec: Counter[str] = Counter()
+    sec: dict[str, float] = defaultdict(float)
     calls: Counter[str] = Counter()  # (stereo_frame extracts the left image, then the right)
 
     def orb_side() -> str:
@@ -108,26 +119,28 @@ def measure_once(dataset: Path) -> dict[str, object]:
     saved = {m: {k: getattr(m, k) for k in ks} for m, ks in (
         (frame_mod, ("stereo_keypoints",)),
         (tracking_mod, ("search_by_projection", "optimize_pose", "local_mapping")))}  # fmt: skip
-    labels = {"stereo_keypoints": "stereo matching", "search_by_projection": "search by projection",
+    labels: dict[str, str] = {"stereo_keypoints": "stereo matching", "search_by_projection": "search by projection",
               "optimize_pose": "pose optimisation", "local_mapping": "local mapping (BA)"}  # fmt: skip
     for m, funcs in saved.items():
         for k, f in funcs.items():
-            setattr(m, k, _timed(f, sec, lambda k=k: labels[k]))
-    total, pairs, tracked = 0.0, 0, 0
+            setattr(m, k, _timed(f, sec, functools.partial(labels.__getitem__, k)))
+    total, cpu, pairs, tracked = 0.0, 0.0, 0, 0
     try:
         for t_ns, cam, img in images:
-            t0 = time.perf_counter()
-            state = odo.push(ImageFrame(t_ns=t_ns, camera=cam, load=lambda img=img: img))
+            t0, c0 = time.perf_counter(), time.process_time()
+            state = odo.push(ImageFrame(t_ns=t_ns, camera=cam, load=functools.partial(_same, img)))
             total += time.perf_counter() - t0
+            cpu += time.process_time() - c0
             pairs += cam == ds.rig.cameras[1].name
             tracked += state is not None
     finally:
         for m, funcs in saved.items():
             for k, f in funcs.items():
                 setattr(m, k, f)
-    sec["other"] = total - sum(sec.values())
+    sec["other"] = total - sum(v for k, v in sec.items() if not k.startswith("cpu "))
+    sec["cpu other"] = cpu - sum(v for k, v in sec.items() if k.startswith("cpu "))
     w, h = ds.rig.cameras[0].camera.width, ds.rig.cameras[0].camera.height
-    return {"total_s": total, "pairs": pairs, "tracked": tracked, "stages_s": dict(sec),
+    return {"total_s": total, "cpu_s": cpu, "pairs": pairs, "tracked": tracked, "stages_s": dict(sec),
             "resolution": [w, h], "keyframes": len(odo.tracker.map.keyframes)}  # fmt: skip
 
 
@@ -164,8 +177,11 @@ def summarise(runs: list[dict[str, Any]]) -> dict[str, Any]:
         return 1e3 * x / pairs
 
     per = {s: [ms(float(r["stages_s"].get(s, 0.0))) for r in runs] for s in STAGES}
+    per_cpu = {s: [ms(float(r["stages_s"].get("cpu " + s, 0.0))) for r in runs] for s in STAGES}
     total = [ms(float(r["total_s"])) for r in runs]
     track = [t - lm for t, lm in zip(total, per["local mapping (BA)"], strict=True)]
+    cpu = [ms(float(r["cpu_s"])) for r in runs]
+    track_cpu = [t - lm for t, lm in zip(cpu, per_cpu["local mapping (BA)"], strict=True)]
     return {
         "pairs": pairs, "tracked": runs[0]["tracked"], "keyframes": runs[0]["keyframes"],
         "stage_ms_best": {s: min(v) for s, v in per.items()},
@@ -174,6 +190,9 @@ def summarise(runs: list[dict[str, Any]]) -> dict[str, Any]:
         "tracking_hz_best": 1e3 / min(track), "tracking_hz_median": 1e3 / float(np.median(track)),
         "total_ms_best": min(total), "total_ms_median": float(np.median(total)),
         "whole_hz_best": 1e3 / min(total), "all_total_ms": total,
+        "stage_cpu_ms_best": {s: min(v) for s, v in per_cpu.items()},
+        "tracking_cpu_ms_best": min(track_cpu), "tracking_cpu_hz_best": 1e3 / min(track_cpu),
+        "total_cpu_ms_best": min(cpu),
     }  # fmt: skip
 
 
@@ -204,40 +223,36 @@ def _orb(dataset: Path, args: argparse.Namespace) -> dict[str, Any] | str:
             "all_track_ms_mean": means, "version": peer.version()}  # fmt: skip
 
 
+def _row(label: str, cells: list[tuple[float, float, float]], fmt: str = ".2f") -> str:
+    text = "".join(f"{a:>10{fmt}} {b:>8{fmt}} {c:>8{fmt}}" for a, b, c in cells)
+    return f"  {label:<22}{text}"
+
+
 def _print(name: str, res: dict[str, Any]) -> None:
-    variants = list(res["variants"])
+    """The table: per variant, wall ms a frame best and median of the repeats, and CPU ms best
+    (the process's own time: less sensitive to other processes on the machine)."""
+    vs = [res["variants"][v] for v in res["variants"]]
     w, h = res["resolution"]
-    print(f"\n{name} ({w}x{h}, {res['variants'][variants[0]]['pairs']} pairs), ms a frame, "
-          "best / median of the repeats")  # fmt: skip
-    head = "".join(f"{v:>22}" for v in variants)
-    print(f"  {'stage':<22}{head}")
+    print(f"\n{name} ({w}x{h}, {vs[0]['pairs']} pairs), ms a frame")
+    print(f"  {'':<22}" + "".join(f"{v:>28}" for v in res["variants"]))
+    print(f"  {'stage':<22}" + f"{'wall best':>10} {'median':>8} {'CPU best':>8}" * len(vs))
     for s in STAGES:
-        cells = "".join(
-            f"{res['variants'][v]['stage_ms_best'][s]:>13.2f} / {res['variants'][v]['stage_ms_median'][s]:>6.2f}"
-            for v in variants
-        )  # fmt: skip
-        print(f"  {s:<22}{cells}")
-    for key, label, unit in (
-        ("tracking_ms", "tracking (no LM)", ""),
-        ("total_ms", "whole frame", ""),
-    ):
-        cells = "".join(f"{res['variants'][v][key + '_best']:>13.2f} / {res['variants'][v][key + '_median']:>6.2f}"
-                        for v in variants)  # fmt: skip
-        print(f"  {label:<22}{cells}{unit}")
-    cells = "".join(f"{res['variants'][v]['tracking_hz_best']:>13.1f} / {res['variants'][v]['tracking_hz_median']:>6.1f}"
-                    for v in variants)  # fmt: skip
-    print(f"  {'tracking Hz':<22}{cells}")
-    cells = "".join(f"{min(res['process_s'][v]):>13.2f} / {float(np.median(res['process_s'][v])):>6.2f}"
-                    for v in variants)  # fmt: skip
-    print(f"  {'whole process (s)':<22}{cells}   quadnav slam DATASET")
+        print(_row(s, [(v["stage_ms_best"][s], v["stage_ms_median"][s], v["stage_cpu_ms_best"][s])
+                       for v in vs]))  # fmt: skip
+    print(_row("tracking (no LM)", [(v["tracking_ms_best"], v["tracking_ms_median"],
+                                     v["tracking_cpu_ms_best"]) for v in vs]))  # fmt: skip
+    print(_row("whole frame", [(v["total_ms_best"], v["total_ms_median"], v["total_cpu_ms_best"])
+                               for v in vs]))  # fmt: skip
+    print(_row("tracking Hz", [(v["tracking_hz_best"], v["tracking_hz_median"],
+                                v["tracking_cpu_hz_best"]) for v in vs], ".1f"))  # fmt: skip
+    print(_row("whole process (s)", [(min(t), float(np.median(t)), float("nan"))
+                                     for t in res["process_s"].values()]))  # fmt: skip
     orb = res.get("orb")
     if isinstance(orb, dict):
-        ours = res["variants"][variants[0]]["tracking_ms_median"]
-        print(
-            f"  ORB-SLAM3 stereo tracking {orb['track_ms_mean_best']:.1f} / "
-            f"{orb['track_ms_mean_median']:.1f} ms a frame (unpaced, same core); "
-            f"ours / ORB-SLAM3 (medians): {ours / orb['track_ms_mean_median']:.2f}"
-        )
+        ours = vs[0]["tracking_ms_median"]
+        print(f"  ORB-SLAM3 stereo: tracking {orb['track_ms_mean_best']:.1f} ms a frame best, "
+              f"{orb['track_ms_mean_median']:.1f} median (unpaced, same core); ours / ORB-SLAM3 "
+              f"(wall medians): {ours / orb['track_ms_mean_median']:.2f}")  # fmt: skip
     elif orb:
         print(f"  {orb}")
 

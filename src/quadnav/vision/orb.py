@@ -15,7 +15,6 @@ on its level's image; positions are given at level 0.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -119,43 +118,39 @@ class OrbExtractor:
         levels = self.pyramid(image)
         scales = self.config.scales()
         parts = [self._level(img, int(self._shares[k])) for k, img in enumerate(levels)]
-        kps = [kp for part in parts for kp in part[0]]
-        if not kps:
-            return _empty(scales), levels
         octave = np.concatenate([np.full(len(p[0]), k, np.int64) for k, p in enumerate(parts)])
-        desc = np.concatenate([p[1] for p in parts if len(p[0])]).astype(np.uint8)
+        if len(octave) == 0:
+            return _empty(scales), levels
+        uv, angle, score, desc = (np.concatenate([p[i] for p in parts]) for i in range(4))
         s = scales[octave]
         return (
             OrbFeatures(
-                uv_px=np.array([kp.pt for kp in kps], np.float64) * s[:, None],
-                octave=octave,
-                angle_deg=np.array([kp.angle for kp in kps], np.float64),
-                response=np.array([kp.response for kp in kps], np.float64),
-                size_px=PATCH_PX * s,
-                descriptors=desc,
-                scales=scales,
+                uv_px=uv * s[:, None], octave=octave, angle_deg=angle, response=score,
+                size_px=PATCH_PX * s, descriptors=desc.astype(np.uint8), scales=scales,
             ),
             levels,
-        )
+        )  # fmt: skip
 
-    def _level(self, img: NDArray[np.uint8], want: int) -> tuple[list[Any], NDArray[np.uint8]]:
-        """One level's keypoints (in its pixels) spread over its grid, oriented, described."""
+    def _level(
+        self, img: NDArray[np.uint8], want: int
+    ) -> tuple[FloatArray, FloatArray, FloatArray, NDArray[np.uint8]]:
+        """One level's keypoints (in its pixels) spread over its grid, oriented, described:
+        positions (n, 2), angles, FAST scores (as OpenCV's keypoints hold them, in float32) and
+        descriptors (n, 32)."""
         import cv2
 
         h, w = img.shape
-        found = self._fast.detect(img)
-        if want <= 0 or not found:
-            return [], np.zeros((0, 32), np.uint8)
+        found = self._fast.detect(img) if want > 0 else ()
         uv = np.asarray(cv2.KeyPoint.convert(found), np.float64).reshape(-1, 2)
         score = np.fromiter((k.response for k in found), np.float64, len(found))
         inside = (uv[:, 0] >= EDGE_PX) & (uv[:, 0] < w - EDGE_PX)
         inside &= (uv[:, 1] >= EDGE_PX) & (uv[:, 1] < h - EDGE_PX)
         uv, score = uv[inside], score[inside]
         if len(uv) == 0:
-            return [], np.zeros((0, 32), np.uint8)
+            return np.zeros((0, 2)), np.zeros(0), np.zeros(0), np.zeros((0, 32), np.uint8)
         keep = spread(uv, score, want, (w, h), self.config.ini_fast)
         uv, score = uv[keep], score[keep]
-        angle = orientations(img, uv)
+        angle = orientations(img, uv).astype(np.float32).astype(np.float64)
         chosen = [
             cv2.KeyPoint(x, y, float(PATCH_PX), a, r, 0)  # (described on its level's image)
             for x, y, a, r in zip(uv[:, 0].tolist(), uv[:, 1].tolist(), angle.tolist(),
@@ -163,8 +158,12 @@ class OrbExtractor:
         ]  # fmt: skip
         got, desc = self._orb.compute(img, chosen)
         if desc is None or not got:
-            return [], np.zeros((0, 32), np.uint8)
-        return list(got), np.asarray(desc, np.uint8)
+            return np.zeros((0, 2)), np.zeros(0), np.zeros(0), np.zeros((0, 32), np.uint8)
+        if len(got) != len(chosen):  # (OpenCV dropped some: read back the ones it kept)
+            uv = np.array([k.pt for k in got], np.float64)
+            angle = np.array([k.angle for k in got], np.float64)
+            score = np.array([k.response for k in got], np.float64)
+        return uv, angle, score, np.asarray(desc, np.uint8)
 
 
 def spread(
@@ -187,16 +186,25 @@ def spread(
     has_strong[cid[score >= strong]] = True
     usable = (score >= strong) | ~has_strong[cid]
     idx = np.flatnonzero(usable)
-    order = idx[np.lexsort((-score[idx], cid[idx]))]  # by cell, best first
+    order = idx[_by_then_best(cid[idx], score[idx])]  # by cell, best first
     cells = cid[order]
     first = np.r_[0, np.flatnonzero(np.diff(cells)) + 1]
     rank = np.arange(len(order)) - np.repeat(first, np.diff(np.r_[first, len(order)]))
     # round by round (each cell's best, then its second...), the stronger first in a round
-    picked = order[np.lexsort((-score[order], rank))][:want]
+    picked = order[_by_then_best(rank, score[order])][:want]
     if len(picked) < want:  # (too few usable: the weaker corners of strong cells fill in)
         rest = np.setdiff1d(np.arange(n), picked)
         picked = np.r_[picked, rest[np.argsort(-score[rest])][: want - len(picked)]]
     return np.sort(picked).astype(np.int64)
+
+
+def _by_then_best(major: NDArray[np.int64], score: FloatArray) -> NDArray[np.int64]:
+    """The order by ``major``, then by ``score`` high to low, then as given (a stable
+    ``lexsort((-score, major))``); FAST's scores, whole numbers in [0, 255], in one key."""
+    if len(score) and score.min() >= 0 and score.max() <= 255 and (score == np.rint(score)).all():
+        key = major.astype(np.int64) * 256 + (255 - score.astype(np.int64))
+        return np.argsort(key, kind="stable").astype(np.int64)
+    return np.lexsort((-score, major)).astype(np.int64)
 
 
 def _disc_moments() -> tuple[FloatArray, FloatArray]:
