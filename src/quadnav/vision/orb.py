@@ -140,8 +140,11 @@ class OrbExtractor:
         import cv2
 
         h, w = img.shape
-        found = self._fast.detect(img) if want > 0 else ()
-        uv = np.asarray(cv2.KeyPoint.convert(found), np.float64).reshape(-1, 2)
+        # FAST inside the border only (4 px wider than it: a kept corner's circle and the
+        # neighbours its non-maximum suppression compares it with are all seen)
+        m = EDGE_PX - 4
+        found = self._fast.detect(img[m : h - m, m : w - m]) if want > 0 else ()
+        uv = np.asarray(cv2.KeyPoint.convert(found), np.float64).reshape(-1, 2) + m
         score = np.fromiter((k.response for k in found), np.float64, len(found))
         inside = (uv[:, 0] >= EDGE_PX) & (uv[:, 0] < w - EDGE_PX)
         inside &= (uv[:, 1] >= EDGE_PX) & (uv[:, 1] < h - EDGE_PX)
