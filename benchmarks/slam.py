@@ -16,9 +16,13 @@ a repeat of each in turn, so that both see the same machine. With ``--orb-venv``
 ``--repeats`` times on the same core: its mean tracking time a frame (``stats.json``, its local
 mapping thread beside it on that core) and our tracking time over it.
 
-    python benchmarks/slam.py [--zed DATASET] [--euroc DATASET] [--repeats 3] [--core 0]
-        [--before SRC] [--orb-venv ../orb-venv] [--orb-dir ../shared/peers/orbslam3]
-        [--out benchmarks/results/slam.json]
+    python benchmarks/slam.py [--zed DATASET] [--euroc DATASET] [--frames 0] [--repeats 3]
+        [--process-repeats N] [--core 0] [--before SRC] [--orb-venv ../orb-venv]
+        [--orb-dir ../shared/peers/orbslam3] [--out benchmarks/results/slam.json]
+
+``--frames N``: the first N pairs only (the whole process too, through ``--duration``; ORB-SLAM3
+reads the whole dataset); ``--process-repeats``: runs of the whole process (default
+``--repeats``, 0: none).
 
 Without a dataset: ``room_easy`` made once under ``benchmarks/results/datasets``, 4 s with the
 ``zed`` rig (60 Hz: 240 pairs) and 10 s with ``euroc`` (20 Hz: 200 pairs).
@@ -80,9 +84,9 @@ def _same(image: Any) -> Any:
     return image
 
 
-def measure_once(dataset: Path) -> dict[str, object]:
-    """One run of the SLAM over all of ``dataset``'s stereo pairs (images read beforehand),
-    each stage timed by wrapping the function the SLAM calls for it."""
+def measure_once(dataset: Path, frames: int = 0) -> dict[str, object]:
+    """One run of the SLAM over ``dataset``'s first ``frames`` stereo pairs (0: all; the images
+    read beforehand), each stage timed by wrapping the function the SLAM calls for it."""
     import cv2
 
     import quadnav.slam.frame as frame_mod
@@ -96,6 +100,10 @@ def measure_once(dataset: Path) -> dict[str, object]:
     names = {c.name for c in ds.rig.cameras[:2]}
     images = [(s.t_ns, s.camera, s.image()) for s in ds.stream()
               if isinstance(s, ImageFrame) and s.camera in names]  # fmt: skip
+    if frames > 0:
+        images = images[: 2 * frames]
+    stamps = sorted({t for t, _, _ in images})
+    period_s = float(np.median(np.diff(stamps))) * 1e-9 if len(stamps) > 1 else 0.0
     odo = SlamOdometry(ds.rig)
     sec: dict[str, float] = defaultdict(float)
     calls: Counter[str] = Counter()  # (stereo_frame extracts the left image, then the right)
@@ -130,17 +138,18 @@ def measure_once(dataset: Path) -> dict[str, object]:
     sec["other"] = total - sum(v for k, v in sec.items() if not k.startswith("cpu "))
     sec["cpu other"] = cpu - sum(v for k, v in sec.items() if k.startswith("cpu "))
     w, h = ds.rig.cameras[0].camera.width, ds.rig.cameras[0].camera.height
-    return {"total_s": total, "cpu_s": cpu, "pairs": pairs, "tracked": tracked, "stages_s": dict(sec),
+    return {"total_s": total, "cpu_s": cpu, "pairs": pairs, "period_s": period_s,
+            "span_s": (stamps[-1] - stamps[0]) * 1e-9 if stamps else 0.0, "tracked": tracked, "stages_s": dict(sec),
             "resolution": [w, h], "keyframes": len(odo.tracker.map.keyframes)}  # fmt: skip
 
 
-def _child(dataset: Path, src: Path | None) -> dict[str, object]:
+def _child(dataset: Path, src: Path | None, frames: int) -> dict[str, object]:
     """``measure_once`` in a fresh process (of ``src``'s quadnav when given)."""
     env = dict(os.environ)
     if src is not None:
         env["PYTHONPATH"] = str(src)
     done = subprocess.run(
-        [sys.executable, str(Path(__file__).resolve()), "--measure", str(dataset)],
+        [sys.executable, str(Path(__file__).resolve()), "--measure", str(dataset), str(frames)],
         capture_output=True, text=True, env=env, check=False,
     )  # fmt: skip
     if done.returncode != 0:
@@ -148,13 +157,13 @@ def _child(dataset: Path, src: Path | None) -> dict[str, object]:
     return dict(json.loads(done.stdout.strip().splitlines()[-1]))
 
 
-def _whole_process(dataset: Path, src: Path | None) -> float:
+def _whole_process(dataset: Path, src: Path | None, span: list[str]) -> float:
     env = dict(os.environ, MPLBACKEND="Agg")
     if src is not None:
         env["PYTHONPATH"] = str(src)
     with tempfile.TemporaryDirectory() as out:
         t0 = time.perf_counter()
-        subprocess.run([sys.executable, "-m", "quadnav", "slam", str(dataset), "--out", out],
+        subprocess.run([sys.executable, "-m", "quadnav", "slam", str(dataset), *span, "--out", out],
                        check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env)  # fmt: skip
         return time.perf_counter() - t0
 
@@ -235,8 +244,9 @@ def _print(name: str, res: dict[str, Any]) -> None:
                                for v in vs]))  # fmt: skip
     print(_row("tracking Hz", [(v["tracking_hz_best"], v["tracking_hz_median"],
                                 v["tracking_cpu_hz_best"]) for v in vs], ".1f"))  # fmt: skip
-    print(_row("whole process (s)", [(min(t), float(np.median(t)), float("nan"))
-                                     for t in res["process_s"].values()]))  # fmt: skip
+    if all(res["process_s"].values()):
+        print(_row("whole process (s)", [(min(t), float(np.median(t)), float("nan"))
+                                         for t in res["process_s"].values()]))  # fmt: skip
     orb = res.get("orb")
     if isinstance(orb, dict):
         ours = vs[0]["tracking_ms_median"]
@@ -255,10 +265,14 @@ def _measure(name: str, dataset: Path, args: argparse.Namespace) -> dict[str, An
     process: dict[str, list[float]] = {v: [] for v in srcs}
     for _ in range(args.repeats):
         for v, src in srcs.items():  # (in turn: both see the same machine)
-            runs[v].append(_child(dataset, src))
-    for _ in range(args.repeats):
+            runs[v].append(_child(dataset, src, args.frames))
+    first = runs["now"][0]  # (the whole process over the same pairs)
+    span = (
+        [] if args.frames <= 0 else ["--duration", f"{first['span_s'] + first['period_s'] / 2:.4f}"]
+    )
+    for _ in range(args.process_repeats):
         for v, src in srcs.items():
-            process[v].append(_whole_process(dataset, src))
+            process[v].append(_whole_process(dataset, src, span))
     res: dict[str, Any] = {
         "dataset": str(dataset), "resolution": runs["now"][0]["resolution"],
         "variants": {v: summarise(r) for v, r in runs.items()}, "process_s": process,
@@ -284,12 +298,15 @@ def _dataset(rig: str, given: Path | None) -> Path:
 
 def main() -> None:
     if "--measure" in _ARGS:  # (a child: one run, JSON on the last line)
-        print(json.dumps(measure_once(Path(_ARGS[_ARGS.index("--measure") + 1]))))
+        at = _ARGS.index("--measure")
+        print(json.dumps(measure_once(Path(_ARGS[at + 1]), int(_ARGS[at + 2]))))
         return
     parser = argparse.ArgumentParser(description="stereo SLAM speed on one core, per stage")
     parser.add_argument("--zed", type=Path, default=None, help="a 672x376 stereo EuRoC folder")
     parser.add_argument("--euroc", type=Path, default=None, help="a 752x480 stereo EuRoC folder")
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--frames", type=int, default=0, help="the first N pairs (0: all)")
+    parser.add_argument("--process-repeats", type=int, default=None, help="[default: --repeats]")
     parser.add_argument("--core", type=int, default=0)
     parser.add_argument("--before", type=Path, default=None, help="another quadnav's src/")
     parser.add_argument("--orb-venv", type=Path, default=None)
@@ -298,8 +315,11 @@ def main() -> None:
     )
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results/slam.json"))
     args = parser.parse_args()
-    if args.repeats < 1:
-        _fail(f"--repeats must be at least 1, got {args.repeats}")
+    args.process_repeats = args.repeats if args.process_repeats is None else args.process_repeats
+    for option, value, low in (("--repeats", args.repeats, 1), ("--frames", args.frames, 0),
+                               ("--process-repeats", args.process_repeats, 0)):  # fmt: skip
+        if value < low:
+            _fail(f"{option} must be at least {low}, got {value}")
     if args.before is not None and not (args.before / "quadnav" / "slam").is_dir():
         _fail(f"--before {args.before}: not a quadnav src/ folder with quadnav/slam/")
     import cv2

@@ -182,9 +182,12 @@ def _sads(
     patch -= patch[:, w : w + 1, w : w + 1]
     cols = (xr[:, None] + np.arange(-2 * w, 2 * w + 1))[:, None, :]
     strip = R.ravel()[rows // L.shape[1] * R.shape[1] + cols].astype(np.int16)
-    wins = np.lib.stride_tricks.sliding_window_view(strip, 2 * w + 1, axis=2)  # (n, r, shift, c)
-    centred = wins - strip[:, w, w : 3 * w + 1][:, None, :, None]  # (|differences| <= 510)
-    sads = np.abs(patch[:, :, None, :] - centred).sum(axis=(1, 3), dtype=np.int32)
+    sads = np.empty((len(x), 2 * w + 1), np.int32)
+    for s in range(2 * w + 1):  # (a shift at a time: small arrays, |differences| <= 510)
+        d = patch - strip[:, :, s : s + 2 * w + 1]
+        d += strip[:, w : w + 1, w + s : w + s + 1]  # (the window centred on its middle)
+        np.abs(d, out=d)
+        sads[:, s] = d.sum(axis=(1, 2), dtype=np.int32)
     return np.asarray(sads, np.float64)
 
 
