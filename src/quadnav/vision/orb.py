@@ -210,31 +210,43 @@ def _by_then_best(major: NDArray[np.int64], score: FloatArray) -> NDArray[np.int
     return np.lexsort((-score, major)).astype(np.int64)
 
 
-def _disc_moments() -> tuple[FloatArray, FloatArray]:
-    """The x and y weights of the intensity centroid over the disc of radius 15, flattened."""
-    r = PATCH_PX // 2
-    yy, xx = np.mgrid[-r : r + 1, -r : r + 1]
-    disc = (xx**2 + yy**2) <= r * r
-    return (xx * disc).astype(np.float64).ravel(), (yy * disc).astype(np.float64).ravel()
-
-
-_MOMENT_X, _MOMENT_Y = _disc_moments()
+#: the offsets 1..15 from the disc's centre, and the disc's half-width at each (a row's or a
+#: column's: the disc of radius 15 is symmetric)
+_OFFSET = np.arange(1, PATCH_PX // 2 + 1)
+_HALF = np.floor(np.sqrt((PATCH_PX // 2) ** 2 - _OFFSET**2) + 1e-9).astype(np.int64)
 
 
 def orientations(img: NDArray[np.uint8], uv: FloatArray) -> FloatArray:
     """ORB's orientation (degrees in [0, 360)) of the keypoints ``uv`` (N, 2) of ``img``: the
     angle of the intensity centroid of the disc of radius 15 around each (rounded to its pixel);
-    -1 where the disc leaves the image."""
+    -1 where the disc leaves the image. The moments from the image's integral: ``m01`` sums
+    each row of the disc times its offset, ``m10`` each column (whole numbers: exact)."""
+    import cv2
+
     r = PATCH_PX // 2
     x = np.rint(uv[:, 0]).astype(np.int64)
     y = np.rint(uv[:, 1]).astype(np.int64)
     h, w = img.shape
     ok = (x - r >= 0) & (x + r < w) & (y - r >= 0) & (y + r < h)
-    k = np.arange(-r, r + 1)
-    offsets = (k[:, None] * w + k[None, :]).ravel()  # (the disc's square, row by row)
-    flat = img.ravel()[(y[ok] * w + x[ok])[:, None] + offsets].astype(np.float64)
+    S = np.asarray(cv2.integral(img, sdepth=cv2.CV_32S)).ravel()  # (h + 1, w + 1), exact
+    xo, yo, d, a = x[ok, None], y[ok, None], _OFFSET[None, :], _HALF[None, :]
+
+    def box(y0: NDArray[np.int64], y1: NDArray[np.int64], x0: NDArray[np.int64],
+            x1: NDArray[np.int64]) -> NDArray[np.int64]:  # fmt: skip
+        """The sum of img[y0:y1, x0:x1]."""
+        W = w + 1
+        return np.asarray(S[y1 * W + x1] - S[y0 * W + x1] - S[y1 * W + x0] + S[y0 * W + x0])
+
+    m01 = d * (
+        box(yo + d, yo + d + 1, xo - a, xo + a + 1) - box(yo - d, yo - d + 1, xo - a, xo + a + 1)
+    )
+    m10 = d * (
+        box(yo - a, yo + a + 1, xo + d, xo + d + 1) - box(yo - a, yo + a + 1, xo - d, xo - d + 1)
+    )
     angle = np.full(len(uv), -1.0)
-    angle[ok] = np.degrees(np.arctan2(flat @ _MOMENT_Y, flat @ _MOMENT_X)) % 360.0
+    m01_sum = m01.sum(axis=1).astype(np.float64)
+    m10_sum = m10.sum(axis=1).astype(np.float64)
+    angle[ok] = np.degrees(np.arctan2(m01_sum, m10_sum)) % 360.0
     return angle
 
 
