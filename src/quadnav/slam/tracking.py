@@ -52,8 +52,6 @@ def search_by_projection(
     """Matches of map points (``X_W``, their ``descriptors`` and the ``octave`` they were seen
     at) to the frame's keypoints (those not ``taken``): (keypoint, point index, Hamming distance), each
     keypoint to at most one point (the nearest descriptor)."""
-    import itertools
-
     from scipy.spatial import cKDTree
 
     from quadnav.place.vocabulary import hamming
@@ -71,27 +69,40 @@ def search_by_projection(
     P = np.flatnonzero(front)
     if len(P) == 0 or len(f) == 0:
         return none, none, none
-    # every point's keypoints within its window at once, each list in the tree's order
-    near = cKDTree(f.uv_px).query_ball_point(
-        np.column_stack([u[P], v[P]]), radius_px * scale[P], return_sorted=False
-    )
-    counts = np.fromiter(map(len, near), np.int64, len(near))
-    cand = np.fromiter(itertools.chain.from_iterable(near), np.int64, int(counts.sum()))
+    # every point's keypoints within its window at once: those in its column band, then in its
+    # circle; a tie goes to the keypoint a KD-tree over them lists first (its leaves' order)
+    tree_order = cKDTree(f.uv_px).indices.astype(np.int64)
+    leaf = np.empty(len(f), np.int64)
+    leaf[tree_order] = np.arange(len(f))
+    by_u = np.argsort(f.uv_px[:, 0], kind="stable")
+    r = radius_px * scale[P]
+    a = np.searchsorted(f.uv_px[by_u, 0], u[P] - r, side="left")
+    counts = np.searchsorted(f.uv_px[by_u, 0], u[P] + r, side="right") - a
     p = np.repeat(P, counts)
-    rank = np.arange(len(cand)) - np.repeat(np.cumsum(counts) - counts, counts)
+    cand = by_u[np.arange(int(counts.sum())) + np.repeat(a - (np.cumsum(counts) - counts), counts)]
+    du, dv = f.uv_px[cand, 0] - u[p], f.uv_px[cand, 1] - v[p]
+    inside = du * du + dv * dv <= np.repeat(r * r, counts)
+    cand, p = cand[inside], p[inside]
+    rank = leaf[cand]
     ok = ~taken[cand] & (np.abs(f.octave[cand] - octave[p]) <= 1)
     u_r = frame.stereo.u_right[cand]
     ok &= (u_r < 0) | (np.abs(u_r - ur[p]) <= radius_px * scale[p])
     cand, p, rank = cand[ok], p[ok], rank[ok]
+    if len(cand) == 0:
+        return none, none, none
     d = hamming(f.descriptors[cand], descriptors[p]).astype(np.int64)
-    # each point's nearest keypoint (the first in its list on a tie) within max_hamming ...
-    o = np.lexsort((rank, d, p))
-    o = o[np.r_[True, p[o][1:] != p[o][:-1]]] if len(o) else o
-    o = o[d[o] <= max_hamming]
+    # each point's nearest keypoint (the first in the tree's order on a tie) within max_hamming:
+    # the least of distance * n + leaf over each point's run (p is in runs, ascending)
+    n = len(f)
+    starts = np.flatnonzero(np.r_[True, p[1:] != p[:-1]])
+    best = np.minimum.reduceat(d * n + rank, starts)
+    pt, dist, kp = p[starts], best // n, tree_order[best % n]
+    keep = dist <= max_hamming
+    pt, dist, kp = pt[keep], dist[keep], kp[keep]
     # ... and each keypoint's nearest point (the lower index on a tie)
-    o = o[np.lexsort((p[o], d[o], cand[o]))]
-    o = o[np.r_[True, cand[o][1:] != cand[o][:-1]]] if len(o) else o
-    return cand[o].astype(np.int64), p[o].astype(np.int64), d[o].astype(np.int64)
+    o = np.lexsort((pt, dist, kp))
+    o = o[np.r_[True, kp[o][1:] != kp[o][:-1]]] if len(o) else o
+    return kp[o], pt[o], dist[o]
 
 
 @dataclass
