@@ -27,23 +27,13 @@ from __future__ import annotations
 import os
 import sys
 
-
-def _fail(message: str) -> None:
-    """A bad input: one line naming the option or path, exit code 2 (as the CLI does)."""
-    print(f"error: {message}", file=sys.stderr)
-    raise SystemExit(2)
-
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from one_core import fail as _fail
+from one_core import pin_to_core
 
 # Before numpy, OpenCV or GTSAM load: their thread pools see one core.
 _ARGS = sys.argv[1:]
-_CORE_ARG = _ARGS[_ARGS.index("--core") + 1] if "--core" in _ARGS[:-1] else "0"
-try:
-    _CORE = int(_CORE_ARG)
-    os.sched_setaffinity(0, {_CORE})
-except (ValueError, OSError):
-    _fail(f"--core {_CORE_ARG}: not one of this machine's cores {sorted(os.sched_getaffinity(0))}")
-for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-    os.environ[_v] = "1"
+_CORE = pin_to_core(_ARGS)
 
 import argparse  # noqa: E402
 import json  # noqa: E402

@@ -76,3 +76,23 @@ def test_loop_benchmark_refuses_bad_input_in_one_line(args: list[str], message: 
     )  # fmt: skip
     assert done.returncode == 2, done.stderr
     assert done.stderr.strip().splitlines() == [message], done.stderr
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--repeats", "0"], "error: --repeats must be at least 1, got 0"),
+        (["--frames", "-1"], "error: --frames must be at least 0, got -1"),
+        (["--core", "9999"], "error: --core 9999: not one of this machine's cores"),
+        (["--before", "/tmp"], "error: --before /tmp: not a quadnav src/ folder"),
+        (["--zed", "/no/such/dataset"], "error: --zed /no/such/dataset: not an EuRoC folder"),
+    ],
+)
+def test_slam_benchmark_refuses_bad_input_in_one_line(args: list[str], message: str) -> None:
+    done = subprocess.run(
+        [sys.executable, str(ROOT / "benchmarks" / "slam.py"), *args],
+        cwd=ROOT, capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert done.returncode == 2, done.stderr
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(message), done.stderr

@@ -76,3 +76,19 @@ def test_bad_settings_and_images_are_one_line() -> None:
         OrbExtractor().extract(np.zeros((20, 20), np.uint8))
     f, _ = OrbExtractor().extract(np.zeros((480, 752), np.uint8))  # no texture: no features
     assert len(f) == 0 and f.descriptors.shape == (0, 32)
+
+
+@pytest.mark.parametrize("theta_deg", [0.0, 37.0, 90.0, 163.0, 250.0, 321.0])
+def test_orientation_points_to_the_bright_side(theta_deg: float) -> None:
+    """A bright half-plane turned by theta about the keypoint: the intensity centroid of the
+    disc lies along theta (to 1.5 degrees: the pixel grid); a keypoint whose disc leaves the
+    image gets -1."""
+    from quadnav.vision.orb import orientations
+
+    t = np.radians(theta_deg)
+    yy, xx = np.mgrid[0:100, 0:120].astype(float)
+    side = (xx - 60.0) * np.cos(t) + (yy - 50.0) * np.sin(t)  # (a smooth edge through it)
+    img = np.rint(115.0 + 85.0 * np.tanh(side / 2.0)).astype(np.uint8)
+    got = orientations(img, np.array([[60.0, 50.0], [10.0, 50.0], [60.0, 90.0]]))
+    assert abs((got[0] - theta_deg + 180.0) % 360.0 - 180.0) < 1.5, got[0]
+    assert got[1] == -1.0 and got[2] == -1.0

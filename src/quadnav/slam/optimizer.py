@@ -14,7 +14,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
-from quadnav.geometry.rotations import Pose
+from quadnav.geometry.rotations import Pose, so3_exp
 
 if TYPE_CHECKING:  # (GTSAM loads only for a bundle adjustment)
     import gtsam
@@ -35,29 +35,37 @@ class PoseFit:
 
 def _residuals(
     R: FloatArray, t: FloatArray, X_W: FloatArray, uv: FloatArray, ur: FloatArray,
-    cam: tuple[float, float, float, float, float],
-) -> tuple[FloatArray, FloatArray, FloatArray]:  # fmt: skip
+    cam: tuple[float, float, float, float, float], *, jacobians: bool = True,
+) -> tuple[FloatArray, FloatArray | None, FloatArray]:  # fmt: skip
     """Residuals (N, 3; the third 0 for mono), their Jacobians (N, 3, 6) with respect to a
-    perturbation ``X_C' = Exp(w) X_C + v`` (w first), and the points in the camera."""
+    perturbation ``X_C' = Exp(w) X_C + v`` (w first; None unless ``jacobians``), and the
+    points in the camera."""
     fx, fy, cx, cy, bf = cam
     X = X_W @ R.T + t
-    x, y, z = X[:, 0], X[:, 1], np.maximum(X[:, 2], 1e-6)
-    u_hat, v_hat = fx * x / z + cx, fy * y / z + cy
+    X0, X1, X2 = X[:, 0], X[:, 1], X[:, 2]
+    z = np.maximum(X2, 1e-6)
+    iz = 1.0 / z
+    u_hat, v_hat = fx * X0 * iz + cx, fy * X1 * iz + cy
     stereo = ur >= 0
-    r = np.column_stack(
-        [uv[:, 0] - u_hat, uv[:, 1] - v_hat, np.where(stereo, ur - (u_hat - bf / z), 0.0)]
-    )
-    J_X = np.zeros((len(X), 3, 3))
-    J_X[:, 0, 0], J_X[:, 0, 2] = fx / z, -fx * x / z**2
-    J_X[:, 1, 1], J_X[:, 1, 2] = fy / z, -fy * y / z**2
-    J_X[:, 2, 0], J_X[:, 2, 2] = fx / z, -(fx * x - bf) / z**2
-    J_X[~stereo, 2, :] = 0.0
-    S = np.zeros((len(X), 3, 3))  # [X_C]x
-    S[:, 0, 1], S[:, 0, 2], S[:, 1, 2] = -X[:, 2], X[:, 1], -X[:, 0]
-    S[:, 1, 0], S[:, 2, 0], S[:, 2, 1] = X[:, 2], -X[:, 1], X[:, 0]
-    # dX_C/dw = -[X_C]x, dX_C/dv = I; r = z - h, so its Jacobian is -dh
-    J_xi = np.concatenate([np.einsum("nij,njk->nik", J_X, S), -J_X], axis=2)
-    return r, J_xi, X
+    r = np.empty((len(X), 3))
+    r[:, 0], r[:, 1] = uv[:, 0] - u_hat, uv[:, 1] - v_hat
+    r[:, 2] = np.where(stereo, ur - (u_hat - bf * iz), 0.0)
+    if not jacobians:
+        return r, None, X
+    # dh/dX_C per row (a0, a1, a2); r = z - h and dX_C/dw = -[X_C]x, dX_C/dv = I, so each row
+    # of the Jacobian is (a [X_C]x, -a), with a [X]x = (a1 X2 - a2 X1, a2 X0 - a0 X2, a0 X1 - a1 X0)
+    J = np.zeros((len(X), 3, 6))
+    a0, a2 = fx * iz, -fx * X0 * iz**2
+    J[:, 0, 0], J[:, 0, 1], J[:, 0, 2] = -a2 * X1, a2 * X0 - a0 * X2, a0 * X1
+    J[:, 0, 3], J[:, 0, 5] = -a0, -a2
+    b1, b2 = fy * iz, -fy * X1 * iz**2
+    J[:, 1, 0], J[:, 1, 1], J[:, 1, 2] = b1 * X2 - b2 * X1, b2 * X0, -b1 * X0
+    J[:, 1, 4], J[:, 1, 5] = -b1, -b2
+    c2 = np.where(stereo, -(fx * X0 - bf) * iz**2, 0.0)
+    c0 = np.where(stereo, a0, 0.0)
+    J[:, 2, 0], J[:, 2, 1], J[:, 2, 2] = -c2 * X1, c2 * X0 - c0 * X2, c0 * X1
+    J[:, 2, 3], J[:, 2, 5] = -c0, -c2
+    return r, J, X
 
 
 def optimize_pose(
@@ -78,21 +86,23 @@ def optimize_pose(
         robust = rnd < rounds - 1
         for _ in range(iterations):
             r, J, X = _residuals(R, t, X_W, uv_px, u_right_px, cam)
+            assert J is not None
             chi2 = info * (r**2).sum(axis=1)
             w = info * np.where(
                 robust & (chi2 > gate), np.sqrt(gate / np.maximum(chi2, 1e-12)), 1.0
             )
             w = np.where(use & (X[:, 2] > 0), w, 0.0)
-            H = np.einsum("n,nij,nik->jk", w, J, J)
-            g = np.einsum("n,nij,ni->j", w, J, r)
+            WJ = (w[:, None, None] * J).reshape(-1, 6)  # (one matrix product each)
+            H = WJ.T @ J.reshape(-1, 6)
+            g = WJ.T @ r.reshape(-1)
             if not np.isfinite(H).all() or np.linalg.cond(H) > 1e12:
                 break
             dx = -np.linalg.solve(H, g)
-            dR = Rotation.from_rotvec(dx[:3]).as_matrix()
+            dR = so3_exp(np.asarray(dx[:3], np.float64))
             R, t = dR @ R, dR @ t + dx[3:]
             if np.linalg.norm(dx) < 1e-8:
                 break
-        r, _, X = _residuals(R, t, X_W, uv_px, u_right_px, cam)
+        r, _, X = _residuals(R, t, X_W, uv_px, u_right_px, cam, jacobians=False)
         chi2 = info * (r**2).sum(axis=1)
         use = (chi2 <= gate) & (X[:, 2] > 0)
     pose = Pose(R_A_B=Rotation.from_matrix(R), p_A_B=t)

@@ -66,6 +66,8 @@ def search_by_projection(
     keypoint to at most one point (the nearest descriptor)."""
     from scipy.spatial import cKDTree
 
+    from quadnav.place.vocabulary import hamming
+
     c, f = frame.camera, frame.features
     taken = np.zeros(len(f), bool) if taken is None else taken
     X = T_C_W @ X_W if len(X_W) else np.zeros((0, 3))
@@ -74,28 +76,45 @@ def search_by_projection(
     u = np.where(front, c.fx * X[:, 0] / np.where(front, z, 1) + c.cx, -1e9)
     v = np.where(front, c.fy * X[:, 1] / np.where(front, z, 1) + c.cy, -1e9)
     ur = u - c.bf / np.where(front, z, 1)
-    tree = cKDTree(f.uv_px)
     scale = f.scales[np.minimum(octave, len(f.scales) - 1)]
-    best: dict[int, tuple[int, int]] = {}
-    for p in np.flatnonzero(front):
-        cand = np.asarray(tree.query_ball_point((u[p], v[p]), radius_px * scale[p]), np.int64)
-        if len(cand) == 0:
-            continue
-        cand = cand[~taken[cand] & (np.abs(f.octave[cand] - octave[p]) <= 1)]
-        stereo = frame.stereo.u_right[cand] >= 0
-        cand = cand[~stereo | (np.abs(frame.stereo.u_right[cand] - ur[p]) <= radius_px * scale[p])]
-        if len(cand) == 0:
-            continue
-        d = np.unpackbits(f.descriptors[cand] ^ descriptors[p], axis=1).sum(axis=1)
-        k = int(np.argmin(d))
-        if d[k] <= max_hamming and (int(cand[k]) not in best or d[k] < best[int(cand[k])][1]):
-            best[int(cand[k])] = (int(p), int(d[k]))
-    kp = np.array(sorted(best), np.int64)
-    return (
-        kp,
-        np.array([best[k][0] for k in kp], np.int64),
-        np.array([best[k][1] for k in kp], np.int64),
-    )
+    none = np.zeros(0, np.int64)
+    P = np.flatnonzero(front)
+    if len(P) == 0 or len(f) == 0:
+        return none, none, none
+    # every point's keypoints within its window at once: those in its column band, then in its
+    # circle; a tie goes to the keypoint a KD-tree over them lists first (its leaves' order)
+    tree_order = cKDTree(f.uv_px).indices.astype(np.int64)
+    leaf = np.empty(len(f), np.int64)
+    leaf[tree_order] = np.arange(len(f))
+    by_u = np.argsort(f.uv_px[:, 0], kind="stable")
+    r = radius_px * scale[P]
+    a = np.searchsorted(f.uv_px[by_u, 0], u[P] - r, side="left")
+    counts = np.searchsorted(f.uv_px[by_u, 0], u[P] + r, side="right") - a
+    p = np.repeat(P, counts)
+    cand = by_u[np.arange(int(counts.sum())) + np.repeat(a - (np.cumsum(counts) - counts), counts)]
+    du, dv = f.uv_px[cand, 0] - u[p], f.uv_px[cand, 1] - v[p]
+    inside = du * du + dv * dv <= np.repeat(r * r, counts)
+    cand, p = cand[inside], p[inside]
+    rank = leaf[cand]
+    ok = ~taken[cand] & (np.abs(f.octave[cand] - octave[p]) <= 1)
+    u_r = frame.stereo.u_right[cand]
+    ok &= (u_r < 0) | (np.abs(u_r - ur[p]) <= radius_px * scale[p])
+    cand, p, rank = cand[ok], p[ok], rank[ok]
+    if len(cand) == 0:
+        return none, none, none
+    d = hamming(f.descriptors[cand], descriptors[p]).astype(np.int64)
+    # each point's nearest keypoint (the first in the tree's order on a tie) within max_hamming:
+    # the least of distance * n + leaf over each point's run (p is in runs, ascending)
+    n = len(f)
+    starts = np.flatnonzero(np.r_[True, p[1:] != p[:-1]])
+    best = np.minimum.reduceat(d * n + rank, starts)
+    pt, dist, kp = p[starts], best // n, tree_order[best % n]
+    keep = dist <= max_hamming
+    pt, dist, kp = pt[keep], dist[keep], kp[keep]
+    # ... and each keypoint's nearest point (the lower index on a tie)
+    o = np.lexsort((pt, dist, kp))
+    o = o[np.r_[True, kp[o][1:] != kp[o][:-1]]] if len(o) else o
+    return kp[o], pt[o], dist[o]
 
 
 @dataclass

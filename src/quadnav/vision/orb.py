@@ -15,7 +15,6 @@ on its level's image; positions are given at level 0.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -23,7 +22,7 @@ from numpy.typing import NDArray
 from quadnav.errors import VisionError
 from quadnav.vision.tracking import as_grey
 
-__all__ = ["OrbConfig", "OrbExtractor", "OrbFeatures", "level_shares"]
+__all__ = ["OrbConfig", "OrbExtractor", "OrbFeatures", "level_shares", "orientations"]
 
 FloatArray = NDArray[np.float64]
 #: ORB's patch (pixels at the keypoint's level) and the border it needs.
@@ -119,47 +118,55 @@ class OrbExtractor:
         levels = self.pyramid(image)
         scales = self.config.scales()
         parts = [self._level(img, int(self._shares[k])) for k, img in enumerate(levels)]
-        kps = [kp for part in parts for kp in part[0]]
-        if not kps:
-            return _empty(scales), levels
         octave = np.concatenate([np.full(len(p[0]), k, np.int64) for k, p in enumerate(parts)])
-        desc = np.concatenate([p[1] for p in parts if len(p[0])]).astype(np.uint8)
+        if len(octave) == 0:
+            return _empty(scales), levels
+        uv, angle, score, desc = (np.concatenate([p[i] for p in parts]) for i in range(4))
         s = scales[octave]
         return (
             OrbFeatures(
-                uv_px=np.array([kp.pt for kp in kps], np.float64) * s[:, None],
-                octave=octave,
-                angle_deg=np.array([kp.angle for kp in kps], np.float64),
-                response=np.array([kp.response for kp in kps], np.float64),
-                size_px=PATCH_PX * s,
-                descriptors=desc,
-                scales=scales,
+                uv_px=uv * s[:, None], octave=octave, angle_deg=angle, response=score,
+                size_px=PATCH_PX * s, descriptors=desc.astype(np.uint8), scales=scales,
             ),
             levels,
-        )
-
-    def _level(self, img: NDArray[np.uint8], want: int) -> tuple[list[Any], NDArray[np.uint8]]:
-        """One level's keypoints (in its pixels) spread over its grid, oriented, described."""
-        h, w = img.shape
-        corners = [
-            k for k in self._fast.detect(img)
-            if EDGE_PX <= k.pt[0] < w - EDGE_PX and EDGE_PX <= k.pt[1] < h - EDGE_PX
-        ]  # fmt: skip
-        if want <= 0 or not corners:
-            return [], np.zeros((0, 32), np.uint8)
-        keep = spread(
-            np.array([k.pt for k in corners], np.float64),
-            np.array([k.response for k in corners], np.float64),
-            want, (w, h), self.config.ini_fast,
         )  # fmt: skip
-        chosen = [corners[i] for i in keep]
-        for k in chosen:
-            k.size = float(PATCH_PX)
-            k.octave = 0  # (described on its own level's image)
-        got, desc = self._orb.compute(img, _oriented(img, chosen))
+
+    def _level(
+        self, img: NDArray[np.uint8], want: int
+    ) -> tuple[FloatArray, FloatArray, FloatArray, NDArray[np.uint8]]:
+        """One level's keypoints (in its pixels) spread over its grid, oriented, described:
+        positions (n, 2), angles, FAST scores (as OpenCV's keypoints hold them, in float32) and
+        descriptors (n, 32)."""
+        import cv2
+
+        h, w = img.shape
+        # FAST inside the border only (4 px wider than it: a kept corner's circle and the
+        # neighbours its non-maximum suppression compares it with are all seen)
+        m = EDGE_PX - 4
+        found = self._fast.detect(img[m : h - m, m : w - m]) if want > 0 else ()
+        uv = np.asarray(cv2.KeyPoint.convert(found), np.float64).reshape(-1, 2) + m
+        score = np.fromiter((k.response for k in found), np.float64, len(found))
+        inside = (uv[:, 0] >= EDGE_PX) & (uv[:, 0] < w - EDGE_PX)
+        inside &= (uv[:, 1] >= EDGE_PX) & (uv[:, 1] < h - EDGE_PX)
+        uv, score = uv[inside], score[inside]
+        if len(uv) == 0:
+            return np.zeros((0, 2)), np.zeros(0), np.zeros(0), np.zeros((0, 32), np.uint8)
+        keep = spread(uv, score, want, (w, h), self.config.ini_fast)
+        uv, score = uv[keep], score[keep]
+        angle = orientations(img, uv).astype(np.float32).astype(np.float64)
+        chosen = [
+            cv2.KeyPoint(x, y, float(PATCH_PX), a, r, 0)  # (described on its level's image)
+            for x, y, a, r in zip(uv[:, 0].tolist(), uv[:, 1].tolist(), angle.tolist(),
+                                  score.tolist(), strict=True)
+        ]  # fmt: skip
+        got, desc = self._orb.compute(img, chosen)
         if desc is None or not got:
-            return [], np.zeros((0, 32), np.uint8)
-        return list(got), np.asarray(desc, np.uint8)
+            return np.zeros((0, 2)), np.zeros(0), np.zeros(0), np.zeros((0, 32), np.uint8)
+        if len(got) != len(chosen):  # (OpenCV dropped some: read back the ones it kept)
+            uv = np.array([k.pt for k in got], np.float64)
+            angle = np.array([k.angle for k in got], np.float64)
+            score = np.array([k.response for k in got], np.float64)
+        return uv, angle, score, np.asarray(desc, np.uint8)
 
 
 def spread(
@@ -182,34 +189,65 @@ def spread(
     has_strong[cid[score >= strong]] = True
     usable = (score >= strong) | ~has_strong[cid]
     idx = np.flatnonzero(usable)
-    order = idx[np.lexsort((-score[idx], cid[idx]))]  # by cell, best first
+    order = idx[_by_then_best(cid[idx], score[idx])]  # by cell, best first
     cells = cid[order]
     first = np.r_[0, np.flatnonzero(np.diff(cells)) + 1]
     rank = np.arange(len(order)) - np.repeat(first, np.diff(np.r_[first, len(order)]))
     # round by round (each cell's best, then its second...), the stronger first in a round
-    picked = order[np.lexsort((-score[order], rank))][:want]
+    picked = order[_by_then_best(rank, score[order])][:want]
     if len(picked) < want:  # (too few usable: the weaker corners of strong cells fill in)
         rest = np.setdiff1d(np.arange(n), picked)
         picked = np.r_[picked, rest[np.argsort(-score[rest])][: want - len(picked)]]
     return np.sort(picked).astype(np.int64)
 
 
-def _oriented(img: NDArray[np.uint8], kps: list[Any]) -> list[Any]:
-    """The keypoints with ORB's orientation: the angle of the intensity centroid of the disc of
-    radius 15 around each."""
+def _by_then_best(major: NDArray[np.int64], score: FloatArray) -> NDArray[np.int64]:
+    """The order by ``major``, then by ``score`` high to low, then as given (a stable
+    ``lexsort((-score, major))``); FAST's scores, whole numbers in [0, 255], in one key."""
+    if len(score) and score.min() >= 0 and score.max() <= 255 and (score == np.rint(score)).all():
+        key = major.astype(np.int64) * 256 + (255 - score.astype(np.int64))
+        return np.argsort(key, kind="stable").astype(np.int64)
+    return np.lexsort((-score, major)).astype(np.int64)
+
+
+#: the offsets 1..15 from the disc's centre, and the disc's half-width at each (a row's or a
+#: column's: the disc of radius 15 is symmetric)
+_OFFSET = np.arange(1, PATCH_PX // 2 + 1)
+_HALF = np.floor(np.sqrt((PATCH_PX // 2) ** 2 - _OFFSET**2) + 1e-9).astype(np.int64)
+
+
+def orientations(img: NDArray[np.uint8], uv: FloatArray) -> FloatArray:
+    """ORB's orientation (degrees in [0, 360)) of the keypoints ``uv`` (N, 2) of ``img``: the
+    angle of the intensity centroid of the disc of radius 15 around each (rounded to its pixel);
+    -1 where the disc leaves the image. The moments from the image's integral: ``m01`` sums
+    each row of the disc times its offset, ``m10`` each column (whole numbers: exact)."""
+    import cv2
+
     r = PATCH_PX // 2
-    yy, xx = np.mgrid[-r : r + 1, -r : r + 1]
-    disc = (xx**2 + yy**2) <= r * r
-    f = img.astype(np.float64)
-    for k in kps:
-        x, y = round(k.pt[0]), round(k.pt[1])
-        patch = f[y - r : y + r + 1, x - r : x + r + 1]
-        if patch.shape != disc.shape:
-            continue
-        m01 = float((patch * yy)[disc].sum())
-        m10 = float((patch * xx)[disc].sum())
-        k.angle = float(np.degrees(np.arctan2(m01, m10)) % 360.0)
-    return kps
+    x = np.rint(uv[:, 0]).astype(np.int64)
+    y = np.rint(uv[:, 1]).astype(np.int64)
+    h, w = img.shape
+    ok = (x - r >= 0) & (x + r < w) & (y - r >= 0) & (y + r < h)
+    S = np.asarray(cv2.integral(img, sdepth=cv2.CV_32S)).ravel()  # (h + 1, w + 1), exact
+    xo, yo, d, a = x[ok, None], y[ok, None], _OFFSET[None, :], _HALF[None, :]
+
+    def box(y0: NDArray[np.int64], y1: NDArray[np.int64], x0: NDArray[np.int64],
+            x1: NDArray[np.int64]) -> NDArray[np.int64]:  # fmt: skip
+        """The sum of img[y0:y1, x0:x1]."""
+        W = w + 1
+        return np.asarray(S[y1 * W + x1] - S[y0 * W + x1] - S[y1 * W + x0] + S[y0 * W + x0])
+
+    m01 = d * (
+        box(yo + d, yo + d + 1, xo - a, xo + a + 1) - box(yo - d, yo - d + 1, xo - a, xo + a + 1)
+    )
+    m10 = d * (
+        box(yo - a, yo + a + 1, xo + d, xo + d + 1) - box(yo - a, yo + a + 1, xo - d, xo - d + 1)
+    )
+    angle = np.full(len(uv), -1.0)
+    m01_sum = m01.sum(axis=1).astype(np.float64)
+    m10_sum = m10.sum(axis=1).astype(np.float64)
+    angle[ok] = np.degrees(np.arctan2(m01_sum, m10_sum)) % 360.0
+    return angle
 
 
 def _empty(scales: FloatArray) -> OrbFeatures:

@@ -59,21 +59,40 @@ class StereoKeypoints:
         return self.depth_m > 0
 
 
-def _row_index(right: OrbFeatures, rows: int) -> list[list[int]]:
-    """For each image row, the right keypoints within ``2 s`` rows of it."""
-    out: list[list[int]] = [[] for _ in range(rows)]
+def _hamming(a: NDArray[np.uint8], b: NDArray[np.uint8]) -> NDArray[np.int64]:
+    """Row-wise Hamming distances of ``(N, 32)`` uint8 descriptors (popcounts of 64-bit words)."""
+    x = np.bitwise_xor(
+        np.ascontiguousarray(a).view(np.uint64), np.ascontiguousarray(b).view(np.uint64)
+    )
+    return np.asarray(np.bitwise_count(x).sum(axis=1), np.int64)
+
+
+def _row_candidates(
+    left: OrbFeatures, right: OrbFeatures, rows: int, max_d: float
+) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """All (left, right) pairs the row search looks at: the right keypoint lies within ``2 s``
+    rows of the left one's row (``s``: its scale), one level apart at most, with a disparity in
+    ``[0, max_d)``; by left keypoint, then right keypoint."""
     v = right.uv_px[:, 1]
     r = 2.0 * right.scales[right.octave]
-    lo = np.clip(np.floor(v - r), 0, rows - 1).astype(int)
-    hi = np.clip(np.ceil(v + r), 0, rows - 1).astype(int)
-    for i, (a, b) in enumerate(zip(lo.tolist(), hi.tolist(), strict=True)):
-        for y in range(a, b + 1):
-            out[y].append(i)
-    return out
-
-
-def _hamming(a: NDArray[np.uint8], b: NDArray[np.uint8]) -> NDArray[np.int64]:
-    return np.asarray(np.unpackbits(a[None, :] ^ b, axis=1).sum(axis=1), np.int64)
+    lo = np.clip(np.floor(v - r), 0, rows - 1).astype(np.int64)
+    hi = np.clip(np.ceil(v + r), 0, rows - 1).astype(np.int64)
+    by_lo = np.argsort(lo, kind="stable")
+    lo_sorted = lo[by_lo]
+    y = np.clip(np.rint(left.uv_px[:, 1]), 0, rows - 1).astype(np.int64)
+    span = int((hi - lo).max())
+    a = np.searchsorted(lo_sorted, y - span, side="left")
+    b = np.searchsorted(lo_sorted, y, side="right")
+    counts = b - a
+    i = np.repeat(np.arange(len(left), dtype=np.int64), counts)
+    start = np.repeat(a - np.r_[0, np.cumsum(counts)[:-1]], counts)
+    j = by_lo[np.arange(len(i), dtype=np.int64) + start]
+    uL, uR = left.uv_px[i, 0], right.uv_px[j, 0]
+    ok = (hi[j] >= y[i]) & (np.abs(right.octave[j] - left.octave[i]) <= 1)
+    ok &= (uR <= uL) & (uR > uL - max_d)
+    i, j = i[ok], j[ok]
+    order = np.lexsort((j, i))
+    return i[order], j[order]
 
 
 def stereo_keypoints(
@@ -83,7 +102,9 @@ def stereo_keypoints(
 ) -> StereoKeypoints:  # fmt: skip
     """Each left keypoint's partner on a rectified pair (see the module): the features and the
     pyramids of :meth:`quadnav.vision.orb.OrbExtractor.extract`, the rectified focal length
-    (px) and the baseline (m)."""
+    (px) and the baseline (m). All keypoints at once: the candidates by row, their Hamming
+    distances, each left keypoint's nearest (the lower right index on a tie), the correlation
+    per pyramid level."""
     cfg = config or StereoConfig()
     if not (np.isfinite(fx) and fx > 0 and np.isfinite(baseline_m) and baseline_m > 0):
         raise VisionError(f"stereo needs fx > 0 and a baseline > 0, got {fx}, {baseline_m}")
@@ -91,32 +112,19 @@ def stereo_keypoints(
     u_right, depth, cost = np.full(n, -1.0), np.full(n, -1.0), np.full(n, np.inf)
     if n == 0 or len(right) == 0:
         return StereoKeypoints(u_right=u_right, depth_m=depth)
-    rows = left_levels[0].shape[0]
-    by_row = _row_index(right, rows)
     max_d = fx  # (fx b / b: nothing nearer than one baseline)
-    for i in range(n):
-        uL, vL = left.uv_px[i]
-        cand = by_row[min(max(round(vL), 0), rows - 1)]
-        if not cand:
-            continue
-        c = np.asarray(cand, np.int64)
-        uR = right.uv_px[c, 0]
-        ok = (np.abs(right.octave[c] - left.octave[i]) <= 1) & (uR <= uL) & (uR > uL - max_d)
-        c = c[ok]
-        if len(c) == 0:
-            continue
-        d = _hamming(left.descriptors[i], right.descriptors[c])
-        best = int(np.argmin(d))
-        if d[best] > cfg.max_hamming:
-            continue
-        refined = _refine(left, i, float(right.uv_px[c[best], 0]), left_levels, right_levels, cfg)
-        if refined is None:
-            continue
-        u, sad = refined
-        disparity = uL - u
-        if not 0 <= disparity < max_d:
-            continue
-        u_right[i], depth[i], cost[i] = u, fx * baseline_m / max(disparity, 0.01), sad
+    i, j = _row_candidates(left, right, left_levels[0].shape[0], max_d)
+    d = _hamming(left.descriptors[i], right.descriptors[j])
+    order = np.lexsort((j, d, i))  # per left keypoint: the nearest, then the lower index
+    first = np.r_[True, i[order][1:] != i[order][:-1]] if len(order) else np.zeros(0, bool)
+    best = order[first]
+    best = best[d[best] <= cfg.max_hamming]
+    i, j = i[best], j[best]
+    u, sad, ok = _refine(left, i, right.uv_px[j, 0], left_levels, right_levels, cfg)
+    disparity = left.uv_px[i, 0] - u
+    ok &= (disparity >= 0) & (disparity < max_d)
+    i, u, sad, disparity = i[ok], u[ok], sad[ok], disparity[ok]
+    u_right[i], depth[i], cost[i] = u, fx * baseline_m / np.maximum(disparity, 0.01), sad
     good = np.isfinite(cost)
     if good.any():
         cut = cfg.outlier_factor * float(np.median(cost[good]))
@@ -126,37 +134,61 @@ def stereo_keypoints(
 
 
 def _refine(
-    left: OrbFeatures, i: int, uR0: float, left_levels: list[NDArray[np.uint8]],
+    left: OrbFeatures, i: NDArray[np.int64], uR0: FloatArray, left_levels: list[NDArray[np.uint8]],
     right_levels: list[NDArray[np.uint8]], cfg: StereoConfig,
-) -> tuple[float, float] | None:  # fmt: skip
-    """The right coordinate refined by correlation at the keypoint's level, and its best sum of
-    absolute differences (None at a border or when the minimum is at the window's end)."""
-    o = int(left.octave[i])
-    s = float(left.scales[o])
-    L, R = left_levels[o].astype(np.float32), right_levels[o]
+) -> tuple[FloatArray, FloatArray, NDArray[np.bool_]]:  # fmt: skip
+    """The right coordinates ``uR0`` of left keypoints ``i`` refined by correlation at each
+    keypoint's level, their best sums of absolute differences, and which were refined (not at a
+    border, the minimum not at the window's end, the parabola's within a pixel)."""
+    u, sad, ok = np.zeros(len(i)), np.zeros(len(i)), np.zeros(len(i), bool)
     w = cfg.window_px
-    x, y = round(left.uv_px[i, 0] / s), round(left.uv_px[i, 1] / s)
-    xr = round(uR0 / s)
-    if y - w < 0 or y + w + 1 > L.shape[0] or x - w < 0 or x + w + 1 > L.shape[1]:
-        return None
-    if xr - 2 * w < 0 or xr + 2 * w + 1 > R.shape[1]:
-        return None
-    patch = L[y - w : y + w + 1, x - w : x + w + 1]
-    patch = patch - patch[w, w]
-    strip = R[y - w : y + w + 1, xr - 2 * w : xr + 2 * w + 1].astype(np.float32)
-    sads = np.empty(2 * w + 1, np.float64)
-    for k in range(2 * w + 1):  # shifts -w..w
-        win = strip[:, k : k + 2 * w + 1]
-        sads[k] = float(np.abs(patch - (win - win[w, w])).sum())
-    b = int(np.argmin(sads))
-    if b == 0 or b == 2 * w:
-        return None
-    d1, d2, d3 = sads[b - 1], sads[b], sads[b + 1]
-    denom = 2.0 * (d1 + d3 - 2.0 * d2)
-    delta = (d1 - d3) / denom if denom > 0 else 0.0
-    if not -1.0 <= delta <= 1.0:
-        return None
-    return s * (xr + (b - w) + delta), float(d2)
+    for o in np.unique(left.octave[i]):
+        at = np.flatnonzero(left.octave[i] == o)
+        s = float(left.scales[o])
+        L, R = left_levels[o], right_levels[o]
+        x = np.rint(left.uv_px[i[at], 0] / s).astype(np.int64)
+        y = np.rint(left.uv_px[i[at], 1] / s).astype(np.int64)
+        xr = np.rint(uR0[at] / s).astype(np.int64)
+        inside = (y - w >= 0) & (y + w + 1 <= min(L.shape[0], R.shape[0]))
+        inside &= (x - w >= 0) & (x + w + 1 <= L.shape[1])
+        inside &= (xr - 2 * w >= 0) & (xr + 2 * w + 1 <= R.shape[1])
+        at, x, y, xr = at[inside], x[inside], y[inside], xr[inside]
+        if len(at) == 0:
+            continue
+        sads = _sads(L, R, x, y, xr, w)
+        b = np.argmin(sads, axis=1)
+        inner = (b > 0) & (b < 2 * w)
+        at, b, sads, xr = at[inner], b[inner], sads[inner], xr[inner]
+        rows = np.arange(len(at))
+        d1, d2, d3 = sads[rows, b - 1], sads[rows, b], sads[rows, b + 1]
+        denom = 2.0 * (d1 + d3 - 2.0 * d2)
+        delta = np.where(denom > 0, (d1 - d3) / np.where(denom > 0, denom, 1.0), 0.0)
+        fine = np.abs(delta) <= 1.0
+        at = at[fine]
+        u[at] = s * ((xr[fine] + (b[fine] - w)) + delta[fine])
+        sad[at], ok[at] = d2[fine], True
+    return u, sad, ok
+
+
+def _sads(
+    L: NDArray[np.uint8], R: NDArray[np.uint8], x: NDArray[np.int64], y: NDArray[np.int64],
+    xr: NDArray[np.int64], w: int,
+) -> FloatArray:  # fmt: skip
+    """(n, 2 w + 1): the sum of absolute differences of each left window (centred on its middle
+    pixel) against the right window shifted -w..w about ``xr`` (each centred on its own)."""
+    k = np.arange(-w, w + 1)
+    rows = ((y[:, None] + k) * L.shape[1])[:, :, None]  # (flat indices: one gather each)
+    patch = L.ravel()[rows + (x[:, None] + k)[:, None, :]].astype(np.int16)
+    patch -= patch[:, w : w + 1, w : w + 1]
+    cols = (xr[:, None] + np.arange(-2 * w, 2 * w + 1))[:, None, :]
+    strip = R.ravel()[rows // L.shape[1] * R.shape[1] + cols].astype(np.int16)
+    sads = np.empty((len(x), 2 * w + 1), np.int32)
+    for s in range(2 * w + 1):  # (a shift at a time: small arrays, |differences| <= 510)
+        d = patch - strip[:, :, s : s + 2 * w + 1]
+        d += strip[:, w : w + 1, w + s : w + s + 1]  # (the window centred on its middle)
+        np.abs(d, out=d)
+        sads[:, s] = d.sum(axis=(1, 2), dtype=np.int32)
+    return np.asarray(sads, np.float64)
 
 
 def rgbd_keypoints(
