@@ -88,13 +88,20 @@ def main() -> None:
     ap.add_argument("--set", action="append", default=[], help="an override for every flight")
     ap.add_argument("--flights", default=",".join(FLIGHTS))
     args = ap.parse_args()
-    rows = []
-    for name in args.flights.split(","):
-        rows.append(_fly(name, "truth", 0, args.out, args.set))
-        rows.append(_fly(name, "serial_truth", 0, args.out, args.set))
-        rows += [_fly(name, "slam", s, args.out, args.set) for s in _seeds(args.seeds)]
+    rows: list[dict[str, object]] = []
+    names = args.flights.split(",")
     args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "summary.json").write_text(json.dumps(rows, indent=1))
+
+    def fly(name: str, source: str, seed: int) -> None:
+        rows.append(_fly(name, source, seed, args.out, args.set))
+        (args.out / "summary.json").write_text(json.dumps(rows, indent=1))
+
+    for name in names:
+        fly(name, "truth", 0)
+        fly(name, "serial_truth", 0)
+    for seed in _seeds(args.seeds):  # seed by seed: a run cut short has whole seeds
+        for name in names:
+            fly(name, "slam", seed)
     print(_table(rows))
 
 

@@ -326,23 +326,30 @@ _THESIS002_TRACK = {
 }
 _SQUARE = [(0.0, 0.0, 1.2), (1.2, 0.0, 1.2), (1.2, 1.2, 1.2), (0.0, 1.2, 1.2), (0.0, 0.0, 1.2)]
 #: Thesis 002's flights on its SLAM (sections 5.7-5.10), on the stereo SLAM's position sent as
-#: serial frames at 10 Hz: the hover at 1.2 m (the reference the position where the position
-#: loops were switched on), the 1 m sigmoids in x and y, the 1.2 m x 1.2 m square at 1.2 m.
+#: serial frames at 10 Hz: the hover at 1.2 m (switched on 0.4 m low, 0.28 m off sideways and a
+#: little tilted; its error taken after 6 s), the 1 m sigmoids in x and y, the 1.2 m x 1.2 m
+#: square at 1.2 m (0.5 m/s legs). Short flights: the SLAM on rendered images runs at a few
+#: frames a second.
 _SLAM_FLIGHTS: dict[str, dict[str, object]] = {
-    "hover": {"trajectory": _ring("hover", position_m=(0.0, 0.0, 1.2)), "duration_s": 15.0},
+    "hover": {
+        "trajectory": _ring("hover", position_m=(0.0, 0.0, 1.2)),
+        "initial": {"position_m": (0.2, -0.2, 0.8), "euler_rad": (0.03, -0.03, 0.0)},
+        "duration_s": 12.0,
+        "tracking_start_s": 6.0,
+    },
     "sigmoid": {
         "trajectory": _ring(
             "sigmoid",
             position_m=(0.0, 0.0, 1.2),
             amplitude_m=(1.0, 1.0, 0.0),
-            t_mid_s=8.0,
+            t_mid_s=7.0,
             duration_s=6.0,
         ),
-        "duration_s": 16.0,
+        "duration_s": 14.0,
     },
     "square": {
-        "trajectory": _ring("waypoints", points_m=_SQUARE, speed_m_s=0.4, hold_s=1.0),
-        "duration_s": 20.0,
+        "trajectory": _ring("waypoints", points_m=_SQUARE, speed_m_s=0.5, hold_s=0.5),
+        "duration_s": 15.0,
     },
 }
 _SLAM_CONTROLLERS = {"pd": {"controller": "pd", "el_pd_gains": "table_5_1"},
@@ -350,7 +357,7 @@ _SLAM_CONTROLLERS = {"pd": {"controller": "pd", "el_pd_gains": "table_5_1"},
 _THESIS002_SLAM = {
     f"thesis002_slam_{flight}_{c}": {
         "vehicle": "euler_lagrange",
-        "initial": {"position_m": (0.0, 0.0, 1.2)},
+        "initial": {"position_m": (0.0, 0.0, 1.2)},  # (the hover's own start replaces it)
         "position_source": "slam",
         **spec,
         **ctrl,
