@@ -122,7 +122,8 @@ def test_a_hover_on_the_slam_position_flies_as_on_the_truth_within_centimetres()
     )
     assert run.link is not None
     c, m = run.link.counts, run.link.metrics()
-    assert c["slam_frames"] == c["slam_states"] == c["frames_received"] == 40
+    # (pairs at 0, 0.1, ..., 4 s: the first at the start, the SLAM's origin)
+    assert c["slam_frames"] == c["slam_states"] == c["frames_received"] == 41
     assert float(m["sent_position_rmse_m"]) < 0.03  # type: ignore[arg-type]
     assert np.linalg.norm(run.p - truth.p, axis=1).max() < 0.05
     assert np.linalg.norm(truth.p[-1] - truth.p[0]) > 0.3  # (it did fly somewhere)

@@ -8,8 +8,8 @@ frames go through :class:`~quadnav.io.serial_frame.FrameSender` and
 * ``slam``: the stereo SLAM's (:class:`~quadnav.slam.odometry.SlamOdometry`) on the rig's
   images rendered in a 3-D world as the vehicle flies (the camera plumbing of
   :class:`~quadnav.experiments.vio_flight.VioCameraSensor`), moved from the SLAM's world (the
-  vehicle at its first tracked frame) into the flight's by the take-off pose the companion
-  knows (the configured initial pose);
+  vehicle at its first frame, taken at the start) into the flight's by the take-off pose the
+  companion knows (the configured initial pose);
 * ``serial_truth``: the true position at the frame rate (the link's own share of the error:
   10 Hz, whole centimetres, the Euler velocity).
 
@@ -205,4 +205,5 @@ def _slam_sensor(section: SerialLinkSection, path_W: FloatArray, seed: int) -> V
         effects=RenderEffects(read_noise_sigma=section.image_noise),
         cameras=names,
         rate_hz=section.camera_rate_hz,
+        first_ns=0,  # (the SLAM's world is the vehicle at its first frame: the take-off pose)
     )

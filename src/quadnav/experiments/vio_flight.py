@@ -184,8 +184,8 @@ class VioCameraSensor:
     returns at an image is the vehicle's :class:`OdometrySample` (and goes to ``sink``).
     ``cameras`` are rendered at each frame time in turn (a stereo SLAM takes both of a rig's:
     ``("cam0", "cam1")``), at the first one's rate or ``rate_hz`` (a SLAM that keeps up with
-    fewer frames than the camera gives); without ``imu`` no IMU sample is given (an odometry
-    that uses none)."""
+    fewer frames than the camera gives), the first at ``first_ns`` (one period in by default);
+    without ``imu`` no IMU sample is given (an odometry that uses none)."""
 
     def __init__(
         self,
@@ -199,6 +199,7 @@ class VioCameraSensor:
         camera: str = "cam0",
         cameras: tuple[str, ...] = (),
         rate_hz: float | None = None,
+        first_ns: int | None = None,
         sink: OdometrySink | None = None,
         save_map: bool = False,
     ) -> None:
@@ -209,7 +210,7 @@ class VioCameraSensor:
         self._T_V_Cs = tuple((n, rig.T_V_B @ rig.camera(n).T_B_C) for n in names)
         self._R_B_V = rig.T_V_B.R_A_B.inv().as_matrix()
         period = s_to_ns(1.0 / (rate_hz or spec.rate_hz))
-        self._camera = Ticker(period, first_ns=period)
+        self._camera = Ticker(period, first_ns=period if first_ns is None else first_ns)
         self._image_rng, self.sink = image_rng, sink
         self._save_map = save_map
         self._truth_B: list[_TrackRow] = []  # the rig's true pose at each camera frame
