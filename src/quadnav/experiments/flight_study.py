@@ -196,6 +196,15 @@ def plot_flight(run: FlightRun, folder: Path) -> list[Path]:
     return paths
 
 
+def _top_view_axes(ax: Any) -> None:
+    """A top view's axes: equal scales, x and y in metres, grid, legend."""
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=8)
+
+
 def _plot_top_view(run: FlightRun, folder: Path) -> Path:
     """The path from above with the reference, the obstacles and the waypoints."""
     fig, ax = plt.subplots(figsize=(8, 7), constrained_layout=True)
@@ -216,11 +225,7 @@ def _plot_top_view(run: FlightRun, folder: Path) -> Path:
     if run.config.controller == "waypoint_follower":
         pts = np.asarray(run.config.trajectory.points_m)
         ax.plot(pts[:, 0], pts[:, 1], "k^", label="waypoints")
-    ax.set_aspect("equal", adjustable="datalim")
-    ax.set_xlabel("x (m)")
-    ax.set_ylabel("y (m)")
-    ax.grid(True, alpha=0.3)
-    ax.legend(fontsize=8)
+    _top_view_axes(ax)
     ax.set_title(f"{run.config.name}: top view")
     fig.savefig(folder / "top_view.png", dpi=100)
     plt.close(fig)
@@ -252,11 +257,7 @@ def _write_link(run: FlightRun, run_dir: Path) -> Path:
     ax.plot(link.p_sent[:, 0], link.p_sent[:, 1], ".", ms=3, label=label)
     if np.isfinite(run.ref_p).all():
         ax.plot(run.ref_p[:, 0], run.ref_p[:, 1], "--", label="reference")
-    ax.set_aspect("equal", adjustable="datalim")
-    ax.set_xlabel("x (m)")
-    ax.set_ylabel("y (m)")
-    ax.grid(True, alpha=0.3)
-    ax.legend(fontsize=8)
+    _top_view_axes(ax)
     fig.suptitle(f"{run.config.name}: {label} against true and reference")
     path = run_dir / "plots" / "link.png"
     fig.savefig(path, dpi=100)
