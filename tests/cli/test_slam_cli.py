@@ -63,3 +63,15 @@ def test_a_bad_map_is_one_line_before_any_dataset_is_made(
     text = result.output.strip()
     assert len(text.splitlines()) == 1 and "--load-map" in text and named in text, text
     assert not (out / "datasets").exists()
+
+
+def test_a_serial_port_that_cannot_be_opened_is_one_line_before_anything_is_made(
+    tmp_path: Path,
+) -> None:
+    out = tmp_path / "runs"
+    port = str(tmp_path / "no_such_tty")
+    result = CliRunner().invoke(app, ["slam", "room_easy", "--serial", port, "--out", str(out)])
+    assert result.exit_code == 2, result.output
+    text = result.output.strip()
+    assert len(text.splitlines()) == 1 and f"serial port {port}" in text, text
+    assert not out.exists()

@@ -137,3 +137,52 @@ def test_link_serial_over_a_pseudo_terminal(tmp_path: Path) -> None:
     np.testing.assert_allclose([f.position_m for f in frames], np.round(pts * 100) / 100, atol=1e-9)
     bad = CliRunner().invoke(app, ["link", "serial", "/dev/does-not-exist", "--from", str(traj)])
     assert bad.exit_code == 2 and "serial port" in bad.output
+
+
+def test_sender_paces_a_faster_estimate_to_its_rate_and_counts_what_it_cannot_send() -> None:
+    """Positions offered at 30 Hz for 2 s leave at 10 Hz (every third, 20 frames); a NaN and a
+    position beyond 6 digits of centimetres are not sent, counted, and do not delay the next."""
+    from quadnav.io.serial_frame import FrameSender
+
+    out: list[bytes] = []
+    s = FrameSender(out.append, rate_hz=10.0)
+    period = 1_000_000_000 // 30
+    for k in range(60):
+        s.offer(k * period, (0.01 * k, 0.0, 1.2))
+    assert s.sent == 20 and len(out) == 20
+    assert out[1] == encode(0.03, 0.0, 1.2)  # the third offer: the first due after 0.1 s
+    t = 60 * period + 200_000_000
+    assert s.offer(t, (float("nan"), 0.0, 0.0)) is None
+    assert s.offer(t, (1e5, 0.0, 0.0)) is None
+    assert s.unsendable == 2
+    assert s.offer(t, (1.0, 2.0, 3.0)) == b"X100Y200Z300F"
+    with pytest.raises(IoError, match="send rate"):
+        FrameSender(out.append, rate_hz=0.0)
+
+
+def test_receiver_over_a_pty_link_gives_the_positions_and_the_euler_velocity_under_noise() -> None:
+    """Frames of a 0.3 m/s ramp through a pseudo-terminal with random bytes between them (no
+    'X' among them: noise that would start a frame is the decoder's tests' matter): each
+    position is decoded to the centimetre, the velocity is the thesis's difference over 0.1 s,
+    and the garbage is counted byte for byte."""
+    from quadnav.io.serial_frame import FrameReceiver, FrameSender, PtyLink
+
+    rng = np.random.default_rng(3)
+    noise = bytes(b for b in range(256) if b != ord("X"))
+    junk_total = 0
+    with PtyLink() as link:
+        rx = FrameReceiver()
+        tx = FrameSender(link.write)
+        for k in range(40):
+            junk = bytes(rng.choice(list(noise), size=int(rng.integers(0, 6))))
+            link.write(junk)
+            junk_total += len(junk)
+            p = (0.03 * k, -0.5 + 0.012 * k, 1.2)
+            tx.offer(k * 100_000_000, p)
+            assert rx.feed(link.read()) == 1
+            assert rx.position_m == pytest.approx(p, abs=0.005)
+            if k > 0:
+                assert rx.velocity_m_s[0] == pytest.approx(0.3, abs=0.1 + 1e-9)  # 1 cm / 0.1 s
+    assert rx.decoder.frames == 40
+    # a byte of noise inside no frame is garbage; one after F but before the next X, too
+    assert rx.decoder.garbage_bytes == junk_total

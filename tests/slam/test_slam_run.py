@@ -179,3 +179,60 @@ def test_rgbd_runs_through_the_common_runner_and_counts_missing_depth(
     assert run.input_counts.get("missing_depth") == 1, run.input_counts
     with pytest.raises(SlamError, match="is RGB-D: the SLAM needs its depth images"):
         SlamOdometry(rgbd())
+
+
+def test_slam_serial_sends_the_tracked_positions_as_frames_at_10_hz(
+    tmp_path_factory: pytest.TempPathFactory,
+) -> None:
+    """``quadnav slam DATASET --serial PORT`` over a pseudo-terminal pair: the frames read at
+    the other end are the run's trajectory (estimate.tum) to the centimetre, in its order, one
+    every 0.1 s of it (the 20 Hz camera's every other state)."""
+    import os
+    import threading
+    import time
+    import tty
+
+    from typer.testing import CliRunner
+
+    from quadnav.cli.main import app
+    from quadnav.io.serial_frame import FrameDecoder
+    from quadnav.io.trajectory_io import read_trajectory
+
+    ds = rendered(tmp_path_factory, "room_easy", duration_s=2.0, still_s=0.5, rig="euroc", seed=2)
+    out = tmp_path_factory.mktemp("serial_runs")
+    master, slave = os.openpty()
+    tty.setraw(master)
+    received = bytearray()
+    done = threading.Event()
+
+    def reader() -> None:
+        import select
+
+        while not done.is_set():
+            if select.select([master], [], [], 0.05)[0]:
+                received.extend(os.read(master, 4096))
+
+    th = threading.Thread(target=reader, daemon=True)
+    th.start()
+    try:
+        res = CliRunner().invoke(
+            app, ["slam", str(ds.root), "--serial", os.ttyname(slave), "--out", str(out)]
+        )
+        time.sleep(0.3)
+    finally:
+        done.set()
+        th.join(timeout=2)
+        os.close(slave)
+        os.close(master)
+    assert res.exit_code == 0, res.output
+    frames = [f.position_m for f in FrameDecoder().feed(bytes(received))]
+    (run_dir,) = out.glob("*_slam_*")
+    traj = read_trajectory(run_dir / "estimate.tum")
+    span_s = (traj.t_ns[-1] - traj.t_ns[0]) * 1e-9
+    assert len(frames) == pytest.approx(span_s * 10 + 1, abs=1)
+    k = 0  # each frame is a later pose of the trajectory, rounded to the centimetre
+    for f in frames:
+        while k < len(traj.p_W_B) and np.abs(traj.p_W_B[k] - f).max() > 0.005 + 1e-9:
+            k += 1
+        assert k < len(traj.p_W_B), f"frame {f} is no pose of the trajectory after the last"
+        k += 1

@@ -47,6 +47,8 @@ MAX_SITL_S = 86_400.0  # --duration: a day at most
 EXAMPLES = (
     "quadnav sim --list",
     "quadnav sim thesis002_nested_tracking",
+    "quadnav sim thesis002_slam_square_pd",
+    "quadnav sim thesis002_slam_sigmoid_nested --set position_source=serial_truth",
     "quadnav sim circle_gusts --set wind.gust_sigma_m_s=3",
     "quadnav sim thesis003_obstacle --set duration_s=40",
     "quadnav sim thesis003_waypoints --set thesis003.kp_lin=0.3",

@@ -19,6 +19,7 @@ from quadnav.cli.common import (
     param,
     progress_bar,
 )
+from quadnav.cli.link import open_serial
 from quadnav.cli.planar import OutOpt
 from quadnav.cli.vio import BlackoutOpt, parse_blackout
 from quadnav.experiments.odometry_run import OdometryRun, OdometryRunOptions
@@ -153,14 +154,28 @@ def slam_command(
     localization_only: LocalizationOpt = False,
     blackout: BlackoutOpt = None,
     out: OutOpt = Path("runs"),
+    serial: Annotated[
+        str | None,
+        typer.Option(
+            "--serial",
+            help="also send each position as thesis 002's X<cm>Y<cm>Z<cm>F "
+            "frame at 10 Hz to this serial port (115200 8N1), as it is tracked",
+        ),
+    ] = None,
 ) -> None:
     request = resolve_slam_request(
         dataset, start_s, duration_s, seed, rig, out, features=features, th_depth=th_depth,
         loop=loop, save_map=save_map, load_map=load_map,
         localization_only=localization_only, blackout=blackout,
     )  # fmt: skip
-    with progress_bar("slam") as update:
-        run = run_slam_source(request, update)
+    link = None if serial is None else open_serial(serial, 115200)
+    write = None if link is None else link.write  # type: ignore[attr-defined]
+    try:
+        with progress_bar("slam") as update:
+            run = run_slam_source(request, update, serial=write)
+    finally:
+        if link is not None:
+            link.close()  # type: ignore[attr-defined]
     console.print(_table(run))
     for n in run.notes:
         console.print(f"note: {n}", highlight=False)

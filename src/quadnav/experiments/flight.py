@@ -48,7 +48,9 @@ from quadnav.control.trajectories import (
     TrajectoryGenerator,
     Waypoints,
 )
-from quadnav.errors import ControlError, ExperimentError, SimError
+from quadnav.errors import ControlError, ExperimentError, IoError, SimError
+from quadnav.experiments.slam_flight import SerialLinkSection, SerialPositionLoop, SerialRecord
+from quadnav.geometry.rotations import Pose
 from quadnav.messages import StateEstimate
 from quadnav.sim.euler_lagrange import EulerLagrangeParams, EulerLagrangeQuadrotor
 from quadnav.sim.rigid_body import RigidBodyQuadrotor, Wind
@@ -219,6 +221,13 @@ class FlightConfig(ConfigModel):
     el_nested: NestedGainsSection = NestedGainsSection()
     pid_gains: PidGainsSection = PidGainsSection()
     thesis003: Thesis003Section = Thesis003Section()
+    position_source: Literal["truth", "serial_truth", "slam"] = Field(
+        "truth",
+        description="euler_lagrange: the position the controller flies on, the true state's or "
+        "thesis 002's X<cm>Y<cm>Z<cm>F frames over a serial link (a pseudo-terminal pair) "
+        "carrying the true position or the stereo SLAM's",
+    )
+    link: SerialLinkSection = SerialLinkSection()
 
     @model_validator(mode="after")
     def _fits(self) -> Self:
@@ -237,6 +246,11 @@ class FlightConfig(ConfigModel):
             raise ValueError(
                 f"log_rate_hz ({self.log_rate_hz:g} Hz) logs fewer than 2 rows in duration_s "
                 f"({self.duration_s:g} s)"
+            )
+        if self.position_source != "truth" and self.vehicle != "euler_lagrange":
+            raise ValueError(
+                f"position_source {self.position_source}: only the euler_lagrange vehicle flies "
+                "on the serial frames"
             )
         if self.duration_s / self.dt_s > MAX_SIM_STEPS:
             raise ValueError(
@@ -310,13 +324,55 @@ _THESIS002_TRACK = {
     "duration_s": 40.0,
     "tracking_start_s": 10.0,
 }
-#: Built-in scenarios: thesis 002's four simulations, the circle with and without gusts, and
-#: thesis 003's take-off and obstacle experiments.
+_SQUARE = [(0.0, 0.0, 1.2), (1.2, 0.0, 1.2), (1.2, 1.2, 1.2), (0.0, 1.2, 1.2), (0.0, 0.0, 1.2)]
+#: Thesis 002's flights on its SLAM (sections 5.7-5.10), on the stereo SLAM's position sent as
+#: serial frames at 10 Hz: the hover at 1.2 m (switched on 0.4 m low, 0.28 m off sideways and a
+#: little tilted; its error taken after 6 s), the 1 m sigmoids in x and y, the 1.2 m x 1.2 m
+#: square at 1.2 m (0.5 m/s legs). Short flights: the SLAM on rendered images runs at a few
+#: frames a second.
+_SLAM_FLIGHTS: dict[str, dict[str, object]] = {
+    "hover": {
+        "trajectory": _ring("hover", position_m=(0.0, 0.0, 1.2)),
+        "initial": {"position_m": (0.2, -0.2, 0.8), "euler_rad": (0.03, -0.03, 0.0)},
+        "duration_s": 12.0,
+        "tracking_start_s": 6.0,
+    },
+    "sigmoid": {
+        "trajectory": _ring(
+            "sigmoid",
+            position_m=(0.0, 0.0, 1.2),
+            amplitude_m=(1.0, 1.0, 0.0),
+            t_mid_s=7.0,
+            duration_s=6.0,
+        ),
+        "duration_s": 14.0,
+    },
+    "square": {
+        "trajectory": _ring("waypoints", points_m=_SQUARE, speed_m_s=0.5, hold_s=0.5),
+        "duration_s": 15.0,
+    },
+}
+_SLAM_CONTROLLERS = {"pd": {"controller": "pd", "el_pd_gains": "table_5_1"},
+                     "nested": {"controller": "nested_saturation"}}  # fmt: skip
+_THESIS002_SLAM = {
+    f"thesis002_slam_{flight}_{c}": {
+        "vehicle": "euler_lagrange",
+        "initial": {"position_m": (0.0, 0.0, 1.2)},  # (the hover's own start replaces it)
+        "position_source": "slam",
+        **spec,
+        **ctrl,
+    }
+    for flight, spec in _SLAM_FLIGHTS.items()
+    for c, ctrl in _SLAM_CONTROLLERS.items()
+}
+#: Built-in scenarios: thesis 002's four simulations and its six flights on the SLAM, the circle
+#: with and without gusts, and thesis 003's take-off and obstacle experiments.
 BUILTIN: dict[str, dict[str, object]] = {
     "thesis002_pd_stabilization": {**_THESIS002_STAB, "controller": "pd"},
     "thesis002_nested_stabilization": {**_THESIS002_STAB, "controller": "nested_saturation"},
     "thesis002_pd_tracking": {**_THESIS002_TRACK, "controller": "pd"},
     "thesis002_nested_tracking": {**_THESIS002_TRACK, "controller": "nested_saturation"},
+    **_THESIS002_SLAM,
     "circle": {"duration_s": 30.0, "tracking_start_s": 8.0},
     "circle_gusts": {
         "duration_s": 30.0,
@@ -355,6 +411,16 @@ BUILTIN_DESCRIPTIONS: dict[str, str] = {
     "thesis002_nested_stabilization": "the same with thesis 002's nested saturations",
     "thesis002_pd_tracking": "thesis 002's PD laws on its 20 m sigmoids",
     "thesis002_nested_tracking": "nested saturations on the sigmoids",
+    **{
+        f"thesis002_slam_{f}_{c}": f"thesis 002's {what} with {law}, on the stereo SLAM's "
+        "position sent as X<cm>Y<cm>Z<cm>F frames at 10 Hz over a pseudo-terminal (ZED in a room)"
+        for f, what in (
+            ("hover", "hover at 1.2 m (5.9)"),
+            ("sigmoid", "1 m sigmoids (5.10)"),
+            ("square", "1.2 m x 1.2 m square (5.7)"),
+        )
+        for c, law in (("pd", "the PD laws (Table 5.1 gains)"), ("nested", "nested saturations"))
+    },
     "circle": "rigid body with the cascaded PID, 2 m radius at 1 m/s",
     "circle_gusts": "the circle in 2 m/s gusts",
     "thesis003_takeoff": "thesis 003's take-off P controller, then forward to (5, 0, 5)",
@@ -422,6 +488,8 @@ class FlightRun:
     obstacle_distance_m: FloatArray
     events: FlightEvents
     wall_time_s: float
+    #: with position_source other than truth: what went over the serial link
+    link: SerialRecord | None = None
 
 
 def _trajectory(t: TrajectorySection) -> TrajectoryGenerator:
@@ -505,7 +573,23 @@ def _el_estimate(t_ns: int, s: FloatArray) -> StateEstimate:
 EL_STATE_NAMES = ("x", "y", "z", "phi", "theta", "psi", "vx", "vy", "vz", "dphi", "dtheta", "dpsi")
 
 
-def _fly_euler_lagrange(config: FlightConfig, ref: Reference, log: _FlightLog) -> FlightEvents:
+def _serial_loop(config: FlightConfig, ref: Reference) -> SerialPositionLoop | None:
+    """The companion computer and the serial link the position comes over, if it does."""
+    src = config.position_source
+    if src == "truth":
+        return None
+    ic = config.initial
+    start = Pose.from_quat_xyzw(quat_xyzw_from_euler_rpy(*ic.euler_rad), ic.position_m)
+    path = np.concatenate([np.asarray([ic.position_m]), ref.p[:: max(1, len(ref.p) // 200)]])
+    try:
+        return SerialPositionLoop(config.link, src, start=start, path_W=path, seed=config.seed)
+    except (OSError, IoError) as exc:
+        raise ExperimentError(f"position_source {src}: the serial link: {exc}") from None
+
+
+def _fly_euler_lagrange(
+    config: FlightConfig, ref: Reference, log: _FlightLog
+) -> tuple[FlightEvents, SerialRecord | None]:
     ic, dt, n = config.initial, config.dt_s, len(ref.p) - 1
     s0 = np.zeros(12)
     s0[0:3] = ic.position_m
@@ -514,16 +598,23 @@ def _fly_euler_lagrange(config: FlightConfig, ref: Reference, log: _FlightLog) -
     ctrl = _el_controller(config)
     level = ctrl.levels_rad_s2[0] if isinstance(ctrl, NestedSaturationController) else math.inf
     dt_ns = s_to_ns(dt)
-    for i in range(n + 1):
-        cmd = ctrl(i * dt_ns, _el_estimate(i * dt_ns, el.s), _setpoint(ref, i))
-        if log.due(i):
-            s = el.s
-            tau = cmd.torque()
-            sat = bool(np.any(np.abs(tau[0:2]) >= level - 1e-9))
-            log.record(np.concatenate([s[0:3], s[6:9], s[9:12]]), s[3:6], cmd, saturated=sat)
-        if i < n:
-            el.step(cmd.thrust_n, cmd.torque())
-    return FlightEvents()
+    serial = _serial_loop(config, ref)
+    try:
+        for i in range(n + 1):
+            est = _el_estimate(i * dt_ns, el.s)
+            if serial is not None:
+                est = serial.estimate(est)
+            cmd = ctrl(i * dt_ns, est, _setpoint(ref, i))
+            if log.due(i):
+                s = el.s
+                tau = cmd.torque()
+                sat = bool(np.any(np.abs(tau[0:2]) >= level - 1e-9))
+                log.record(np.concatenate([s[0:3], s[6:9], s[9:12]]), s[3:6], cmd, saturated=sat)
+            if i < n:
+                el.step(cmd.thrust_n, cmd.torque())
+    finally:
+        record = None if serial is None else serial.close()
+    return FlightEvents(), record
 
 
 def _rigid_body_controller(
@@ -593,8 +684,9 @@ def run_flight(config: FlightConfig) -> FlightRun:
     log = _FlightLog(n, max(1, round(1.0 / (config.log_rate_hz * dt))))
     wall0 = time.perf_counter()
     try:
+        link = None
         if config.vehicle == "euler_lagrange":
-            events = _fly_euler_lagrange(config, ref, log)
+            events, link = _fly_euler_lagrange(config, ref, log)
         else:
             events = _fly_rigid_body(config, ref, log, world)
     except (SimError, ControlError) as exc:
@@ -618,4 +710,5 @@ def run_flight(config: FlightConfig) -> FlightRun:
         obstacle_distance_m=world.min_distance_m(log.p),
         events=events,
         wall_time_s=wall,
+        link=link,
     )

@@ -196,6 +196,15 @@ def plot_flight(run: FlightRun, folder: Path) -> list[Path]:
     return paths
 
 
+def _top_view_axes(ax: Any) -> None:
+    """A top view's axes: equal scales, x and y in metres, grid, legend."""
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=8)
+
+
 def _plot_top_view(run: FlightRun, folder: Path) -> Path:
     """The path from above with the reference, the obstacles and the waypoints."""
     fig, ax = plt.subplots(figsize=(8, 7), constrained_layout=True)
@@ -216,15 +225,44 @@ def _plot_top_view(run: FlightRun, folder: Path) -> Path:
     if run.config.controller == "waypoint_follower":
         pts = np.asarray(run.config.trajectory.points_m)
         ax.plot(pts[:, 0], pts[:, 1], "k^", label="waypoints")
-    ax.set_aspect("equal", adjustable="datalim")
-    ax.set_xlabel("x (m)")
-    ax.set_ylabel("y (m)")
-    ax.grid(True, alpha=0.3)
-    ax.legend(fontsize=8)
+    _top_view_axes(ax)
     ax.set_title(f"{run.config.name}: top view")
     fig.savefig(folder / "top_view.png", dpi=100)
     plt.close(fig)
     return folder / "top_view.png"
+
+
+def _write_link(run: FlightRun, run_dir: Path) -> Path:
+    """``link.csv`` and ``plots/link.png``: the position sent over the serial link (the SLAM's
+    or the true one) against the flown one and the reference."""
+    link = run.link
+    assert link is not None
+    cols: dict[str, NDArray[Any]] = {"t_ns": np.round(link.t_s * 1e9).astype(np.int64)}
+    for name, arr in (("sent", link.p_sent), ("true", link.p_true)):
+        for k, a in enumerate("xyz"):
+            cols[f"{name}_{a}_m"] = arr[:, k]
+    write_csv(run_dir / "link.csv", cols)
+    fig, axes = plt.subplots(2, 2, figsize=(12, 8), constrained_layout=True)
+    label = "SLAM (sent)" if link.source == "slam" else "sent"
+    for k, ax in enumerate((axes[0, 0], axes[0, 1], axes[1, 0])):
+        ax.plot(run.t_s, run.p[:, k], label="true")
+        ax.plot(link.t_s, link.p_sent[:, k], ".", ms=3, label=label)
+        if np.isfinite(run.ref_p).all():
+            ax.plot(run.t_s, run.ref_p[:, k], "--", label="reference")
+        ax.set_ylabel(f"{'xyz'[k]} (m)")
+        ax.set_xlabel("t (s)")
+        ax.grid(True, alpha=0.3)
+    ax = axes[1, 1]
+    ax.plot(run.p[:, 0], run.p[:, 1], label="true")
+    ax.plot(link.p_sent[:, 0], link.p_sent[:, 1], ".", ms=3, label=label)
+    if np.isfinite(run.ref_p).all():
+        ax.plot(run.ref_p[:, 0], run.ref_p[:, 1], "--", label="reference")
+    _top_view_axes(ax)
+    fig.suptitle(f"{run.config.name}: {label} against true and reference")
+    path = run_dir / "plots" / "link.png"
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
 
 
 def write_flight_run(run: FlightRun, *, runs_root: Path) -> tuple[Path, FlightMetrics]:
@@ -268,7 +306,14 @@ def write_flight_run(run: FlightRun, *, runs_root: Path) -> tuple[Path, FlightMe
         if metrics.min_obstacle_distance_m is not None
         else na("no obstacle"),
     }
-    write_json(run_dir / "metrics.json", {"kind": "sim", **metrics.to_json(), "table": [row]})
+    extra: dict[str, object] = {}
+    if run.link is not None:
+        extra["link"] = run.link.metrics()
+        images.append(_write_link(run, run_dir))
+        row["sent position RMSE (m)"] = extra["link"]["sent_position_rmse_m"]  # type: ignore[index]
+    write_json(
+        run_dir / "metrics.json", {"kind": "sim", **metrics.to_json(), **extra, "table": [row]}
+    )
     write_report(
         run_dir / "report.html",
         title=f"Flight: {cfg.name}",

@@ -113,15 +113,28 @@ _SIM = RunFolderKind(
     title="quadnav sim",
     command="quadnav sim [SCENARIO]",
     folder="OUT/<stamp>_<scenario>/",
-    description="A closed-loop flight on the true state.",
+    description="A closed-loop flight on the true state, or (thesis 002's, "
+    "position_source serial_truth or slam) on the position sent over a serial link.",
     files=(
         *_COMMON,
-        RunFile("metrics.json", "tracking errors, saturation, tilt, speed of the simulation"),
+        RunFile(
+            "metrics.json",
+            "tracking errors, saturation, tilt, speed of the simulation; "
+            "with a serial link its counts and the sent position's error (link)",
+        ),
         RunFile("report.html", "the report: metrics, plots, configuration"),
         RunFile("states.csv", "the vehicle's state"),
         RunFile("controls.csv", "the controller's commands"),
         RunFile("trajectory.tum", "the flown trajectory (TUM)"),
         RunFile("plots/*.png", "positions, attitude, controls, top view"),
+        RunFile(
+            "link.csv", "with a serial link: each frame's time, position sent, true position", False
+        ),
+        RunFile(
+            "plots/link.png",
+            "with a serial link: sent (SLAM) against true against the reference",
+            False,
+        ),
     ),
 )
 

@@ -5,6 +5,7 @@ on a map saved before (by ``save_map``), ``localization_only`` without adding to
 
 from __future__ import annotations
 
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -18,20 +19,29 @@ from quadnav.experiments.odometry_run import (
     resolve_dataset,
     run_odometry,
 )
+from quadnav.io.serial_frame import FrameSender
+from quadnav.messages import ImageFrame, ImuSample
+from quadnav.odometry import (
+    FrameFeatures,
+    KeyframeRecord,
+    OdometryEvent,
+    OdometryState,
+    StageTiming,
+    VisualOdometry,
+)
 
 if TYPE_CHECKING:
     import numpy as np
     from numpy.typing import NDArray
 
     from quadnav.io.datasets.types import VisualInertialDataset
-    from quadnav.odometry import VisualOdometry
     from quadnav.rig import Rig
     from quadnav.slam import SlamConfig, SlamOdometry
     from quadnav.slam.frame import StereoCamera
     from quadnav.slam.map import SlamMap
     from quadnav.slam.odometry import DepthSource
 
-__all__ = ["SlamRequest", "check_slam_request", "run_slam_source"]
+__all__ = ["SendingOdometry", "SlamRequest", "check_slam_request", "run_slam_source"]
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -52,6 +62,46 @@ class SlamRequest:
     save_map: Path | None = None
     load_map: Path | None = None
     localization_only: bool = False
+
+
+class SendingOdometry:
+    """An odometry whose states' positions (the body's, in its world: the run's trajectory)
+    go out as thesis 002's serial frames through ``sender`` as they are estimated (at the
+    sender's rate in the data's time, 10 Hz in the thesis); otherwise the odometry itself."""
+
+    def __init__(self, inner: VisualOdometry, sender: FrameSender) -> None:
+        self.inner, self.sender = inner, sender
+
+    @property
+    def cameras(self) -> tuple[str, ...]:
+        return self.inner.cameras
+
+    def push(self, sample: ImuSample | ImageFrame) -> OdometryState | None:
+        state = self.inner.push(sample)
+        if state is not None:
+            self.sender.offer(state.t_ns, state.T_W_B.p_A_B)
+        return state
+
+    def keyframes(self, *, final: bool = False) -> Sequence[KeyframeRecord]:
+        return self.inner.keyframes(final=final)
+
+    def newest_keyframe(self) -> KeyframeRecord | None:
+        return self.inner.newest_keyframe()
+
+    @property
+    def events(self) -> tuple[OdometryEvent, ...]:
+        return self.inner.events
+
+    @property
+    def last_features(self) -> FrameFeatures | None:
+        return self.inner.last_features
+
+    @property
+    def rejected(self) -> Mapping[str, int]:
+        return self.inner.rejected
+
+    def timing(self) -> StageTiming:
+        return self.inner.timing()
 
 
 def check_slam_request(request: SlamRequest) -> None:
@@ -86,9 +136,15 @@ def _config(request: SlamRequest) -> SlamConfig:
                       loop_closing=LoopClosingConfig(enabled=request.loop))  # fmt: skip
 
 
-def run_slam_source(request: SlamRequest, progress: Progress | None = None) -> OdometryRun:
+def run_slam_source(
+    request: SlamRequest,
+    progress: Progress | None = None,
+    *,
+    serial: Callable[[bytes], object] | None = None,
+) -> OdometryRun:
     """The dataset (made once if a built-in sequence), the SLAM on its rig, into a run folder;
-    the map saved at the end if asked."""
+    the map saved at the end if asked; with ``serial`` (a port's write), each position also
+    sent as thesis 002's frame at 10 Hz as it is tracked (:class:`SendingOdometry`)."""
     import dataclasses
 
     import yaml
@@ -118,7 +174,7 @@ def run_slam_source(request: SlamRequest, progress: Progress | None = None) -> O
 
     def make(rig: Rig) -> VisualOdometry:
         made.append(_slam(request, rig, cfg, loaded, depth))
-        return made[-1]
+        return made[-1] if serial is None else SendingOdometry(made[-1], FrameSender(serial))
 
     run = run_odometry(
         dataset, dataset.rig, make, request.out, config_text=text,

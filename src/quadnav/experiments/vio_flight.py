@@ -52,6 +52,7 @@ __all__ = [
     "vehicle_odometry",
     "vio_imu",
     "with_loop_closure",
+    "world_around",
 ]
 
 FloatArray = NDArray[np.float64]
@@ -150,24 +151,41 @@ def vio_imu(rig: Rig, bias_rng: Generator, gravity_m_s2: float) -> IntegratingIm
 def flight_world(sc: NavScenario) -> Scene:
     """The world of the flight: built around the take-off-and-forward route (obstacles kept
     a metre from it) and a margin of a metre about it."""
-    from quadnav.sim.scene import WORLDS, WorldPlan
-
     h, fwd = sc.plan.height_m, sc.plan.forward_m
     path = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, h], [fwd, 0.0, h]])
+    return world_around(path, sc.vio.world, sc.vio.world_seed)
+
+
+def world_around(path_W: FloatArray, world: str, seed: int) -> Scene:
+    """The built-in ``world`` (:data:`quadnav.sim.scene.WORLDS`) around a flight path (N, 3):
+    its box with a metre's margin below, beside and ahead of it and half a metre above,
+    obstacles a metre clear of the path."""
+    from quadnav.sim.scene import WORLDS, WorldPlan
+
+    lo, hi = path_W.min(axis=0), path_W.max(axis=0)
     plan = WorldPlan(
-        flight_min_m=(-1.0, -1.0, 0.0),
-        flight_max_m=(fwd + 1.0, 1.0, h + 0.5),
-        seed=sc.vio.world_seed,
-        path_W=path,
+        flight_min_m=(lo[0] - 1.0, lo[1] - 1.0, min(0.0, lo[2])),
+        flight_max_m=(hi[0] + 1.0, hi[1] + 1.0, hi[2] + 0.5),
+        seed=seed,
+        path_W=path_W,
         clearance_m=1.0,
     )
-    return WORLDS[sc.vio.world](plan)
+    return WORLDS[world](plan)
+
+
+def _constant(image: NDArray[np.uint8]) -> Callable[[], NDArray[np.uint8]]:
+    """An image's loader (bound now: a stereo odometry loads the left image at its partner)."""
+    return lambda: image
 
 
 class VioCameraSensor:
     """A companion computer with a camera-IMU rig: IMU samples in the rig's body at the IMU's
     rate and images rendered at the camera's rate into a :class:`VisualOdometry`; each state it
-    returns at an image is the vehicle's :class:`OdometrySample` (and goes to ``sink``)."""
+    returns at an image is the vehicle's :class:`OdometrySample` (and goes to ``sink``).
+    ``cameras`` are rendered at each frame time in turn (a stereo SLAM takes both of a rig's:
+    ``("cam0", "cam1")``), at the first one's rate or ``rate_hz`` (a SLAM that keeps up with
+    fewer frames than the camera gives), the first at ``first_ns`` (one period in by default);
+    without ``imu`` no IMU sample is given (an odometry that uses none)."""
 
     def __init__(
         self,
@@ -175,20 +193,24 @@ class VioCameraSensor:
         rig: Rig,
         vio: VisualOdometry,
         renderer: Renderer,
-        imu: IntegratingImu,
+        imu: IntegratingImu | None,
         image_rng: Generator,
         effects: RenderEffects,
         camera: str = "cam0",
+        cameras: tuple[str, ...] = (),
+        rate_hz: float | None = None,
+        first_ns: int | None = None,
         sink: OdometrySink | None = None,
         save_map: bool = False,
     ) -> None:
-        spec = rig.camera(camera)
+        names = cameras or (camera,)
+        spec = rig.camera(names[0])
         self.vio, self.renderer, self.imu, self.effects = vio, renderer, imu, effects
         self.T_V_B, self.T_V_C = rig.T_V_B, rig.T_V_B @ spec.T_B_C
+        self._T_V_Cs = tuple((n, rig.T_V_B @ rig.camera(n).T_B_C) for n in names)
         self._R_B_V = rig.T_V_B.R_A_B.inv().as_matrix()
-        period = s_to_ns(1.0 / spec.rate_hz)
-        self._camera = Ticker(period, first_ns=period)
-        self._camera_name = camera
+        period = s_to_ns(1.0 / (rate_hz or spec.rate_hz))
+        self._camera = Ticker(period, first_ns=period if first_ns is None else first_ns)
         self._image_rng, self.sink = image_rng, sink
         self._save_map = save_map
         self._truth_B: list[_TrackRow] = []  # the rig's true pose at each camera frame
@@ -198,7 +220,7 @@ class VioCameraSensor:
         self.frames = self.states = self.rejected_invalid = 0
 
     def sample(self, truth: VehicleState, t_ns: int, rng: Generator) -> OdometrySample | None:
-        s = self.imu.sample(truth, t_ns, rng)
+        s = None if self.imu is None else self.imu.sample(truth, t_ns, rng)
         if s is not None:  # (read in the vehicle's axes at the rig's origin: into the rig's)
             imu_B = ImuSample(
                 t_ns=s.t_ns, gyro_rad_s=self._R_B_V @ s.gyro_rad_s, accel_m_s2=self._R_B_V @ s.accel_m_s2
@@ -208,9 +230,13 @@ class VioCameraSensor:
         if not self._camera.due(t_ns):
             return None
         T_W_V = Pose.from_quat_xyzw(truth.q_W_B_xyzw, truth.p_W_B)
-        image = self.effects.apply(self.renderer.render(T_W_V @ self.T_V_C).image, self._image_rng)
+        if self.imu is None:  # (the rate the lever arm needs: the true one)
+            self._w_B = self._R_B_V @ truth.w_B
+        state = None
+        for name, T_V_C in self._T_V_Cs:
+            image = self.effects.apply(self.renderer.render(T_W_V @ T_V_C).image, self._image_rng)
+            state = self.vio.push(ImageFrame(t_ns=t_ns, camera=name, load=_constant(image)))
         self.frames += 1
-        state = self.vio.push(ImageFrame(t_ns=t_ns, camera=self._camera_name, load=lambda: image))
         self._take_keyframes(self.vio.keyframes(), t_ns, T_W_V @ self.T_V_B)
         if state is None:
             return None

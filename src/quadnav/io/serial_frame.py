@@ -7,16 +7,35 @@ only when its bytes arrive complete and well formed, anything else is dropped an
 The protocol has no checksum, so a noise burst that happens to spell a well-formed frame
 cannot be told from one; everything else is. :class:`VelocityEstimator` differentiates the
 positions: the thesis's Euler difference and a low-pass filtered derivative.
+
+The two ends of the thesis's link: :class:`FrameSender` (the companion computer: positions in as
+they are estimated, a frame out at most at its rate, 10 Hz in the thesis) and
+:class:`FrameReceiver` (the flight controller: bytes in, the newest position and its Euler
+velocity of step 0.1 s). :class:`PtyLink` is a pseudo-terminal pair standing for the UART cable.
 """
 
 from __future__ import annotations
 
+import contextlib
 import math
+import os
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
 
 from quadnav.errors import IoError
 
-__all__ = ["DecodedFrame", "FrameDecoder", "VelocityEstimator", "encode"]
+__all__ = [
+    "DecodedFrame",
+    "FrameDecoder",
+    "FrameReceiver",
+    "FrameSender",
+    "PtyLink",
+    "VelocityEstimator",
+    "encode",
+]
 
 MAX_DIGITS = 6  # +-9999.99 m: anything longer is line noise
 
@@ -125,3 +144,108 @@ class VelocityEstimator:
                 )  # type: ignore[assignment]
         self._last, self._last_t = p, t_s
         return self.filtered
+
+
+@dataclass
+class FrameSender:
+    """The companion computer's end: :meth:`offer` a position (metres) whenever one is
+    estimated; a frame is written to ``write`` when the next due time of a ``rate_hz`` grid has
+    come (a tenth of a period early is on time: a 10 Hz estimate with jitter is sent whole). A
+    position a frame cannot carry (non-finite, too large) is not sent and is counted."""
+
+    write: Callable[[bytes], object]
+    rate_hz: float = 10.0
+    sent: int = 0
+    unsendable: int = 0
+    _next_ns: int | None = None
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.rate_hz) and self.rate_hz > 0):
+            raise IoError(
+                f"serial frame: the send rate must be a finite number > 0, got {self.rate_hz}"
+            )
+
+    def offer(self, t_ns: int, p_m: Sequence[float] | NDArray[np.float64]) -> bytes | None:
+        """The frame written for the position ``p_m`` at ``t_ns``, or None (not due, or
+        unsendable)."""
+        period = round(1e9 / self.rate_hz)
+        nxt = self._next_ns
+        if nxt is not None and t_ns < nxt - period // 10:
+            return None
+        try:
+            frame = encode(*(float(v) for v in p_m))
+        except IoError:
+            self.unsendable += 1
+            return None
+        self.write(frame)
+        self.sent += 1
+        # due times on a grid (k periods from the first frame), started afresh after a gap
+        self._next_ns = (t_ns if nxt is None or t_ns - nxt >= period else nxt) + period
+        return frame
+
+
+@dataclass
+class FrameReceiver:
+    """The flight controller's end: :meth:`feed` the bytes read from the link; the newest
+    position (metres) and the thesis's Euler velocity ``(x_k - x_(k-1)) / dt_s`` over the frames
+    as they come (nominal step, as the thesis differentiates). Garbage is the decoder's to count."""
+
+    dt_s: float = 0.1
+    decoder: FrameDecoder = field(default_factory=FrameDecoder)
+    position_m: tuple[float, float, float] | None = None
+    velocity_m_s: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    def __post_init__(self) -> None:
+        self._velocity = VelocityEstimator(dt_s=self.dt_s)
+
+    def feed(self, data: bytes) -> int:
+        """The number of complete frames in ``data`` (with what came before)."""
+        frames = self.decoder.feed(data)
+        for f in frames:
+            self.position_m = f.position_m
+            self._velocity.update(f.position_m)
+            self.velocity_m_s = self._velocity.euler
+        return len(frames)
+
+
+class PtyLink:
+    """A pseudo-terminal pair as the serial cable between a companion computer and a flight
+    controller: :meth:`write` goes in at the terminal end (raw: no echo, no line editing), and
+    :meth:`read` takes what has arrived at the other end without waiting. :meth:`close` both."""
+
+    def __init__(self) -> None:
+        import tty
+
+        self._reader, self._writer = os.openpty()
+        for fd in (self._reader, self._writer):
+            tty.setraw(fd)
+        os.set_blocking(self._reader, False)
+        self.port = os.ttyname(self._writer)
+
+    def write(self, data: bytes) -> None:
+        view = memoryview(data)
+        while view:
+            view = view[os.write(self._writer, view) :]
+
+    def read(self) -> bytes:
+        chunks = []
+        while True:
+            try:
+                chunk = os.read(self._reader, 4096)
+            except BlockingIOError:
+                break
+            if not chunk:
+                break
+            chunks.append(chunk)
+        return b"".join(chunks)
+
+    def close(self) -> None:
+        for fd in (self._reader, self._writer):
+            with contextlib.suppress(OSError):
+                os.close(fd)
+
+    def __enter__(self) -> PtyLink:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
