@@ -83,7 +83,9 @@ def test_the_row_search_in_bulk_is_the_loop_bit_for_bit(k: int) -> None:
     left, right, fx = pairs[k]
     ex = OrbExtractor()
     (fl, ll), (fr, lr) = ex.extract(left), ex.extract(right)
-    keys = stereo_keypoints(fl, fr, ll, lr, fx=fx, baseline_m=0.12)
+    # (ORB-SLAM2's loop: no uniqueness test, nothing nearer than one baseline)
+    keys = stereo_keypoints(fl, fr, ll, lr, fx=fx, baseline_m=0.12,
+                            config=StereoConfig(unique_ratio=1.0, min_depth_baselines=1.0))  # fmt: skip
     u_right, depth = _loop(fl, fr, ll, lr, fx, 0.12)
     assert keys.matched.sum() > 300
     np.testing.assert_array_equal(keys.u_right, u_right)

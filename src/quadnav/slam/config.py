@@ -76,7 +76,8 @@ class RelocalizationConfig:
 class SlamConfig:
     """``orb``: the extractor (1,200 features, thesis 002 section 5.7); ``stereo``: the
     matcher; ``th_depth_baselines``: ThDepth (ORB-SLAM2's 40; 22 was best on the thesis's
-    Jetson); ``init_min_points``: stereo points the first frame needs (ORB-SLAM2: 500);
+    Jetson); ``init_min_points``: stereo points the first frame needs (ORB-SLAM2 asks 500 keypoints
+    of any kind; 300 with a depth is about what 500 of EuRoC's come with);
     ``search_radius_px``: the projection search's window at level 0 (wider once when too few
     match); ``max_hamming``: a projection match's descriptor distance (TH_HIGH);
     ``min_inliers``: below this after the pose optimisation the tracking is lost;
@@ -90,7 +91,7 @@ class SlamConfig:
     orb: OrbConfig = field(default_factory=OrbConfig)
     stereo: StereoConfig = field(default_factory=StereoConfig)
     th_depth_baselines: float = 40.0
-    init_min_points: int = 500
+    init_min_points: int = 300
     search_radius_px: float = 15.0
     max_hamming: int = 100
     min_inliers: int = 30

@@ -3,9 +3,11 @@
 
 On a rectified pair a left keypoint's partner lies on its row. Each right keypoint is listed on
 the rows within ``2 s`` of its own (``s``: its scale); a left keypoint looks at those on its
-row, at scales within one level of its own, with a disparity in ``[0, fx)`` (points nearer
-than one baseline are not matched), and takes the nearest descriptor if it is within
-``max_hamming``. The match is refined to a fraction of a pixel by a window correlation at the
+row, at scales within one level of its own, with a disparity in ``[0, fx / k)`` (points nearer
+than ``k = min_depth_baselines`` baselines, 2.5, are not matched; ORB-SLAM2: 1), and takes the
+nearest descriptor if it is within ``max_hamming`` and clearly nearer than the best candidate
+elsewhere on the row (``unique_ratio``: an exact copy of a texture further along is ambiguous,
+not a match). The match is refined to a fraction of a pixel by a window correlation at the
 keypoint's level (sum of absolute differences over ``2 w + 1`` pixels square, the window slid
 ``w`` pixels either way, a parabola through the best three), and refused if the parabola's
 minimum leaves the middle pixel. Last, the matches whose correlation is worse than 1.5 x 1.4
@@ -36,15 +38,29 @@ FloatArray = NDArray[np.float64]
 @dataclass(frozen=True, slots=True, kw_only=True)
 class StereoConfig:
     """ORB-SLAM2's matching thresholds: the Hamming distance a match may have (its
-    ``(TH_HIGH + TH_LOW) / 2``), the correlation's half window ``w`` and the robust cut."""
+    ``(TH_HIGH + TH_LOW) / 2``), the correlation's half window ``w`` and the robust cut; and
+    ours: ``unique_ratio``, how much nearer the best candidate must be than the best one
+    elsewhere on the row (more than ``unique_px`` times the keypoint's scale away), or the
+    match is ambiguous and refused (a texture repeated along the row, whose copies pair a
+    corner with the wrong one: ORB-SLAM2 takes the first; 1 or more: no such test);
+    ``min_depth_baselines``: no match nearer than this (ORB-SLAM2: 1 baseline; a ZED measures
+    from 0.3 m, 2.5 of its baselines: nearer, a copy of the texture one period along the row
+    is taken for a point a hand's width away)."""
 
     max_hamming: int = 75
     window_px: int = 5
     outlier_factor: float = 1.5 * 1.4
+    unique_ratio: float = 0.9
+    unique_px: float = 3.0
+    min_depth_baselines: float = 2.5
 
     def __post_init__(self) -> None:
         if not 0 <= self.max_hamming <= 256 or self.window_px < 1 or self.outlier_factor <= 0:
             raise VisionError("StereoConfig: 0 <= max_hamming <= 256, window_px >= 1, factor > 0")
+        if not (self.unique_ratio > 0 and self.unique_px > 0 and self.min_depth_baselines > 0):
+            raise VisionError(
+                "StereoConfig: unique_ratio, unique_px and min_depth_baselines must be > 0"
+            )
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -112,13 +128,16 @@ def stereo_keypoints(
     u_right, depth, cost = np.full(n, -1.0), np.full(n, -1.0), np.full(n, np.inf)
     if n == 0 or len(right) == 0:
         return StereoKeypoints(u_right=u_right, depth_m=depth)
-    max_d = fx  # (fx b / b: nothing nearer than one baseline)
+    max_d = fx / cfg.min_depth_baselines  # (fx b / (k b): nothing nearer than k baselines)
     i, j = _row_candidates(left, right, left_levels[0].shape[0], max_d)
     d = _hamming(left.descriptors[i], right.descriptors[j])
     order = np.lexsort((j, d, i))  # per left keypoint: the nearest, then the lower index
     first = np.r_[True, i[order][1:] != i[order][:-1]] if len(order) else np.zeros(0, bool)
     best = order[first]
-    best = best[d[best] <= cfg.max_hamming]
+    keep = d[best] <= cfg.max_hamming
+    if cfg.unique_ratio < 1:
+        keep &= _unique(left, right, i, j, d, order, first, cfg)
+    best = best[keep]
     i, j = i[best], j[best]
     u, sad, ok = _refine(left, i, right.uv_px[j, 0], left_levels, right_levels, cfg)
     disparity = left.uv_px[i, 0] - u
@@ -131,6 +150,23 @@ def stereo_keypoints(
         bad = good & (cost > cut)
         u_right[bad], depth[bad] = -1.0, -1.0
     return StereoKeypoints(u_right=u_right, depth_m=depth)
+
+
+def _unique(
+    left: OrbFeatures, right: OrbFeatures, i: NDArray[np.int64], j: NDArray[np.int64],
+    d: NDArray[np.int64], order: NDArray[np.int64], first: NDArray[np.bool_], cfg: StereoConfig,
+) -> NDArray[np.bool_]:  # fmt: skip
+    """Per left keypoint (in ``order``'s groups): whether its best candidate is nearer than
+    ``unique_ratio`` times the best one more than ``unique_px`` (its scale) along the row."""
+    group = np.cumsum(first) - 1
+    starts = np.flatnonzero(first)
+    u = right.uv_px[j[order], 0]
+    u_best = u[starts][group]
+    s = left.scales[left.octave[i[order]]]
+    far = np.abs(u - u_best) > cfg.unique_px * s
+    d_far = np.where(far, d[order], 10**6)
+    second = np.minimum.reduceat(d_far, starts)
+    return np.asarray(d[order][starts] < cfg.unique_ratio * second, bool)
 
 
 def _refine(
