@@ -53,8 +53,8 @@ def _errors(truth: list[Pose], est: list[Pose | None]) -> list[float]:
 
 def test_stereo_tracking_follows_the_camera(renderer: Renderer) -> None:
     """The same frames tracked with local mapping (the default) and without: both follow the
-    camera; with it the recent points seen by fewer than three keyframes are culled, the
-    keyframes adjusted, and the worst error is no larger."""
+    camera; with it points are triangulated between keyframes, the recent points seen by fewer
+    than three keyframes are culled, the keyframes adjusted, and the worst error is no larger."""
     cfg = SlamConfig()
     ex = OrbExtractor(cfg.orb)
     n = 40
@@ -68,12 +68,14 @@ def test_stereo_tracking_follows_the_camera(renderer: Renderer) -> None:
     worst = {}
     for mapping in (True, False):
         tracker = StereoTracker(SlamConfig(local_mapping=mapping))
-        est, kfs = [], 0
+        est, kfs, created = [], 0, 0
         for k, frame in enumerate(frames):
             r = tracker.track(frame)
             assert r.state == "tracking", (k, r)
             est.append(r.T_W_C)
             kfs += r.keyframe
+            if r.keyframe and k > 0 and tracker.last_mapping is not None:
+                created += tracker.last_mapping.created
         err = _errors(truth, est)
         assert len(err) == n and max(err) < 0.02 and err[-1] < 0.015, (mapping, max(err), err[-1])
         # keyframes by the rules (every 20 frames or when the tracking thins), not every frame
@@ -82,6 +84,7 @@ def test_stereo_tracking_follows_the_camera(renderer: Renderer) -> None:
         if mapping:
             m = tracker.map
             assert tracker.last_mapping is not None and tracker.last_mapping.adjusted >= 1
+            assert created >= 20, created  # (points triangulated between keyframes)
             assert m.bad.any() and (m.n_obs[~m.bad] >= 1).all()
             old = m.first_keyframe <= len(m.keyframes) - 3
             assert (m.n_obs[old & ~m.bad] >= 3).all()  # (what stays of the older points)

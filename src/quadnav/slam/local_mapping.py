@@ -1,5 +1,6 @@
-"""The SLAM's local mapping (ORB-SLAM2's ``LocalMapping``), run after each keyframe: the recent
-map points culled (a point made two or more keyframes ago that fewer than three keyframes see:
+"""The SLAM's local mapping (ORB-SLAM2's ``LocalMapping``), run after each keyframe: new map
+points triangulated between the keyframe and its covisible ones from keypoints that observe none
+(:func:`create_points`), the recent map points culled (a point made two or more keyframes ago that fewer than three keyframes see:
 ORB-SLAM2's stereo rule), then the local bundle adjustment
 (:func:`~quadnav.slam.optimizer.local_bundle_adjustment`) over the newest keyframes and the
 points they see, the other keyframes that see those points held; its outlier observations are
@@ -17,7 +18,7 @@ import numpy as np
 from quadnav.slam.map import SlamKeyframe, SlamMap
 from quadnav.slam.optimizer import BundleProblem, local_bundle_adjustment
 
-__all__ = ["LocalMappingReport", "cull_keyframes", "local_mapping"]
+__all__ = ["LocalMappingReport", "create_points", "cull_keyframes", "local_mapping"]
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -29,6 +30,7 @@ class LocalMappingReport:
     held: int
     dropped: int
     keyframes_culled: int = 0
+    created: int = 0
 
 
 def local_mapping(
@@ -38,16 +40,18 @@ def local_mapping(
     min_observations: int = 3,
     max_held: int = 5,
     redundancy: float = 0.9,
+    neighbours: int = 10,
 ) -> LocalMappingReport:
     """One pass after the newest keyframe (see the module)."""
     newest = slam_map.keyframes[-1].index
     m = slam_map
+    made = create_points(m, m.keyframes[-1], m.covisible(m.keyframes[-1], neighbours + 1)[1:])
     recent = (newest - m.first_keyframe >= 2) & (m.n_obs < min_observations) & ~m.bad
     culled = np.flatnonzero(recent)
     m.cull(culled)
     local = [kf for kf in slam_map.keyframes[-local_keyframes:] if not kf.bad]
     if len(local) < 2:
-        return LocalMappingReport(culled=len(culled), adjusted=0, held=0, dropped=0)
+        return LocalMappingReport(culled=len(culled), adjusted=0, held=0, dropped=0, created=made)
     pts = m.local_points(local)
     local_ids = {kf.index for kf in local}
     held = [kf for kf in reversed(slam_map.keyframes[:-local_keyframes])
@@ -70,7 +74,7 @@ def local_mapping(
     m.cull(gone)
     n_kf = cull_keyframes(m, m.covisible(m.keyframes[-1], 20)[1:], redundancy=redundancy)
     return LocalMappingReport(culled=len(culled) + len(gone), adjusted=len(local), held=len(held),
-                              dropped=dropped, keyframes_culled=n_kf)  # fmt: skip
+                              dropped=dropped, keyframes_culled=n_kf, created=made)  # fmt: skip
 
 
 def cull_keyframes(
@@ -119,3 +123,59 @@ def _problem(
         obs_sigma2=np.concatenate(s2),
     )  # fmt: skip
     return problem, rows
+
+
+def create_points(
+    m: SlamMap,
+    kf: SlamKeyframe,
+    neighbours: list[SlamKeyframe],
+    *,
+    max_hamming: int = 50,
+    ratio: float = 0.8,
+    min_parallax_deg: float = 2.0,
+    chi2: float = 5.991,
+) -> int:
+    """ORB-SLAM2's ``CreateNewMapPoints``: the keypoints of ``kf`` that observe no point,
+    matched by descriptor (within ``max_hamming`` bits, ``ratio`` to the second nearest) to
+    those of each neighbour that observe none, triangulated where the two rays part by
+    ``min_parallax_deg`` or more, kept in front of both cameras and within the ``chi2`` gate of
+    each keypoint's level (px). How many points were made."""
+    from quadnav.geometry.multiview import reprojection_errors, triangulate
+    from quadnav.place.verification import match_descriptors
+
+    made = 0
+    for nb in neighbours:
+        if nb.bad:
+            continue
+        a_free, b_free = np.flatnonzero(kf.points < 0), np.flatnonzero(nb.points < 0)
+        fa, fb = kf.frame.features, nb.frame.features
+        ia, ib = match_descriptors(fa.descriptors[a_free], fb.descriptors[b_free],
+                                   max_hamming=max_hamming, ratio=ratio)  # fmt: skip
+        if len(ia) == 0:
+            continue
+        a, b = a_free[ia], b_free[ib]
+        xa, xb = _normalised(kf, a), _normalised(nb, b)
+        P = np.stack([kf.T_C_W.matrix()[:3], nb.T_C_W.matrix()[:3]])
+        X, _ = triangulate(np.stack([xa, xb], axis=1), P)
+        ok = np.isfinite(X).all(axis=1)
+        X = np.nan_to_num(X)
+        c = kf.frame.camera
+        for k, (x, f, kps) in enumerate(((xa, fa, a), (xb, fb, b))):
+            err, _ = reprojection_errors(P[k], X, x)
+            sigma = f.scales[f.octave[kps]] / c.fx
+            ok &= err**2 < chi2 * sigma**2
+        ca, cb = kf.T_C_W.inverse().p_A_B, nb.T_C_W.inverse().p_A_B
+        ra, rb = X - ca, X - cb
+        cos = np.sum(ra * rb, axis=1) / np.maximum(
+            np.linalg.norm(ra, axis=1) * np.linalg.norm(rb, axis=1), 1e-12
+        )
+        ok &= cos < np.cos(np.radians(min_parallax_deg))
+        if ok.any():
+            m.add_triangulated((kf, nb), (a[ok], b[ok]), X[ok])
+            made += int(ok.sum())
+    return made
+
+
+def _normalised(kf: SlamKeyframe, kps: np.ndarray) -> np.ndarray:
+    c, uv = kf.frame.camera, kf.frame.features.uv_px[kps]
+    return np.column_stack([(uv[:, 0] - c.cx) / c.fx, (uv[:, 1] - c.cy) / c.fy])

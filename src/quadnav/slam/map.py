@@ -94,6 +94,26 @@ class SlamMap:
         self.observe(kf, kps, ids)
         return ids
 
+    def add_triangulated(
+        self, kfs: tuple[SlamKeyframe, SlamKeyframe], kps: tuple[IntArray, IntArray],
+        X_W: FloatArray,
+    ) -> IntArray:  # fmt: skip
+        """New map points at ``X_W`` (M, 3), each seen by the two keyframes ``kfs`` at their
+        keypoints ``kps``; made by the first (its descriptor and level)."""
+        kf, other = kfs
+        a, b = (np.asarray(k, np.int64) for k in kps)
+        ids = np.arange(len(self.X_W), len(self.X_W) + len(a), dtype=np.int64)
+        f = kf.frame.features
+        self.X_W = np.vstack([self.X_W, np.asarray(X_W, np.float64).reshape(-1, 3)])
+        self.descriptors = np.vstack([self.descriptors, f.descriptors[a]])
+        self.octave = np.r_[self.octave, f.octave[a]]
+        self.first_keyframe = np.r_[self.first_keyframe, np.full(len(a), kf.index, np.int64)]
+        self.n_obs = np.r_[self.n_obs, np.zeros(len(a), np.int64)]
+        self.bad = np.r_[self.bad, np.zeros(len(a), bool)]
+        self.observe(kf, a, ids)
+        self.observe(other, b, ids)
+        return ids
+
     def observe(self, kf: SlamKeyframe, kps: IntArray, ids: IntArray) -> None:
         """Keyframe ``kf`` sees map points ``ids`` at its keypoints ``kps``."""
         kf.points[kps] = ids
