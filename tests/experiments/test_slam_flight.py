@@ -100,7 +100,9 @@ def test_a_companion_that_stops_sending_leaves_the_last_position_held_and_no_vel
     out = []
     for k in range(0, 3001):  # 3 s in 1 ms steps
         t = k * 1_000_000
-        out.append(loop.estimate(_estimate(t, np.array([0.5 * t * 1e-9, 0.0, 1.0]))))
+        p = np.array([0.5 * t * 1e-9, 0.0, 1.0])
+        truth = SimpleNamespace(t_ns=t, p_W_B=p)  # (what the stub camera is handed)
+        out.append(loop.estimate(_estimate(t, p), truth))  # type: ignore[arg-type]
     rec = loop.close()
     at_1_2s, at_2s = out[1200], out[2000]
     assert at_1_2s.p_W_B[0] == pytest.approx(0.5, abs=0.006)

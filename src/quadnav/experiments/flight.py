@@ -603,7 +603,8 @@ def _fly_euler_lagrange(
         for i in range(n + 1):
             est = _el_estimate(i * dt_ns, el.s)
             if serial is not None:
-                est = serial.estimate(est)
+                assert est.w_B is not None
+                est = serial.estimate(est, el.vehicle_state(i * dt_ns, est.q_W_B_xyzw, est.w_B))
             cmd = ctrl(i * dt_ns, est, _setpoint(ref, i))
             if log.due(i):
                 s = el.s

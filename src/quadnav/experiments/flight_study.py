@@ -237,7 +237,9 @@ def _write_link(run: FlightRun, run_dir: Path) -> Path:
     or the true one) against the flown one and the reference."""
     link = run.link
     assert link is not None
-    cols: dict[str, NDArray[Any]] = {"t_ns": np.round(link.t_s * 1e9).astype(np.int64)}
+    cols: dict[str, NDArray[Any]] = {
+        "t_ns": np.array([s_to_ns(float(t)) for t in link.t_s], np.int64)
+    }
     for name, arr in (("sent", link.p_sent), ("true", link.p_true)):
         for k, a in enumerate("xyz"):
             cols[f"{name}_{a}_m"] = arr[:, k]

@@ -90,13 +90,6 @@ class SerialRecord:
         }
 
 
-def truth_state(est: StateEstimate) -> VehicleState:
-    """The vehicle's true state for a camera (no acceleration: no IMU is sampled)."""
-    assert est.w_B is not None
-    return VehicleState(t_ns=est.t_ns, p_W_B=est.p_W_B, v_W_B=est.v_W_B, a_W_B=np.zeros(3),
-                        q_W_B_xyzw=est.q_W_B_xyzw, w_B=est.w_B)  # fmt: skip
-
-
 class SerialPositionLoop:
     """The companion computer, the pseudo-terminal link and the flight controller's decoder:
     :meth:`estimate` turns the true state into the flight controller's (position and velocity
@@ -139,9 +132,11 @@ class SerialPositionLoop:
         odo = self.sensor.sample(truth, truth.t_ns, self._rng)
         return None if odo is None else self.start @ np.array(odo.p_W_B)  # (scipy: no read-only)
 
-    def estimate(self, est: StateEstimate) -> StateEstimate:
+    def estimate(self, est: StateEstimate, truth: VehicleState) -> StateEstimate:
+        """The flight controller's estimate from the perfect one ``est`` and the ``truth``
+        the companion's camera sees."""
         t = est.t_ns
-        p = self._companion(truth_state(est))
+        p = self._companion(truth)
         if p is not None and self.sender.offer(t, p) is not None:
             self._rows.append((t, np.asarray(p, dtype=np.float64), est.p_W_B.copy()))
         if self.receiver.feed(self.link.read()):

@@ -26,6 +26,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from quadnav.errors import IoError
+from quadnav.units import s_to_ns
 
 __all__ = [
     "DecodedFrame",
@@ -168,7 +169,7 @@ class FrameSender:
     def offer(self, t_ns: int, p_m: Sequence[float] | NDArray[np.float64]) -> bytes | None:
         """The frame written for the position ``p_m`` at ``t_ns``, or None (not due, or
         unsendable)."""
-        period = round(1e9 / self.rate_hz)
+        period = s_to_ns(1.0 / self.rate_hz)
         nxt = self._next_ns
         if nxt is not None and t_ns < nxt - period // 10:
             return None

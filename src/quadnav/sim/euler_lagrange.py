@@ -22,6 +22,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from quadnav.errors import SimError
+from quadnav.messages import VehicleState
 from quadnav.sim.integrate import rk4_step
 from quadnav.units import GRAVITY_M_S2
 
@@ -70,6 +71,15 @@ class EulerLagrangeQuadrotor:
         self.params = params
         self.dt_s = float(dt_s)
         self.s = s0.copy()
+
+    def vehicle_state(self, t_ns: int, q_W_B_xyzw: FloatArray, w_B: FloatArray) -> VehicleState:
+        """The true state at ``t_ns`` for a sensor (a camera rendered along the flight): position
+        and velocity its own, the attitude and body rate its Euler angles and their rates give
+        (converted by the caller, ``control.base``'s conventions), no acceleration sampled."""
+        s = self.s
+        return VehicleState(t_ns=int(t_ns), p_W_B=s[0:3].copy(), v_W_B=s[6:9].copy(),
+                            a_W_B=np.zeros(3), q_W_B_xyzw=np.asarray(q_W_B_xyzw, np.float64),
+                            w_B=np.asarray(w_B, np.float64))  # fmt: skip
 
     def step(self, u: float, tau: FloatArray) -> FloatArray:
         tau = np.asarray(tau, dtype=np.float64)
