@@ -35,7 +35,7 @@ from quadnav.geometry.rotations import Pose
 from quadnav.io.serial_frame import FrameReceiver, FrameSender, PtyLink
 from quadnav.messages import StateEstimate, VehicleState
 from quadnav.sim.sensors import Ticker
-from quadnav.units import s_to_ns
+from quadnav.units import ns_to_s, s_to_ns
 
 if TYPE_CHECKING:  # (OpenCV, the renderer and the SLAM only when flying on images)
     from quadnav.experiments.vio_flight import VioCameraSensor
@@ -163,18 +163,18 @@ class SerialPositionLoop:
             "frames_dropped": d.dropped,
             "garbage_bytes": d.garbage_bytes,
             "unsendable_positions": self.sender.unsendable,
-            "position_held_s": self._held_ns * 1e-9,
+            "position_held_s": ns_to_s(self._held_ns),
         }
         events: tuple[tuple[float, str], ...] = ()
         if self.sensor is not None:
             rec = self.sensor.record()
             counts |= {"slam_frames": rec.frames, "slam_states": rec.states,
                        **{f"slam_{k}_ms": v for k, v in rec.stage_ms.items()}}  # fmt: skip
-            events = tuple((t * 1e-9, text) for t, text in rec.events)
+            events = tuple((ns_to_s(t), text) for t, text in rec.events)
         rows = self._rows
         return SerialRecord(
             source=self.source,
-            t_s=np.array([r[0] * 1e-9 for r in rows]),
+            t_s=np.array([ns_to_s(r[0]) for r in rows]),
             p_sent=np.array([r[1] for r in rows]).reshape(-1, 3),
             p_true=np.array([r[2] for r in rows]).reshape(-1, 3),
             counts=counts,
