@@ -91,7 +91,8 @@ class SequenceSpec(ConfigModel):
     (rotation ``calib_rotation_deg`` and lever arm ``calib_translation_m``, RMS norms), each
     camera's own (``calib_stereo_rotation_deg``, ``calib_stereo_translation_m``: a stereo pair's
     relative pose is calibrated far better), focal lengths ``calib_focal`` relative and principal
-    point ``calib_principal_px``, per coordinate; all normal. A motion file's gaps up
+    point ``calib_principal_px``, per coordinate, both cameras of a pair alike but for their own
+    ``calib_stereo_focal`` and ``calib_stereo_principal_px``; all normal. A motion file's gaps up
     to ``max_gap_s`` are bridged; ``knot_spacing_s`` sets its spline's smoothing (None: the
     larger of 0.1 s and 4 pose periods). ``motion_frame`` says whose poses the motion gives: a vehicle's
     (FLU; the rig rides on it at its ``T_V_B``) or the rig body's itself (a dataset's ground
@@ -134,6 +135,8 @@ class SequenceSpec(ConfigModel):
     calib_stereo_translation_m: float = Field(default=0.0005, ge=0.0, le=0.5)
     calib_focal: float = Field(default=0.005, ge=0.0, le=0.2)
     calib_principal_px: float = Field(default=1.0, ge=0.0, le=50.0)
+    calib_stereo_focal: float = Field(default=0.0005, ge=0.0, le=0.2)
+    calib_stereo_principal_px: float = Field(default=0.2, ge=0.0, le=50.0)
     knot_spacing_s: float | None = Field(default=None, gt=0.0, le=10.0)
     max_gap_s: float = Field(default=1.0, gt=0.0, le=60.0)
     seed: int = Field(default=0, ge=0, le=2**31 - 1)
@@ -502,18 +505,46 @@ def _pose_error(rng: Generator, rotation_deg: float, translation_m: float) -> Po
     return Pose(Rotation.from_rotvec(rot), rng.normal(0.0, translation_m / math.sqrt(3.0), 3))
 
 
-def _miscalibrated(
-    cam: CameraSpec, spec: SequenceSpec, rng: Generator, rig_error: Pose
-) -> CameraSpec:
-    """``cam`` as a calibration states it: its ``T_B_C`` off by the rig's camera-IMU error
-    ``rig_error`` (in the body frame, common to its cameras: ``calib_rotation_deg``,
+def _miscalibrated_cameras(
+    spec: SequenceSpec, cameras: tuple[CameraSpec, ...]
+) -> tuple[CameraSpec, ...]:
+    """``cameras`` as a calibration states them: each ``T_B_C`` off by the rig's camera-IMU
+    error (in the body frame, common to its cameras: ``calib_rotation_deg``,
     ``calib_translation_m``) and by a small error of its own (in its own frame: the stereo
     extrinsic a calibration gets far better, ``calib_stereo_rotation_deg`` and
-    ``calib_stereo_translation_m``), its focal lengths and principal point off too; all normal
-    (rotation and lever arm: RMS norms; focal: relative; principal point: px per coordinate)."""
-    own = _pose_error(rng, spec.calib_stereo_rotation_deg, spec.calib_stereo_translation_m)
-    focal = rng.normal(0.0, spec.calib_focal, 2)
-    centre = rng.normal(0.0, spec.calib_principal_px, 2)
+    ``calib_stereo_translation_m``); the first camera's focal lengths (``calib_focal``,
+    relative) and principal point (``calib_principal_px``, px per coordinate) off, and each other
+    camera's off by as much again plus its own small part (``calib_stereo_focal``,
+    ``calib_stereo_principal_px``): a stereo calibration fits the pair on the same views of its
+    target, so what it leaves between the two cameras (the rows and disparities of the
+    rectified pair) is far smaller than what it leaves in both. All normal (rotation and lever
+    arm: RMS norms)."""
+    rng = stream_rng(spec.seed, "calibration")
+    common = _pose_error(rng, spec.calib_rotation_deg, spec.calib_translation_m)
+    out: list[CameraSpec] = []
+    focal0 = centre0 = np.zeros(2)
+    for i, cam in enumerate(cameras):
+        own = _pose_error(rng, spec.calib_stereo_rotation_deg, spec.calib_stereo_translation_m)
+        if i == 0:  # the draws of before for the first camera: a mono dataset is unchanged
+            focal0 = rng.normal(0.0, spec.calib_focal, 2)
+            centre0 = rng.normal(0.0, spec.calib_principal_px, 2)
+            focal, centre = focal0, centre0
+        else:
+            focal = focal0 + rng.normal(0.0, spec.calib_stereo_focal, 2)
+            centre = centre0 + rng.normal(0.0, spec.calib_stereo_principal_px, 2)
+        out.append(_with_errors(cam, common, own, focal, centre))
+    return tuple(out)
+
+
+def _with_errors(
+    cam: CameraSpec,
+    rig_error: Pose,
+    own: Pose,
+    focal: NDArray[np.float64],
+    centre: NDArray[np.float64],
+) -> CameraSpec:
+    """``cam`` with its ``T_B_C`` off by ``rig_error`` (body frame) and ``own`` (its own), its
+    focal lengths by the relative ``focal`` and its principal point by ``centre`` px."""
     K = cam.camera.K.copy()
     K[0, 0] *= 1.0 + focal[0]
     K[1, 1] *= 1.0 + focal[1]
@@ -573,11 +604,7 @@ def _rigs_for(spec: SequenceSpec) -> tuple[Rig, Rig, ImuNoiseModel | None, dict[
     true_imu = replace(rig.imu, flight_noise=None, noise=imu_noise or rig.imu.noise)
     true = replace(stated, cameras=true_cams, imu=true_imu)
     if realistic:
-        rng = stream_rng(spec.seed, "calibration")
-        common = _pose_error(rng, spec.calib_rotation_deg, spec.calib_translation_m)
-        stated = replace(
-            stated, cameras=tuple(_miscalibrated(c, spec, rng, common) for c in stated.cameras)
-        )
+        stated = replace(stated, cameras=_miscalibrated_cameras(spec, stated.cameras))
     drawn: dict[str, object] = {
         "profile": spec.sensors,
         "time_offset_s": {"true": true_td / NS_PER_S, "stated": stated_td / NS_PER_S},
