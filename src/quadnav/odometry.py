@@ -20,7 +20,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Literal, Protocol
+from typing import TYPE_CHECKING, Literal, Protocol, runtime_checkable
 
 import numpy as np
 from numpy.typing import NDArray
@@ -29,6 +29,9 @@ from quadnav.errors import SampleError
 from quadnav.geometry.rotations import Pose
 from quadnav.messages import ImageFrame, ImuSample, OdometrySample
 
+if TYPE_CHECKING:
+    from quadnav.geometry.trajectory import Trajectory
+
 __all__ = [
     "TRACKING_EVENTS",
     "EventKind",
@@ -36,6 +39,7 @@ __all__ = [
     "KeyframeRecord",
     "OdometryEvent",
     "OdometryState",
+    "RefinedTrajectory",
     "StageTiming",
     "Status",
     "VisualOdometry",
@@ -251,3 +255,13 @@ class VisualOdometry(Protocol):
     def rejected(self) -> Mapping[str, int]: ...
 
     def timing(self) -> StageTiming: ...
+
+
+@runtime_checkable
+class RefinedTrajectory(Protocol):
+    """An odometry that can give its past frames again through the map it refined since (a
+    SLAM: each frame's pose relative to its reference keyframe, on that keyframe's final pose,
+    as ORB-SLAM2's ``SaveTrajectoryTUM`` writes it). Not causal: what the field's papers
+    evaluate for a SLAM; the causal estimate is each frame's state when it was pushed."""
+
+    def final_trajectory(self) -> Trajectory: ...

@@ -2,7 +2,8 @@
 along an arc and back along it, with a drift of 8 cm and 2 degrees put into the map at the
 turn (the keyframes made after it, their points and the tracker moved, their links to the
 older points cut, as a drifting odometry would leave them). Coming back, the first keyframes are
-recognised, the loop is closed and the estimate returns to the truth."""
+recognised, the loop is closed and the estimate returns to the truth; the final trajectory (the
+frames through their keyframes as the loop left them) takes the drift out of the frames before."""
 
 from __future__ import annotations
 
@@ -39,7 +40,7 @@ def test_a_loop_back_to_the_start_is_closed_and_takes_the_drift_out(renderer: ob
     # (local mapping off: its triangulation would tie the drifted keyframes back to the first
     # points before the loop is seen; here loop closing alone is judged)
     cfg = SlamConfig(
-        local_keyframes=4, keyframe_max_frames=6, local_mapping=False,
+        local_keyframes=4, keyframe_every=6, local_mapping=False,
         loop_closing=LoopClosingConfig(min_gap_keyframes=3, consistency=1),
     )  # fmt: skip
     ex = OrbExtractor(cfg.orb)
@@ -69,3 +70,10 @@ def test_a_loop_back_to_the_start_is_closed_and_takes_the_drift_out(renderer: ob
     # the frames after it are tracked on the first points again: the drift is gone
     assert max(err[i + 1 :]) < 0.02, (i, err[i:])
     assert err[i] < err[i - 1] - 0.01 and loop.moved_m > 0.01, (err[i - 1 : i + 1], loop)
+    # the final trajectory (ORB-SLAM2's saved one): every frame through its reference keyframe
+    # as the loop left it, so the frames tracked on the drifted keyframes come back too
+    t_final, T_final = tracker.final_poses()
+    assert len(t_final) == len(ks) and (np.diff(t_final) > 0).all()
+    final = _errors(truth, [Pose.from_matrix(T) for T in T_final])
+    assert max(final[n + 1 : i]) < 0.03, (final[n + 1 : i], err[n + 1 : i])
+    assert np.mean(final[n + 1 : i]) < 0.5 * np.mean(err[n + 1 : i])

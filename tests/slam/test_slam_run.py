@@ -40,6 +40,10 @@ def test_the_stereo_slam_runs_through_the_common_runner(stereo_run: tuple) -> No
     assert m.failures == 0 and m.fraction_with_estimate > 0.95, m
     assert not isinstance(m.ape_se3, str) and m.ape_se3.rmse_m < 0.01, m.ape_se3  # (3 mm here)
     assert [e.kind for e in slam.events] == ["initialized"]
+    # the frames again through the final map (ORB-SLAM2's saved trajectory), scored alike
+    assert (run.run_dir / "estimate_final.tum").exists() and run.final is not None
+    final = run.final["ape_se3"]
+    assert final["poses"] == m.frames_with_estimate and final["rmse_m"] < 0.01, final
     assert slam.rejected == {}  # (every left frame met its partner)
     assert len(slam.tracker.map.keyframes) >= 2
 

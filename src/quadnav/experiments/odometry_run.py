@@ -29,7 +29,7 @@ from numpy.typing import NDArray
 from quadnav.errors import ConfigError, EvalError, IoError, SampleError
 from quadnav.eval.associate import associate
 from quadnav.eval.na import Metric, na
-from quadnav.eval.vio_metrics import RunCounts, VioMetrics, vio_metrics
+from quadnav.eval.vio_metrics import RunCounts, VioMetrics, ape_summary, vio_metrics
 from quadnav.geometry.trajectory import Trajectory
 from quadnav.io.datasets import VisualInertialDataset, open_dataset
 from quadnav.io.frames import VideoOut
@@ -41,6 +41,7 @@ from quadnav.odometry import (
     KeyframeRecord,
     OdometryEvent,
     OdometryState,
+    RefinedTrajectory,
     VisualOdometry,
 )
 from quadnav.rig import Rig
@@ -117,12 +118,16 @@ class OdometryRun:
     #: what the odometry rejected or did not use, by kind (``stereo_unpaired``: a left frame
     #: used as mono for want of its partner)
     input_counts: Mapping[str, int] = field(default_factory=dict)
+    #: a SLAM's frames through its final map, scored as the causal estimate is (``ape_se3``,
+    #: ``ape_sim3``; ``estimate_final.tum``): not causal (None: not a SLAM, or no truth)
+    final: Mapping[str, object] | None = None
 
     def as_json(self) -> dict[str, object]:
         return {
             "dataset": self.dataset, "camera": self.camera,
             **dataclasses.asdict(self.metrics), "timing": dataclasses.asdict(self.timing),
             "input_counts": dict(self.input_counts), "notes": list(self.notes),
+            **({"final": dict(self.final)} if self.final is not None else {}),
         }  # fmt: skip
 
 
@@ -317,6 +322,8 @@ class _Record:
     #: the published keyframes' stamps and poses (not the records: their keypoints would grow
     #: with the run)
     keyframes: _KeyframePoses = field(default_factory=lambda: _KeyframePoses())
+    #: a SLAM's frames through its final map (:class:`~quadnav.odometry.RefinedTrajectory`)
+    final: Trajectory | None = None
 
 
 #: Rows a block of :class:`_States` holds (one allocation per 4096 camera frames).
@@ -621,6 +628,9 @@ def run_odometry(
         est, cov = _estimate(rec.states)
         write_tum(run_dir / "estimate.tum", est)
         write_tum(run_dir / "keyframes.tum", rec.keyframes.trajectory())
+        if isinstance(vio, RefinedTrajectory):
+            rec.final = vio.final_trajectory()
+            write_tum(run_dir / "estimate_final.tum", rec.final)
         _loop_outputs(vio, rec, run_dir, opt, t0)
     return _finish(dataset, vio, rec, run_dir, est, cov, (t0, t1), opt, time.perf_counter() - start)
 
@@ -672,6 +682,23 @@ def _blackout_json(
     }  # fmt: skip
 
 
+def _final_metrics(
+    final: Trajectory | None, truth: Trajectory | None, opt: OdometryRunOptions
+) -> dict[str, object] | None:
+    """The final trajectory's APE after SE(3) and Sim(3) alignments (None: none, or no truth)."""
+    if final is None or truth is None or len(final) < 3:
+        return None
+    try:
+        ref_m, est_m = associate(truth, final, t_max_diff_s=opt.t_max_diff_s, interpolate=True)
+    except EvalError:
+        return None
+    return {
+        "ape_se3": dataclasses.asdict(ape_summary(ref_m, est_m, "se3")),
+        "ape_sim3": dataclasses.asdict(ape_summary(ref_m, est_m, "sim3")),
+        "note": "every tracked frame through its reference keyframe's final pose (not causal)",
+    }
+
+
 def _finish(
     dataset: VisualInertialDataset,
     vio: VisualOdometry,
@@ -701,7 +728,7 @@ def _finish(
     run = OdometryRun(
         run_dir=run_dir, dataset=dataset.name, camera=opt.camera, metrics=metrics,
         timing=_timing(vio, rec, wall_s), events=vio.events, notes=tuple(notes),
-        input_counts=counts,
+        input_counts=counts, final=_final_metrics(rec.final, scored.truth, opt),
     )  # fmt: skip
     write_json(run_dir / "timing.json", dataclasses.asdict(run.timing))
     from quadnav.experiments.odometry_report import loop_evaluation, write_odometry_outputs

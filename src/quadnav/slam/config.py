@@ -81,11 +81,16 @@ class SlamConfig:
     ``search_radius_px``: the projection search's window at level 0 (wider once when too few
     match); ``max_hamming``: a projection match's descriptor distance (TH_HIGH);
     ``min_inliers``: below this after the pose optimisation the tracking is lost;
-    ``keyframe_*``: the thesis's keyframe rules (chapter 3): after ``keyframe_max_frames``
-    frames, or when the frame tracks under ``keyframe_ratio`` of its reference keyframe's
-    points, if it tracks at least ``keyframe_min_tracked``; ``local_keyframes``: the map points
-    of so many keyframes are projected into each frame (the newest, and those that see most of
-    the last frame's points); ``relocalization``: after a loss
+    ``keyframe_*``: the thesis's keyframe rules (chapter 3): not within
+    ``keyframe_max_frames`` of a relocalization; when the frame tracks under
+    ``keyframe_ratio`` of its reference keyframe's points (those ``keyframe_min_observers``
+    keyframes see), or fewer than ``close_tracked`` close points while ``close_untracked``
+    more could be made (ORB-SLAM2's stereo rule), if it tracks at least
+    ``keyframe_min_tracked``; ``local_keyframes``: the map points of so many keyframes are
+    projected into each frame (the newest, and those that see most of the last frame's
+    points); ``local_ba_keyframes``: the newest keyframe and its most covisible ones adjusted
+    after each keyframe; ``global_ba``: every keyframe and point adjusted after a loop is
+    closed (ORB-SLAM2 does it in a thread; here inline); ``relocalization``: after a loss
     (:mod:`quadnav.slam.relocalization`); ``loop_closing``: :mod:`quadnav.slam.loop_closing`."""
 
     orb: OrbConfig = field(default_factory=OrbConfig)
@@ -98,9 +103,14 @@ class SlamConfig:
     keyframe_max_frames: int = 20
     keyframe_ratio: float = 0.9
     keyframe_min_tracked: int = 50
+    keyframe_min_observers: int = 2
+    keyframe_every: int = 0
+    close_tracked: int = 100
+    close_untracked: int = 70
     local_keyframes: int = 10
     local_mapping: bool = True
     local_ba_keyframes: int = 5
+    global_ba: bool = True
     relocalization: RelocalizationConfig = field(default_factory=RelocalizationConfig)
     loop_closing: LoopClosingConfig = field(default_factory=LoopClosingConfig)
 
@@ -111,7 +121,16 @@ class SlamConfig:
             raise SlamError(
                 f"SlamConfig.keyframe_ratio must lie in (0, 1], got {self.keyframe_ratio}"
             )
-        ints = ("init_min_points", "min_inliers", "keyframe_max_frames", "keyframe_min_tracked",
-                "local_keyframes", "local_ba_keyframes")  # fmt: skip
+        ints = (
+            "init_min_points",
+            "min_inliers",
+            "keyframe_max_frames",
+            "keyframe_min_tracked",
+            "local_keyframes",
+            "local_ba_keyframes",
+            "keyframe_min_observers",
+        )
+        if self.keyframe_every < 0:
+            raise SlamError(f"SlamConfig.keyframe_every must be >= 0, got {self.keyframe_every}")  # fmt: skip
         if any(getattr(self, k) < 1 for k in ints) or not 0 <= self.max_hamming <= 256:
             raise SlamError(f"SlamConfig: {', '.join(ints)} must be >= 1, max_hamming 0-256")

@@ -1,10 +1,11 @@
 """The SLAM's local mapping (ORB-SLAM2's ``LocalMapping``), run after each keyframe: new map
 points triangulated between the keyframe and its covisible ones from keypoints that observe none
-(:func:`create_points`), the recent map points culled (a point made two or more keyframes ago that fewer than three keyframes see:
-ORB-SLAM2's stereo rule), then the local bundle adjustment
-(:func:`~quadnav.slam.optimizer.local_bundle_adjustment`) over the newest keyframes and the
-points they see, the other keyframes that see those points held; its outlier observations are
-forgotten and points seen by no keyframe culled. Last, the keyframe culling: a keyframe covisible
+(:func:`create_points`), the recent map points culled (a point made two or more keyframes ago
+that fewer than two keyframes see: ORB-SLAM2's stereo rule, three observations or fewer with a
+stereo one counting twice), then the local bundle adjustment
+(:func:`~quadnav.slam.optimizer.local_bundle_adjustment`) over the newest keyframe, its most
+covisible ones and the points they see, the other keyframes that see those points held; its
+outlier observations are forgotten and points seen by no keyframe culled. Last, the keyframe culling: a keyframe covisible
 with the newest (not the first, not the newest) whose close points are seen by at least three
 other keyframes for ``redundancy`` (90 %) of them or more is culled (ORB-SLAM2's
 ``KeyFrameCulling``; the scale condition left out)."""
@@ -18,7 +19,13 @@ import numpy as np
 from quadnav.slam.map import SlamKeyframe, SlamMap
 from quadnav.slam.optimizer import BundleProblem, local_bundle_adjustment
 
-__all__ = ["LocalMappingReport", "create_points", "cull_keyframes", "local_mapping"]
+__all__ = [
+    "LocalMappingReport",
+    "create_points",
+    "cull_keyframes",
+    "global_bundle_adjustment",
+    "local_mapping",
+]
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -37,7 +44,7 @@ def local_mapping(
     slam_map: SlamMap,
     *,
     local_keyframes: int = 5,
-    min_observations: int = 3,
+    min_observations: int = 2,
     max_held: int = 5,
     redundancy: float = 0.9,
     neighbours: int = 10,
@@ -49,13 +56,14 @@ def local_mapping(
     recent = (newest - m.first_keyframe >= 2) & (m.n_obs < min_observations) & ~m.bad
     culled = np.flatnonzero(recent)
     m.cull(culled)
-    local = [kf for kf in slam_map.keyframes[-local_keyframes:] if not kf.bad]
+    covisible = m.covisible(m.keyframes[-1], local_keyframes)
+    local = sorted((kf for kf in covisible if not kf.bad), key=lambda kf: kf.index)
     if len(local) < 2:
         return LocalMappingReport(culled=len(culled), adjusted=0, held=0, dropped=0, created=made)
     pts = m.local_points(local)
     local_ids = {kf.index for kf in local}
-    held = [kf for kf in reversed(slam_map.keyframes[:-local_keyframes])
-            if kf.index not in local_ids and np.isin(kf.points, pts).any()][:max_held]  # fmt: skip
+    held = [kf for kf in reversed(slam_map.keyframes)
+            if kf.index not in local_ids and not kf.bad and np.isin(kf.points, pts).any()][:max_held]  # fmt: skip
     if not held:  # (the first keyframes: the oldest local one holds the frame)
         held, local = [local[0]], local[1:]
     kfs = [*held, *local]
@@ -77,6 +85,22 @@ def local_mapping(
                               dropped=dropped, keyframes_culled=n_kf, created=made)  # fmt: skip
 
 
+def global_bundle_adjustment(m: SlamMap, *, iterations: int = 10) -> tuple[int, int]:
+    """ORB-SLAM2's ``GlobalBundleAdjustemnt`` after a loop: every keyframe (the first held) and
+    every point they see, adjusted together (``iterations`` a pass, two passes, the second
+    without the first's outliers); the map takes the result. (keyframes, points) adjusted."""
+    kfs = [kf for kf in m.keyframes if not kf.bad]
+    pts = m.local_points(kfs)
+    if len(kfs) < 2 or len(pts) == 0:
+        return 0, 0
+    problem, _ = _problem(m, kfs, pts, n_held=1)
+    out = local_bundle_adjustment(problem, kfs[0].frame.camera.intrinsics, iterations=iterations)
+    for kf, T_W_C in zip(kfs[1:], out.T_W_C[1:], strict=True):
+        kf.T_C_W = T_W_C.inverse()
+    m.X_W[pts] = out.X_W
+    return len(kfs) - 1, len(pts)
+
+
 def cull_keyframes(
     m: SlamMap, candidates: list[SlamKeyframe], *, redundancy: float = 0.9, observers: int = 3
 ) -> int:
@@ -91,6 +115,11 @@ def cull_keyframes(
         sel = ~m.bad[ids] & kf.frame.close[kp]
         if not sel.any() or np.mean(m.n_obs[ids[sel]] - 1 >= observers) < redundancy:
             continue
+        parents = [p for p in m.covisible(kf, 2)[1:] if not p.bad] or [
+            p for p in reversed(m.keyframes[: kf.index]) if not p.bad
+        ][:1]
+        if parents:
+            kf.parent, kf.T_C_P = parents[0].index, kf.T_C_W @ parents[0].T_C_W.inverse()
         m.forget(kf, kp)
         kf.bad = True
         n += 1

@@ -29,7 +29,7 @@ from quadnav.slam.frame import Frame, StereoCamera
 from quadnav.vision.orb import OrbFeatures
 from quadnav.vision.stereo_match import StereoKeypoints
 
-__all__ = ["SLAM_MAP_FORMAT", "SLAM_MAP_VERSION", "SlamKeyframe", "SlamMap"]
+__all__ = ["SLAM_MAP_FORMAT", "SLAM_MAP_VERSION", "SlamKeyframe", "SlamMap", "pose_now"]
 
 SLAM_MAP_FORMAT = "quadnav-slam-map"
 SLAM_MAP_VERSION = 1
@@ -43,19 +43,32 @@ IntArray = NDArray[np.int64]
 class SlamKeyframe:
     """A keyframe: its ``index``, the camera's pose ``T_C_W``, its ``frame`` and ``points``
     (per keypoint: the map point it observes, -1 for none); ``bad``: culled (it observes
-    nothing; its index stays taken)."""
+    nothing; its index stays taken), then ``parent`` is the keyframe it follows and ``T_C_P``
+    its pose in that one's camera (ORB-SLAM2's spanning tree, for :meth:`pose_now`)."""
 
     index: int
     T_C_W: Pose
     frame: Frame
     points: IntArray
     bad: bool = False
+    parent: int = -1
+    T_C_P: Pose | None = None
 
     @property
     def observed(self) -> tuple[IntArray, IntArray]:
         """(keypoints, map points) of its observations."""
         kp = np.flatnonzero(self.points >= 0)
         return kp, self.points[kp]
+
+
+def pose_now(kf: SlamKeyframe, keyframes: list[SlamKeyframe]) -> Pose:
+    """``kf``'s ``T_C_W`` as the map has it now: a culled keyframe's through its parents (their
+    poses move on with the map, its own no longer does)."""
+    T = Pose.identity()
+    while kf.bad and kf.parent >= 0 and kf.T_C_P is not None:
+        T = T @ kf.T_C_P
+        kf = keyframes[kf.parent]
+    return T @ kf.T_C_W
 
 
 class SlamMap:

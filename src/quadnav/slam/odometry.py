@@ -41,6 +41,7 @@ from scipy.spatial.transform import Rotation
 
 from quadnav.errors import QuadnavError, SampleError, SlamError
 from quadnav.geometry.rotations import Pose
+from quadnav.geometry.trajectory import Trajectory
 from quadnav.messages import ImageFrame, ImuSample
 from quadnav.odometry import (
     EventKind,
@@ -188,6 +189,15 @@ class SlamOdometry:
         for rec in out:
             self._images.pop(rec.index, None)
         return out
+
+    def final_trajectory(self) -> Trajectory:
+        """Every tracked frame's body pose through its reference keyframe's pose now (the
+        local bundle adjustments and loop closings since moved it; ORB-SLAM2's saved
+        trajectory): not causal (see :class:`~quadnav.odometry.RefinedTrajectory`)."""
+        t, T_W_C = self.tracker.final_poses()
+        T = self.T_O_S.matrix() @ T_W_C @ self.T_B_C.inverse().matrix()
+        q = Rotation.from_matrix(T[:, :3, :3]).as_quat() if len(T) else np.zeros((0, 4))
+        return Trajectory(t_ns=t, p_W_B=T[:, :3, 3], q_W_B_xyzw=q, name="final")
 
     def newest_keyframe(self) -> KeyframeRecord | None:
         kfs = self.tracker.map.keyframes

@@ -138,7 +138,11 @@ class BundleResult:
 
 
 def local_bundle_adjustment(
-    problem: BundleProblem, cam: tuple[float, float, float, float, float], *, passes: int = 2
+    problem: BundleProblem,
+    cam: tuple[float, float, float, float, float],
+    *,
+    passes: int = 2,
+    iterations: int = 50,
 ) -> BundleResult:
     """ORB-SLAM2's ``LocalBundleAdjustment`` in GTSAM: stereo observations as
     ``GenericStereoFactor3D`` and the others as projection factors, each with its level's
@@ -158,7 +162,7 @@ def local_bundle_adjustment(
     for _ in range(passes):
         graph, values = _bundle_graph(p, keep, poses, points, Ks, Km)
         params = gtsam.LevenbergMarquardtParams()
-        params.setMaxIterations(50)
+        params.setMaxIterations(iterations)
         out = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
         poses = [to_pose(out.atPose3(gtsam.symbol("x", k))) for k in range(len(poses))]
         points = np.array([out.atPoint3(gtsam.symbol("l", j)) for j in range(len(points))]).reshape(

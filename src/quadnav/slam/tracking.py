@@ -30,9 +30,9 @@ from numpy.typing import NDArray
 from quadnav.geometry.rotations import Pose
 from quadnav.slam.config import SlamConfig
 from quadnav.slam.frame import Frame
-from quadnav.slam.local_mapping import LocalMappingReport, local_mapping
+from quadnav.slam.local_mapping import LocalMappingReport, global_bundle_adjustment, local_mapping
 from quadnav.slam.loop_closing import LoopCloser, LoopClosingReport
-from quadnav.slam.map import SlamKeyframe, SlamMap
+from quadnav.slam.map import SlamKeyframe, SlamMap, pose_now
 from quadnav.slam.optimizer import optimize_pose
 from quadnav.slam.relocalization import KeyframeDatabase, pnp_candidates
 
@@ -145,13 +145,29 @@ class StereoTracker:
         self._loop: LoopClosingReport | None = None
         self._T_C_W_last: Pose | None = None
         self._velocity: Pose | None = None  # T_C_W(k) T_W_C(k-1)
-        self._since_keyframe = 0
         self._since_reloc = 10**9
-        self._ref_tracked = 0
+        self._since_keyframe = 0
         self._reference: SlamKeyframe | None = (
             self.map.keyframes[-1] if self.map.keyframes else None
         )
         self._last_points = np.zeros(0, np.int64)  # the map points the last frame tracked
+        # each tracked frame: its time, reference keyframe and pose in it (final_poses)
+        self._relative: list[tuple[int, int, NDArray[np.float64]]] = []
+
+    def final_poses(self) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
+        """Every tracked frame's time and camera pose ``T_W_C`` (N, 4, 4) through its reference
+        keyframe's pose now: what local mapping and loop closing did since is in it (ORB-SLAM2's
+        saved trajectory; not causal)."""
+        n = len(self._relative)
+        t = np.array([r[0] for r in self._relative], np.int64)
+        T = np.empty((n, 4, 4))
+        kfs = self.map.keyframes
+        T_W_R = {
+            k: pose_now(kfs[k], kfs).inverse().matrix() for k in {r[1] for r in self._relative}
+        }
+        for i, (_, k, T_R_C) in enumerate(self._relative):
+            T[i] = T_W_R[k] @ T_R_C
+        return t, T
 
     def track(self, frame: Frame) -> TrackResult:
         if self.state == "waiting":
@@ -185,7 +201,7 @@ class StereoTracker:
         self._last_points = self.map.add_points(kf, idx)
         self.database.add(kf)
         self._reference = kf
-        self._ref_tracked = len(idx)
+        self._relative.append((frame.t_ns, kf.index, np.eye(4)))
         return TrackResult(t_ns=frame.t_ns, state="tracking", T_W_C=Pose.identity(),
                            inliers=len(idx), keyframe=True)  # fmt: skip
 
@@ -200,10 +216,13 @@ class StereoTracker:
         if len(counts) and counts.max() > 0:
             self._reference = self.map.keyframes[int(np.argmax(counts))]
         n = len(matches.keypoints)
-        keyframe = self._wants_keyframe(n)
+        keyframe = self._wants_keyframe(frame, matches)
         self._loop = None
         if keyframe:
-            T_C_W = self._add_keyframe(frame, T_C_W, matches, n)
+            T_C_W = self._add_keyframe(frame, T_C_W, matches)
+        if self._reference is not None:
+            T_R_C = self._reference.T_C_W @ T_C_W.inverse()
+            self._relative.append((frame.t_ns, self._reference.index, T_R_C.matrix()))
         return TrackResult(t_ns=frame.t_ns, state="tracking", T_W_C=T_C_W.inverse(), inliers=n,
                            keyframe=keyframe, loop=self._loop)  # fmt: skip
 
@@ -302,7 +321,14 @@ class StereoTracker:
         )  # fmt: skip
         return _Matches(keypoints=kp, points=ids[j])
 
-    def _wants_keyframe(self, tracked: int) -> bool:
+    def _wants_keyframe(self, frame: Frame, matches: _Matches) -> bool:
+        """ORB-SLAM2's ``NeedNewKeyFrame`` (stereo) with the thesis's ratio, local mapping
+        being idle (it runs inline): when the frame tracks under ``keyframe_ratio`` of the
+        points its reference keyframe has that ``keyframe_min_observers`` keyframes see, or
+        fewer than ``close_tracked`` close points while ``close_untracked`` more could be made;
+        it must track ``keyframe_min_tracked``. Not within ``keyframe_max_frames`` of a
+        relocalization (once the map has as many keyframes). ``keyframe_every`` frames: one
+        anyway (0: never by count)."""
         c = self.config
         if not self.mapping:
             return False
@@ -311,11 +337,27 @@ class StereoTracker:
             and len(self.map.keyframes) > c.keyframe_max_frames
         ):
             return False  # (ORB-SLAM2: not just after a relocalization)
-        due = self._since_keyframe >= c.keyframe_max_frames
-        thin = tracked < c.keyframe_ratio * self._ref_tracked
-        return (due or thin) and tracked >= c.keyframe_min_tracked
+        tracked = len(matches.keypoints)
+        due = c.keyframe_every > 0 and self._since_keyframe >= c.keyframe_every
+        thin = tracked < c.keyframe_ratio * self._reference_points()
+        close_in = int(frame.close[matches.keypoints].sum())
+        close_out = int(frame.close.sum()) - close_in
+        need_close = close_in < c.close_tracked and close_out > c.close_untracked
+        return (due or thin or need_close) and tracked >= c.keyframe_min_tracked
 
-    def _add_keyframe(self, frame: Frame, T_C_W: Pose, matches: _Matches, n: int) -> Pose:
+    def _reference_points(self) -> int:
+        """The reference keyframe's good points seen by ``keyframe_min_observers`` keyframes
+        or more (one while the map has two keyframes or fewer): ORB-SLAM2's ``nRefMatches``
+        (its 3 and 2 observations, a stereo one counting twice)."""
+        ref = self._reference
+        if ref is None:
+            return 0
+        ids = ref.points[ref.points >= 0]
+        ids = ids[~self.map.bad[ids]]
+        least = self.config.keyframe_min_observers if len(self.map.keyframes) > 2 else 1
+        return int((self.map.n_obs[ids] >= least).sum())
+
+    def _add_keyframe(self, frame: Frame, T_C_W: Pose, matches: _Matches) -> Pose:
         """The frame as a keyframe: it observes the points it tracked, makes points of its close
         stereo keypoints that matched none, and local mapping runs; its (adjusted) pose."""
         kf = self.map.add_keyframe(T_C_W, frame)
@@ -326,11 +368,12 @@ class StereoTracker:
         self.database.add(kf)
         self._reference = kf
         self._since_keyframe = 0
-        self._ref_tracked = n  # (ORB-SLAM2: the points its reference keyframe tracks)
         if self.config.local_mapping:
             self.last_mapping = local_mapping(
                 self.map, local_keyframes=self.config.local_ba_keyframes
             )
         self._loop = self.loop_closer.after_keyframe(kf, self.map, self.database, self._fit_on)
+        if self._loop is not None and self.config.global_ba:
+            global_bundle_adjustment(self.map)
         self._T_C_W_last = kf.T_C_W
         return kf.T_C_W
