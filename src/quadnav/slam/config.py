@@ -81,7 +81,8 @@ class SlamConfig:
     ``search_radius_px``: the projection search's window at level 0 (wider once when too few
     match); ``max_hamming``: a projection match's descriptor distance (TH_HIGH);
     ``min_inliers``: below this after the pose optimisation the tracking is lost;
-    ``keyframe_*``: the thesis's keyframe rules (chapter 3): not within
+    ``keyframe_*``: the thesis's keyframe rules (chapter 3; its 90 % is ORB-SLAM's monocular
+    ratio, ORB-SLAM2's code takes 0.75 for a stereo or RGB-D camera): not within
     ``keyframe_max_frames`` of a relocalization; when the frame tracks under
     ``keyframe_ratio`` of its reference keyframe's points (those ``keyframe_min_observers``
     keyframes see), or fewer than ``close_tracked`` close points while ``close_untracked``
@@ -101,7 +102,7 @@ class SlamConfig:
     max_hamming: int = 100
     min_inliers: int = 30
     keyframe_max_frames: int = 20
-    keyframe_ratio: float = 0.9
+    keyframe_ratio: float = 0.75
     keyframe_min_tracked: int = 50
     keyframe_min_observers: int = 2
     keyframe_every: int = 0
