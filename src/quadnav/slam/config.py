@@ -19,7 +19,9 @@ class LoopClosingConfig:
     neighbourhood (excluded as candidates) and as the candidate's (whose points are matched);
     ``max_hamming``, ``ratio``, ``min_matches``, ``ransac_px``: the descriptor matching and PnP;
     ``loop_sigma_m``, ``loop_sigma_rad``: the loop edge's; ``edge_sigma_m``,
-    ``edge_sigma_rad``: the essential graph's other edges."""
+    ``edge_sigma_rad``: the essential graph's other edges; ``max_drift_*``: the largest
+    correction a loop may ask (m, plus a fraction of the path since the old keyframe; deg):
+    a stereo SLAM drifts about 1 % of its path, a repeated texture asks for its period."""
 
     enabled: bool = True
     min_gap_keyframes: int = 20
@@ -35,6 +37,9 @@ class LoopClosingConfig:
     loop_sigma_rad: float = 0.002
     edge_sigma_m: float = 0.01
     edge_sigma_rad: float = 0.005
+    max_drift_m: float = 0.1
+    max_drift_fraction: float = 0.03
+    max_drift_deg: float = 10.0
 
     def __post_init__(self) -> None:
         ints = (self.min_gap_keyframes, self.consistency, self.covisible, self.min_matches,
@@ -42,9 +47,10 @@ class LoopClosingConfig:
         if min(ints) < 1 or not 0 <= self.max_hamming <= 256 or not 0 < self.ratio <= 1:
             raise SlamError("LoopClosingConfig: counts >= 1, max_hamming 0-256, ratio in (0, 1]")
         sig = (self.ransac_px, self.loop_sigma_m, self.loop_sigma_rad, self.edge_sigma_m,
-               self.edge_sigma_rad)  # fmt: skip
+               self.edge_sigma_rad, self.max_drift_m, self.max_drift_fraction,
+               self.max_drift_deg)  # fmt: skip
         if not all(np.isfinite(s) and s > 0 for s in sig):
-            raise SlamError("LoopClosingConfig: ransac_px and the sigmas must be > 0")
+            raise SlamError("LoopClosingConfig: ransac_px, the sigmas and max_drift_* must be > 0")
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

@@ -15,6 +15,9 @@ after each keyframe in the tracker's thread.
    pair sharing ``covisibility_edge`` points or more: ORB-SLAM2's essential graph) and the
    loop's edge, the first keyframe held. Each keyframe takes its corrected pose, each map point
    moves with the keyframe that made it.
+   Before it, the loop must ask for no more than the drift can be: a correction over
+   ``max_drift_m`` plus ``max_drift_fraction`` of the path since the old keyframe, or over
+   ``max_drift_deg``, is a place that repeats and is refused (``rejected``).
 4. **Fusion.** The old points found in the keyframe replace the duplicates it had made of them,
    in every keyframe that observes a duplicate.
 
@@ -73,6 +76,8 @@ class LoopCloser:
     closed: list[LoopClosingReport] = field(default_factory=list)
     _streak: list[tuple[int, set[int]]] = field(default_factory=list)  # (keyframe, group)
     _last_loop: int = -(10**9)
+    #: loops found but refused as implausible (a correction larger than the drift can be)
+    rejected: int = 0
 
     def after_keyframe(
         self, kf: SlamKeyframe, m: SlamMap, db: KeyframeDatabase, fit: PoseFitter
@@ -90,6 +95,10 @@ class LoopCloser:
         if found is None:
             return None
         T_C_W, kps, ids = found
+        if not self._plausible(kf, m, m.keyframes[cand], T_C_W):
+            self.rejected += 1
+            self._streak.clear()
+            return None
         report = self._correct(kf, m, m.keyframes[cand], T_C_W, kps, ids)
         self._last_loop = kf.index
         self._streak.clear()
@@ -141,6 +150,20 @@ class LoopCloser:
         if out is None or len(out[1]) < cfg.min_inliers:
             return None
         return out
+
+    def _plausible(self, kf: SlamKeyframe, m: SlamMap, old: SlamKeyframe, T_C_W: Pose) -> bool:
+        """Whether the loop moves ``kf`` by no more than the drift can have grown since ``old``:
+        ``max_drift_m`` plus ``max_drift_fraction`` of the path between them (the keyframes'),
+        and ``max_drift_deg``. A place that repeats (a wallpaper's period, a second identical
+        shelf) passes every geometric check and asks for a jump of that period."""
+        cfg = self.config
+        path = [k.T_C_W.inverse().p_A_B for k in m.keyframes[old.index : kf.index + 1] if not k.bad]
+        length = float(np.linalg.norm(np.diff(np.array(path), axis=0), axis=1).sum())
+        moved = float(np.linalg.norm(kf.T_C_W.inverse().p_A_B - T_C_W.inverse().p_A_B))
+        turned = float(np.degrees((kf.T_C_W.R_A_B * T_C_W.R_A_B.inv()).magnitude()))
+        return moved <= cfg.max_drift_m + cfg.max_drift_fraction * length and (
+            turned <= cfg.max_drift_deg
+        )
 
     # -- correction ------------------------------------------------------------------------------
     def _correct(
