@@ -21,6 +21,10 @@ from quadnav.cli.main import app
         (["--localization-only"], "--localization-only: give the map to localize in"),
         (["--load-map", "m", "--save-map", "m"], "--save-map m: the map loaded"),
         (["--blackout", "3"], "--blackout '3': give START:SECONDS"),
+        (
+            ["--calibration", "nowhere/camchain.yaml"],
+            "--calibration nowhere/camchain.yaml: no such",
+        ),
     ],
 )
 def test_a_bad_option_is_one_line(tmp_path: Path, args: list[str], named: str) -> None:

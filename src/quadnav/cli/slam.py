@@ -57,6 +57,7 @@ def resolve_slam_request(
     *, features: int = 1200, th_depth: float = 40.0, loop: bool = True,
     save_map: Path | None = None,
     load_map: Path | None = None, localization_only: bool = False, blackout: str | None = None,
+    calibration: Path | None = None,
 ) -> SlamRequest:  # fmt: skip
     """The validated request (no dataset read, no folder made)."""
     check_range(start_s, "--start", 0.0, 1e6, "s")
@@ -70,7 +71,7 @@ def resolve_slam_request(
         options=OdometryRunOptions(start_s=start_s, duration_s=duration_s, video=False,
                                    blackout_s=parse_blackout(blackout)),
         loop=loop, save_map=save_map,
-        load_map=load_map, localization_only=localization_only,
+        load_map=load_map, localization_only=localization_only, calibration=calibration,
     )  # fmt: skip
     check_slam_request(request)
     return request
@@ -88,6 +89,7 @@ def check_example(params: CommandParams) -> None:
         load_map=optional_param(params, "load_map", Path),
         localization_only=param(params, "localization_only", bool),
         blackout=optional_param(params, "blackout", str),
+        calibration=optional_param(params, "calibration", Path),
     )  # fmt: skip
 
 
@@ -161,6 +163,13 @@ def slam_command(
     load_map: SlamLoadMapOpt = None,
     localization_only: LocalizationOpt = False,
     blackout: BlackoutOpt = None,
+    calibration: Annotated[
+        Path | None,
+        typer.Option(
+            "--calibration",
+            help="Kalibr camchain or EuRoC folder replacing the dataset's calibration",
+        ),
+    ] = None,
     out: OutOpt = Path("runs"),
     serial: Annotated[
         str | None,
@@ -174,7 +183,7 @@ def slam_command(
     request = resolve_slam_request(
         dataset, start_s, duration_s, seed, rig, out, features=features, th_depth=th_depth,
         loop=loop, save_map=save_map, load_map=load_map,
-        localization_only=localization_only, blackout=blackout,
+        localization_only=localization_only, blackout=blackout, calibration=calibration,
     )  # fmt: skip
     link = None if serial is None else open_serial(serial, 115200)
     write = None if link is None else link.write  # type: ignore[attr-defined]

@@ -48,8 +48,8 @@ __all__ = ["SendingOdometry", "SlamRequest", "check_slam_request", "run_slam_sou
 class SlamRequest:
     """One ``quadnav slam`` run: the source, its span and outputs, the seed and rig of a
     built-in sequence, the runs' folder, the SLAM's features and ThDepth, its loop closing
-    (``loop``), the map saved at the end (``save_map``) or started on (``load_map``), and
-    ``localization_only``."""
+    (``loop``), the map saved at the end (``save_map``) or started on (``load_map``),
+    ``localization_only``, and a ``calibration`` replacing the dataset's."""
 
     source: str
     options: OdometryRunOptions = field(default_factory=OdometryRunOptions)
@@ -62,6 +62,8 @@ class SlamRequest:
     save_map: Path | None = None
     load_map: Path | None = None
     localization_only: bool = False
+    #: a Kalibr camchain or EuRoC folder whose calibration replaces the dataset's own
+    calibration: Path | None = None
 
 
 class SendingOdometry:
@@ -122,6 +124,8 @@ def check_slam_request(request: SlamRequest) -> None:
         raise ConfigError("--localization-only: give the map to localize in (--load-map DIR)")
     if request.localization_only and request.save_map is not None:
         raise ConfigError("--save-map with --localization-only: the map does not change")
+    if request.calibration is not None and not request.calibration.exists():
+        raise ConfigError(f"--calibration {request.calibration}: no such file or folder")
     if request.save_map is not None and request.save_map == request.load_map:
         raise ConfigError(f"--save-map {request.save_map}: the map loaded; save to another folder")
 
@@ -157,7 +161,8 @@ def run_slam_source(
         loaded = load_slam_map(request.load_map)
     dataset = resolve_dataset(
         request.source, seed=request.seed, rig=request.rig, duration_s=opt.duration_s,
-        start_s=opt.start_s, cache_root=request.out, progress=progress,
+        start_s=opt.start_s, cache_root=request.out, calibration=request.calibration,
+        progress=progress,
     )  # fmt: skip
     if not dataset.rig.stereo and not dataset.depth:
         raise ConfigError(
