@@ -236,3 +236,30 @@ def test_a_culled_keyframe_follows_its_parent_when_the_map_moves() -> None:
     expected = (T_b @ T_b @ shift).matrix()
     assert np.allclose(pose_now(c, kfs).matrix(), expected, atol=1e-12)
     assert np.allclose(pose_now(a, kfs).matrix(), shift.matrix(), atol=1e-12)
+
+
+def test_a_place_seen_twice_in_the_map_is_not_relocalized_on(renderer: Renderer) -> None:
+    """The map holds the same views twice, 1.5 m apart (as a texture that repeats makes it):
+    after a loss the frame fits both places equally, so it stays lost and the ambiguity is
+    counted, rather than jumping to either; with one copy it relocalizes (the test above)."""
+    cfg = SlamConfig()
+    ex, tracker = OrbExtractor(cfg.orb), StereoTracker(cfg)
+    for k in range(12):
+        shot = renderer.render(_pose(k, 40))
+        r = tracker.track(rgbd_frame(k * 50_000_000, shot.image, shot.depth_m, RIG, ex, cfg))
+        assert r.state == "tracking"
+    m = tracker.map
+    shift = Pose(Rotation.identity(), np.array([1.5, 0.0, 0.0]))
+    for kf in list(m.keyframes):
+        copy = m.add_keyframe(kf.T_C_W @ shift.inverse(), kf.frame)
+        m.add_points(copy, kf.observed[0])
+        tracker.database.add(copy)
+    blank = np.full((480, 752), 128, np.uint8)
+    assert (
+        tracker.track(rgbd_frame(10**9, blank, np.full((480, 752), 2.0), RIG, ex, cfg)).state
+        == "lost"
+    )
+    shot = renderer.render(_pose(12, 40))
+    again = tracker.track(rgbd_frame(10**9 + 1, shot.image, shot.depth_m, RIG, ex, cfg))
+    assert again.state == "lost" and again.T_W_C is None, again
+    assert tracker.ambiguous == 1 and tracker.relocalizations == 0

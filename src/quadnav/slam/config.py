@@ -56,7 +56,10 @@ class LoopClosingConfig:
 @dataclass(frozen=True, slots=True, kw_only=True)
 class RelocalizationConfig:
     """The relocalization's settings (:mod:`quadnav.slam.relocalization`). ``ransac_px``: PnP's inlier threshold at level 0 (px);
-    ``min_pnp_inliers``: what a candidate's PnP needs before the local map is tried."""
+    ``min_pnp_inliers``: what a candidate's PnP needs before the local map is tried;
+    ``ambiguous_*``: a second candidate keeping this share of the best one's inliers with the
+    camera this far (m) or turned this much (deg) from it makes the place ambiguous (a texture
+    that repeats): no relocalization on that frame."""
 
     max_candidates: int = 5
     min_score_ratio: float = 0.75
@@ -66,12 +69,18 @@ class RelocalizationConfig:
     ransac_px: float = 3.0
     min_pnp_inliers: int = 12
     min_inliers: int = 50
+    ambiguous_ratio: float = 0.8
+    ambiguous_m: float = 0.3
+    ambiguous_deg: float = 10.0
 
     def __post_init__(self) -> None:
         if self.max_candidates < 1 or self.min_matches < 6 or self.min_pnp_inliers < 6:
             raise SlamError("RelocalizationConfig: max_candidates >= 1, min matches/inliers >= 6")
         if not 0 < self.min_score_ratio <= 1 or not 0 < self.ratio <= 1:
             raise SlamError("RelocalizationConfig: min_score_ratio and ratio must lie in (0, 1]")
+        amb = (self.ambiguous_ratio, self.ambiguous_m, self.ambiguous_deg)
+        if not all(np.isfinite(a) and a > 0 for a in amb):
+            raise SlamError("RelocalizationConfig: ambiguous_ratio, _m and _deg must be > 0")
         if not 0 <= self.max_hamming <= 256 or not self.ransac_px > 0 or self.min_inliers < 1:
             raise SlamError(
                 "RelocalizationConfig: max_hamming 0-256, ransac_px > 0, min_inliers >= 1"

@@ -28,7 +28,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from quadnav.geometry.rotations import Pose
-from quadnav.slam.config import SlamConfig
+from quadnav.slam.config import RelocalizationConfig, SlamConfig
 from quadnav.slam.frame import Frame
 from quadnav.slam.local_mapping import LocalMappingReport, global_bundle_adjustment, local_mapping
 from quadnav.slam.loop_closing import LoopCloser, LoopClosingReport
@@ -142,6 +142,7 @@ class StereoTracker:
         self.last_mapping: LocalMappingReport | None = None
         self.loop_closer = LoopCloser(self.config.loop_closing)
         self.relocalizations = 0
+        self.ambiguous = 0  # (relocalizations refused: two places fit)
         self._loop: LoopClosingReport | None = None
         self._T_C_W_last: Pose | None = None
         self._velocity: Pose | None = None  # T_C_W(k) T_W_C(k-1)
@@ -228,24 +229,30 @@ class StereoTracker:
 
     def _relocalize(self, frame: Frame) -> TrackResult:
         """After a loss (or on a loaded map): the keyframes that look like the frame, PnP on
-        their points, then the pose confirmed on the local map (see
-        :mod:`quadnav.slam.relocalization`)."""
+        their points, then the pose confirmed on each one's local map (see
+        :mod:`quadnav.slam.relocalization`); the best taken unless another, nearly as good,
+        puts the camera elsewhere (a place that repeats: it stays lost, ``ambiguous``)."""
         cfg = self.config.relocalization
-        lost = TrackResult(t_ns=frame.t_ns, state="lost", T_W_C=None)
-        cands = self.database.candidates(frame, cfg)
-        for k, T in pnp_candidates(frame, self.map, cands, cfg):
+        fits: list[tuple[int, tuple[Pose, _Matches]]] = []
+        for k, T in pnp_candidates(frame, self.map, self.database.candidates(frame, cfg), cfg):
             self._reference = self.map.keyframes[k]
             self._last_points = np.zeros(0, np.int64)
             fit = self._fit(frame, T)
-            if fit is None or len(fit[1].keypoints) < cfg.min_inliers:
-                continue
-            self.state = "tracking"
-            self.relocalizations += 1
-            self._velocity = None
-            self._since_reloc = 0
-            result = self._tracked(frame, *fit)
-            return dataclasses.replace(result, relocalized_on=k)
-        return lost
+            if fit is not None and len(fit[1].keypoints) >= cfg.min_inliers:
+                fits.append((k, fit))
+        if not fits:
+            return TrackResult(t_ns=frame.t_ns, state="lost", T_W_C=None)
+        k, best = max(fits, key=lambda f: len(f[1][1].keypoints))
+        if _ambiguous(best, [f for _, f in fits], cfg):
+            self.ambiguous += 1
+            return TrackResult(t_ns=frame.t_ns, state="lost", T_W_C=None)
+        self._reference = self.map.keyframes[k]
+        self.state = "tracking"
+        self.relocalizations += 1
+        self._velocity = None
+        self._since_reloc = 0
+        result = self._tracked(frame, *best)
+        return dataclasses.replace(result, relocalized_on=k)
 
     def _fit_reference(self, frame: Frame) -> tuple[Pose, _Matches] | None:
         """ORB-SLAM2's ``TrackReferenceKeyFrame``, for a motion no prediction follows: the
@@ -377,3 +384,20 @@ class StereoTracker:
             global_bundle_adjustment(self.map)
         self._T_C_W_last = kf.T_C_W
         return kf.T_C_W
+
+
+def _ambiguous(
+    best: tuple[Pose, _Matches], fits: list[tuple[Pose, _Matches]], cfg: RelocalizationConfig
+) -> bool:
+    """Whether another fit keeps ``ambiguous_ratio`` of the best one's inliers with the camera
+    ``ambiguous_m`` or ``ambiguous_deg`` away from it."""
+    T, n = best[0].inverse(), len(best[1].keypoints)
+    for other, m in fits:
+        if len(m.keypoints) < cfg.ambiguous_ratio * n:
+            continue
+        T_o = other.inverse()
+        far = np.linalg.norm(T_o.p_A_B - T.p_A_B) > cfg.ambiguous_m
+        turned = np.degrees((T_o.R_A_B * T.R_A_B.inv()).magnitude()) > cfg.ambiguous_deg
+        if far or turned:
+            return True
+    return False
