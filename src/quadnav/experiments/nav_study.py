@@ -30,7 +30,7 @@ from quadnav.eval.vio_metrics import ape_summary
 from quadnav.experiments.nav import NavRunResult, NavScenario, run_nav
 from quadnav.experiments.nav_channels import is_pseudo_source
 from quadnav.experiments.seeds import run_tasks
-from quadnav.experiments.vio_flight import VioRecord
+from quadnav.experiments.vio_flight import VioRecord, flight_rig
 from quadnav.geometry.trajectory import Trajectory
 from quadnav.io.config import dump_config
 from quadnav.io.mavlink import MavlinkLink
@@ -750,6 +750,8 @@ def run_nav_study(
         from quadnav.io.loop_map import load_loop_map
 
         load_loop_map(Path(sc.vio.load_map), option="vio.load_map")
+    if reports_in_flight(sc):  # a camera slower than the rate asked: before flying
+        flight_rig(sc.vio)
     run_dir = create_run_folder(runs_root, sc.name)
     write_text(run_dir / "config.yaml", dump_config(sc))
     seeds = [sc.seed + k for k in range(sc.seeds)]

@@ -48,6 +48,7 @@ __all__ = [
     "VioCameraSensor",
     "VioRecord",
     "build_vio_sensor",
+    "flight_rig",
     "flight_world",
     "vehicle_odometry",
     "vio_imu",
@@ -391,16 +392,10 @@ def build_vio_sensor(
             sink=sink,
         )
     # (OpenCV, the renderer, GTSAM and the front end only when flying on rendered images)
-    from quadnav.rig import rig_named
     from quadnav.sim.render import RenderEffects, Renderer
 
-    rig = rig_named(v.rig)
+    rig = flight_rig(v)
     camera = rig.cameras[0]
-    if v.camera_rate_hz is not None and v.camera_rate_hz > camera.rate_hz:
-        raise ConfigError(
-            f"vio.camera_rate_hz {v.camera_rate_hz:g} is faster than vio.rig {v.rig}'s camera "
-            f"({camera.rate_hz:g} Hz)"
-        )
     return VioCameraSensor(
         rig=rig,
         vio=_odometry(v, rig),
@@ -412,6 +407,21 @@ def build_vio_sensor(
         rate_hz=v.camera_rate_hz,
         sink=sink,
     )
+
+
+def flight_rig(v: VioSection) -> Rig:
+    """The rig of ``vio.rig``, its camera at least as fast as ``vio.camera_rate_hz`` (a
+    :class:`~quadnav.errors.ConfigError` naming it otherwise: checked before flying)."""
+    from quadnav.rig import rig_named
+
+    rig = rig_named(v.rig)
+    rate = rig.cameras[0].rate_hz
+    if v.camera_rate_hz is not None and v.camera_rate_hz > rate:
+        raise ConfigError(
+            f"vio.camera_rate_hz {v.camera_rate_hz:g} is faster than vio.rig {v.rig}'s camera "
+            f"({rate:g} Hz)"
+        )
+    return rig
 
 
 def _odometry(v: VioSection, rig: Rig) -> VisualOdometry:
