@@ -59,6 +59,13 @@ def test_the_vio_settings_reach_the_estimator() -> None:
         ("indoor_vio", "vio.save_map=true", "vio.save_map saves loop closure's map: set vio.loop"),
         ("indoor_vio", "vio.load_map=/nonexistent/map", "vio.load_map /nonexistent/map: no such"),
         ("indoor_vio", "vio.loop=maybe", "vio.loop: Input should be a valid boolean"),
+        # the SLAM as the odometry (issue 24, item 7): a stereo rig, none of the VIO's settings
+        ("indoor_slam", "vio.rig=thesis003_sim", "vio.odometry=slam needs a stereo rig"),
+        ("indoor_slam", "vio.window_keyframes=12", "vio.window_keyframes is a setting of the VIO"),
+        ("indoor_slam", "vio.loop=true", "which vio.odometry=slam does not run (the SLAM closes"),
+        ("indoor_slam", "vio.odometry=orb", "vio.odometry: Input should be 'vio' or 'slam'"),
+        ("indoor_vio_odometry", "vio.odometry=slam", "vio.odometry is a setting of the VIO"),
+        ("indoor_slam", "vio.camera_rate_hz=30", "vio.camera_rate_hz 30 is faster than vio.rig"),
         (
             "indoor_vio_odometry",
             ["estimator.vision_frame=rotate", "mag.enabled=true"],

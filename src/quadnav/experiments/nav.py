@@ -121,9 +121,9 @@ def _ekf_estimator(sc: NavScenario, gravity_m_s2: float, max_delay_ns: int) -> N
         odometry_gate_sigma=sc.vio.gate_sigma,
         # without a VIO no odometry is fused: its frame's drift is not estimated
         odometry_mode=sc.vio.odometry_mode if sc.vio.enabled else "absolute",
-        # loop closure's output jumps only to correct itself (after a reset of the VIO it goes
-        # on where it was): the filter follows it, as PX4's EKF2 does
-        follow_resets=("vio",) if sc.vio.enabled and sc.vio.loop_closure else (),
+        # loop closure's output (and the SLAM's) jumps only to correct itself (after a reset of
+        # the VIO it goes on where it was): the filter follows it, as PX4's EKF2 does
+        follow_resets=("vio",) if sc.vio.enabled and sc.vio.corrects_in_place else (),
         odometry_drift_m_sqrt_s=sc.vio.frame_drift_m_sqrt_s,
         odometry_drift_yaw_rad_sqrt_s=sc.vio.frame_drift_yaw_rad_sqrt_s,
     )

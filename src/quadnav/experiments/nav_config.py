@@ -22,7 +22,7 @@ from quadnav.config_model import (
 from quadnav.control.trajectories import Waypoints
 from quadnav.vio.config import VioConfig
 
-__all__ = ["RANGE_MIN_M", "NavScenario"]
+__all__ = ["RANGE_MIN_M", "NavScenario", "VioSection"]
 
 Vec3 = tuple[float, float, float]
 
@@ -80,9 +80,14 @@ _ODOMETRY_PARTS: tuple[OdometryPart, ...] = ("pos", "vel", "yaw")
 
 #: The ``vio`` keys only the odometry shortcut (``vio.source=odometry``) reads.
 SHORTCUT_ONLY_VIO_KEYS = ("rate_hz", "sigma_m", "sigma_vel_m_s", "yaw_sigma_rad", "drift_m_sqrt_s")
-#: The ``vio`` keys only the VIO on rendered images (``vio.source=camera``) reads, beside
+#: The ``vio`` keys only an odometry on rendered images (``vio.source=camera``) reads, beside
 #: the VIO's own settings.
-CAMERA_ONLY_VIO_KEYS = ("loop", "load_map", "save_map")
+CAMERA_ONLY_VIO_KEYS = ("odometry", "camera_rate_hz", "loop", "load_map", "save_map")
+#: The ``vio`` keys only the VIO reads (``vio.odometry=vio``), beside its own settings: the SLAM
+#: closes its own loops.
+VIO_ONLY_VIO_KEYS = ("loop", "load_map", "save_map")
+#: The rigs with two cameras, the stereo SLAM's (``vio.odometry=slam``).
+STEREO_RIGS = ("euroc", "zed")
 #: The ``vio`` keys only ``vio.odometry_mode=relative`` reads.
 RELATIVE_ONLY_VIO_KEYS = ("frame_drift_m_sqrt_s", "frame_drift_yaw_rad_sqrt_s")
 
@@ -102,11 +107,26 @@ class VioSection(VioConfig):
     enabled: bool = False
     source: Literal["camera", "odometry"] = Field(
         "camera",
-        description="camera: rendered images and the rig's IMU into the VIO; odometry: the true "
-        "pose and velocity plus noise and drift (the fast shortcut, no images)",
+        description="camera: rendered images and the rig's IMU into the odometry; odometry: the "
+        "true pose and velocity plus noise and drift (the fast shortcut, no images)",
     )
-    rig: Literal["thesis003_sim", "euroc_mono"] = Field(
-        "thesis003_sim", description="camera: the camera-IMU rig (its camera, IMU and mount)"
+    odometry: Literal["vio", "slam"] = Field(
+        "vio",
+        description="camera: the odometry on the rendered images: vio, the monocular VIO (its "
+        "settings below); slam, the stereo SLAM (quadnav.slam, its default settings; a stereo "
+        "vio.rig; no IMU; its pose covariance a stated 1 cm and 0.5 degree)",
+    )
+    rig: Literal["thesis003_sim", "euroc_mono", "euroc", "zed"] = Field(
+        "thesis003_sim",
+        description="camera: the camera-IMU rig (its cameras, IMU and mount); the odometry "
+        "gets the cameras it uses",
+    )
+    camera_rate_hz: float | None = Field(
+        None,
+        gt=0,
+        le=MAX_RATE_HZ,
+        description="camera: frames per second into the odometry, at most the rig camera's "
+        "(None: the camera's rate)",
     )
     world: Literal["hall", "room", "yard"] = Field("hall", description="camera: the 3-D world")
     world_seed: int = Field(0, ge=0, description="camera: the world's layout and textures")
@@ -174,9 +194,33 @@ class VioSection(VioConfig):
         """Whether the VIO runs with loop closure (``loop``, or a map to load)."""
         return self.loop or self.load_map is not None
 
+    @property
+    def corrects_in_place(self) -> bool:
+        """Whether the odometry's reset counter marks a correction of itself in the same world
+        (loop closure's around the VIO, the SLAM's closed loops; a relocalization keeps the
+        SLAM's world and its counter) rather than a new start: the EKF then follows it."""
+        return self.source == "camera" and (self.loop_closure or self.odometry == "slam")
+
     def estimator_config(self) -> VioConfig:
         """The VIO's own settings, as the estimator takes them."""
         return VioConfig.model_validate(self.model_dump(include=set(VioConfig.model_fields)))
+
+
+def _slam_problem(v: VioSection, changed: list[str]) -> str | None:
+    """``vio.odometry=slam``: a stereo rig, and none of the VIO's settings (the SLAM runs on
+    its own defaults and closes its own loops)."""
+    if v.rig not in STEREO_RIGS:
+        return (
+            f"vio.odometry=slam needs a stereo rig, and vio.rig {v.rig} has one camera: set "
+            f"vio.rig to one of {', '.join(STEREO_RIGS)}"
+        )
+    own = [k for k in changed if k in VioConfig.model_fields or k in VIO_ONLY_VIO_KEYS]
+    if own:
+        return (
+            f"vio.{own[0]} is a setting of the VIO, which vio.odometry=slam does not run (the "
+            "SLAM closes its own loops): set vio.odometry=vio or leave it out"
+        )
+    return None
 
 
 class BaroSection(ConfigModel):
@@ -435,6 +479,8 @@ class NavScenario(ConfigModel):
                 f"vio.{own[0]} is a setting of the VIO, which vio.source=odometry does not run "
                 "(the shortcut): set vio.source=camera or leave it out"
             )
+        if v.source == "camera" and v.odometry == "slam" and (slam := _slam_problem(v, changed)):
+            return slam
         if v.save_map and not v.loop_closure:
             return "vio.save_map saves loop closure's map: set vio.loop=true too"
         drift = [k for k in changed if k in RELATIVE_ONLY_VIO_KEYS]

@@ -26,9 +26,11 @@ from quadnav.estimation.nav_filter import ImuCounts
 from quadnav.eval.metrics import nees
 from quadnav.eval.na import Metric, max_or_na, mean_or_na, median_or_na, na, rms_or_na
 from quadnav.eval.report import ReportSection, ReportTable, write_report
+from quadnav.eval.vio_metrics import ape_summary
 from quadnav.experiments.nav import NavRunResult, NavScenario, run_nav
 from quadnav.experiments.nav_channels import is_pseudo_source
 from quadnav.experiments.seeds import run_tasks
+from quadnav.experiments.vio_flight import VioRecord, flight_rig
 from quadnav.geometry.trajectory import Trajectory
 from quadnav.io.config import dump_config
 from quadnav.io.mavlink import MavlinkLink
@@ -89,6 +91,9 @@ class NavMetrics:
     end_position_error_m: float = math.nan  # 3-D, output predictor against the truth
     vio_counts: dict[str, int] = field(default_factory=dict)  # frames, states, resets...
     vio_events: list[str] = field(default_factory=list)
+    #: the odometry's own estimate against the truth (the rig's body, its optimised frames):
+    #: translation APE after a 4-DoF (position and yaw) alignment, RMSE
+    vio_ate_m: Metric = field(default_factory=lambda: na("no visual odometry"))
     #: with loop closure: its places judged against the truth (``loop_precision``,
     #: ``loop_recall``, the measurements' median errors; :mod:`quadnav.eval.loop_eval`)
     vio_loop: dict[str, Any] = field(default_factory=dict)
@@ -226,8 +231,10 @@ def _vio_metrics(r: NavRunResult) -> dict[str, Any]:
     if v is None:
         return {}
     resets = int(v.reset_counter[-1]) if len(v.reset_counter) else 0
+    kinds = [text.split(":", 1)[0] for _, text in v.events]
     counts = {"frames": v.frames, "states": v.states, "resets": resets,
-              "rejected_invalid": v.rejected_invalid}  # fmt: skip
+              "rejected_invalid": v.rejected_invalid, "failures": kinds.count("failure"),
+              "reinitialized": kinds.count("reinitialized")}  # fmt: skip
     if v.loop is not None:  # (loop closure: its output's resets count its corrections too)
         lp = v.loop
         counts |= {
@@ -239,7 +246,20 @@ def _vio_metrics(r: NavRunResult) -> dict[str, Any]:
         "vio_counts": counts,
         "vio_events": [f"{t * 1e-9:.3f} s: {msg}" for t, msg in v.events],
         "vio_loop": dict((v.loop or {}).get("evaluation") or {}),
+        "vio_ate_m": _odometry_ate(v),
     }
+
+
+def _odometry_ate(v: VioRecord) -> Metric:
+    """The odometry's own ATE: its positions against the true ones of the rig's body at the
+    same frames, RMSE after a 4-DoF alignment (its world is level: the VIO's by gravity, the
+    SLAM's the vehicle's at rest on the ground)."""
+    ok = np.isfinite(v.truth_p_W_B).all(axis=1)
+    if ok.sum() < 3:
+        return na("fewer than 3 odometry states")
+    est = Trajectory(t_ns=v.t_ns[ok], p_W_B=v.p_W_B[ok], q_W_B_xyzw=v.q_W_B_xyzw[ok])
+    ref = Trajectory(t_ns=v.t_ns[ok], p_W_B=v.truth_p_W_B[ok], q_W_B_xyzw=v.q_W_B_xyzw[ok])
+    return ape_summary(ref, est, "4dof").rmse_m
 
 
 def _bias_error_fractions(r: NavRunResult) -> dict[str, Metric]:
@@ -486,6 +506,7 @@ class NavSummary:
     end_horizontal_error_m: Metric
     drift_percent: Metric
     end_position_error_m: Metric
+    vio_ate_m: Metric
     # what was refused and reset, summed over the seeds (non-zero counts only), and the
     # filter's own log of each seed ("seed N, t s: what")
     refused: dict[str, int] = field(default_factory=dict)
@@ -521,6 +542,10 @@ def refusal_counts(per_seed: list[NavMetrics]) -> dict[str, int]:
         add("imu: refused as invalid (NaN, out of range)", m.imu.rejected_invalid)
         add("filter: resets, re-anchorings and re-levellings", len(m.filter_events))
         add("vio: re-initialisations", m.vio_counts.get("resets", 0))
+        add("vio: tracking lost", m.vio_counts.get("failures", 0))
+        add(
+            "vio: relocalized (or started again) after a loss", m.vio_counts.get("reinitialized", 0)
+        )
         add("vio: odometry refused as non-finite", m.vio_counts.get("rejected_invalid", 0))
     return {k: n for k, n in out.items() if n}
 
@@ -564,6 +589,7 @@ def summarize_nav_seeds(per_seed: list[NavMetrics]) -> NavSummary:
         end_horizontal_error_m=median_or_na(m.end_horizontal_error_m for m in per_seed),
         drift_percent=median_or_na(m.drift_percent for m in per_seed),
         end_position_error_m=median_or_na(m.end_position_error_m for m in per_seed),
+        vio_ate_m=median_or_na(m.vio_ate_m for m in per_seed),
         refused=refusal_counts(per_seed),
         filter_events=[f"seed {m.seed}, {e}" for m in per_seed for e in m.filter_events],
     )
@@ -724,6 +750,8 @@ def run_nav_study(
         from quadnav.io.loop_map import load_loop_map
 
         load_loop_map(Path(sc.vio.load_map), option="vio.load_map")
+    if reports_in_flight(sc):  # a camera slower than the rate asked: before flying
+        flight_rig(sc.vio)
     run_dir = create_run_folder(runs_root, sc.name)
     write_text(run_dir / "config.yaml", dump_config(sc))
     seeds = [sc.seed + k for k in range(sc.seeds)]

@@ -72,7 +72,7 @@ _NAV = RunFolderKind(
         RunFile("output.tum", "the output predictor's trajectory (TUM)"),
         RunFile("innovations_*.csv", "innovations, NIS, test ratio and acceptance per source"),
         RunFile("sensors_*.csv", "every sample the estimator was given, one file per sensor"),
-        RunFile("vio.tum", "the VIO's own estimate of the rig's body (VIO scenarios)", False),
+        RunFile("vio.tum", "the odometry's own estimate of the rig's body (VIO, SLAM)", False),
         RunFile("plots/position.png", "positions against time"),
         RunFile("plots/errors.png", "errors with the filter's sigma"),
         RunFile("plots/innovations.png", "innovations per source", False),

@@ -190,7 +190,6 @@ def _slam_sensor(section: SerialLinkSection, path_W: FloatArray, seed: int) -> V
     from quadnav.slam.odometry import SlamOdometry
 
     rig = rig_named(section.rig)
-    names = tuple(c.name for c in rig.cameras)
     return VioCameraSensor(
         rig=rig,
         vio=SlamOdometry(rig),
@@ -198,7 +197,6 @@ def _slam_sensor(section: SerialLinkSection, path_W: FloatArray, seed: int) -> V
         imu=None,
         image_rng=np.random.default_rng(seed + 1),
         effects=RenderEffects(read_noise_sigma=section.image_noise),
-        cameras=names,
         rate_hz=section.camera_rate_hz,
         first_ns=0,  # (the SLAM's world is the vehicle at its first frame: the take-off pose)
     )

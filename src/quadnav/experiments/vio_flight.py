@@ -27,9 +27,9 @@ from numpy.random import Generator
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
-from quadnav.errors import SampleError
+from quadnav.errors import ConfigError, SampleError
 from quadnav.estimation.nav_ekf import skew
-from quadnav.experiments.nav_config import NavScenario
+from quadnav.experiments.nav_config import NavScenario, VioSection
 from quadnav.geometry.rotations import Pose
 from quadnav.geometry.trajectory import Trajectory
 from quadnav.messages import ImageFrame, ImuSample, OdometrySample, VehicleState
@@ -48,6 +48,7 @@ __all__ = [
     "VioCameraSensor",
     "VioRecord",
     "build_vio_sensor",
+    "flight_rig",
     "flight_world",
     "vehicle_odometry",
     "vio_imu",
@@ -62,7 +63,8 @@ OdometrySink = Callable[[OdometrySample], None]
 @dataclass(frozen=True, slots=True, kw_only=True)
 class VioRecord:
     """What the VIO did in one flight: its own estimate at each optimised camera frame (the
-    rig's body ``B`` in the VIO's world), with its reset counter; its events ``(t_ns, text)``;
+    rig's body ``B`` in the VIO's world), with its reset counter and the true position of
+    ``B`` then (in the flight's world); its events ``(t_ns, text)``;
     the frames it was given and the states it returned; the odometry refused at the boundary
     (non-finite); its wall time per stage (ms per call)."""
 
@@ -70,6 +72,7 @@ class VioRecord:
     p_W_B: FloatArray
     q_W_B_xyzw: FloatArray
     reset_counter: NDArray[np.int64]
+    truth_p_W_B: FloatArray
     events: tuple[tuple[int, str], ...] = ()
     frames: int = 0
     states: int = 0
@@ -92,8 +95,9 @@ def _trajectory(rows: list[_TrackRow]) -> Trajectory:
     )
 
 
-def _record(track: list[_TrackRow], **counts: Any) -> VioRecord:
+def _record(track: list[_TrackRow], truth_p_W_B: list[FloatArray], **counts: Any) -> VioRecord:
     return VioRecord(
+        truth_p_W_B=np.array(truth_p_W_B, dtype=np.float64).reshape(-1, 3),
         t_ns=np.array([x[0] for x in track], dtype=np.int64),
         p_W_B=np.array([x[1] for x in track]).reshape(-1, 3),
         q_W_B_xyzw=np.array([x[2] for x in track]).reshape(-1, 4),
@@ -178,14 +182,27 @@ def _constant(image: NDArray[np.uint8]) -> Callable[[], NDArray[np.uint8]]:
     return lambda: image
 
 
+def _renderers(first: Renderer, rig: Rig, names: tuple[str, ...]) -> dict[str, Renderer]:
+    """A renderer per camera, each through its own lens (a stereo pair's intrinsics differ:
+    EuRoC's principal points are 13 px apart), sharing ``first``'s scene; ``first`` renders
+    the first camera."""
+    from quadnav.sim.render import Renderer
+
+    out = {names[0]: first}
+    for n in names[1:]:
+        out[n] = Renderer(first.scene, rig.camera(n).camera)
+    return out
+
+
 class VioCameraSensor:
     """A companion computer with a camera-IMU rig: IMU samples in the rig's body at the IMU's
     rate and images rendered at the camera's rate into a :class:`VisualOdometry`; each state it
     returns at an image is the vehicle's :class:`OdometrySample` (and goes to ``sink``).
-    ``cameras`` are rendered at each frame time in turn (a stereo SLAM takes both of a rig's:
-    ``("cam0", "cam1")``), at the first one's rate or ``rate_hz`` (a SLAM that keeps up with
-    fewer frames than the camera gives), the first at ``first_ns`` (one period in by default);
-    without ``imu`` no IMU sample is given (an odometry that uses none)."""
+    The cameras the odometry uses (``vio.cameras``: a stereo SLAM both of a rig's) are rendered
+    at each frame time in turn, each through its own lens, at the first one's rate or
+    ``rate_hz`` (an odometry that keeps up with fewer frames than the camera gives), the first
+    at ``first_ns`` (one period in by default); without ``imu`` no IMU sample is given (an
+    odometry that uses none)."""
 
     def __init__(
         self,
@@ -196,24 +213,23 @@ class VioCameraSensor:
         imu: IntegratingImu | None,
         image_rng: Generator,
         effects: RenderEffects,
-        camera: str = "cam0",
-        cameras: tuple[str, ...] = (),
         rate_hz: float | None = None,
         first_ns: int | None = None,
         sink: OdometrySink | None = None,
         save_map: bool = False,
     ) -> None:
-        names = cameras or (camera,)
+        names = tuple(vio.cameras)
         spec = rig.camera(names[0])
         self.vio, self.renderer, self.imu, self.effects = vio, renderer, imu, effects
         self.T_V_B, self.T_V_C = rig.T_V_B, rig.T_V_B @ spec.T_B_C
         self._T_V_Cs = tuple((n, rig.T_V_B @ rig.camera(n).T_B_C) for n in names)
+        self._renderers = _renderers(renderer, rig, names)
         self._R_B_V = rig.T_V_B.R_A_B.inv().as_matrix()
         period = s_to_ns(1.0 / (rate_hz or spec.rate_hz))
         self._camera = Ticker(period, first_ns=period if first_ns is None else first_ns)
         self._image_rng, self.sink = image_rng, sink
         self._save_map = save_map
-        self._truth_B: list[_TrackRow] = []  # the rig's true pose at each camera frame
+        self._truth_B: dict[int, _TrackRow] = {}  # the rig's true pose at each camera frame
         self._keyframes: list[_TrackRow] = []  # the odometry's keyframes (with loop closure)
         self._w_B = np.zeros(3)
         self._track: list[_TrackRow] = []
@@ -234,10 +250,13 @@ class VioCameraSensor:
             self._w_B = self._R_B_V @ truth.w_B
         state = None
         for name, T_V_C in self._T_V_Cs:
-            image = self.effects.apply(self.renderer.render(T_W_V @ T_V_C).image, self._image_rng)
+            image = self._renderers[name].render(T_W_V @ T_V_C).image
+            image = self.effects.apply(image, self._image_rng)
             state = self.vio.push(ImageFrame(t_ns=t_ns, camera=name, load=_constant(image)))
         self.frames += 1
-        self._take_keyframes(self.vio.keyframes(), t_ns, T_W_V @ self.T_V_B)
+        T_W_B = T_W_V @ self.T_V_B
+        self._truth_B[t_ns] = (t_ns, T_W_B.p_A_B, T_W_B.R_A_B.as_quat(), 0)
+        self._take_keyframes(self.vio.keyframes())
         if state is None:
             return None
         self.states += 1
@@ -254,8 +273,11 @@ class VioCameraSensor:
 
     def record(self) -> VioRecord:
         loop, loop_map = self._finish_loop()
+        nan = (0, np.full(3, np.nan))
+        truth = [self._truth_B.get(row[0], nan)[1] for row in self._track]
         return _record(
             self._track,
+            truth,
             events=tuple((e.t_ns, f"{e.kind}: {e.detail}") for e in self.vio.events),
             frames=self.frames,
             states=self.states,
@@ -265,15 +287,13 @@ class VioCameraSensor:
             loop_map=loop_map,
         )
 
-    def _take_keyframes(self, records: Sequence[KeyframeRecord], t_ns: int, T_W_B: Pose) -> None:
+    def _take_keyframes(self, records: Sequence[KeyframeRecord]) -> None:
         """The flight keeps no map: of the keyframes the odometry publishes only their poses are
-        kept, with loop closure, to judge its places against the truth (the rig's, ``T_W_B``,
-        at this frame ``t_ns``)."""
+        kept, with loop closure, to judge its places against the truth."""
         from quadnav.loop import LoopClosure
 
         if not isinstance(self.vio, LoopClosure):
             return
-        self._truth_B.append((t_ns, T_W_B.p_A_B, T_W_B.R_A_B.as_quat(), 0))
         for rec in records:
             T = rec.T_W_B
             self._keyframes.append((rec.t_ns, T.p_A_B, T.R_A_B.as_quat(), rec.reset_counter))
@@ -296,7 +316,7 @@ class VioCameraSensor:
             the_map = vio.export_map() if self._save_map else None
             evaluation = None
             if self._keyframes and self._truth_B:
-                kf, truth = _trajectory(self._keyframes), _trajectory(self._truth_B)
+                kf, truth = _trajectory(self._keyframes), _trajectory(list(self._truth_B.values()))
                 ev = loop_evaluation(vio, kf, truth)
                 evaluation = None if ev is None else ev.as_metrics()
         finally:
@@ -322,6 +342,7 @@ class OdometryShortcut:
         self._drift = np.zeros(3)
         self._t_last: int | None = None
         self._track: list[_TrackRow] = []
+        self._truth: list[FloatArray] = []
 
     def sample(self, truth: VehicleState, t_ns: int, rng: Generator) -> OdometrySample | None:
         if not self._ticker.due(t_ns):
@@ -342,12 +363,13 @@ class OdometryShortcut:
             cov_v=np.eye(3) * self.sigma_vel_m_s**2,
         )
         self._track.append((t_ns, odo.p_W_B, odo.q_W_B_xyzw, 0))
+        self._truth.append(truth.p_W_B)
         if self.sink is not None:
             self.sink(odo)
         return odo
 
     def record(self) -> VioRecord:
-        return _record(self._track, states=len(self._track))
+        return _record(self._track, self._truth, states=len(self._track))
 
 
 def build_vio_sensor(
@@ -357,7 +379,8 @@ def build_vio_sensor(
     gravity_m_s2: float,
     sink: OdometrySink | None,
 ) -> VioCameraSensor | OdometryShortcut:
-    """The ``vio`` section's sensor: the rendered camera and the VIO, or the shortcut."""
+    """The ``vio`` section's sensor: the rendered cameras and the odometry (``vio.odometry``:
+    the VIO or the SLAM), or the shortcut."""
     v = sc.vio
     if v.source == "odometry":
         return OdometryShortcut(
@@ -369,25 +392,49 @@ def build_vio_sensor(
             sink=sink,
         )
     # (OpenCV, the renderer, GTSAM and the front end only when flying on rendered images)
-    from quadnav.rig import rig_named
     from quadnav.sim.render import RenderEffects, Renderer
-    from quadnav.vio.estimator import VioEstimator
 
-    rig = rig_named(v.rig)
-    renderer = Renderer(flight_world(sc), rig.camera("cam0").camera)
-    vio: VisualOdometry = VioEstimator(rig, v.estimator_config())
-    if v.loop_closure:
-        vio = with_loop_closure(vio, rig, v.load_map)
+    rig = flight_rig(v)
+    camera = rig.cameras[0]
     return VioCameraSensor(
         rig=rig,
-        vio=vio,
+        vio=_odometry(v, rig),
         save_map=v.save_map,
-        renderer=renderer,
+        renderer=Renderer(flight_world(sc), camera.camera),
         imu=vio_imu(rig, bias_rng, gravity_m_s2),
         image_rng=np.random.default_rng(int(rng.integers(2**31))),
         effects=RenderEffects(read_noise_sigma=v.image_noise),
+        rate_hz=v.camera_rate_hz,
         sink=sink,
     )
+
+
+def flight_rig(v: VioSection) -> Rig:
+    """The rig of ``vio.rig``, its camera at least as fast as ``vio.camera_rate_hz`` (a
+    :class:`~quadnav.errors.ConfigError` naming it otherwise: checked before flying)."""
+    from quadnav.rig import rig_named
+
+    rig = rig_named(v.rig)
+    rate = rig.cameras[0].rate_hz
+    if v.camera_rate_hz is not None and v.camera_rate_hz > rate:
+        raise ConfigError(
+            f"vio.camera_rate_hz {v.camera_rate_hz:g} is faster than vio.rig {v.rig}'s camera "
+            f"({rate:g} Hz)"
+        )
+    return rig
+
+
+def _odometry(v: VioSection, rig: Rig) -> VisualOdometry:
+    """The odometry of ``vio.odometry`` on ``rig``: the VIO (behind loop closure if asked) or
+    the stereo SLAM (which takes the IMU's samples and uses none)."""
+    if v.odometry == "slam":
+        from quadnav.slam.odometry import SlamOdometry
+
+        return SlamOdometry(rig)
+    from quadnav.vio.estimator import VioEstimator
+
+    vio: VisualOdometry = VioEstimator(rig, v.estimator_config())
+    return with_loop_closure(vio, rig, v.load_map) if v.loop_closure else vio
 
 
 def with_loop_closure(vio: VisualOdometry, rig: Rig, load_map: str | None) -> VisualOdometry:
