@@ -9,12 +9,15 @@ runs in its own venv, as a subprocess (``../shared/peers/orbslam3/README.md``)."
 
 from __future__ import annotations
 
+import argparse
 import json
 import os
+import platform
 import subprocess
 import sys
+import tempfile
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -37,6 +40,41 @@ def fail(message: str) -> None:
     """A bad input: one line naming the option or path, exit code 2 (as the CLI does)."""
     print(f"error: {message}", file=sys.stderr)
     raise SystemExit(2)
+
+
+def parse_systems(text: str, choices: Sequence[str]) -> list[str]:
+    """The ``--systems`` list, in the order given; an unknown name is a one-line error."""
+    names = [s.strip() for s in text.split(",") if s.strip()]
+    if not names or any(s not in choices for s in names):
+        raise ValueError(f"--systems {text!r}: choose among {', '.join(choices)} (comma-separated)")
+    return list(dict.fromkeys(names))
+
+
+def peer_parser(description: str, systems: Sequence[str], out: str) -> argparse.ArgumentParser:
+    """The options every peer benchmark takes (checked by :func:`check_arguments`)."""
+    parser = argparse.ArgumentParser(description=description)
+    parser.add_argument("datasets", nargs="+", type=Path)
+    parser.add_argument("--systems", default=",".join(systems))
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--timeout", type=float, default=900.0, help="seconds per process")
+    parser.add_argument("--orb-venv", type=Path, default=ROOT.parent / "orb-venv")
+    parser.add_argument("--orb-dir", type=Path, default=ROOT.parent / "shared/peers/orbslam3")
+    parser.add_argument("--keep", type=Path, default=None, help="keep every run's output here")
+    parser.add_argument("--out", type=Path, default=Path(out))
+    return parser
+
+
+def check_arguments(args: argparse.Namespace, systems: Sequence[str]) -> None:
+    """``--systems`` parsed in place; a bad ``--systems``, ``--repeats`` or ``--timeout`` is a
+    one-line error."""
+    try:
+        args.systems = parse_systems(args.systems, systems)
+    except ValueError as exc:
+        fail(str(exc))
+    if args.repeats < 1:
+        fail(f"--repeats must be at least 1, got {args.repeats}")
+    if not args.timeout > 0:
+        fail(f"--timeout must be a positive number of seconds, got {args.timeout}")
 
 
 def count_resets(log: str) -> int:
@@ -263,8 +301,52 @@ def git_commit() -> str:
     return done.stdout.strip() or "?"
 
 
-def print_run(ds: Path, name: str, k: int, repeats: int, r: Mapping[str, Metric]) -> None:
-    """One line per run as it ends."""
-    print(f"  {ds.name} {name} run {k + 1}/{repeats}: "
-          f"APE SE(3) {fmt_metric(r['ape_se3_m'], '.3f')} m, "
-          f"whole process {float(r['process_s']):.1f} s", flush=True)  # fmt: skip
+def repeated(
+    ds: Path, name: str, repeats: int, work: Path, run_one: Callable[[Path], dict[str, Metric]]
+) -> dict[str, object]:
+    """``repeats`` runs of system ``name`` on ``ds`` (``run_one(run_dir)``, each in its folder
+    ``work/name/runK``), the 1-min load average before each recorded; one line per run as it
+    ends. The runs and their medians (:func:`summarise`)."""
+    runs: list[dict[str, Metric]] = []
+    for k in range(repeats):
+        run_dir = work / name / f"run{k}"
+        run_dir.mkdir(parents=True)
+        load = os.getloadavg()[0]
+        r = run_one(run_dir)
+        r["load_1min_before"] = load
+        runs.append(r)
+        print(f"  {ds.name} {name} run {k + 1}/{repeats}: "
+              f"APE SE(3) {fmt_metric(r['ape_se3_m'], '.3f')} m, "
+              f"whole process {float(r['process_s']):.1f} s", flush=True)  # fmt: skip
+    return {"runs": runs, "median": summarise(runs)}
+
+
+def each_dataset(
+    datasets: Sequence[Path],
+    keep: Path | None,
+    prefix: str,
+    run_dataset: Callable[[Path, Path], dict[str, object]],
+) -> list[dict[str, object]]:
+    """``run_dataset(dataset, work)`` for each dataset, its work folder under ``keep`` (kept:
+    ``--keep``) or a temporary one; a work folder that exists already is a one-line error."""
+    results = []
+    with tempfile.TemporaryDirectory(prefix=prefix) as tmp:
+        for i, ds in enumerate(datasets):
+            work = (keep.resolve() if keep is not None else Path(tmp)) / f"{i}_{ds.name}"
+            if work.exists():
+                fail(f"--keep {keep}: {work} exists already; choose an empty folder")
+            results.append(run_dataset(ds, work))
+    return results
+
+
+def write_results(
+    out: Path, head: Mapping[str, object], results: Sequence[object], text: str
+) -> None:
+    """The results file: ``head`` (what was run), the commit, the interpreter, the cores, the
+    results and the table as printed."""
+    from quadnav.io.run_folder import write_text
+
+    record = {**head, "commit": git_commit(), "python": platform.python_version(),
+              "cpus": os.cpu_count(), "results": results, "table_markdown": text}  # fmt: skip
+    write_text(out, json.dumps(record, indent=2) + "\n")
+    print(f"wrote {out}")

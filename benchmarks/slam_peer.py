@@ -40,40 +40,40 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import re
 import sys
-import tempfile
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import orb_peer
 from orb_peer import (
-    ROOT,
     OrbPeer,
     available,
     camera_T_C_B,
+    check_arguments,
     coverage,
     dataset_record,
+    each_dataset,
     fail,
     frames,
-    git_commit,
     last_line,
     log_counts,
     markdown_table,
     orb_failure,
-    print_run,
+    peer_parser,
     read_orb_euroc,
+    repeated,
     score,
-    summarise,
+    write_results,
 )
 from orb_peer import run_process as _run
 from quadnav.errors import QuadnavError
 from quadnav.eval.na import Metric, median_or_na, na
 from quadnav.geometry.trajectory import Trajectory
-from quadnav.io.run_folder import read_run_status, write_text
+from quadnav.io.run_folder import read_run_status
 from quadnav.io.trajectory_io import read_tum
 
 HERE = Path(__file__).resolve().parent
@@ -114,10 +114,7 @@ __all__ = ["dataset_kind", "group_name", "parse_systems", "through_final_keyfram
 
 def parse_systems(text: str) -> list[str]:
     """The ``--systems`` list, in the order given; an unknown name is a one-line error."""
-    names = [s.strip() for s in text.split(",") if s.strip()]
-    if not names or any(s not in SYSTEMS for s in names):
-        raise ValueError(f"--systems {text!r}: choose among {', '.join(SYSTEMS)} (comma-separated)")
-    return list(dict.fromkeys(names))
+    return orb_peer.parse_systems(text, list(SYSTEMS))
 
 
 def dataset_kind(ds: Path) -> str | None:
@@ -246,27 +243,14 @@ def orb_metrics(dataset: Path, work: Path, code: int | str, wall: float) -> dict
 
 
 def _arguments() -> argparse.Namespace:
-    parser = argparse.ArgumentParser(description="quadnav SLAM vs ORB-SLAM3, same datasets")
-    parser.add_argument("datasets", nargs="+", type=Path)
-    parser.add_argument("--systems", default=",".join(SYSTEMS))
-    parser.add_argument("--repeats", type=int, default=3)
+    parser = peer_parser("quadnav SLAM vs ORB-SLAM3, same datasets", list(SYSTEMS),
+                         "benchmarks/results/slam_peer.json")  # fmt: skip
     parser.add_argument("--quadnav-repeats", type=int, default=None, help="default --repeats")
-    parser.add_argument("--timeout", type=float, default=900.0, help="seconds per process")
-    parser.add_argument("--orb-venv", type=Path, default=ROOT.parent / "orb-venv")
-    parser.add_argument("--orb-dir", type=Path, default=ROOT.parent / "shared/peers/orbslam3")
-    parser.add_argument("--keep", type=Path, default=None, help="keep every run's output here")
-    parser.add_argument("--out", type=Path, default=Path("benchmarks/results/slam_peer.json"))
     args = parser.parse_args()
-    try:
-        args.systems = parse_systems(args.systems)
-    except ValueError as exc:
-        fail(str(exc))
+    check_arguments(args, list(SYSTEMS))
     args.quadnav_repeats = args.repeats if args.quadnav_repeats is None else args.quadnav_repeats
-    if args.repeats < 1 or args.quadnav_repeats < 1:
-        fail(f"--repeats/--quadnav-repeats must be at least 1, got {args.repeats}/"
-             f"{args.quadnav_repeats}")  # fmt: skip
-    if not args.timeout > 0:
-        fail(f"--timeout must be a positive number of seconds, got {args.timeout}")
+    if args.quadnav_repeats < 1:
+        fail(f"--quadnav-repeats must be at least 1, got {args.quadnav_repeats}")
     for ds in args.datasets:
         if dataset_kind(ds) is None:
             fail(f"DATASET {ds}: no groundtruth.tum with cam0 and cam1 or depth0 (make it with "
@@ -285,20 +269,14 @@ def _run_dataset(
     record: dict[str, object] = {"dataset": dataset_record(ds), "kind": kind, "systems": {}}
     for name in mine:
         _, who, _, paced = SYSTEMS[name]
-        repeats = args.quadnav_repeats if who == "quadnav" else args.repeats
-        runs: list[dict[str, Metric]] = []
-        for k in range(repeats):
-            run_dir = work / name / f"run{k}"
-            run_dir.mkdir(parents=True)
-            load = os.getloadavg()[0]
+
+        def run_one(run_dir: Path, who: str = who, paced: bool = paced) -> dict[str, Metric]:
             if who == "quadnav":
-                r = run_quadnav(ds, run_dir, args.timeout)
-            else:
-                r = run_orb(ds, str(kind), peer, settings, run_dir, args.timeout, paced=paced)
-            r["load_1min_before"] = load
-            runs.append(r)
-            print_run(ds, name, k, repeats, r)
-        record["systems"][name] = {"runs": runs, "median": summarise(runs)}  # type: ignore[index]
+                return run_quadnav(ds, run_dir, args.timeout)
+            return run_orb(ds, str(kind), peer, settings, run_dir, args.timeout, paced=paced)
+
+        repeats = args.quadnav_repeats if who == "quadnav" else args.repeats
+        record["systems"][name] = repeated(ds, name, repeats, work, run_one)  # type: ignore[index]
     return record
 
 
@@ -332,27 +310,22 @@ def main() -> None:
     peer = OrbPeer(args.orb_venv.resolve(), args.orb_dir.resolve())
     is_orb = {s: SYSTEMS[s][1] == "orb" for s in SYSTEMS}
     systems = available(args.systems, is_orb, peer, args.orb_dir)
-    keep = args.keep.resolve() if args.keep is not None else None
-    with tempfile.TemporaryDirectory(prefix="slam_peer_") as tmp:
-        results = []
-        for i, ds in enumerate(args.datasets):
-            work = (keep or Path(tmp)) / f"{i}_{ds.name}"
-            if work.exists():
-                fail(f"--keep {args.keep}: {work} exists already; choose an empty folder")
-            print(f"{ds}: {', '.join(systems)}", flush=True)
-            results.append(_run_dataset(ds, systems, args, peer, work))
+
+    def run_dataset(ds: Path, work: Path) -> dict[str, object]:
+        print(f"{ds}: {', '.join(systems)}", flush=True)
+        return _run_dataset(ds, systems, args, peer, work)
+
+    results = each_dataset(args.datasets, args.keep, "slam_peer_", run_dataset)
     text = _tables(results, systems)
     print(f"\n{text}")
-    write_text(args.out, json.dumps({
-        "benchmark": "slam_peer", "commit": git_commit(), "python": platform.python_version(),
+    write_results(args.out, {
+        "benchmark": "slam_peer",
         "pyorbslam3": peer.version() if any(is_orb[s] for s in systems) else None,
-        "cpus": os.cpu_count(), "repeats": args.repeats, "quadnav_repeats": args.quadnav_repeats,
+        "repeats": args.repeats, "quadnav_repeats": args.quadnav_repeats,
         "systems": {s: SYSTEMS[s][0] for s in systems},
         "causal": "quadnav estimate.tum; ORB-SLAM3 orb_online.tum",
         "final": "quadnav estimate.tum through keyframes_final.tum; ORB-SLAM3 orb_saved.tum",
-        "results": results, "table_markdown": text,
-    }, indent=2) + "\n")  # fmt: skip
-    print(f"wrote {args.out}")
+    }, results, text)  # fmt: skip
 
 
 if __name__ == "__main__":

@@ -38,34 +38,35 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import sys
-import tempfile
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import orb_peer
 from orb_peer import (
-    ROOT,
     OrbPeer,
     available,
+    check_arguments,
     coverage,
     dataset_record,
+    each_dataset,
     fail,
     frames,
-    git_commit,
     last_line,
     log_counts,
     markdown_table,
     orb_failure,
-    print_run,
+    peer_parser,
+    repeated,
     score,
     summarise,
+    write_results,
 )
 from orb_peer import count_resets as count_resets
 from orb_peer import run_process as _run
 from quadnav.eval.na import Metric, na
-from quadnav.io.run_folder import read_run_status, write_text
+from quadnav.io.run_folder import read_run_status
 
 #: name -> (label, kind, mode)
 SYSTEMS: dict[str, tuple[str, str, str]] = {
@@ -97,11 +98,7 @@ __all__ = ["count_resets", "markdown_table", "parse_systems", "run_orb", "summar
 
 def parse_systems(text: str) -> list[str]:
     """The ``--systems`` list, in the order given; an unknown name is a one-line error."""
-    names = [s.strip() for s in text.split(",") if s.strip()]
-    unknown = [s for s in names if s not in SYSTEMS]
-    if unknown or not names:
-        raise ValueError(f"--systems {text!r}: choose among {', '.join(SYSTEMS)} (comma-separated)")
-    return list(dict.fromkeys(names))
+    return orb_peer.parse_systems(text, list(SYSTEMS))
 
 
 def run_quadnav(dataset: Path, mode: str, work: Path, timeout_s: float) -> dict[str, Metric]:
@@ -173,30 +170,16 @@ def orb_metrics(
 
 
 def _arguments() -> argparse.Namespace:
-    parser = argparse.ArgumentParser(description="quadnav VIO vs ORB-SLAM3, same datasets")
-    parser.add_argument("datasets", nargs="+", type=Path)
-    parser.add_argument("--systems", default=",".join(SYSTEMS))
-    parser.add_argument("--repeats", type=int, default=3)
-    parser.add_argument("--timeout", type=float, default=900.0, help="seconds per process")
-    parser.add_argument("--orb-venv", type=Path, default=ROOT.parent / "orb-venv")
-    parser.add_argument("--orb-dir", type=Path, default=ROOT.parent / "shared/peers/orbslam3")
-    parser.add_argument("--keep", type=Path, default=None, help="keep every run's output here")
+    parser = peer_parser("quadnav VIO vs ORB-SLAM3, same datasets", list(SYSTEMS),
+                         "benchmarks/results/vio_peer.json")  # fmt: skip
     parser.add_argument(
         "--paced",
         action="store_true",
         help="ORB-SLAM3 sleeps to the camera rate, as its examples do (its mapping threads get "
         "the time; its accuracy, not its speed)",
     )
-    parser.add_argument("--out", type=Path, default=Path("benchmarks/results/vio_peer.json"))
     args = parser.parse_args()
-    try:
-        args.systems = parse_systems(args.systems)
-    except ValueError as exc:
-        fail(str(exc))
-    if args.repeats < 1:
-        fail(f"--repeats must be at least 1, got {args.repeats}")
-    if not args.timeout > 0:
-        fail(f"--timeout must be a positive number of seconds, got {args.timeout}")
+    check_arguments(args, list(SYSTEMS))
     for ds in args.datasets:
         for need in ("groundtruth.tum", "mav0/cam0/data.csv", "mav0/cam1/data.csv"):
             if not (ds / need).is_file():
@@ -213,19 +196,13 @@ def _run_dataset(
     record: dict[str, object] = {"dataset": dataset_record(ds), "systems": {}}
     for name in systems:
         _, kind, mode = SYSTEMS[name]
-        runs: list[dict[str, Metric]] = []
-        for k in range(args.repeats):
-            run_dir = work / name / f"run{k}"
-            run_dir.mkdir(parents=True)
-            load = os.getloadavg()[0]
+
+        def run_one(run_dir: Path, kind: str = kind, mode: str = mode) -> dict[str, Metric]:
             if kind == "quadnav":
-                r = run_quadnav(ds, mode, run_dir, args.timeout)
-            else:
-                r = run_orb(ds, mode, peer, settings, run_dir, args.timeout, paced=args.paced)
-            r["load_1min_before"] = load
-            runs.append(r)
-            print_run(ds, name, k, args.repeats, r)
-        record["systems"][name] = {"runs": runs, "median": summarise(runs)}  # type: ignore[index]
+                return run_quadnav(ds, mode, run_dir, args.timeout)
+            return run_orb(ds, mode, peer, settings, run_dir, args.timeout, paced=args.paced)
+
+        record["systems"][name] = repeated(ds, name, args.repeats, work, run_one)  # type: ignore[index]
     return record
 
 
@@ -251,26 +228,20 @@ def main() -> None:
     peer = OrbPeer(args.orb_venv.resolve(), args.orb_dir.resolve())
     is_orb = {s: SYSTEMS[s][1] == "orb" for s in SYSTEMS}
     systems = available(args.systems, is_orb, peer, args.orb_dir)
-    keep = args.keep.resolve() if args.keep is not None else None
-    with tempfile.TemporaryDirectory(prefix="vio_peer_") as tmp:
-        results = []
-        for i, ds in enumerate(args.datasets):
-            work = (keep or Path(tmp)) / f"{i}_{ds.name}"
-            if work.exists():
-                fail(f"--keep {args.keep}: {work} exists already; choose an empty folder")
-            print(f"{ds}: {', '.join(systems)}, {args.repeats} repeats", flush=True)
-            results.append(_run_dataset(ds, systems, args, peer, work))
+
+    def run_dataset(ds: Path, work: Path) -> dict[str, object]:
+        print(f"{ds}: {', '.join(systems)}, {args.repeats} repeats", flush=True)
+        return _run_dataset(ds, systems, args, peer, work)
+
+    results = each_dataset(args.datasets, args.keep, "vio_peer_", run_dataset)
     text = _tables(results, systems)
     print(f"\n{text}\n")
     orb = [s for s in systems if SYSTEMS[s][1] == "orb"]
-    write_text(args.out, json.dumps({
-        "benchmark": "vio_peer", "commit": git_commit(), "python": platform.python_version(),
-        "pyorbslam3": peer.version() if orb else None, "cpus": os.cpu_count(),
+    write_results(args.out, {
+        "benchmark": "vio_peer", "pyorbslam3": peer.version() if orb else None,
         "repeats": args.repeats, "orb_paced": args.paced, "systems": {s: SYSTEMS[s][0] for s in systems},
         "causal": "quadnav estimate.tum; ORB-SLAM3 orb_online.tum (orb_saved.tum is BA-refined)",
-        "results": results, "table_markdown": text,
-    }, indent=2) + "\n")  # fmt: skip
-    print(f"wrote {args.out}")
+    }, results, text)  # fmt: skip
 
 
 if __name__ == "__main__":
