@@ -15,7 +15,7 @@ close-point threshold ``Stereo.ThDepth`` is counted in (quadnav's: 0.05 m, 40 ba
 It runs in the peer's venv (``pyorbslam3``, OpenCV, numpy, scipy, PyYAML; no quadnav):
 
     ../orb-venv/bin/python benchmarks/orb_rgbd.py DATASET VOCAB OUT [--no-pace]
-        [--nfeat 1200] [--thdepth 40] [--baseline 0.05]
+        [--nfeat 1200] [--thdepth 40] [--baseline 0.05] [--no-loop]
 """
 
 from __future__ import annotations
@@ -47,9 +47,11 @@ def read_yaml(path: Path) -> dict[str, Any]:
 
 
 def settings_text(
-    cam: dict[str, Any], depth: dict[str, Any], *, nfeat: int, thdepth: float, baseline_m: float
-) -> str:
-    """ORB-SLAM3 v1.0 RGB-D settings from cam0's and depth0's ``sensor.yaml``."""
+    cam: dict[str, Any], depth: dict[str, Any], *, nfeat: int, thdepth: float, baseline_m: float,
+    loop: bool = True,
+) -> str:  # fmt: skip
+    """ORB-SLAM3 v1.0 RGB-D settings from cam0's and depth0's ``sensor.yaml`` (``loop``: its
+    loop closing on, as by default, or off: ``loopClosing: 0``)."""
     if cam["camera_model"] != "pinhole" or cam["distortion_model"] != "radial-tangential":
         raise ValueError(f"cam0: {cam['camera_model']}/{cam['distortion_model']} is not pinhole")
     if depth.get("camera", "cam0") != "cam0":
@@ -68,6 +70,7 @@ def settings_text(
         f"ORBextractor.nFeatures: {int(nfeat)}", "ORBextractor.scaleFactor: 1.2",
         "ORBextractor.nLevels: 8", "ORBextractor.iniThFAST: 20", "ORBextractor.minThFAST: 7",
         *(f"Viewer.{k}: {v!r}" for k, v in VIEWER.items()),
+        *([] if loop else ["loopClosing: 0"]),
     ]  # fmt: skip
     return "\n".join(lines) + "\n"
 
@@ -156,13 +159,14 @@ def main() -> None:
     ap.add_argument("--nfeat", type=int, default=1200)
     ap.add_argument("--thdepth", type=float, default=40.0, help="in baselines (--baseline)")
     ap.add_argument("--baseline", type=float, default=0.05, help="virtual baseline (m)")
+    ap.add_argument("--no-loop", action="store_true", help="loop closing off (loopClosing: 0)")
     a = ap.parse_args()
     import pyorbslam3 as pos
 
     a.out.mkdir(parents=True, exist_ok=True)
     cam = read_yaml(a.ds / "mav0/cam0/sensor.yaml")
     text = settings_text(cam, read_yaml(a.ds / "mav0/depth0/sensor.yaml"), nfeat=a.nfeat,
-                         thdepth=a.thdepth, baseline_m=a.baseline)  # fmt: skip
+                         thdepth=a.thdepth, baseline_m=a.baseline, loop=not a.no_loop)  # fmt: skip
     (a.out / "rgbd.yaml").write_text(text, encoding="utf-8")
     T_c_b = np.linalg.inv(np.array(cam["T_BS"]["data"], float).reshape(4, 4))
     t0 = time.time()

@@ -26,12 +26,14 @@ Scored by the same code (``quadnav.eval``'s ``evaluate_pair``) against ``groundt
   ORB-SLAM3: its mean ``track_*`` call, ``stats.json``, local mapping in its own thread), the
   whole process's wall time. The 1-min load average before each run is recorded.
 
+``--no-loop``: both without loop closing (quadnav ``--no-loop``, ORB-SLAM3 ``loopClosing: 0``).
+
 Without the peer's venv (``--orb-venv``: ``bin/python`` and ``orbvoc.txt``) one line says so and
 quadnav's side runs alone.
 
     python benchmarks/slam_peer.py DATASET [DATASET ...] [--systems quadnav_stereo,orb_stereo,
         orb_stereo_paced,quadnav_rgbd,orb_rgbd,orb_rgbd_paced] [--repeats 3]
-        [--quadnav-repeats 3] [--timeout 900] [--orb-venv ../orb-venv]
+        [--quadnav-repeats 3] [--no-loop] [--timeout 900] [--orb-venv ../orb-venv]
         [--orb-dir ../shared/peers/orbslam3] [--keep DIR] [--out benchmarks/results/slam_peer.json]
 """
 
@@ -173,11 +175,14 @@ def _final(gt: Path, run: Path) -> dict[str, Metric]:
             "keyframes": float(len(kfs))}  # fmt: skip
 
 
-def run_quadnav(dataset: Path, work: Path, timeout_s: float) -> dict[str, Metric]:
-    """One ``quadnav slam`` process (the rig, stereo or RGB-D, read from the folder); its
-    causal and final trajectories scored."""
+def run_quadnav(
+    dataset: Path, work: Path, timeout_s: float, *, loop: bool = True
+) -> dict[str, Metric]:
+    """One ``quadnav slam`` process (the rig, stereo or RGB-D, read from the folder; ``loop``:
+    its loop closing on, else ``--no-loop``); its causal and final trajectories scored."""
     out = work / "runs"
     cmd = [sys.executable, "-m", "quadnav", "slam", str(dataset), "--out", str(out)]
+    cmd += [] if loop else ["--no-loop"]
     code, wall = _run(cmd, work / "log.txt", timeout_s)
     folders = sorted(p for p in out.glob("*") if p.is_dir()) if out.is_dir() else []
     if code != 0 or not folders or read_run_status(folders[-1]) != "complete":
@@ -202,17 +207,27 @@ def run_quadnav(dataset: Path, work: Path, timeout_s: float) -> dict[str, Metric
 
 def run_orb(
     dataset: Path, kind: str, peer: OrbPeer, settings: Path, work: Path, timeout_s: float,
-    *, paced: bool,
+    *, paced: bool, loop: bool = True,
 ) -> dict[str, Metric]:  # fmt: skip
-    """One ORB-SLAM3 process in the peer's venv: ``run_orb.py stereo`` or our ``orb_rgbd.py``."""
+    """One ORB-SLAM3 process in the peer's venv: ``run_orb.py stereo`` (``settings`` made by
+    :func:`orb_settings`) or our ``orb_rgbd.py`` (``--no-loop`` unless ``loop``)."""
     out = work / "out"
     if kind == "stereo":
         cmd = peer.command(dataset, "stereo", settings, out, paced=paced)
     else:
         cmd = [str(peer.python), str(HERE / "orb_rgbd.py"), str(dataset), str(peer.vocab),
-               str(out)] + ([] if paced else ["--no-pace"])  # fmt: skip
+               str(out)] + ([] if paced else ["--no-pace"]) + ([] if loop else ["--no-loop"])  # fmt: skip
     code, wall = _run(cmd, work / "log.txt", timeout_s)
     return orb_metrics(dataset, work, code, wall)
+
+
+def orb_settings(peer: OrbPeer, dataset: Path, settings: Path, *, loop: bool = True) -> None:
+    """ORB-SLAM3's stereo settings for the dataset (``make_settings.py``), its loop closing
+    turned off (``loopClosing: 0``) unless ``loop``."""
+    peer.make_settings(dataset, settings)
+    if not loop:
+        with (settings / "stereo.yaml").open("a", encoding="utf-8") as f:
+            f.write("loopClosing: 0\n")
 
 
 def orb_metrics(dataset: Path, work: Path, code: int | str, wall: float) -> dict[str, Metric]:
@@ -246,6 +261,7 @@ def _arguments() -> argparse.Namespace:
     parser = peer_parser("quadnav SLAM vs ORB-SLAM3, same datasets", list(SYSTEMS),
                          "benchmarks/results/slam_peer.json")  # fmt: skip
     parser.add_argument("--quadnav-repeats", type=int, default=None, help="default --repeats")
+    parser.add_argument("--no-loop", action="store_true", help="both without loop closing")
     args = parser.parse_args()
     check_arguments(args, list(SYSTEMS))
     args.quadnav_repeats = args.repeats if args.quadnav_repeats is None else args.quadnav_repeats
@@ -265,15 +281,16 @@ def _run_dataset(
     mine = [s for s in systems if SYSTEMS[s][2] == kind]
     settings = work / "orb_settings"
     if kind == "stereo" and any(SYSTEMS[s][1] == "orb" for s in mine):
-        peer.make_settings(ds, settings)
+        orb_settings(peer, ds, settings, loop=not args.no_loop)
     record: dict[str, object] = {"dataset": dataset_record(ds), "kind": kind, "systems": {}}
     for name in mine:
         _, who, _, paced = SYSTEMS[name]
 
         def run_one(run_dir: Path, who: str = who, paced: bool = paced) -> dict[str, Metric]:
             if who == "quadnav":
-                return run_quadnav(ds, run_dir, args.timeout)
-            return run_orb(ds, str(kind), peer, settings, run_dir, args.timeout, paced=paced)
+                return run_quadnav(ds, run_dir, args.timeout, loop=not args.no_loop)
+            return run_orb(ds, str(kind), peer, settings, run_dir, args.timeout, paced=paced,
+                           loop=not args.no_loop)  # fmt: skip
 
         repeats = args.quadnav_repeats if who == "quadnav" else args.repeats
         record["systems"][name] = repeated(ds, name, repeats, work, run_one)  # type: ignore[index]
@@ -322,6 +339,7 @@ def main() -> None:
         "benchmark": "slam_peer",
         "pyorbslam3": peer.version() if any(is_orb[s] for s in systems) else None,
         "repeats": args.repeats, "quadnav_repeats": args.quadnav_repeats,
+        "loop_closing": not args.no_loop,
         "systems": {s: SYSTEMS[s][0] for s in systems},
         "causal": "quadnav estimate.tum; ORB-SLAM3 orb_online.tum",
         "final": "quadnav estimate.tum through keyframes_final.tum; ORB-SLAM3 orb_saved.tum",

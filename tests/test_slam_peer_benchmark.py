@@ -100,6 +100,12 @@ def test_depth_images_reach_orb_slam3_in_the_metres_quadnav_reads(
     assert fs.getNode("Camera1.fx").real() == pytest.approx(381.3625)
     assert fs.getNode("Stereo.b").real() * fs.getNode("Stereo.ThDepth").real() == pytest.approx(2.0)
     assert fs.getNode("Camera.width").real() == 640 and fs.getNode("Viewer.ViewpointF").real() > 0
+    # loop closing on unless asked off (ORB-SLAM3 v1.0 reads loopClosing: 0)
+    assert fs.getNode("loopClosing").empty()
+    off = runner.settings_text(yaml(cam_yaml), yaml(tmp_path / "depth.yaml"), nfeat=1200,
+                               thdepth=40.0, baseline_m=0.05, loop=False)  # fmt: skip
+    no_loop = cv2.FileStorage(off, cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_MEMORY)
+    assert no_loop.getNode("loopClosing").real() == 0 and not no_loop.getNode("loopClosing").empty()
 
 
 def _cam0_yaml() -> str:
