@@ -199,20 +199,20 @@ def _orb(dataset: Path, args: argparse.Namespace) -> dict[str, Any] | str:
     """ORB-SLAM3 stereo, unpaced, ``--repeats`` times: its tracking ms a frame (mean of each
     run's ``stats.json``), best and median; or why it did not run."""
     sys.path.insert(0, str(HERE))
-    from vio_peer import OrbPeer, run_orb
+    from orb_peer import OrbPeer, run_process
 
     peer = OrbPeer(args.orb_venv, args.orb_dir)
     if peer.missing():
         return f"ORB-SLAM3 not run: missing {peer.missing()}"
     with tempfile.TemporaryDirectory() as tmp:
         settings = Path(tmp) / "settings"
-        subprocess.run([str(peer.python), str(peer.dir / "make_settings.py"), str(dataset),
-                        str(settings)], check=True, capture_output=True)  # fmt: skip
+        peer.make_settings(dataset, settings)
         means = []
         for k in range(args.repeats):
             work = Path(tmp) / f"run{k}"
             work.mkdir()
-            run_orb(dataset, "stereo", peer, settings, work, 900.0)
+            cmd = peer.command(dataset, "stereo", settings, work / "out", paced=False)
+            run_process(cmd, work / "log.txt", 900.0)
             stats = work / "out" / "stats.json"
             if stats.is_file():
                 means.append(float(json.loads(stats.read_text())["track_ms_mean"]))

@@ -38,21 +38,35 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
-import subprocess
 import sys
-import tempfile
-import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
-from quadnav.errors import QuadnavError
-from quadnav.eval.evaluate import EvalOptions, evaluate_pair
-from quadnav.eval.na import Metric, fmt_metric, median_or_na, na
-from quadnav.io.run_folder import read_run_status, write_text
-from quadnav.io.trajectory_io import read_tum
-
-ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import orb_peer
+from orb_peer import (
+    OrbPeer,
+    available,
+    check_arguments,
+    coverage,
+    dataset_record,
+    each_dataset,
+    fail,
+    frames,
+    last_line,
+    log_counts,
+    markdown_table,
+    orb_failure,
+    peer_parser,
+    repeated,
+    score,
+    summarise,
+    write_results,
+)
+from orb_peer import count_resets as count_resets
+from orb_peer import run_process as _run
+from quadnav.eval.na import Metric, na
+from quadnav.io.run_folder import read_run_status
 
 #: name -> (label, kind, mode)
 SYSTEMS: dict[str, tuple[str, str, str]] = {
@@ -79,112 +93,12 @@ NOT_CAUSAL_COLUMNS: tuple[tuple[str, str, str], ...] = (
     ("imuinit_ape_4dof_m", "online after IMU init APE 4-DoF (m)", ".3f"),
 )
 
-RESET_LINE = "Reseting active map"  # ORB-SLAM3's spelling, once per active-map reset
-
-
-def _fail(message: str) -> None:
-    """A bad input: one line naming the option or path, exit code 2 (as the CLI does)."""
-    print(f"error: {message}", file=sys.stderr)
-    raise SystemExit(2)
+__all__ = ["count_resets", "markdown_table", "parse_systems", "run_orb", "summarise"]
 
 
 def parse_systems(text: str) -> list[str]:
     """The ``--systems`` list, in the order given; an unknown name is a one-line error."""
-    names = [s.strip() for s in text.split(",") if s.strip()]
-    unknown = [s for s in names if s not in SYSTEMS]
-    if unknown or not names:
-        raise ValueError(f"--systems {text!r}: choose among {', '.join(SYSTEMS)} (comma-separated)")
-    return list(dict.fromkeys(names))
-
-
-def count_resets(log: str) -> int:
-    """ORB-SLAM3's active-map resets in its output."""
-    return log.count(RESET_LINE)
-
-
-def summarise(runs: Sequence[Mapping[str, Metric]]) -> dict[str, Metric | str]:
-    """The median over repeats of each metric (numbers only; the first reason when no repeat
-    has a number), ``runs_ok``: repeats with a causal trajectory scored, of all, and ``error``:
-    the first failed repeat's reason, if any."""
-    keys = dict.fromkeys(k for r in runs for k in r if k != "error")
-    out: dict[str, Metric | str] = {
-        k: median_or_na(r.get(k, r.get("error", na("not measured"))) for r in runs) for k in keys
-    }
-    ok = sum(1 for r in runs if not isinstance(r.get("ape_se3_m", na("")), str))
-    out["runs_ok"] = f"{ok}/{len(runs)}"
-    errors = [r["error"] for r in runs if "error" in r]
-    if errors:
-        out["error"] = errors[0]
-    return out
-
-
-def markdown_table(
-    rows: Sequence[tuple[str, str, Mapping[str, Metric | str]]],
-    columns: Sequence[tuple[str, str, str]],
-) -> str:
-    """One Markdown row per (dataset, system, medians). A metric that is n/a prints ``n/a (k)``,
-    its reason the k-th note under the table (a failed run's reason once, not in every cell)."""
-    head = ["dataset", "system", "runs ok", *(c[1] for c in columns)]
-    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-    reasons: list[str] = []
-    for dataset, system, med in rows:
-        cells = [dataset, system, str(med.get("runs_ok", "0/0"))]
-        for key, _, spec in columns:
-            value = med.get(key, med.get("error", na("not measured")))
-            if isinstance(value, str):
-                why = value.removeprefix("n/a: ")
-                reasons += [why] if why not in reasons else []
-                cells.append(f"n/a ({reasons.index(why) + 1})")
-            else:
-                cells.append(fmt_metric(value, spec))
-        lines.append("| " + " | ".join(cells) + " |")
-    notes = [f"({k}) {why}" for k, why in enumerate(reasons, start=1)]
-    return "\n".join(lines + ([""] + notes if notes else []))
-
-
-def _score(groundtruth: Path, estimate: Path, aligns: Sequence[str]) -> dict[str, Metric]:
-    """APE RMSE (m) of a TUM trajectory after each alignment, and the poses matched."""
-    if not estimate.is_file() or estimate.stat().st_size == 0:
-        why = na(f"no poses ({estimate.name} {'empty' if estimate.is_file() else 'missing'})")
-        return {**{a: why for a in aligns}, "matched": why}
-    out: dict[str, Metric] = {}
-    try:
-        ref, est = read_tum(groundtruth), read_tum(estimate)
-        for align in aligns:
-            res = evaluate_pair(ref, est, EvalOptions(align=align, plots=False))  # type: ignore[arg-type]
-            out[align] = res.metrics.ape_trans_m.rmse
-            out["matched"] = float(res.n_matched)
-    except QuadnavError as exc:
-        return {**{a: na(str(exc)) for a in aligns}, "matched": na(str(exc))}
-    return out
-
-
-def _frames(dataset: Path) -> int:
-    rows = (dataset / "mav0" / "cam0" / "data.csv").read_text(encoding="utf-8").splitlines()
-    return sum(1 for line in rows if line.strip() and not line.startswith("#"))
-
-
-def _coverage(matched: Metric, frames: int) -> Metric:
-    return matched if isinstance(matched, str) else 100.0 * float(matched) / frames
-
-
-def _run(cmd: list[str], log: Path, timeout_s: float) -> tuple[int | str, float]:
-    """Run ``cmd``, output to ``log``: the exit code (or why it has none) and the wall time."""
-    t0 = time.perf_counter()
-    with log.open("w", encoding="utf-8") as out:
-        try:
-            code: int | str = subprocess.run(
-                cmd, stdout=out, stderr=subprocess.STDOUT, timeout=timeout_s, check=False,
-                env=dict(os.environ, MPLBACKEND="Agg"),
-            ).returncode  # fmt: skip
-        except subprocess.TimeoutExpired:
-            code = f"timed out after {timeout_s:g} s (--timeout)"
-    return code, time.perf_counter() - t0
-
-
-def _last_line(log: Path) -> str:
-    lines = [s for s in log.read_text(encoding="utf-8", errors="replace").splitlines() if s]
-    return lines[-1][:200] if lines else "no output"
+    return orb_peer.parse_systems(text, list(SYSTEMS))
 
 
 def run_quadnav(dataset: Path, mode: str, work: Path, timeout_s: float) -> dict[str, Metric]:
@@ -194,28 +108,19 @@ def run_quadnav(dataset: Path, mode: str, work: Path, timeout_s: float) -> dict[
     code, wall = _run(cmd + (["--stereo"] if mode == "stereo" else []), work / "log.txt", timeout_s)
     folders = sorted(out.glob("*")) if out.is_dir() else []
     if code != 0 or not folders or read_run_status(folders[-1]) != "complete":
-        why = na(f"quadnav vio failed ({code}): {_last_line(work / 'log.txt')}")
+        why = na(f"quadnav vio failed ({code}): {last_line(work / 'log.txt')}")
         return {"error": why, "ape_4dof_m": why, "ape_se3_m": why, "process_s": wall}
     run = folders[-1]
     m = json.loads((run / "metrics.json").read_text(encoding="utf-8"))
-    s = _score(dataset / "groundtruth.tum", run / "estimate.tum", ("4dof", "se3"))
+    s = score(dataset / "groundtruth.tum", run / "estimate.tum", ("4dof", "se3"))
     init = m.get("initialized_after_s")
     return {
         "ape_4dof_m": s["4dof"], "ape_se3_m": s["se3"],
-        "coverage_pct": _coverage(s["matched"], _frames(dataset)),
+        "coverage_pct": coverage(s["matched"], frames(dataset)),
         "init_s": float(init) if isinstance(init, int | float) else na("never initialised"),
         "failures": float(m["failures"]), "resets": float(m["reinitializations"]),
         "estimator_fps": float(m["timing"]["frames_per_s"]), "process_s": wall,
     }  # fmt: skip
-
-
-def _orb_failure(code: int | str, log: str, resets: int) -> str:
-    """Why an ORB-SLAM3 run left no statistics (it ``exit``s or crashes on some inputs, e.g.
-    saving a map that never initialised)."""
-    hint = ""
-    if "not enough acceleration" in log:
-        hint = f"; 'not enough acceleration' {log.count('not enough acceleration')} times"
-    return f"ORB-SLAM3 exit {code}, no stats.json ({resets} map resets{hint})"
 
 
 def run_orb(
@@ -230,8 +135,7 @@ def run_orb(
 ) -> dict[str, Metric]:
     """One ``run_orb.py`` process in the peer's venv (``--no-pace`` unless ``paced``: then it
     sleeps to the camera rate, as ORB-SLAM3's examples do); its trajectories scored."""
-    cmd = [str(peer.python), str(peer.dir / "run_orb.py"), str(dataset), mode, str(peer.vocab),
-           str(settings / f"{mode}.yaml"), str(work / "out")] + ([] if paced else ["--no-pace"])  # fmt: skip
+    cmd = peer.command(dataset, mode, settings, work / "out", paced=paced)
     code, wall = _run(cmd, work / "log.txt", timeout_s)
     return orb_metrics(dataset, mode, work, code, wall)
 
@@ -241,106 +145,46 @@ def orb_metrics(
 ) -> dict[str, Metric]:
     """The metrics of a ``run_orb.py`` run whose output is in ``work`` (``log.txt``, ``out/``)."""
     log = (work / "log.txt").read_text(encoding="utf-8", errors="replace")
-    resets = count_resets(log)
+    resets = int(log_counts(log)["resets"])
     stats_path = work / "out" / "stats.json"
     if not stats_path.is_file():
-        why = na(_orb_failure(code, log, resets))
+        why = na(orb_failure(code, log, resets))
         return {"error": why, "ape_4dof_m": why, "ape_se3_m": why, "resets": float(resets),
                 "process_s": wall}  # fmt: skip
     st = json.loads(stats_path.read_text(encoding="utf-8"))
     gt, out = dataset / "groundtruth.tum", work / "out"
-    online = _score(gt, out / "orb_online.tum", ("4dof", "se3"))
-    saved = _score(gt, out / "orb_saved.tum", ("se3",))
-    imuinit = _score(gt, out / "orb_online_imuinit.tum", ("4dof",))
+    online = score(gt, out / "orb_online.tum", ("4dof", "se3"))
+    saved = score(gt, out / "orb_saved.tum", ("se3",))
+    imuinit = score(gt, out / "orb_online_imuinit.tum", ("4dof",))
     init = st.get("imu_init_s") if "inertial" in mode else st.get("first_ok_s")
     return {
         "ape_4dof_m": online["4dof"], "ape_se3_m": online["se3"],
-        "coverage_pct": _coverage(online["matched"], _frames(dataset)),
+        "coverage_pct": coverage(online["matched"], frames(dataset)),
         "init_s": float(init) if isinstance(init, int | float) else na("never initialised"),
         "failures": float(st["lost_events"]), "resets": float(resets),
         "estimator_fps": float(st["max_fps_tracking"]), "process_s": wall,
         "saved_ape_se3_m": saved["se3"],
-        "saved_coverage_pct": _coverage(saved["matched"], _frames(dataset)),
+        "saved_coverage_pct": coverage(saved["matched"], frames(dataset)),
         "imuinit_ape_4dof_m": imuinit["4dof"],
     }  # fmt: skip
 
 
-class OrbPeer:
-    """Where the peer lives: its venv's interpreter, its vocabulary, its scripts."""
-
-    def __init__(self, venv: Path, scripts: Path) -> None:
-        self.python, self.vocab, self.dir = venv / "bin" / "python", venv / "orbvoc.txt", scripts
-
-    def missing(self) -> str:
-        """Empty when usable, else what is missing (one line)."""
-        gone = [
-            str(p) for p in (self.python, self.vocab, self.dir / "run_orb.py") if not p.exists()
-        ]
-        return ", ".join(gone)
-
-    def version(self) -> str:
-        done = subprocess.run(
-            [str(self.python), "-c", "from importlib.metadata import version as v; print(v('pyorbslam3'))"],
-            capture_output=True, text=True, check=False, timeout=60,
-        )  # fmt: skip
-        return done.stdout.strip() or "?"
-
-
 def _arguments() -> argparse.Namespace:
-    parser = argparse.ArgumentParser(description="quadnav VIO vs ORB-SLAM3, same datasets")
-    parser.add_argument("datasets", nargs="+", type=Path)
-    parser.add_argument("--systems", default=",".join(SYSTEMS))
-    parser.add_argument("--repeats", type=int, default=3)
-    parser.add_argument("--timeout", type=float, default=900.0, help="seconds per process")
-    parser.add_argument("--orb-venv", type=Path, default=ROOT.parent / "orb-venv")
-    parser.add_argument("--orb-dir", type=Path, default=ROOT.parent / "shared/peers/orbslam3")
-    parser.add_argument("--keep", type=Path, default=None, help="keep every run's output here")
+    parser = peer_parser("quadnav VIO vs ORB-SLAM3, same datasets", list(SYSTEMS),
+                         "benchmarks/results/vio_peer.json")  # fmt: skip
     parser.add_argument(
         "--paced",
         action="store_true",
         help="ORB-SLAM3 sleeps to the camera rate, as its examples do (its mapping threads get "
         "the time; its accuracy, not its speed)",
     )
-    parser.add_argument("--out", type=Path, default=Path("benchmarks/results/vio_peer.json"))
     args = parser.parse_args()
-    try:
-        args.systems = parse_systems(args.systems)
-    except ValueError as exc:
-        _fail(str(exc))
-    if args.repeats < 1:
-        _fail(f"--repeats must be at least 1, got {args.repeats}")
-    if not args.timeout > 0:
-        _fail(f"--timeout must be a positive number of seconds, got {args.timeout}")
+    check_arguments(args, list(SYSTEMS))
     for ds in args.datasets:
         for need in ("groundtruth.tum", "mav0/cam0/data.csv", "mav0/cam1/data.csv"):
             if not (ds / need).is_file():
-                _fail(
-                    f"DATASET {ds}: no {need} (make it with quadnav dataset make ... --rig euroc)"
-                )
+                fail(f"DATASET {ds}: no {need} (make it with quadnav dataset make ... --rig euroc)")
     return args
-
-
-def _available(args: argparse.Namespace, peer: OrbPeer) -> list[str]:
-    """The systems to run: the ORB-SLAM3 ones dropped, with one line, without its venv."""
-    gone = peer.missing()
-    wanted_orb = [s for s in args.systems if SYSTEMS[s][1] == "orb"]
-    if not gone or not wanted_orb:
-        return list(args.systems)
-    print(f"ORB-SLAM3 not run: missing {gone} (set up as {args.orb_dir}/README.md says); "
-          "running quadnav's side only")  # fmt: skip
-    left = [s for s in args.systems if SYSTEMS[s][1] != "orb"]
-    if not left:
-        _fail("--systems: only ORB-SLAM3 chosen, and its venv is missing (see the line above)")
-    return left
-
-
-def _dataset_record(ds: Path) -> dict[str, object]:
-    meta_path = ds / "dataset.json"
-    meta = json.loads(meta_path.read_text(encoding="utf-8")) if meta_path.is_file() else {}
-    spec = meta.get("spec", {})
-    keep = ("world", "rig", "motion", "duration_s", "seed", "imu_noise", "still_s", "time_offset_s")
-    return {"path": str(ds.resolve()), "frames": _frames(ds), "sequence": meta.get("sequence"),
-            **{k: spec.get(k) for k in keep if k in spec}}  # fmt: skip
 
 
 def _run_dataset(
@@ -348,39 +192,18 @@ def _run_dataset(
 ) -> dict[str, object]:
     settings = work / "orb_settings"
     if any(SYSTEMS[s][1] == "orb" for s in systems):
-        done = subprocess.run(
-            [str(peer.python), str(peer.dir / "make_settings.py"), str(ds), str(settings)],
-            capture_output=True, text=True, timeout=120, check=False,
-        )  # fmt: skip
-        if done.returncode != 0:
-            last = (done.stdout + done.stderr).strip().splitlines()[-1:] or ["no output"]
-            _fail(f"DATASET {ds}: ORB-SLAM3's make_settings.py failed: {last[0][:200]}")
-    record: dict[str, object] = {"dataset": _dataset_record(ds), "systems": {}}
+        peer.make_settings(ds, settings)
+    record: dict[str, object] = {"dataset": dataset_record(ds), "systems": {}}
     for name in systems:
         _, kind, mode = SYSTEMS[name]
-        runs: list[dict[str, Metric]] = []
-        for k in range(args.repeats):
-            run_dir = work / name / f"run{k}"
-            run_dir.mkdir(parents=True)
-            load = os.getloadavg()[0]
+
+        def run_one(run_dir: Path, kind: str = kind, mode: str = mode) -> dict[str, Metric]:
             if kind == "quadnav":
-                r = run_quadnav(ds, mode, run_dir, args.timeout)
-            else:
-                r = run_orb(ds, mode, peer, settings, run_dir, args.timeout, paced=args.paced)
-            r["load_1min_before"] = load
-            runs.append(r)
-            print(f"  {ds.name} {name} run {k + 1}/{args.repeats}: "
-                  f"APE SE(3) {fmt_metric(r['ape_se3_m'], '.3f')} m, "
-                  f"whole process {float(r['process_s']):.1f} s", flush=True)  # fmt: skip
-        record["systems"][name] = {"runs": runs, "median": summarise(runs)}  # type: ignore[index]
+                return run_quadnav(ds, mode, run_dir, args.timeout)
+            return run_orb(ds, mode, peer, settings, run_dir, args.timeout, paced=args.paced)
+
+        record["systems"][name] = repeated(ds, name, args.repeats, work, run_one)  # type: ignore[index]
     return record
-
-
-def _git_commit() -> str:
-    done = subprocess.run(
-        ["git", "-C", str(ROOT), "rev-parse", "HEAD"], capture_output=True, text=True, check=False
-    )
-    return done.stdout.strip() or "?"
 
 
 def _tables(results: Sequence[Mapping[str, object]], systems: Sequence[str]) -> str:
@@ -403,27 +226,22 @@ def _tables(results: Sequence[Mapping[str, object]], systems: Sequence[str]) -> 
 def main() -> None:
     args = _arguments()
     peer = OrbPeer(args.orb_venv.resolve(), args.orb_dir.resolve())
-    systems = _available(args, peer)
-    keep = args.keep.resolve() if args.keep is not None else None
-    with tempfile.TemporaryDirectory(prefix="vio_peer_") as tmp:
-        results = []
-        for i, ds in enumerate(args.datasets):
-            work = (keep or Path(tmp)) / f"{i}_{ds.name}"
-            if work.exists():
-                _fail(f"--keep {args.keep}: {work} exists already; choose an empty folder")
-            print(f"{ds}: {', '.join(systems)}, {args.repeats} repeats", flush=True)
-            results.append(_run_dataset(ds, systems, args, peer, work))
+    is_orb = {s: SYSTEMS[s][1] == "orb" for s in SYSTEMS}
+    systems = available(args.systems, is_orb, peer, args.orb_dir)
+
+    def run_dataset(ds: Path, work: Path) -> dict[str, object]:
+        print(f"{ds}: {', '.join(systems)}, {args.repeats} repeats", flush=True)
+        return _run_dataset(ds, systems, args, peer, work)
+
+    results = each_dataset(args.datasets, args.keep, "vio_peer_", run_dataset)
     text = _tables(results, systems)
     print(f"\n{text}\n")
     orb = [s for s in systems if SYSTEMS[s][1] == "orb"]
-    write_text(args.out, json.dumps({
-        "benchmark": "vio_peer", "commit": _git_commit(), "python": platform.python_version(),
-        "pyorbslam3": peer.version() if orb else None, "cpus": os.cpu_count(),
+    write_results(args.out, {
+        "benchmark": "vio_peer", "pyorbslam3": peer.version() if orb else None,
         "repeats": args.repeats, "orb_paced": args.paced, "systems": {s: SYSTEMS[s][0] for s in systems},
         "causal": "quadnav estimate.tum; ORB-SLAM3 orb_online.tum (orb_saved.tum is BA-refined)",
-        "results": results, "table_markdown": text,
-    }, indent=2) + "\n")  # fmt: skip
-    print(f"wrote {args.out}")
+    }, results, text)  # fmt: skip
 
 
 if __name__ == "__main__":

@@ -12,6 +12,16 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 
 
+def _refused(script: str, args: list[str]) -> str:
+    """``benchmarks/SCRIPT ARGS``'s error output, once it has exited with code 2 (bad input)."""
+    done = subprocess.run(
+        [sys.executable, str(ROOT / "benchmarks" / script), *args],
+        cwd=ROOT, capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert done.returncode == 2, done.stderr
+    return done.stderr
+
+
 @pytest.mark.parametrize(
     ("args", "message"),
     [
@@ -22,13 +32,9 @@ ROOT = Path(__file__).resolve().parents[1]
     ],
 )
 def test_vio_benchmark_refuses_bad_input_in_one_line(args: list[str], message: str) -> None:
-    done = subprocess.run(
-        [sys.executable, str(ROOT / "benchmarks" / "vio.py"), *args],
-        cwd=ROOT, capture_output=True, text=True, timeout=120,
-    )  # fmt: skip
-    assert done.returncode == 2, done.stderr
-    lines = done.stderr.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith(message), done.stderr
+    stderr = _refused("vio.py", args)
+    lines = stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(message), stderr
 
 
 @pytest.mark.parametrize(
@@ -40,21 +46,13 @@ def test_vio_benchmark_refuses_bad_input_in_one_line(args: list[str], message: s
     ],
 )
 def test_place_benchmark_refuses_bad_input_in_one_line(args: list[str], message: str) -> None:
-    done = subprocess.run(
-        [sys.executable, str(ROOT / "benchmarks" / "place.py"), *args],
-        cwd=ROOT, capture_output=True, text=True, timeout=120,
-    )  # fmt: skip
-    assert done.returncode == 2, done.stderr
-    assert done.stderr.strip().splitlines() == [message], done.stderr
+    stderr = _refused("place.py", args)
+    assert stderr.strip().splitlines() == [message], stderr
 
 
 def test_posegraph_benchmark_refuses_bad_repeats_in_one_line() -> None:
-    done = subprocess.run(
-        [sys.executable, str(ROOT / "benchmarks" / "posegraph.py"), "--repeats", "0"],
-        cwd=ROOT, capture_output=True, text=True, timeout=120,
-    )  # fmt: skip
-    assert done.returncode == 2, done.stderr
-    assert done.stderr.strip() == "error: --repeats must be at least 1, got 0"
+    stderr = _refused("posegraph.py", ["--repeats", "0"])
+    assert stderr.strip() == "error: --repeats must be at least 1, got 0"
 
 
 @pytest.mark.parametrize(
@@ -70,12 +68,8 @@ def test_posegraph_benchmark_refuses_bad_repeats_in_one_line() -> None:
     ],
 )
 def test_loop_benchmark_refuses_bad_input_in_one_line(args: list[str], message: str) -> None:
-    done = subprocess.run(
-        [sys.executable, str(ROOT / "benchmarks" / "loop.py"), *args],
-        cwd=ROOT, capture_output=True, text=True, timeout=120,
-    )  # fmt: skip
-    assert done.returncode == 2, done.stderr
-    assert done.stderr.strip().splitlines() == [message], done.stderr
+    stderr = _refused("loop.py", args)
+    assert stderr.strip().splitlines() == [message], stderr
 
 
 @pytest.mark.parametrize(
@@ -89,10 +83,26 @@ def test_loop_benchmark_refuses_bad_input_in_one_line(args: list[str], message: 
     ],
 )
 def test_slam_benchmark_refuses_bad_input_in_one_line(args: list[str], message: str) -> None:
-    done = subprocess.run(
-        [sys.executable, str(ROOT / "benchmarks" / "slam.py"), *args],
-        cwd=ROOT, capture_output=True, text=True, timeout=120,
-    )  # fmt: skip
-    assert done.returncode == 2, done.stderr
-    lines = done.stderr.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith(message), done.stderr
+    stderr = _refused("slam.py", args)
+    lines = stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(message), stderr
+
+
+@pytest.mark.parametrize(
+    ("script", "args", "message"),
+    [
+        ("vio_peer", ["/no/such/dataset"], "error: DATASET /no/such/dataset: no groundtruth.tum"),
+        ("vio_peer", [".", "--systems", "vins"], "error: --systems 'vins': choose among"),
+        ("vio_peer", [".", "--repeats", "0"], "error: --repeats must be at least 1, got 0"),
+        ("slam_peer", ["/no/such/dataset"], "error: DATASET /no/such/dataset: no groundtruth.tum"),
+        ("slam_peer", [".", "--systems", "orb_mono"], "error: --systems 'orb_mono': choose among"),
+        ("slam_peer", [".", "--quadnav-repeats", "0"],
+         "error: --quadnav-repeats must be at least 1, got 0"),
+    ],
+)  # fmt: skip
+def test_peer_benchmarks_refuse_bad_input_in_one_line(
+    script: str, args: list[str], message: str
+) -> None:
+    stderr = _refused(f"{script}.py", args)
+    lines = stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(message), stderr

@@ -1,11 +1,9 @@
 """``benchmarks/vio_peer.py``'s pure parts: the median over repeats (a failed repeat neither
-counts as a number nor hides the others), the table, the ORB-SLAM3 log's resets, ``--systems``,
-and its bad input in one line. No test runs ORB-SLAM3 or the VIO."""
+counts as a number nor hides the others), the table, the ORB-SLAM3 log's resets and ``--systems``
+(its bad input: ``tests/test_benchmark_inputs.py``). No test runs ORB-SLAM3 or the VIO."""
 
 from __future__ import annotations
 
-import subprocess
-import sys
 from pathlib import Path
 from types import ModuleType
 
@@ -71,23 +69,6 @@ def test_systems_option(peer: ModuleType) -> None:
     ]
     with pytest.raises(ValueError, match="--systems 'vins'"):
         peer.parse_systems("vins")
-
-
-@pytest.mark.parametrize(
-    ("args", "message"),
-    [
-        (["/no/such/dataset"], "error: DATASET /no/such/dataset: no groundtruth.tum"),
-        ([".", "--systems", "vins"], "error: --systems 'vins': choose among"),
-        ([".", "--repeats", "0"], "error: --repeats must be at least 1, got 0"),
-    ],
-)
-def test_bad_input_is_one_line(args: list[str], message: str) -> None:
-    done = subprocess.run(
-        [sys.executable, str(SCRIPT), *args], cwd=ROOT, capture_output=True, text=True, timeout=120
-    )
-    assert done.returncode == 2, done.stderr
-    lines = done.stderr.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith(message), done.stderr
 
 
 @pytest.mark.parametrize("paced", [False, True])

@@ -110,6 +110,31 @@ def test_keyframe_records_put_their_landmarks_where_their_keypoints_see_them(
         assert (rec.ids[np.setdiff1d(np.arange(len(rec.ids)), k)] < -999_999).all()
 
 
+def test_final_keyframes_are_the_map_keyframes_in_the_body_frame_of_the_states(
+    stereo_run: tuple,
+) -> None:
+    """``keyframes_final.tum``'s poses: each keyframe of the map (not culled) as the body's pose
+    in the run's world, the frame the states are in: at each keyframe's time within a few mm
+    and a tenth of a degree of the state tracked then (local BA moves it a little), and as near
+    the truth after an SE(3) alignment as the states are."""
+    from quadnav.eval.evaluate import EvalOptions, evaluate_pair
+    from quadnav.experiments.slam_run import final_keyframes
+    from quadnav.io.trajectory_io import read_tum
+
+    run, slam, _ = stereo_run
+    final = final_keyframes(slam)
+    assert len(final) == sum(not kf.bad for kf in slam.tracker.map.keyframes) >= 2
+    est = read_tum(run.run_dir / "estimate.tum")
+    row = {int(t): k for k, t in enumerate(est.t_ns)}
+    k = np.array([row[int(t)] for t in final.t_ns])
+    assert np.abs(final.p_W_B - est.p_W_B[k]).max() < 0.005
+    turn = (final.R_W_B.inv() * est.R_W_B[k]).magnitude()  # (the rectification left in: 0.62 deg)
+    assert np.degrees(turn).max() < 0.1, np.degrees(turn)
+    truth = read_tum(run.run_dir / "groundtruth.tum")
+    ate = evaluate_pair(truth, final, EvalOptions(align="se3", plots=False)).metrics.ape_trans_m
+    assert ate.rmse < max(2 * run.metrics.ape_se3.rmse_m, 0.005), ate
+
+
 def test_a_saved_map_reloads_exactly_and_a_run_localizes_in_it(
     stereo_run: tuple, tmp_path: Path
 ) -> None:

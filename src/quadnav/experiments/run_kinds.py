@@ -218,6 +218,12 @@ _VIO = RunFolderKind(
             False,
         ),
         RunFile(
+            "keyframes_final.tum",
+            "quadnav slam: its map's keyframes as they are at the end (after bundle adjustment "
+            "and loop closing; culled ones left out) (TUM)",
+            False,
+        ),
+        RunFile(
             "loop.json",
             "with --loop: keyframes, places recognised, loops accepted and their keyframes, "
             "rejections by verification stage",

@@ -1,6 +1,7 @@
 """``quadnav slam``: the stereo SLAM (:class:`quadnav.slam.SlamOdometry`) over a dataset, through
 the runner every visual estimator shares (:func:`~quadnav.experiments.odometry_run.run_odometry`:
-the run folder, trajectory, metrics against the ground truth, report). ``load_map`` starts it
+the run folder, trajectory, metrics against the ground truth, report), and the map's keyframes
+as they end (``keyframes_final.tum``: after loop closing). ``load_map`` starts it
 on a map saved before (by ``save_map``), ``localization_only`` without adding to it."""
 
 from __future__ import annotations
@@ -19,7 +20,9 @@ from quadnav.experiments.odometry_run import (
     resolve_dataset,
     run_odometry,
 )
+from quadnav.geometry.trajectory import Trajectory
 from quadnav.io.serial_frame import FrameSender
+from quadnav.io.trajectory_io import write_tum
 from quadnav.messages import ImageFrame, ImuSample
 from quadnav.odometry import (
     FrameFeatures,
@@ -41,7 +44,17 @@ if TYPE_CHECKING:
     from quadnav.slam.map import SlamMap
     from quadnav.slam.odometry import DepthSource
 
-__all__ = ["SendingOdometry", "SlamRequest", "check_slam_request", "run_slam_source"]
+__all__ = [
+    "FINAL_KEYFRAMES",
+    "SendingOdometry",
+    "SlamRequest",
+    "check_slam_request",
+    "final_keyframes",
+    "run_slam_source",
+]
+
+#: the run folder's file of the map's keyframes at the end of the run (:func:`final_keyframes`)
+FINAL_KEYFRAMES = "keyframes_final.tum"
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -186,11 +199,31 @@ def run_slam_source(
         options=replace(opt, video=False, save_map=None), name=name, kind="slam",
         progress=progress,
     )  # fmt: skip
+    if made:
+        write_tum(run.run_dir / FINAL_KEYFRAMES, final_keyframes(made[0]))
     if request.save_map is not None and made:
         from quadnav.io.slam_map import save_slam_map
 
         save_slam_map(request.save_map, made[0].slam_map, made[0].camera)
     return run
+
+
+def final_keyframes(slam: SlamOdometry) -> Trajectory:
+    """The map's keyframes as it has them at the end (after local and global bundle adjustment
+    and loop closing), culled ones left out: the body's pose in the run's world, as the
+    states and ``keyframes.tum`` (which has each keyframe when it left the local window); in
+    time order (a map loaded by ``--load-map`` brings its own keyframes and times)."""
+    import numpy as np
+
+    by_t = {kf.frame.t_ns: kf for kf in slam.slam_map.keyframes if not kf.bad}
+    kfs = [by_t[t] for t in sorted(by_t)]
+    poses = [slam.T_O_S @ kf.T_C_W.inverse() @ slam.T_B_C.inverse() for kf in kfs]
+    return Trajectory(
+        t_ns=np.array([kf.frame.t_ns for kf in kfs], dtype=np.int64),
+        p_W_B=np.array([T.p_A_B for T in poses]).reshape(-1, 3),
+        q_W_B_xyzw=np.array([T.R_A_B.as_quat() for T in poses]).reshape(-1, 4),
+        name="keyframes_final",
+    )
 
 
 def _depth_source(dataset: VisualInertialDataset) -> DepthSource:
