@@ -22,6 +22,7 @@ from quadnav.cli.common import (
 from quadnav.cli.link import open_serial
 from quadnav.cli.planar import OutOpt
 from quadnav.cli.vio import BlackoutOpt, parse_blackout
+from quadnav.errors import ConfigError
 from quadnav.experiments.odometry_run import OdometryRun, OdometryRunOptions
 from quadnav.experiments.slam_run import SlamRequest, check_slam_request, run_slam_source
 
@@ -180,6 +181,8 @@ def slam_command(
         ),
     ] = None,
 ) -> None:
+    if calibration is not None and not calibration.exists():
+        raise ConfigError(f"--calibration {calibration}: no such file or folder")
     request = resolve_slam_request(
         dataset, start_s, duration_s, seed, rig, out, features=features, th_depth=th_depth,
         loop=loop, save_map=save_map, load_map=load_map,

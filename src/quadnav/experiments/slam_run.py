@@ -137,8 +137,6 @@ def check_slam_request(request: SlamRequest) -> None:
         raise ConfigError("--localization-only: give the map to localize in (--load-map DIR)")
     if request.localization_only and request.save_map is not None:
         raise ConfigError("--save-map with --localization-only: the map does not change")
-    if request.calibration is not None and not request.calibration.exists():
-        raise ConfigError(f"--calibration {request.calibration}: no such file or folder")
     if request.save_map is not None and request.save_map == request.load_map:
         raise ConfigError(f"--save-map {request.save_map}: the map loaded; save to another folder")
 
