@@ -329,8 +329,8 @@ class StereoTracker:
         return _Matches(keypoints=kp, points=ids[j])
 
     def _wants_keyframe(self, frame: Frame, matches: _Matches) -> bool:
-        """ORB-SLAM2's ``NeedNewKeyFrame`` (stereo) with the thesis's ratio, local mapping
-        being idle (it runs inline): when the frame tracks under ``keyframe_ratio`` of the
+        """ORB-SLAM2's ``NeedNewKeyFrame`` for a stereo camera, local mapping being idle (it
+        runs inline): when the frame tracks under ``keyframe_ratio`` of the
         points its reference keyframe has that ``keyframe_min_observers`` keyframes see, or
         fewer than ``close_tracked`` close points while ``close_untracked`` more could be made;
         it must track ``keyframe_min_tracked``. Not within ``keyframe_max_frames`` of a
