@@ -140,6 +140,28 @@ def test_the_imu_is_quieter_on_the_ground_than_in_flight() -> None:
     assert plan_dataset(sequence_spec("room", {**SMALL, "sensors": "ideal"})).ground_noise is None
 
 
+def test_the_rotors_vibration_is_scaled_by_imu_vibration() -> None:
+    """``imu_vibration`` 0 flies at the IMU's ground level, 1 at its in-flight level, and
+    between them the vibration's variance scales as its square."""
+    fields = {"rig": "euroc_mono", "duration_s": 5.0, "still_s": 3.0}
+    full = plan_dataset(sequence_spec("room", fields))
+    quiet = plan_dataset(sequence_spec("room", {**fields, "imu_vibration": 0.0}))
+    half = plan_dataset(sequence_spec("room", {**fields, "imu_vibration": 0.5}))
+    assert full.ground_noise is not None and full.imu_noise is not None
+    assert quiet.imu_noise is not None and half.imu_noise is not None
+    g, f = full.ground_noise.accel_noise_density, full.imu_noise.accel_noise_density
+    assert quiet.imu_noise.accel_noise_density == pytest.approx(g)
+    assert half.imu_noise.accel_noise_density**2 == pytest.approx(g**2 + 0.25 * (f**2 - g**2))
+    # the turn-on biases are the same draw
+    assert quiet.imu_noise.accel_bias0_m_s2 == full.imu_noise.accel_bias0_m_s2
+    imu = synthesize_dataset_imu(quiet, 0)
+    exact = synthesize_imu(quiet.motion, rate_hz=200.0, noise=None, t_start_ns=quiet.span[0],
+                           t_end_ns=quiet.span[1])  # fmt: skip
+    t = (imu.t_true_ns - imu.t_true_ns[0]) / 1e9
+    noise = imu.accel_m_s2 - exact.accel_m_s2 - imu.accel_bias_m_s2
+    assert np.std(noise[t > 3.5]) == pytest.approx(g * math.sqrt(200), rel=0.1)
+
+
 def test_an_ideal_dataset_states_the_calibration_it_was_made_with(tmp_path: Path) -> None:
     made = make_dataset(sequence_spec("room", {**SMALL, "sensors": "ideal"}), tmp_path / "seq")
     for rel in ("mav0/cam0/sensor.yaml", "mav0/imu0/sensor.yaml", "camchain.yaml"):

@@ -85,7 +85,9 @@ class SequenceSpec(ConfigModel):
     surfaces without texture; left out (None), they are the profile's: a realistic ``exposure_s``
     of 5 ms and ``lighting`` of 0.15 (``room_medium``'s), the ideal 2 ms and 0.
     ``sensors`` is the profile (see the module): ``realistic`` draws the IMU's turn-on biases
-    (``imu_bias0_scale`` times the rig's spread), a camera-IMU time offset the calibration does
+    (``imu_bias0_scale`` times the rig's spread), scales the white noise the rotors add in flight
+    over the IMU's level on the ground by ``imu_vibration`` (1: the rig's in-flight level; 0:
+    the ground level throughout), a camera-IMU time offset the calibration does
     not state (``time_offset_error_s`` at most, half of it at least, of either sign; on top of the
     stated ``time_offset_s``), and a calibration error: the cameras' common camera-IMU extrinsic
     (rotation ``calib_rotation_deg`` and lever arm ``calib_translation_m``, RMS norms), each
@@ -128,6 +130,7 @@ class SequenceSpec(ConfigModel):
     imu_noise: bool = True
     sensors: Literal["realistic", "ideal"] = "realistic"
     imu_bias0_scale: float = Field(default=1.0, ge=0.0, le=10.0)
+    imu_vibration: float = Field(default=1.0, ge=0.0, le=10.0)
     time_offset_error_s: float = Field(default=0.005, ge=0.0, le=0.05)
     calib_rotation_deg: float = Field(default=0.5, ge=0.0, le=10.0)
     calib_translation_m: float = Field(default=0.005, ge=0.0, le=0.5)
@@ -575,7 +578,23 @@ def _imu_noise(spec: SequenceSpec, imu: ImuSpec) -> ImuNoiseModel | None:
     if spec.sensors == "ideal":
         return imu.noise
     flight = imu.flight_noise or imu.noise
+    if imu.ground_noise is not None and spec.imu_vibration != 1.0:
+        flight = with_vibration(flight, imu.ground_noise, spec.imu_vibration)
     return flight.draw_turn_on_biases(stream_rng(spec.seed, "imu_bias0"), spec.imu_bias0_scale)
+
+
+def with_vibration(flight: ImuNoiseModel, ground: ImuNoiseModel, scale: float) -> ImuNoiseModel:
+    """``flight`` with the white noise it adds over ``ground`` (the rotors' vibration, in
+    variance) times ``scale``: 0 gives the ground level, 1 ``flight`` itself."""
+
+    def level(f: float, g: float) -> float:
+        return math.sqrt(g**2 + scale**2 * max(f**2 - g**2, 0.0))
+
+    return replace(
+        flight,
+        gyro_noise_density=level(flight.gyro_noise_density, ground.gyro_noise_density),
+        accel_noise_density=level(flight.accel_noise_density, ground.accel_noise_density),
+    )
 
 
 def _ground_yaml(spec: SequenceSpec, imu: ImuSpec) -> dict[str, float] | None:
