@@ -7,6 +7,8 @@ frames through their keyframes as the loop left them) takes the drift out of the
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 from scipy.spatial.transform import Rotation
 
@@ -101,5 +103,11 @@ def test_a_loop_asking_more_than_the_drift_can_be_is_refused(renderer: object) -
                              max_drift_fraction=0.001)  # fmt: skip
     tracker, truth, est, loops = _out_and_back(_config(loop), renderer, N)
     assert loops == [] and tracker.loop_closer.rejected >= 1
+    # each refusal says what the loop asked for against what the drift can be: about the
+    # 8 cm put in, against the 1 cm (plus 0.1 % of the path) allowed
+    assert len(tracker.loop_closer.refusals) == tracker.loop_closer.rejected
+    for text in tracker.loop_closer.refusals:
+        asked, bound = (float(x) for x in re.findall(r"([0-9.]+) m\b", text))
+        assert 0.04 < asked < 0.15 and bound < 0.02 < asked, text
     err = _errors(truth, est)
     assert min(err[N + 1 :]) > 0.05, err  # (still drifted: nothing was corrected)

@@ -76,8 +76,10 @@ class LoopCloser:
     closed: list[LoopClosingReport] = field(default_factory=list)
     _streak: list[tuple[int, set[int]]] = field(default_factory=list)  # (keyframe, group)
     _last_loop: int = -(10**9)
-    #: loops found but refused as implausible (a correction larger than the drift can be)
+    #: loops found but refused as implausible (a correction larger than the drift can be), and
+    #: what each asked for (``keyframe N to M: moves 1.512 m and 2.1 deg; the drift can be...``)
     rejected: int = 0
+    refusals: list[str] = field(default_factory=list)
 
     def after_keyframe(
         self, kf: SlamKeyframe, m: SlamMap, db: KeyframeDatabase, fit: PoseFitter
@@ -95,8 +97,10 @@ class LoopCloser:
         if found is None:
             return None
         T_C_W, kps, ids = found
-        if not self._plausible(kf, m, m.keyframes[cand], T_C_W):
+        refusal = self._implausible(kf, m, m.keyframes[cand], T_C_W)
+        if refusal is not None:
             self.rejected += 1
+            self.refusals.append(refusal)
             self._streak.clear()
             return None
         report = self._correct(kf, m, m.keyframes[cand], T_C_W, kps, ids)
@@ -151,18 +155,25 @@ class LoopCloser:
             return None
         return out
 
-    def _plausible(self, kf: SlamKeyframe, m: SlamMap, old: SlamKeyframe, T_C_W: Pose) -> bool:
-        """Whether the loop moves ``kf`` by no more than the drift can have grown since ``old``:
-        ``max_drift_m`` plus ``max_drift_fraction`` of the path between them (the keyframes'),
-        and ``max_drift_deg``. A place that repeats (a wallpaper's period, a second identical
-        shelf) passes every geometric check and asks for a jump of that period."""
+    def _implausible(
+        self, kf: SlamKeyframe, m: SlamMap, old: SlamKeyframe, T_C_W: Pose
+    ) -> str | None:
+        """Why the loop is refused, or None when it moves ``kf`` by no more than the drift can
+        have grown since ``old``: ``max_drift_m`` plus ``max_drift_fraction`` of the path between
+        them (the keyframes'), and ``max_drift_deg``. A place that repeats (a wallpaper's period,
+        a second identical shelf) passes every geometric check and asks for a jump of that
+        period."""
         cfg = self.config
         path = [k.T_C_W.inverse().p_A_B for k in m.keyframes[old.index : kf.index + 1] if not k.bad]
         length = float(np.linalg.norm(np.diff(np.array(path), axis=0), axis=1).sum())
         moved = float(np.linalg.norm(kf.T_C_W.inverse().p_A_B - T_C_W.inverse().p_A_B))
         turned = float(np.degrees((kf.T_C_W.R_A_B * T_C_W.R_A_B.inv()).magnitude()))
-        return moved <= cfg.max_drift_m + cfg.max_drift_fraction * length and (
-            turned <= cfg.max_drift_deg
+        bound = cfg.max_drift_m + cfg.max_drift_fraction * length
+        if moved <= bound and turned <= cfg.max_drift_deg:
+            return None
+        return (
+            f"keyframe {kf.index} to {old.index} refused: it moves {moved:.3f} m and "
+            f"{turned:.2f} deg; the drift can be {bound:.3f} m and {cfg.max_drift_deg:g} deg"
         )
 
     # -- correction ------------------------------------------------------------------------------

@@ -269,6 +269,7 @@ class SlamOdometry:
             return None
         t1 = time.perf_counter()
         before = self.tracker.state
+        refused = len(self.tracker.loop_closer.refusals)
         result = self.tracker.track(frame)
         self._time("frame", t1 - t0)
         self._time("track", time.perf_counter() - t1)
@@ -276,6 +277,8 @@ class SlamOdometry:
             self._events.append(
                 OdometryEvent(t_ns=left.t_ns, kind="failure", detail="tracking lost")
             )
+        for detail in self.tracker.loop_closer.refusals[refused:]:
+            self._events.append(OdometryEvent(t_ns=left.t_ns, kind="loop_rejected", detail=detail))
         if result.T_W_C is None:
             return None
         if result.keyframe:
