@@ -110,8 +110,6 @@ def resolve_request(
     second camera; a built-in sequence is then made with EuRoC's stereo rig unless ``--rig``
     names another."""
     check_range(start_s, "--start", 0.0, 1e6, "s")
-    if calibration is not None and not calibration.exists():
-        raise ConfigError(f"--calibration {calibration}: no such file or folder")
     if duration_s is not None:
         check_range(duration_s, "--duration", 0.0, 1e6, "s", low_open=True)
     options = OdometryRunOptions(
@@ -271,6 +269,8 @@ def vio_command(
         int, typer.Option("--video-every", min=1, help="draw every n-th frame in the video")
     ] = 1,
 ) -> None:
+    if calibration is not None and not calibration.exists():  # (a documented example's need not)
+        raise ConfigError(f"--calibration {calibration}: no such file or folder")
     request = resolve_request(
         datasets, config, list(set_ or []), camera, start_s, duration_s, seed, seeds, rig, out,
         video=video, video_every=video_every, calibration=calibration, stereo=stereo, loop=loop,
