@@ -61,13 +61,15 @@ EventKind = Literal[
     "loop_rejected",
     "relocalized",
     "image_gap",
+    "waiting",
 ]
 #: The events that start or break the estimate's continuity; "recovered" (a solve redone another
 #: way, or the window restarted from the last good state: the output goes on) does not;
 #: the others ("td", "stereo", "imu_noise") report what the odometry measured about its sensors,
 #: and "loop" / "loop_rejected" a place recognised and closed or refused (the output may jump at
 #: a loop closed: its reset counter says so), "relocalized" / "image_gap" a loop closer's
-#: segment joined to its map and a gap in the images it saw.
+#: segment joined to its map and a gap in the images it saw, "waiting" an odometry that has
+#: not (re-)started for a while and why.
 TRACKING_EVENTS: tuple[EventKind, ...] = ("initialized", "failure", "reinitialized")
 
 

@@ -53,7 +53,7 @@ from quadnav.vio.config import VioConfig
 from quadnav.vio.failure import InputLog, SolvedState, state_failure, tracking_failure
 from quadnav.vio.frontend import FeatureManager, Frontend, median_motion_px
 from quadnav.vio.imu_noise import ImuNoiseMonitor, MeasuredNoise
-from quadnav.vio.initialization import visual_inertial_init
+from quadnav.vio.initialization import InitFailure, try_visual_inertial_init
 from quadnav.vio.preintegration import imu_params, zero_bias
 from quadnav.vio.propagator import ImuPropagator
 from quadnav.vio.static_init import StaticStart, imu_stillness, is_still, static_start
@@ -71,6 +71,8 @@ FloatArray = NDArray[np.float64]
 #: yaw and position in the world; they are where it started).
 GAUGE_YAW_SIGMA_RAD = 1e-3
 GAUGE_POSITION_SIGMA_M = 1e-3
+#: how often an estimator that cannot start (or re-start) says so, and why (s)
+WAITING_REPORT_S = 5.0
 
 
 @dataclass(slots=True)
@@ -152,7 +154,13 @@ class VioEstimator:
         self._td_reported_s: float | None = None  # the estimate the last ``td`` event gave
         self._td_observable: bool | None = None  # whether the last estimate was usable
         # the visual-inertial initialisation (a start or re-start while moving)
-        self._visual_init: Callable[[InitWindow], InitResult | None] = visual_inertial_init
+        self._visual_init: Callable[[InitWindow], InitResult | InitFailure] = (
+            try_visual_inertial_init
+        )
+        # since when it has waited to start (or re-start) and why the last window was refused
+        self._waiting_since_ns: int | None = None
+        self._waiting_reported_ns: int | None = None
+        self._last_refusal = ""
         # the window's keyframes as the interface publishes them once they leave it
         self._kf_info: dict[int, _KeyframeInfo] = {}  # by keyframe index
         self._candidates: dict[int, _KeyframeInfo] = {}  # an initialisation window, by stamp
@@ -426,6 +434,7 @@ class VioEstimator:
         """Tracking from the window just started; the run's event (a re-start is counted)."""
         self.frontend.mark_keyframe(frame)
         self._initialized = True
+        self._waiting_since_ns = self._waiting_reported_ns = None
         self._init_frames = []
         self._run_from(self.window.newest)
         if self._failures:
@@ -486,9 +495,27 @@ class VioEstimator:
             T_L_R=None if self.stereo is None else self.stereo.geometry.T_L_R,
         )
         result = init(window)
-        if result is None:
+        if isinstance(result, InitFailure):
+            self._still_waiting(frame.t_ns, result.reason)
             return None
         return self._start_visual(frames, pims, result)
+
+    def _still_waiting(self, t_ns: int, reason: str) -> None:
+        """A window refused: every ``WAITING_REPORT_S`` without a start (or a re-start after a
+        failure), an event saying for how long and why the last window was refused (a
+        monocular VIO needs acceleration to see its scale: it cannot start again on a steady
+        cruise)."""
+        self._last_refusal = reason
+        since = self._waiting_since_ns
+        if since is None:
+            self._waiting_since_ns = since = t_ns
+        last = self._waiting_reported_ns if self._waiting_reported_ns is not None else since
+        if t_ns - last < s_to_ns(WAITING_REPORT_S):
+            return
+        self._waiting_reported_ns = t_ns
+        what = "re-started after the failure" if self._failures else "started"
+        detail = f"not {what} for {(t_ns - since) / NS_PER_S:.1f} s: the last window: {reason}"
+        self._events.append(OdometryEvent(t_ns=int(t_ns), kind="waiting", detail=detail))
 
     def _start_visual(
         self,
@@ -950,6 +977,7 @@ class VioEstimator:
         """A failure: reported, the window reset; the next frames re-initialise."""
         self._events.append(OdometryEvent(t_ns=int(t_ns), kind="failure", detail=reason))
         self._failures += 1
+        self._waiting_since_ns, self._waiting_reported_ns = int(t_ns), None
         if self.window.keyframes:
             self._last_p = np.asarray(self.window.keyframes[-1].pose.translation(), np.float64)
         self._retire(everything=True)
