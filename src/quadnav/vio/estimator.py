@@ -157,10 +157,9 @@ class VioEstimator:
         self._visual_init: Callable[[InitWindow], InitResult | InitFailure] = (
             try_visual_inertial_init
         )
-        # since when it has waited to start (or re-start) and why the last window was refused
+        # since when it has waited to start (or re-start), and its last report of it
         self._waiting_since_ns: int | None = None
         self._waiting_reported_ns: int | None = None
-        self._last_refusal = ""
         # the window's keyframes as the interface publishes them once they leave it
         self._kf_info: dict[int, _KeyframeInfo] = {}  # by keyframe index
         self._candidates: dict[int, _KeyframeInfo] = {}  # an initialisation window, by stamp
@@ -505,7 +504,6 @@ class VioEstimator:
         failure), an event saying for how long and why the last window was refused (a
         monocular VIO needs acceleration to see its scale: it cannot start again on a steady
         cruise)."""
-        self._last_refusal = reason
         since = self._waiting_since_ns
         if since is None:
             self._waiting_since_ns = since = t_ns
