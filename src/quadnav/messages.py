@@ -481,6 +481,19 @@ class VehicleState:
             )
         object.__setattr__(self, "q_W_B_xyzw", q)
 
+    @classmethod
+    def from_checked(
+        cls, t_ns: int, p: FloatArray, v: FloatArray, a: FloatArray, q: FloatArray, w: FloatArray
+    ) -> VehicleState:
+        """A state from fresh float64 arrays its maker has checked (finite, the shapes, a unit
+        quaternion): the simulator's integrator, 1,000 times a second, skips the checks."""
+        out = object.__new__(cls)
+        object.__setattr__(out, "t_ns", int(t_ns))
+        for name, arr in (("p_W_B", p), ("v_W_B", v), ("a_W_B", a), ("q_W_B_xyzw", q), ("w_B", w)):
+            arr.flags.writeable = False
+            object.__setattr__(out, name, arr)
+        return out
+
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class TruthSample:

@@ -14,6 +14,9 @@ The convention (docs/development.md should say it to page writers):
 - A block whose first line is ``# not run: <reason>`` is not run (hardware, hours of work):
   its ``quadnav`` lines are only parsed and validated as the ``--help`` examples are (options,
   ``--set`` keys and values), and its other lines are not checked.
+- A block whose first line is ``# slow: <reason>`` (a minute or more of flights or renders)
+  runs with the long tests (``pytest -m slow``); CI parses and validates its ``quadnav`` lines
+  as those of a block not run.
 - The README's first block is the install: ``python3 -m venv .venv && .venv/bin/pip install
   ... && .venv/bin/quadnav ...`` runs its ``quadnav`` part, and ``... && .venv/bin/pytest``
   must be exactly the line ``.ci/run`` runs.
@@ -33,6 +36,7 @@ FENCE = re.compile(r"^(\s*)(`{3,}|~{3,})\s*([\w+-]*)")
 SHELL = {"bash", "sh", "shell"}
 EXITS = re.compile(r"^#\s*exits\s+(\d+)\b")
 NOT_RUN = re.compile(r"^#\s*not run:\s*(\S.*)$")
+SLOW = re.compile(r"^#\s*slow:\s*(\S.*)$")
 PREFIXES = ("quadnav ", ".venv/bin/quadnav ")
 INSTALL = re.compile(r"^python3 -m venv \.venv && \.venv/bin/pip install .+? && (\S.*)$")
 
@@ -55,6 +59,7 @@ class Block:
     lines: tuple[Line, ...]
     not_run: str  # the reason, or "" for a block that runs
     first_of_readme: bool
+    slow: str = ""  # the reason it runs with the long tests only, or ""
 
     @property
     def id(self) -> str:
@@ -125,10 +130,12 @@ def blocks(path: Path, root: Path = ROOT) -> list[Block]:
     out = []
     for k, (number, body) in enumerate(_fenced(path)):
         parsed = list(logical_lines(body))
-        reason = ""
+        reason = slow = ""
         if parsed and not parsed[0][1]:
             m = NOT_RUN.match(parsed[0][2])
             reason = m.group(1) if m else ""
+            m = SLOW.match(parsed[0][2])
+            slow = m.group(1) if m else ""
         lines = []
         for n, command, comment in parsed:
             if not command:
@@ -136,7 +143,7 @@ def blocks(path: Path, root: Path = ROOT) -> list[Block]:
             m = EXITS.match(comment)
             lines.append(Line(n, command, int(m.group(1)) if m else 0))
         first = page == "README.md" and k == 0
-        out.append(Block(page, number, tuple(lines), reason, first))
+        out.append(Block(page, number, tuple(lines), reason, first, slow))
     return out
 
 

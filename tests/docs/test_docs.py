@@ -173,9 +173,24 @@ def _install_line(block: Block, line_no: int, text: str, work: Path) -> None:
 
 
 BLOCKS = all_blocks()
+PARAMS = [pytest.param(b, id=b.id, marks=[pytest.mark.slow] if b.slow else []) for b in BLOCKS]
 
 
-@pytest.mark.parametrize("block", BLOCKS, ids=[b.id for b in BLOCKS])
+@pytest.mark.parametrize("block", [b for b in BLOCKS if b.slow], ids=lambda b: b.id)
+def test_the_slow_examples_parse_and_validate(
+    block: Block, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A ``# slow:`` block runs with the long tests; here its lines are checked as a block
+    not run."""
+    monkeypatch.chdir(_workdir(tmp_path))
+    for line in block.lines:
+        argv = quadnav_argv(line.text)
+        assert argv is not None, f"{block.page}:{line.number}: {line.text!r} is not quadnav"
+        if line.expect == 0:  # (a line meant to fail is left to the slow run)
+            _validate(argv)
+
+
+@pytest.mark.parametrize("block", PARAMS)
 def test_every_shell_example_runs(
     block: Block, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -206,10 +221,13 @@ def test_the_example_reader_follows_the_convention(tmp_path: Path) -> None:
     page.write_text(
         "text\n```bash\nquadnav run \\\n    --seeds 2   # two seeds\n# a comment\n"
         "quadnav eval a b   # exits 2: no files\n```\n\n```python\nquadnav no\n```\n"
-        "```bash\n# not run: needs a serial port\nquadnav link serial /dev/ttyUSB0\nls -l\n```\n",
+        "```bash\n# not run: needs a serial port\nquadnav link serial /dev/ttyUSB0\nls -l\n```\n"
+        "```bash\n# slow: a minute of flights\nquadnav run outdoor_gps\n```\n",
         encoding="utf-8",
     )
-    first, second = blocks(page, root=tmp_path)
+    first, second, third = blocks(page, root=tmp_path)
+    assert (first.slow, second.slow, third.slow) == ("", "", "a minute of flights")
+    assert third.not_run == "" and [x.text for x in third.lines] == ["quadnav run outdoor_gps"]
     assert [(x.number, x.text, x.expect) for x in first.lines] == [
         (3, "quadnav run --seeds 2", 0),
         (6, "quadnav eval a b", 2),

@@ -140,6 +140,7 @@ def test_ground_alignment_heading_from_the_magnetometer() -> None:
     np.testing.assert_allclose(p0, [5.0, 6.0, 0.0])
 
 
+@pytest.mark.slow  # a long outdoor flight; test_nav_faults.py flies GNSS in CI
 def test_outdoor_gps_baro_mag_flight() -> None:
     """One seed of the outdoor built-in (GPS 5 Hz, 200 ms late, 0.5 m; baro; magnetometer)."""
     from quadnav.experiments.scenarios import nav_builtin
@@ -170,6 +171,7 @@ def test_along_track_heading_turns_towards_travel_at_its_rate_limit() -> None:
     assert np.all(heading_reference(v, dt, "fixed", 1.0) == 0.0)
 
 
+@pytest.mark.slow  # rendered markers in the loop; the README's `quadnav run` flies them in CI
 def test_camera_flight_vision_in_the_loop() -> None:
     """Issue 6: the default flight on rendered images of the marker field (detection, pose with
     covariance, fused with the camera's 250 ms latency): hover within 5 cm of the setpoint."""

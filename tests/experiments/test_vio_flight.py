@@ -122,6 +122,7 @@ def test_a_short_real_closed_loop_on_rendered_images() -> None:
     assert r.truth_p[-1, 2] > 0.3  # it flew
 
 
+@pytest.mark.slow  # two flights on rendered images, a minute (tests/cli/test_vio.py: map reuse)
 def test_a_second_flight_on_the_first_one_s_map_reports_in_it(tmp_path: Path) -> None:
     """Thesis 003 section 6.4 on rendered images, short: a first flight with loop closure saves
     its map; a second flight (another seed: other noise, biases and images, the same world)

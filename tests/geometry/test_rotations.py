@@ -49,6 +49,26 @@ def test_matrix_round_trip(T: Pose) -> None:
     assert_pose_close(Pose.from_matrix(T.matrix()), T)
 
 
+@given(poses, st.tuples(*[st.floats(-0.5, 0.5)] * 6).map(np.array))
+@settings(max_examples=50)
+def test_the_adjoint_moves_a_perturbation_from_the_right_to_the_left(
+    T: Pose, xi: np.ndarray
+) -> None:
+    """``T Exp(xi) = Exp(Ad xi) T`` on SE(3) (rotation first), checked on the matrices."""
+    from scipy.linalg import expm
+
+    def hat(x: np.ndarray) -> np.ndarray:
+        w, v = x[:3], x[3:]
+        M = np.zeros((4, 4))
+        M[:3, :3] = [[0, -w[2], w[1]], [w[2], 0, -w[0]], [-w[1], w[0], 0]]
+        M[:3, 3] = v
+        return M
+
+    left = T.matrix() @ expm(hat(xi))
+    right = expm(hat(T.adjoint() @ xi)) @ T.matrix()
+    np.testing.assert_allclose(left, right, atol=1e-8 * (1 + np.abs(T.p_A_B).max()))
+
+
 def test_point_mapping_known_value() -> None:
     # B yawed 90 degrees in A and offset by (1, 2, 3): B's x axis points along A's y.
     T_A_B = Pose(Rotation.from_euler("z", 90, degrees=True), np.array([1.0, 2.0, 3.0]))

@@ -270,6 +270,18 @@ class Pose:
         T[:3, 3] = self.p_A_B
         return T
 
+    def adjoint(self) -> FloatArray:
+        """GTSAM's ``AdjointMap`` (rotation first): ``T Exp(xi) = Exp(Ad xi) T``, so a covariance
+        in frame B (a perturbation on the right of ``T_X_B``) is ``Ad Sigma Ad^T`` in frame A
+        for ``T_X_A = T_X_B T_B_A`` with ``self`` = ``T_A_B``."""
+        R = self.R_A_B.as_matrix()
+        t = self.p_A_B
+        tx = np.array([[0.0, -t[2], t[1]], [t[2], 0.0, -t[0]], [-t[1], t[0], 0.0]])
+        Ad = np.zeros((6, 6))
+        Ad[:3, :3] = Ad[3:, 3:] = R
+        Ad[3:, :3] = tx @ R
+        return Ad
+
     def inverse(self) -> Pose:
         """``T_B_A`` from ``T_A_B``."""
         R_B_A = self.R_A_B.inv()

@@ -190,15 +190,11 @@ class RigidBodyQuadrotor:
         return self._wind_now
 
     def state(self) -> VehicleState:
-        s = self.s
-        return VehicleState(
-            t_ns=self.t_ns,
-            p_W_B=s[0:3].copy(),
-            v_W_B=s[3:6].copy(),
-            a_W_B=self.last_accel_W.copy(),
-            q_W_B_xyzw=s[6:10].copy(),
-            w_B=s[10:13].copy(),
-        )
+        s = self.s  # (finite and its quaternion a unit one: step() and __init__ see to it)
+        return VehicleState.from_checked(
+            self.t_ns, s[0:3].copy(), s[3:6].copy(), self.last_accel_W.copy(), s[6:10].copy(),
+            s[10:13].copy(),
+        )  # fmt: skip
 
     def energy_rot_j(self) -> float:
         w = self.s[10:13]

@@ -62,7 +62,8 @@ from quadnav.vision.tracking import as_grey
 
 __all__ = ["SlamOdometry"]
 
-#: the pose covariance a state is given (no marginals yet): 1 cm and 0.5 degree, body frame
+#: the pose covariance of a state without one of its own (the first frame's, a keyframe
+#: record's): 1 cm and 0.5 degree, body frame
 _COV_POSE = np.diag([np.radians(0.5) ** 2] * 3 + [0.01**2] * 3)
 #: a keypoint that observes no map point has the id ``-(NO_POINT + k)`` (k: its row)
 NO_POINT = 1_000_000
@@ -298,12 +299,21 @@ class SlamOdometry:
             v = (T_W_B.p_A_B - self._last.T_W_B.p_A_B) / ((left.t_ns - self._last.t_ns) * 1e-9)
         self._last = OdometryState(
             t_ns=left.t_ns, T_W_B=T_W_B, v_W_B=v, gyro_bias=np.zeros(3), accel_bias=np.zeros(3),
-            cov_pose=_COV_POSE, cov_v=np.eye(3) * 0.05**2, keyframe=result.keyframe,
+            cov_pose=self._cov_body(result.cov_C), cov_v=np.eye(3) * 0.05**2,
+            keyframe=result.keyframe,
             reset_counter=self._resets,
             tracked=result.inliers,
             quality=int(min(100, 100 * result.inliers / max(self.config.orb.n_features / 4, 1))),
         )  # fmt: skip
         return self._last
+
+    def _cov_body(self, cov_C: NDArray[np.float64] | None) -> NDArray[np.float64]:
+        """The tracked pose's covariance (camera frame) in the body frame, or the fixed one."""
+        if cov_C is None:
+            return _COV_POSE
+        Ad = self.T_B_C.adjoint()
+        cov = Ad @ cov_C @ Ad.T
+        return np.asarray(0.5 * (cov + cov.T), np.float64)
 
     def _note(self, t_ns: int, relocalized_on: int | None) -> None:
         """The events of a frame tracked: the first, or one relocalized after a loss."""

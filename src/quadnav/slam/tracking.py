@@ -46,11 +46,14 @@ TrackState = Literal["waiting", "tracking", "lost"]
 class TrackResult:
     """What tracking made of a frame: its ``state``, the camera's pose ``T_W_C`` (None unless
     tracking), the matches kept after the optimisation, whether it became a keyframe, and the
-    keyframe it was relocalized on (None: tracked as usual) and the loop its keyframe closed."""
+    keyframe it was relocalized on (None: tracked as usual) and the loop its keyframe closed;
+    ``cov_C``: the pose's covariance in the camera frame from the pose-only optimisation
+    (:class:`~quadnav.slam.optimizer.PoseFit`; None where none was made, as at the first frame)."""
 
     t_ns: int
     state: TrackState
     T_W_C: Pose | None
+    cov_C: FloatArray | None = None
     inliers: int = 0
     keyframe: bool = False
     relocalized_on: int | None = None
@@ -121,6 +124,7 @@ def search_by_projection(
 class _Matches:
     keypoints: NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, np.int64))
     points: NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, np.int64))
+    cov: FloatArray | None = None  # (the pose fitted on them: its covariance, PoseFit's)
 
 
 class StereoTracker:
@@ -224,8 +228,9 @@ class StereoTracker:
         if self._reference is not None:
             T_R_C = self._reference.T_C_W @ T_C_W.inverse()
             self._relative.append((frame.t_ns, self._reference.index, T_R_C.matrix()))
-        return TrackResult(t_ns=frame.t_ns, state="tracking", T_W_C=T_C_W.inverse(), inliers=n,
-                           keyframe=keyframe, loop=self._loop)  # fmt: skip
+        return TrackResult(t_ns=frame.t_ns, state="tracking", T_W_C=T_C_W.inverse(),
+                           cov_C=matches.cov, inliers=n, keyframe=keyframe,
+                           loop=self._loop)  # fmt: skip
 
     def _relocalize(self, frame: Frame) -> TrackResult:
         """After a loss (or on a loaded map): the keyframes that look like the frame, PnP on
@@ -286,7 +291,8 @@ class StereoTracker:
                 frame.camera.intrinsics,
             )  # fmt: skip
             T = fit.T_C_W
-            m = _Matches(keypoints=m.keypoints[fit.inliers], points=m.points[fit.inliers])
+            keep = fit.inliers
+            m = _Matches(keypoints=m.keypoints[keep], points=m.points[keep], cov=fit.cov)
             if len(m.keypoints) < cfg.min_inliers:
                 return None
         return T, m
