@@ -338,6 +338,7 @@ def _tilt_error_deg(r: ReplayResult, R_true: Rotation, after_ns: int) -> float:
     return float(np.degrees(np.arccos(np.clip(z_est @ R_true.as_matrix()[:, 2], -1.0, 1.0))).mean())
 
 
+@pytest.mark.slow  # the other crash tests relevel in CI
 def test_tilt_after_a_crash_agrees_with_the_accelerometer_at_rest() -> None:
     """A simulated crash (tests/experiments/crash_stream.py): 14 rad/s, impacts of 35-40 g on a
     16 g accelerometer, then at rest tilted. Before, the clipped samples were integrated as if

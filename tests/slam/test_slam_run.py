@@ -183,6 +183,7 @@ def test_a_mono_rig_is_a_one_line_error(tmp_path: Path) -> None:
         SlamOdometry(euroc_mono())
 
 
+@pytest.mark.slow  # a render and a run; tests/slam/test_tracking.py tracks RGB-D in CI
 def test_rgbd_runs_through_the_common_runner_and_counts_missing_depth(
     tmp_path_factory: pytest.TempPathFactory,
 ) -> None:

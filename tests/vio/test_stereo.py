@@ -158,7 +158,7 @@ def _track(
     return vio, (states[0].t_ns - ds.frames_of("cam0")[0].t_ns) * 1e-9, ate
 
 
-@pytest.mark.parametrize("stereo", [False, True])
+@pytest.mark.parametrize("stereo", [pytest.param(False, marks=pytest.mark.slow), True])
 def test_a_camera_stamped_early_by_more_than_an_imu_period_still_starts_in_motion(
     moving_ds: VisualInertialDataset, stereo: bool
 ) -> None:

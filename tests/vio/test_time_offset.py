@@ -247,6 +247,7 @@ def _run_td_s(
     return last.td_s, vio
 
 
+@pytest.mark.slow  # two more VIO runs; the default's offset is tested in CI
 def test_the_online_offset_is_weighed_against_the_stated_one(room8: VisualInertialDataset) -> None:
     """Images 8 ms early, the calibration saying 0. With the stated offset said good to 0.5 ms
     (``td_prior_sigma_s``), the VIO moves less far than with the default 3 ms (the estimate's

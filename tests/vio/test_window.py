@@ -219,6 +219,7 @@ def test_intrinsics_told_wrong_are_refined_online() -> None:
     assert np.mean(errors[True]) < np.mean(errors[False]), errors
 
 
+@pytest.mark.slow  # a render and a run; test_intrinsics_told_wrong_are_refined_online in CI
 def test_intrinsics_told_wrong_behind_a_strong_lens_are_refined_through_it() -> None:
     """EuRoC's lens (k1 = -0.28) and intrinsics told 1.3 % short in x, 1 % long in y and 2 px
     off in the principal point (realistic seed 0's draw). The front end undistorts with the

@@ -70,9 +70,14 @@ def _terminate(pool: ProcessPoolExecutor) -> None:
     # Its manager thread closes the pool's wake-up pipe as it ends; let it end now, before the
     # interpreter's exit hook writes to that pipe (under load the two raced: "Bad file
     # descriptor" and a traceback after a Ctrl-C).
+    # Joining it narrowed the race but did not close it (a CI run under load still printed the
+    # traceback): the hook wakes every manager it knows, so the pool's is taken off its list.
     manager = getattr(pool, "_executor_manager_thread", None)
     if manager is not None:
         manager.join(timeout=5)
+        from concurrent.futures import process as futures_process
+
+        getattr(futures_process, "_threads_wakeups", {}).pop(manager, None)
 
 
 def run_tasks(
