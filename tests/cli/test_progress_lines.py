@@ -6,6 +6,7 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
+import pytest
 from typer.testing import CliRunner
 
 from quadnav.cli.main import app
@@ -13,6 +14,7 @@ from quadnav.cli.main import app
 SHORT = ["--set", "plan.square_m=0.5", "--set", "plan.hold_s=0.5", "--set", "vision.dropouts_s=[]"]
 
 
+@pytest.mark.slow  # two flights; the other piped-progress tests run in CI
 def test_run_prints_a_line_per_finished_seed_when_piped(tmp_path: Path) -> None:
     result = CliRunner().invoke(
         app,

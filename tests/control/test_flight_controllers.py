@@ -44,7 +44,11 @@ def test_nested_saturations_track_the_sigmoid_better_than_pd() -> None:
 
 @pytest.mark.parametrize(
     ("gusts", "frame", "limit_m"),
-    [(0.0, "x", 0.05), (2.0, "x", 0.05), (0.0, "+", 0.05)],
+    [  # (the calm ones run with the long tests; the gusts' in CI)
+        pytest.param(0.0, "x", 0.05, marks=pytest.mark.slow),
+        (2.0, "x", 0.05),
+        pytest.param(0.0, "+", 0.05, marks=pytest.mark.slow),
+    ],
 )
 def test_cascaded_pid_tracks_the_circle(gusts: float, frame: str, limit_m: float) -> None:
     run, m = fly(

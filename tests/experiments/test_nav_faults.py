@@ -43,6 +43,7 @@ def test_gps_glitch_of_20_m_is_gated_and_counted(seed: int) -> None:
     assert not m.filter_events
 
 
+@pytest.mark.slow  # the gated glitch runs in CI
 def test_a_glitch_that_persists_resets_the_position_and_says_so() -> None:
     # 8 s of a 20 m offset is no glitch any more: after reset_after_s of rejections the filter
     # takes the GNSS position again and logs it, rather than drifting away silently.
@@ -93,6 +94,7 @@ def test_rotated_vision_frame_px4_alignment_in_flight(seed: int) -> None:
     assert m.sources["vision"].fused > 0.95 * m.sources["vision"].received
 
 
+@pytest.mark.slow  # test_nav_channels.py flies the range finder in CI
 def test_range_finder_in_flight() -> None:
     r = run_nav(scenario("indoor_vision_range"), 0)
     m = nav_metrics(r)

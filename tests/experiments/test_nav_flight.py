@@ -68,6 +68,7 @@ def test_ground_alignment_levels_from_gravity_and_heads_from_vision() -> None:
         ground_alignment([], pose)
 
 
+@pytest.mark.slow  # the README's first line and tests/docs/test_run_folders.py make one in CI
 def test_run_folder_of_the_main_job(tmp_path: Path) -> None:
     sc = NavScenario.model_validate(
         {

@@ -386,6 +386,7 @@ def test_tilt_is_relevelled_soon_after_a_crash_comes_to_rest() -> None:
         assert any("re-levelled at rest" in m for _, m in r.events)
 
 
+@pytest.mark.slow  # test_tilt_is_relevelled_soon_after_a_crash_comes_to_rest runs in CI
 def test_the_estimate_stays_put_while_the_crashed_vehicle_rests() -> None:
     """Issue 21 item 9, the height: the clipped impacts leave ~1.8 m/s of vertical velocity
     error; until the re-levelling zeroes it, it ran into the position (1 s: 1.1 m of height,

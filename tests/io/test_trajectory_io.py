@@ -163,6 +163,7 @@ def test_tum_repeated_timestamps_keep_the_first_pose(tmp_path: Path) -> None:
     assert "dup.txt: 3 pose(s) repeat" in tr.meta["note"] and "line 3" in tr.meta["note"]
 
 
+@pytest.mark.slow  # 180,000 rows under tracemalloc
 def test_a_long_tum_is_written_a_block_at_a_time(tmp_path: Path) -> None:
     """180,000 rows (30 minutes at 200 Hz): the writing's peak traced memory stays under 10 MB
     above the trajectory's arrays (it was 98 MB as one string), and the file is every row,

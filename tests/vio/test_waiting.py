@@ -20,7 +20,7 @@ from tests.vio.rendered import rendered
 
 @pytest.fixture(scope="module")
 def flight(tmp_path_factory: pytest.TempPathFactory) -> VisualInertialDataset:
-    spec = {"duration_s": 12.0, "still_s": 0.0, "rig": "euroc_mono", "seed": 3}
+    spec = {"duration_s": 8.0, "still_s": 0.0, "rig": "euroc_mono", "seed": 3}
     return rendered(tmp_path_factory, "room_easy", **spec)
 
 
@@ -43,8 +43,8 @@ def test_a_start_refused_window_after_window_is_reported_with_its_reason(
     events = _events(flight, refuse=True)
     assert not [e for e in events if e[1] in ("initialized", "reinitialized")]
     waiting = [e for e in events if e[1] == "waiting"]
-    # 12 s of flight, a report every 5 s from the first refused window: one or two
-    assert 1 <= len(waiting) <= int(12.0 / WAITING_REPORT_S), events
+    # 8 s of flight, a report every 5 s from the first refused window: one
+    assert 1 <= len(waiting) <= int(8.0 / WAITING_REPORT_S), events
     for t, _, detail in waiting:
         assert "not started for" in detail and "(test)" in detail, detail
         since = float(re.search(r"for ([0-9.]+) s", detail).group(1))  # type: ignore[union-attr]
