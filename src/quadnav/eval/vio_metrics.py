@@ -18,7 +18,9 @@
   covariance could never hold. Mean NEES / 6 (1 is consistent) with the chi-square 95 % band
   of that mean, and the fraction of frames inside one draw's 95 % band. Consecutive frames'
   errors are correlated, so the band of a single run is optimistic: over seeds the means are
-  the honest test.
+  the honest test. An odometry whose world is not levelled (a SLAM's: its first camera's) fixes
+  all six directions at its first pose instead; its NEES is taken after aligning that whole
+  pose (``levelled=False``): aligned in yaw only, the start's tilt would count as its error.
 """
 
 from __future__ import annotations
@@ -163,6 +165,16 @@ def yaw_position_alignment(
     yaw = math.atan2(float(x[:, 1].sum()), float(x[:, 0].sum()))
     R = Rotation.from_euler("z", yaw)
     t = np.mean(ref.p_W_B[:n] - R.apply(est.p_W_B[:n]), axis=0)
+    return R, np.asarray(t, dtype=np.float64)
+
+
+def first_pose_alignment(ref: Trajectory, est: Trajectory) -> tuple[Rotation, FloatArray]:
+    """The rotation and translation taking ``est``'s first pose onto ``ref``'s: the gauge of an
+    odometry whose world is its first pose, tilt and all."""
+    if len(ref) != len(est) or len(est) == 0:
+        raise EvalError("the first-pose alignment needs matched, non-empty trajectories")
+    R = ref.R_W_B[0] * est.R_W_B[0].inv()
+    t = ref.p_W_B[0] - R.apply(est.p_W_B[0])
     return R, np.asarray(t, dtype=np.float64)
 
 
@@ -340,11 +352,16 @@ def _aligned_or_na(ref: Trajectory, est: Trajectory, method: AlignMethod) -> Ape
         return na(str(exc))
 
 
-def _nees_or_na(ref: Trajectory, est: Trajectory, cov: FloatArray | None) -> NeesSummary | str:
+def _nees_or_na(
+    ref: Trajectory, est: Trajectory, cov: FloatArray | None, levelled: bool
+) -> NeesSummary | str:
     if cov is None:
         return na("the estimate carries no pose covariance")
-    try:  # the estimator's gauge: yaw and position of its first pose (see the module)
-        R, t = yaw_position_alignment(ref, est, 0.0)
+    try:  # the estimator's gauge: yaw and position of its first pose, or all of it (the module)
+        if levelled:
+            R, t = yaw_position_alignment(ref, est, 0.0)
+        else:
+            R, t = first_pose_alignment(ref, est)
         return pose_nees_summary(pose_nees(ref, est.transformed(R, t), cov))
     except EvalError as exc:
         return na(str(exc))
@@ -358,10 +375,12 @@ def vio_metrics(
     cov_pose: FloatArray | None = None,
     drift_first_s: float = 2.0,
     unscored: str = "the dataset has no ground truth",
+    levelled: bool = True,
 ) -> VioMetrics:
     """Every metric of a run: ``ref`` the ground truth matched to ``est`` (equal length, same
     times; None when there is none to match, ``unscored`` saying why), ``cov_pose`` the
-    estimate's (N, 6, 6), or their upper triangles (N, 21; :func:`pose_covariances`)."""
+    estimate's (N, 6, 6), or their upper triangles (N, 21; :func:`pose_covariances`);
+    ``levelled``: False for an odometry whose world is its first pose (see the module)."""
     if ref is None:
         return _without_truth(est, counts, unscored)
     if len(est) < MIN_SCORED_POSES:
@@ -389,5 +408,5 @@ def vio_metrics(
             first_s=drift_first_s, delta=delta, min_m=MIN_DRIFT_DISTANCE_M
         ),
         gravity_error_deg=gravity_error_deg(est.R_W_B[0], ref.R_W_B[0]),
-        nees_pose=_nees_or_na(ref, est, cov_pose),
+        nees_pose=_nees_or_na(ref, est, cov_pose, levelled),
     )  # fmt: skip

@@ -717,6 +717,7 @@ def _finish(
         scored.matched_truth, scored.matched_est if scored.matched_est is not None else est,
         _counts(rec, vio, span[0]), cov_pose=scored.matched_cov, drift_first_s=opt.drift_first_s,
         unscored=scored.note or "the dataset has no ground truth",
+        levelled=getattr(vio, "levelled", True),  # (the SLAM's world is its first pose)
     )  # fmt: skip
     issues = dataset.issues.for_cameras([opt.camera])  # not those of a camera left unused
     counts = dict(sorted(vio.rejected.items()))
