@@ -8,6 +8,7 @@ import json
 import re
 from pathlib import Path
 
+import pytest
 from typer.testing import CliRunner
 
 from quadnav.cli.main import app
@@ -17,6 +18,7 @@ GLITCH = ["plan.square_m=8", "plan.hold_s=1", "faults.gps_glitch=[[12,15,20,0]]"
 RESET = "gps: rejected for 2 s, position reset to it"
 
 
+@pytest.mark.slow  # two glitch flights; test_nav_faults.py counts the refusals in CI
 def test_the_glitch_s_refusals_and_resets_are_on_the_terminal_and_in_the_report(
     tmp_path: Path,
 ) -> None:

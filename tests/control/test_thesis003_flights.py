@@ -22,6 +22,7 @@ def free_flight() -> FlightRun:
     return run_flight(FlightConfig.model_validate(builtin_config("thesis003_waypoints")))
 
 
+@pytest.mark.slow  # the waypoint flight; thesis 003's obstacle retreat flies in CI
 def test_every_waypoint_is_reached_within_half_a_metre_in_order(free_flight: FlightRun) -> None:
     run, ev = free_flight, free_flight.events
     assert ev.finished is True and ev.route_unsafe is False and ev.last_waypoint_reached == 3
@@ -35,6 +36,7 @@ def test_every_waypoint_is_reached_within_half_a_metre_in_order(free_flight: Fli
             assert np.linalg.norm(run.p[before] - wp, axis=1).min() > 0.5, k
 
 
+@pytest.mark.slow  # the waypoint flight; thesis 003's obstacle retreat flies in CI
 def test_the_legs_are_flown_as_the_thesis_flies_them(free_flight: FlightRun) -> None:
     run = free_flight
     t1, t2, t3 = run.events.waypoints_reached_at_s

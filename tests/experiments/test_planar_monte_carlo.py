@@ -62,6 +62,7 @@ def test_delayed_filter_is_consistent(study: PlanarStudy) -> None:
     assert 2.5 <= float(np.mean(values)) <= 10.0
 
 
+@pytest.mark.slow  # a second study; the thesis simulator's own study runs in CI
 def test_kinematic_accelerometer_beats_the_thesis_simulator(kinematic_study: PlanarStudy) -> None:
     """The thesis's own output filter reaches 0.057 m on this scenario."""
     out = median(kinematic_study, "handled", "rmse_output_m")

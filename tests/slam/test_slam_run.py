@@ -211,6 +211,7 @@ def test_rgbd_runs_through_the_common_runner_and_counts_missing_depth(
         SlamOdometry(rgbd())
 
 
+@pytest.mark.slow  # thesis 002's SLAM flights send the serial frames in CI
 def test_slam_serial_sends_the_tracked_positions_as_frames_at_10_hz(
     tmp_path_factory: pytest.TempPathFactory,
 ) -> None:
