@@ -15,8 +15,8 @@ from pathlib import Path
 SRC = Path(__file__).resolve().parents[1] / "src" / "quadnav"
 
 # Each top-level unit of quadnav (a subpackage or a top-level module) and the units it may import.
-# errors, config_model, units and lazy import nothing from quadnav; the root package only errors.
-_BASE = frozenset({"errors", "config_model", "units", "lazy", "__init__"})
+# errors, config_model, units, lazy and jit import nothing from quadnav; the root package only errors.
+_BASE = frozenset({"errors", "config_model", "units", "lazy", "jit", "__init__"})
 _CORE = _BASE | {"geometry", "messages", "vehicle", "rig", "odometry"}  # the base (and geometry)
 _IO = _CORE | {
     "sim",
@@ -37,6 +37,7 @@ ALLOWED: dict[str, frozenset[str]] = {
     "config_model": frozenset(),
     "units": frozenset(),
     "lazy": frozenset(),
+    "jit": frozenset(),
     # geometry, messages and vehicle are one level: maths and the types everything passes around.
     "geometry": _BASE,
     "messages": _BASE,

@@ -21,8 +21,8 @@ from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
 from quadnav.errors import SimError
+from quadnav.jit import JIT_ENABLED, njit
 from quadnav.messages import VehicleState
-from quadnav.sim.integrate import rk4_step
 from quadnav.units import s_to_ns
 from quadnav.vehicle import RigidBodyParams
 
@@ -95,8 +95,7 @@ class RigidBodyQuadrotor:
         self._I = np.asarray(params.inertia_kg_m2, dtype=np.float64)
         x, y, spin = params.rotor_geometry()
         self._rx, self._ry, self._spin = x, y, spin
-        self._drag_t = tuple(float(d) for d in params.drag_n_s_m)
-        self._I_t = tuple(float(i) for i in params.inertia_kg_m2)
+        self._consts = _model_constants(params)
         s = np.zeros(17)
         s[0:3] = p0
         s[6:10] = Rotation.from_euler("z", yaw0_rad).as_quat()
@@ -107,67 +106,31 @@ class RigidBodyQuadrotor:
 
     # -- the model ---------------------------------------------------------------------
     def derivative(self, s: FloatArray, omega_cmd: FloatArray, wind_W: FloatArray) -> FloatArray:
-        """``s'`` for rotor commands and wind; written in scalars, as this runs 4000 times a second."""
-        p = self.params
-        vx, vy, vz = float(s[3]), float(s[4]), float(s[5])
-        qx, qy, qz, qw = float(s[6]), float(s[7]), float(s[8]), float(s[9])
-        wx, wy, wz = float(s[10]), float(s[11]), float(s[12])
-        om = s[13:17]
-        f = p.k_thrust_n_s2 * om * om
-        thrust = float(f.sum())
-        tau_x = float(self._ry @ f)
-        tau_y = -float(self._rx @ f)
-        tau_z = -float(self._spin @ (p.k_torque_nm_s2 * om * om))
-        # R_W_B from the quaternion (columns: body axes in the world)
-        xx, yy, zz = qx * qx, qy * qy, qz * qz
-        xy, xz, yz, wx_, wy_, wz_ = qx * qy, qx * qz, qy * qz, qw * qx, qw * qy, qw * qz
-        r00, r01, r02 = 1 - 2 * (yy + zz), 2 * (xy - wz_), 2 * (xz + wy_)
-        r10, r11, r12 = 2 * (xy + wz_), 1 - 2 * (xx + zz), 2 * (yz - wx_)
-        r20, r21, r22 = 2 * (xz - wy_), 2 * (yz + wx_), 1 - 2 * (xx + yy)
-        ax, ay, az = vx - wind_W[0], vy - wind_W[1], vz - wind_W[2]
-        # Body-frame force: thrust along z minus linear drag on the body-frame airspeed.
-        dx, dy, dz = self._drag_t
-        fbx = -dx * (r00 * ax + r10 * ay + r20 * az)
-        fby = -dy * (r01 * ax + r11 * ay + r21 * az)
-        fbz = thrust - dz * (r02 * ax + r12 * ay + r22 * az)
-        m = p.mass_kg
-        Ix, Iy, Iz = self._I_t
+        """``s'`` for rotor commands and wind (the kernel :func:`_derivative` the step uses)."""
         out = np.empty(17)
-        out[0], out[1], out[2] = vx, vy, vz
-        out[3] = (r00 * fbx + r01 * fby + r02 * fbz) / m
-        out[4] = (r10 * fbx + r11 * fby + r12 * fbz) / m
-        out[5] = (r20 * fbx + r21 * fby + r22 * fbz) / m - p.gravity_m_s2
-        # q' = 1/2 q (x) (w, 0)
-        out[6] = 0.5 * (qw * wx + qy * wz - qz * wy)
-        out[7] = 0.5 * (qw * wy + qz * wx - qx * wz)
-        out[8] = 0.5 * (qw * wz + qx * wy - qy * wx)
-        out[9] = -0.5 * (qx * wx + qy * wy + qz * wz)
-        # Euler's equations: I w' = tau - w x I w
-        out[10] = (tau_x - (wy * Iz * wz - wz * Iy * wy)) / Ix
-        out[11] = (tau_y - (wz * Ix * wx - wx * Iz * wz)) / Iy
-        out[12] = (tau_z - (wx * Iy * wy - wy * Ix * wx)) / Iz
-        out[13:17] = (omega_cmd - om) / p.motor_tau_s
+        _derivative(
+            np.asarray(s, dtype=np.float64), np.asarray(omega_cmd, dtype=np.float64),
+            np.asarray(wind_W, dtype=np.float64), self._consts, out,
+        )  # fmt: skip
         return out
 
     def step(self, omega_cmd: FloatArray) -> FloatArray:
         """Advance one step with rotor speed commands (clipped to the rotor limits)."""
-        p = self.params
         cmd = np.asarray(omega_cmd, dtype=np.float64)
-        if cmd.shape != (4,) or not np.isfinite(cmd).all():
+        if cmd.shape != (4,) or not math.isfinite(cmd.sum()):
             raise SimError(f"rotor commands must be 4 finite speeds, got {cmd}")
-        cmd = np.clip(cmd, p.omega_min_rad_s, p.omega_max_rad_s)
         wind = self.wind.step(self.dt_s)
         self._wind_now = wind
-        v_before = self.s[3:6].copy()
-        with np.errstate(all="ignore"):  # a diverging state is caught below, in one line
-            s = rk4_step(lambda x: self.derivative(x, cmd, wind), self.s, self.dt_s)
-            s[6:10] /= np.linalg.norm(s[6:10])
-        s[13:17] = np.clip(s[13:17], p.omega_min_rad_s, p.omega_max_rad_s)
+        if JIT_ENABLED:  # (compiled code raises no floating-point warnings)
+            s = _rk4_step(self.s, cmd, wind, self._consts, self.dt_s)
+        else:
+            with np.errstate(all="ignore"):  # a diverging state is caught below, in one line
+                s = _rk4_step(self.s, cmd, wind, self._consts, self.dt_s)
         if s[2] <= 0.0:
             s = self._on_ground(s)
-        if not np.isfinite(s).all():
+        if not math.isfinite(s.sum()):
             raise SimError(f"the rigid-body simulation diverged at t = {self.t_ns * 1e-9:.4g} s")
-        self.last_accel_W = (s[3:6] - v_before) / self.dt_s
+        self.last_accel_W = (s[3:6] - self.s[3:6]) / self.dt_s
         self.s = s
         self.t_ns += self.dt_ns
         return s
@@ -199,3 +162,105 @@ class RigidBodyQuadrotor:
     def energy_rot_j(self) -> float:
         w = self.s[10:13]
         return float(0.5 * np.sum(self._I * w * w))
+
+
+# -- the compiled kernels (quadnav.jit: numba, or plain Python with QUADNAV_JIT=0) -------------
+# The model's constants, one float array: k_thrust, k_torque, mass, gravity, Ix, Iy, Iz, the
+# body drag (x, y, z), the rotor lag, the rotor limits, then the rotors' x, y and spin (4 each).
+_N_CONSTS = 13 + 12
+
+
+def _model_constants(p: RigidBodyParams) -> FloatArray:
+    x, y, spin = p.rotor_geometry()
+    if len(x) != 4:
+        raise SimError(f"the rigid body has 4 rotors, got {len(x)}")
+    c = np.array(
+        [p.k_thrust_n_s2, p.k_torque_nm_s2, p.mass_kg, p.gravity_m_s2, *p.inertia_kg_m2,
+         *p.drag_n_s_m, p.motor_tau_s, p.omega_min_rad_s, p.omega_max_rad_s, *x, *y, *spin],
+        dtype=np.float64,
+    )  # fmt: skip
+    assert c.shape == (_N_CONSTS,)
+    return c
+
+
+@njit
+def _derivative(
+    s: FloatArray, cmd: FloatArray, wind: FloatArray, c: FloatArray, out: FloatArray
+) -> None:
+    """``s'`` into ``out``, written in scalars (it runs four times a simulator step)."""
+    k_thrust, k_torque, m, grav = c[0], c[1], c[2], c[3]
+    Ix, Iy, Iz, dx, dy, dz, motor_tau = c[4], c[5], c[6], c[7], c[8], c[9], c[10]
+    vx, vy, vz = s[3], s[4], s[5]
+    qx, qy, qz, qw = s[6], s[7], s[8], s[9]
+    wx, wy, wz = s[10], s[11], s[12]
+    thrust = 0.0
+    tau_x = 0.0
+    tau_y = 0.0
+    tau_z = 0.0
+    for i in range(4):
+        om = s[13 + i]
+        f = k_thrust * om * om
+        thrust += f
+        tau_x += c[17 + i] * f
+        tau_y -= c[13 + i] * f
+        tau_z -= c[21 + i] * (k_torque * om * om)
+    # R_W_B from the quaternion (columns: body axes in the world)
+    xx, yy, zz = qx * qx, qy * qy, qz * qz
+    xy, xz, yz, wx_, wy_, wz_ = qx * qy, qx * qz, qy * qz, qw * qx, qw * qy, qw * qz
+    r00, r01, r02 = 1 - 2 * (yy + zz), 2 * (xy - wz_), 2 * (xz + wy_)
+    r10, r11, r12 = 2 * (xy + wz_), 1 - 2 * (xx + zz), 2 * (yz - wx_)
+    r20, r21, r22 = 2 * (xz - wy_), 2 * (yz + wx_), 1 - 2 * (xx + yy)
+    ax, ay, az = vx - wind[0], vy - wind[1], vz - wind[2]
+    # Body-frame force: thrust along z minus linear drag on the body-frame airspeed.
+    fbx = -dx * (r00 * ax + r10 * ay + r20 * az)
+    fby = -dy * (r01 * ax + r11 * ay + r21 * az)
+    fbz = thrust - dz * (r02 * ax + r12 * ay + r22 * az)
+    out[0], out[1], out[2] = vx, vy, vz
+    out[3] = (r00 * fbx + r01 * fby + r02 * fbz) / m
+    out[4] = (r10 * fbx + r11 * fby + r12 * fbz) / m
+    out[5] = (r20 * fbx + r21 * fby + r22 * fbz) / m - grav
+    # q' = 1/2 q (x) (w, 0)
+    out[6] = 0.5 * (qw * wx + qy * wz - qz * wy)
+    out[7] = 0.5 * (qw * wy + qz * wx - qx * wz)
+    out[8] = 0.5 * (qw * wz + qx * wy - qy * wx)
+    out[9] = -0.5 * (qx * wx + qy * wy + qz * wz)
+    # Euler's equations: I w' = tau - w x I w
+    out[10] = (tau_x - (wy * Iz * wz - wz * Iy * wy)) / Ix
+    out[11] = (tau_y - (wz * Ix * wx - wx * Iz * wz)) / Iy
+    out[12] = (tau_z - (wx * Iy * wy - wy * Ix * wx)) / Iz
+    for i in range(4):
+        out[13 + i] = (cmd[i] - s[13 + i]) / motor_tau
+
+
+@njit
+def _rk4_step(
+    s: FloatArray, omega_cmd: FloatArray, wind: FloatArray, c: FloatArray, dt: float
+) -> FloatArray:
+    """One RK4 step (Simulink's ode4; commands and wind held over it), the quaternion
+    renormalised and the rotor speeds clipped to their limits; the commands are clipped first."""
+    n = s.shape[0]
+    om_min, om_max = c[11], c[12]
+    cmd = np.empty(4)
+    for i in range(4):
+        cmd[i] = min(max(omega_cmd[i], om_min), om_max)
+    k1, k2, k3, k4 = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
+    x = np.empty(n)
+    _derivative(s, cmd, wind, c, k1)
+    for i in range(n):
+        x[i] = s[i] + 0.5 * dt * k1[i]
+    _derivative(x, cmd, wind, c, k2)
+    for i in range(n):
+        x[i] = s[i] + 0.5 * dt * k2[i]
+    _derivative(x, cmd, wind, c, k3)
+    for i in range(n):
+        x[i] = s[i] + dt * k3[i]
+    _derivative(x, cmd, wind, c, k4)
+    out = np.empty(n)
+    for i in range(n):
+        out[i] = s[i] + (dt / 6.0) * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
+    qn = math.sqrt(out[6] * out[6] + out[7] * out[7] + out[8] * out[8] + out[9] * out[9])
+    for i in range(6, 10):
+        out[i] /= qn
+    for i in range(13, 17):
+        out[i] = min(max(out[i], om_min), om_max)
+    return out

@@ -16,10 +16,10 @@ from typing import Generic, Literal, Protocol, TypeVar
 import numpy as np
 from numpy.random import Generator
 from numpy.typing import NDArray
-from scipy.spatial.transform import Rotation
 
 from quadnav.errors import SimError
-from quadnav.geometry.rotations import rotation_matrix_xyzw
+from quadnav.geometry.rotations import quat_xyzw_from_matrix, rot_z, rotation_matrix_xyzw
+from quadnav.jit import njit
 from quadnav.messages import (
     GpsSample,
     HeightSample,
@@ -108,7 +108,7 @@ class ImuSensor:
         a_W = truth.a_W_B.copy()
         if self.accel_model == "specific_force":
             a_W[2] += self.gravity_m_s2
-        f_B = Rotation.from_quat(truth.q_W_B_xyzw).apply(a_W, inverse=True)
+        f_B = rotation_matrix_xyzw(truth.q_W_B_xyzw).T @ a_W
         noise = rng.standard_normal(6)
         return ImuSample(
             t_ns=t_ns,
@@ -245,6 +245,19 @@ class ImuErrors:
             if b.shape != (3,) or not np.isfinite(b).all():
                 raise SimError(f"IMU {name} must be 3 finite numbers, got {b.tolist()}")
 
+    def draw_one(
+        self, dt_s: float, rng: Generator
+    ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+        """:meth:`draw` of one sample, the same numbers without its arrays: the gyro and
+        accelerometer biases the sample carries, then its gyro and accelerometer noise."""
+        noise_g = rng.standard_normal(3) * self.sg
+        noise_a = rng.standard_normal(3) * self.sa
+        sq = math.sqrt(dt_s)
+        bg, ba = self.bias_g, self.bias_a
+        self.bias_g = bg + rng.standard_normal(3) * (self.rw_g * sq)
+        self.bias_a = ba + rng.standard_normal(3) * (self.rw_a * sq)
+        return bg, ba, noise_g, noise_a
+
     def draw(self, n: int, dt_s: float, rng: Generator) -> ImuErrorDraw:
         """The errors of the next ``n`` samples, ``dt_s`` apart; the biases move on past them.
         (One sample draws gyro noise, accel noise, gyro step, accel step: 3 normals each.)"""
@@ -330,26 +343,29 @@ class IntegratingImu:
         return self.accumulate(truth, (t_ns - t_prev) * 1e-9, rng)
 
     def accumulate(self, truth: VehicleState, dt_s: float, rng: Generator) -> ImuSample | None:
-        a = truth.a_W_B.copy()
-        a[2] += self.g
-        f_B = rotation_matrix_xyzw(truth.q_W_B_xyzw).T @ a
         if self.lever_arm.any():
+            a = truth.a_W_B.copy()
+            a[2] += self.g
+            f_B = rotation_matrix_xyzw(truth.q_W_B_xyzw).T @ a
             w = truth.w_B
             dw = (w - self._w_prev) / dt_s if self._w_prev is not None else np.zeros(3)
             r = self.lever_arm
             f_B = f_B + np.cross(dw, r) + np.cross(w, np.cross(w, r))
-        self._w_prev = truth.w_B.copy()
-        self._sum_f += f_B * dt_s
-        self._sum_w += truth.w_B * dt_s
+            self._w_prev = truth.w_B.copy()
+            self._sum_f += f_B * dt_s
+            self._sum_w += truth.w_B * dt_s
+        else:  # the hot path, every simulator step
+            _accumulate(truth.a_W_B, truth.q_W_B_xyzw, truth.w_B, dt_s, self.g,
+                        self._sum_f, self._sum_w)  # fmt: skip
         self._sum_dt += dt_s
         if not self._ticker.due(truth.t_ns):
             return None
         T = self._sum_dt
-        err = self.errors.draw(1, T, rng)
+        bg, ba, ng, na = self.errors.draw_one(T, rng)
         sample = ImuSample(
             t_ns=truth.t_ns,
-            gyro_rad_s=self._sum_w / T + err.gyro_bias_rad_s[0] + err.gyro_noise_rad_s[0],
-            accel_m_s2=self._sum_f / T + err.accel_bias_m_s2[0] + err.accel_noise_m_s2[0],
+            gyro_rad_s=self._sum_w / T + bg + ng,
+            accel_m_s2=self._sum_f / T + ba + na,
         )
         self._t_last = truth.t_ns
         self._sum_w[:] = 0.0
@@ -438,7 +454,7 @@ class MagSensor:
     def sample(self, truth: VehicleState, t_ns: int, rng: Generator) -> MagSample | None:
         if not self._ticker.due(t_ns):
             return None
-        m_B = Rotation.from_quat(truth.q_W_B_xyzw).apply(self.field_W, inverse=True)
+        m_B = rotation_matrix_xyzw(truth.q_W_B_xyzw).T @ self.field_W
         return MagSample(
             t_ns=t_ns,
             field_B=m_B + self.hard_iron + self.noise * rng.standard_normal(3),
@@ -500,7 +516,8 @@ class RangeFinder:
     def sample(self, truth: VehicleState, t_ns: int, rng: Generator) -> RangeSample | None:
         if not self._ticker.due(t_ns):
             return None
-        c = float(Rotation.from_quat(truth.q_W_B_xyzw).as_matrix()[2, 2])
+        q = truth.q_W_B_xyzw  # R_W_B[2, 2] of the unit quaternion
+        c = 1.0 - 2.0 * float(q[0] * q[0] + q[1] * q[1])
         if c < self.cos_max_tilt:
             return None
         rng_m = (float(truth.p_W_B[2]) - self.ground_z) / c + self.sigma * rng.standard_normal()
@@ -534,23 +551,46 @@ class VisionPoseSensor:
             )
         self.period_ns = int(period_ns)
         self.sigma, self.yaw_sigma = float(sigma_m), float(yaw_sigma_rad)
-        self.R_W_V = Rotation.from_euler("z", frame_yaw_rad)
-        self.p_W_V = np.asarray(frame_offset_m, dtype=np.float64)
+        self._R_V_W = rot_z(-float(frame_yaw_rad))  # (matrices: SciPy's Rotation per sample
+        self.p_W_V = np.asarray(frame_offset_m, dtype=np.float64)  # cost most of a flight step)
         self._ticker = Ticker(self.period_ns)
 
     def sample(self, truth: VehicleState, t_ns: int, rng: Generator) -> PoseSample | None:
         if not self._ticker.due(t_ns):
             return None
-        p_V = self.R_W_V.apply(truth.p_W_B - self.p_W_V, inverse=True)
+        p_V = self._R_V_W @ (truth.p_W_B - self.p_W_V)
         R_V_B = (
-            self.R_W_V.inv()
-            * Rotation.from_quat(truth.q_W_B_xyzw)
-            * Rotation.from_rotvec([0.0, 0.0, self.yaw_sigma * rng.standard_normal()])
+            self._R_V_W
+            @ rotation_matrix_xyzw(truth.q_W_B_xyzw)
+            @ rot_z(self.yaw_sigma * rng.standard_normal())
         )
         return PoseSample(
             t_ns=t_ns,
             p_W_B=p_V + self.sigma * rng.standard_normal(3),
-            q_W_B_xyzw=R_V_B.as_quat(),
+            q_W_B_xyzw=quat_xyzw_from_matrix(R_V_B),
             sigma_pos_m=self.sigma,
             sigma_yaw_rad=self.yaw_sigma,
         )
+
+
+@njit
+def _accumulate(
+    a_W: FloatArray, q: FloatArray, w: FloatArray, dt: float, g: float, sum_f: FloatArray,
+    sum_w: FloatArray,
+) -> None:  # fmt: skip
+    """Adds one simulator step's specific force (``R_W_B^T (a_W + g z)``) and body rate, each
+    times ``dt``, into the sums (in place)."""
+    qx, qy, qz, qw = q[0], q[1], q[2], q[3]
+    ax, ay, az = a_W[0], a_W[1], a_W[2] + g
+    # R_W_B's columns dotted with a: R^T a
+    f0 = (1 - 2 * (qy * qy + qz * qz)) * ax + 2 * (qx * qy + qw * qz) * ay
+    f0 += 2 * (qx * qz - qw * qy) * az
+    f1 = 2 * (qx * qy - qw * qz) * ax + (1 - 2 * (qx * qx + qz * qz)) * ay
+    f1 += 2 * (qy * qz + qw * qx) * az
+    f2 = 2 * (qx * qz + qw * qy) * ax + 2 * (qy * qz - qw * qx) * ay
+    f2 += (1 - 2 * (qx * qx + qy * qy)) * az
+    sum_f[0] += f0 * dt
+    sum_f[1] += f1 * dt
+    sum_f[2] += f2 * dt
+    for k in range(3):
+        sum_w[k] += w[k] * dt
