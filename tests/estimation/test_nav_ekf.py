@@ -8,7 +8,6 @@ from scipy.spatial.transform import Rotation
 
 from quadnav.errors import EstimationError
 from quadnav.estimation.nav_ekf import NavEkf, NavEkfConfig, nav_jacobians, yaw_jacobian, yaw_of
-from quadnav.geometry.rotations import so3_exp
 
 from .differences import central_differences
 
@@ -194,20 +193,6 @@ def test_gps_and_magnetometer_pull_position_and_heading_onto_the_truth() -> None
         < 0.02
     )
     assert est.stats("gps").fused >= 45 and est.stats("mag").fused >= 450
-
-
-def test_in_place_jacobians_match_the_reference() -> None:
-    rng = np.random.default_rng(3)
-    ekf = NavEkf(
-        NavEkfConfig(), p0=np.zeros(3), v0=np.zeros(3), q0_xyzw=[0, 0, 0, 1.0], P0=np.eye(15)
-    )
-    for _ in range(3):  # the first call sets the constant blocks, the others take the fast path
-        R = Rotation.random(random_state=int(rng.integers(100))).as_matrix()
-        f, w = rng.normal(size=3), rng.normal(size=3)
-        F, G = ekf._jacobians_into(R, f, w, 0.004, so3_exp(w * 0.004))
-        F_ref, G_ref = nav_jacobians(R, f, w, 0.004)
-        np.testing.assert_allclose(F, F_ref, atol=1e-15)
-        np.testing.assert_allclose(G, G_ref, atol=1e-15)
 
 
 @pytest.mark.parametrize("seed", range(5))

@@ -10,6 +10,8 @@ from scipy.spatial.transform import Rotation
 
 from quadnav.control import cascaded_pid
 from quadnav.control.base import Setpoint, truth_estimate
+from quadnav.estimation import nav_ekf
+from quadnav.geometry.rotations import so3_exp
 from quadnav.jit import JIT_ENABLED
 from quadnav.sim import rigid_body, sensors
 from quadnav.vehicle import RigidBodyParams
@@ -25,6 +27,8 @@ KERNELS = [
     (cascaded_pid, "_clip"),
     (cascaded_pid, "_thrust_vector"),
     (sensors, "_accumulate"),
+    (nav_ekf, "_propagate"),
+    (nav_ekf, "_matmul"),
 ]
 
 
@@ -156,3 +160,28 @@ def test_a_seeded_flight_is_the_same_on_the_compiled_and_the_slow_path(
     assert len(fast_imu) == len(slow_imu) == 599  # 200 Hz over 3 s, the first poll starting it
     np.testing.assert_allclose(fast, slow, rtol=1e-9, atol=1e-9)
     np.testing.assert_allclose(fast_imu, slow_imu, rtol=1e-9, atol=1e-9)
+
+
+def test_the_navigation_prediction_kernel_is_the_textbook_one() -> None:
+    """``_propagate`` (compiled and as Python) against the mean integrated in numpy and the
+    covariance ``F P F^T + G diag(q) G^T`` of :func:`nav_jacobians` built whole."""
+    rng = np.random.default_rng(5)
+    for _ in range(20):
+        R, dt = Rotation.random(random_state=rng).as_matrix(), float(rng.uniform(0.001, 0.02))
+        v, p, w, f = (rng.normal(0, s, 3) for s in (2.0, 5.0, 1.5, 9.0))
+        g_W, q = np.array([0.0, 0.0, -9.80665]), rng.uniform(1e-8, 1e-2, 12)
+        L = rng.normal(size=(15, 15))
+        P = L @ L.T * 1e-3
+        F_ref, G_ref = nav_ekf.nav_jacobians(R @ so3_exp(w * dt), f, w, dt)
+        F0, G0 = nav_ekf.nav_jacobians(np.eye(3), np.zeros(3), np.zeros(3), dt)
+        for fn in (nav_ekf._propagate, nav_ekf._propagate.py_func):
+            F, G = F0.copy(), G0.copy()
+            R1, v1, p1, P1 = fn(R, v, p, so3_exp(w * dt), f, dt, g_W, F, G, q, P, True)
+            np.testing.assert_allclose(R1, R @ so3_exp(w * dt), atol=1e-14)
+            np.testing.assert_allclose(v1, v + dt * (R1 @ f + g_W), atol=1e-12)
+            np.testing.assert_allclose(p1, p + dt * v1, atol=1e-12)
+            np.testing.assert_allclose(F, F_ref, atol=1e-13)
+            np.testing.assert_allclose(G, G_ref, atol=1e-13)
+            expected = F_ref @ P @ F_ref.T + (G_ref * q) @ G_ref.T
+            np.testing.assert_allclose(P1, expected, rtol=1e-11, atol=1e-16)
+            assert fn(R, v, p, so3_exp(w * dt), f, dt, g_W, F, G, q, P, False)[3] is P

@@ -53,6 +53,7 @@ from quadnav.geometry.rotations import (
     so3_log,
     yaw_of,
 )
+from quadnav.jit import njit
 from quadnav.messages import (
     FlowSample,
     GpsSample,
@@ -100,7 +101,6 @@ _N_G, _N_A, _N_BG, _N_BA = (NAV_NOISE[b] for b in ("gyro", "accel", "gyro_bias",
 _I3 = np.eye(3)
 # An odometry observation's rows (position, velocity, yaw) by part
 _ODO_ROWS = {"pos": np.arange(0, 3), "vel": np.arange(3, 6), "yaw": np.arange(6, 7)}
-_VAR_COLS = np.r_[_ATT, _BG, _BA]  # columns of F's velocity/position rows that change every step
 # The odometry frame's drift (odometry_mode="relative"), after the 15: its position offset and
 # its yaw, ``p_odo = p + d_p``, ``yaw_odo = yaw + d_yaw``, ``v_odo = Rz(d_yaw) v``
 _DP = slice(_N, _N + 3)
@@ -541,46 +541,25 @@ class NavEkf:
     def imu_biases(self) -> tuple[FloatArray, FloatArray]:
         return self.bg, self.ba
 
-    def _jacobians_into(
-        self, R_new: FloatArray, f: FloatArray, w: FloatArray, dt: float, E: FloatArray
-    ) -> tuple[FloatArray, FloatArray]:
-        """:func:`nav_jacobians` filled into preallocated arrays (``E = Exp(w dt)``): the
-        constant blocks are set once per step size, only the state-dependent ones every step,
-        a block row at a time (the hot path)."""
-        if dt != self._jac_dt:
-            F, G = nav_jacobians(R_new, f, w, dt)
-            self._F, self._G, self._jac_dt = F, G, dt
-            c = self.config
-            self._q = np.array(
-                [c.gyro_sigma_rad_s**2] * 3
-                + [c.accel_sigma_m_s2**2] * 3
-                + [c.gyro_bias_rw_rad_s_sqrt_s**2 * dt] * 3
-                + [c.accel_bias_rw_m_s2_sqrt_s**2 * dt] * 3
-            )
-            return F, G
-        F, G = self._F, self._G
-        A = E.T
-        Rf = R_new @ skew(f)
-        # The velocity row's state-dependent blocks: [d/dtheta | d/db_g | d/db_a]; the position
-        # row is dt times the same; the noise inputs are the last two of them.
-        Fv = np.concatenate((-dt * Rf @ A, dt * dt * Rf, -dt * R_new), axis=1)
-        F[_ATT, _ATT] = A
-        F[_VEL, _VAR_COLS] = Fv
-        F[_POS, _VAR_COLS] = dt * Fv
-        G[_VEL, _N_G.start : _N_A.stop] = Fv[:, 3:9]  # (d/db_g, d/db_a: the inputs' blocks)
-        G[_POS, _N_G.start : _N_A.stop] = dt * Fv[:, 3:9]
-        return F, G
+    def _set_step(self, dt: float) -> None:
+        """The blocks of ``F`` and ``G`` that depend only on the step, and the inputs' noise,
+        set when the step size changes (the rest is filled every step by :func:`_propagate`)."""
+        F, G = nav_jacobians(np.eye(3), np.zeros(3), np.zeros(3), dt)
+        self._F, self._G, self._jac_dt = F, G, dt
+        c = self.config
+        self._q = np.array(
+            [c.gyro_sigma_rad_s**2] * 3
+            + [c.accel_sigma_m_s2**2] * 3
+            + [c.gyro_bias_rw_rad_s_sqrt_s**2 * dt] * 3
+            + [c.accel_bias_rw_m_s2_sqrt_s**2 * dt] * 3
+        )
 
     def predict(self, imu: ImuSample, dt_s: float) -> None:
         w = imu.gyro_rad_s - self.bg
         f = imu.accel_m_s2 - self.ba
-        E = so3_exp(w * dt_s)
-        R_new = self.R @ E
         self._w_B = w
-        F, G = self._jacobians_into(R_new, f, w, dt_s, E)
-        self.v = self.v + dt_s * (R_new @ f + self._g_W)
-        self.p = self.p + dt_s * self.v
-        self.R = R_new
+        if dt_s != self._jac_dt:
+            self._set_step(dt_s)
         clipped = clip_axes(imu)
         q = self._q
         if clipped:  # PX4: a saturated axis's reading is as uncertain as BADACC_BIAS_PNOISE
@@ -590,10 +569,14 @@ class NavEkf:
                 if clipped >> k & 1:
                     i = _N_A.start + k
                     q[i] = max(q[i], self.config.clipped_accel_sigma_m_s2**2)
+        # The mean, F and G's state-dependent blocks, and (without the drift states) P, in
+        # one compiled kernel.
+        self.R, self.v, self.p, P = _propagate(
+            self.R, self.v, self.p, so3_exp(w * dt_s), f, dt_s, self._g_W, self._F, self._G, q, self._P,
+            not self._relative,
+        )  # fmt: skip
         if self._relative:
-            P = self._predict_with_drift(F, G, q, dt_s)
-        else:
-            P = F @ self._P @ F.T + (G * q) @ G.T
+            P = self._predict_with_drift(self._F, self._G, q, dt_s)
         if self.bias_gate is not None:
             self.bias_gate.apply(P, _BA.start, self.bias_gate.update(w, f, clipped, dt_s))
         self._n_predict += 1
@@ -1104,3 +1087,77 @@ class NavEkf:
         P[:, _ATT] = P[:, _ATT] @ B.T
         self._P = 0.5 * (P + P.T)
         return FusionResult(accepted=True, innovation=r, nis=nis, test_ratio=ratio)
+
+
+# -- the compiled prediction (quadnav.jit) -----------------------------------------------------
+_I_ATT, _I_VEL, _I_POS, _I_BG, _I_BA = _ATT.start, _VEL.start, _POS.start, _BG.start, _BA.start
+_I_NG, _I_NA = _N_G.start, _N_A.start
+
+
+@njit
+def _propagate(
+    R: FloatArray, v: FloatArray, p: FloatArray, E: FloatArray, f: FloatArray, dt: float,
+    g_W: FloatArray, F: FloatArray, G: FloatArray, q: FloatArray, P: FloatArray, with_cov: bool,
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:  # fmt: skip
+    """One prediction with ``E = Exp(w dt)``: ``R' = R E``, ``v' = v + dt (R' f + g)``,
+    ``p' = p + dt v'``; the state-dependent blocks of :func:`nav_jacobians`' ``F`` and ``G``
+    written into them; and, ``with_cov``, ``P' = F P F^T + G diag(q) G^T`` (else ``P`` back)."""
+    R1 = np.zeros((3, 3))
+    for i in range(3):
+        for j in range(3):
+            for k in range(3):
+                R1[i, j] += R[i, k] * E[k, j]
+    Rf = np.empty((3, 3))  # R' skew(f)
+    for i in range(3):
+        Rf[i, 0] = R1[i, 1] * f[2] - R1[i, 2] * f[1]
+        Rf[i, 1] = R1[i, 2] * f[0] - R1[i, 0] * f[2]
+        Rf[i, 2] = R1[i, 0] * f[1] - R1[i, 1] * f[0]
+    a = np.empty(3)
+    for i in range(3):
+        a[i] = R1[i, 0] * f[0] + R1[i, 1] * f[1] + R1[i, 2] * f[2] + g_W[i]
+    v1 = v + dt * a
+    p1 = p + dt * v1
+    for i in range(3):
+        for j in range(3):
+            F[_I_ATT + i, _I_ATT + j] = E[j, i]  # Exp(-w dt)
+            RfA = 0.0
+            for k in range(3):
+                RfA += Rf[i, k] * E[j, k]
+            F[_I_VEL + i, _I_ATT + j] = -dt * RfA
+            F[_I_VEL + i, _I_BG + j] = dt * dt * Rf[i, j]
+            F[_I_VEL + i, _I_BA + j] = -dt * R1[i, j]
+            F[_I_POS + i, _I_ATT + j] = dt * F[_I_VEL + i, _I_ATT + j]
+            F[_I_POS + i, _I_BG + j] = dt * F[_I_VEL + i, _I_BG + j]
+            F[_I_POS + i, _I_BA + j] = dt * F[_I_VEL + i, _I_BA + j]
+            G[_I_VEL + i, _I_NG + j] = F[_I_VEL + i, _I_BG + j]
+            G[_I_VEL + i, _I_NA + j] = F[_I_VEL + i, _I_BA + j]
+            G[_I_POS + i, _I_NG + j] = F[_I_POS + i, _I_BG + j]
+            G[_I_POS + i, _I_NA + j] = F[_I_POS + i, _I_BA + j]
+    if not with_cov:
+        return R1, v1, p1, P
+    n, m = F.shape[0], G.shape[1]
+    FP = _matmul(F, P)
+    out = np.empty((n, n))
+    for i in range(n):
+        for j in range(i, n):
+            acc = 0.0
+            for k in range(n):
+                acc += FP[i, k] * F[j, k]
+            for k in range(m):
+                acc += G[i, k] * q[k] * G[j, k]
+            out[i, j] = acc
+            out[j, i] = acc
+    return R1, v1, p1, out
+
+
+@njit
+def _matmul(A: FloatArray, B: FloatArray) -> FloatArray:
+    n, m, r = A.shape[0], A.shape[1], B.shape[1]
+    out = np.zeros((n, r))
+    for i in range(n):
+        for k in range(m):
+            a = A[i, k]
+            if a != 0.0:
+                for j in range(r):
+                    out[i, j] += a * B[k, j]
+    return out
