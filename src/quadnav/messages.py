@@ -16,6 +16,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from quadnav.errors import SampleError
+from quadnav.units import GNSS_ALT_RANGE_M
 
 __all__ = [
     "FlowSample",
@@ -256,6 +257,9 @@ class GpsSample:
             raise SampleError(
                 f"GpsSample: latitude/longitude out of range: {self.lat_deg}, {self.lon_deg}"
             )
+        lo, hi = GNSS_ALT_RANGE_M
+        if not lo <= self.alt_m <= hi:
+            raise SampleError(f"GpsSample: altitude {self.alt_m} m outside [{lo:g}, {hi:g}] m")
         if min(self.sigma_h_m, self.sigma_v_m, self.sigma_vel_m_s) <= 0:
             raise SampleError("GpsSample standard deviations must be > 0")
 

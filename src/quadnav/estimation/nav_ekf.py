@@ -46,6 +46,7 @@ from quadnav.estimation.imu_clipping import (
     clip_axes,
 )
 from quadnav.estimation.layout import NAV_ERROR, NAV_NOISE, NAV_NOMINAL, NAV_OUTPUT, StateLayout
+from quadnav.geometry.navsat import GeoDatum, NavSatTransform
 from quadnav.geometry.rotations import (
     quat_xyzw_from_matrix,
     rotation_matrix_xyzw,
@@ -476,14 +477,17 @@ class NavEkf:
         self._odometry_gates = gate_thresholds(config.odometry_gate_sigma, tuple(range(1, 8)))
         self._flow_gyro_bias = np.zeros(3)  # the flow sensor's gyro against ours (PX4's LPF)
         self._w_B = np.zeros(3)  # the body rate (bias removed) of the last prediction
-        self._datum = config.datum_lla
+        # GNSS fixes in the world frame (ENU): about the datum given, or the first fix put
+        # where the filter is then
+        self._navsat: NavSatTransform | None = (
+            None if config.datum_lla is None else NavSatTransform(GeoDatum(*config.datum_lla))
+        )
         self._g_W = np.array([0.0, 0.0, -config.gravity_m_s2])
         self._jac_dt = math.nan
         self._n_predict = 0
         self._F = np.eye(_N)
         self._G = np.zeros((_N, NAV_NOISE.size))
         self._q = np.zeros(NAV_NOISE.size)
-        self._datum_offset = np.zeros(3)
         # External-pose frames: per source, the last reset counter and the transform
         # (yaw, offset) that maps its frame onto the filter's, re-anchored on each reset.
         self._ev_anchor: dict[str, _FrameAnchor] = {}
@@ -688,13 +692,12 @@ class NavEkf:
 
     def gps_to_enu(self, obs: GpsSample) -> FloatArray:
         """A fix in the world frame: ENU about the datum (the first fix when none was given)."""
-        import pymap3d
-
-        if self._datum is None:
-            self._datum = (obs.lat_deg, obs.lon_deg, obs.alt_m)
-            self._datum_offset = self.p.copy()
-        e, n, u = pymap3d.geodetic2enu(obs.lat_deg, obs.lon_deg, obs.alt_m, *self._datum)
-        return np.array([float(e), float(n), float(u)]) + self._datum_offset
+        fix = GeoDatum(obs.lat_deg, obs.lon_deg, obs.alt_m)
+        if self._navsat is None:
+            p = self.p
+            self._navsat = NavSatTransform(fix, p_W_E_m=(float(p[0]), float(p[1]), float(p[2])))
+        p_W: FloatArray = self._navsat.to_world(fix)[0]
+        return p_W
 
     def _fuse_gps(self, obs: GpsSample) -> FusionResult:
         p_W = self.gps_to_enu(obs)

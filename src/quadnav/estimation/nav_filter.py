@@ -33,6 +33,7 @@ from quadnav.estimation.horizon import (
     fusion_arrays,
 )
 from quadnav.estimation.nav_ekf import NavEkf, NavEkfConfig, world_yaw_jacobian
+from quadnav.geometry.navsat import GeoDatum, NavSatTransform
 from quadnav.messages import (
     GpsSample,
     ImuSample,
@@ -353,9 +354,10 @@ class AligningNavFilter:
 def _fix_enu(fix: GpsSample, datum: tuple[float, float, float] | None) -> FloatArray | None:
     if datum is None:
         return None
-    import pymap3d
-
-    return np.array(pymap3d.geodetic2enu(fix.lat_deg, fix.lon_deg, fix.alt_m, *datum))
+    p_E: FloatArray = NavSatTransform(GeoDatum(*datum)).enu(
+        GeoDatum(fix.lat_deg, fix.lon_deg, fix.alt_m)
+    )[0]
+    return p_E
 
 
 class TruthEstimator:

@@ -7,7 +7,7 @@ its channel's builder in :mod:`quadnav.experiments.nav_channels`; the loop is
 
 from __future__ import annotations
 
-from typing import Literal, Self
+from typing import Annotated, Literal, Self
 
 from pydantic import Field, model_validator
 
@@ -20,6 +20,8 @@ from quadnav.config_model import (
     ConfigModel,
 )
 from quadnav.control.trajectories import Waypoints
+from quadnav.errors import GeometryError
+from quadnav.geometry.navsat import GeoDatum
 from quadnav.vio.config import VioConfig
 
 __all__ = ["RANGE_MIN_M", "NavScenario", "VioSection"]
@@ -79,7 +81,10 @@ _ODOMETRY_PARTS: tuple[OdometryPart, ...] = ("pos", "vel", "yaw")
 
 
 #: The ``vio`` keys only the odometry shortcut (``vio.source=odometry``) reads.
-SHORTCUT_ONLY_VIO_KEYS = ("rate_hz", "sigma_m", "sigma_vel_m_s", "yaw_sigma_rad", "drift_m_sqrt_s")
+SHORTCUT_ONLY_VIO_KEYS = (
+    "rate_hz", "sigma_m", "sigma_vel_m_s", "yaw_sigma_rad", "drift_m_sqrt_s",
+    "drift_yaw_rad_sqrt_s", "scale_error", "resets_s",
+)  # fmt: skip
 #: The ``vio`` keys only an odometry on rendered images (``vio.source=camera``) reads, beside
 #: the VIO's own settings.
 CAMERA_ONLY_VIO_KEYS = ("odometry", "camera_rate_hz", "loop", "load_map", "save_map")
@@ -140,6 +145,17 @@ class VioSection(VioConfig):
     yaw_sigma_rad: float = Field(0.01, ge=MIN_SIGMA, description="odometry: attitude noise")
     drift_m_sqrt_s: float = Field(
         0.005, ge=0, description="odometry: random-walk drift of the frame's origin"
+    )
+    drift_yaw_rad_sqrt_s: float = Field(
+        0.0, ge=0, le=1.0, description="odometry: random-walk drift of the frame's yaw"
+    )
+    scale_error: float = Field(
+        0.0, gt=-0.5, lt=0.5, description="odometry: its motion scaled by 1 + this (mono VIO)"
+    )
+    resets_s: list[Annotated[float, Field(ge=0, le=MAX_DURATION_S)]] = Field(
+        default_factory=list,
+        description="odometry: times (s) it re-initialises: position from zero, a random yaw, "
+        "the reset counter up",
     )
     pos_noise_m: float = Field(
         0.05, ge=MIN_SIGMA, description="EKF: floor of the position sigma (EKF2_EVP_NOISE)"
@@ -282,13 +298,12 @@ class GpsSection(ConfigModel):
 
     @model_validator(mode="after")
     def _datum(self) -> Self:
-        lat, lon, alt = self.datum_lla
-        if not -90.0 <= lat <= 90.0:
-            raise ValueError(f"datum_lla[0] (latitude) must be within +-90 degrees, got {lat:g}")
-        if not -180.0 <= lon <= 180.0:
-            raise ValueError(f"datum_lla[1] (longitude) must be within +-180 degrees, got {lon:g}")
-        if not -1000.0 <= alt <= 100_000.0:
-            raise ValueError(f"datum_lla[2] (altitude) must be within -1000..100000 m, got {alt:g}")
+        try:
+            GeoDatum(*self.datum_lla)
+        except GeometryError as exc:  # (it names the coordinate: name its element too)
+            parts = ("latitude", "longitude", "altitude")
+            k = next((i for i, n in enumerate(parts) if n in str(exc)), 0)
+            raise ValueError(f"datum_lla[{k}] ({parts[k]}): {exc}") from None
         return self
 
     outages_s: list[tuple[float, float]] = Field(

@@ -18,7 +18,6 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-import pymap3d
 from numpy.typing import NDArray
 from pydantic import Field, ValidationError
 
@@ -42,6 +41,7 @@ from quadnav.estimation.nav_filter import (
     counts_json,
     ground_alignment,
 )
+from quadnav.geometry.navsat import GeoDatum, NavSatTransform
 from quadnav.geometry.rotations import quat_xyzw_from_matrix
 from quadnav.io.ulog_sensors import UlogSensors, held_flags
 from quadnav.messages import (
@@ -503,9 +503,8 @@ def _align(
         ok = np.flatnonzero(gnss.usable & (s.gps["t_ns"] <= t_align + 2_000_000_000))
         if len(ok):
             k = int(ok[0])
-            gps_enu = np.array(
-                pymap3d.geodetic2enu(s.gps["lat"][k], s.gps["lon"][k], s.gps["alt"][k], *datum)
-            )
+            fix = [[s.gps["lat"][k], s.gps["lon"][k], s.gps["alt"][k]]]
+            gps_enu = NavSatTransform(GeoDatum(*datum)).enu(fix)[0]
     R0, p0 = ground_alignment(
         align_imu, None, mag=align_mag, declination_rad=decl, gps_enu_m=gps_enu
     )

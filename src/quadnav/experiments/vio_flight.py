@@ -30,7 +30,7 @@ from scipy.spatial.transform import Rotation
 from quadnav.errors import ConfigError, SampleError
 from quadnav.estimation.nav_ekf import skew
 from quadnav.experiments.nav_config import NavScenario, VioSection
-from quadnav.geometry.rotations import Pose
+from quadnav.geometry.rotations import Pose, quat_xyzw_from_matrix, rotation_matrix_xyzw, so3_exp
 from quadnav.geometry.trajectory import Trajectory
 from quadnav.messages import ImageFrame, ImuSample, OdometrySample, VehicleState
 from quadnav.sim.sensors import IntegratingImu, Ticker
@@ -326,43 +326,87 @@ class VioCameraSensor:
 
 @dataclass
 class OdometryShortcut:
-    """The VIO's shortcut: the true pose and world velocity of the vehicle at ``period_ns``,
-    plus white noise of the sigmas and a frame origin drifting as a random walk
-    (``drift_m_sqrt_s``), with the covariance of the white noise."""
+    """The VIO's shortcut, a drifting odometry: the vehicle's motion at ``period_ns`` in a frame
+    of its own that drifts as a VIO's does, plus white noise of the sigmas, reported with the
+    white noise's covariance (what a VIO states of its pose in its own frame).
+
+    The frame starts on the world. Each sample's motion since the last (the truth's) is turned
+    by the frame's yaw drift and scaled by ``1 + scale_error`` before it is added, so a yaw
+    drift turns only the motion after it, as a VIO's does; the frame's origin drifts as a
+    random walk (``drift_m_sqrt_s`` per axis) and its yaw too (``drift_yaw_rad_sqrt_s``). At
+    each time of ``resets_ns`` the odometry re-initialises: its position restarts at zero, its
+    yaw at a random heading, and its reset counter goes up (PX4's ``ODOMETRY.reset_counter``).
+    With the yaw drift, the scale error and the resets at zero it draws the same numbers as the
+    pure position drift of before."""
 
     period_ns: int
     sigma_m: float
     sigma_vel_m_s: float
     sigma_att_rad: float
     drift_m_sqrt_s: float = 0.0
+    drift_yaw_rad_sqrt_s: float = 0.0
+    scale_error: float = 0.0
+    resets_ns: Sequence[int] = ()
     sink: OdometrySink | None = None
 
     def __post_init__(self) -> None:
+        if not (math.isfinite(self.scale_error) and -0.5 < self.scale_error < 0.5):
+            raise ConfigError(
+                f"the odometry's scale error must lie in (-0.5, 0.5), got {self.scale_error}"
+            )
         self._ticker = Ticker(self.period_ns, first_ns=self.period_ns)
-        self._drift = np.zeros(3)
+        self._p_O: FloatArray | None = None  # the odometry's position in its frame (no noise)
+        self._p_W_last = np.zeros(3)
+        self._yaw = 0.0  # the frame's yaw drift (rad): R_O_W = Rz(yaw)
+        self._resets = sorted(int(t) for t in self.resets_ns)
+        self._reset_counter = 0
         self._t_last: int | None = None
         self._track: list[_TrackRow] = []
         self._truth: list[FloatArray] = []
 
+    def _drift(self, t_ns: int, truth: VehicleState, rng: Generator) -> FloatArray:
+        """Moves the frame on to ``t_ns`` (drift, the motion since the last sample, a reset
+        due) and returns ``R_O_W``."""
+        if self._p_O is None:
+            self._p_O = truth.p_W_B.copy()
+        elif self._t_last is not None:
+            dt = (t_ns - self._t_last) * 1e-9
+            if self.drift_yaw_rad_sqrt_s > 0:
+                self._yaw += float(rng.normal(0.0, self.drift_yaw_rad_sqrt_s * math.sqrt(dt)))
+            step = truth.p_W_B - self._p_W_last
+            if self._yaw != 0.0 or self.scale_error != 0.0:
+                step = (1.0 + self.scale_error) * (_rz(self._yaw) @ step)
+            self._p_O = self._p_O + step + rng.normal(0.0, self.drift_m_sqrt_s * math.sqrt(dt), 3)
+        while self._resets and self._resets[0] <= t_ns:
+            self._resets.pop(0)
+            self._reset_counter += 1
+            self._p_O = np.zeros(3)
+            self._yaw = float(rng.uniform(-math.pi, math.pi))
+        self._p_W_last = truth.p_W_B.copy()
+        self._t_last = t_ns
+        return _rz(self._yaw)
+
     def sample(self, truth: VehicleState, t_ns: int, rng: Generator) -> OdometrySample | None:
         if not self._ticker.due(t_ns):
             return None
-        if self._t_last is not None:
-            dt = (t_ns - self._t_last) * 1e-9
-            self._drift = self._drift + rng.normal(0.0, self.drift_m_sqrt_s * math.sqrt(dt), 3)
-        self._t_last = t_ns
-        R = Rotation.from_rotvec(rng.normal(0.0, self.sigma_att_rad, 3)) * Rotation.from_quat(
-            truth.q_W_B_xyzw
+        R_O_W = self._drift(t_ns, truth, rng)
+        assert self._p_O is not None
+        R = (
+            so3_exp(rng.normal(0.0, self.sigma_att_rad, 3))
+            @ R_O_W
+            @ rotation_matrix_xyzw(truth.q_W_B_xyzw)
         )
+        v_O = (1.0 + self.scale_error) * (R_O_W @ truth.v_W_B)
         odo = OdometrySample(
             t_ns=t_ns,
-            p_W_B=truth.p_W_B + self._drift + rng.normal(0.0, self.sigma_m, 3),
-            q_W_B_xyzw=R.as_quat(),
-            v_W_B=truth.v_W_B + rng.normal(0.0, self.sigma_vel_m_s, 3),
+            p_W_B=self._p_O + rng.normal(0.0, self.sigma_m, 3),
+            q_W_B_xyzw=quat_xyzw_from_matrix(R),
+            v_W_B=v_O + rng.normal(0.0, self.sigma_vel_m_s, 3),
             cov_pose=np.diag([self.sigma_m**2] * 3 + [self.sigma_att_rad**2] * 3),
             cov_v=np.eye(3) * self.sigma_vel_m_s**2,
+            reset_counter=self._reset_counter,
         )
-        self._track.append((t_ns, odo.p_W_B, odo.q_W_B_xyzw, 0))
+        self._track.append((t_ns, odo.p_W_B, odo.q_W_B_xyzw, self._reset_counter))
         self._truth.append(truth.p_W_B)
         if self.sink is not None:
             self.sink(odo)
@@ -370,6 +414,11 @@ class OdometryShortcut:
 
     def record(self) -> VioRecord:
         return _record(self._track, self._truth, states=len(self._track))
+
+
+def _rz(yaw: float) -> FloatArray:
+    c, s = math.cos(yaw), math.sin(yaw)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
 def build_vio_sensor(
@@ -389,6 +438,9 @@ def build_vio_sensor(
             sigma_vel_m_s=v.sigma_vel_m_s,
             sigma_att_rad=v.yaw_sigma_rad,
             drift_m_sqrt_s=v.drift_m_sqrt_s,
+            drift_yaw_rad_sqrt_s=v.drift_yaw_rad_sqrt_s,
+            scale_error=v.scale_error,
+            resets_ns=[s_to_ns(t) for t in v.resets_s],
             sink=sink,
         )
     # (OpenCV, the renderer, GTSAM and the front end only when flying on rendered images)

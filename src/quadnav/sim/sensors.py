@@ -18,6 +18,7 @@ from numpy.random import Generator
 from numpy.typing import NDArray
 
 from quadnav.errors import SimError
+from quadnav.geometry.navsat import GeoDatum, NavSatTransform
 from quadnav.geometry.rotations import quat_xyzw_from_matrix, rot_z, rotation_matrix_xyzw
 from quadnav.jit import njit
 from quadnav.messages import (
@@ -375,7 +376,8 @@ class IntegratingImu:
 
 
 class GpsSensor:
-    """A GNSS receiver: geodetic fixes (via pymap3d from the local ENU truth about a datum) and
+    """A GNSS receiver: geodetic fixes (the local ENU truth about a datum, through
+    :class:`~quadnav.geometry.navsat.NavSatTransform`) and
     ENU velocity, with Gaussian noise, at a fixed rate. Outages and glitches are fault
     decorators (:class:`~quadnav.sim.channels.Dropouts`, :class:`~quadnav.sim.channels.OffsetTruth`)."""
 
@@ -394,17 +396,16 @@ class GpsSensor:
                 f"{period_ns}, {sigma_h_m}, {sigma_v_m}, {sigma_vel_m_s}"
             )
         self.datum = datum_lla
+        self._plane = NavSatTransform(GeoDatum(*datum_lla))
         self.period_ns = int(period_ns)
         self.sh, self.sv, self.svel = float(sigma_h_m), float(sigma_v_m), float(sigma_vel_m_s)
         self._ticker = Ticker(self.period_ns)
 
     def sample(self, truth: VehicleState, t_ns: int, rng: Generator) -> GpsSample | None:
-        import pymap3d
-
         if not self._ticker.due(t_ns):
             return None
-        e, n, u = truth.p_W_B + rng.standard_normal(3) * np.array([self.sh, self.sh, self.sv])
-        lat, lon, alt = pymap3d.enu2geodetic(e, n, u, *self.datum)
+        p_E = truth.p_W_B + rng.standard_normal(3) * np.array([self.sh, self.sh, self.sv])
+        lat, lon, alt = self._plane.to_geodetic(p_E)[0]
         return GpsSample(
             t_ns=t_ns,
             lat_deg=float(lat),
