@@ -493,6 +493,7 @@ class NavEkf:
         self._ev_anchor: dict[str, _FrameAnchor] = {}
         self._follow_pending: set[str] = set()  # sources whose next pose resets the filter
         self._last_accepted_ns: dict[str, int] = {}
+        self._position_fused_ns: dict[str, int] = {}  # per source, its last position accepted
         self.events: list[tuple[int, str]] = []
         nsd = config.baro_bias_nsd_m_s
         self.baro_bias: BiasEstimator | None = (
@@ -1003,8 +1004,12 @@ class NavEkf:
         res = self._update(r, H, Rn, gate=gate)
         if res.accepted:
             self._last_accepted_ns[src] = obs.t_ns
+            if p_meas is not None:
+                self._position_fused_ns[src] = obs.t_ns
             return res
         since = self._last_accepted_ns.setdefault(src, obs.t_ns)
+        if p_meas is not None and self._held_by_another(src, obs.t_ns):
+            return res  # (PX4: another source keeps the position; this one is refused, no reset)
         if (obs.t_ns - since) * 1e-9 >= self.config.reset_after_s:
             # Persistently rejected: trust the sensor again. Reset what it observes to the
             # measurement, with the measurement's uncertainty, and say so.
@@ -1017,6 +1022,14 @@ class NavEkf:
                 )
             )
         return res
+
+    def _held_by_another(self, src: str, t_ns: int) -> bool:
+        """Whether a source other than ``src`` had a position accepted within the last
+        ``reset_after_s``: then a persistently rejected position (a GNSS glitch beside a VIO)
+        is the sensor's fault, not the filter's, and resets nothing (PX4's EKF2 resets to the
+        GNSS only when no horizontal position has been fused for its time-out)."""
+        window = self.config.reset_after_s * 1e9
+        return any(t_ns - t < window for s, t in self._position_fused_ns.items() if s != src)
 
     def _reset_to(
         self,

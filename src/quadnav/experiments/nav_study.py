@@ -94,6 +94,7 @@ class NavMetrics:
     #: the odometry's own estimate against the truth (the rig's body, its optimised frames):
     #: translation APE after a 4-DoF (position and yaw) alignment, RMSE
     vio_ate_m: Metric = field(default_factory=lambda: na("no visual odometry"))
+    vio_alone_m: Metric = field(default_factory=lambda: na("no visual odometry"))
     #: with loop closure: its places judged against the truth (``loop_precision``,
     #: ``loop_recall``, the measurements' median errors; :mod:`quadnav.eval.loop_eval`)
     vio_loop: dict[str, Any] = field(default_factory=dict)
@@ -247,6 +248,7 @@ def _vio_metrics(r: NavRunResult) -> dict[str, Any]:
         "vio_events": [f"{t * 1e-9:.3f} s: {msg}" for t, msg in v.events],
         "vio_loop": dict((v.loop or {}).get("evaluation") or {}),
         "vio_ate_m": _odometry_ate(v),
+        "vio_alone_m": _odometry_alone(v),
     }
 
 
@@ -260,6 +262,25 @@ def _odometry_ate(v: VioRecord) -> Metric:
     est = Trajectory(t_ns=v.t_ns[ok], p_W_B=v.p_W_B[ok], q_W_B_xyzw=v.q_W_B_xyzw[ok])
     ref = Trajectory(t_ns=v.t_ns[ok], p_W_B=v.truth_p_W_B[ok], q_W_B_xyzw=v.q_W_B_xyzw[ok])
     return ape_summary(ref, est, "4dof").rmse_m
+
+
+def _odometry_alone(v: VioRecord) -> Metric:
+    """What flying on the odometry alone would give: its positions against the truth's, RMSE
+    with its world put on the truth's at its first state (position and heading; its world is
+    level), as a vehicle does that starts its odometry where it stands, facing a known way.
+    From the first state of the last reset on (a reset starts a new world)."""
+    ok = np.isfinite(v.truth_p_W_B).all(axis=1)
+    if len(v.reset_counter):
+        ok &= v.reset_counter == v.reset_counter[-1]
+    if ok.sum() < 3:
+        return na("fewer than 3 odometry states")
+    p, q = v.p_W_B[ok], v.q_W_B_xyzw[ok]
+    p_ref, q_ref = v.truth_p_W_B[ok], v.truth_q_W_B_xyzw[ok]
+    R = Rotation.from_quat(q_ref[0]) * Rotation.from_quat(q[0]).inv()
+    yaw = float(R.as_euler("ZYX")[0])
+    Rz = Rotation.from_euler("z", yaw)
+    est = Rz.apply(p - p[0]) + p_ref[0]
+    return float(np.sqrt(np.mean(np.sum((est - p_ref) ** 2, axis=1))))
 
 
 def _bias_error_fractions(r: NavRunResult) -> dict[str, Metric]:
@@ -509,6 +530,7 @@ class NavSummary:
     drift_percent: Metric
     end_position_error_m: Metric
     vio_ate_m: Metric
+    vio_alone_m: Metric
     # what was refused and reset, summed over the seeds (non-zero counts only), and the
     # filter's own log of each seed ("seed N, t s: what")
     refused: dict[str, int] = field(default_factory=dict)
@@ -592,6 +614,7 @@ def summarize_nav_seeds(per_seed: list[NavMetrics]) -> NavSummary:
         drift_percent=median_or_na(m.drift_percent for m in per_seed),
         end_position_error_m=median_or_na(m.end_position_error_m for m in per_seed),
         vio_ate_m=median_or_na(m.vio_ate_m for m in per_seed),
+        vio_alone_m=median_or_na(m.vio_alone_m for m in per_seed),
         refused=refusal_counts(per_seed),
         filter_events=[f"seed {m.seed}, {e}" for m in per_seed for e in m.filter_events],
     )

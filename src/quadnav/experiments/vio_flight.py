@@ -64,7 +64,7 @@ OdometrySink = Callable[[OdometrySample], None]
 class VioRecord:
     """What the VIO did in one flight: its own estimate at each optimised camera frame (the
     rig's body ``B`` in the VIO's world), with its reset counter and the true position of
-    ``B`` then (in the flight's world); its events ``(t_ns, text)``;
+    ``B`` then (in the flight's world) and its true attitude; its events ``(t_ns, text)``;
     the frames it was given and the states it returned; the odometry refused at the boundary
     (non-finite); its wall time per stage (ms per call)."""
 
@@ -73,6 +73,7 @@ class VioRecord:
     q_W_B_xyzw: FloatArray
     reset_counter: NDArray[np.int64]
     truth_p_W_B: FloatArray
+    truth_q_W_B_xyzw: FloatArray
     events: tuple[tuple[int, str], ...] = ()
     frames: int = 0
     states: int = 0
@@ -95,9 +96,13 @@ def _trajectory(rows: list[_TrackRow]) -> Trajectory:
     )
 
 
-def _record(track: list[_TrackRow], truth_p_W_B: list[FloatArray], **counts: Any) -> VioRecord:
+def _record(
+    track: list[_TrackRow], truth: list[tuple[FloatArray, FloatArray]], **counts: Any
+) -> VioRecord:
+    """``truth``: the true position and attitude (quaternion) at each row of ``track``."""
     return VioRecord(
-        truth_p_W_B=np.array(truth_p_W_B, dtype=np.float64).reshape(-1, 3),
+        truth_p_W_B=np.array([p for p, _ in truth], dtype=np.float64).reshape(-1, 3),
+        truth_q_W_B_xyzw=np.array([q for _, q in truth], dtype=np.float64).reshape(-1, 4),
         t_ns=np.array([x[0] for x in track], dtype=np.int64),
         p_W_B=np.array([x[1] for x in track]).reshape(-1, 3),
         q_W_B_xyzw=np.array([x[2] for x in track]).reshape(-1, 4),
@@ -273,8 +278,8 @@ class VioCameraSensor:
 
     def record(self) -> VioRecord:
         loop, loop_map = self._finish_loop()
-        nan = (0, np.full(3, np.nan))
-        truth = [self._truth_B.get(row[0], nan)[1] for row in self._track]
+        nan = (0, np.full(3, np.nan), np.full(4, np.nan), 0)
+        truth = [self._truth_B.get(row[0], nan)[1:3] for row in self._track]
         return _record(
             self._track,
             truth,
@@ -362,7 +367,7 @@ class OdometryShortcut:
         self._reset_counter = 0
         self._t_last: int | None = None
         self._track: list[_TrackRow] = []
-        self._truth: list[FloatArray] = []
+        self._truth: list[tuple[FloatArray, FloatArray]] = []
 
     def _drift(self, t_ns: int, truth: VehicleState, rng: Generator) -> FloatArray:
         """Moves the frame on to ``t_ns`` (drift, the motion since the last sample, a reset
@@ -407,7 +412,7 @@ class OdometryShortcut:
             reset_counter=self._reset_counter,
         )
         self._track.append((t_ns, odo.p_W_B, odo.q_W_B_xyzw, self._reset_counter))
-        self._truth.append(truth.p_W_B)
+        self._truth.append((truth.p_W_B, truth.q_W_B_xyzw))
         if self.sink is not None:
             self.sink(odo)
         return odo
