@@ -205,6 +205,7 @@ class _Plan:
         self.p, self.v, self.a = ref.p, ref.v, ref.a
         self.yaw = heading_reference(ref.v, dt, sc.plan.yaw, math.radians(sc.plan.yaw_rate_deg_s))
         self.landed = False
+        self.dt, self._down_steps = dt, 0
 
     def on_ground(self, i: int, t_ns: int) -> bool:
         return t_ns < self.align_ns or self.landed or self._down(i, first_half=True)
@@ -216,9 +217,15 @@ class _Plan:
     def setpoint(self, i: int) -> Setpoint:
         return Setpoint(p=self.p[i], v=self.v[i], a=self.a[i], yaw_rad=float(self.yaw[i]))
 
-    def touch_down(self, i: int, z_m: float) -> bool:
-        """The plan has come down and the vehicle sits low: cut the motors from now on."""
-        self.landed = self.landed or (self._down(i, first_half=False) and z_m < 0.05)
+    def touch_down(self, i: int, z_m: float, vz_m_s: float) -> bool:
+        """The plan has come down and the vehicle sits low, or (a height only a GNSS measures
+        can stay 0.1-0.5 m off) the plan has been down a second and the estimate sinks no more
+        (PX4's land detector: commanded down, no vertical motion): cut the motors from now on.
+        Left on, the controller would push the vehicle into the ground and tilt it there."""
+        down = self._down(i, first_half=False)
+        self._down_steps = self._down_steps + 1 if down else 0
+        still = self._down_steps * self.dt >= 1.0 and abs(vz_m_s) < 0.1
+        self.landed = self.landed or (down and (z_m < 0.05 or still))
         return self.landed
 
     def ref_p(self, i: int) -> FloatArray:
@@ -238,7 +245,7 @@ class FlightPlan(Protocol):
 
     def setpoint(self, i: int) -> Setpoint: ...
 
-    def touch_down(self, i: int, z_m: float) -> bool: ...
+    def touch_down(self, i: int, z_m: float, vz_m_s: float) -> bool: ...
 
     def ref_p(self, i: int) -> FloatArray: ...
 
@@ -276,7 +283,7 @@ class _TakeoffPlan:
     def setpoint(self, i: int) -> Setpoint:
         return Setpoint(p=self.target)
 
-    def touch_down(self, i: int, z_m: float) -> bool:
+    def touch_down(self, i: int, z_m: float, vz_m_s: float) -> bool:
         return False
 
     def ref_p(self, i: int) -> FloatArray:
@@ -462,7 +469,7 @@ def run_nav(
             else:
                 fly_on = out if sc.closed_loop and out is not None else truth_estimate(truth)
                 cmd = ctrl(t, fly_on, plan.setpoint(i)).rotors()
-                if plan.touch_down(i, float(fly_on.p_W_B[2])):
+                if plan.touch_down(i, float(fly_on.p_W_B[2]), float(fly_on.v_W_B[2])):
                     cmd = np.zeros(4)
             sim.step(cmd)
             if progress is not None and i % every == 0:
