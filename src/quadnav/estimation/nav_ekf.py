@@ -70,7 +70,7 @@ from quadnav.messages import (
     StateEstimate,
     VelocitySample,
 )
-from quadnav.units import GRAVITY_M_S2
+from quadnav.units import GRAVITY_M_S2, s_to_ns
 
 __all__ = [
     "ODOMETRY_MODES",
@@ -1028,7 +1028,7 @@ class NavEkf:
         ``reset_after_s``: then a persistently rejected position (a GNSS glitch beside a VIO)
         is the sensor's fault, not the filter's, and resets nothing (PX4's EKF2 resets to the
         GNSS only when no horizontal position has been fused for its time-out)."""
-        window = self.config.reset_after_s * 1e9
+        window = s_to_ns(self.config.reset_after_s)
         return any(t_ns - t < window for s, t in self._position_fused_ns.items() if s != src)
 
     def _reset_to(
