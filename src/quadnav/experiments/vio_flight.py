@@ -30,7 +30,13 @@ from scipy.spatial.transform import Rotation
 from quadnav.errors import ConfigError, SampleError
 from quadnav.estimation.nav_ekf import skew
 from quadnav.experiments.nav_config import NavScenario, VioSection
-from quadnav.geometry.rotations import Pose, quat_xyzw_from_matrix, rotation_matrix_xyzw, so3_exp
+from quadnav.geometry.rotations import (
+    Pose,
+    quat_xyzw_from_matrix,
+    rot_z,
+    rotation_matrix_xyzw,
+    so3_exp,
+)
 from quadnav.geometry.trajectory import Trajectory
 from quadnav.messages import ImageFrame, ImuSample, OdometrySample, VehicleState
 from quadnav.sim.sensors import IntegratingImu, Ticker
@@ -380,7 +386,7 @@ class OdometryShortcut:
                 self._yaw += float(rng.normal(0.0, self.drift_yaw_rad_sqrt_s * math.sqrt(dt)))
             step = truth.p_W_B - self._p_W_last
             if self._yaw != 0.0 or self.scale_error != 0.0:
-                step = (1.0 + self.scale_error) * (_rz(self._yaw) @ step)
+                step = (1.0 + self.scale_error) * (rot_z(self._yaw) @ step)
             self._p_O = self._p_O + step + rng.normal(0.0, self.drift_m_sqrt_s * math.sqrt(dt), 3)
         while self._resets and self._resets[0] <= t_ns:
             self._resets.pop(0)
@@ -389,7 +395,7 @@ class OdometryShortcut:
             self._yaw = float(rng.uniform(-math.pi, math.pi))
         self._p_W_last = truth.p_W_B.copy()
         self._t_last = t_ns
-        return _rz(self._yaw)
+        return rot_z(self._yaw)
 
     def sample(self, truth: VehicleState, t_ns: int, rng: Generator) -> OdometrySample | None:
         if not self._ticker.due(t_ns):
@@ -419,11 +425,6 @@ class OdometryShortcut:
 
     def record(self) -> VioRecord:
         return _record(self._track, self._truth, states=len(self._track))
-
-
-def _rz(yaw: float) -> FloatArray:
-    c, s = math.cos(yaw), math.sin(yaw)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
 def build_vio_sensor(

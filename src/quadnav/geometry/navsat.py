@@ -35,6 +35,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from quadnav.errors import GeometryError
+from quadnav.geometry.rotations import rot_z
 from quadnav.units import GNSS_ALT_RANGE_M
 
 __all__ = ["GeoDatum", "NavSatTransform", "enu_heading"]
@@ -89,11 +90,6 @@ def enu_heading(yaw_imu_rad: float, yaw_offset_rad: float, declination_rad: floa
     return math.remainder(yaw, 2.0 * math.pi)
 
 
-def _rz(yaw: float) -> FloatArray:
-    c, s = math.cos(yaw), math.sin(yaw)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-
-
 @dataclass(frozen=True, slots=True)
 class NavSatTransform:
     """Geodetic fixes to a world frame ``W`` and back: ``p_W = Rz(yaw_W_E) p_E + p_W_E`` with
@@ -137,11 +133,11 @@ class NavSatTransform:
         probe = cls(datum, zero_altitude=zero_altitude)
         p_E_antenna = probe.enu(fix)[0]
         # the body's origin in E: the antenna less its lever arm turned by the heading in E
-        p_E_B = p_E_antenna - _rz(yaw_E_B) @ np.asarray(lever_arm_B_m, dtype=np.float64)
+        p_E_B = p_E_antenna - rot_z(yaw_E_B) @ np.asarray(lever_arm_B_m, dtype=np.float64)
         p_W_B = np.asarray(p_W_B_m, dtype=np.float64)
         if p_W_B.shape != (3,) or not np.isfinite(p_W_B).all():
             raise GeometryError(f"the robot's position must be 3 finite numbers, got {p_W_B}")
-        p_W_E = p_W_B - _rz(yaw_W_E) @ p_E_B
+        p_W_E = p_W_B - rot_z(yaw_W_E) @ p_E_B
         if zero_altitude:
             p_W_E[2] = 0.0
         return cls(
@@ -173,7 +169,7 @@ class NavSatTransform:
         """The body's position in ``W`` (N, 3) for each fix; ``R_W_B`` (3, 3) or (N, 3, 3), the
         body's attitude in ``W`` at each fix, takes out the antenna's lever arm (needed when it
         is not zero)."""
-        p_W = self.enu(fixes) @ _rz(self.yaw_W_E_rad).T + np.asarray(self.p_W_E_m)
+        p_W = self.enu(fixes) @ rot_z(self.yaw_W_E_rad).T + np.asarray(self.p_W_E_m)
         lever = np.asarray(self.lever_arm_B_m)
         if lever.any():
             if R_W_B is None:
@@ -190,7 +186,7 @@ class NavSatTransform:
         p = np.atleast_2d(np.asarray(p_W, dtype=np.float64))
         if p.shape[1:] != (3,) or not np.isfinite(p).all():
             raise GeometryError(f"points must be (N, 3) and finite, got shape {p.shape}")
-        p_E = (p - np.asarray(self.p_W_E_m)) @ _rz(self.yaw_W_E_rad)
+        p_E = (p - np.asarray(self.p_W_E_m)) @ rot_z(self.yaw_W_E_rad)
         lat, lon, alt = pymap3d.enu2geodetic(
             p_E[:, 0], p_E[:, 1], p_E[:, 2], *self.datum.as_tuple()
         )
@@ -199,4 +195,4 @@ class NavSatTransform:
     def velocity_to_world(self, v_enu: ArrayLike) -> FloatArray:
         """A GNSS velocity (ENU, (N, 3) or (3,)) in ``W``."""
         v = np.asarray(v_enu, dtype=np.float64)
-        return np.asarray(v @ _rz(self.yaw_W_E_rad).T, dtype=np.float64)
+        return np.asarray(v @ rot_z(self.yaw_W_E_rad).T, dtype=np.float64)
