@@ -102,6 +102,28 @@ def _trajectory(rows: list[_TrackRow]) -> Trajectory:
     )
 
 
+def _truth_at(
+    track: list[_TrackRow], frames: list[_TrackRow]
+) -> list[tuple[FloatArray, FloatArray]]:
+    """The true pose at each row of ``track``, interpolated between the camera frames' true
+    poses: a VIO that estimates its camera's time offset stamps its states at the frame's time
+    plus that offset, not at a frame time (looked up by the frame time, every state after the
+    offset's first estimate had no truth, and the VIO's error was measured on the hover before
+    it alone). NaN outside the frames' span."""
+    nan = (np.full(3, np.nan), np.full(4, np.nan))
+    if len(frames) < 2:
+        exact = {row[0]: (row[1], row[2]) for row in frames}
+        return [exact.get(row[0], nan) for row in track]
+    truth = _trajectory(sorted(frames, key=lambda row: row[0]))
+    t = np.array([row[0] for row in track], dtype=np.int64)
+    inside = (t >= truth.t_ns[0]) & (t <= truth.t_ns[-1])
+    at = truth.interpolate(t[inside])
+    out = [nan] * len(track)
+    for k, i in enumerate(np.flatnonzero(inside)):
+        out[i] = (at.p_W_B[k], at.q_W_B_xyzw[k])
+    return out
+
+
 def _record(
     track: list[_TrackRow], truth: list[tuple[FloatArray, FloatArray]], **counts: Any
 ) -> VioRecord:
@@ -284,11 +306,9 @@ class VioCameraSensor:
 
     def record(self) -> VioRecord:
         loop, loop_map = self._finish_loop()
-        nan = (0, np.full(3, np.nan), np.full(4, np.nan), 0)
-        truth = [self._truth_B.get(row[0], nan)[1:3] for row in self._track]
         return _record(
             self._track,
-            truth,
+            _truth_at(self._track, list(self._truth_B.values())),
             events=tuple((e.t_ns, f"{e.kind}: {e.detail}") for e in self.vio.events),
             frames=self.frames,
             states=self.states,
