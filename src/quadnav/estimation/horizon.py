@@ -429,7 +429,7 @@ class DelayedHorizonEstimator:
         Nothing a sample carries makes this raise: a late, out-of-order or unusable sample is
         rejected and counted (see :meth:`stats`). Only a non-sample is a programming error.
         """
-        if not isinstance(sample, Sample):
+        if not isinstance(sample, Sample) and not _is_stamped(sample):
             raise EstimationError(f"push() takes samples, got {type(sample).__name__}")
         if isinstance(sample, ImuSample):
             self._push_imu(sample)
@@ -575,3 +575,9 @@ class DelayedHorizonEstimator:
             self._ob_pos += pos_corr + age_s[:, None] * vel_corr
         else:
             self._ob_pos += pos_corr
+
+
+def _is_stamped(sample: object) -> bool:
+    """A message type of the user's own (a new sensor's, fused through a model registered
+    with the filter): a dataclass with an integer ``t_ns``."""
+    return dataclasses.is_dataclass(sample) and isinstance(getattr(sample, "t_ns", None), int)

@@ -15,7 +15,8 @@ Observations: world position, external pose (position and yaw), external odometr
 ``odometry_mode="relative"`` the odometry frame's drift, position and yaw, is four random-walk
 states beside the 15, so a drifting odometry's motion is taken and its drift not averaged),
 height, range, heading, velocity, optical flow (PX4's model,
-:mod:`quadnav.estimation.flow_model`). Each update is gated
+:mod:`quadnav.estimation.flow_model`), each fused by the model registered for its sample type
+(:mod:`quadnav.estimation.nav_observations`; :meth:`NavEkf.register` adds one). Each update is gated
 with a chi-square test on its innovation, applied in Joseph form and injected into the nominal
 state with the covariance reset ``P <- G P G^T``.
 """
@@ -32,12 +33,6 @@ from scipy.spatial.transform import Rotation
 from quadnav.errors import EstimationError
 from quadnav.estimation.bias_estimator import BiasEstimator
 from quadnav.estimation.chi2 import chi2_isf, chi2_ppf, chi2_sf
-from quadnav.estimation.flow_model import (
-    compensated_flow_rate,
-    flow_noise_sigma,
-    predict_flow,
-    tilt_cosine_jacobian,
-)
 from quadnav.estimation.horizon import FusionResult, NavState, require_positive
 from quadnav.estimation.imu_clipping import (
     BADACC_NOISE_M_S2,
@@ -46,29 +41,34 @@ from quadnav.estimation.imu_clipping import (
     clip_axes,
 )
 from quadnav.estimation.layout import NAV_ERROR, NAV_NOISE, NAV_NOMINAL, NAV_OUTPUT, StateLayout
+from quadnav.estimation.nav_observations import (
+    ObservationModel,
+    Stamped,
+    builtin_observations,
+    mag_heading_jacobian,
+    range_jacobian,
+    world_yaw_jacobian,
+    yaw_jacobian,
+)
 from quadnav.geometry.navsat import GeoDatum, NavSatTransform
 from quadnav.geometry.rotations import (
     quat_xyzw_from_matrix,
     rotation_matrix_xyzw,
+    skew,
     so3_exp,
     so3_log,
     yaw_of,
 )
 from quadnav.jit import njit
 from quadnav.messages import (
-    FlowSample,
     GpsSample,
-    HeightSample,
     ImuSample,
     MagSample,
-    Observation,
     OdometrySample,
     PoseSample,
-    PositionSample,
     RangeSample,
     Sample,
     StateEstimate,
-    VelocitySample,
 )
 from quadnav.units import GRAVITY_M_S2, s_to_ns
 
@@ -107,10 +107,6 @@ _ODO_ROWS = {"pos": np.arange(0, 3), "vel": np.arange(3, 6), "yaw": np.arange(6,
 _DP = slice(_N, _N + 3)
 _DYAW = _N + 3
 _N_DRIFT = 4
-
-
-def skew(a: FloatArray) -> FloatArray:
-    return np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
 
 
 @dataclass(frozen=True, slots=True)
@@ -226,41 +222,6 @@ def gate_thresholds(gate_sigma: float, dims: tuple[int, ...]) -> dict[int, float
 ODOMETRY_PARTS = ("pos", "vel", "yaw")
 #: How the filter takes an odometry (:attr:`NavEkfConfig.odometry_mode`).
 ODOMETRY_MODES = ("absolute", "relative")
-
-
-def world_yaw_jacobian(R: FloatArray) -> FloatArray:
-    """d yaw / d dtheta (3,) for a world-frame perturbation ``Exp(dtheta) R`` (how an
-    odometry message's attitude covariance carries to its yaw)."""
-    den = R[0, 0] ** 2 + R[1, 0] ** 2
-    return np.array([-R[2, 0] * R[0, 0] / den, -R[2, 0] * R[1, 0] / den, 1.0])
-
-
-def yaw_jacobian(R: FloatArray) -> FloatArray:
-    """d yaw / d dtheta (3,) for ``R_true = R Exp(dtheta)``, yaw = atan2(R10, R00)."""
-    den = R[0, 0] ** 2 + R[1, 0] ** 2
-    return np.array(
-        [
-            0.0,
-            (R[1, 0] * R[0, 2] - R[0, 0] * R[1, 2]) / den,
-            (R[0, 0] * R[1, 1] - R[1, 0] * R[0, 1]) / den,
-        ]
-    )
-
-
-def mag_heading_jacobian(R: FloatArray, field_B: FloatArray) -> tuple[float, FloatArray]:
-    """The heading of the field rotated into the world, ``atan2(m_W y, m_W x)`` with ``m_W = R
-    m_B``, and its derivative (3,) for ``R Exp(dtheta)`` (the full attitude: with a steeply
-    dipping field a roll or pitch error moves the heading)."""
-    m_W = R @ field_B
-    den = m_W[0] ** 2 + m_W[1] ** 2
-    dh_dm = np.array([-m_W[1], m_W[0], 0.0]) / den
-    return math.atan2(m_W[1], m_W[0]), -(dh_dm @ R) @ skew(field_B)
-
-
-def range_jacobian(R: FloatArray, height_m: float) -> tuple[float, FloatArray]:
-    """A downward range ``h = height / R22`` and ``dh / d dtheta`` (3,) for ``R Exp(dtheta)``."""
-    c = float(R[2, 2])
-    return height_m / c, -height_m / (c * c) * tilt_cosine_jacobian(R)
 
 
 @dataclass(slots=True)
@@ -473,9 +434,9 @@ class NavEkf:
             if config.gate_sigma is None
             else gate_thresholds(config.gate_sigma, (1, 2, 3, 4, 6))
         )
-        self._flow_gate = gate_thresholds(config.flow_gate_sigma, (2,))[2]
         self._odometry_gates = gate_thresholds(config.odometry_gate_sigma, tuple(range(1, 8)))
-        self._flow_gyro_bias = np.zeros(3)  # the flow sensor's gyro against ours (PX4's LPF)
+        # the observation models by sample type (quadnav.estimation.nav_observations)
+        self.observations = builtin_observations(gate_thresholds(config.flow_gate_sigma, (2,))[2])
         self._w_B = np.zeros(3)  # the body rate (bias removed) of the last prediction
         # GNSS fixes in the world frame (ENU): about the datum given, or the first fix put
         # where the filter is then
@@ -532,16 +493,22 @@ class NavEkf:
         return NavState(t_ns, self.p.copy(), self.v.copy(), self.R.ravel().copy())
 
     def can_fuse(self, obs: Sample) -> bool:
-        """Every observation type there is; a flow sample only when its quality reaches
-        ``flow_quality_min`` and its rate is within ``flow_max_rate_rad_s`` (PX4's checks), an
-        odometry sample only from ``odometry_quality_min``."""
-        if isinstance(obs, FlowSample):
-            c = self.config
-            rate = float(np.linalg.norm(obs.flow_rate_rad_s))
-            return obs.quality >= c.flow_quality_min and rate <= c.flow_max_rate_rad_s
-        if isinstance(obs, OdometrySample):
-            return obs.quality >= self.config.odometry_quality_min
-        return isinstance(obs, Observation)
+        """Whether a model is registered for the sample's type (or a base of it) and accepts
+        this sample (PX4's quality checks of a flow or an odometry sample)."""
+        model = self._model(obs)
+        return model is not None and model.accepts(self, obs)
+
+    def register(self, kind: type, model: ObservationModel) -> None:  # type: ignore[type-arg]
+        """Fuse samples of ``kind`` (and of its subclasses without a model of their own) with
+        ``model``: a new sensor joins the filter so, with no edit of the filter."""
+        self.observations[kind] = model
+
+    def _model(self, obs: object) -> ObservationModel | None:  # type: ignore[type-arg]
+        for kind in type(obs).__mro__:
+            model = self.observations.get(kind)
+            if model is not None:
+                return model
+        return None
 
     def imu_biases(self) -> tuple[FloatArray, FloatArray]:
         return self.bg, self.ba
@@ -648,48 +615,40 @@ class NavEkf:
         )
 
     def fuse(self, obs: Sample) -> FusionResult:
-        if isinstance(obs, PositionSample):
-            H = np.zeros((3, _N))
-            H[:, _POS] = np.eye(3)
-            return self._gated(obs, obs.p_W_B - self.p, H, np.eye(3) * obs.sigma_m**2, obs.p_W_B)
-        if isinstance(obs, PoseSample):
-            return self._fuse_pose(obs)
-        if isinstance(obs, OdometrySample):
-            return self._fuse_odometry(obs)
-        if isinstance(obs, HeightSample) and obs.source == "baro" and self.baro_bias is not None:
-            return self._fuse_baro_with_bias(obs, self.baro_bias)
-        if isinstance(obs, HeightSample):
-            H = np.zeros((1, _N))
-            H[0, _Z] = 1.0
-            return self._gated(
-                obs, np.array([obs.z_m - self.p[2]]), H, np.array([[obs.sigma_m**2]]), None
-            )
-        if isinstance(obs, GpsSample):
-            return self._fuse_gps(obs)
-        if isinstance(obs, MagSample):
-            return self._fuse_mag(obs)
-        if isinstance(obs, RangeSample):
-            return self._fuse_range(obs)
-        if isinstance(obs, FlowSample):
-            return self._fuse_flow(obs)
-        if isinstance(obs, VelocitySample):
-            H = np.zeros((3, _N))
-            H[:, _VEL] = np.eye(3)
-            Rn = np.eye(3) * obs.sigma_m_s**2
-            return self._update(obs.v_W_B - self.v, H, Rn)
-        raise EstimationError(f"the navigation EKF cannot fuse {type(obs).__name__}")
+        """The sample fused by its type's model (:mod:`quadnav.estimation.nav_observations`)."""
+        model = self._model(obs)
+        if model is None:
+            raise EstimationError(f"the navigation EKF cannot fuse {type(obs).__name__}")
+        return model.fuse(self, obs)
 
-    def _fuse_baro_with_bias(self, obs: HeightSample, bias: BiasEstimator) -> FusionResult:
-        """PX4's order: the innovation with the current bias, then the bias estimator updated
-        from the state before the main update, then the main update."""
-        var = obs.sigma_m**2
-        H = np.zeros((1, _N))
-        H[0, _Z] = 1.0
-        r = np.array([obs.z_m - bias.bias - self.p[2]])
-        Rn = np.array([[var + bias.var]])
-        bias.var_max = var
-        bias.fuse(obs.z_m - float(self.p[2]), var + float(self._P[_Z, _Z]))
-        return self._gated(obs, r, H, Rn, None)
+    # -- what the observation models use -------------------------------------------------
+    @property
+    def body_rate_rad_s(self) -> FloatArray:
+        """The body rate, biases removed, of the last prediction."""
+        return self._w_B
+
+    def update(
+        self, r: FloatArray, H: FloatArray, Rn: FloatArray, *, gate: float | None = None
+    ) -> FusionResult:
+        """One update: innovation ``r``, Jacobian ``H`` over the 15 error states (or with the
+        odometry drift's after them), noise ``Rn``; refused beyond the chi-square gate of its
+        size (or ``gate``)."""
+        return self._update(r, H, Rn, gate=gate)
+
+    def gated_update(
+        self,
+        obs: Stamped,
+        r: FloatArray,
+        H: FloatArray,
+        Rn: FloatArray,
+        p_meas: FloatArray | None,
+        *,
+        gate: float | None = None,
+    ) -> FusionResult:
+        """:meth:`update`, and when the sample's source has been refused ``reset_after_s``,
+        the states it observes reset to it (``p_meas``: the position it measures; else the
+        height, or a magnetometer's heading)."""
+        return self._gated(obs, r, H, Rn, p_meas, gate=gate)
 
     def gps_to_enu(self, obs: GpsSample) -> FloatArray:
         """A fix in the world frame: ENU about the datum (the first fix when none was given)."""
@@ -699,73 +658,6 @@ class NavEkf:
             self._navsat = NavSatTransform(fix, p_W_E_m=(float(p[0]), float(p[1]), float(p[2])))
         p_W: FloatArray = self._navsat.to_world(fix)[0]
         return p_W
-
-    def _fuse_gps(self, obs: GpsSample) -> FusionResult:
-        p_W = self.gps_to_enu(obs)
-        H = np.zeros((6, _N))
-        H[0:3, _POS] = np.eye(3)  # (rows: the observation's, position then velocity)
-        H[3:6, _VEL] = np.eye(3)
-        r = np.concatenate([p_W - self.p, obs.v_enu_m_s - self.v])
-        Rn = np.diag([obs.sigma_h_m**2] * 2 + [obs.sigma_v_m**2] + [obs.sigma_vel_m_s**2] * 3)
-        res = self._gated(obs, r, H, Rn, p_W)
-        return res
-
-    def _fuse_mag(self, obs: MagSample) -> FusionResult:
-        """Heading from the magnetometer: the field rotated into the world by the estimated
-        attitude should point at magnetic north (declination east of true north)."""
-        # Heading only, as PX4's heading fusion: letting the field's noise correct roll and
-        # pitch too made the attitude worse (tried: 1.15 vs 0.51 deg RMSE outdoors). What the
-        # tilt uncertainty does to the computed heading (the field dips steeply) is noise here.
-        expected = math.pi / 2 - self.config.mag_declination_rad
-        h, dh = mag_heading_jacobian(self.R, obs.field_B)
-        r = math.remainder(expected - h, 2 * math.pi)
-        H = np.zeros((1, _N))
-        H[0, _ATT] = yaw_jacobian(self.R)
-        dh_tilt = dh.copy()
-        dh_tilt[2] = 0.0  # (the yaw part is the state the update corrects)
-        var = obs.sigma_heading_rad**2 + float(dh_tilt @ self._P[_ATT, _ATT] @ dh_tilt)
-        return self._gated(obs, np.array([r]), H, np.array([[var]]), None)
-
-    def _fuse_range(self, obs: RangeSample) -> FusionResult:
-        if self.R[2, 2] < math.cos(self.config.range_max_tilt_rad):
-            return FusionResult(accepted=False, innovation=np.zeros(1), nis=0.0, test_ratio=0.0)
-        pred, d_dtheta = range_jacobian(self.R, float(self.p[2]) - self.config.terrain_z_m)
-        H = np.zeros((1, _N))
-        H[0, _ATT] = d_dtheta
-        H[0, _Z] = 1.0 / self.R[2, 2]
-        r = np.array([obs.range_m - pred])
-        return self._gated(obs, r, H, np.array([[obs.sigma_m**2]]), None)
-
-    def _fuse_flow(self, obs: FlowSample) -> FusionResult:
-        """PX4's optical-flow fusion (``quadnav.estimation.flow_model``): the flow rate less the
-        sensor gyro's rate (its bias against our gyro low-passed as EKF2's
-        ``calcBodyRateComp``) against the prediction from the velocity and the height above
-        the floor, as one 2-D observation with its own gate. Not fused too tilted, too low, or
-        when the compensated rate is beyond ``flow_max_rate_rad_s``."""
-        c = self.config
-        h = float(self.p[2]) - c.terrain_z_m
-        if self.R[2, 2] < math.cos(c.range_max_tilt_rad) or h < c.flow_min_height_m:
-            return FusionResult(accepted=False, innovation=np.zeros(2), nis=0.0, test_ratio=0.0)
-        d_bias = np.clip(obs.gyro_rate_rad_s - self._w_B, -0.1, 0.1)
-        self._flow_gyro_bias = 0.99 * self._flow_gyro_bias + 0.01 * d_bias
-        meas = compensated_flow_rate(obs, self._flow_gyro_bias)
-        if float(np.linalg.norm(meas)) > c.flow_max_rate_rad_s:  # PX4's magnitude check, too
-            return FusionResult(accepted=False, innovation=np.zeros(2), nis=0.0, test_ratio=0.0)
-        pred = predict_flow(
-            self.R,
-            self.v,
-            float(self.p[2]),
-            floor_z_m=c.terrain_z_m,
-            min_height_m=c.flow_min_height_m,
-        )
-        sigma = flow_noise_sigma(
-            obs.quality,
-            quality_min=c.flow_quality_min,
-            sigma_best_rad_s=c.flow_noise_min_rad_s,
-            sigma_worst_rad_s=c.flow_noise_max_rad_s,
-        )
-        r = meas - pred.flow_rate_rad_s
-        return self._update(r, pred.H, np.eye(2) * sigma**2, gate=self._flow_gate)
 
     def vision_frame_yaw(self, source: str = "vision") -> float | None:
         """The estimated yaw of the vision frame in the filter's (None before its first pose)."""
@@ -818,7 +710,7 @@ class NavEkf:
         J = np.array([-d_W[1], d_W[0], 0.0])
         return (float(self._P[_YAW, _YAW]) + sigma_yaw_rad**2) * np.outer(J, J)
 
-    def _fuse_pose(self, obs: PoseSample) -> FusionResult:
+    def fuse_frame_pose(self, obs: PoseSample) -> FusionResult:
         """External vision. ``world``: its position and yaw, in its frame (the navigation frame
         until a reset re-anchors it). ``rotate``: PX4's rotated external vision (thesis 000 eq.
         3.7: ``R_ekf_ev = R_ekf_body R_ev_body^T``, yaw part, low-pass filtered; eq. 3.8: the
@@ -850,7 +742,7 @@ class NavEkf:
             return self._follow(obs, np.diag(Rn), p=p_W, dyaw=r_yaw)
         return self._gated(obs, r, H, Rn, p_W, yaw_row=3)
 
-    def _fuse_odometry(self, obs: OdometrySample) -> FusionResult:
+    def fuse_frame_odometry(self, obs: OdometrySample) -> FusionResult:
         """External odometry (PX4's external vision ``ODOMETRY``): the parts of
         ``odometry_fuse`` (position, world velocity, yaw) as one observation with the message's
         covariance (its position-yaw correlation kept), each variance raised to its floor, and
@@ -987,7 +879,7 @@ class NavEkf:
 
     def _gated(
         self,
-        obs: Sample,
+        obs: Stamped,
         r: FloatArray,
         H: FloatArray,
         Rn: FloatArray,
@@ -1033,7 +925,7 @@ class NavEkf:
 
     def _reset_to(
         self,
-        obs: Sample,
+        obs: Stamped,
         r: FloatArray,
         Rn: FloatArray,
         p_meas: FloatArray | None,

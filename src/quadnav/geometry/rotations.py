@@ -27,6 +27,7 @@ __all__ = [
     "rot_y",
     "rot_z",
     "rotation_matrix_xyzw",
+    "skew",
     "unit_quats_xyzw",
     "yaw_of",
 ]
@@ -136,6 +137,11 @@ def rotation_matrix_xyzw(q: FloatArray) -> FloatArray:
             [2 * (xz - wy), 2 * (yz + wx), 1 - 2 * (xx + yy)],
         ]
     )
+
+
+def skew(a: FloatArray) -> FloatArray:
+    """The cross-product matrix ``[a]x`` (``skew(a) @ b == a x b``)."""
+    return np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
 
 
 def so3_exp(rotvec: FloatArray) -> FloatArray:
@@ -276,10 +282,9 @@ class Pose:
         for ``T_X_A = T_X_B T_B_A`` with ``self`` = ``T_A_B``."""
         R = self.R_A_B.as_matrix()
         t = self.p_A_B
-        tx = np.array([[0.0, -t[2], t[1]], [t[2], 0.0, -t[0]], [-t[1], t[0], 0.0]])
         Ad = np.zeros((6, 6))
         Ad[:3, :3] = Ad[3:, 3:] = R
-        Ad[3:, :3] = tx @ R
+        Ad[3:, :3] = skew(t) @ R
         return Ad
 
     def inverse(self) -> Pose:
