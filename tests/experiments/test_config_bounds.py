@@ -80,3 +80,18 @@ def test_reasonable_long_values_still_validate() -> None:
     )
     assert c.plan.hold_s == 300 and c.vision.delay_s == 9
     assert c.flight_s < 3600
+
+
+def test_laps_fly_the_square_again_and_lengthen_the_flight() -> None:
+    """``plan.laps``: the square's four corners once per lap between take-off and landing."""
+    from quadnav.experiments.scenarios import nav_builtin
+
+    one = nav_builtin("outdoor_gps")
+    three = nav_builtin("outdoor_gps", ["plan.laps=3"])
+    corners = [tuple(p) for p in three.waypoints().points_m[2:-1]]
+    assert corners == [tuple(p) for p in one.waypoints().points_m[2:-1]] * 3
+    lap_s = (three.flight_s - one.flight_s) / 2
+    # a lap is 80 m at 3 m/s, each of its four legs with its speed-up, slow-down and hold
+    assert 80 / 3 < lap_s < 80 / 3 + 4 * (3 / 2 + 3) + 1
+    with pytest.raises(ConfigError, match=r"plan\.laps"):
+        nav_builtin("outdoor_gps", ["plan.laps=0"])

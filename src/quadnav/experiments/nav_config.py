@@ -337,6 +337,9 @@ class PlanSection(ConfigModel):
     )
     height_m: float = Field(1.5, gt=0)
     square_m: float = Field(2.0, gt=0)
+    laps: int = Field(
+        1, ge=1, le=50, description="square: times round the square before the hold and landing"
+    )
     speed_m_s: float = Field(1.0, gt=0)
     accel_m_s2: float = Field(1.0, gt=0)
     hold_s: float = Field(2.0, ge=0, le=MAX_DURATION_S)
@@ -549,15 +552,8 @@ class NavScenario(ConfigModel):
 
     def waypoints(self) -> Waypoints:
         h, s = self.plan.height_m, self.plan.square_m
-        pts: list[Vec3] = [
-            (0, 0, 0),
-            (0, 0, h),
-            (s, 0, h),
-            (s, s, h),
-            (0, s, h),
-            (0, 0, h),
-            (0, 0, 0),
-        ]
+        lap: list[Vec3] = [(s, 0, h), (s, s, h), (0, s, h), (0, 0, h)]
+        pts: list[Vec3] = [(0, 0, 0), (0, 0, h), *(lap * self.plan.laps), (0, 0, 0)]
         return Waypoints(
             points_m=pts,
             speed_m_s=self.plan.speed_m_s,
