@@ -906,11 +906,16 @@ class NavEkf:
             # Persistently rejected: trust the sensor again. Reset what it observes to the
             # measurement, with the measurement's uncertainty, and say so.
             what = self._reset_to(obs, r, Rn, p_meas, yaw_row, v_meas)
+            widened = (
+                self._widen_velocity(r, (obs.t_ns - since) * 1e-9)
+                if isinstance(obs, PositionSample)
+                else ""
+            )
             self._last_accepted_ns[src] = obs.t_ns
             self.events.append(
                 (
                     obs.t_ns,
-                    f"{src}: rejected for {self.config.reset_after_s:g} s, {what} reset to it",
+                    f"{src}: rejected for {self.config.reset_after_s:g} s, {what} reset to it{widened}",
                 )
             )
         return res
@@ -955,6 +960,21 @@ class NavEkf:
         self.p[2] += float(r[0]) * scale
         self._reset_entries(slice(_Z, _Z + 1), Rn[0, 0:1] * scale**2)
         return "height"
+
+    def _widen_velocity(self, r_pos: FloatArray, refused_s: float) -> str:
+        """After a position-only fix reset the position: the position ran away from the fixes
+        while they were refused because the velocity was wrong, and the filter was sure of it
+        (which is why it refused them). The velocity's variance grows, per axis, to at least
+        the error that drift implies (the innovation over the time refused), so the next fixes
+        correct the velocity instead of being refused and resetting the position again.
+        Returns what it did, for the event ("" when the velocity was already that uncertain)."""
+        drift_m_s = np.abs(r_pos[0:3]) / max(refused_s, self.config.reset_after_s)
+        var = np.diag(self._P)[_VEL].copy()
+        if (drift_m_s**2 <= var).all():
+            return ""
+        self._reset_entries(_VEL, np.maximum(var, drift_m_s**2))
+        sigma = float(np.sqrt(np.max(np.diag(self._P)[_VEL])))
+        return f" (velocity sigma widened to {sigma:.2g} m/s)"
 
     def _reset_entries(self, block: slice, var: FloatArray) -> None:
         """Forget the covariance of a block of the error state and set its variances."""
