@@ -66,6 +66,7 @@ from quadnav.messages import (
     MagSample,
     OdometrySample,
     PoseSample,
+    PositionSample,
     RangeSample,
     Sample,
     StateEstimate,
