@@ -57,6 +57,7 @@ __all__ = [
     "DatasetPlan",
     "SequenceSpec",
     "make_dataset",
+    "miscalibrated_cameras",
     "plan_dataset",
     "rendered_dataset",
     "sequence_spec",
@@ -508,7 +509,7 @@ def _pose_error(rng: Generator, rotation_deg: float, translation_m: float) -> Po
     return Pose(Rotation.from_rotvec(rot), rng.normal(0.0, translation_m / math.sqrt(3.0), 3))
 
 
-def _miscalibrated_cameras(
+def miscalibrated_cameras(
     spec: SequenceSpec, cameras: tuple[CameraSpec, ...]
 ) -> tuple[CameraSpec, ...]:
     """``cameras`` as a calibration states them: each ``T_B_C`` off by the rig's camera-IMU
@@ -623,7 +624,7 @@ def _rigs_for(spec: SequenceSpec) -> tuple[Rig, Rig, ImuNoiseModel | None, dict[
     true_imu = replace(rig.imu, flight_noise=None, noise=imu_noise or rig.imu.noise)
     true = replace(stated, cameras=true_cams, imu=true_imu)
     if realistic:
-        stated = replace(stated, cameras=_miscalibrated_cameras(spec, stated.cameras))
+        stated = replace(stated, cameras=miscalibrated_cameras(spec, stated.cameras))
     drawn: dict[str, object] = {
         "profile": spec.sensors,
         "time_offset_s": {"true": true_td / NS_PER_S, "stated": stated_td / NS_PER_S},

@@ -87,7 +87,7 @@ SHORTCUT_ONLY_VIO_KEYS = (
 )  # fmt: skip
 #: The ``vio`` keys only an odometry on rendered images (``vio.source=camera``) reads, beside
 #: the VIO's own settings.
-CAMERA_ONLY_VIO_KEYS = ("odometry", "camera_rate_hz", "loop", "load_map", "save_map")
+CAMERA_ONLY_VIO_KEYS = ("odometry", "camera_rate_hz", "sensors", "loop", "load_map", "save_map")
 #: The ``vio`` keys only the VIO reads (``vio.odometry=vio``), beside its own settings: the SLAM
 #: closes its own loops.
 VIO_ONLY_VIO_KEYS = ("loop", "load_map", "save_map")
@@ -136,6 +136,13 @@ class VioSection(VioConfig):
     world: Literal["hall", "room", "yard"] = Field("hall", description="camera: the 3-D world")
     world_seed: int = Field(0, ge=0, description="camera: the world's layout and textures")
     image_noise: float = Field(2.0, ge=0, description="camera: grey-level read noise")
+    sensors: Literal["ideal", "realistic"] = Field(
+        "ideal",
+        description="camera: ideal (the IMU at the rig's stated noise, small turn-on biases, "
+        "the odometry given the true calibration) or realistic (quadnav dataset make's profile: "
+        "the IMU at its in-flight level with turn-on biases from the rig's spread, the "
+        "odometry given a calibration off as a real one is)",
+    )
     delay_s: float = Field(
         0.05, ge=0, le=MAX_DELAY_S, description="processing latency of the odometry"
     )

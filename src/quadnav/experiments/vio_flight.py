@@ -166,20 +166,31 @@ def vehicle_odometry(
     )
 
 
-def vio_imu(rig: Rig, bias_rng: Generator, gravity_m_s2: float) -> IntegratingImu:
-    """The rig's IMU on the vehicle: its noise densities at its rate, its turn-on biases drawn
-    from ``bias_rng`` (a tenth of the random walk's 100-s spread), mounted at the rig's body
-    origin (read in the vehicle's axes; :class:`VioCameraSensor` turns them into the rig's)."""
+def vio_imu(
+    rig: Rig, bias_rng: Generator, gravity_m_s2: float, *, realistic: bool = False
+) -> IntegratingImu:
+    """The rig's IMU on the vehicle, mounted at the rig's body origin (read in the vehicle's
+    axes; :class:`VioCameraSensor` turns them into the rig's). Ideal: its stated noise
+    densities at its rate and turn-on biases drawn from ``bias_rng`` at a tenth of the random
+    walk's 100-s spread. ``realistic`` (``vio.sensors``, as ``quadnav dataset make``'s profile):
+    the noise it shows in flight (the rotors' vibration: the rig's ``flight_noise``) and
+    turn-on biases drawn from the rig's stated spread."""
     assert rig.imu is not None  # (the rigs vio.rig offers all have one)
     n, f = rig.imu.noise, rig.imu.rate_hz
+    if realistic:
+        n = (rig.imu.flight_noise or n).draw_turn_on_biases(bias_rng)
+        bg0, ba0 = n.gyro_bias0_rad_s, n.accel_bias0_m_s2
+    else:
+        bg0 = tuple(10 * n.gyro_random_walk * bias_rng.standard_normal(3))
+        ba0 = tuple(10 * n.accel_random_walk * bias_rng.standard_normal(3))
     return IntegratingImu(
         period_ns=s_to_ns(1.0 / f),
         gyro_sigma_rad_s=n.gyro_noise_density * math.sqrt(f),
         accel_sigma_m_s2=n.accel_noise_density * math.sqrt(f),
         gyro_bias_rw_rad_s_sqrt_s=n.gyro_random_walk,
         accel_bias_rw_m_s2_sqrt_s=n.accel_random_walk,
-        gyro_bias0_rad_s=tuple(10 * n.gyro_random_walk * bias_rng.standard_normal(3)),
-        accel_bias0_m_s2=tuple(10 * n.accel_random_walk * bias_rng.standard_normal(3)),
+        gyro_bias0_rad_s=bg0,
+        accel_bias0_m_s2=ba0,
         gravity_m_s2=gravity_m_s2,
         lever_arm_m=tuple(rig.T_V_B.p_A_B),
     )
@@ -474,17 +485,31 @@ def build_vio_sensor(
 
     rig = flight_rig(v)
     camera = rig.cameras[0]
+    realistic = v.sensors == "realistic"
     return VioCameraSensor(
         rig=rig,
-        vio=_odometry(v, rig),
+        vio=_odometry(v, stated_rig(v, rig, rng) if realistic else rig),
         save_map=v.save_map,
         renderer=Renderer(flight_world(sc), camera.camera),
-        imu=vio_imu(rig, bias_rng, gravity_m_s2),
+        imu=vio_imu(rig, bias_rng, gravity_m_s2, realistic=realistic),
         image_rng=np.random.default_rng(int(rng.integers(2**31))),
         effects=RenderEffects(read_noise_sigma=v.image_noise),
         rate_hz=v.camera_rate_hz,
         sink=sink,
     )
+
+
+def stated_rig(v: VioSection, rig: Rig, rng: Generator) -> Rig:
+    """``rig`` as its calibration states it to the odometry (``vio.sensors=realistic``): its
+    cameras' extrinsics and intrinsics off as ``quadnav dataset make``'s realistic profile
+    draws them (:func:`~quadnav.experiments.datasets.miscalibrated_cameras`, its default
+    sizes), the images rendered through the true ones."""
+    from dataclasses import replace
+
+    from quadnav.experiments.datasets import SequenceSpec, miscalibrated_cameras
+
+    spec = SequenceSpec(world=v.world, rig=v.rig, seed=int(rng.integers(1_000_000)))
+    return replace(rig, cameras=miscalibrated_cameras(spec, rig.cameras))
 
 
 def flight_rig(v: VioSection) -> Rig:
