@@ -107,7 +107,8 @@ _ODO_ROWS = {"pos": np.arange(0, 3), "vel": np.arange(3, 6), "yaw": np.arange(6,
 # its yaw, ``p_odo = p + d_p``, ``yaw_odo = yaw + d_yaw``, ``v_odo = Rz(d_yaw) v``
 _DP = slice(_N, _N + 3)
 _DYAW = _N + 3
-_N_DRIFT = 4
+_DSCALE = _N + 4  # the odometry's scale error: its motion is (1 + s) times the true one
+_N_DRIFT = 5
 
 
 @dataclass(frozen=True, slots=True)
@@ -306,6 +307,12 @@ class NavEkfConfig:
     odometry_mode: str = "absolute"
     odometry_drift_m_sqrt_s: float = 0.02
     odometry_drift_yaw_rad_sqrt_s: float = 0.004
+    # Relative mode: the odometry's scale error ``s`` as a fifth state (its motion is (1 + s)
+    # times the true motion, as a monocular VIO's scale is off by a few per cent and wanders):
+    # its sigma where the frame is anchored and its random walk. 0 and 0: no scale error (the
+    # state stays at zero, exactly).
+    odometry_scale_sigma: float = 0.0
+    odometry_scale_rw_sqrt_s: float = 0.0
     # What a change of an external pose's or odometry's ``reset_counter`` means. By default the
     # source started a new frame (a VIO re-initialised at its own origin): the new frame is
     # anchored where the filter is, so the jump is not taken as motion. The sources named in
@@ -382,6 +389,10 @@ class NavEkfConfig:
                 f"got {self.odometry_mode!r}"
             )
         require_positive(self, ("odometry_drift_m_sqrt_s", "odometry_drift_yaw_rad_sqrt_s"))
+        for name in ("odometry_scale_sigma", "odometry_scale_rw_sqrt_s"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and 0.0 <= v <= 1.0):
+                raise EstimationError(f"NavEkfConfig.{name} must be within [0, 1], got {v}")
         if self.odometry_mode == "relative" and self.vision_frame != "world":
             raise EstimationError(
                 "NavEkfConfig.odometry_mode='relative' estimates the odometry frame's yaw drift "
@@ -424,12 +435,14 @@ class NavEkf:
         self.bg = np.zeros(3) if bg0 is None else np.asarray(bg0, dtype=np.float64).copy()
         self.ba = np.zeros(3) if ba0 is None else np.asarray(ba0, dtype=np.float64).copy()
         self._P = 0.5 * (P0 + P0.T)
-        # The odometry frame's drift (relative mode): d_p (3) and d_yaw, zero where the frame is
-        # anchored; its covariance extends P (the 15 first, as the P the filter reports).
+        # The odometry frame's drift (relative mode): d_p (3), d_yaw and the scale error, zero
+        # where the frame is anchored; its covariance extends P (the 15 first, as the P the
+        # filter reports).
         self.odometry_drift = np.zeros(_N_DRIFT)
         self._relative = config.odometry_mode == "relative"
         if self._relative:
             self._P = np.pad(self._P, (0, _N_DRIFT))
+            self._P[_DSCALE, _DSCALE] = config.odometry_scale_sigma**2
         self._gates = (
             {k: float(chi2_ppf(config.gate_probability, k)) for k in (1, 2, 3, 4, 6)}
             if config.gate_sigma is None
@@ -572,17 +585,20 @@ class NavEkf:
     ) -> FloatArray:
         """The covariance predicted with the odometry frame's drift beside the 15 states: a
         random walk, its position offset also growing as the frame's yaw error turns the motion
-        (``d_p' = d_p + dt d_yaw z x v``)."""
+        and its scale error stretches it (``d_p' = d_p + dt (d_yaw z x v + s v)``)."""
         c = self.config
         zxv = np.array([-self.v[1], self.v[0], 0.0])
-        self.odometry_drift[0:3] += dt_s * self.odometry_drift[3] * zxv
+        d = self.odometry_drift
+        d[0:3] += dt_s * (d[3] * zxv + d[4] * self.v)
         Fa = np.eye(_N + _N_DRIFT)
         Fa[:_N, :_N] = F
         Fa[_DP, _DYAW] = dt_s * zxv
+        Fa[_DP, _DSCALE] = dt_s * self.v
         P = Fa @ self._P @ Fa.T
         P[:_N, :_N] += (G * q) @ G.T
         P[_DP, _DP] += np.eye(3) * c.odometry_drift_m_sqrt_s**2 * dt_s
         P[_DYAW, _DYAW] += c.odometry_drift_yaw_rad_sqrt_s**2 * dt_s
+        P[_DSCALE, _DSCALE] += c.odometry_scale_rw_sqrt_s**2 * dt_s
         return P
 
     def _relevel(self, t_ns: int, f_mean: FloatArray, rl: Releveller) -> None:
@@ -795,7 +811,7 @@ class NavEkf:
         # (what a reset after persistent rejections sets: the odometry less its frame's drift)
         d = self.odometry_drift
         p_meas = anchor.p_W0 + d_W - d[0:3] if "pos" in parts else None
-        v_W = so3_exp(np.array([0.0, 0.0, -d[3]])) @ v_W
+        v_W = so3_exp(np.array([0.0, 0.0, -d[3]])) @ v_W / (1.0 + d[4])
         v_meas = v_W if "vel" in parts and p_meas is None else None
         return self._gated(
             obs, r[rows], H[rows], Rn, p_meas, yaw_row=yaw_row, v_meas=v_meas, gate=gate
@@ -844,6 +860,7 @@ class NavEkf:
         self._follow_pending.discard(obs.source)
         self.odometry_drift[:] = 0.0
         var = [c.odometry_pos_noise_m**2] * 3 + [c.odometry_yaw_noise_rad**2]
+        var.append(c.odometry_scale_sigma**2)
         self._reset_entries(slice(_N, _N + _N_DRIFT), np.array(var))
         self._last_accepted_ns[obs.source] = obs.t_ns
         self.events.append(
@@ -852,19 +869,21 @@ class NavEkf:
 
     def _drift_terms(self, r: FloatArray, H: FloatArray) -> tuple[FloatArray, FloatArray]:
         """Relative mode: an odometry's innovation ``r`` (position, velocity, yaw) and its
-        Jacobian ``H`` (7x15) with the frame's drift: ``p_odo = p + d_p``, ``v_odo = Rz(d_yaw)
-        v``, ``yaw_odo = yaw + d_yaw`` (H becomes 7x19)."""
+        Jacobian ``H`` (7x15) with the frame's drift: ``p_odo = p + d_p``, ``v_odo = (1 + s)
+        Rz(d_yaw) v``, ``yaw_odo = yaw + d_yaw`` (H becomes 7x20)."""
         d = self.odometry_drift
         Rd = so3_exp(np.array([0.0, 0.0, d[3]]))
-        v_pred = Rd @ self.v
+        v_turned = Rd @ self.v
+        v_pred = (1.0 + d[4]) * v_turned
         r = r.copy()
         r[0:3] -= d[0:3]
         r[3:6] += self.v - v_pred
         r[6] = math.remainder(r[6] - d[3], 2 * math.pi)
-        H[3:6, _VEL] = Rd
+        H[3:6, _VEL] = (1.0 + d[4]) * Rd
         Hd = np.zeros((7, _N_DRIFT))
         Hd[0:3, 0:3] = np.eye(3)
         Hd[3:6, 3] = [-v_pred[1], v_pred[0], 0.0]
+        Hd[3:6, 4] = v_turned
         Hd[6, 3] = 1.0
         return r, np.hstack([H, Hd])
 
@@ -877,6 +896,10 @@ class NavEkf:
         dst = np.r_[np.arange(_DP.start, _DP.stop), _DYAW]
         P[dst, :] = -P[src, :]
         P[:, dst] = -P[:, src]  # (the drift block becomes P[src, src])
+        # a new frame's scale is its own: known only as well as at the start
+        self._reset_entries(
+            slice(_DSCALE, _DSCALE + 1), np.array([self.config.odometry_scale_sigma**2])
+        )
 
     def _gated(
         self,

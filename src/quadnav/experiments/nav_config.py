@@ -94,7 +94,10 @@ VIO_ONLY_VIO_KEYS = ("loop", "load_map", "save_map")
 #: The rigs with two cameras, the stereo SLAM's (``vio.odometry=slam``).
 STEREO_RIGS = ("euroc", "zed")
 #: The ``vio`` keys only ``vio.odometry_mode=relative`` reads.
-RELATIVE_ONLY_VIO_KEYS = ("frame_drift_m_sqrt_s", "frame_drift_yaw_rad_sqrt_s")
+RELATIVE_ONLY_VIO_KEYS = (
+    "frame_drift_m_sqrt_s", "frame_drift_yaw_rad_sqrt_s", "frame_scale_sigma",
+    "frame_scale_rw_sqrt_s",
+)  # fmt: skip
 
 
 class VioSection(VioConfig):
@@ -192,6 +195,16 @@ class VioSection(VioConfig):
     )
     frame_drift_yaw_rad_sqrt_s: float = Field(
         0.004, ge=MIN_SIGMA, description="EKF, relative: random walk of the odometry frame's yaw"
+    )
+    frame_scale_sigma: float = Field(
+        0.0,
+        ge=0,
+        le=1,
+        description="EKF, relative: the odometry's scale error as a state, its sigma where the "
+        "frame is anchored (a monocular VIO's scale: a few per cent; 0: not estimated)",
+    )
+    frame_scale_rw_sqrt_s: float = Field(
+        0.0, ge=0, le=1, description="EKF, relative: random walk of the odometry's scale error"
     )
 
     loop: bool = Field(
