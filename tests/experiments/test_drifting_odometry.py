@@ -107,3 +107,39 @@ def test_a_yaw_drift_turns_only_the_motion_after_it() -> None:
 def test_an_absurd_scale_error_is_refused() -> None:
     with pytest.raises(ConfigError, match="scale error"):
         _quiet(scale_error=0.9)
+
+
+def _record_across_a_reset(gap_s: float) -> tuple[object, float]:
+    """An exact odometry along x at 3 m/s for 10 s whose world restarts at 5 s (its origin
+    where it then is, turned 90 degrees), and gives nothing for ``gap_s`` before that."""
+    from quadnav.experiments.vio_flight import VioRecord
+
+    t = np.arange(0.0, 10.0, 0.05)
+    keep = (t < 5.0 - gap_s) | (t >= 5.0)
+    t = t[keep]
+    truth = np.column_stack([3.0 * t, np.zeros_like(t), np.full_like(t, 2.0)])
+    second = t >= 5.0
+    turn = Rotation.from_euler("z", 90, degrees=True)
+    p = truth.copy()
+    p[second] = turn.apply(truth[second] - truth[second][0])
+    q = np.tile([0.0, 0.0, 0.0, 1.0], (len(t), 1))
+    q[second] = turn.as_quat()
+    rec = VioRecord(
+        t_ns=np.round(t * 1000).astype(np.int64) * 1_000_000, p_W_B=p, q_W_B_xyzw=q,
+        reset_counter=second.astype(np.int64), truth_p_W_B=truth,
+        truth_q_W_B_xyzw=np.tile([0.0, 0.0, 0.0, 1.0], (len(t), 1)),
+    )  # fmt: skip
+    return rec, float(np.mean(second))
+
+
+def test_the_odometry_alone_carries_on_across_a_reset_from_where_it_last_was() -> None:
+    """Judged alone, an odometry that resets goes on from its last pose: an exact one with no
+    gap stays on the truth; one silent for 1 s at 3 m/s is 3 m off from then on (before,
+    only the last world was judged, and a VIO that failed halfway looked good)."""
+    from quadnav.experiments.nav_study import _odometry_alone
+
+    rec, _ = _record_across_a_reset(0.0)
+    assert _odometry_alone(rec) < 0.2  # (one 5 cm step of motion between the two worlds)
+    rec, share = _record_across_a_reset(1.0)
+    expected = math.sqrt(share) * 3.0 * 1.05  # 3 m, plus the step of the frame period
+    assert _odometry_alone(rec) == pytest.approx(expected, rel=0.05)

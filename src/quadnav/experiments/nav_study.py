@@ -268,18 +268,23 @@ def _odometry_alone(v: VioRecord) -> Metric:
     """What flying on the odometry alone would give: its positions against the truth's, RMSE
     with its world put on the truth's at its first state (position and heading; its world is
     level), as a vehicle does that starts its odometry where it stands, facing a known way.
-    From the first state of the last reset on (a reset starts a new world)."""
+    After a reset (a new world) the odometry goes on from where it last was: its new world put
+    at the last pose it gave before, as a vehicle on it alone would carry on (the motion while it
+    gave nothing counts as error: nothing else knew it)."""
     ok = np.isfinite(v.truth_p_W_B).all(axis=1)
-    if len(v.reset_counter):
-        ok &= v.reset_counter == v.reset_counter[-1]
     if ok.sum() < 3:
         return na("fewer than 3 odometry states")
-    p, q = v.p_W_B[ok], v.q_W_B_xyzw[ok]
+    p, q, resets = v.p_W_B[ok], v.q_W_B_xyzw[ok], v.reset_counter[ok]
     p_ref, q_ref = v.truth_p_W_B[ok], v.truth_q_W_B_xyzw[ok]
-    R = Rotation.from_quat(q_ref[0]) * Rotation.from_quat(q[0]).inv()
-    yaw = float(R.as_euler("ZYX")[0])
-    Rz = Rotation.from_euler("z", yaw)
-    est = Rz.apply(p - p[0]) + p_ref[0]
+    est = np.empty_like(p)
+    anchor_p, anchor_q = p_ref[0], q_ref[0]  # where the first world is put: the truth
+    starts = np.flatnonzero(np.r_[True, np.diff(resets) != 0])
+    for a, b in zip(starts, np.r_[starts[1:], len(p)], strict=True):
+        R = Rotation.from_quat(anchor_q) * Rotation.from_quat(q[a]).inv()
+        Rz = Rotation.from_euler("z", float(R.as_euler("ZYX")[0]))
+        est[a:b] = Rz.apply(p[a:b] - p[a]) + anchor_p
+        anchor_p = est[b - 1]
+        anchor_q = (Rz * Rotation.from_quat(q[b - 1])).as_quat()
     return float(np.sqrt(np.mean(np.sum((est - p_ref) ** 2, axis=1))))
 
 
