@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import sys
 from pathlib import Path
 from typing import Annotated
 
@@ -127,6 +128,7 @@ def sweep_command(
     engine = _engine(jobs, scheduler, local_cluster)
     plan = _plan(scenario, grid or [], grid_file, seeds, set_ or [])
     folder = out if out is not None else default_folder(plan, Path("runs"))
+    print(f"sweep folder: {folder} ({plan.n_tasks} tasks)", file=sys.stderr, flush=True)
     with progress_bar(f"sweep {plan.spec.scenario}", eta=True) as update:
         res = run_sweep(plan, folder, engine, progress=update, retry_failed=retry_failed)
     console.print(f"sweep of {plan.spec.scenario} on {engine.describe()}", highlight=False)

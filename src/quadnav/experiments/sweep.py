@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from pydantic import Field
+from pydantic import BaseModel, ConfigDict, Field
 
 from quadnav.config_model import ConfigModel
 from quadnav.errors import ConfigError, QuadnavError
@@ -72,8 +72,11 @@ REWRITE_EVERY_S = 5.0
 REPORT_FAILED = 20
 
 
-class SweepFile(ConfigModel):
-    """``--grid-file``: a sweep in YAML (the command line's values take precedence)."""
+class SweepFile(BaseModel):
+    """``--grid-file``: a sweep in YAML (the command line's values take precedence). Not a
+    configuration of a flight (its ``set`` and ``grid`` are those): unknown keys refused."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
 
     kind: str = "nav"
     scenario: str | None = None
@@ -233,7 +236,7 @@ def _open_folder(plan: SweepPlan, folder: Path) -> None:
 def _finished(plan: SweepPlan, folder: Path, *, retry_failed: bool) -> dict[int, dict[str, object]]:
     """The journal's last record of each task (a failed one left out with ``retry_failed``)."""
     done: dict[int, dict[str, object]] = {}
-    for rec in read_jsonl(folder / "tasks.jsonl"):
+    for rec in read_jsonl(folder / "tasks.jsonl", repair=True):
         task = rec.get("task")
         if isinstance(task, int) and 0 <= task < plan.n_tasks:
             done[task] = rec

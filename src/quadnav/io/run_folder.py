@@ -239,17 +239,19 @@ def read_json(path: Path) -> dict[str, object]:
     return record
 
 
-def read_jsonl(path: Path) -> list[dict[str, object]]:
+def read_jsonl(path: Path, *, repair: bool = False) -> list[dict[str, object]]:
     """The records of an append-only JSON-lines file (an empty list when it does not exist).
-    A last line cut by a killed process (no newline, not JSON) is left out; a bad line
-    elsewhere is an error naming the file and the line."""
+    A last line cut by a killed process (no newline, not JSON) is left out, and with
+    ``repair`` cut off the file, so that the next line appended starts a line of its own; a
+    bad line elsewhere is an error naming the file and the line."""
     path = Path(path)
     if not path.is_file():
         return []
     try:
-        lines = path.read_text(encoding="utf-8").split("\n")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise IoError(f"cannot read {path}: {exc}") from None
+        data = path.read_bytes()
+    except OSError as exc:
+        raise IoError(f"cannot read {path}: {exc.strerror}") from None
+    lines = data.split(b"\n")
     records: list[dict[str, object]] = []
     for k, line in enumerate(lines):
         if not line.strip():
@@ -257,13 +259,33 @@ def read_jsonl(path: Path) -> list[dict[str, object]]:
         try:
             record = json.loads(line)
         except ValueError:
-            if k == len(lines) - 1:
-                break  # the last line, cut as it was written
-            raise IoError(f"{path}: line {k + 1} is not JSON") from None
+            if k < len(lines) - 1:
+                raise IoError(f"{path}: line {k + 1} is not JSON") from None
+            if repair:  # the last line, cut as it was written
+                _truncate(path, len(data) - len(line))
+            return records
         if not isinstance(record, dict):
             raise IoError(f"{path}: line {k + 1} is not a JSON object")
         records.append(record)
+    if repair and data and not data.endswith(b"\n"):  # whole, but cut before its newline
+        append_text(path, "\n")
     return records
+
+
+def append_text(path: Path, text: str) -> None:
+    try:
+        with Path(path).open("a", encoding="utf-8") as f:
+            f.write(text)
+    except OSError as exc:
+        raise IoError(f"cannot write {path}: {exc.strerror}") from None
+
+
+def _truncate(path: Path, size: int) -> None:
+    try:
+        with path.open("r+b") as f:
+            f.truncate(size)
+    except OSError as exc:
+        raise IoError(f"cannot repair {path}: {exc.strerror}") from None
 
 
 def _jsonable(value: Any) -> Any:
