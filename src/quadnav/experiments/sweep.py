@@ -301,6 +301,7 @@ class _Collector:
         self.before = len(done)
         self.ran = self.failed = 0
         self.last_write = time.monotonic()
+        self.last_write_s = 0.0
 
     def __call__(self, index: int, outcome: TaskOutcome) -> None:
         task_id = self.todo[index]
@@ -311,14 +312,18 @@ class _Collector:
         self.failed += outcome.status == "failed"
         if time.monotonic() - self.last_write >= self.rewrite_every_s:
             self.write_table()
+            # a large table: rewrite no more than a twentieth of the time
+            self.rewrite_every_s = max(self.rewrite_every_s, 20 * self.last_write_s)
         if self.progress is not None:
             before = f", {self.before} done before" if self.before else ""
             what = f"{self.ran - self.failed} ok, {self.failed} failed{before}"
             self.progress(self.ran, len(self.todo), what)
 
     def write_table(self) -> None:
+        t0 = time.monotonic()
         write_parquet(self.folder / "results.parquet", _columns(self.plan, self.done))
         self.last_write = time.monotonic()
+        self.last_write_s = self.last_write - t0
 
 
 def run_sweep(
