@@ -106,3 +106,16 @@ def test_peer_benchmarks_refuse_bad_input_in_one_line(
     stderr = _refused(f"{script}.py", args)
     lines = stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith(message), stderr
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--flights", "0"], "error: --flights must be at least 1, got 0"),
+        (["--jobs", "0"], "error: --jobs must be at least 1, got 0"),
+        (["--flight-s", "2"], "error: --flight-s must be in (3.5, 3600], got 2"),
+    ],
+)
+def test_sweep_benchmark_refuses_bad_input_in_one_line(args: list[str], message: str) -> None:
+    stderr = _refused("sweep.py", args)
+    assert stderr.strip().splitlines() == [message], stderr

@@ -23,6 +23,7 @@ ROOT = Path(__file__).resolve().parents[2]
 #: command path -> the module that holds its EXAMPLES and check_example
 COMMANDS = {
     ("run",): "quadnav.cli.run",
+    ("sweep",): "quadnav.cli.sweep",
     ("planar",): "quadnav.cli.planar",
     ("sim",): "quadnav.cli.sim",
     ("link", "serial"): "quadnav.cli.link",

@@ -62,7 +62,10 @@ def test_every_command_that_writes_a_run_folder_is_declared() -> None:
     writers = sorted(
         p.relative_to(root).as_posix()
         for p in root.rglob("*.py")
-        if "create_run_folder(" in p.read_text(encoding="utf-8") and p.name != "run_folder.py"
+        if any(
+            f in p.read_text(encoding="utf-8") for f in ("create_run_folder(", "open_run_folder(")
+        )
+        and p.name != "run_folder.py"
     )
     assert writers == [
         "eval/evaluate.py",  # eval
@@ -73,6 +76,7 @@ def test_every_command_that_writes_a_run_folder_is_declared() -> None:
         "experiments/odometry_study.py",  # vio_study
         "experiments/planar_study.py",  # planar
         "experiments/replay_run.py",  # replay
+        "experiments/sweep.py",  # sweep
     ], "a new kind of run folder: declare its files in quadnav/experiments/run_kinds.py"
 
 
@@ -123,6 +127,16 @@ def test_eval(tmp_path: Path) -> None:
     (tmp_path / "est.tum").write_text("\n".join(noisy) + "\n")
     args = ["eval", str(tmp_path / "ref.tum"), str(tmp_path / "est.tum")]
     _check("eval", _made(tmp_path / "out", args))
+
+
+def test_sweep(tmp_path: Path) -> None:
+    short = ["vision.source=pose", "plan.kind=takeoff_forward", "plan.takeoff_s=0.5",
+             "plan.duration_s=1", "plan.height_m=0.5", "plan.forward_m=0.5"]  # fmt: skip
+    args = ["sweep", "--grid", "vision.delay_s=[0.1,0.2]", "--jobs", "1",
+            *[x for s in short for x in ("--set", s)], "--out", str(tmp_path / "s")]  # fmt: skip
+    result = runner.invoke(app, args)
+    assert result.exit_code == 0, result.output
+    _check("sweep", tmp_path / "s")
 
 
 @pytest.fixture(scope="module")

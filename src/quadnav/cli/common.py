@@ -114,12 +114,13 @@ def handle_errors(fn: Callable[P, R]) -> Callable[P, R]:
 
 @contextmanager
 def progress_bar(
-    description: str, *, line_step: float = 0.1
+    description: str, *, line_step: float = 0.1, eta: bool = False
 ) -> Iterator[Callable[[int, int, str], None]]:
-    """A progress bar on stderr; yields ``update(done, total, what)``. When stderr is not a
-    terminal (CI logs, pipes), a few plain lines instead (:class:`_ProgressLines`)."""
+    """A progress bar on stderr; yields ``update(done, total, what)``; with ``eta`` the time
+    left too. When stderr is not a terminal (CI logs, pipes), a few plain lines instead
+    (:class:`_ProgressLines`)."""
     if not err_console.is_terminal:
-        lines = _ProgressLines(description, line_step)
+        lines = _ProgressLines(description, line_step, eta=eta)
         yield lines.update
         lines.finish()
         return
@@ -129,6 +130,7 @@ def progress_bar(
         Progress,
         TextColumn,
         TimeElapsedColumn,
+        TimeRemainingColumn,
     )
 
     with Progress(
@@ -137,6 +139,7 @@ def progress_bar(
         MofNCompleteColumn(),
         TextColumn("{task.fields[what]}"),
         TimeElapsedColumn(),
+        *([TextColumn("left"), TimeRemainingColumn()] if eta else []),
         console=err_console,
         transient=True,
     ) as progress:
@@ -163,8 +166,8 @@ class _ProgressLines:
     long each time, so that a log of any length gets a few lines. Work of unknown length gets a
     line every :data:`PIPED_UNKNOWN_TOTAL_S` and its last update at the end."""
 
-    def __init__(self, description: str, line_step: float) -> None:
-        self.description, self.line_step = description, line_step
+    def __init__(self, description: str, line_step: float, *, eta: bool = False) -> None:
+        self.description, self.line_step, self.eta = description, line_step, eta
         self.start = self.t_last = time.monotonic()
         self.done_last = 0
         self.quiet_s = PIPED_QUIET_S
@@ -191,8 +194,10 @@ class _ProgressLines:
     def _print(self, done: int, total: int, what: str, now: float) -> None:
         self.done_last, self.t_last, self.pending = done, now, None
         of = f"/{total}" if total else ""
+        took = now - self.start
+        left = f", about {took * (total - done) / done:.0f} s left" if self.eta and total else ""
         print(
-            f"{self.description}: {done}{of} {what} ({now - self.start:.1f} s)",
+            f"{self.description}: {done}{of} {what} ({took:.1f} s{left})",
             file=sys.stderr,
             flush=True,
         )

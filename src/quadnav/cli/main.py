@@ -26,6 +26,7 @@ __all__ = ["COMMANDS", "app", "main"]
 # command -> (module under quadnav.cli, the typed function or Typer app in it), in help order
 COMMANDS: dict[str, tuple[str, str]] = {
     "run": ("run", "run_command"),
+    "sweep": ("sweep", "sweep_command"),
     "planar": ("planar", "planar_command"),
     "eval": ("eval", "eval_command"),
     "sim": ("sim", "sim_command"),

@@ -292,6 +292,30 @@ _DATASET = RunFolderKind(
     ),
 )
 
+_SWEEP = RunFolderKind(
+    title="quadnav sweep",
+    command="quadnav sweep SCENARIO --grid KEY=SPEC --seeds N",
+    folder="OUT/ (--out; default runs/sweep_<scenario>_<fingerprint>/)",
+    description="A grid of configuration values x seeds, one task per (grid point, seed). "
+    "The same sweep run again into the folder runs only the tasks tasks.jsonl does not hold; "
+    "another sweep into it is refused. The plots and the report are written once every task "
+    "has finished.",
+    files=(
+        *_COMMON,
+        RunFile("sweep.json", "the sweep: kind, scenario, grid, seeds, --set, its fingerprint"),
+        RunFile(
+            "tasks.jsonl", "one line per finished task (append-only: the journal resumed from)"
+        ),
+        RunFile(
+            "results.parquet",
+            "one row per finished task: task, the grid's keys, seed, status, error, wall_s, "
+            "one column per metric (null: failed or n/a)",
+        ),
+        RunFile("report.html", "the report: tasks, medians per grid point, failures, plots"),
+        RunFile("plots/*__*.png", "each headline metric against each swept key (median, 10-90 %)"),
+    ),
+)
+
 #: Every kind of run folder by a short name, in the order of the commands.
 RUN_FOLDER_KINDS: dict[str, RunFolderKind] = {
     "run": _NAV,
@@ -303,4 +327,5 @@ RUN_FOLDER_KINDS: dict[str, RunFolderKind] = {
     "vio": _VIO,
     "vio_study": _VIO_STUDY,
     "dataset_make": _DATASET,
+    "sweep": _SWEEP,
 }

@@ -34,6 +34,9 @@ __all__ = [
     "append_jsonl",
     "create_run_folder",
     "finish_run_folder",
+    "open_run_folder",
+    "read_json",
+    "read_jsonl",
     "read_run_status",
     "require_complete",
     "run_guard",
@@ -68,6 +71,20 @@ def create_run_folder(root: Path, name: str, *, now: _dt.datetime | None = None)
     except OSError as exc:
         raise IoError(f"cannot create a run folder under {root}: {exc.strerror}") from None
     raise IoError(f"too many run folders named {base.name} under {root}")
+
+
+def open_run_folder(path: Path) -> Path:
+    """Create the run folder ``path`` or open it again (a sweep resumed into its own folder):
+    its status is ``running`` until it is finished, as a folder of :func:`create_run_folder`."""
+    path = Path(path)
+    try:
+        (path / "plots").mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise IoError(f"cannot create the run folder {path}: {exc.strerror}") from None
+    _write_status(path, "running")
+    if path not in _OPEN:
+        _OPEN.append(path)
+    return path
 
 
 def _now() -> str:
@@ -209,6 +226,66 @@ def append_jsonl(path: Path, record: Mapping[str, Any]) -> None:
             f.write(json.dumps(_jsonable(record)) + "\n")
     except OSError as exc:
         raise IoError(f"cannot write {path}: {exc.strerror}") from None
+
+
+def read_json(path: Path) -> dict[str, object]:
+    """A JSON object written by :func:`write_json` (an error naming the file otherwise)."""
+    try:
+        record = json.loads(Path(path).read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, ValueError) as exc:
+        raise IoError(f"cannot read {path}: {exc}") from None
+    if not isinstance(record, dict):
+        raise IoError(f"{path}: not a JSON object")
+    return record
+
+
+def read_jsonl(path: Path, *, repair: bool = False) -> list[dict[str, object]]:
+    """The records of an append-only JSON-lines file (an empty list when it does not exist).
+    A last line cut by a killed process (no newline, not JSON) is left out, and with
+    ``repair`` cut off the file, so that the next line appended starts a line of its own; a
+    bad line elsewhere is an error naming the file and the line."""
+    path = Path(path)
+    if not path.is_file():
+        return []
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise IoError(f"cannot read {path}: {exc.strerror}") from None
+    lines = data.split(b"\n")
+    records: list[dict[str, object]] = []
+    for k, line in enumerate(lines):
+        if not line.strip():
+            continue
+        try:
+            record = json.loads(line)
+        except ValueError:
+            if k < len(lines) - 1:
+                raise IoError(f"{path}: line {k + 1} is not JSON") from None
+            if repair:  # the last line, cut as it was written
+                _truncate(path, len(data) - len(line))
+            return records
+        if not isinstance(record, dict):
+            raise IoError(f"{path}: line {k + 1} is not a JSON object")
+        records.append(record)
+    if repair and data and not data.endswith(b"\n"):  # whole, but cut before its newline
+        append_text(path, "\n")
+    return records
+
+
+def append_text(path: Path, text: str) -> None:
+    try:
+        with Path(path).open("a", encoding="utf-8") as f:
+            f.write(text)
+    except OSError as exc:
+        raise IoError(f"cannot write {path}: {exc.strerror}") from None
+
+
+def _truncate(path: Path, size: int) -> None:
+    try:
+        with path.open("r+b") as f:
+            f.truncate(size)
+    except OSError as exc:
+        raise IoError(f"cannot repair {path}: {exc.strerror}") from None
 
 
 def _jsonable(value: Any) -> Any:

@@ -1,0 +1,155 @@
+"""``quadnav sweep``: a grid of configuration values x seeds of a ``quadnav run`` scenario."""
+
+from __future__ import annotations
+
+import os
+import sys
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.table import Table
+
+from quadnav.cli.common import (
+    CommandParams,
+    command_help,
+    console,
+    handle_errors,
+    optional_param,
+    param,
+    progress_bar,
+    strings_param,
+)
+from quadnav.cli.planar import SetOpt
+from quadnav.experiments.sweep import (
+    SweepPlan,
+    default_folder,
+    load_sweep_file,
+    plan_sweep,
+    run_sweep,
+    sweep_spec,
+)
+from quadnav.experiments.sweep_engines import SweepEngine, check_engine
+
+__all__ = ["EXAMPLES", "check_example", "sweep_command"]
+
+#: The examples of ``quadnav sweep --help`` (each parsed and validated by the tests).
+EXAMPLES = (
+    "quadnav sweep indoor_vision_pose --grid vision.delay_s=0.05:0.5:10 --seeds 20",
+    "quadnav sweep indoor_vision_pose --grid vision.delay_s=[0.1,0.25] "
+    "--grid vision.sigma_m=[0.01,0.03] --seeds 0-9 --set vision.dropouts_s=[]",
+    "quadnav sweep outdoor_gps --grid gps.delay_s=0:0.4:5 --seeds 50 --local-cluster 2",
+)
+
+GridOpt = Annotated[
+    list[str] | None,
+    typer.Option(
+        "--grid",
+        help="KEY=SPEC, a configuration key and its values: start:stop:count (count values, "
+        "both ends included), a list [a,b,c] or one value (repeatable: the grid is every "
+        "combination)",
+    ),
+]
+
+
+def _plan(
+    scenario: str | None,
+    grid: list[str],
+    grid_file: Path | None,
+    seeds: str | None,
+    set_: list[str],
+) -> SweepPlan:
+    file = load_sweep_file(grid_file) if grid_file is not None else None
+    return plan_sweep(sweep_spec(file, scenario, grid, seeds, set_))
+
+
+def _engine(jobs: int | None, scheduler: str | None, local_cluster: int | None) -> SweepEngine:
+    engine = SweepEngine(
+        jobs=jobs or os.cpu_count() or 1, scheduler=scheduler, local_cluster=local_cluster
+    )
+    check_engine(engine)
+    return engine
+
+
+def check_example(params: CommandParams) -> None:
+    """Validate an example's arguments as the command would, without running it."""
+    _engine(
+        optional_param(params, "jobs", int),
+        optional_param(params, "scheduler", str),
+        optional_param(params, "local_cluster", int),
+    )
+    grid_file = optional_param(params, "grid_file", Path)
+    _plan(
+        optional_param(params, "scenario", str),
+        strings_param(params, "grid"),
+        grid_file,
+        optional_param(params, "seeds", str),
+        strings_param(params, "set_"),
+    )
+    param(params, "retry_failed", bool)
+
+
+@handle_errors
+def sweep_command(
+    scenario: Annotated[
+        str | None,
+        typer.Argument(help="a built-in scenario of quadnav run or a YAML file [default: indoor_vision]"),
+    ] = None,
+    grid: GridOpt = None,
+    grid_file: Annotated[
+        Path | None,
+        typer.Option("--grid-file", help="the sweep in YAML: scenario, grid, seeds, set"),
+    ] = None,
+    seeds: Annotated[
+        str | None,
+        typer.Option("--seeds", help="a count N (seeds seed..seed+N-1) or seeds 0-9, 0,2,7 [default: 1]"),
+    ] = None,
+    set_: SetOpt = None,
+    jobs: Annotated[
+        int | None, typer.Option("--jobs", min=1, help="processes of the local pool [default: CPU count]")
+    ] = None,
+    scheduler: Annotated[
+        str | None,
+        typer.Option("--scheduler", help="run on a Dask scheduler, tcp://HOST:8786 (quadnav[sweep])"),
+    ] = None,
+    local_cluster: Annotated[
+        int | None,
+        typer.Option("--local-cluster", help="run on a Dask LocalCluster of N workers on 127.0.0.1 (quadnav[sweep])"),
+    ] = None,
+    out: Annotated[
+        Path | None,
+        typer.Option("--out", help="the sweep folder; run again into it, it runs only the tasks "
+                     "not finished [default: runs/sweep_<scenario>_<fingerprint>]"),
+    ] = None,
+    retry_failed: Annotated[
+        bool, typer.Option("--retry-failed", help="run the failed tasks of the folder again")
+    ] = False,
+) -> None:  # fmt: skip
+    engine = _engine(jobs, scheduler, local_cluster)
+    plan = _plan(scenario, grid or [], grid_file, seeds, set_ or [])
+    folder = out if out is not None else default_folder(plan, Path("runs"))
+    print(f"sweep folder: {folder} ({plan.n_tasks} tasks)", file=sys.stderr, flush=True)
+    with progress_bar(f"sweep {plan.spec.scenario}", eta=True) as update:
+        res = run_sweep(plan, folder, engine, progress=update, retry_failed=retry_failed)
+    console.print(f"sweep of {plan.spec.scenario} on {engine.describe()}", highlight=False)
+    table = Table()
+    table.add_column("tasks")
+    table.add_column("count", justify="right")
+    for what, n in (("in the sweep", res.tasks), ("done before (skipped)", res.done_before),
+                    ("run now", res.ran), ("ok", res.ok), ("failed", res.failed)):  # fmt: skip
+        table.add_row(what, str(n))
+    console.print(table)
+    console.print(str(res.folder), soft_wrap=True, highlight=False)
+
+
+sweep_command.__doc__ = command_help(
+    "Sweep a grid of configuration values x seeds of a quadnav run scenario into one table.",
+    "Each (grid point, seed) is one task: one seeded flight (as quadnav run flies it) and its "
+    "metrics. Every grid point's configuration is validated before anything runs. Tasks run "
+    "on a local process pool (--jobs) or Dask (--scheduler, --local-cluster); each finished "
+    "task is a line of tasks.jsonl and a row of results.parquet (task, the grid's keys, seed, "
+    "status, error, wall_s, one column per metric). Run the same sweep into the same --out "
+    "again and only the unfinished tasks run; Ctrl-C keeps what finished. At the end: a plot "
+    "per metric against each key (median, 10-90 % band) and report.html.",
+    examples=EXAMPLES,
+)
