@@ -96,7 +96,7 @@ def test_an_unknown_key_or_a_bad_value_names_the_grid_option() -> None:
     with pytest.raises(ConfigError) as info:
         _plan(["vision.delay_s=[0.1,-1]"])  # a delay is at least 0
     assert str(info.value).startswith("--grid vision.delay_s=-1:")
-    with pytest.raises(ConfigError, match=r"^SCENARIO .no_such_scenario. is neither"):
+    with pytest.raises(ConfigError, match=r"^SCENARIO .no_such_scenario.: neither"):
         _plan(["vision.delay_s=0.1"], scenario="no_such_scenario")
     with pytest.raises(ConfigError, match=r"^--grid: give at least one"):
         _plan([])

@@ -1,4 +1,5 @@
-"""``quadnav sweep``: a grid of configuration values x seeds of a ``quadnav run`` scenario."""
+"""``quadnav sweep``: a grid of configuration values x seeds of a scenario of ``quadnav run``,
+``quadnav planar`` or ``quadnav sim`` (the task kinds ``nav``, ``planar``, ``sim``)."""
 
 from __future__ import annotations
 
@@ -30,6 +31,7 @@ from quadnav.experiments.sweep import (
     sweep_spec,
 )
 from quadnav.experiments.sweep_engines import SweepEngine, check_engine
+from quadnav.experiments.sweep_tasks import TASK_KINDS
 
 __all__ = ["EXAMPLES", "check_example", "sweep_command"]
 
@@ -39,6 +41,10 @@ EXAMPLES = (
     "quadnav sweep indoor_vision_pose --grid vision.delay_s=[0.1,0.25] "
     "--grid vision.sigma_m=[0.01,0.03] --seeds 0-9 --set vision.dropouts_s=[]",
     "quadnav sweep outdoor_gps --grid gps.delay_s=0:0.4:5 --seeds 50 --local-cluster 2",
+    "quadnav sweep planar --grid gps.delay_s=0.05:0.5:4 --seeds 10",
+    "quadnav sweep circle_gusts --grid wind.gust_sigma_m_s=0:3:4 --seeds 5",
+    "quadnav sweep --kind planar --grid estimator.tau_vel_s=[0.1,0.25] --seeds 5",
+    "quadnav sweep thesis003_obstacle --grid thesis003.kp_lin=[0.2,0.3,0.4]",
 )
 
 GridOpt = Annotated[
@@ -50,6 +56,14 @@ GridOpt = Annotated[
         "combination)",
     ),
 ]
+KindOpt = Annotated[
+    str | None,
+    typer.Option(
+        "--kind",
+        help="what a task runs: nav (quadnav run), planar (quadnav planar), sim (quadnav sim); "
+        "without it, the built-in SCENARIO's kind, and nav for a YAML file",
+    ),
+]
 
 
 def _plan(
@@ -58,9 +72,10 @@ def _plan(
     grid_file: Path | None,
     seeds: str | None,
     set_: list[str],
+    kind: str | None,
 ) -> SweepPlan:
     file = load_sweep_file(grid_file) if grid_file is not None else None
-    return plan_sweep(sweep_spec(file, scenario, grid, seeds, set_))
+    return plan_sweep(sweep_spec(file, scenario, grid, seeds, set_, kind))
 
 
 def _engine(jobs: int | None, scheduler: str | None, local_cluster: int | None) -> SweepEngine:
@@ -85,6 +100,7 @@ def check_example(params: CommandParams) -> None:
         grid_file,
         optional_param(params, "seeds", str),
         strings_param(params, "set_"),
+        optional_param(params, "kind", str),
     )
     param(params, "retry_failed", bool)
 
@@ -93,12 +109,15 @@ def check_example(params: CommandParams) -> None:
 def sweep_command(
     scenario: Annotated[
         str | None,
-        typer.Argument(help="a built-in scenario of quadnav run or a YAML file [default: indoor_vision]"),
+        typer.Argument(help="a built-in scenario of quadnav run, planar, one of quadnav sim "
+                       "--list, or a YAML file; without it, the kind's first: indoor_vision, "
+                       "planar, circle"),
     ] = None,
     grid: GridOpt = None,
+    kind: KindOpt = None,
     grid_file: Annotated[
         Path | None,
-        typer.Option("--grid-file", help="the sweep in YAML: scenario, grid, seeds, set"),
+        typer.Option("--grid-file", help="the sweep in YAML: kind, scenario, grid, seeds, set"),
     ] = None,
     seeds: Annotated[
         str | None,
@@ -126,7 +145,7 @@ def sweep_command(
     ] = False,
 ) -> None:  # fmt: skip
     engine = _engine(jobs, scheduler, local_cluster)
-    plan = _plan(scenario, grid or [], grid_file, seeds, set_ or [])
+    plan = _plan(scenario, grid or [], grid_file, seeds, set_ or [], kind)
     folder = out if out is not None else default_folder(plan, Path("runs"))
     print(f"sweep folder: {folder} ({plan.n_tasks} tasks)", file=sys.stderr, flush=True)
     with progress_bar(f"sweep {plan.spec.scenario}", eta=True) as update:
@@ -143,13 +162,16 @@ def sweep_command(
 
 
 sweep_command.__doc__ = command_help(
-    "Sweep a grid of configuration values x seeds of a quadnav run scenario into one table.",
-    "Each (grid point, seed) is one task: one seeded flight (as quadnav run flies it) and its "
-    "metrics. Every grid point's configuration is validated before anything runs. Tasks run "
+    "Sweep a grid of configuration values x seeds of a run, planar or sim scenario into one table.",
+    "Each (grid point, seed) is one task of the scenario's kind: nav, one seeded flight as "
+    "quadnav run flies it; planar, one seed of each experiment of quadnav planar (metrics "
+    "<experiment>.<metric>); sim, one seeded flight of quadnav sim. The built-in names of the "
+    "kinds are disjoint: a name gives its kind, a YAML file is nav unless --kind. Every grid point's configuration is validated before anything runs. Tasks run "
     "on a local process pool (--jobs) or Dask (--scheduler, --local-cluster); each finished "
     "task is a line of tasks.jsonl and a row of results.parquet (task, the grid's keys, seed, "
     "status, error, wall_s, one column per metric). Run the same sweep into the same --out "
     "again and only the unfinished tasks run; Ctrl-C keeps what finished. At the end: a plot "
     "per metric against each key (median, 10-90 % band) and report.html.",
+    lists=[("Task kinds", {k.name: k.description for k in TASK_KINDS.values()})],
     examples=EXAMPLES,
 )

@@ -39,7 +39,7 @@ from quadnav.experiments.sweep_grid import (
     parse_grid_option,
     sweep_seeds,
 )
-from quadnav.experiments.sweep_tasks import TASK_KINDS, TaskKind, TaskOutcome
+from quadnav.experiments.sweep_tasks import TASK_KINDS, TaskKind, TaskOutcome, kind_of_scenario
 from quadnav.io.config import dump_config, load_config
 from quadnav.io.run_folder import (
     append_jsonl,
@@ -78,7 +78,7 @@ class SweepFile(BaseModel):
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
-    kind: str = "nav"
+    kind: str | None = None
     scenario: str | None = None
     grid: dict[str, Any] = Field(default_factory=dict)
     seeds: int | str | None = None
@@ -146,10 +146,14 @@ def sweep_spec(
     grid: Sequence[str],
     seeds: str | None,
     overrides: Sequence[str],
+    kind: str | None = None,
 ) -> SweepSpec:
-    """The sweep from a ``--grid-file`` and the command line: SCENARIO and ``--seeds`` replace
-    the file's, a ``--grid`` replaces the file's axis of the same key, ``--set`` comes after."""
+    """The sweep from a ``--grid-file`` and the command line: SCENARIO, ``--kind`` and
+    ``--seeds`` replace the file's, a ``--grid`` replaces the file's axis of the same key,
+    ``--set`` comes after. Without a kind, SCENARIO's (:func:`kind_of_scenario`); without
+    SCENARIO, the kind's default one (``nav``'s without either)."""
     f = file or SweepFile()
+    kind_name, scenario = _kind_and_scenario(kind or f.kind, scenario or f.scenario)
     axes = {k: grid_axis(k, v, from_text=False) for k, v in f.grid.items()}
     for text in grid:
         axis = parse_grid_option(text)
@@ -160,12 +164,21 @@ def sweep_spec(
         [override(k, v) for k, v in f.set.items()] if isinstance(f.set, dict) else list(f.set)
     )
     return SweepSpec(
-        scenario=scenario or f.scenario or "indoor_vision",
+        scenario=scenario,
         grid=tuple(axes.values()),
         seeds=str(seeds if seeds is not None else f.seeds if f.seeds is not None else 1),
         overrides=(*file_set, *overrides),
-        kind=f.kind,
+        kind=kind_name,
     )
+
+
+def _kind_and_scenario(kind: str | None, scenario: str | None) -> tuple[str, str]:
+    if kind is not None and kind not in TASK_KINDS:
+        raise ConfigError(f"--kind {kind}: not a kind of task; choose from {', '.join(TASK_KINDS)}")
+    if scenario is None:
+        name = kind or "nav"
+        return name, TASK_KINDS[name].default_scenario
+    return kind or kind_of_scenario(scenario), scenario
 
 
 def _build(kind: TaskKind, spec: SweepSpec, params: Sequence[tuple[str, GridValue]]) -> ConfigModel:

@@ -6,22 +6,28 @@ flat metrics (a number or an ``"n/a: why"`` text per name). :func:`execute_task`
 where the engine puts it (this process, a pool's worker, a Dask worker) by the kind's name:
 it never raises for a task's own failure, which it returns as a one-line error.
 
-``nav`` (``quadnav run``'s scenarios) is the one kind so far; the other commands' runs
-(planar, sim, vio, slam) become kinds by :func:`register_task_kind`, the engine unchanged.
+The kinds: ``nav`` (``quadnav run``'s scenarios), ``planar`` (``quadnav planar``'s
+experiments, one seed of each) and ``sim`` (``quadnav sim``'s flights); the other commands'
+runs (vio, slam) become kinds by :func:`register_task_kind`, the engine unchanged.
+:func:`kind_of_scenario` picks the kind of a built-in scenario's name (the kinds' names are
+disjoint); a YAML file is a ``nav`` scenario unless the kind is given.
 """
 
 from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from collections.abc import Callable, Collection, Mapping, Sequence
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 from quadnav.config_model import ConfigModel
 from quadnav.errors import ConfigError
 from quadnav.eval.na import Metric, na
+
+if TYPE_CHECKING:
+    from quadnav.experiments.planar import ExperimentName
 
 __all__ = [
     "TASK_KINDS",
@@ -29,8 +35,11 @@ __all__ = [
     "TaskOutcome",
     "execute_task",
     "flat_metrics",
+    "kind_of_scenario",
     "nav_task_config",
+    "planar_task_config",
     "register_task_kind",
+    "sim_task_config",
 ]
 
 
@@ -39,13 +48,17 @@ class TaskKind:
     """A kind of task: ``build(scenario, overrides)`` validates a configuration (a
     :class:`~quadnav.errors.QuadnavError` naming the key when it cannot), ``run(config,
     seed)`` flies one seed and returns its flat metrics; ``headline`` names the metrics the
-    sweep's plots and report show (every metric is in its table)."""
+    sweep's plots and report show (every metric is in its table); ``scenarios()`` lists its
+    built-in scenarios' names and ``default_scenario`` is the one a sweep without SCENARIO
+    runs."""
 
     name: str
     description: str
     build: Callable[[str, Sequence[str]], ConfigModel]
     run: Callable[[Any, int], Mapping[str, Metric]]
     headline: tuple[str, ...] = ()
+    scenarios: Callable[[], Collection[str]] = tuple
+    default_scenario: str = ""
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -66,6 +79,30 @@ def register_task_kind(kind: TaskKind) -> None:
     """Add (or replace) a kind. A kind used by a process pool or Dask must be registered when
     its module is imported, so that a worker finds it by name."""
     TASK_KINDS[kind.name] = kind
+
+
+#: The kind of a YAML file's scenario unless ``--kind`` names another.
+FILE_KIND = "nav"
+
+
+def kind_of_scenario(scenario: str) -> str:
+    """The kind whose built-in scenarios include ``scenario`` (a file: :data:`FILE_KIND`);
+    an unknown name, or one of several kinds, is a one-line error naming it and the kinds."""
+    found = [k.name for k in TASK_KINDS.values() if scenario in k.scenarios()]
+    if len(found) == 1:
+        return found[0]
+    kinds = ", ".join(TASK_KINDS)
+    if found:
+        raise ConfigError(
+            f"SCENARIO {scenario!r}: a scenario of the kinds {', '.join(found)}: "
+            f"give --kind ({kinds})"
+        )
+    if Path(scenario).is_file():
+        return FILE_KIND
+    raise ConfigError(
+        f"SCENARIO {scenario!r}: neither a built-in scenario of a kind ({kinds}: "
+        "quadnav run's, planar, quadnav sim --list's) nor a file"
+    )
 
 
 def one_line(exc: BaseException) -> str:
@@ -134,14 +171,16 @@ def nav_task_config(scenario: str, overrides: Sequence[str]) -> ConfigModel:
 
     if scenario in NAV_SCENARIOS:
         return nav_builtin(scenario, overrides)
-    if scenario == "planar":
-        raise ConfigError("SCENARIO planar: a sweep runs quadnav run's navigation scenarios so far")
+    _check_file(scenario, "nav", ", ".join(NAV_SCENARIOS))
+    return load_config(NavScenario, Path(scenario), overrides)
+
+
+def _check_file(scenario: str, kind: str, builtins: str) -> None:
     if not Path(scenario).is_file():
         raise ConfigError(
-            f"SCENARIO {scenario!r} is neither a built-in scenario ({', '.join(NAV_SCENARIOS)}) "
+            f"SCENARIO {scenario!r}: neither a built-in scenario of the kind {kind} ({builtins}) "
             "nor a file"
         )
-    return load_config(NavScenario, Path(scenario), overrides)
 
 
 #: The record's entries that are not metrics of the flight (or too many to be columns).
@@ -156,12 +195,20 @@ def _nav_task(config: Any, seed: int) -> dict[str, Metric]:
     return flat_metrics(nav_metrics(run_nav(config, seed)).to_json(), skip=_NAV_SKIP)
 
 
+def _nav_scenarios() -> Collection[str]:
+    from quadnav.experiments.scenarios import NAV_SCENARIOS
+
+    return NAV_SCENARIOS
+
+
 register_task_kind(
     TaskKind(
         name="nav",
         description="one seeded flight of a quadnav run scenario (run_nav + nav_metrics)",
         build=nav_task_config,
         run=_nav_task,
+        scenarios=_nav_scenarios,
+        default_scenario="indoor_vision",
         headline=(
             "output_rmse_m",
             "output_rmse_with_vision_m",
@@ -170,6 +217,117 @@ register_task_kind(
             "nees_mean",
             "hold_max_horizontal_error_m",
             "end_position_error_m",
+        ),
+    )
+)
+
+
+# -- planar: thesis 000's experiments (quadnav planar) -------------------------------------------
+
+
+def planar_task_config(scenario: str, overrides: Sequence[str]) -> ConfigModel:
+    """``planar`` (thesis 000's parameters) or a YAML file of ``quadnav planar``, with overrides.
+    Its ``seed`` is the sweep's first seed; its ``seeds`` is not used (``--seeds`` is)."""
+    from quadnav.experiments.planar import PlanarConfig
+    from quadnav.io.config import load_config
+
+    if scenario == "planar":
+        return load_config(PlanarConfig, None, overrides)
+    _check_file(scenario, "planar", "planar")
+    return load_config(PlanarConfig, Path(scenario), overrides)
+
+
+def _planar_task(config: Any, seed: int) -> dict[str, Metric]:
+    """One seed of each configured experiment, as ``quadnav planar`` runs it: its metrics as
+    ``<experiment>.<metric>`` (``handled.rmse_output_m``)."""
+    record = {exp: _planar_seed_metrics(config, exp, seed) for exp in config.experiments}
+    return flat_metrics(record)
+
+
+def _planar_seed_metrics(config: Any, experiment: ExperimentName, seed: int) -> dict[str, object]:
+    """One planar experiment's metrics for one seed (its ``seed`` field left out)."""
+    from quadnav.experiments.planar import run_planar
+    from quadnav.experiments.planar_study import planar_metrics
+
+    metrics = asdict(planar_metrics(run_planar(config, experiment, seed)))
+    del metrics["seed"]
+    return metrics
+
+
+register_task_kind(
+    TaskKind(
+        name="planar",
+        description="one seed of each experiment of quadnav planar (run_planar + planar_metrics)",
+        build=planar_task_config,
+        run=_planar_task,
+        scenarios=lambda: ("planar",),
+        default_scenario="planar",
+        headline=(
+            "handled.rmse_output_m",
+            "handled.rmse_delayed_m",
+            "handled.output_over_floor",
+            "handled.nees_mean",
+            "naive.rmse_output_m",
+            "no_update.rmse_output_m",
+        ),
+    )
+)
+
+
+# -- sim: quadnav sim's closed-loop flights ------------------------------------------------------
+
+
+def sim_task_config(scenario: str, overrides: Sequence[str]) -> ConfigModel:
+    """A scenario of ``quadnav sim`` (a built-in name or a YAML file) with overrides."""
+    from quadnav.experiments.flight import BUILTIN, FlightConfig, builtin_config
+    from quadnav.io.config import load_config
+
+    if scenario in BUILTIN:
+        return load_config(FlightConfig, None, overrides, base=builtin_config(scenario))
+    _check_file(scenario, "sim", ", ".join(BUILTIN))
+    return load_config(FlightConfig, Path(scenario), overrides)
+
+
+#: A flight's figures that are not metrics of it (the wall time is the table's ``wall_s``).
+_SIM_SKIP = ("scenario", "duration_s", "torque_unit", "sim_seconds_per_wall_second",
+             "rotor_speed_range_rad_s")  # fmt: skip
+
+
+def _sim_task(config: Any, seed: int) -> dict[str, Metric]:
+    """One flight of ``quadnav sim`` with ``seed`` (run_flight + flight_metrics), flat: the
+    rotor speeds' range as ``rotor_speed_min_rad_s`` and ``rotor_speed_max_rad_s``, the events
+    as ``events.<name>`` (a list of times left out)."""
+    from quadnav.experiments.flight import run_flight
+    from quadnav.experiments.flight_study import flight_metrics
+
+    m = flight_metrics(run_flight(config.model_copy(update={"seed": seed})))
+    out = flat_metrics(m.to_json(), skip=_SIM_SKIP)
+    if m.rotor_speed_range_rad_s is not None:
+        out["rotor_speed_min_rad_s"], out["rotor_speed_max_rad_s"] = m.rotor_speed_range_rad_s
+    return out
+
+
+def _sim_scenarios() -> Collection[str]:
+    from quadnav.experiments.flight import BUILTIN
+
+    return BUILTIN
+
+
+register_task_kind(
+    TaskKind(
+        name="sim",
+        description="one seeded flight of a quadnav sim scenario (run_flight + flight_metrics)",
+        build=sim_task_config,
+        run=_sim_task,
+        scenarios=_sim_scenarios,
+        default_scenario="circle",
+        headline=(
+            "tracking_rmse_m",
+            "settling_time_s",
+            "max_tilt_deg",
+            "saturation_time_s",
+            "peak_thrust_n",
+            "min_obstacle_distance_m",
         ),
     )
 )
