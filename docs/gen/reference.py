@@ -62,6 +62,8 @@ CONFIG_ROOTS: tuple[tuple[str, str, str], ...] = (
      "a built-in sequence or world, its options and `--set key=value`"),
     ("quadnav vio", "quadnav.vio.config:VioConfig",
      "`--config` (VINS-Mono's YAML or ours) and `--set key=value`"),
+    ("quadnav sweep --kind vio", "quadnav.experiments.sweep_vio:VioTaskConfig",
+     "a built-in sequence, `--set key=value` and `--grid key=...`; `vio.*` are `quadnav vio`'s"),
 )  # fmt: skip
 
 #: Name suffixes that state a unit (ARCHITECTURE.md, "Units"), longest first.

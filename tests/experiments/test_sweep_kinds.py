@@ -1,4 +1,4 @@
-"""The sweep's task kinds planar and sim (issue 26): a sweep's table has a row per task with
+"""The sweep's task kinds planar, sim and vio (issue 26): a sweep's table has a row per task with
 its grid values, a row's metrics are those of the same configuration and seed run directly,
 a bad key names ``--grid KEY=...``; the kind comes from the scenario's name or ``--kind``."""
 
@@ -14,11 +14,13 @@ from quadnav.cli.main import app
 from quadnav.errors import ConfigError
 from quadnav.experiments.flight import FlightConfig, builtin_config, run_flight
 from quadnav.experiments.flight_study import flight_metrics
+from quadnav.experiments.odometry_run import OdometryRunOptions
 from quadnav.experiments.planar import PlanarConfig, run_planar
 from quadnav.experiments.planar_study import planar_metrics
 from quadnav.experiments.sweep import plan_sweep, run_sweep, sweep_spec
 from quadnav.experiments.sweep_engines import SweepEngine
 from quadnav.experiments.sweep_tasks import TASK_KINDS, TaskKind, sim_task_config
+from quadnav.experiments.vio_run import VioRequest, run_vio_source
 from quadnav.io.config import load_config
 from quadnav.io.tables import read_parquet_columns
 
@@ -77,6 +79,29 @@ def test_a_sim_sweep_row_is_that_seeded_flight(tmp_path: Path) -> None:
     assert t["tracking_rmse_m"][other] != t["tracking_rmse_m"][row]
 
 
+def test_a_vio_sweep_row_is_quadnav_vio_on_that_seeds_sequence(tmp_path: Path) -> None:
+    spec = sweep_spec(None, "room_easy", ["vio.tracker.max_features=[60,150]"], "1-1",
+                      ["duration_s=3"])  # fmt: skip
+    assert spec.kind == "vio"
+    res = run_sweep(plan_sweep(spec), tmp_path / "s", SweepEngine(jobs=1))
+    assert (res.ok, res.failed) == (2, 0)
+    t = read_parquet_columns(tmp_path / "s" / "results.parquet")
+    key = "vio.tracker.max_features"
+    assert sorted(zip(t[key], t["seed"], strict=True)) == [(60, 1), (150, 1)]
+    row = _row(t, key, 150, 1)
+    request = VioRequest(sources=("room_easy",), overrides=("tracker.max_features=150",),
+                         options=OdometryRunOptions(duration_s=3, video=False), seed=1,
+                         out=tmp_path / "vio")  # fmt: skip
+    alone = run_vio_source(request, "room_easy", 1, tmp_path / "vio").metrics
+    assert not isinstance(alone.ape_4dof, str) and not isinstance(alone.nees_pose, str)
+    assert t["ape_4dof.rmse_m"][row] == alone.ape_4dof.rmse_m
+    assert t["nees_pose.mean_over_dof"][row] == alone.nees_pose.mean_over_dof
+    assert t["frames_with_estimate"][row] == alone.frames_with_estimate
+    assert t["final_error_m"][row] == alone.final_error_m
+    # the key swept is the key run: fewer features, another estimate
+    assert t["ape_4dof.rmse_m"][_row(t, key, 60, 1)] != t["ape_4dof.rmse_m"][row]
+
+
 @pytest.mark.parametrize(
     ("scenario", "grid", "named"),
     [
@@ -84,6 +109,8 @@ def test_a_sim_sweep_row_is_that_seeded_flight(tmp_path: Path) -> None:
         ("planar", "gps.delay_s=[-1]", "--grid gps.delay_s=-1: "),
         ("circle", "wind.gust=[1]", "--grid wind.gust=1: "),
         ("circle", "vision.delay_s=[0.1]", "--grid vision.delay_s=0.1: "),  # a nav key
+        ("room_easy", "window_keyframes=[8]", "--grid window_keyframes=8: "),  # vio.* it is
+        ("room_easy", "sequence=[nope]", "--grid sequence=nope: "),
     ],
 )
 def test_a_bad_key_of_the_kind_names_the_grid(scenario: str, grid: str, named: str) -> None:
@@ -102,10 +129,12 @@ def test_the_kind_comes_from_the_scenario_or_kind(monkeypatch: pytest.MonkeyPatc
     assert kind(None) == ("nav", "indoor_vision")
     assert kind(None, "sim") == ("sim", "circle")
     assert kind(None, "planar") == ("planar", "planar")
-    with pytest.raises(ConfigError, match=r"^SCENARIO 'nope': .*\(nav, planar, sim"):
+    assert kind("room_easy") == ("vio", "room_easy")
+    assert kind(None, "vio") == ("vio", "room_easy")
+    with pytest.raises(ConfigError, match=r"^SCENARIO 'nope': .*\(nav, planar, sim, vio"):
         kind("nope")
-    with pytest.raises(ConfigError, match=r"^--kind vio: .*nav, planar, sim"):
-        kind("circle", "vio")
+    with pytest.raises(ConfigError, match=r"^--kind slam: .*nav, planar, sim, vio"):
+        kind("circle", "slam")
     with pytest.raises(ConfigError, match=r"^SCENARIO 'circle': neither .* the kind nav"):
         plan_sweep(sweep_spec(None, "circle", ["x=1"], "1", [], "nav"))
     twin = TaskKind(name="twin", description="", build=sim_task_config, run=lambda c, s: {},
@@ -123,4 +152,4 @@ def test_the_command_refuses_an_unknown_scenario_in_one_line(tmp_path: Path) -> 
     assert result.exit_code == 2
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("error: SCENARIO 'nope'"), result.stderr
-    assert "nav, planar, sim" in lines[0]
+    assert "nav, planar, sim, vio" in lines[0]

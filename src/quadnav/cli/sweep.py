@@ -45,6 +45,7 @@ EXAMPLES = (
     "quadnav sweep circle_gusts --grid wind.gust_sigma_m_s=0:3:4 --seeds 5",
     "quadnav sweep --kind planar --grid estimator.tau_vel_s=[0.1,0.25] --seeds 5",
     "quadnav sweep thesis003_obstacle --grid thesis003.kp_lin=[0.2,0.3,0.4]",
+    "quadnav sweep room_medium --grid vio.window_keyframes=[6,8,10] --seeds 5 --set duration_s=30",
 )
 
 GridOpt = Annotated[
@@ -60,7 +61,8 @@ KindOpt = Annotated[
     str | None,
     typer.Option(
         "--kind",
-        help="what a task runs: nav (quadnav run), planar (quadnav planar), sim (quadnav sim); "
+        help="what a task runs: nav (quadnav run), planar (quadnav planar), sim (quadnav sim), "
+        "vio (quadnav vio on a built-in sequence); "
         "without it, the built-in SCENARIO's kind, and nav for a YAML file",
     ),
 ]
@@ -110,8 +112,8 @@ def sweep_command(
     scenario: Annotated[
         str | None,
         typer.Argument(help="a built-in scenario of quadnav run, planar, one of quadnav sim "
-                       "--list, or a YAML file; without it, the kind's first: indoor_vision, "
-                       "planar, circle"),
+                       "--list, a built-in sequence (vio), or a YAML file; without it, the "
+                       "kind's first: indoor_vision, planar, circle, room_easy"),
     ] = None,
     grid: GridOpt = None,
     kind: KindOpt = None,
@@ -162,11 +164,13 @@ def sweep_command(
 
 
 sweep_command.__doc__ = command_help(
-    "Sweep a grid of configuration values x seeds of a run, planar or sim scenario into one table.",
+    "Sweep a grid of configuration values x seeds of a run, planar, sim or vio scenario into one table.",
     "Each (grid point, seed) is one task of the scenario's kind: nav, one seeded flight as "
     "quadnav run flies it; planar, one seed of each experiment of quadnav planar (metrics "
-    "<experiment>.<metric>); sim, one seeded flight of quadnav sim. The built-in names of the "
-    "kinds are disjoint: a name gives its kind, a YAML file is nav unless --kind. Every grid point's configuration is validated before anything runs. Tasks run "
+    "<experiment>.<metric>); sim, one seeded flight of quadnav sim; vio, quadnav vio on a "
+    "built-in sequence made for the seed (keys vio.*, sequence, rig, duration_s). The built-in "
+    "names of the kinds are disjoint: a name gives its kind, a YAML file is nav unless --kind. "
+    "Every grid point's configuration is validated before anything runs. Tasks run "
     "on a local process pool (--jobs) or Dask (--scheduler, --local-cluster); each finished "
     "task is a line of tasks.jsonl and a row of results.parquet (task, the grid's keys, seed, "
     "status, error, wall_s, one column per metric). Run the same sweep into the same --out "

@@ -7,8 +7,9 @@ where the engine puts it (this process, a pool's worker, a Dask worker) by the k
 it never raises for a task's own failure, which it returns as a one-line error.
 
 The kinds: ``nav`` (``quadnav run``'s scenarios), ``planar`` (``quadnav planar``'s
-experiments, one seed of each) and ``sim`` (``quadnav sim``'s flights); the other commands'
-runs (vio, slam) become kinds by :func:`register_task_kind`, the engine unchanged.
+experiments, one seed of each), ``sim`` (``quadnav sim``'s flights) and ``vio`` (``quadnav
+vio`` on a built-in sequence, :mod:`quadnav.experiments.sweep_vio`); the other commands'
+runs (slam) become kinds by :func:`register_task_kind`, the engine unchanged.
 :func:`kind_of_scenario` picks the kind of a built-in scenario's name (the kinds' names are
 disjoint); a YAML file is a ``nav`` scenario unless the kind is given.
 """
@@ -101,7 +102,7 @@ def kind_of_scenario(scenario: str) -> str:
         return FILE_KIND
     raise ConfigError(
         f"SCENARIO {scenario!r}: neither a built-in scenario of a kind ({kinds}: "
-        "quadnav run's, planar, quadnav sim --list's) nor a file"
+        "quadnav run's, planar, quadnav sim --list's, quadnav dataset list's) nor a file"
     )
 
 
@@ -328,6 +329,46 @@ register_task_kind(
             "saturation_time_s",
             "peak_thrust_n",
             "min_obstacle_distance_m",
+        ),
+    )
+)
+
+
+# -- vio: quadnav vio on a built-in sequence (experiments/sweep_vio.py) --------------------------
+
+
+def _vio_build(scenario: str, overrides: Sequence[str]) -> ConfigModel:
+    from quadnav.experiments.sweep_vio import vio_task_config
+
+    return vio_task_config(scenario, tuple(overrides))
+
+
+def _vio_task(config: Any, seed: int) -> dict[str, Metric]:
+    from quadnav.experiments.sweep_vio import run_vio_task
+
+    return run_vio_task(config, seed)
+
+
+def _vio_scenarios() -> Collection[str]:
+    from quadnav.experiments.datasets import SEQUENCES
+
+    return SEQUENCES
+
+
+register_task_kind(
+    TaskKind(
+        name="vio",
+        description="quadnav vio on a built-in sequence made for the seed (no video)",
+        build=_vio_build,
+        run=_vio_task,
+        scenarios=_vio_scenarios,
+        default_scenario="room_easy",
+        headline=(
+            "ape_4dof.rmse_m",
+            "final_error_m",
+            "nees_pose.mean_over_dof",
+            "fraction_with_estimate",
+            "failures",
         ),
     )
 )
