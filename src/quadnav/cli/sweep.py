@@ -131,11 +131,11 @@ def sweep_command(
     ] = None,
     scheduler: Annotated[
         str | None,
-        typer.Option("--scheduler", help="run on a Dask scheduler, tcp://HOST:8786 (quadnav[sweep])"),
+        typer.Option("--scheduler", help="run on a Dask scheduler, tcp://HOST:8786 (quadnav\\[sweep])"),
     ] = None,
     local_cluster: Annotated[
         int | None,
-        typer.Option("--local-cluster", help="run on a Dask LocalCluster of N workers on 127.0.0.1 (quadnav[sweep])"),
+        typer.Option("--local-cluster", help="run on a Dask LocalCluster of N workers on 127.0.0.1 (quadnav\\[sweep])"),
     ] = None,
     out: Annotated[
         Path | None,
