@@ -30,7 +30,7 @@ _IO = _CORE | {
     "loop",
 }
 _EVAL = _IO | {"io"}
-_EXPERIMENTS = _EVAL | {"eval"}
+_EXPERIMENTS = _EVAL | {"eval", "viz"}
 _CLI = _EXPERIMENTS | {"experiments"}
 ALLOWED: dict[str, frozenset[str]] = {
     "errors": frozenset(),
@@ -64,6 +64,8 @@ ALLOWED: dict[str, frozenset[str]] = {
     "loop": _CORE | {"vision", "place", "posegraph"},
     "io": _IO,
     "eval": _EVAL,
+    # Rerun recordings of run folders, beside eval: they read the folders through io.
+    "viz": _EVAL,
     "experiments": _EXPERIMENTS,
     "cli": _CLI,
     # The package root re-exports the root exception; ``python -m quadnav`` starts the CLI.

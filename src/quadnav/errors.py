@@ -23,6 +23,7 @@ __all__ = [
     "SlamError",
     "VioError",
     "VisionError",
+    "VizError",
 ]
 
 
@@ -89,3 +90,8 @@ class LoopError(QuadnavError):
 
 class SlamError(QuadnavError):
     """The visual SLAM (``slam/``): a bad setting, an unusable frame."""
+
+
+class VizError(QuadnavError):
+    """A recording (rerun) could not be built: the extra is missing, or the folder is not one
+    it can show."""

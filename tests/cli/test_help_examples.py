@@ -34,6 +34,7 @@ COMMANDS = {
     ("dataset", "make"): "quadnav.cli.dataset",
     ("vio",): "quadnav.cli.vio",
     ("slam",): "quadnav.cli.slam",
+    ("view",): "quadnav.cli.view",
 }
 
 

@@ -83,8 +83,10 @@ def test_every_command_that_writes_a_run_folder_is_declared() -> None:
 def test_run(tmp_path: Path) -> None:
     short = ["vision.source=pose", "plan.kind=takeoff_forward", "plan.takeoff_s=0.5",
              "plan.duration_s=1", "plan.height_m=0.5", "plan.forward_m=0.5"]  # fmt: skip
-    args = ["run", "--jobs", "1", *[x for s in short for x in ("--set", s)]]
-    _check("run", _made(tmp_path, args))
+    args = ["run", "--jobs", "1", "--rerun", *[x for s in short for x in ("--set", s)]]
+    folder = _made(tmp_path, args)
+    _check("run", folder)
+    assert (folder / "recording.rrd").is_file()  # the optional file --rerun adds
 
 
 def test_planar(tmp_path: Path) -> None:

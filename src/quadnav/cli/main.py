@@ -37,6 +37,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "dataset": ("dataset", "dataset_app"),
     "vio": ("vio", "vio_command"),
     "slam": ("slam", "slam_command"),
+    "view": ("view", "view_command"),
 }
 
 

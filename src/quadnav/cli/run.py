@@ -64,9 +64,18 @@ def check_example(params: CommandParams) -> None:
         [*strings_param(params, "set_"), *_seed_override(_given(params, "seed", int))],
         optional_param(params, "seeds", int),
     )
+    _check_rerun(config, rerun=bool(params.get("rerun")))
     mavlink = _given(params, "mavlink", str)
     if mavlink is not None:
         _check_mavlink(config, mavlink, allow_remote=bool(params.get("allow_remote")))
+
+
+def _check_rerun(config: NavScenario | PlanarConfig, *, rerun: bool) -> None:
+    """``--rerun`` records navigation flights only, so far."""
+    if rerun and isinstance(config, PlanarConfig):
+        raise ConfigError(
+            "--rerun: quadnav run planar has no recording yet (navigation scenarios only)"
+        )
 
 
 def _given(params: CommandParams, name: str, kind: type[T]) -> T | None:
@@ -84,6 +93,15 @@ def _check_mavlink(config: NavScenario | PlanarConfig, url: str, *, allow_remote
     check_bind(url, allow_remote=allow_remote)
 
 
+RerunOpt = Annotated[
+    bool,
+    typer.Option(
+        "--rerun",
+        help="write the run's rerun recording, recording.rrd, into its folder "
+        "(quadnav\\[viz]; as quadnav view, from the finished folder's files)",
+    ),
+]
+
 #: The examples of ``quadnav run --help`` (each parsed and validated by the tests).
 EXAMPLES = (
     "quadnav run",
@@ -93,6 +111,7 @@ EXAMPLES = (
     "quadnav run planar --seeds 20",
     "quadnav run indoor_vio --seed 3",
     "quadnav run indoor_vio_odometry --mavlink udpout:127.0.0.1:14540",
+    "quadnav run --rerun",
 )
 
 
@@ -118,8 +137,10 @@ def run_command(
         ),
     ] = None,
     allow_remote: AllowRemoteOpt = False,
+    rerun: RerunOpt = False,
 ) -> None:
     config = resolve_run_config(scenario, [*(set_ or []), *_seed_override(seed)], seeds)
+    _check_rerun(config, rerun=rerun)
     if isinstance(config, PlanarConfig):
         run_planar_config(config, out, jobs)
         return
@@ -135,6 +156,7 @@ def run_command(
             jobs=jobs or os.cpu_count() or 1,
             mavlink=mavlink,
             allow_remote=allow_remote,
+            rerun=rerun,
         )
     s = study.summary
     table = Table(title=f"{config.name}: {s.seeds} seed(s) (median; worst case where marked)")

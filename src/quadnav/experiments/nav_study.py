@@ -34,6 +34,7 @@ from quadnav.experiments.vio_flight import VioRecord, flight_rig
 from quadnav.geometry.trajectory import Trajectory
 from quadnav.io.config import dump_config
 from quadnav.io.mavlink import MavlinkLink
+from quadnav.io.nav_run_files import read_nav_run
 from quadnav.io.run_folder import (
     append_jsonl,
     create_run_folder,
@@ -44,6 +45,7 @@ from quadnav.io.run_folder import (
 )
 from quadnav.io.trajectory_io import write_tum
 from quadnav.messages import OdometrySample
+from quadnav.viz.nav_recording import RECORDING_FILE, require_rerun, write_nav_recording
 
 __all__ = [
     "NavMetrics",
@@ -770,10 +772,14 @@ def run_nav_study(
     jobs: int = 1,
     mavlink: str | None = None,
     allow_remote: bool = False,
+    rerun: bool = False,
 ) -> NavStudy:
     """Fly ``sc.seeds`` seeds; write the first seed's series and plots, every seed's metrics.
     With ``mavlink`` (a URL) the first seed's VIO odometry goes to an autopilot there (the
-    seeds then fly in this process, one after the other)."""
+    seeds then fly in this process, one after the other). With ``rerun``, the finished folder's
+    files are made into ``recording.rrd`` beside them (``quadnav[viz]``, checked before flying)."""
+    if rerun:
+        require_rerun("--rerun")
     if mavlink is not None and not sc.vio.enabled:
         raise ConfigError("--mavlink sends the VIO's odometry: this scenario has vio.enabled=false")
     if sc.vio.enabled and sc.vio.load_map is not None:  # a missing or bad map: before flying
@@ -814,6 +820,8 @@ def run_nav_study(
     assert first is not None
     per_seed = [results[s] for s in seeds]
     summary = _write_study(sc, run_dir, first, per_seed)
+    if rerun:  # from the complete folder's files, as quadnav view would
+        write_nav_recording(read_nav_run(run_dir), run_dir / RECORDING_FILE)
     sent = dict(link.stats.sent) if link is not None else {}
     traffic = link.describe() if link is not None else ""
     return NavStudy(

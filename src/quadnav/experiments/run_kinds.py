@@ -73,6 +73,11 @@ _NAV = RunFolderKind(
         RunFile("innovations_*.csv", "innovations, NIS, test ratio and acceptance per source"),
         RunFile("sensors_*.csv", "every sample the estimator was given, one file per sensor"),
         RunFile("vio.tum", "the odometry's own estimate of the rig's body (VIO, SLAM)", False),
+        RunFile(
+            "recording.rrd",
+            "with --rerun (or written by quadnav view): the rerun recording of these files",
+            False,
+        ),
         RunFile("plots/position.png", "positions against time"),
         RunFile("plots/errors.png", "errors with the filter's sigma"),
         RunFile("plots/innovations.png", "innovations per source", False),

@@ -1,0 +1,121 @@
+"""A navigation run folder read back (``quadnav run``'s files): the first seed's trajectories,
+the delayed horizon with its position variance, the setpoints, the innovations per source and
+the filter's events, for whatever shows them again (``quadnav view``).
+
+A folder that is not a complete ``quadnav run`` folder is a one-line :class:`IoError` naming it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from quadnav.errors import IoError
+from quadnav.geometry.trajectory import Trajectory
+from quadnav.io.run_folder import read_json, require_complete
+from quadnav.io.trajectory_io import read_tum
+from quadnav.units import s_to_ns
+
+__all__ = ["CsvColumns", "NavRunFiles", "is_nav_run_folder", "read_csv_columns", "read_nav_run"]
+
+#: The files without which a folder is no ``quadnav run`` folder.
+NAV_REQUIRED = ("metrics.json", "truth.tum", "output.tum", "delayed.csv", "positions.csv")
+
+
+@dataclass(frozen=True, slots=True)
+class CsvColumns:
+    """A numeric CSV of a run folder: its header and its rows (N, len(names)); ``t_ns`` exact."""
+
+    names: tuple[str, ...]
+    t_ns: NDArray[np.int64]
+    values: NDArray[np.float64]
+
+    def column(self, name: str) -> NDArray[np.float64]:
+        return self.values[:, self.names.index(name)]
+
+    def columns(self, names: tuple[str, ...]) -> NDArray[np.float64]:
+        return self.values[:, [self.names.index(n) for n in names]]
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class NavRunFiles:
+    """The first seed's series of a ``quadnav run`` folder."""
+
+    run_dir: Path
+    truth: Trajectory
+    output: Trajectory
+    delayed: CsvColumns  # t_ns, x_m.. , qx.., var_x, var_y, var_z
+    positions: CsvColumns  # truth, output and ref (setpoint) positions
+    innovations: dict[str, CsvColumns]  # by source: nis, test_ratio, accepted, innovation_k
+    events: tuple[tuple[int, str], ...]  # (t_ns, text): the filter's and the odometry's
+
+
+def read_csv_columns(path: Path) -> CsvColumns:
+    """A CSV of numbers with a header whose first column is ``t_ns``."""
+    try:
+        with Path(path).open(encoding="utf-8") as f:
+            names = tuple(f.readline().strip().split(","))
+            rows = [line.strip().split(",") for line in f if line.strip()]
+    except (OSError, UnicodeDecodeError) as exc:
+        raise IoError(f"cannot read {path}: {exc}") from None
+    if not names or names[0] != "t_ns" or any(len(r) != len(names) for r in rows):
+        raise IoError(f"{path}: not a run folder's table (t_ns first, one value per column)")
+    try:
+        t_ns = np.array([int(r[0]) for r in rows], dtype=np.int64)
+        values = np.array(rows, dtype=np.float64).reshape(len(rows), len(names))
+    except ValueError as exc:
+        raise IoError(f"{path}: {exc}") from None
+    return CsvColumns(names=names, t_ns=t_ns, values=values)
+
+
+def is_nav_run_folder(run_dir: Path) -> bool:
+    """True when ``run_dir`` holds a ``quadnav run`` folder's series."""
+    run_dir = Path(run_dir)
+    if not all((run_dir / name).is_file() for name in NAV_REQUIRED):
+        return False
+    try:
+        return read_json(run_dir / "metrics.json").get("kind") == "nav"
+    except IoError:
+        return False
+
+
+def _events(metrics: dict[str, object]) -> tuple[tuple[int, str], ...]:
+    """The first seed's events, written as ``"12.345 s: what"``."""
+    per_seed = metrics.get("per_seed")
+    first = per_seed[0] if isinstance(per_seed, list) and per_seed else {}
+    out: list[tuple[int, str]] = []
+    for key in ("filter_events", "vio_events"):
+        lines = first.get(key, []) if isinstance(first, dict) else []
+        for line in lines if isinstance(lines, list) else []:
+            stamp, sep, text = str(line).partition(" s: ")
+            try:
+                out.append((s_to_ns(float(stamp)), text) if sep else (0, str(line)))
+            except ValueError:
+                out.append((0, str(line)))
+    return tuple(sorted(out))
+
+
+def read_nav_run(run_dir: Path) -> NavRunFiles:
+    """The series of a complete ``quadnav run`` folder (an error naming it otherwise)."""
+    run_dir = Path(run_dir)
+    if not run_dir.is_dir() or not is_nav_run_folder(run_dir):
+        missing = [n for n in NAV_REQUIRED if not (run_dir / n).is_file()]
+        why = f"no {', '.join(missing)}" if missing else "its metrics.json is not a nav run's"
+        raise IoError(f"{run_dir}: not a quadnav run folder ({why})")
+    require_complete(run_dir)
+    innovations = {
+        p.stem.removeprefix("innovations_"): read_csv_columns(p)
+        for p in sorted(run_dir.glob("innovations_*.csv"))
+    }
+    return NavRunFiles(
+        run_dir=run_dir,
+        truth=read_tum(run_dir / "truth.tum"),
+        output=read_tum(run_dir / "output.tum"),
+        delayed=read_csv_columns(run_dir / "delayed.csv"),
+        positions=read_csv_columns(run_dir / "positions.csv"),
+        innovations=innovations,
+        events=_events(read_json(run_dir / "metrics.json")),
+    )
