@@ -154,8 +154,9 @@ class VioConfig(ConfigModel):
         0.01,
         gt=0.0,
         le=1.0,
-        description="prior on the first state's roll and pitch, besides what the unknown "
-        "accelerometer bias adds (init_accel_bias_sigma_m_s2 / g)",
+        description="how well a static start's mean accelerometer gives gravity's direction "
+        "(rad; times g, the sigma of the factor that ties the first roll and pitch to the "
+        "accelerometer bias)",
     )
     init_accel_bias_sigma_m_s2: float = Field(
         0.2, gt=0.0, le=10.0, description="prior on the accelerometer bias at the start"

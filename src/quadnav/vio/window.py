@@ -40,6 +40,7 @@ from quadnav.errors import VioError
 from quadnav.geometry import Pose
 from quadnav.geometry.camera import PinholeCamera
 from quadnav.geometry.gtsam_bridge import pose3, to_pose
+from quadnav.geometry.rotations import skew
 from quadnav.vio.config import VioConfig
 from quadnav.vio.frontend import FeatureManager, normalised
 from quadnav.vio.graph import GTSAM_ERRORS, WindowGraph
@@ -51,6 +52,7 @@ __all__ = [
     "SlidingWindow",
     "SolveResult",
     "StatePrior",
+    "rest_factor",
     "state_keys",
 ]
 
@@ -93,6 +95,32 @@ class StatePrior:
     cov_pose: FloatArray
     cov_v: FloatArray
     cov_bias: FloatArray
+    #: the mean specific force (body, m/s^2) read at rest before the window, and its sigma per
+    #: axis: it ties the first state's tilt to its accelerometer bias (see :func:`rest_factor`)
+    rest_accel_B: FloatArray | None = None
+    rest_accel_sigma_m_s2: float = 0.0
+
+
+def rest_factor(
+    kf: Keyframe, f_B: FloatArray, sigma_m_s2: float, g_norm: float
+) -> gtsam.LinearContainerFactor:
+    """The accelerometer at rest before the window, ``f_B = R_W_B^T g e_z + b_a``, as a linear
+    factor on the first state's pose and bias (at their values in ``kf``): GTSAM's right
+    perturbation ``R Exp(d)`` gives ``d f = [w]x d + d b_a`` with ``w = R^T g e_z``. A tilt
+    prior centred on the gravity those readings give, beside a bias prior, would count the bias
+    prior twice: the readings say ``tilt + b / g``, not the tilt alone."""
+    x, _, b = state_keys(kf.index)
+    w = kf.pose.rotation().matrix().T @ np.array([0.0, 0.0, g_norm])
+    A_x = np.zeros((3, 6))
+    A_x[:, :3] = skew(w)
+    A_b = np.zeros((3, 6))
+    A_b[:, :3] = np.eye(3)
+    rhs = np.asarray(f_B, np.float64) - w - kf.bias.accelerometer()
+    noise = gtsam.noiseModel.Isotropic.Sigma(3, sigma_m_s2)
+    at = gtsam.Values()
+    at.insert(x, kf.pose)
+    at.insert(b, kf.bias)
+    return gtsam.LinearContainerFactor(gtsam.JacobianFactor(x, A_x, b, A_b, rhs, noise), at)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -299,6 +327,10 @@ class SlidingWindow:
             gtsam.PriorFactorVector(v, kf.velocity, gauss(prior.cov_v)),
             gtsam.PriorFactorConstantBias(b, kf.bias, gauss(prior.cov_bias)),
         ])  # fmt: skip
+        if prior.rest_accel_B is not None:
+            self.graph.add(
+                rest_factor(kf, prior.rest_accel_B, prior.rest_accel_sigma_m_s2, self.config.g_norm)
+            )
         if self._online:
             self._start_calibration()
         self._insert_state(kf)
