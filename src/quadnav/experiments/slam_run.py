@@ -32,6 +32,7 @@ from quadnav.odometry import (
     StageTiming,
     VisualOdometry,
 )
+from quadnav.viz.background import RecordingProcess
 from quadnav.viz.odometry_capture import capture_if
 from quadnav.viz.recording import require_rerun
 
@@ -198,6 +199,7 @@ def run_slam_source(
         made.append(_slam(request, rig, cfg, loaded, depth))
         return made[-1] if serial is None else SendingOdometry(made[-1], FrameSender(serial))
 
+    recorder = RecordingProcess() if request.rerun else None  # imports rerun meanwhile
     run = run_odometry(
         dataset, dataset.rig, make, request.out, config_text=text,
         options=replace(opt, video=False, save_map=None), name=name, kind="slam",
@@ -205,10 +207,8 @@ def run_slam_source(
     )  # fmt: skip
     if made:
         write_tum(run.run_dir / FINAL_KEYFRAMES, final_keyframes(made[0]))
-    if request.rerun:  # from the folder's files and viz.npz, as quadnav view would
-        from quadnav.viz.odometry_recording import record_odometry_run
-
-        record_odometry_run(run.run_dir, complete=False)
+    if recorder is not None:  # from the folder's files and viz.npz, as quadnav view would
+        recorder.record(run.run_dir, "odometry")
     if request.save_map is not None and made:
         from quadnav.io.slam_map import save_slam_map
 

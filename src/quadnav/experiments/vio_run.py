@@ -25,6 +25,7 @@ from quadnav.io.config import load_config
 from quadnav.odometry import VisualOdometry
 from quadnav.rig import Rig
 from quadnav.units import ns_to_s
+from quadnav.viz.background import RecordingProcess
 from quadnav.viz.odometry_capture import capture_if
 from quadnav.viz.recording import require_rerun
 
@@ -190,13 +191,11 @@ def run_vio_source(
         except LoopError as exc:
             raise LoopError(f"--load-map {request.load_map}: {exc}") from None
 
-    observer = capture_if(request.rerun)
+    recorder = RecordingProcess() if request.rerun else None  # imports rerun meanwhile
     run = run_odometry(
         dataset, rig, make, out, config_text=text, options=opt, name=name,
-        progress=progress, observer=observer,
+        progress=progress, observer=capture_if(request.rerun),
     )  # fmt: skip
-    if request.rerun:  # from the folder's files and viz.npz, as quadnav view would
-        from quadnav.viz.odometry_recording import record_odometry_run
-
-        record_odometry_run(run.run_dir, complete=False)
+    if recorder is not None:  # from the folder's files and viz.npz, as quadnav view would
+        recorder.record(run.run_dir, "odometry")
     return run

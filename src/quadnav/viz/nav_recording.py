@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
+from numpy.typing import NDArray
 
 from quadnav.io.nav_run_files import NavRunFiles
 from quadnav.viz.recording import (
@@ -25,6 +26,7 @@ from quadnav.viz.recording import (
     RecordingInfo,
     RecordingLog,
     decimation,
+    eye_on,
     finish_info,
     log_trajectory,
     open_recording,
@@ -56,6 +58,7 @@ ELLIPSOID_SIGMAS = 3.0
 #: The body axes' length drawn on the vehicle (m).
 AXIS_LENGTH_M = 0.3
 
+FloatArray = NDArray[np.float64]
 _COLOURS = {"truth": (40, 160, 40), "output": (30, 100, 230), "delayed": (230, 120, 20)}
 
 
@@ -127,8 +130,9 @@ def _events(log: RecordingLog, files: NavRunFiles) -> None:
     log.rows["/events"] = len(files.events)
 
 
-def nav_blueprint() -> rrb.Blueprint:
-    """One 3-D view of the flight beside the test ratios, the innovations and the events."""
+def nav_blueprint(positions: FloatArray | None = None) -> rrb.Blueprint:
+    """One 3-D view of the flight (looking at ``positions``) beside the test ratios, the
+    innovations and the events; opened at the flight's end."""
     import rerun.blueprint as rrb
 
     series = rrb.Vertical(
@@ -136,10 +140,11 @@ def nav_blueprint() -> rrb.Blueprint:
         rrb.TimeSeriesView(name="innovations", origin="/innovations"),
         rrb.TextLogView(name="events", origin="/events"),
     )
-    layout = rrb.Horizontal(
-        rrb.Spatial3DView(name="flight", origin="/world"), series, column_shares=[3, 2]
-    )
-    return rrb.Blueprint(layout, collapse_panels=True)
+    eye = eye_on(positions if positions is not None else np.zeros((0, 3)))
+    world = rrb.Spatial3DView(name="flight", origin="/world", eye_controls=eye)
+    layout = rrb.Horizontal(world, series, column_shares=[3, 2])
+    end = rrb.TimePanel(timeline="t", play_state="following", expanded=False)
+    return rrb.Blueprint(layout, end, collapse_panels=True)
 
 
 def write_nav_recording(
@@ -151,7 +156,8 @@ def write_nav_recording(
     max_ellipsoids: int = MAX_ELLIPSOIDS,
 ) -> RecordingInfo:
     """Write the recording of a navigation run to ``path`` (an ``.rrd``), replaced whole."""
-    with open_recording(path, files.run_dir.name, nav_blueprint()) as log:
+    blueprint = nav_blueprint(files.truth.p_W_B)
+    with open_recording(path, files.run_dir.name, blueprint) as log:
         for name, traj in (("truth", files.truth), ("output", files.output)):
             log_trajectory(log, name, traj.t_ns, traj.p_W_B, max_points, _COLOURS[name])
         d = files.delayed

@@ -32,6 +32,7 @@ from quadnav.viz.recording import (
     RecordingInfo,
     RecordingLog,
     decimation,
+    eye_on,
     finish_info,
     log_trajectory,
     open_recording,
@@ -280,20 +281,6 @@ def _events(log: RecordingLog, files: OdometryRunFiles) -> None:
     log.rows["/events"] = len(files.events)
 
 
-def _eye(p: FloatArray) -> rrb.EyeControls3D | None:
-    """Looking down on the positions ``p`` from behind their start, all of them in view."""
-    import rerun.blueprint as rrb
-
-    if len(p) == 0 or not np.isfinite(p).all():
-        return None
-    lo, hi = p.min(axis=0), p.max(axis=0)
-    centre, size = (lo + hi) / 2, max(float(np.max(hi - lo)), 1.0)
-    return rrb.EyeControls3D(
-        position=centre + size * np.array([-0.6, -0.9, 0.8]), look_target=centre,
-        eye_up=[0.0, 0.0, 1.0],
-    )  # fmt: skip
-
-
 def odometry_blueprint(kind: str, positions: FloatArray | None = None) -> rrb.Blueprint:
     """The layout of a ``kind`` run (``vio``, ``vio_loop``, ``slam``): the 3-D view (what was
     logged up to the time shown: the map growing; looking at ``positions``) beside the camera,
@@ -304,7 +291,7 @@ def odometry_blueprint(kind: str, positions: FloatArray | None = None) -> rrb.Bl
     up_to_now = rrb.VisibleTimeRange(
         "t", start=rrb.TimeRangeBoundary.infinite(), end=rrb.TimeRangeBoundary.cursor_relative()
     )
-    eye = _eye(positions if positions is not None else np.zeros((0, 3)))
+    eye = eye_on(positions if positions is not None else np.zeros((0, 3)))
     world = rrb.Spatial3DView(name=title, origin="/world", time_ranges=[up_to_now],
                               eye_controls=eye)  # fmt: skip
     side = rrb.Vertical(

@@ -29,6 +29,7 @@ __all__ = [
     "RecordingInfo",
     "RecordingLog",
     "decimation",
+    "eye_on",
     "finish_info",
     "log_trajectory",
     "open_recording",
@@ -125,6 +126,20 @@ def log_trajectory(
     )
     every = int(keep[1] - keep[0]) if len(keep) > 1 else 1
     log.columns(f"{root}/{name}", t_ns[keep], points, every)
+
+
+def eye_on(p: NDArray[np.float64]) -> rrb.EyeControls3D | None:
+    """Looking down on the positions ``p`` from behind their start, all of them in view."""
+    import rerun.blueprint as rrb
+
+    if len(p) == 0 or not np.isfinite(p).all():
+        return None
+    lo, hi = p.min(axis=0), p.max(axis=0)
+    centre, size = (lo + hi) / 2, max(float(np.max(hi - lo)), 1.0)
+    return rrb.EyeControls3D(
+        position=centre + size * np.array([-0.9, -1.4, 1.2]), look_target=centre,
+        eye_up=[0.0, 0.0, 1.0],
+    )  # fmt: skip
 
 
 @contextmanager
