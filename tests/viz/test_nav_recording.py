@@ -20,6 +20,8 @@ from quadnav.viz import MAX_ELLIPSOIDS, write_nav_recording
 pytest.importorskip("rerun")
 from rerun.chunk import RrdReader
 
+from tests.viz.rrd import rows_and_static as _rows
+
 runner = CliRunner()
 SHORT = ["vision.source=pose", "plan.kind=takeoff_forward", "plan.takeoff_s=0.5",
          "plan.duration_s=1", "plan.height_m=0.5", "plan.forward_m=0.5"]  # fmt: skip
@@ -38,18 +40,6 @@ def run_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
     assert result.exit_code == 0, result.output
     (folder,) = [p for p in out.iterdir() if p.is_dir()]
     return folder
-
-
-def _rows(path: Path) -> tuple[dict[str, int], dict[str, Any]]:
-    """Rows per entity over time, and the static chunks' record batches, by entity."""
-    rows: dict[str, int] = {}
-    static: dict[str, Any] = {}
-    for chunk in RrdReader(path).stream():
-        if chunk.is_static:
-            static[chunk.entity_path] = chunk.to_record_batch()
-        else:
-            rows[chunk.entity_path] = rows.get(chunk.entity_path, 0) + chunk.num_rows
-    return rows, static
 
 
 def _data_lines(path: Path, header: int) -> int:

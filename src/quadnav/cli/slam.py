@@ -21,7 +21,7 @@ from quadnav.cli.common import (
 )
 from quadnav.cli.link import open_serial
 from quadnav.cli.planar import OutOpt
-from quadnav.cli.vio import BlackoutOpt, parse_blackout
+from quadnav.cli.vio import BlackoutOpt, OdometryRerunOpt, parse_blackout
 from quadnav.errors import ConfigError
 from quadnav.experiments.odometry_run import OdometryRun, OdometryRunOptions
 from quadnav.experiments.slam_run import SlamRequest, check_slam_request, run_slam_source
@@ -58,7 +58,7 @@ def resolve_slam_request(
     *, features: int = 1200, th_depth: float = 40.0, loop: bool = True,
     save_map: Path | None = None,
     load_map: Path | None = None, localization_only: bool = False, blackout: str | None = None,
-    calibration: Path | None = None,
+    calibration: Path | None = None, rerun: bool = False,
 ) -> SlamRequest:  # fmt: skip
     """The validated request (no dataset read, no folder made)."""
     check_range(start_s, "--start", 0.0, 1e6, "s")
@@ -73,6 +73,7 @@ def resolve_slam_request(
                                    blackout_s=parse_blackout(blackout)),
         loop=loop, save_map=save_map,
         load_map=load_map, localization_only=localization_only, calibration=calibration,
+        rerun=rerun,
     )  # fmt: skip
     check_slam_request(request)
     return request
@@ -90,7 +91,7 @@ def check_example(params: CommandParams) -> None:
         load_map=optional_param(params, "load_map", Path),
         localization_only=param(params, "localization_only", bool),
         blackout=optional_param(params, "blackout", str),
-        calibration=optional_param(params, "calibration", Path),
+        calibration=optional_param(params, "calibration", Path), rerun=bool(params.get("rerun")),
     )  # fmt: skip
 
 
@@ -103,6 +104,7 @@ EXAMPLES = (
     "quadnav slam room_easy --duration 30 --blackout 10:3 --no-loop",
     "quadnav slam room_easy --rig rgbd --duration 20",
     "quadnav slam hall_laps --rig zed --features 1000 --out /tmp/runs",
+    "quadnav slam room_laps --rerun",
 )
 
 
@@ -180,6 +182,7 @@ def slam_command(
             "frame at 10 Hz to this serial port (115200 8N1), as it is tracked",
         ),
     ] = None,
+    rerun: OdometryRerunOpt = False,
 ) -> None:
     if calibration is not None and not calibration.exists():
         raise ConfigError(f"--calibration {calibration}: no such file or folder")
@@ -187,6 +190,7 @@ def slam_command(
         dataset, start_s, duration_s, seed, rig, out, features=features, th_depth=th_depth,
         loop=loop, save_map=save_map, load_map=load_map,
         localization_only=localization_only, blackout=blackout, calibration=calibration,
+        rerun=rerun,
     )  # fmt: skip
     link = None if serial is None else open_serial(serial, 115200)
     write = None if link is None else link.write  # type: ignore[attr-defined]

@@ -27,7 +27,7 @@ def check_example(params: CommandParams) -> None:
 
 @handle_errors
 def view_command(
-    run_dir: Annotated[Path, typer.Argument(help="a run folder (quadnav run's, so far)")],
+    run_dir: Annotated[Path, typer.Argument(help="a run folder (quadnav run, vio or slam's)")],
     out: Annotated[
         Path | None,
         typer.Option("--out", help="the recording to write (default RUN_DIR/recording.rrd)"),
@@ -45,11 +45,13 @@ def view_command(
 
 view_command.__doc__ = command_help(
     "Build the rerun recording of a run folder from its files, and write or open it.",
-    "The recording (an .rrd, quadnav\\[viz]) shows the truth, output and delayed trajectories, "
-    "the vehicle's pose and body axes, the setpoint, the delayed estimate's 3-sigma ellipsoids, "
-    "the innovations and test ratios per source, and the filter's events, on a timeline t in "
-    "seconds. Written headless by default; --spawn opens rerun's viewer on it (without a "
-    "display or the viewer, one line says so and the file is still written). Only quadnav "
-    "run's folders can be shown so far.",
+    "The recording (an .rrd, quadnav\\[viz]) shows, on a timeline t in seconds, a flight's "
+    "truth, output and delayed trajectories, the vehicle's pose and body axes, the setpoint, "
+    "the delayed estimate's 3-sigma ellipsoids, the innovations and test ratios per source and "
+    "the filter's events; a VIO or SLAM run's estimate and truth, keyframes, loops, events and, "
+    "if it ran with --rerun, the camera's image with its features, the landmarks and the "
+    "covariances. Written headless by default; --spawn opens rerun's viewer on it (without a "
+    "display or the viewer, one line says so and the file is still written). quadnav run, vio "
+    "and slam's folders can be shown so far.",
     examples=EXAMPLES,
 )

@@ -74,6 +74,16 @@ LoadMapOpt = Annotated[
         "reports in its frame (turns --loop on)",
     ),
 ]
+#: ``--rerun`` of ``quadnav vio`` and ``quadnav slam``.
+OdometryRerunOpt = Annotated[
+    bool,
+    typer.Option(
+        "--rerun",
+        help="write the run's rerun recording, recording.rrd, into its folder (quadnav\\[viz]): "
+        "the camera's images with their features (downsampled, every n-th; viz.npz), the map, "
+        "keyframes, loops, trajectories",
+    ),
+]
 BlackoutOpt = Annotated[
     str | None,
     typer.Option(
@@ -105,6 +115,7 @@ def resolve_request(
     save_map: Path | None = None,
     load_map: Path | None = None,
     loop_set: list[str] | None = None,
+    rerun: bool = False,
 ) -> VioRequest:
     """The validated request (no dataset read, no folder made). ``--stereo`` uses the rig's
     second camera; a built-in sequence is then made with EuRoC's stereo rig unless ``--rig``
@@ -123,7 +134,7 @@ def resolve_request(
         seed=seed, seeds=parse_seeds(seeds) if seeds is not None else None, rig=rig_name,
         out=out, calibration=calibration,
         loop=loop or save_map is not None or load_map is not None or bool(loop_set),
-        load_map=load_map, loop_overrides=tuple(loop_set or ()),
+        load_map=load_map, loop_overrides=tuple(loop_set or ()), rerun=rerun,
     )  # fmt: skip
     check_request(request)
     return request
@@ -156,7 +167,7 @@ def check_example(params: CommandParams) -> None:
         blackout=optional_param(params, "blackout", str),
         save_map=optional_param(params, "save_map", Path),
         load_map=optional_param(params, "load_map", Path),
-        loop_set=strings_param(params, "loop_set"),
+        loop_set=strings_param(params, "loop_set"), rerun=bool(params.get("rerun")),
     )  # fmt: skip
 
 
@@ -172,6 +183,7 @@ EXAMPLES = (
     "quadnav vio room_laps --stereo --save-map /tmp/room_map --no-video",
     "quadnav vio data/room_again --stereo --load-map /tmp/room_map --no-video",
     "quadnav vio hall_laps --stereo --loop --blackout 50:3 --no-video",
+    "quadnav vio room_easy --duration 20 --no-video --rerun",
 )
 
 
@@ -268,13 +280,14 @@ def vio_command(
     video_every: Annotated[
         int, typer.Option("--video-every", min=1, help="draw every n-th frame in the video")
     ] = 1,
+    rerun: OdometryRerunOpt = False,
 ) -> None:
     if calibration is not None and not calibration.exists():  # (a documented example's need not)
         raise ConfigError(f"--calibration {calibration}: no such file or folder")
     request = resolve_request(
         datasets, config, list(set_ or []), camera, start_s, duration_s, seed, seeds, rig, out,
         video=video, video_every=video_every, calibration=calibration, stereo=stereo, loop=loop,
-        blackout=blackout, save_map=save_map, load_map=load_map, loop_set=loop_set,
+        blackout=blackout, save_map=save_map, load_map=load_map, loop_set=loop_set, rerun=rerun,
     )  # fmt: skip
     if len(datasets) == 1 and seeds is None:
         with progress_bar("vio") as update:

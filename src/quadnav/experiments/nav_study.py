@@ -34,7 +34,6 @@ from quadnav.experiments.vio_flight import VioRecord, flight_rig
 from quadnav.geometry.trajectory import Trajectory
 from quadnav.io.config import dump_config
 from quadnav.io.mavlink import MavlinkLink
-from quadnav.io.nav_run_files import read_nav_run
 from quadnav.io.run_folder import (
     append_jsonl,
     create_run_folder,
@@ -45,7 +44,8 @@ from quadnav.io.run_folder import (
 )
 from quadnav.io.trajectory_io import write_tum
 from quadnav.messages import OdometrySample
-from quadnav.viz.nav_recording import RECORDING_FILE, require_rerun, write_nav_recording
+from quadnav.viz.background import RecordingProcess
+from quadnav.viz.recording import require_rerun
 
 __all__ = [
     "NavMetrics",
@@ -780,6 +780,7 @@ def run_nav_study(
     files are made into ``recording.rrd`` beside them (``quadnav[viz]``, checked before flying)."""
     if rerun:
         require_rerun("--rerun")
+    recorder = RecordingProcess() if rerun else None  # imports rerun while the seeds fly
     if mavlink is not None and not sc.vio.enabled:
         raise ConfigError("--mavlink sends the VIO's odometry: this scenario has vio.enabled=false")
     if sc.vio.enabled and sc.vio.load_map is not None:  # a missing or bad map: before flying
@@ -820,8 +821,8 @@ def run_nav_study(
     assert first is not None
     per_seed = [results[s] for s in seeds]
     summary = _write_study(sc, run_dir, first, per_seed)
-    if rerun:  # from the complete folder's files, as quadnav view would
-        write_nav_recording(read_nav_run(run_dir), run_dir / RECORDING_FILE)
+    if recorder is not None:  # from the complete folder's files, as quadnav view would
+        recorder.record(run_dir, "nav")
     sent = dict(link.stats.sent) if link is not None else {}
     traffic = link.describe() if link is not None else ""
     return NavStudy(

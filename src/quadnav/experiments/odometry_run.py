@@ -21,6 +21,7 @@ import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Protocol
 
 import cv2
 import numpy as np
@@ -51,6 +52,7 @@ from quadnav.vision.tracking import FrameCounts, TrackedFrame, as_grey
 
 __all__ = [
     "EstimatorFactory",
+    "OdometryObserver",
     "OdometryRun",
     "OdometryRunOptions",
     "OdometryTiming",
@@ -64,6 +66,26 @@ Progress = Callable[[int, int, str], None]
 #: Makes the estimator of a run from the rig it runs on (the dataset's or a config file's).
 EstimatorFactory = Callable[[Rig], VisualOdometry]
 FloatArray = NDArray[np.float64]
+
+
+class OdometryObserver(Protocol):
+    """What a run shows to anyone watching it (a recording for rerun's viewer): told the rig
+    and the frames to come first, then each frame of the run's camera with its pixels and the
+    features the odometry tracked in it, each state the run keeps (from whichever sample gave
+    it) and the keyframes as they are published; ``finish`` once the folder's files are written
+    (the folder not yet marked complete)."""
+
+    def begin(self, rig: Rig, camera: str, n_frames: int) -> None: ...
+
+    def frame(
+        self, t_ns: int, image: NDArray[np.uint8], features: FrameFeatures | None
+    ) -> None: ...
+
+    def state(self, state: OdometryState) -> None: ...
+
+    def keyframes(self, records: Sequence[KeyframeRecord]) -> None: ...
+
+    def finish(self, run_dir: Path) -> None: ...
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -324,6 +346,20 @@ class _Record:
     keyframes: _KeyframePoses = field(default_factory=lambda: _KeyframePoses())
     #: a SLAM's frames through its final map (:class:`~quadnav.odometry.RefinedTrajectory`)
     final: Trajectory | None = None
+    #: shown each frame and keyframe (None: nobody watches)
+    observer: OdometryObserver | None = None
+
+    def keep(self, state: OdometryState) -> None:
+        """A camera-rate state the run writes, shown to the observer."""
+        self.states.append(state)
+        if self.observer is not None:
+            self.observer.state(state)
+
+    def published(self, records: Sequence[KeyframeRecord]) -> None:
+        """Keyframes the odometry published: their poses kept, the observer told."""
+        self.keyframes.extend(records)
+        if self.observer is not None and records:
+            self.observer.keyframes(records)
 
 
 #: Rows a block of :class:`_States` holds (one allocation per 4096 camera frames).
@@ -442,8 +478,9 @@ class _Pixels:
 def _push(vio: VisualOdometry, s: ImuSample | ImageFrame, rec: _Record) -> OdometryState | None:
     tic = time.perf_counter()
     state = vio.push(s)
-    rec.keyframes.extend(vio.keyframes())
+    records = vio.keyframes()
     rec.estimator_s += time.perf_counter() - tic
+    rec.published(records)
     return state
 
 
@@ -468,7 +505,7 @@ def _loop(
             # from them too (a stereo pair completed by its right frame, a late partner given up)
             late = _push(vio, s, rec)
             if late is not None and late.status == "tracking":
-                rec.states.append(late)
+                rec.keep(late)
             continue
         image = _image_of(s, rec, events, t0)
         if image is None:
@@ -478,11 +515,13 @@ def _loop(
         state = _push(vio, frame, rec)
         rec.frames += 1
         if state is not None:
-            rec.states.append(state)
+            rec.keep(state)
         _flush_events(vio, rec, events, t0)
         tracks.add(
             rec.frames - 1, image, vio.last_features, _status(state, ns_to_s(s.t_ns - t0), rec)
         )
+        if rec.observer is not None:
+            rec.observer.frame(s.t_ns, image, vio.last_features)
         if progress is not None:
             progress(rec.frames + rec.rejected, n_frames, f"{ns_to_s(s.t_ns - t0):.1f} s")
 
@@ -583,10 +622,11 @@ def run_odometry(
     name: str = "",
     kind: str = "vio",
     progress: Progress | None = None,
+    observer: OdometryObserver | None = None,
 ) -> OdometryRun:
     """Run the estimator ``make_estimator(rig)`` over ``dataset``'s IMU and the cameras it uses
-    into a run folder ``<stamp>_<kind>_<name>`` under ``out`` (see the module); what it
-    measured."""
+    into a run folder ``<stamp>_<kind>_<name>`` under ``out`` (see the module), shown to
+    ``observer`` as it goes; what it measured."""
     opt = options or OdometryRunOptions()
     start = time.perf_counter()
     t0, t1, frames = _span_frames(dataset, opt)
@@ -599,7 +639,9 @@ def run_odometry(
         else None
     )
     tracks = _Tracks(video=video, every=opt.video_every)
-    rec = _Record()
+    rec = _Record(observer=observer)
+    if observer is not None:
+        observer.begin(rig, opt.camera, len(frames))
     try:
         _loop(
             vio,
@@ -619,7 +661,7 @@ def run_odometry(
             rec,
             opt.camera,
         )
-        rec.keyframes.extend(vio.keyframes(final=True))
+        rec.published(vio.keyframes(final=True))
         # (the last keyframes' loops and events come with them)
         _flush_events(vio, rec, run_dir / "events.jsonl", t0)
     finally:
@@ -632,7 +674,10 @@ def run_odometry(
             rec.final = vio.final_trajectory()
             write_tum(run_dir / "estimate_final.tum", rec.final)
         _loop_outputs(vio, rec, run_dir, opt, t0)
-    return _finish(dataset, vio, rec, run_dir, est, cov, (t0, t1), opt, time.perf_counter() - start)
+    run = _finish(dataset, vio, rec, run_dir, est, cov, (t0, t1), opt, time.perf_counter() - start)
+    if observer is not None:
+        observer.finish(run_dir)
+    return run
 
 
 def _loop_outputs(

@@ -78,6 +78,12 @@ _NAV = RunFolderKind(
             "with --rerun (or written by quadnav view): the rerun recording of these files",
             False,
         ),
+        RunFile(
+            "recording.json",
+            "beside recording.rrd: its size, the rows of each stream and every how many of the "
+            "files' rows each keeps",
+            False,
+        ),
         RunFile("plots/position.png", "positions against time"),
         RunFile("plots/errors.png", "errors with the filter's sigma"),
         RunFile("plots/innovations.png", "innovations per source", False),
@@ -232,6 +238,23 @@ _VIO = RunFolderKind(
             "loop.json",
             "with --loop: keyframes, places recognised, loops accepted and their keyframes, "
             "rejections by verification stage",
+            False,
+        ),
+        RunFile(
+            "recording.rrd",
+            "with --rerun (or written by quadnav view): the rerun recording of the run",
+            False,
+        ),
+        RunFile(
+            "recording.json",
+            "beside recording.rrd: its size, the rows of each stream and every how many each keeps",
+            False,
+        ),
+        RunFile(
+            "viz.npz",
+            "with --rerun: what the camera showed, for the recording: every n-th image "
+            "(image_every), downsampled (image_scale) and JPEG-encoded, the features tracked in "
+            "them, each state's tracked count and position covariance, the landmarks",
             False,
         ),
     ),

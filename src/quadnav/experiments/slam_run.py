@@ -32,6 +32,9 @@ from quadnav.odometry import (
     StageTiming,
     VisualOdometry,
 )
+from quadnav.viz.background import RecordingProcess
+from quadnav.viz.odometry_capture import capture_if
+from quadnav.viz.recording import require_rerun
 
 if TYPE_CHECKING:
     import numpy as np
@@ -77,6 +80,8 @@ class SlamRequest:
     localization_only: bool = False
     #: a Kalibr camchain or EuRoC folder whose calibration replaces the dataset's own
     calibration: Path | None = None
+    #: write the run's rerun recording (``recording.rrd``, with ``viz.npz``) into its folder
+    rerun: bool = False
 
 
 class SendingOdometry:
@@ -123,6 +128,8 @@ def check_slam_request(request: SlamRequest) -> None:
     """Refuse a bad rig, setting or ``--out`` before any dataset is read or made."""
     from quadnav.errors import QuadnavError
 
+    if request.rerun:
+        require_rerun("--rerun")
     rig = check_out_and_rig(request.out, request.rig)
     if not rig.stereo and rig.depth is None:
         raise ConfigError(
@@ -192,13 +199,16 @@ def run_slam_source(
         made.append(_slam(request, rig, cfg, loaded, depth))
         return made[-1] if serial is None else SendingOdometry(made[-1], FrameSender(serial))
 
+    recorder = RecordingProcess() if request.rerun else None  # imports rerun meanwhile
     run = run_odometry(
         dataset, dataset.rig, make, request.out, config_text=text,
         options=replace(opt, video=False, save_map=None), name=name, kind="slam",
-        progress=progress,
+        progress=progress, observer=capture_if(request.rerun),
     )  # fmt: skip
     if made:
         write_tum(run.run_dir / FINAL_KEYFRAMES, final_keyframes(made[0]))
+    if recorder is not None:  # from the folder's files and viz.npz, as quadnav view would
+        recorder.record(run.run_dir, "odometry")
     if request.save_map is not None and made:
         from quadnav.io.slam_map import save_slam_map
 

@@ -25,6 +25,9 @@ from quadnav.io.config import load_config
 from quadnav.odometry import VisualOdometry
 from quadnav.rig import Rig
 from quadnav.units import ns_to_s
+from quadnav.viz.background import RecordingProcess
+from quadnav.viz.odometry_capture import capture_if
+from quadnav.viz.recording import require_rerun
 
 __all__ = [
     "VioRequest",
@@ -115,6 +118,8 @@ class VioRequest:
     loop: bool = False
     load_map: Path | None = None
     loop_overrides: tuple[str, ...] = ()
+    #: write the run's rerun recording (``recording.rrd``, with ``viz.npz``) into its folder
+    rerun: bool = False
 
 
 def check_request(request: VioRequest) -> None:
@@ -122,6 +127,8 @@ def check_request(request: VioRequest) -> None:
     made."""
     from quadnav.vio import VioConfig
 
+    if request.rerun:
+        require_rerun("--rerun")
     rig = check_out_and_rig(request.out, request.rig)
     cfg, _ = resolve_vio_config(VioConfig, request.config, request.overrides, rig)
     if request.loop_overrides:
@@ -184,7 +191,11 @@ def run_vio_source(
         except LoopError as exc:
             raise LoopError(f"--load-map {request.load_map}: {exc}") from None
 
-    return run_odometry(
+    recorder = RecordingProcess() if request.rerun else None  # imports rerun meanwhile
+    run = run_odometry(
         dataset, rig, make, out, config_text=text, options=opt, name=name,
-        progress=progress,
+        progress=progress, observer=capture_if(request.rerun),
     )  # fmt: skip
+    if recorder is not None:  # from the folder's files and viz.npz, as quadnav view would
+        recorder.record(run.run_dir, "odometry")
+    return run

@@ -10,11 +10,9 @@ from quadnav.viz.nav_recording import (
     MAX_ELLIPSOIDS,
     MAX_POINTS,
     MAX_SCALARS,
-    RECORDING_FILE,
-    RecordingInfo,
-    require_rerun,
     write_nav_recording,
 )
+from quadnav.viz.recording import RECORDING_FILE, RECORDING_JSON, RecordingInfo, require_rerun
 from quadnav.viz.view import ViewResult, view_run
 
 __all__ = [
@@ -22,6 +20,7 @@ __all__ = [
     "MAX_POINTS",
     "MAX_SCALARS",
     "RECORDING_FILE",
+    "RECORDING_JSON",
     "RecordingInfo",
     "ViewResult",
     "require_rerun",

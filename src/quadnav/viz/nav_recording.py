@@ -14,20 +14,26 @@ ellipsoids) remain.
 
 from __future__ import annotations
 
-import importlib.util
-import math
-from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
 
-from quadnav.errors import VizError
 from quadnav.io.nav_run_files import NavRunFiles
+from quadnav.viz.recording import (
+    RECORDING_FILE,
+    RecordingInfo,
+    RecordingLog,
+    decimation,
+    eye_on,
+    finish_info,
+    log_trajectory,
+    open_recording,
+    require_rerun,
+)
 
 if TYPE_CHECKING:
-    import rerun as rr
     import rerun.blueprint as rrb
 
 __all__ = [
@@ -36,13 +42,11 @@ __all__ = [
     "MAX_SCALARS",
     "RECORDING_FILE",
     "RecordingInfo",
-    "decimation",
+    "nav_blueprint",
     "require_rerun",
     "write_nav_recording",
 ]
 
-#: The recording's name in a run folder.
-RECORDING_FILE = "recording.rrd"
 #: Poses (points, transforms) kept per trajectory: every n-th, at most this many.
 MAX_POINTS = 2000
 #: Values kept per time series (an innovation's component, a test ratio).
@@ -54,69 +58,15 @@ ELLIPSOID_SIGMAS = 3.0
 #: The body axes' length drawn on the vehicle (m).
 AXIS_LENGTH_M = 0.3
 
+FloatArray = NDArray[np.float64]
 _COLOURS = {"truth": (40, 160, 40), "output": (30, 100, 230), "delayed": (230, 120, 20)}
 
 
-@dataclass(frozen=True, slots=True, kw_only=True)
-class RecordingInfo:
-    """A recording written: its file, its size and the rows logged per entity over time (by
-    rerun's entity path, ``/world/truth``)."""
-
-    path: Path
-    size_bytes: int
-    rows: dict[str, int]
+def _every(keep: np.ndarray) -> int:
+    return int(keep[1] - keep[0]) if len(keep) > 1 else 1
 
 
-def require_rerun(option: str) -> None:
-    """Refuse ``option`` (``--rerun``, ``quadnav view``) when rerun is not installed."""
-    if importlib.util.find_spec("rerun") is None:
-        raise VizError(f"{option} needs rerun: pip install 'quadnav[viz]'")
-
-
-def decimation(n: int, cap: int) -> NDArray[np.intp]:
-    """The indices of every k-th of ``n`` rows, k the smallest keeping at most ``cap``."""
-    step = max(1, math.ceil(n / max(cap, 1)))
-    return np.arange(0, n, step)
-
-
-def _times(t_ns: NDArray[np.int64]) -> rr.TimeColumn:
-    import rerun as rr
-
-    return rr.TimeColumn("t", duration=np.asarray(t_ns, dtype=np.int64).astype("timedelta64[ns]"))
-
-
-class _Log:
-    """Columns sent to one recording, their rows counted per entity."""
-
-    def __init__(self, rec: rr.RecordingStream) -> None:
-        self.rec = rec
-        self.rows: dict[str, int] = {}
-
-    def columns(self, entity: str, t_ns: NDArray[np.int64], columns: object) -> None:
-        import rerun as rr
-
-        if len(t_ns) == 0:
-            return
-        rr.send_columns(entity, indexes=[_times(t_ns)], columns=columns, recording=self.rec)  # type: ignore[arg-type]
-        self.rows[f"/{entity}"] = self.rows.get(f"/{entity}", 0) + len(t_ns)
-
-
-def _trajectory(
-    log: _Log, name: str, t_ns: NDArray[np.int64], p: NDArray[np.float64], cap: int
-) -> None:
-    import rerun as rr
-
-    keep = decimation(len(t_ns), cap)
-    colour = _COLOURS[name]
-    strip = rr.LineStrips3D([p[keep]], colors=[colour], radii=[0.005])
-    log.rec.log(f"world/trajectories/{name}", strip, static=True)
-    points = rr.Points3D.columns(
-        positions=p[keep], colors=[colour] * len(keep), radii=[0.02] * len(keep)
-    )
-    log.columns(f"world/{name}", t_ns[keep], points)
-
-
-def _vehicle(log: _Log, files: NavRunFiles, cap: int) -> None:
+def _vehicle(log: RecordingLog, files: NavRunFiles, cap: int) -> None:
     """The output predictor's pose, with the body's axes (x red, y green, z blue)."""
     import rerun as rr
 
@@ -124,10 +74,10 @@ def _vehicle(log: _Log, files: NavRunFiles, cap: int) -> None:
     keep = decimation(len(out.t_ns), cap)
     log.rec.log("world/vehicle", rr.TransformAxes3D(axis_length=AXIS_LENGTH_M), static=True)
     pose = rr.Transform3D.columns(translation=out.p_W_B[keep], quaternion=out.q_W_B_xyzw[keep])
-    log.columns("world/vehicle", out.t_ns[keep], pose)
+    log.columns("world/vehicle", out.t_ns[keep], pose, _every(keep))
 
 
-def _setpoints(log: _Log, files: NavRunFiles, cap: int) -> None:
+def _setpoints(log: RecordingLog, files: NavRunFiles, cap: int) -> None:
     pos = files.positions
     keep = decimation(len(pos.t_ns), cap)
     ref = pos.columns(("ref_x_m", "ref_y_m", "ref_z_m"))[keep]
@@ -136,10 +86,10 @@ def _setpoints(log: _Log, files: NavRunFiles, cap: int) -> None:
     points = rr.Points3D.columns(
         positions=ref, colors=[(200, 0, 200)] * len(keep), radii=[0.03] * len(keep)
     )
-    log.columns("world/setpoint", pos.t_ns[keep], points)
+    log.columns("world/setpoint", pos.t_ns[keep], points, _every(keep))
 
 
-def _ellipsoids(log: _Log, files: NavRunFiles, cap: int) -> None:
+def _ellipsoids(log: RecordingLog, files: NavRunFiles, cap: int) -> None:
     """The delayed estimate's position, ``ELLIPSOID_SIGMAS`` sigmas about it (axis-aligned:
     the run folder keeps the variances, not the whole covariance)."""
     import rerun as rr
@@ -152,36 +102,37 @@ def _ellipsoids(log: _Log, files: NavRunFiles, cap: int) -> None:
     shapes = rr.Ellipsoids3D.columns(
         centers=centres, half_sizes=half, colors=[_COLOURS["delayed"]] * len(keep)
     )
-    log.columns("world/delayed/sigma", d.t_ns[keep], shapes)
+    log.columns("world/delayed/sigma", d.t_ns[keep], shapes, _every(keep))
 
 
-def _innovations(log: _Log, files: NavRunFiles, cap: int) -> None:
+def _innovations(log: RecordingLog, files: NavRunFiles, cap: int) -> None:
     """Per source: its test ratio and each component of its innovation."""
     import rerun as rr
 
     for source, table in files.innovations.items():
         keep = decimation(len(table.t_ns), cap)
         t = table.t_ns[keep]
-        log.columns(
-            f"test_ratio/{source}", t, rr.Scalars.columns(scalars=table.column("test_ratio")[keep])
-        )
+        ratio = rr.Scalars.columns(scalars=table.column("test_ratio")[keep])
+        log.columns(f"test_ratio/{source}", t, ratio, _every(keep))
         for name in table.names:
             if name.startswith("innovation_"):
                 values = rr.Scalars.columns(scalars=table.column(name)[keep])
-                log.columns(f"innovations/{source}/{name.removeprefix('innovation_')}", t, values)
+                entity = f"innovations/{source}/{name.removeprefix('innovation_')}"
+                log.columns(entity, t, values, _every(keep))
 
 
-def _events(log: _Log, files: NavRunFiles) -> None:
+def _events(log: RecordingLog, files: NavRunFiles) -> None:
     import rerun as rr
 
     for t_ns, text in files.events:
-        log.rec.set_time("t", duration=np.timedelta64(t_ns, "ns"))
+        log.at(t_ns)
         log.rec.log("events", rr.TextLog(text, level="WARN"))
     log.rows["/events"] = len(files.events)
 
 
-def nav_blueprint() -> rrb.Blueprint:
-    """One 3-D view of the flight beside the test ratios, the innovations and the events."""
+def nav_blueprint(positions: FloatArray | None = None) -> rrb.Blueprint:
+    """One 3-D view of the flight (looking at ``positions``) beside the test ratios, the
+    innovations and the events; opened at the flight's end."""
     import rerun.blueprint as rrb
 
     series = rrb.Vertical(
@@ -189,10 +140,11 @@ def nav_blueprint() -> rrb.Blueprint:
         rrb.TimeSeriesView(name="innovations", origin="/innovations"),
         rrb.TextLogView(name="events", origin="/events"),
     )
-    layout = rrb.Horizontal(
-        rrb.Spatial3DView(name="flight", origin="/world"), series, column_shares=[3, 2]
-    )
-    return rrb.Blueprint(layout, collapse_panels=True)
+    eye = eye_on(positions if positions is not None else np.zeros((0, 3)))
+    world = rrb.Spatial3DView(name="flight", origin="/world", eye_controls=eye)
+    layout = rrb.Horizontal(world, series, column_shares=[3, 2])
+    end = rrb.TimePanel(timeline="t", play_state="following", expanded=False)
+    return rrb.Blueprint(layout, end, collapse_panels=True)
 
 
 def write_nav_recording(
@@ -204,24 +156,16 @@ def write_nav_recording(
     max_ellipsoids: int = MAX_ELLIPSOIDS,
 ) -> RecordingInfo:
     """Write the recording of a navigation run to ``path`` (an ``.rrd``), replaced whole."""
-    import rerun as rr
-
-    path = Path(path)
-    partial = path.with_name(path.name + ".partial")
-    rec = rr.RecordingStream("quadnav", recording_id=files.run_dir.name)
-    rec.save(partial, default_blueprint=nav_blueprint())
-    log = _Log(rec)
-    rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)  # ENU
-    for name, traj in (("truth", files.truth), ("output", files.output)):
-        _trajectory(log, name, traj.t_ns, traj.p_W_B, max_points)
-    delayed = files.delayed
-    _trajectory(log, "delayed", delayed.t_ns, delayed.columns(("x_m", "y_m", "z_m")), max_points)
-    _vehicle(log, files, max_points)
-    _setpoints(log, files, max_points)
-    _ellipsoids(log, files, max_ellipsoids)
-    _innovations(log, files, max_scalars)
-    _events(log, files)
-    rec.flush()
-    rec.disconnect()
-    partial.replace(path)
-    return RecordingInfo(path=path, size_bytes=path.stat().st_size, rows=dict(log.rows))
+    blueprint = nav_blueprint(files.truth.p_W_B)
+    with open_recording(path, files.run_dir.name, blueprint) as log:
+        for name, traj in (("truth", files.truth), ("output", files.output)):
+            log_trajectory(log, name, traj.t_ns, traj.p_W_B, max_points, _COLOURS[name])
+        d = files.delayed
+        p_delayed = d.columns(("x_m", "y_m", "z_m"))
+        log_trajectory(log, "delayed", d.t_ns, p_delayed, max_points, _COLOURS["delayed"])
+        _vehicle(log, files, max_points)
+        _setpoints(log, files, max_points)
+        _ellipsoids(log, files, max_ellipsoids)
+        _innovations(log, files, max_scalars)
+        _events(log, files)
+    return finish_info(log, path)

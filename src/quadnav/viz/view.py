@@ -1,8 +1,8 @@
 """``quadnav view RUN_DIR``: the recording of an existing run folder, written headless (the
 default) and, with ``spawn``, opened in rerun's viewer.
 
-Only navigation runs (``quadnav run``) can be shown so far; any other folder is a one-line
-error naming it. Opening the viewer needs a display and rerun's viewer binary (``rerun``, which
+Navigation runs (``quadnav run``) and visual odometry runs (``quadnav vio``, ``quadnav slam``)
+can be shown; any other folder is a one-line error naming it. Opening the viewer needs a display and rerun's viewer binary (``rerun``, which
 ``rerun-sdk`` installs); without them one line says so and the file is written all the same.
 """
 
@@ -17,12 +17,9 @@ from pathlib import Path
 
 from quadnav.errors import IoError, VizError
 from quadnav.io.nav_run_files import is_nav_run_folder, read_nav_run
-from quadnav.viz.nav_recording import (
-    RECORDING_FILE,
-    RecordingInfo,
-    require_rerun,
-    write_nav_recording,
-)
+from quadnav.io.odometry_run_files import is_odometry_run_folder, read_odometry_run
+from quadnav.viz.nav_recording import write_nav_recording
+from quadnav.viz.recording import RECORDING_FILE, RecordingInfo, require_rerun
 
 __all__ = ["ViewResult", "check_view_out", "view_run", "viewer_problem"]
 
@@ -84,15 +81,21 @@ def view_run(run_dir: Path, *, out: Path | None = None, spawn: bool = False) -> 
     check_view_out(out)
     if not run_dir.is_dir():
         raise VizError(f"{run_dir}: no such folder")
-    if not is_nav_run_folder(run_dir):
-        raise VizError(
-            f"{run_dir}: not a run folder quadnav view can show yet (quadnav run's only)"
-        )
+    target = out if out is not None else run_dir / RECORDING_FILE
     try:
-        files = read_nav_run(run_dir)
+        if is_nav_run_folder(run_dir):
+            info = write_nav_recording(read_nav_run(run_dir), target)
+        elif is_odometry_run_folder(run_dir):
+            from quadnav.viz.odometry_recording import write_odometry_recording
+
+            info = write_odometry_recording(read_odometry_run(run_dir), target)
+        else:
+            raise VizError(
+                f"{run_dir}: not a run folder quadnav view can show yet (quadnav run, vio and "
+                "slam's)"
+            )
     except IoError as exc:
         raise VizError(str(exc)) from None
-    info = write_nav_recording(files, out if out is not None else run_dir / RECORDING_FILE)
     if not spawn:
         return ViewResult(recording=info, spawned=False)
     problem = _spawn(info.path)

@@ -1,0 +1,95 @@
+"""The screenshots of docs/guide/viewing.md: three runs recorded with ``--rerun`` (the default
+``quadnav run`` flight, the VIO on room_easy (60 s) with its features and map, the stereo VIO with
+loop closure on room_laps), each recording opened in rerun's viewer under a virtual display
+and saved as a PNG, downsized.
+
+Needs ``quadnav[viz]``, ``xvfb-run`` (Debian's ``xvfb``) and a Vulkan driver (Mesa's lavapipe
+is enough: ``WGPU_BACKEND=vulkan``). The runs go under ``--runs``; built-in sequences are made
+there once.
+
+    python scripts/rerun_screenshots.py --out docs/guide/img --runs runs/screenshots
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import cv2
+
+#: name, the command's arguments after ``quadnav`` (``--out RUNS`` added)
+RUNS = (
+    ("flight", ["run", "--rerun"]),
+    ("vio", ["vio", "room_easy", "--no-video", "--rerun"]),
+    ("loop", ["vio", "room_laps", "--stereo", "--loop", "--no-video", "--rerun"]),
+)
+#: each run's folders, by name
+FOLDERS = {"flight": "*_indoor_vision", "vio": "*_vio_room_easy*", "loop": "*_vio_room_laps*"}
+WINDOW = "1400x900"
+#: The PNG's width after downsizing (pixels).
+WIDTH = 1400
+
+
+def _run(args: list[str], runs: Path) -> Path:
+    """Run ``quadnav ARGS --out RUNS/NAME`` and return the folder it made."""
+    out = runs / args[0]
+    before = set(out.iterdir()) if out.exists() else set()
+    subprocess.run([sys.executable, "-m", "quadnav", *args, "--out", str(out)], check=True)
+    (made,) = [p for p in set(out.iterdir()) - before if (p / "recording.rrd").is_file()]
+    return made
+
+
+def _reuse(args: list[str], runs: Path, name: str) -> Path:
+    """The newest folder of an earlier run of ``args``, its recording built again."""
+    folders = sorted((runs / args[0]).glob(FOLDERS[name]))
+    subprocess.run([sys.executable, "-m", "quadnav", "view", str(folders[-1])], check=True)
+    return folders[-1]
+
+
+def _screenshot(recording: Path, png: Path) -> None:
+    """rerun's viewer on ``recording`` under a virtual display, saved to ``png`` and downsized;
+    the display twice the window, so that its pointer (at the display's centre) hovers over
+    nothing."""
+    viewer = Path(sys.executable).parent / "rerun"
+    raw = png.with_suffix(".raw.png")
+    env = {**os.environ, "WGPU_BACKEND": os.environ.get("WGPU_BACKEND", "vulkan"),
+           "RUST_LOG": "error"}  # (no warning toasts over the views)  # fmt: skip
+    subprocess.run(
+        ["xvfb-run", "-a", "-s", "-screen 0 3200x2000x24", str(viewer), str(recording),
+         "--window-size", WINDOW, "--screenshot-to", str(raw)],
+        check=True, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, timeout=300,
+    )  # fmt: skip
+    image = cv2.imread(str(raw))
+    h, w = image.shape[:2]
+    small = cv2.resize(image, (WIDTH, round(h * WIDTH / w)), interpolation=cv2.INTER_AREA)
+    cv2.imwrite(str(png), small, [cv2.IMWRITE_PNG_COMPRESSION, 9])
+    raw.unlink()
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--out", type=Path, default=Path("docs/guide/img"))
+    parser.add_argument("--runs", type=Path, default=Path("runs/screenshots"))
+    parser.add_argument("--only", choices=[n for n, _ in RUNS], action="append")
+    parser.add_argument(
+        "--reuse", action="store_true", help="the newest runs under --runs, recordings rebuilt"
+    )
+    args = parser.parse_args()
+    if shutil.which("xvfb-run") is None:
+        sys.exit("error: xvfb-run not found (apt-get install xvfb)")
+    args.out.mkdir(parents=True, exist_ok=True)
+    for name, command in RUNS:
+        if args.only and name not in args.only:
+            continue
+        folder = _reuse(command, args.runs, name) if args.reuse else _run(command, args.runs)
+        png = args.out / f"rerun_{name}.png"
+        _screenshot(folder / "recording.rrd", png)
+        print(f"{png}: {folder}")
+
+
+if __name__ == "__main__":
+    main()

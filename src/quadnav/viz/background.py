@@ -1,0 +1,122 @@
+"""A run's recording built by a child process started when the run starts: it imports rerun
+(most of a recording's cost on a short run) while the run goes on, on another core, then waits
+for the finished folder and builds its recording from the files, as ``quadnav view`` would.
+
+The parent sends one line, ``KIND<TAB>RUN_DIR`` (``nav``, or ``odometry`` for a VIO or SLAM
+folder), and reads back one line of JSON, the :class:`RecordingInfo`. A child that fails says
+why on its last line of stderr, which becomes a one-line :class:`VizError` naming ``--rerun``.
+If the run fails first, the child sees its input closed and exits without writing anything.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import weakref
+from pathlib import Path
+
+from quadnav.errors import VizError
+from quadnav.viz.recording import RecordingInfo
+
+__all__ = ["KINDS", "RecordingProcess", "record_folder"]
+
+#: The kinds of folder the child records.
+KINDS = ("nav", "odometry")
+#: How long the parent waits for the child's recording (s).
+TIMEOUT_S = 600.0
+
+
+def _stop(proc: subprocess.Popen[str]) -> None:
+    if proc.poll() is None:
+        proc.kill()
+        proc.wait()
+
+
+class RecordingProcess:
+    """The child process (see the module), started on construction."""
+
+    def __init__(self) -> None:
+        import quadnav
+
+        # this quadnav, whatever the child's sys.path would find first
+        root = str(Path(quadnav.__file__).resolve().parents[1])
+        paths = [root, *[p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p]]
+        self._proc = subprocess.Popen(
+            [sys.executable, "-m", "quadnav.viz.background"],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+            env={**os.environ, "PYTHONPATH": os.pathsep.join(paths)},
+        )
+        self._finalizer = weakref.finalize(self, _stop, self._proc)
+
+    def record(self, run_dir: Path, kind: str) -> RecordingInfo:
+        """The recording of the finished ``run_dir`` (a ``kind`` folder), written into it."""
+        if kind not in KINDS:
+            raise VizError(f"--rerun: no recording of a {kind!r} folder")
+        try:
+            out, err = self._proc.communicate(f"{kind}\t{Path(run_dir)}\n", timeout=TIMEOUT_S)
+        except subprocess.TimeoutExpired:
+            self._finalizer()
+            raise VizError(f"--rerun: the recording took over {TIMEOUT_S:g} s; stopped") from None
+        finally:
+            self._finalizer()
+        if self._proc.returncode != 0 or not out.strip():
+            lines = [x for x in err.strip().splitlines() if x.strip()]
+            raise VizError(f"--rerun: the recording failed: {lines[-1] if lines else 'no output'}")
+        data = json.loads(out.strip().splitlines()[-1])
+        return RecordingInfo(
+            path=Path(data["path"]), size_bytes=int(data["size_bytes"]),
+            rows=dict(data["rows"]), every=dict(data["every"]),
+        )  # fmt: skip
+
+    def close(self) -> None:
+        """Stop the child (it has nothing to record)."""
+        self._finalizer()
+
+
+def record_folder(kind: str, run_dir: Path) -> RecordingInfo:
+    """The recording of a finished run folder of ``kind``, written into it (in this process)."""
+    from quadnav.viz.recording import RECORDING_FILE
+
+    if kind == "nav":
+        from quadnav.io.nav_run_files import read_nav_run
+        from quadnav.viz.nav_recording import write_nav_recording
+
+        return write_nav_recording(read_nav_run(run_dir), Path(run_dir) / RECORDING_FILE)
+    from quadnav.viz.odometry_recording import record_odometry_run
+
+    return record_odometry_run(run_dir, complete=False)
+
+
+def _main() -> int:
+    import numpy as np
+    import rerun  # noqa: F401  (the point of the child: rerun imported while the run goes on)
+
+    from quadnav.viz.nav_recording import nav_blueprint
+    from quadnav.viz.odometry_recording import odometry_blueprint
+
+    # what rerun imports on first use (half a second for the first 3-D vector) while waiting
+    nav_blueprint(np.zeros((2, 3)))
+    odometry_blueprint("vio", np.zeros((2, 3)))
+
+    line = sys.stdin.readline()
+    if not line.strip():
+        return 0  # the run ended without a folder to record
+    kind, _, run_dir = line.rstrip("\n").partition("\t")
+    try:
+        info = record_folder(kind, Path(run_dir))
+    except Exception as exc:  # (reported to the parent as one line)
+        print(f"{type(exc).__name__}: {exc}".replace("\n", " "), file=sys.stderr)
+        return 1
+    record = {"path": str(info.path), "size_bytes": info.size_bytes, "rows": info.rows,
+              "every": info.every}  # fmt: skip
+    print(json.dumps(record))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(_main())
