@@ -8,7 +8,8 @@ from pathlib import Path
 import pytest
 
 from quadnav.errors import VizError
-from quadnav.viz.background import RecordingProcess, record_folder
+from quadnav.viz.background import RecordingProcess
+from quadnav.viz.folders import record_folder
 
 pytest.importorskip("rerun")
 
@@ -33,5 +34,5 @@ def test_a_failed_recording_is_one_line_naming_rerun(tmp_path: Path) -> None:
     message = str(err.value)
     assert message.startswith("--rerun: the recording failed: IoError: ") and "\n" not in message
     assert str(tmp_path) in message
-    with pytest.raises(VizError, match="no recording of a 'sim' folder"):
-        RecordingProcess().record(tmp_path, "sim")
+    with pytest.raises(VizError, match="no recording of a 'planar' folder"):
+        RecordingProcess().record(tmp_path, "planar")

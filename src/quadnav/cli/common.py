@@ -9,7 +9,7 @@ import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from pathlib import Path
-from typing import ParamSpec, TypeVar
+from typing import TYPE_CHECKING, Annotated, ParamSpec, TypeVar
 
 import typer
 from rich.console import Console
@@ -17,16 +17,29 @@ from rich.console import Console
 from quadnav.errors import ConfigError, QuadnavError
 from quadnav.io.run_folder import run_guard
 
+if TYPE_CHECKING:
+    from quadnav.viz.background import RecordingProcess
+    from quadnav.viz.recording import RecordingInfo
+    from quadnav.viz.stream import RerunOptions
+
 __all__ = [
     "CommandParams",
+    "RerunConnectOpt",
+    "RerunOpt",
+    "RerunSpawnOpt",
     "check_range",
     "command_help",
     "console",
     "err_console",
+    "finish_recording",
     "handle_errors",
     "optional_param",
     "param",
+    "print_recording",
     "progress_bar",
+    "rerun_param",
+    "rerun_request",
+    "start_recording",
     "strings_param",
 ]
 
@@ -222,3 +235,77 @@ def check_range(
 
 def _num(x: float) -> str:
     return str(int(x)) if math.isfinite(x) and float(x).is_integer() else f"{x:g}"
+
+
+RerunConnectOpt = Annotated[
+    str | None,
+    typer.Option(
+        "--rerun-connect",
+        help="with or without --rerun: stream the recording to a rerun viewer or server "
+        "listening at ADDR too (HOST:PORT or rerun+http://HOST:PORT/proxy, loopback only; "
+        "`rerun` listens on 127.0.0.1:9876); nothing listening is one line, the file written",
+        metavar="ADDR",
+    ),
+]
+RerunSpawnOpt = Annotated[
+    bool,
+    typer.Option(
+        "--rerun-spawn",
+        help="with or without --rerun: open rerun's viewer on the recording when written "
+        "(without a display or the viewer, one line says so; the file is written)",
+    ),
+]
+
+
+def rerun_request(rerun: bool, connect: str | None, spawn: bool) -> RerunOptions | None:
+    """``--rerun``, ``--rerun-connect`` and ``--rerun-spawn`` checked (rerun installed, a
+    loopback ADDR); None when none is given."""
+    from quadnav.viz.stream import rerun_options
+
+    return rerun_options(rerun, connect, spawn)
+
+
+def rerun_param(params: CommandParams) -> RerunOptions | None:
+    """:func:`rerun_request` of an example's parameters."""
+    connect = optional_param(params, "rerun_connect", str) if "rerun_connect" in params else None
+    return rerun_request(bool(params.get("rerun")), connect, bool(params.get("rerun_spawn")))
+
+
+def print_recording(info: RecordingInfo | None = None, run_dir: Path | None = None) -> None:
+    """The recording written (``info``, or the one in ``run_dir``), in a line, and what could
+    not be done with it (streamed, opened) in another."""
+    from quadnav.viz.stream import recording_info
+
+    info = info if info is not None else recording_info(run_dir) if run_dir else None
+    if info is None:
+        return
+    console.print(f"{info.path} ({info.size_bytes / 1e6:.2f} MB)", soft_wrap=True, highlight=False)
+    if info.streamed_to and not info.note:
+        console.print(f"streamed to {info.streamed_to}", soft_wrap=True, highlight=False)
+    if info.note:
+        console.print(info.note, soft_wrap=True, highlight=False)
+
+
+RerunOpt = Annotated[
+    bool,
+    typer.Option(
+        "--rerun",
+        help="write the rerun recording of the folder, recording.rrd, into it (quadnav\\[viz]; "
+        "as quadnav view, from the finished folder's files)",
+    ),
+]
+
+
+def start_recording(options: RerunOptions | None) -> RecordingProcess | None:
+    """The child that records the folder the command writes (rerun imported meanwhile)."""
+    if options is None:
+        return None
+    from quadnav.viz.background import RecordingProcess
+
+    return RecordingProcess(options)
+
+
+def finish_recording(recorder: RecordingProcess | None, folder: Path, kind: str) -> None:
+    """The recording of the finished ``folder`` (a ``kind`` of ``quadnav.viz.folders``), said."""
+    if recorder is not None:
+        print_recording(recorder.record(folder, kind))

@@ -13,13 +13,20 @@ from rich.table import Table
 
 from quadnav.cli.common import (
     CommandParams,
+    RerunConnectOpt,
+    RerunOpt,
+    RerunSpawnOpt,
     check_range,
     command_help,
     console,
+    finish_recording,
     handle_errors,
     optional_param,
     param,
     progress_bar,
+    rerun_param,
+    rerun_request,
+    start_recording,
     strings_param,
 )
 from quadnav.errors import ConfigError
@@ -68,6 +75,7 @@ def check_example(params: CommandParams) -> None:
         strings_param(params, "set_"),
         optional_param(params, "sensors", str),
     )
+    rerun_param(params)
 
 
 #: The examples of ``quadnav dataset make --help`` (each parsed and validated by the tests).
@@ -109,12 +117,16 @@ def make_command(
             "a calibration error (the truth in out/truth/) [default]; ideal: exact",
         ),
     ] = None,
+    rerun: RerunOpt = False,
+    rerun_connect: RerunConnectOpt = None,
+    rerun_spawn: RerunSpawnOpt = False,
 ) -> None:
     spec = resolve_make(name, motion, rig, seed, duration_s, set_ or [], sensors)
     if out.exists() and not out.is_dir():
         raise ConfigError(f"--out {out}: is a file, not a folder")
     if out.exists() and any(out.iterdir()):
         raise ConfigError(f"--out {out}: the folder exists and is not empty")
+    recorder = start_recording(rerun_request(rerun, rerun_connect, rerun_spawn))
     with progress_bar(f"dataset {name}") as update:
         made = make_dataset(spec, out, name=name, progress=update, bag=bag)
     table = Table(title=f"{name}: {made.world} world, {made.rig} rig")
@@ -132,6 +144,7 @@ def make_command(
     ):
         table.add_row(k, v)
     console.print(table)
+    finish_recording(recorder, made.root, "dataset")
     console.print(str(made.root), soft_wrap=True, highlight=False)
 
 

@@ -13,14 +13,21 @@ from rich.table import Table
 
 from quadnav.cli.common import (
     CommandParams,
+    RerunConnectOpt,
+    RerunOpt,
+    RerunSpawnOpt,
     check_range,
     command_help,
     console,
     err_console,
+    finish_recording,
     handle_errors,
     optional_param,
     param,
     progress_bar,
+    rerun_param,
+    rerun_request,
+    start_recording,
     strings_param,
 )
 from quadnav.cli.planar import AllowRemoteOpt, OutOpt, SetOpt
@@ -89,8 +96,12 @@ def markers_command(
             "(default 200)",
         ),
     ] = None,
+    rerun: RerunOpt = False,
+    rerun_connect: RerunConnectOpt = None,
+    rerun_spawn: RerunSpawnOpt = False,
 ) -> None:
     cfg, notes = _resolve(mavlink, allow_remote, set_, camera, fps, show, params, max_images_mb)
+    recorder = start_recording(rerun_request(rerun, rerun_connect, rerun_spawn))
     for note in notes:
         _note(note)
     with progress_bar("markers") as update:
@@ -107,6 +118,7 @@ def markers_command(
     for note in stats.notes:
         err_console.print(f"note: {note}", highlight=False, soft_wrap=True)
     _print_summary(stats)
+    finish_recording(recorder, stats.run_dir, "markers")
 
 
 def _note(text: str) -> None:
@@ -157,6 +169,7 @@ def check_example(p: CommandParams) -> None:
         optional_param(p, "params", Path),
         optional_param(p, "max_images_mb", float),
     )
+    rerun_param(p)
 
 
 #: The examples of ``quadnav markers --help`` (each parsed and validated by the tests, from the

@@ -11,11 +11,18 @@ from rich.table import Table
 
 from quadnav.cli.common import (
     CommandParams,
+    RerunConnectOpt,
+    RerunOpt,
+    RerunSpawnOpt,
     command_help,
     console,
     err_console,
+    finish_recording,
     handle_errors,
     progress_bar,
+    rerun_param,
+    rerun_request,
+    start_recording,
     strings_param,
 )
 from quadnav.cli.planar import OutOpt, SetOpt
@@ -28,6 +35,7 @@ __all__ = ["EXAMPLES", "check_example", "replay_command"]
 def check_example(params: CommandParams) -> None:
     """Validate an example's --set keys and values (on EKF2's defaults, no log read)."""
     config_from_px4({}, replay_overrides(strings_param(params, "set_")))
+    rerun_param(params)
 
 
 #: The examples of ``quadnav replay --help`` (each parsed and validated by the tests).
@@ -43,7 +51,11 @@ def replay_command(
     log: Annotated[Path, typer.Argument(help="PX4 ULog file")],
     set_: SetOpt = None,
     out: OutOpt = Path("runs"),
+    rerun: RerunOpt = False,
+    rerun_connect: RerunConnectOpt = None,
+    rerun_spawn: RerunSpawnOpt = False,
 ) -> None:
+    recorder = start_recording(rerun_request(rerun, rerun_connect, rerun_spawn))
     with progress_bar("replay") as update:
         m = replay_log(log, list(set_ or []), out, update)
     table = Table(
@@ -64,6 +76,7 @@ def replay_command(
     console.print(table)
     for n in m.notes:
         err_console.print(f"note: {n}", highlight=False)
+    finish_recording(recorder, m.run_dir, "replay")
     console.print(str(m.run_dir), soft_wrap=True, highlight=False)
 
 

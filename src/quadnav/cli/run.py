@@ -11,11 +11,17 @@ from rich.table import Table
 
 from quadnav.cli.common import (
     CommandParams,
+    RerunConnectOpt,
+    RerunOpt,
+    RerunSpawnOpt,
     command_help,
     console,
     handle_errors,
     optional_param,
+    print_recording,
     progress_bar,
+    rerun_param,
+    rerun_request,
     strings_param,
 )
 from quadnav.cli.planar import (
@@ -29,7 +35,7 @@ from quadnav.cli.planar import (
 from quadnav.errors import ConfigError
 from quadnav.eval.na import fmt_metric
 from quadnav.experiments.nav import NavScenario
-from quadnav.experiments.nav_study import NavSummary, reports_in_flight, run_nav_study
+from quadnav.experiments.nav_study import NavStudy, NavSummary, reports_in_flight, run_nav_study
 from quadnav.experiments.planar import PlanarConfig
 from quadnav.experiments.scenarios import NAV_SCENARIOS, nav_builtin
 from quadnav.io.config import load_config
@@ -64,7 +70,7 @@ def check_example(params: CommandParams) -> None:
         [*strings_param(params, "set_"), *_seed_override(_given(params, "seed", int))],
         optional_param(params, "seeds", int),
     )
-    _check_rerun(config, rerun=bool(params.get("rerun")))
+    _check_rerun(config, rerun=rerun_param(params) is not None)
     mavlink = _given(params, "mavlink", str)
     if mavlink is not None:
         _check_mavlink(config, mavlink, allow_remote=bool(params.get("allow_remote")))
@@ -92,15 +98,6 @@ def _check_mavlink(config: NavScenario | PlanarConfig, url: str, *, allow_remote
         )
     check_bind(url, allow_remote=allow_remote)
 
-
-RerunOpt = Annotated[
-    bool,
-    typer.Option(
-        "--rerun",
-        help="write the run's rerun recording, recording.rrd, into its folder "
-        "(quadnav\\[viz]; as quadnav view, from the finished folder's files)",
-    ),
-]
 
 #: The examples of ``quadnav run --help`` (each parsed and validated by the tests).
 EXAMPLES = (
@@ -138,9 +135,12 @@ def run_command(
     ] = None,
     allow_remote: AllowRemoteOpt = False,
     rerun: RerunOpt = False,
+    rerun_connect: RerunConnectOpt = None,
+    rerun_spawn: RerunSpawnOpt = False,
 ) -> None:
     config = resolve_run_config(scenario, [*(set_ or []), *_seed_override(seed)], seeds)
-    _check_rerun(config, rerun=rerun)
+    recording = rerun_request(rerun, rerun_connect, rerun_spawn)
+    _check_rerun(config, rerun=recording is not None)
     if isinstance(config, PlanarConfig):
         run_planar_config(config, out, jobs)
         return
@@ -156,7 +156,7 @@ def run_command(
             jobs=jobs or os.cpu_count() or 1,
             mavlink=mavlink,
             allow_remote=allow_remote,
-            rerun=rerun,
+            rerun=recording,
         )
     s = study.summary
     table = Table(title=f"{config.name}: {s.seeds} seed(s) (median; worst case where marked)")
@@ -191,9 +191,15 @@ def run_command(
         table.add_row(f"{src}: innovations beyond the 95 % gate", f"{frac:.1%}")
     console.print(table)
     _print_refusals(s)
+    _print_end(study, mavlink)
+
+
+def _print_end(study: NavStudy, mavlink: str | None) -> None:
+    """What went to the autopilot, the recording, the run folder."""
     if mavlink is not None:
         by_name = ", ".join(f"{n} {k}" for k, n in study.mavlink_sent.items()) or "nothing"
         console.print(f"MAVLink to {mavlink}: {by_name}; {study.mavlink_traffic}", highlight=False)
+    print_recording(run_dir=study.run_dir)
     console.print(str(study.run_dir), soft_wrap=True, highlight=False)
 
 

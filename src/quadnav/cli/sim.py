@@ -11,13 +11,20 @@ from rich.table import Table
 
 from quadnav.cli.common import (
     CommandParams,
+    RerunConnectOpt,
+    RerunOpt,
+    RerunSpawnOpt,
     check_range,
     command_help,
     console,
     err_console,
+    finish_recording,
     handle_errors,
     optional_param,
     param,
+    rerun_param,
+    rerun_request,
+    start_recording,
     strings_param,
 )
 from quadnav.errors import ConfigError
@@ -104,8 +111,14 @@ def sim_command(
             help=f"with --mavlink: stop after this many seconds (at most {MAX_SITL_S:g})",
         ),
     ] = None,
+    rerun: RerunOpt = False,
+    rerun_connect: RerunConnectOpt = None,
+    rerun_spawn: RerunSpawnOpt = False,
 ) -> None:
     link_options = (mavlink, signing_key, signing_key_file, duration)
+    recording = rerun_request(rerun, rerun_connect, rerun_spawn)
+    if recording is not None and (mavlink is not None or list_):
+        raise ConfigError("--rerun: records a scenario's flight (not --mavlink or --list)")
     if allow_remote or any(v is not None for v in link_options):
         _run_sitl(mavlink, signing_key, signing_key_file, duration, allow_remote=allow_remote)
         return
@@ -114,10 +127,12 @@ def sim_command(
             console.print(f"{name}: {BUILTIN_DESCRIPTIONS[name]}", highlight=False, soft_wrap=True)
         return
     config = _load_scenario(scenario, list(set_ or []))
+    recorder = start_recording(recording)
     with console.status(f"flying {config.name} ({config.duration_s:g} s)..."):
         run = run_flight(config)
         run_dir, m = write_flight_run(run, runs_root=out)
     _print_flight(config.name, m, run_dir)
+    finish_recording(recorder, run_dir, "sim")
 
 
 def check_example(params: CommandParams) -> None:
@@ -130,6 +145,7 @@ def check_example(params: CommandParams) -> None:
             check_range(duration, "--duration", 0.0, MAX_SITL_S, "seconds", low_open=True)
     elif not param(params, "list_", bool):
         _load_scenario(param(params, "scenario", str), strings_param(params, "set_"))
+    rerun_param(params)
 
 
 def _load_scenario(scenario: str, overrides: list[str]) -> FlightConfig:

@@ -4,20 +4,25 @@ into a run folder with the estimate, metrics against the ground truth, plots and
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 from rich.table import Table
 
 from quadnav.cli.common import (
     CommandParams,
+    RerunConnectOpt,
+    RerunSpawnOpt,
     check_range,
     command_help,
     console,
     handle_errors,
     optional_param,
     param,
+    print_recording,
     progress_bar,
+    rerun_param,
+    rerun_request,
 )
 from quadnav.cli.link import open_serial
 from quadnav.cli.planar import OutOpt
@@ -25,6 +30,9 @@ from quadnav.cli.vio import BlackoutOpt, OdometryRerunOpt, parse_blackout
 from quadnav.errors import ConfigError
 from quadnav.experiments.odometry_run import OdometryRun, OdometryRunOptions
 from quadnav.experiments.slam_run import SlamRequest, check_slam_request, run_slam_source
+
+if TYPE_CHECKING:
+    from quadnav.viz.stream import RerunOptions
 
 __all__ = ["EXAMPLES", "check_example", "resolve_slam_request", "slam_command"]
 
@@ -58,7 +66,7 @@ def resolve_slam_request(
     *, features: int = 1200, th_depth: float = 40.0, loop: bool = True,
     save_map: Path | None = None,
     load_map: Path | None = None, localization_only: bool = False, blackout: str | None = None,
-    calibration: Path | None = None, rerun: bool = False,
+    calibration: Path | None = None, rerun: RerunOptions | None = None,
 ) -> SlamRequest:  # fmt: skip
     """The validated request (no dataset read, no folder made)."""
     check_range(start_s, "--start", 0.0, 1e6, "s")
@@ -91,7 +99,7 @@ def check_example(params: CommandParams) -> None:
         load_map=optional_param(params, "load_map", Path),
         localization_only=param(params, "localization_only", bool),
         blackout=optional_param(params, "blackout", str),
-        calibration=optional_param(params, "calibration", Path), rerun=bool(params.get("rerun")),
+        calibration=optional_param(params, "calibration", Path), rerun=rerun_param(params),
     )  # fmt: skip
 
 
@@ -183,6 +191,8 @@ def slam_command(
         ),
     ] = None,
     rerun: OdometryRerunOpt = False,
+    rerun_connect: RerunConnectOpt = None,
+    rerun_spawn: RerunSpawnOpt = False,
 ) -> None:
     if calibration is not None and not calibration.exists():
         raise ConfigError(f"--calibration {calibration}: no such file or folder")
@@ -190,7 +200,7 @@ def slam_command(
         dataset, start_s, duration_s, seed, rig, out, features=features, th_depth=th_depth,
         loop=loop, save_map=save_map, load_map=load_map,
         localization_only=localization_only, blackout=blackout, calibration=calibration,
-        rerun=rerun,
+        rerun=rerun_request(rerun, rerun_connect, rerun_spawn),
     )  # fmt: skip
     link = None if serial is None else open_serial(serial, 115200)
     write = None if link is None else link.write  # type: ignore[attr-defined]
@@ -203,6 +213,7 @@ def slam_command(
     console.print(_table(run))
     for n in run.notes:
         console.print(f"note: {n}", highlight=False)
+    print_recording(run_dir=run.run_dir)
     console.print(str(run.run_dir), soft_wrap=True, highlight=False)
 
 

@@ -5,13 +5,15 @@ report; over several datasets or seeds, a study with a summary table."""
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 from rich.table import Table
 
 from quadnav.cli.common import (
     CommandParams,
+    RerunConnectOpt,
+    RerunSpawnOpt,
     check_range,
     command_help,
     console,
@@ -19,7 +21,10 @@ from quadnav.cli.common import (
     handle_errors,
     optional_param,
     param,
+    print_recording,
     progress_bar,
+    rerun_param,
+    rerun_request,
     strings_param,
 )
 from quadnav.cli.planar import OutOpt
@@ -36,6 +41,9 @@ from quadnav.experiments.odometry_study import (
 )
 from quadnav.experiments.seeds import parse_seeds
 from quadnav.experiments.vio_run import VioRequest, check_request, run_vio_source
+
+if TYPE_CHECKING:
+    from quadnav.viz.stream import RerunOptions
 
 __all__ = ["EXAMPLES", "check_example", "resolve_request", "vio_command"]
 
@@ -115,7 +123,7 @@ def resolve_request(
     save_map: Path | None = None,
     load_map: Path | None = None,
     loop_set: list[str] | None = None,
-    rerun: bool = False,
+    rerun: RerunOptions | None = None,
 ) -> VioRequest:
     """The validated request (no dataset read, no folder made). ``--stereo`` uses the rig's
     second camera; a built-in sequence is then made with EuRoC's stereo rig unless ``--rig``
@@ -167,7 +175,7 @@ def check_example(params: CommandParams) -> None:
         blackout=optional_param(params, "blackout", str),
         save_map=optional_param(params, "save_map", Path),
         load_map=optional_param(params, "load_map", Path),
-        loop_set=strings_param(params, "loop_set"), rerun=bool(params.get("rerun")),
+        loop_set=strings_param(params, "loop_set"), rerun=rerun_param(params),
     )  # fmt: skip
 
 
@@ -281,18 +289,22 @@ def vio_command(
         int, typer.Option("--video-every", min=1, help="draw every n-th frame in the video")
     ] = 1,
     rerun: OdometryRerunOpt = False,
+    rerun_connect: RerunConnectOpt = None,
+    rerun_spawn: RerunSpawnOpt = False,
 ) -> None:
     if calibration is not None and not calibration.exists():  # (a documented example's need not)
         raise ConfigError(f"--calibration {calibration}: no such file or folder")
     request = resolve_request(
         datasets, config, list(set_ or []), camera, start_s, duration_s, seed, seeds, rig, out,
         video=video, video_every=video_every, calibration=calibration, stereo=stereo, loop=loop,
-        blackout=blackout, save_map=save_map, load_map=load_map, loop_set=loop_set, rerun=rerun,
+        blackout=blackout, save_map=save_map, load_map=load_map, loop_set=loop_set,
+        rerun=rerun_request(rerun, rerun_connect, rerun_spawn),
     )  # fmt: skip
     if len(datasets) == 1 and seeds is None:
         with progress_bar("vio") as update:
             run = run_vio_source(request, datasets[0], seed, out, update)
         _print_run(run)
+        print_recording(run_dir=run.run_dir)
         return
     with progress_bar("vio study", line_step=0) as update:
         study = run_odometry_study(

@@ -46,6 +46,7 @@ from quadnav.io.trajectory_io import write_tum
 from quadnav.messages import OdometrySample
 from quadnav.viz.background import RecordingProcess
 from quadnav.viz.recording import require_rerun
+from quadnav.viz.stream import RerunOptions
 
 __all__ = [
     "NavMetrics",
@@ -772,15 +773,16 @@ def run_nav_study(
     jobs: int = 1,
     mavlink: str | None = None,
     allow_remote: bool = False,
-    rerun: bool = False,
+    rerun: RerunOptions | None = None,
 ) -> NavStudy:
     """Fly ``sc.seeds`` seeds; write the first seed's series and plots, every seed's metrics.
     With ``mavlink`` (a URL) the first seed's VIO odometry goes to an autopilot there (the
     seeds then fly in this process, one after the other). With ``rerun``, the finished folder's
-    files are made into ``recording.rrd`` beside them (``quadnav[viz]``, checked before flying)."""
+    files are made into ``recording.rrd`` beside them (``quadnav[viz]``, checked before flying),
+    streamed or opened as it asks."""
     if rerun:
         require_rerun("--rerun")
-    recorder = RecordingProcess() if rerun else None  # imports rerun while the seeds fly
+    recorder = RecordingProcess(rerun) if rerun else None  # imports rerun while the seeds fly
     if mavlink is not None and not sc.vio.enabled:
         raise ConfigError("--mavlink sends the VIO's odometry: this scenario has vio.enabled=false")
     if sc.vio.enabled and sc.vio.load_map is not None:  # a missing or bad map: before flying

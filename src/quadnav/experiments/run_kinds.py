@@ -55,6 +55,21 @@ _COMMON = (
 )
 
 
+_RECORDING = (
+    RunFile(
+        "recording.rrd",
+        "with --rerun (or written by quadnav view): the rerun recording of the folder's files",
+        False,
+    ),
+    RunFile(
+        "recording.json",
+        "beside recording.rrd: its size, the rows of each stream and every how many of the "
+        "files' rows each keeps, where it was streamed and what could not be done",
+        False,
+    ),
+)
+
+
 _NAV = RunFolderKind(
     title="quadnav run",
     command="quadnav run [SCENARIO]",
@@ -73,17 +88,7 @@ _NAV = RunFolderKind(
         RunFile("innovations_*.csv", "innovations, NIS, test ratio and acceptance per source"),
         RunFile("sensors_*.csv", "every sample the estimator was given, one file per sensor"),
         RunFile("vio.tum", "the odometry's own estimate of the rig's body (VIO, SLAM)", False),
-        RunFile(
-            "recording.rrd",
-            "with --rerun (or written by quadnav view): the rerun recording of these files",
-            False,
-        ),
-        RunFile(
-            "recording.json",
-            "beside recording.rrd: its size, the rows of each stream and every how many of the "
-            "files' rows each keeps",
-            False,
-        ),
+        *_RECORDING,
         RunFile("plots/position.png", "positions against time"),
         RunFile("plots/errors.png", "errors with the filter's sigma"),
         RunFile("plots/innovations.png", "innovations per source", False),
@@ -146,6 +151,7 @@ _SIM = RunFolderKind(
             "with a serial link: sent (SLAM) against true against the reference",
             False,
         ),
+        *_RECORDING,
     ),
 )
 
@@ -165,6 +171,7 @@ _MARKERS = RunFolderKind(
         RunFile("plots/timing.png", "detection and pose time per frame", False),
         RunFile("overlay.mp4", "the frames with the detections drawn (video: true)", False),
         RunFile("images/frame_*.png", "the drawn frames (write_images: true)", False),
+        *_RECORDING,
     ),
 )
 
@@ -183,6 +190,7 @@ _REPLAY = RunFolderKind(
         RunFile("report.html", "the report: metrics, plots, configuration"),
         RunFile("plots/position.png", "positions against time"),
         RunFile("plots/innovations.png", "innovations", False),
+        *_RECORDING,
     ),
 )
 
@@ -240,16 +248,7 @@ _VIO = RunFolderKind(
             "rejections by verification stage",
             False,
         ),
-        RunFile(
-            "recording.rrd",
-            "with --rerun (or written by quadnav view): the rerun recording of the run",
-            False,
-        ),
-        RunFile(
-            "recording.json",
-            "beside recording.rrd: its size, the rows of each stream and every how many each keeps",
-            False,
-        ),
+        *_RECORDING,
         RunFile(
             "viz.npz",
             "with --rerun: what the camera showed, for the recording: every n-th image "
@@ -317,6 +316,7 @@ _DATASET = RunFolderKind(
         RunFile("truth/mav0/body.yaml", "the true calibration: the body frame"),
         RunFile("truth/mav0/cam*/sensor.yaml", "each camera's true calibration and time offset"),
         RunFile("truth/mav0/imu0/sensor.yaml", "the IMU noise the data was synthesized with"),
+        *_RECORDING,
     ),
 )
 

@@ -35,6 +35,7 @@ from quadnav.odometry import (
 from quadnav.viz.background import RecordingProcess
 from quadnav.viz.odometry_capture import capture_if
 from quadnav.viz.recording import require_rerun
+from quadnav.viz.stream import RerunOptions
 
 if TYPE_CHECKING:
     import numpy as np
@@ -81,7 +82,7 @@ class SlamRequest:
     #: a Kalibr camchain or EuRoC folder whose calibration replaces the dataset's own
     calibration: Path | None = None
     #: write the run's rerun recording (``recording.rrd``, with ``viz.npz``) into its folder
-    rerun: bool = False
+    rerun: RerunOptions | None = None
 
 
 class SendingOdometry:
@@ -199,11 +200,11 @@ def run_slam_source(
         made.append(_slam(request, rig, cfg, loaded, depth))
         return made[-1] if serial is None else SendingOdometry(made[-1], FrameSender(serial))
 
-    recorder = RecordingProcess() if request.rerun else None  # imports rerun meanwhile
+    recorder = RecordingProcess(request.rerun) if request.rerun else None  # imports rerun meanwhile
     run = run_odometry(
         dataset, dataset.rig, make, request.out, config_text=text,
         options=replace(opt, video=False, save_map=None), name=name, kind="slam",
-        progress=progress, observer=capture_if(request.rerun),
+        progress=progress, observer=capture_if(request.rerun is not None),
     )  # fmt: skip
     if made:
         write_tum(run.run_dir / FINAL_KEYFRAMES, final_keyframes(made[0]))

@@ -28,6 +28,7 @@ from quadnav.units import ns_to_s
 from quadnav.viz.background import RecordingProcess
 from quadnav.viz.odometry_capture import capture_if
 from quadnav.viz.recording import require_rerun
+from quadnav.viz.stream import RerunOptions
 
 __all__ = [
     "VioRequest",
@@ -119,7 +120,7 @@ class VioRequest:
     load_map: Path | None = None
     loop_overrides: tuple[str, ...] = ()
     #: write the run's rerun recording (``recording.rrd``, with ``viz.npz``) into its folder
-    rerun: bool = False
+    rerun: RerunOptions | None = None
 
 
 def check_request(request: VioRequest) -> None:
@@ -191,10 +192,10 @@ def run_vio_source(
         except LoopError as exc:
             raise LoopError(f"--load-map {request.load_map}: {exc}") from None
 
-    recorder = RecordingProcess() if request.rerun else None  # imports rerun meanwhile
+    recorder = RecordingProcess(request.rerun) if request.rerun else None  # imports rerun meanwhile
     run = run_odometry(
         dataset, rig, make, out, config_text=text, options=opt, name=name,
-        progress=progress, observer=capture_if(request.rerun),
+        progress=progress, observer=capture_if(request.rerun is not None),
     )  # fmt: skip
     if recorder is not None:  # from the folder's files and viz.npz, as quadnav view would
         recorder.record(run.run_dir, "odometry")

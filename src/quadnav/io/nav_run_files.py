@@ -7,7 +7,7 @@ A folder that is not a complete ``quadnav run`` folder is a one-line :class:`IoE
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -19,7 +19,14 @@ from quadnav.io.run_folder import read_json, require_complete
 from quadnav.io.trajectory_io import read_tum
 from quadnav.units import s_to_ns
 
-__all__ = ["CsvColumns", "NavRunFiles", "is_nav_run_folder", "read_csv_columns", "read_nav_run"]
+__all__ = [
+    "CsvColumns",
+    "NavRunFiles",
+    "is_nav_run_folder",
+    "read_csv_columns",
+    "read_nav_run",
+    "timed_events",
+]
 
 #: The files without which a folder is no ``quadnav run`` folder.
 NAV_REQUIRED = ("metrics.json", "truth.tum", "output.tum", "delayed.csv", "positions.csv")
@@ -27,11 +34,13 @@ NAV_REQUIRED = ("metrics.json", "truth.tum", "output.tum", "delayed.csv", "posit
 
 @dataclass(frozen=True, slots=True)
 class CsvColumns:
-    """A numeric CSV of a run folder: its header and its rows (N, len(names)); ``t_ns`` exact."""
+    """A numeric CSV of a run folder: its header and its rows (N, len(names)); ``t_ns`` exact;
+    the columns read as text (not in ``names``) by name."""
 
     names: tuple[str, ...]
     t_ns: NDArray[np.int64]
     values: NDArray[np.float64]
+    text: dict[str, tuple[str, ...]] = field(default_factory=dict)
 
     def column(self, name: str) -> NDArray[np.float64]:
         return self.values[:, self.names.index(name)]
@@ -53,8 +62,9 @@ class NavRunFiles:
     events: tuple[tuple[int, str], ...]  # (t_ns, text): the filter's and the odometry's
 
 
-def read_csv_columns(path: Path) -> CsvColumns:
-    """A CSV of numbers with a header whose first column is ``t_ns``."""
+def read_csv_columns(path: Path, *, text: tuple[str, ...] = ()) -> CsvColumns:
+    """A CSV of numbers with a header whose first column is ``t_ns``; the columns ``text``
+    (where the header has them) are kept as text."""
     try:
         with Path(path).open(encoding="utf-8") as f:
             names = tuple(f.readline().strip().split(","))
@@ -63,12 +73,18 @@ def read_csv_columns(path: Path) -> CsvColumns:
         raise IoError(f"cannot read {path}: {exc}") from None
     if not names or names[0] != "t_ns" or any(len(r) != len(names) for r in rows):
         raise IoError(f"{path}: not a run folder's table (t_ns first, one value per column)")
+    as_text = [k for k, n in enumerate(names) if n in text]
+    numbers = [k for k in range(len(names)) if k not in as_text]
     try:
         t_ns = np.array([int(r[0]) for r in rows], dtype=np.int64)
-        values = np.array(rows, dtype=np.float64).reshape(len(rows), len(names))
+        values = np.array([[r[k] for k in numbers] for r in rows], dtype=np.float64)
     except ValueError as exc:
         raise IoError(f"{path}: {exc}") from None
-    return CsvColumns(names=names, t_ns=t_ns, values=values)
+    return CsvColumns(
+        names=tuple(names[k] for k in numbers), t_ns=t_ns,
+        values=values.reshape(len(rows), len(numbers)),
+        text={names[k]: tuple(r[k] for r in rows) for k in as_text},
+    )  # fmt: skip
 
 
 def is_nav_run_folder(run_dir: Path) -> bool:
@@ -82,6 +98,18 @@ def is_nav_run_folder(run_dir: Path) -> bool:
         return False
 
 
+def timed_events(lines: list[str]) -> list[tuple[int, str]]:
+    """Events written as ``"12.345 s: what"`` as ``(t_ns, what)``; one without a time at 0."""
+    out: list[tuple[int, str]] = []
+    for line in lines:
+        stamp, sep, text = str(line).partition(" s: ")
+        try:
+            out.append((s_to_ns(float(stamp)), text) if sep else (0, str(line)))
+        except ValueError:
+            out.append((0, str(line)))
+    return out
+
+
 def _events(metrics: dict[str, object]) -> tuple[tuple[int, str], ...]:
     """The first seed's events, written as ``"12.345 s: what"``."""
     per_seed = metrics.get("per_seed")
@@ -89,12 +117,7 @@ def _events(metrics: dict[str, object]) -> tuple[tuple[int, str], ...]:
     out: list[tuple[int, str]] = []
     for key in ("filter_events", "vio_events"):
         lines = first.get(key, []) if isinstance(first, dict) else []
-        for line in lines if isinstance(lines, list) else []:
-            stamp, sep, text = str(line).partition(" s: ")
-            try:
-                out.append((s_to_ns(float(stamp)), text) if sep else (0, str(line)))
-            except ValueError:
-                out.append((0, str(line)))
+        out += timed_events([str(x) for x in lines] if isinstance(lines, list) else [])
     return tuple(sorted(out))
 
 

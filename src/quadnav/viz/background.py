@@ -2,8 +2,12 @@
 (most of a recording's cost on a short run) while the run goes on, on another core, then waits
 for the finished folder and builds its recording from the files, as ``quadnav view`` would.
 
-The parent sends one line, ``KIND<TAB>RUN_DIR`` (``nav``, or ``odometry`` for a VIO or SLAM
-folder), and reads back one line of JSON, the :class:`RecordingInfo`. A child that fails says
+With :class:`~quadnav.viz.stream.RerunOptions`, the child streams the recording to a viewer
+as it writes it (``connect``) and opens the viewer on the file (``spawn``); what could not be
+done is the recording's note (in ``recording.json``), the file written all the same.
+
+The parent sends one line, ``KIND<TAB>RUN_DIR<TAB>URL<TAB>SPAWN`` (a kind of
+:mod:`quadnav.viz.folders`; the URL empty when not streaming; SPAWN 1 or 0), and reads back one line of JSON, the :class:`RecordingInfo`. A child that fails says
 why on its last line of stderr, which becomes a one-line :class:`VizError` naming ``--rerun``.
 If the run fails first, the child sees its input closed and exits without writing anything.
 """
@@ -18,12 +22,11 @@ import weakref
 from pathlib import Path
 
 from quadnav.errors import VizError
+from quadnav.viz.folders import KINDS
 from quadnav.viz.recording import RecordingInfo
+from quadnav.viz.stream import RerunOptions
 
-__all__ = ["KINDS", "RecordingProcess", "record_folder"]
-
-#: The kinds of folder the child records.
-KINDS = ("nav", "odometry")
+__all__ = ["RecordingProcess"]
 #: How long the parent waits for the child's recording (s).
 TIMEOUT_S = 600.0
 
@@ -37,9 +40,10 @@ def _stop(proc: subprocess.Popen[str]) -> None:
 class RecordingProcess:
     """The child process (see the module), started on construction."""
 
-    def __init__(self) -> None:
+    def __init__(self, options: RerunOptions | None = None) -> None:
         import quadnav
 
+        self._options = options or RerunOptions()
         # this quadnav, whatever the child's sys.path would find first
         root = str(Path(quadnav.__file__).resolve().parents[1])
         paths = [root, *[p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p]]
@@ -58,7 +62,9 @@ class RecordingProcess:
         if kind not in KINDS:
             raise VizError(f"--rerun: no recording of a {kind!r} folder")
         try:
-            out, err = self._proc.communicate(f"{kind}\t{Path(run_dir)}\n", timeout=TIMEOUT_S)
+            o = self._options
+            line = f"{kind}\t{Path(run_dir)}\t{o.connect or ''}\t{int(o.spawn)}\n"
+            out, err = self._proc.communicate(line, timeout=TIMEOUT_S)
         except subprocess.TimeoutExpired:
             self._finalizer()
             raise VizError(f"--rerun: the recording took over {TIMEOUT_S:g} s; stopped") from None
@@ -71,6 +77,7 @@ class RecordingProcess:
         return RecordingInfo(
             path=Path(data["path"]), size_bytes=int(data["size_bytes"]),
             rows=dict(data["rows"]), every=dict(data["every"]),
+            streamed_to=data["streamed_to"], note=data["note"],
         )  # fmt: skip
 
     def close(self) -> None:
@@ -78,26 +85,15 @@ class RecordingProcess:
         self._finalizer()
 
 
-def record_folder(kind: str, run_dir: Path) -> RecordingInfo:
-    """The recording of a finished run folder of ``kind``, written into it (in this process)."""
-    from quadnav.viz.recording import RECORDING_FILE
-
-    if kind == "nav":
-        from quadnav.io.nav_run_files import read_nav_run
-        from quadnav.viz.nav_recording import write_nav_recording
-
-        return write_nav_recording(read_nav_run(run_dir), Path(run_dir) / RECORDING_FILE)
-    from quadnav.viz.odometry_recording import record_odometry_run
-
-    return record_odometry_run(run_dir, complete=False)
-
-
 def _main() -> int:
     import numpy as np
     import rerun  # noqa: F401  (the point of the child: rerun imported while the run goes on)
 
+    from quadnav.viz.folders import record_folder
     from quadnav.viz.nav_recording import nav_blueprint
     from quadnav.viz.odometry_recording import odometry_blueprint
+    from quadnav.viz.recording import with_note
+    from quadnav.viz.view import open_viewer
 
     # what rerun imports on first use (half a second for the first 3-D vector) while waiting
     nav_blueprint(np.zeros((2, 3)))
@@ -106,14 +102,16 @@ def _main() -> int:
     line = sys.stdin.readline()
     if not line.strip():
         return 0  # the run ended without a folder to record
-    kind, _, run_dir = line.rstrip("\n").partition("\t")
+    kind, run_dir, url, spawn = (line.rstrip("\n").split("\t") + ["", "", "", "0"])[:4]
     try:
-        info = record_folder(kind, Path(run_dir))
+        info = record_folder(kind, Path(run_dir), complete=False, connect=url or None)
+        problem = open_viewer(info.path) if spawn == "1" else None
+        info = with_note(info, f"--rerun-spawn: {problem}" if problem else "")
     except Exception as exc:  # (reported to the parent as one line)
         print(f"{type(exc).__name__}: {exc}".replace("\n", " "), file=sys.stderr)
         return 1
     record = {"path": str(info.path), "size_bytes": info.size_bytes, "rows": info.rows,
-              "every": info.every}  # fmt: skip
+              "every": info.every, "streamed_to": info.streamed_to, "note": info.note}  # fmt: skip
     print(json.dumps(record))
     return 0
 

@@ -26,9 +26,13 @@ from quadnav.viz.recording import (
     RecordingInfo,
     RecordingLog,
     decimation,
-    eye_on,
+    every_of,
     finish_info,
+    flight_blueprint,
+    log_events,
+    log_scalars,
     log_trajectory,
+    log_vehicle,
     open_recording,
     require_rerun,
 )
@@ -55,26 +59,9 @@ MAX_SCALARS = 4000
 MAX_ELLIPSOIDS = 200
 #: Sigmas an ellipsoid's half-axes span.
 ELLIPSOID_SIGMAS = 3.0
-#: The body axes' length drawn on the vehicle (m).
-AXIS_LENGTH_M = 0.3
 
 FloatArray = NDArray[np.float64]
 _COLOURS = {"truth": (40, 160, 40), "output": (30, 100, 230), "delayed": (230, 120, 20)}
-
-
-def _every(keep: np.ndarray) -> int:
-    return int(keep[1] - keep[0]) if len(keep) > 1 else 1
-
-
-def _vehicle(log: RecordingLog, files: NavRunFiles, cap: int) -> None:
-    """The output predictor's pose, with the body's axes (x red, y green, z blue)."""
-    import rerun as rr
-
-    out = files.output
-    keep = decimation(len(out.t_ns), cap)
-    log.rec.log("world/vehicle", rr.TransformAxes3D(axis_length=AXIS_LENGTH_M), static=True)
-    pose = rr.Transform3D.columns(translation=out.p_W_B[keep], quaternion=out.q_W_B_xyzw[keep])
-    log.columns("world/vehicle", out.t_ns[keep], pose, _every(keep))
 
 
 def _setpoints(log: RecordingLog, files: NavRunFiles, cap: int) -> None:
@@ -86,7 +73,7 @@ def _setpoints(log: RecordingLog, files: NavRunFiles, cap: int) -> None:
     points = rr.Points3D.columns(
         positions=ref, colors=[(200, 0, 200)] * len(keep), radii=[0.03] * len(keep)
     )
-    log.columns("world/setpoint", pos.t_ns[keep], points, _every(keep))
+    log.columns("world/setpoint", pos.t_ns[keep], points, every_of(keep))
 
 
 def _ellipsoids(log: RecordingLog, files: NavRunFiles, cap: int) -> None:
@@ -102,49 +89,24 @@ def _ellipsoids(log: RecordingLog, files: NavRunFiles, cap: int) -> None:
     shapes = rr.Ellipsoids3D.columns(
         centers=centres, half_sizes=half, colors=[_COLOURS["delayed"]] * len(keep)
     )
-    log.columns("world/delayed/sigma", d.t_ns[keep], shapes, _every(keep))
+    log.columns("world/delayed/sigma", d.t_ns[keep], shapes, every_of(keep))
 
 
 def _innovations(log: RecordingLog, files: NavRunFiles, cap: int) -> None:
     """Per source: its test ratio and each component of its innovation."""
-    import rerun as rr
-
     for source, table in files.innovations.items():
-        keep = decimation(len(table.t_ns), cap)
-        t = table.t_ns[keep]
-        ratio = rr.Scalars.columns(scalars=table.column("test_ratio")[keep])
-        log.columns(f"test_ratio/{source}", t, ratio, _every(keep))
+        log_scalars(log, f"test_ratio/{source}", table.t_ns, table.column("test_ratio"), cap)
         for name in table.names:
             if name.startswith("innovation_"):
-                values = rr.Scalars.columns(scalars=table.column(name)[keep])
                 entity = f"innovations/{source}/{name.removeprefix('innovation_')}"
-                log.columns(entity, t, values, _every(keep))
-
-
-def _events(log: RecordingLog, files: NavRunFiles) -> None:
-    import rerun as rr
-
-    for t_ns, text in files.events:
-        log.at(t_ns)
-        log.rec.log("events", rr.TextLog(text, level="WARN"))
-    log.rows["/events"] = len(files.events)
+                log_scalars(log, entity, table.t_ns, table.column(name), cap)
 
 
 def nav_blueprint(positions: FloatArray | None = None) -> rrb.Blueprint:
     """One 3-D view of the flight (looking at ``positions``) beside the test ratios, the
     innovations and the events; opened at the flight's end."""
-    import rerun.blueprint as rrb
-
-    series = rrb.Vertical(
-        rrb.TimeSeriesView(name="test ratios", origin="/test_ratio"),
-        rrb.TimeSeriesView(name="innovations", origin="/innovations"),
-        rrb.TextLogView(name="events", origin="/events"),
-    )
-    eye = eye_on(positions if positions is not None else np.zeros((0, 3)))
-    world = rrb.Spatial3DView(name="flight", origin="/world", eye_controls=eye)
-    layout = rrb.Horizontal(world, series, column_shares=[3, 2])
-    end = rrb.TimePanel(timeline="t", play_state="following", expanded=False)
-    return rrb.Blueprint(layout, end, collapse_panels=True)
+    series = (("test ratios", "/test_ratio"), ("innovations", "/innovations"))
+    return flight_blueprint("flight", positions, series)
 
 
 def write_nav_recording(
@@ -163,9 +125,10 @@ def write_nav_recording(
         d = files.delayed
         p_delayed = d.columns(("x_m", "y_m", "z_m"))
         log_trajectory(log, "delayed", d.t_ns, p_delayed, max_points, _COLOURS["delayed"])
-        _vehicle(log, files, max_points)
+        out = files.output
+        log_vehicle(log, out.t_ns, out.p_W_B, out.q_W_B_xyzw, max_points)
         _setpoints(log, files, max_points)
         _ellipsoids(log, files, max_ellipsoids)
         _innovations(log, files, max_scalars)
-        _events(log, files)
+        log_events(log, files.events)
     return finish_info(log, path)

@@ -16,24 +16,18 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-import cv2
 import numpy as np
 from numpy.typing import NDArray
 
 from quadnav.io.odometry_run_files import VIZ_CAPTURE, VizCapture, write_viz_capture
 from quadnav.odometry import FrameFeatures, KeyframeRecord, OdometryState
 from quadnav.rig import Rig
+from quadnav.viz.recording import JPEG_QUALITY, MAX_IMAGE_WIDTH, MAX_IMAGES, jpeg_of, small_size
 
 __all__ = ["JPEG_QUALITY", "MAX_IMAGES", "MAX_IMAGE_WIDTH", "MAX_LANDMARKS", "OdometryCapture"]
 
-#: Images kept: every n-th frame, n the smallest keeping at most this many.
-MAX_IMAGES = 300
-#: An image kept is downsampled by a whole factor to at most this width (pixels).
-MAX_IMAGE_WIDTH = 320
 #: Landmarks kept (the first this many seen).
 MAX_LANDMARKS = 100_000
-#: The images' JPEG quality.
-JPEG_QUALITY = 80
 
 
 class OdometryCapture:
@@ -65,8 +59,7 @@ class OdometryCapture:
         self.camera = camera
         self.every = max(1, math.ceil(n_frames / max(self.max_images, 1)))
         m = cam.camera
-        self.scale = max(1, math.ceil(m.width / self.max_width))
-        self.size = (m.width // self.scale, m.height // self.scale)
+        self.scale, self.size = small_size(m.width, m.height, self.max_width)
         self.K = np.array([m.fx, m.fy, m.K[0, 2], m.K[1, 2]], dtype=np.float64) / self.scale
         self.T_B_C = cam.T_B_C.matrix()
 
@@ -81,13 +74,8 @@ class OdometryCapture:
         if features is not None:
             uv = np.asarray(features.uv_px, np.float64) / self.scale
             self._features.append((len(self._images), ids, uv, lengths))
-        self._images.append(self._encode(image))
+        self._images.append(jpeg_of(image, self.size))
         self._image_t.append(int(t_ns))
-
-    def _encode(self, image: NDArray[np.uint8]) -> bytes:
-        small = cv2.resize(image, self.size, interpolation=cv2.INTER_AREA)
-        ok, buf = cv2.imencode(".jpg", small, [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
-        return buf.tobytes() if ok else b""
 
     def state(self, state: OdometryState) -> None:
         self._state_t.append(int(state.t_ns))

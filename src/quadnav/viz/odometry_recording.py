@@ -27,26 +27,28 @@ from scipy.spatial.transform import Rotation
 from quadnav.geometry.multiview import kabsch
 from quadnav.geometry.trajectory import Trajectory
 from quadnav.io.odometry_run_files import OdometryRunFiles, VizCapture
-from quadnav.viz.nav_recording import AXIS_LENGTH_M, ELLIPSOID_SIGMAS, MAX_POINTS, MAX_SCALARS
+from quadnav.viz.nav_recording import ELLIPSOID_SIGMAS, MAX_POINTS, MAX_SCALARS
 from quadnav.viz.recording import (
     RecordingInfo,
     RecordingLog,
     decimation,
+    every_of,
     eye_on,
     finish_info,
+    log_camera,
+    log_images,
     log_trajectory,
+    log_vehicle,
     open_recording,
 )
 
 if TYPE_CHECKING:
-    import rerun as rr
     import rerun.blueprint as rrb
 
 __all__ = [
     "MAX_MAP_POINTS",
     "MAX_ODOMETRY_ELLIPSOIDS",
     "odometry_blueprint",
-    "record_odometry_run",
     "recording_kind",
     "write_odometry_recording",
 ]
@@ -66,10 +68,6 @@ _COLOURS = {
     "loop": (255, 40, 200),
 }  # fmt: skip
 FloatArray = NDArray[np.float64]
-
-
-def _every(keep: NDArray[np.intp]) -> int:
-    return int(keep[1] - keep[0]) if len(keep) > 1 else 1
 
 
 def aligned_truth(truth: Trajectory, est: Trajectory, *, max_dt_ns: int = 20_000_000) -> FloatArray:
@@ -103,30 +101,11 @@ def _trajectories(log: RecordingLog, files: OdometryRunFiles) -> None:
 
 def _vehicle(log: RecordingLog, files: OdometryRunFiles) -> None:
     """The body's pose with its axes; the camera's frustum on it (with ``viz.npz``)."""
-    import rerun as rr
-
     est = files.estimate
-    keep = decimation(len(est), MAX_POINTS)
-    log.rec.log("world/vehicle", rr.TransformAxes3D(axis_length=AXIS_LENGTH_M), static=True)
-    pose = rr.Transform3D.columns(translation=est.p_W_B[keep], quaternion=est.q_W_B_xyzw[keep])
-    log.columns("world/vehicle", est.t_ns[keep], pose, _every(keep))
+    log_vehicle(log, est.t_ns, est.p_W_B, est.q_W_B_xyzw, MAX_POINTS)
     cap = files.capture
-    if cap is None:
-        return
-    T = cap.T_B_C
-    log.rec.log("world/vehicle/camera", rr.Transform3D(translation=T[:3, 3], mat3x3=T[:3, :3]),
-                static=True)  # fmt: skip
-    log.rec.log("world/vehicle/camera", _pinhole(cap, 0.25), static=True)
-
-
-def _pinhole(cap: VizCapture, depth_m: float) -> rr.Pinhole:
-    import rerun as rr
-
-    fx, fy, cx, cy = (float(v) for v in cap.K)
-    return rr.Pinhole(
-        focal_length=[fx, fy], principal_point=[cx, cy], width=cap.width, height=cap.height,
-        camera_xyz=rr.ViewCoordinates.RDF, image_plane_distance=depth_m,
-    )  # fmt: skip
+    if cap is not None:
+        log_camera(log, "world/vehicle/camera", cap.T_B_C, cap.K, (cap.width, cap.height))
 
 
 def _frustum_lines(T_W_C: FloatArray, K: FloatArray, size: tuple[int, int]) -> list[FloatArray]:
@@ -165,7 +144,7 @@ def _keyframes(log: RecordingLog, files: OdometryRunFiles) -> None:
     lines = rr.LineStrips3D.columns(
         strips=strips, colors=[_COLOURS["keyframes"]] * len(strips), radii=[0.003] * len(strips)
     ).partition([per] * len(keep))
-    log.columns("world/keyframes", kf.t_ns[keep], lines, _every(keep))
+    log.columns("world/keyframes", kf.t_ns[keep], lines, every_of(keep))
 
 
 def _map(log: RecordingLog, cap: VizCapture) -> None:
@@ -182,7 +161,7 @@ def _map(log: RecordingLog, cap: VizCapture) -> None:
         positions=cap.landmark_W[keep], colors=[_COLOURS["map"]] * len(keep),
         radii=[0.01] * len(keep),
     ).partition(lengths.tolist())  # fmt: skip
-    log.columns("world/map", stamps, points, _every(keep))
+    log.columns("world/map", stamps, points, every_of(keep))
 
 
 def _nearest(t_ns: NDArray[np.int64], t: int) -> int:
@@ -242,8 +221,7 @@ def _camera(log: RecordingLog, cap: VizCapture) -> None:
     if n == 0:
         return
     blobs = [cap.image_bytes(k) for k in range(n)]
-    images = rr.EncodedImage.columns(blob=blobs, media_type=["image/jpeg"] * n)
-    log.columns("camera/image", cap.image_t_ns, images, cap.image_every)
+    log_images(log, "camera/image", cap.image_t_ns, blobs, cap.image_every)
     if len(cap.feature_image) == 0:
         return
     counts = np.bincount(cap.feature_image, minlength=n)
@@ -262,11 +240,11 @@ def _series(log: RecordingLog, cap: VizCapture) -> None:
     keep = decimation(len(cap.state_t_ns), MAX_SCALARS)
     t = cap.state_t_ns[keep]
     tracked = rr.Scalars.columns(scalars=cap.state_tracked[keep].astype(np.float64))
-    log.columns("series/tracked", t, tracked, _every(keep))
+    log.columns("series/tracked", t, tracked, every_of(keep))
     trace = np.trace(cap.state_cov_p_W[keep], axis1=1, axis2=2)
     ok = np.isfinite(trace)
     sigma = rr.Scalars.columns(scalars=np.sqrt(np.clip(trace[ok], 0.0, None)))
-    log.columns("series/sigma_m", t[ok], sigma, _every(keep))
+    log.columns("series/sigma_m", t[ok], sigma, every_of(keep))
 
 
 _LEVELS = {"failure": "ERROR", "rejected_image": "WARN", "reinitialized": "WARN"}
@@ -340,13 +318,3 @@ def write_odometry_recording(files: OdometryRunFiles, path: Path) -> RecordingIn
             _series(log, cap)
         _events(log, files)
     return finish_info(log, path)
-
-
-def record_odometry_run(run_dir: Path, *, complete: bool = True) -> RecordingInfo:
-    """Read a VIO or SLAM run folder and write its ``recording.rrd`` into it; ``complete``:
-    refuse a folder not marked complete (the run recording itself reads it before)."""
-    from quadnav.io.odometry_run_files import read_odometry_run
-    from quadnav.viz.recording import RECORDING_FILE
-
-    files = read_odometry_run(run_dir, complete=complete)
-    return write_odometry_recording(files, Path(run_dir) / RECORDING_FILE)

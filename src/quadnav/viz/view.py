@@ -1,8 +1,9 @@
 """``quadnav view RUN_DIR``: the recording of an existing run folder, written headless (the
 default) and, with ``spawn``, opened in rerun's viewer.
 
-Navigation runs (``quadnav run``) and visual odometry runs (``quadnav vio``, ``quadnav slam``)
-can be shown; any other folder is a one-line error naming it. Opening the viewer needs a display and rerun's viewer binary (``rerun``, which
+The folders of ``quadnav run``, ``sim``, ``markers``, ``replay``, ``vio`` and ``slam`` and a
+dataset of ``quadnav dataset make`` can be shown (:mod:`quadnav.viz.folders`); any other folder
+is a one-line error naming it. Opening the viewer needs a display and rerun's viewer binary (``rerun``, which
 ``rerun-sdk`` installs); without them one line says so and the file is written all the same.
 """
 
@@ -16,12 +17,11 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from quadnav.errors import IoError, VizError
-from quadnav.io.nav_run_files import is_nav_run_folder, read_nav_run
-from quadnav.io.odometry_run_files import is_odometry_run_folder, read_odometry_run
-from quadnav.viz.nav_recording import write_nav_recording
+from quadnav.viz.folders import folder_kind, record_folder
 from quadnav.viz.recording import RECORDING_FILE, RecordingInfo, require_rerun
+from quadnav.viz.stream import rerun_url
 
-__all__ = ["ViewResult", "check_view_out", "view_run", "viewer_problem"]
+__all__ = ["ViewResult", "check_view_out", "open_viewer", "view_run", "viewer_problem"]
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -49,7 +49,7 @@ def viewer_problem() -> str | None:
     return None
 
 
-def _spawn(path: Path) -> str | None:
+def open_viewer(path: Path) -> str | None:
     """Start the viewer on ``path`` in the background; why not, if it could not start."""
     if (problem := viewer_problem()) is not None:
         return problem
@@ -73,31 +73,32 @@ def check_view_out(out: Path | None) -> None:
         raise VizError(f"--out {out}: give a file ending in .rrd")
 
 
-def view_run(run_dir: Path, *, out: Path | None = None, spawn: bool = False) -> ViewResult:
-    """Build the recording of ``run_dir`` (to ``out``, default ``RUN_DIR/recording.rrd``) and,
-    with ``spawn``, open it in the viewer."""
+def view_run(
+    run_dir: Path, *, out: Path | None = None, spawn: bool = False, connect: str | None = None
+) -> ViewResult:
+    """Build the recording of ``run_dir`` (to ``out``, default ``RUN_DIR/recording.rrd``),
+    stream it to ``connect`` (``HOST:PORT`` or a rerun URL, loopback) and, with ``spawn``, open
+    it in the viewer."""
     run_dir = Path(run_dir)
     require_rerun("quadnav view")
     check_view_out(out)
+    url = None if connect is None else rerun_url(connect, "--connect")
     if not run_dir.is_dir():
         raise VizError(f"{run_dir}: no such folder")
     target = out if out is not None else run_dir / RECORDING_FILE
+    kind = folder_kind(run_dir)
+    if kind is None:
+        raise VizError(
+            f"{run_dir}: not a folder quadnav view can show (quadnav run, sim, markers, replay, "
+            "vio or slam's, or a dataset quadnav dataset make wrote)"
+        )
     try:
-        if is_nav_run_folder(run_dir):
-            info = write_nav_recording(read_nav_run(run_dir), target)
-        elif is_odometry_run_folder(run_dir):
-            from quadnav.viz.odometry_recording import write_odometry_recording
-
-            info = write_odometry_recording(read_odometry_run(run_dir), target)
-        else:
-            raise VizError(
-                f"{run_dir}: not a run folder quadnav view can show yet (quadnav run, vio and "
-                "slam's)"
-            )
+        info = record_folder(kind, run_dir, target, connect=url)
     except IoError as exc:
         raise VizError(str(exc)) from None
     if not spawn:
-        return ViewResult(recording=info, spawned=False)
-    problem = _spawn(info.path)
+        return ViewResult(recording=info, spawned=False, note=info.note)
+    problem = open_viewer(info.path)
     note = "" if problem is None else f"viewer not opened: {problem}; the recording is written"
+    note = "; ".join(x for x in (info.note, note) if x)
     return ViewResult(recording=info, spawned=problem is None, note=note)
