@@ -3,8 +3,9 @@
 loop closure on room_laps), each recording opened in rerun's viewer under a virtual display
 and saved as a PNG, downsized.
 
-Needs ``quadnav[viz]``, ``xvfb-run`` (Debian's ``xvfb``) and a Vulkan driver (Mesa's lavapipe
-is enough: ``WGPU_BACKEND=vulkan``). The runs go under ``--runs``; built-in sequences are made
+Needs ``quadnav[viz]``, ``xvfb-run`` (Debian's ``xvfb``), ``xdotool`` (to move the virtual
+display's pointer off the viewer: at the display's centre it may hover over a 3-D view and open
+a tooltip) and a Vulkan driver (Mesa's lavapipe is enough: ``WGPU_BACKEND=vulkan``). The runs go under ``--runs``; built-in sequences are made
 there once.
 
     python scripts/rerun_screenshots.py --out docs/guide/img --runs runs/screenshots
@@ -30,6 +31,8 @@ RUNS = (
 #: each run's folders, by name
 FOLDERS = {"flight": "*_indoor_vision", "vio": "*_vio_room_easy*", "loop": "*_vio_room_laps*"}
 WINDOW = "1400x900"
+#: The virtual display (pixels); the pointer goes to its bottom-right corner, off the window.
+SCREEN = (3200, 2000)
 #: The PNG's width after downsizing (pixels).
 WIDTH = 1400
 
@@ -52,15 +55,29 @@ def _reuse(args: list[str], runs: Path, name: str) -> Path:
 
 def _screenshot(recording: Path, png: Path) -> None:
     """rerun's viewer on ``recording`` under a virtual display, saved to ``png`` and downsized;
-    the display twice the window, so that its pointer (at the display's centre) hovers over
-    nothing."""
+    the display's pointer moved to its far corner once the window is up (``xdotool``), where
+    it hovers over nothing (the window opens at the top left, 2800 x 1800 pixels)."""
     viewer = Path(sys.executable).parent / "rerun"
     raw = png.with_suffix(".raw.png")
     env = {**os.environ, "WGPU_BACKEND": os.environ.get("WGPU_BACKEND", "vulkan"),
            "RUST_LOG": "error"}  # (no warning toasts over the views)  # fmt: skip
+    w, h = SCREEN
+    viewer_args = [
+        str(viewer),
+        str(recording),
+        "--window-size",
+        WINDOW,
+        "--screenshot-to",
+        str(raw),
+    ]
+    # the viewer started, its window waited for, the pointer moved (at the display's centre
+    # until then, and warped back there if moved before the window is made), the viewer awaited
+    pointer = (
+        '"$@" & pid=$!; i=0; while [ $i -lt 600 ] && ! xdotool search --name Rerun >/dev/null '
+        f"2>&1; do sleep 0.1; i=$((i+1)); done; xdotool mousemove {w - 1} {h - 1}; wait $pid"
+    )
     subprocess.run(
-        ["xvfb-run", "-a", "-s", "-screen 0 3200x2000x24", str(viewer), str(recording),
-         "--window-size", WINDOW, "--screenshot-to", str(raw)],
+        ["xvfb-run", "-a", "-s", f"-screen 0 {w}x{h}x24", "sh", "-c", pointer, "sh", *viewer_args],
         check=True, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, timeout=300,
     )  # fmt: skip
     image = cv2.imread(str(raw))
@@ -79,8 +96,9 @@ def main() -> None:
         "--reuse", action="store_true", help="the newest runs under --runs, recordings rebuilt"
     )
     args = parser.parse_args()
-    if shutil.which("xvfb-run") is None:
-        sys.exit("error: xvfb-run not found (apt-get install xvfb)")
+    for tool, package in (("xvfb-run", "xvfb"), ("xdotool", "xdotool")):
+        if shutil.which(tool) is None:
+            sys.exit(f"error: {tool} not found (apt-get install {package})")
     args.out.mkdir(parents=True, exist_ok=True)
     for name, command in RUNS:
         if args.only and name not in args.only:
