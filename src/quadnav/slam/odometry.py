@@ -55,10 +55,12 @@ from quadnav.rig import Rig
 from quadnav.slam.config import SlamConfig
 from quadnav.slam.frame import Frame, StereoCamera, rgbd_frame, stereo_frame
 from quadnav.slam.map import SlamKeyframe, SlamMap
-from quadnav.slam.tracking import StereoTracker
+from quadnav.slam.tracking import StereoTracker, TrackResult
 from quadnav.vision.orb import OrbExtractor
 from quadnav.vision.stereo_match import StereoKeypoints
 from quadnav.vision.tracking import as_grey
+
+FloatArray = NDArray[np.float64]
 
 __all__ = ["SlamOdometry"]
 
@@ -113,6 +115,7 @@ class SlamOdometry:
         self._initialized = False
         self._resets = 0  # (raised at each loop closed: the output jumps)
         self._last: OdometryState | None = None
+        self._last_features: FrameFeatures | None = None
         self._events: list[OdometryEvent] = []
         self._rejected: Counter[str] = Counter()
         self._seconds: dict[str, float] = {}
@@ -220,7 +223,9 @@ class SlamOdometry:
 
     @property
     def last_features(self) -> FrameFeatures | None:
-        return None
+        """The last frame's keypoints tracked on the map (ids: their map points), in the left
+        camera's image through its lens; None when it was not tracked."""
+        return self._last_features
 
     @property
     def rejected(self) -> Mapping[str, int]:
@@ -284,6 +289,7 @@ class SlamOdometry:
             )
         for detail in self.tracker.loop_closer.refusals[refused:]:
             self._events.append(OdometryEvent(t_ns=left.t_ns, kind="loop_rejected", detail=detail))
+        self._last_features = None if result.T_W_C is None else self._tracked(frame, result)
         if result.T_W_C is None:
             return None
         if result.keyframe:
@@ -329,15 +335,29 @@ class SlamOdometry:
             self._events.append(OdometryEvent(t_ns=t_ns, kind="initialized", detail="stereo"))
         self._initialized = True
 
-    def _record(self, kf: SlamKeyframe) -> KeyframeRecord:
-        """Keyframe ``kf`` as a record (see the module)."""
-        m, c, f = self.tracker.map, self.camera, kf.frame.features
-        n = len(f)
+    def _in_lens(self, uv_rect: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """Rectified keypoints in the left camera: through its lens (pixels) and undistorted
+        (normalised)."""
+        c, n = self.camera, len(uv_rect)
         rect = np.column_stack(
-            [(f.uv_px[:, 0] - c.cx) / c.fx, (f.uv_px[:, 1] - c.cy) / c.fy, np.ones(n)]
+            [(uv_rect[:, 0] - c.cx) / c.fx, (uv_rect[:, 1] - c.cy) / c.fy, np.ones(n)]
         )
         rays = rect @ self._R0  # (the rectified rays in the left camera: R0^T r)
         xy = rays[:, :2] / rays[:, 2:3]
+        return (self.left.camera.project(rays) if n else np.zeros((0, 2))), xy
+
+    def _tracked(self, frame: Frame, result: TrackResult) -> FrameFeatures:
+        uv_px, xy = self._in_lens(frame.features.uv_px[result.keypoints])
+        return FrameFeatures(
+            t_ns=frame.t_ns, ids=np.asarray(result.points, np.int64), uv_px=uv_px, xy=xy,
+            velocity_xy_s=np.zeros_like(xy),
+        )  # fmt: skip
+
+    def _record(self, kf: SlamKeyframe) -> KeyframeRecord:
+        """Keyframe ``kf`` as a record (see the module)."""
+        m, f = self.tracker.map, kf.frame.features
+        n = len(f)
+        uv_px, xy = self._in_lens(f.uv_px)
         has = kf.points >= 0
         has[has] = ~m.bad[kf.points[has]]
         ids = np.where(has, kf.points, -(NO_POINT + np.arange(n)))
@@ -347,7 +367,7 @@ class SlamOdometry:
             index=kf.index, t_ns=kf.frame.t_ns, reset_counter=self._resets,
             T_W_B=T_W_C @ self.T_B_C.inverse(), cov_pose=_COV_POSE, camera=self._names[0],
             image=self._images.get(kf.index), ids=ids,
-            uv_px=self.left.camera.project(rays) if n else np.zeros((0, 2)), xy=xy,
+            uv_px=uv_px, xy=xy,
             descriptors=f.descriptors, described=np.ones(n, bool), landmark_ids=lm,
             landmarks_W=self.T_O_S @ m.X_W[lm] if len(lm) else np.zeros((0, 3)),
         )  # fmt: skip

@@ -48,7 +48,8 @@ class TrackResult:
     tracking), the matches kept after the optimisation, whether it became a keyframe, and the
     keyframe it was relocalized on (None: tracked as usual) and the loop its keyframe closed;
     ``cov_C``: the pose's covariance in the camera frame from the pose-only optimisation
-    (:class:`~quadnav.slam.optimizer.PoseFit`; None where none was made, as at the first frame)."""
+    (:class:`~quadnav.slam.optimizer.PoseFit`; None where none was made, as at the first frame);
+    the keypoints tracked (rows of the frame's features) and the map points they observe."""
 
     t_ns: int
     state: TrackState
@@ -58,6 +59,8 @@ class TrackResult:
     keyframe: bool = False
     relocalized_on: int | None = None
     loop: LoopClosingReport | None = None
+    keypoints: NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, np.int64))
+    points: NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, np.int64))
 
 
 def search_by_projection(
@@ -230,7 +233,8 @@ class StereoTracker:
             self._relative.append((frame.t_ns, self._reference.index, T_R_C.matrix()))
         return TrackResult(t_ns=frame.t_ns, state="tracking", T_W_C=T_C_W.inverse(),
                            cov_C=matches.cov, inliers=n, keyframe=keyframe,
-                           loop=self._loop)  # fmt: skip
+                           loop=self._loop, keypoints=matches.keypoints,
+                           points=matches.points)  # fmt: skip
 
     def _relocalize(self, frame: Frame) -> TrackResult:
         """After a loss (or on a loaded map): the keyframes that look like the frame, PnP on
