@@ -85,6 +85,7 @@ EXAMPLES = (
     "quadnav dataset make room --motion indoor_vision --rig thesis003_sim --out data/flight",
     "quadnav dataset make room_difficult --rig zed --seed 3 --bag --out data/room_zed",
     "quadnav dataset make room_medium --rig euroc_mono --sensors ideal --out data/room_ideal",
+    "quadnav dataset make room_easy --duration 10 --rerun --out data/room_10s",
 )
 
 

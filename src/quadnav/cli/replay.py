@@ -43,6 +43,7 @@ EXAMPLES = (
     "quadnav replay flight.ulg",
     "quadnav replay flight.ulg --set gps_delay_s=0.2 --set gate_sigma=5",
     "quadnav replay crash.ulg --set baro_noise_m=2 --out /tmp/runs",
+    "quadnav replay flight.ulg --rerun",
 )
 
 

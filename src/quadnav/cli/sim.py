@@ -61,6 +61,8 @@ EXAMPLES = (
     "quadnav sim thesis003_waypoints --set thesis003.kp_lin=0.3",
     "quadnav sim thesis002_pd_stabilization --set el_pd_gains=table_5_1",
     "quadnav sim --mavlink udpin:127.0.0.1:14540 --signing-key-file key.hex --duration 60",
+    "quadnav sim circle --rerun",
+    "quadnav sim circle --rerun-connect 127.0.0.1:9876",
 )
 
 
