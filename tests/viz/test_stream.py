@@ -23,6 +23,8 @@ from quadnav.viz.stream import listening_problem, rerun_url
 
 pytest.importorskip("rerun")
 
+from rerun.chunk import RrdReader
+
 from tests.viz.rrd import rows_and_static
 
 runner = CliRunner()
@@ -124,5 +126,7 @@ def test_a_run_streams_its_recording_to_a_server_on_loopback(tmp_path: Path) -> 
     with warnings.catch_warnings():  # (a streamed file may have no footer: read whole)
         warnings.simplefilter("ignore")
         received, static = rows_and_static(got)
+        assert RrdReader(got).blueprints()  # the layout went with the stream
+    assert RrdReader(folder / "recording.rrd").blueprints()  # and into the file
     assert received == written and written["/world/flown"] == 101
     assert "/world/trajectories/flown" in static
