@@ -1,6 +1,6 @@
 """The screenshots of docs/guide/viewing.md: three runs recorded with ``--rerun`` (the default
 ``quadnav run`` flight, the VIO on room_easy (60 s) with its features and map, the stereo VIO with
-loop closure on room_laps), each recording opened in rerun's viewer under a virtual display
+loop closure on room_laps, the markers on the thesis's ChArUco video), each recording opened in rerun's viewer under a virtual display
 and saved as a PNG, downsized.
 
 Needs ``quadnav[viz]``, ``xvfb-run`` (Debian's ``xvfb``), ``xdotool`` (to move the virtual
@@ -22,14 +22,31 @@ from pathlib import Path
 
 import cv2
 
+#: the thesis's rig's video and calibration (the shared data beside the project's folder)
+THESIS_RIG = "../shared/data/thesis_rig"
 #: name, the command's arguments after ``quadnav`` (``--out RUNS`` added)
 RUNS = (
     ("flight", ["run", "--rerun"]),
     ("vio", ["vio", "room_easy", "--no-video", "--rerun"]),
     ("loop", ["vio", "room_laps", "--stereo", "--loop", "--no-video", "--rerun"]),
+    (
+        "markers",
+        [
+            "markers",
+            f"{THESIS_RIG}/board12_17.mp4",
+            "--params",
+            f"{THESIS_RIG}/vision_params.yml",
+            "--camera",
+            f"{THESIS_RIG}/cal.yml",
+            "--set",
+            "max_frames=300",
+            "--rerun",
+        ],
+    ),
 )
 #: each run's folders, by name
-FOLDERS = {"flight": "*_indoor_vision", "vio": "*_vio_room_easy*", "loop": "*_vio_room_laps*"}
+FOLDERS = {"flight": "*_indoor_vision", "vio": "*_vio_room_easy*", "loop": "*_vio_room_laps*",
+           "markers": "*_markers"}  # fmt: skip
 WINDOW = "1400x900"
 #: The virtual display (pixels); the pointer goes to its bottom-right corner, off the window.
 SCREEN = (3200, 2000)

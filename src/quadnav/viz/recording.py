@@ -265,12 +265,15 @@ def flight_blueprint(
     title: str, positions: NDArray[np.float64] | None, series: Sequence[tuple[str, str]],
     *, side: Sequence[rrb.View] = (),
 ) -> rrb.Blueprint:  # fmt: skip
-    """One 3-D view of ``/world`` (looking at ``positions``) beside the views ``side`` above
-    a time series per ``(name, origin)`` and the events; opened at the run's end."""
+    """One 3-D view of ``/world`` (looking at ``positions``) beside the views ``side`` (three
+    times the height of each other) above a time series per ``(name, origin)`` and the events;
+    opened at the run's end."""
     import rerun.blueprint as rrb
 
     views = [rrb.TimeSeriesView(name=name, origin=origin) for name, origin in series]
-    column = rrb.Vertical(*side, *views, rrb.TextLogView(name="events", origin="/events"))
+    shares = [3.0] * len(side) + [1.0] * (len(views) + 1)  # (an image needs the room)
+    events = rrb.TextLogView(name="events", origin="/events")
+    column = rrb.Vertical(*side, *views, events, row_shares=shares)
     eye = eye_on(positions if positions is not None else np.zeros((0, 3)))
     world = rrb.Spatial3DView(name=title, origin="/world", eye_controls=eye)
     layout = rrb.Horizontal(world, column, column_shares=[3, 2])
