@@ -34,5 +34,5 @@ def test_a_failed_recording_is_one_line_naming_rerun(tmp_path: Path) -> None:
     message = str(err.value)
     assert message.startswith("--rerun: the recording failed: IoError: ") and "\n" not in message
     assert str(tmp_path) in message
-    with pytest.raises(VizError, match="no recording of a 'planar' folder"):
-        RecordingProcess().record(tmp_path, "planar")
+    with pytest.raises(VizError, match="no recording of a 'sweep' folder"):
+        RecordingProcess().record(tmp_path, "sweep")

@@ -160,3 +160,27 @@ def test_replay_rerun_records_the_three_trajectories_and_gnss_checks(tmp_path: P
     assert [rows[f"/gnss/{c}"] for c in ("eph", "epv", "used")] == [n] * 3
     notes = json.loads((folder / "metrics.json").read_text())["notes"]
     assert rows["/events"] == len(notes) > 0
+
+
+def test_planar_rerun_records_each_variant_its_fixes_and_innovations(tmp_path: Path) -> None:
+    """``quadnav run planar --rerun``: the truth once, each variant's delayed and output
+    estimates, its GPS fixes and innovations, row for row against its files; ``quadnav view``
+    of the folder gives the same recording."""
+    args = ["run", "planar", "--set", "duration_s=3", "--rerun"]
+    folder = _made(tmp_path / "runs", args)
+    rows, static = rows_and_static(folder / "recording.rrd")
+    variants = sorted(d.name for d in folder.iterdir() if (d / "truth.tum").is_file())
+    assert variants == ["handled", "naive", "no_update"]
+    assert rows["/world/truth"] == _lines(folder / "handled" / "truth.tum")
+    for v in variants:
+        for name in ("delayed", "output"):
+            assert rows[f"/world/{v}/{name}"] == _lines(folder / v / f"{name}.tum"), (v, name)
+            assert f"/world/{v}/trajectories/{name}" in static
+        if (folder / v / "gps.csv").is_file():
+            assert rows[f"/world/{v}/gps"] == _lines(folder / v / "gps.csv", 1) > 0
+        n = _lines(folder / v / "innovations.csv", 1)
+        if v == "no_update":  # nothing fused, no innovation
+            assert n == 0 and f"/test_ratio/{v}" not in rows
+        else:
+            assert rows[f"/test_ratio/{v}"] == rows[f"/innovations/{v}/x"] == n > 0
+    assert _viewed(folder, tmp_path) == rows

@@ -4,24 +4,33 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 from rich.table import Table
 
 from quadnav.cli.common import (
     CommandParams,
+    RerunConnectOpt,
+    RerunOpt,
+    RerunSpawnOpt,
     command_help,
     console,
+    finish_recording,
     handle_errors,
     optional_param,
     progress_bar,
+    rerun_request,
+    start_recording,
     strings_param,
 )
 from quadnav.eval.na import fmt_metric
 from quadnav.experiments.planar import PlanarConfig
 from quadnav.experiments.planar_study import PlanarStudy, planar_table, run_planar_study
 from quadnav.io.config import load_config
+
+if TYPE_CHECKING:
+    from quadnav.viz.stream import RerunOptions
 
 __all__ = [
     "EXAMPLES",
@@ -101,12 +110,20 @@ def check_example(params: CommandParams) -> None:
     )
 
 
-def run_planar_config(config: PlanarConfig, out: Path, jobs: int | None = None) -> None:
+def run_planar_config(
+    config: PlanarConfig,
+    out: Path,
+    jobs: int | None = None,
+    recording: RerunOptions | None = None,
+) -> None:
+    """Run the planar study; with ``recording`` (``--rerun``), its folder's rerun recording."""
+    recorder = start_recording(recording)  # (rerun imported while the study runs)
     with progress_bar("planar", line_step=0) as update:
         study = run_planar_study(
             config, runs_root=out, progress=update, jobs=jobs or os.cpu_count() or 1
         )
     print_planar_summary(study)
+    finish_recording(recorder, study.run_dir, "planar")
     console.print(str(study.run_dir), soft_wrap=True, highlight=False)
 
 
@@ -126,8 +143,12 @@ def planar_command(
     seeds: SeedsOpt = None,
     out: OutOpt = Path("runs"),
     jobs: JobsOpt = None,
+    rerun: RerunOpt = False,
+    rerun_connect: RerunConnectOpt = None,
+    rerun_spawn: RerunSpawnOpt = False,
 ) -> None:
-    run_planar_config(resolve_planar_config(config, set_, seeds), out, jobs)
+    recording = rerun_request(rerun, rerun_connect, rerun_spawn)
+    run_planar_config(resolve_planar_config(config, set_, seeds), out, jobs, recording)
 
 
 planar_command.__doc__ = command_help(

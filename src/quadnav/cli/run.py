@@ -70,18 +70,10 @@ def check_example(params: CommandParams) -> None:
         [*strings_param(params, "set_"), *_seed_override(_given(params, "seed", int))],
         optional_param(params, "seeds", int),
     )
-    _check_rerun(config, rerun=rerun_param(params) is not None)
+    rerun_param(params)
     mavlink = _given(params, "mavlink", str)
     if mavlink is not None:
         _check_mavlink(config, mavlink, allow_remote=bool(params.get("allow_remote")))
-
-
-def _check_rerun(config: NavScenario | PlanarConfig, *, rerun: bool) -> None:
-    """``--rerun`` records navigation flights only, so far."""
-    if rerun and isinstance(config, PlanarConfig):
-        raise ConfigError(
-            "--rerun: quadnav run planar has no recording yet (navigation scenarios only)"
-        )
 
 
 def _given(params: CommandParams, name: str, kind: type[T]) -> T | None:
@@ -140,9 +132,8 @@ def run_command(
 ) -> None:
     config = resolve_run_config(scenario, [*(set_ or []), *_seed_override(seed)], seeds)
     recording = rerun_request(rerun, rerun_connect, rerun_spawn)
-    _check_rerun(config, rerun=recording is not None)
     if isinstance(config, PlanarConfig):
-        run_planar_config(config, out, jobs)
+        run_planar_config(config, out, jobs, recording)
         return
     if mavlink is not None:
         _check_mavlink(config, mavlink, allow_remote=allow_remote)

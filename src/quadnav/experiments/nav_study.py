@@ -683,13 +683,16 @@ def _in_process(
 
 
 def _write_study(
-    sc: NavScenario, run_dir: Path, first: NavRunResult, per_seed: list[NavMetrics]
+    sc: NavScenario,
+    run_dir: Path,
+    first: NavRunResult,
+    per_seed: list[NavMetrics],
+    recorder: RecordingProcess | None = None,
 ) -> NavSummary:
-    """The run folder's series, streams and plots (the first seed's), metrics and report."""
+    """The run folder's series, streams and plots (the first seed's), metrics and report;
+    ``recorder`` starts on the folder's files while the plots are drawn."""
     _write_series(first, run_dir)
     _write_sensor_streams(first, run_dir)
-    images = plot_nav_run(first, run_dir / "plots")
-
     summary = summarize_nav_seeds(per_seed)
     table = [{
         "scenario": sc.name, "seeds": len(per_seed),
@@ -710,6 +713,9 @@ def _write_study(
             "table": table,
         },
     )
+    if recorder is not None:  # what the recording reads is written: it goes on beside the plots
+        recorder.start(run_dir, "nav")
+    images = plot_nav_run(first, run_dir / "plots")
     write_report(
         run_dir / "report.html",
         title=f"{sc.name}: navigation flight ({len(per_seed)} seed(s))",
@@ -822,8 +828,8 @@ def run_nav_study(
     first = firsts[0] if firsts else None
     assert first is not None
     per_seed = [results[s] for s in seeds]
-    summary = _write_study(sc, run_dir, first, per_seed)
-    if recorder is not None:  # from the complete folder's files, as quadnav view would
+    summary = _write_study(sc, run_dir, first, per_seed, recorder)
+    if recorder is not None:  # from the folder's files, as quadnav view would
         recorder.record(run_dir, "nav")
     sent = dict(link.stats.sent) if link is not None else {}
     traffic = link.describe() if link is not None else ""

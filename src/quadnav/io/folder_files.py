@@ -20,10 +20,12 @@ from quadnav.io.trajectory_io import read_tum
 __all__ = [
     "FOLDER_FILES",
     "MarkersRunFiles",
+    "PlanarRunFiles",
     "ReplayRunFiles",
     "SimRunFiles",
     "folder_kind_of",
     "read_markers_run",
+    "read_planar_run",
     "read_replay_run",
     "read_sim_run",
 ]
@@ -33,6 +35,7 @@ FOLDER_FILES = {
     "sim": ("metrics.json", "states.csv", "controls.csv", "trajectory.tum"),
     "replay": ("metrics.json", "quadnav.tum"),
     "markers": ("metrics.json", "stats.json", "poses.csv", "config.yaml"),
+    "planar": ("metrics.json", "handled/truth.tum", "handled/output.tum", "handled/delayed.tum"),
     "dataset": ("dataset.json", "groundtruth.tum", "mav0"),
 }
 #: ``poses.csv``'s columns of text (the ids seen, the reason a frame has no pose).
@@ -75,12 +78,26 @@ class MarkersRunFiles:
     frames: Path | None
 
 
+@dataclass(frozen=True, slots=True, kw_only=True)
+class PlanarRunFiles:
+    """A ``quadnav run planar`` folder: per variant (``handled``, ``naive``, ``no_update``) the
+    truth, delayed and output trajectories (in the x-z plane), the GPS fixes and the
+    innovations; the notes of ``metrics.json``."""
+
+    run_dir: Path
+    trajectories: dict[str, dict[str, Trajectory]]  # variant -> truth, delayed, output
+    gps: dict[str, CsvColumns]
+    innovations: dict[str, CsvColumns]
+    events: tuple[tuple[int, str], ...]
+
+
 def _has(run_dir: Path, kind: str) -> bool:
     return all((run_dir / name).exists() for name in FOLDER_FILES[kind])
 
 
 def folder_kind_of(run_dir: Path) -> str | None:
-    """``sim``, ``replay``, ``markers`` or ``dataset`` when ``run_dir`` holds that kind's files."""
+    """``sim``, ``replay``, ``markers``, ``planar`` or ``dataset`` when ``run_dir`` holds that
+    kind's files."""
     run_dir = Path(run_dir)
     if _has(run_dir, "dataset"):
         return "dataset"
@@ -91,7 +108,7 @@ def folder_kind_of(run_dir: Path) -> str | None:
     except IoError:
         return None
     kind = metrics.get("kind")
-    if kind in ("sim", "markers") and _has(run_dir, str(kind)):
+    if kind in ("sim", "markers", "planar") and _has(run_dir, str(kind)):
         return str(kind)
     if "quadnav_vs_px4" in metrics and _has(run_dir, "replay"):
         return "replay"
@@ -166,4 +183,29 @@ def read_markers_run(run_dir: Path, *, complete: bool = True) -> MarkersRunFiles
         stats=read_json(run_dir / "stats.json"),
         config=run_dir / "config.yaml",
         frames=frames,
+    )
+
+
+def read_planar_run(run_dir: Path, *, complete: bool = True) -> PlanarRunFiles:
+    """The series of a complete ``quadnav run planar`` folder (each variant it wrote)."""
+    run_dir = _checked(run_dir, "planar", "quadnav run planar", complete=complete)
+    variants = sorted(d.name for d in run_dir.iterdir() if (d / "truth.tum").is_file())
+    trajectories, gps, innovations = {}, {}, {}
+    for v in variants:
+        d = run_dir / v
+        trajectories[v] = {
+            name: read_tum(d / f"{name}.tum")
+            for name in ("truth", "delayed", "output")
+            if (d / f"{name}.tum").is_file()
+        }
+        if (d / "gps.csv").is_file():
+            gps[v] = read_csv_columns(d / "gps.csv")
+        if (d / "innovations.csv").is_file():
+            innovations[v] = read_csv_columns(d / "innovations.csv")
+    return PlanarRunFiles(
+        run_dir=run_dir,
+        trajectories=trajectories,
+        gps=gps,
+        innovations=innovations,
+        events=_events(run_dir),
     )

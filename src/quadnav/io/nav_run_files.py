@@ -121,14 +121,16 @@ def _events(metrics: dict[str, object]) -> tuple[tuple[int, str], ...]:
     return tuple(sorted(out))
 
 
-def read_nav_run(run_dir: Path) -> NavRunFiles:
-    """The series of a complete ``quadnav run`` folder (an error naming it otherwise)."""
+def read_nav_run(run_dir: Path, *, complete: bool = True) -> NavRunFiles:
+    """The series of a complete ``quadnav run`` folder (an error naming it otherwise);
+    ``complete=False``: the run that writes it reads its series before it is marked complete."""
     run_dir = Path(run_dir)
     if not run_dir.is_dir() or not is_nav_run_folder(run_dir):
         missing = [n for n in NAV_REQUIRED if not (run_dir / n).is_file()]
         why = f"no {', '.join(missing)}" if missing else "its metrics.json is not a nav run's"
         raise IoError(f"{run_dir}: not a quadnav run folder ({why})")
-    require_complete(run_dir)
+    if complete:
+        require_complete(run_dir)
     innovations = {
         p.stem.removeprefix("innovations_"): read_csv_columns(p)
         for p in sorted(run_dir.glob("innovations_*.csv"))

@@ -56,15 +56,31 @@ class RecordingProcess:
             env={**os.environ, "PYTHONPATH": os.pathsep.join(paths)},
         )
         self._finalizer = weakref.finalize(self, _stop, self._proc)
+        self._line = ""  # the request sent (or to send)
+        self._sent = False
 
-    def record(self, run_dir: Path, kind: str) -> RecordingInfo:
-        """The recording of the finished ``run_dir`` (a ``kind`` folder), written into it."""
+    def start(self, run_dir: Path, kind: str) -> None:
+        """Start the recording of ``run_dir`` (a ``kind`` folder) whose files the recording
+        reads are written; the run may go on (its plots, its report) meanwhile."""
         if kind not in KINDS:
             raise VizError(f"--rerun: no recording of a {kind!r} folder")
+        o = self._options
+        self._line = f"{kind}\t{Path(run_dir)}\t{o.connect or ''}\t{int(o.spawn)}\n"
         try:
-            o = self._options
-            line = f"{kind}\t{Path(run_dir)}\t{o.connect or ''}\t{int(o.spawn)}\n"
-            out, err = self._proc.communicate(line, timeout=TIMEOUT_S)
+            assert self._proc.stdin is not None
+            self._proc.stdin.write(self._line)
+            self._proc.stdin.flush()
+            self._sent = True
+        except OSError:  # the child is gone: communicate() says why
+            self._sent = False
+
+    def record(self, run_dir: Path, kind: str) -> RecordingInfo:
+        """The recording of the finished ``run_dir`` (a ``kind`` folder), written into it;
+        after :meth:`start`, the one it started."""
+        if not self._line:
+            self.start(run_dir, kind)
+        try:
+            out, err = self._proc.communicate(None if self._sent else self._line, timeout=TIMEOUT_S)
         except subprocess.TimeoutExpired:
             self._finalizer()
             raise VizError(f"--rerun: the recording took over {TIMEOUT_S:g} s; stopped") from None

@@ -5,7 +5,10 @@ A simulated flight: the flown trajectory whole and as it goes, the vehicle's pos
 the setpoint, the controller's thrust, torques and rotor speeds and the velocity as time series,
 the events. A replay: quadnav's estimate, PX4's and the truth (where the log has them), the
 vehicle on quadnav's estimate, PX4's GNSS checks per fix as time series, the notes and events.
-A blueprint for each. Every stream keeps every n-th row, at most a few thousand.
+A planar study (``quadnav run planar``): the truth, and each variant's delayed and output
+estimates (``handled``, ``naive``, ``no_update``) in the x-z plane, its GPS fixes, its
+innovations and test ratios. A blueprint for each. Every stream keeps every n-th row, at most a
+few thousand.
 """
 
 from __future__ import annotations
@@ -15,7 +18,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from quadnav.io.folder_files import ReplayRunFiles, SimRunFiles
+from quadnav.io.folder_files import PlanarRunFiles, ReplayRunFiles, SimRunFiles
 from quadnav.viz.nav_recording import MAX_POINTS, MAX_SCALARS
 from quadnav.viz.recording import (
     RecordingInfo,
@@ -31,7 +34,13 @@ from quadnav.viz.recording import (
     open_recording,
 )
 
-__all__ = ["GNSS_SERIES", "write_replay_recording", "write_sim_recording"]
+__all__ = [
+    "GNSS_SERIES",
+    "PLANAR_COLOURS",
+    "write_planar_recording",
+    "write_replay_recording",
+    "write_sim_recording",
+]
 
 #: The columns of ``gnss_checks.csv`` drawn as time series.
 GNSS_SERIES = ("eph", "epv", "pdop", "satellites", "used")
@@ -86,5 +95,57 @@ def write_replay_recording(files: ReplayRunFiles, path: Path) -> RecordingInfo:
             assert gnss is not None
             if name in gnss.names:
                 log_scalars(log, f"gnss/{name}", gnss.t_ns, gnss.column(name), MAX_SCALARS)
+        log_events(log, files.events, level="INFO")
+    return finish_info(log, path)
+
+
+#: Each planar variant's delayed and output colours.
+PLANAR_COLOURS = {
+    "handled": ((230, 120, 20), (30, 100, 230)),
+    "naive": ((220, 40, 40), (150, 60, 200)),
+    "no_update": ((140, 140, 140), (90, 90, 90)),
+}
+
+
+def _planar_fixes(log: RecordingLog, variant: str, gps: NDArray[np.float64] | None) -> None:
+    import rerun as rr
+
+    if gps is None or not len(gps):
+        return
+    t_ns, xz = gps[:, 0].astype(np.int64), gps[:, 1:]
+    keep = decimation(len(t_ns), MAX_POINTS)
+    p = np.column_stack([xz[keep, 0], np.zeros(len(keep)), xz[keep, 1]])
+    points = rr.Points3D.columns(positions=p, colors=[(240, 200, 0)] * len(keep),
+                                 radii=[0.02] * len(keep))  # fmt: skip
+    log.columns(f"world/{variant}/gps", t_ns[keep], points, every_of(keep))
+
+
+def write_planar_recording(files: PlanarRunFiles, path: Path) -> RecordingInfo:
+    """Write the recording of a ``quadnav run planar`` study to ``path`` (an ``.rrd``)."""
+    first = next(iter(files.trajectories.values()))
+    truth = first["truth"]
+    series = [("test ratios", "/test_ratio"), ("innovations", "/innovations")]
+    blueprint = flight_blueprint("planar study (x-z plane)", truth.p_W_B, series)
+    with open_recording(path, files.run_dir.name, blueprint) as log:
+        log_trajectory(log, "truth", truth.t_ns, truth.p_W_B, MAX_POINTS, _COLOURS["truth"])
+        for variant, trajs in files.trajectories.items():
+            colours = PLANAR_COLOURS.get(variant, ((200, 200, 200), (120, 120, 120)))
+            for name, colour in zip(("delayed", "output"), colours, strict=True):
+                if name in trajs:
+                    traj = trajs[name]
+                    log_trajectory(log, name, traj.t_ns, traj.p_W_B, MAX_POINTS, colour,
+                                   root=f"world/{variant}")  # fmt: skip
+            gps = files.gps.get(variant)
+            _planar_fixes(
+                log, variant, None if gps is None else
+                np.column_stack([gps.t_ns, gps.columns(("x_m", "z_m"))]),
+            )  # fmt: skip
+            inn = files.innovations.get(variant)
+            if inn is not None:
+                ratio = inn.column("test_ratio")
+                log_scalars(log, f"test_ratio/{variant}", inn.t_ns, ratio, MAX_SCALARS)
+                for axis in ("x", "z"):
+                    values = inn.column(f"innov_{axis}_m")
+                    log_scalars(log, f"innovations/{variant}/{axis}", inn.t_ns, values, MAX_SCALARS)
         log_events(log, files.events, level="INFO")
     return finish_info(log, path)

@@ -2,7 +2,8 @@
 built (for ``quadnav view`` and the child process of ``--rerun``).
 
 Kinds: ``nav`` (``quadnav run``), ``odometry`` (``quadnav vio``, ``quadnav slam``), ``sim``,
-``replay``, ``markers`` and ``dataset`` (``quadnav dataset make``'s folder).
+``replay``, ``markers``, ``planar`` (``quadnav run planar``) and ``dataset`` (``quadnav dataset
+make``'s folder).
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ from quadnav.viz.stream import listening_problem
 __all__ = ["KINDS", "folder_kind", "record_folder"]
 
 #: The kinds of folder a recording is built from.
-KINDS = ("nav", "odometry", "sim", "replay", "markers", "dataset")
+KINDS = ("nav", "odometry", "sim", "replay", "markers", "planar", "dataset")
 
 
 def folder_kind(run_dir: Path) -> str | None:
@@ -50,7 +51,7 @@ def _record(kind: str, run_dir: Path, out: Path | None, *, complete: bool) -> Re
         from quadnav.io.nav_run_files import read_nav_run
         from quadnav.viz.nav_recording import write_nav_recording
 
-        return write_nav_recording(read_nav_run(run_dir), target)
+        return write_nav_recording(read_nav_run(run_dir, complete=complete), target)
     if kind == "odometry":
         from quadnav.io.odometry_run_files import read_odometry_run
         from quadnav.viz.odometry_recording import write_odometry_recording
@@ -64,6 +65,8 @@ def _record(kind: str, run_dir: Path, out: Path | None, *, complete: bool) -> Re
         return fl.write_sim_recording(ff.read_sim_run(run_dir, complete=complete), target)
     if kind == "replay":
         return fl.write_replay_recording(ff.read_replay_run(run_dir, complete=complete), target)
+    if kind == "planar":
+        return fl.write_planar_recording(ff.read_planar_run(run_dir, complete=complete), target)
     if kind == "markers":
         return cam.write_markers_recording(ff.read_markers_run(run_dir, complete=complete), target)
     if kind == "dataset":
