@@ -122,6 +122,7 @@ _PLANAR = RunFolderKind(
         *(RunFile(f"*/{name}", f"per experiment: {what}") for name, what in _PLANAR_SERIES),
         RunFile("plots/*.png", "one plot per experiment"),
         RunFile("plots/monte_carlo.png", "the errors over seeds (with several seeds)", False),
+        *_RECORDING,
     ),
 )
 
