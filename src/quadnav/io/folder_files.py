@@ -14,7 +14,7 @@ from pathlib import Path
 from quadnav.errors import IoError
 from quadnav.geometry.trajectory import Trajectory
 from quadnav.io.nav_run_files import CsvColumns, read_csv_columns, timed_events
-from quadnav.io.run_folder import read_json, require_complete
+from quadnav.io.run_folder import checked_run_folder, read_json
 from quadnav.io.trajectory_io import read_tum
 
 __all__ = [
@@ -116,14 +116,13 @@ def folder_kind_of(run_dir: Path) -> str | None:
 
 
 def _checked(run_dir: Path, kind: str, command: str, *, complete: bool) -> Path:
-    run_dir = Path(run_dir)
-    if folder_kind_of(run_dir) != kind:
-        missing = [n for n in FOLDER_FILES[kind] if not (run_dir / n).exists()]
-        why = f"no {', '.join(missing)}" if missing else "its metrics.json is another kind's"
-        raise IoError(f"{run_dir}: not a {command} folder ({why})")
-    if complete:
-        require_complete(run_dir)
-    return run_dir
+    return checked_run_folder(
+        run_dir,
+        command,
+        FOLDER_FILES[kind],
+        lambda d: folder_kind_of(d) == kind,
+        complete=complete,
+    )
 
 
 def _events(run_dir: Path) -> tuple[tuple[int, str], ...]:

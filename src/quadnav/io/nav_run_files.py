@@ -15,7 +15,7 @@ from numpy.typing import NDArray
 
 from quadnav.errors import IoError
 from quadnav.geometry.trajectory import Trajectory
-from quadnav.io.run_folder import read_json, require_complete
+from quadnav.io.run_folder import checked_run_folder, read_json
 from quadnav.io.trajectory_io import read_tum
 from quadnav.units import s_to_ns
 
@@ -124,13 +124,14 @@ def _events(metrics: dict[str, object]) -> tuple[tuple[int, str], ...]:
 def read_nav_run(run_dir: Path, *, complete: bool = True) -> NavRunFiles:
     """The series of a complete ``quadnav run`` folder (an error naming it otherwise);
     ``complete=False``: the run that writes it reads its series before it is marked complete."""
-    run_dir = Path(run_dir)
-    if not run_dir.is_dir() or not is_nav_run_folder(run_dir):
-        missing = [n for n in NAV_REQUIRED if not (run_dir / n).is_file()]
-        why = f"no {', '.join(missing)}" if missing else "its metrics.json is not a nav run's"
-        raise IoError(f"{run_dir}: not a quadnav run folder ({why})")
-    if complete:
-        require_complete(run_dir)
+    run_dir = checked_run_folder(
+        run_dir,
+        "quadnav run",
+        NAV_REQUIRED,
+        is_nav_run_folder,
+        complete=complete,
+        not_kind="not a nav run's",
+    )
     innovations = {
         p.stem.removeprefix("innovations_"): read_csv_columns(p)
         for p in sorted(run_dir.glob("innovations_*.csv"))

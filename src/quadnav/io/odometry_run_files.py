@@ -21,7 +21,7 @@ from numpy.typing import NDArray
 
 from quadnav.errors import IoError
 from quadnav.geometry.trajectory import Trajectory
-from quadnav.io.run_folder import read_json, read_jsonl, require_complete
+from quadnav.io.run_folder import checked_run_folder, read_json, read_jsonl
 from quadnav.io.trajectory_io import read_tum
 
 __all__ = [
@@ -170,13 +170,14 @@ def read_odometry_run(run_dir: Path, *, complete: bool = True) -> OdometryRunFil
     """The series of a ``quadnav vio`` / ``quadnav slam`` folder (an error naming it otherwise);
     ``complete``: refuse one not marked complete (the run building its own recording reads its
     folder before it is)."""
-    run_dir = Path(run_dir)
-    if not run_dir.is_dir() or not is_odometry_run_folder(run_dir):
-        missing = [n for n in ODOMETRY_REQUIRED if not (run_dir / n).is_file()]
-        why = f"no {', '.join(missing)}" if missing else "its metrics.json is not an odometry run's"
-        raise IoError(f"{run_dir}: not a quadnav vio or slam folder ({why})")
-    if complete:
-        require_complete(run_dir)
+    run_dir = checked_run_folder(
+        run_dir,
+        "quadnav vio or slam",
+        ODOMETRY_REQUIRED,
+        is_odometry_run_folder,
+        complete=complete,
+        not_kind="not an odometry run's",
+    )
     final = _optional_tum(run_dir / "keyframes_final.tum")
     capture = run_dir / VIZ_CAPTURE
     return OdometryRunFiles(

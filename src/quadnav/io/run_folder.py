@@ -16,7 +16,7 @@ import math
 import os
 import re
 import shutil
-from collections.abc import Iterable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 from types import TracebackType
@@ -32,6 +32,7 @@ __all__ = [
     "CsvAppender",
     "RunStatus",
     "append_jsonl",
+    "checked_run_folder",
     "create_run_folder",
     "finish_run_folder",
     "open_run_folder",
@@ -149,6 +150,28 @@ def require_complete(path: Path) -> None:
                 "its files may be incomplete"
             )
         return
+
+
+def checked_run_folder(
+    run_dir: Path,
+    what: str,
+    required: Iterable[str],
+    is_kind: Callable[[Path], bool],
+    *,
+    complete: bool,
+    not_kind: str = "another kind's",
+) -> Path:
+    """``run_dir`` when ``is_kind`` says it is a ``what`` folder (``quadnav sim``...) and, with
+    ``complete``, it is marked complete; otherwise one line naming it and why: the ``required``
+    files it lacks, or that its metrics.json is ``not_kind``."""
+    run_dir = Path(run_dir)
+    if not run_dir.is_dir() or not is_kind(run_dir):
+        missing = [n for n in required if not (run_dir / n).exists()]
+        why = f"no {', '.join(missing)}" if missing else f"its metrics.json is {not_kind}"
+        raise IoError(f"{run_dir}: not a {what} folder ({why})")
+    if complete:
+        require_complete(run_dir)
+    return run_dir
 
 
 def _only_configuration(run_dir: Path) -> bool:
