@@ -34,11 +34,13 @@ if TYPE_CHECKING:
 
 __all__ = [
     "TRACKING_EVENTS",
+    "CameraCalibration",
     "EventKind",
     "FrameFeatures",
     "KeyframeRecord",
     "OdometryEvent",
     "OdometryState",
+    "OnlineCalibration",
     "RefinedTrajectory",
     "StageTiming",
     "Status",
@@ -267,3 +269,27 @@ class RefinedTrajectory(Protocol):
     evaluate for a SLAM; the causal estimate is each frame's state when it was pushed."""
 
     def final_trajectory(self) -> Trajectory: ...
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class CameraCalibration:
+    """A camera of the rig as an odometry has it: the extrinsic ``T_B_C`` (the camera in the
+    body frame), the pinhole intrinsics in pixels (the lens's distortion as stated) and the
+    camera-IMU time offset (s; a frame's stamp plus it is its time on the IMU's clock)."""
+
+    camera: str
+    T_B_C: Pose
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    time_offset_s: float
+
+
+@runtime_checkable
+class OnlineCalibration(Protocol):
+    """An odometry that refines its rig's calibration while it runs (VINS-Mono's
+    ``estimate_extrinsic``, OpenVINS's online intrinsics and time offset): each camera it uses
+    as it has it now (the stated calibration until refined)."""
+
+    def calibration(self) -> tuple[CameraCalibration, ...]: ...

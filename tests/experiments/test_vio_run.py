@@ -15,6 +15,7 @@ import cv2
 import numpy as np
 import pytest
 from pydantic import Field
+from scipy.spatial.transform import Rotation
 
 from quadnav.config_model import ConfigModel
 from quadnav.errors import ConfigError, IoError
@@ -30,9 +31,11 @@ from quadnav.experiments.odometry_run import (
 from quadnav.experiments.odometry_study import group_of, run_odometry_study
 from quadnav.experiments.seeds import parse_seeds
 from quadnav.experiments.vio_run import resolve_vio_config
+from quadnav.geometry import Pose
 from quadnav.io.datasets import VisualInertialDataset, open_dataset
 from quadnav.io.run_folder import read_run_status, run_guard
 from quadnav.io.trajectory_io import read_tum
+from quadnav.odometry import CameraCalibration
 from quadnav.rig import Rig
 from quadnav.vision.tracking import TrackerConfig
 from tests.experiments.vio_double import SIGMAS, TruthPlusNoise
@@ -398,3 +401,64 @@ def test_bad_imu_rows_are_noted_and_the_run_goes_on(made: Path, tmp_path: Path) 
     assert read_run_status(run.run_dir) == "complete"
     (note,) = run.notes
     assert "1 IMU rows repeated" in note and "1 IMU rows unreadable" in note
+
+
+class _Calibrating(TruthPlusNoise):
+    """The double, refining its calibration: cam0 turned 0.5 degrees about its optical axis,
+    its focal lengths 1 % and 2 % long, its principal point 1.5 px right, its clock 3 ms on."""
+
+    def calibration(self) -> tuple[CameraCalibration, ...]:
+        told = self.rig.camera("cam0")
+        turn = Pose(Rotation.from_euler("z", 0.5, degrees=True), np.zeros(3))
+        K = told.camera.K
+        return (
+            CameraCalibration(
+                camera="cam0", T_B_C=told.T_B_C @ turn, fx=K[0, 0] * 1.01, fy=K[1, 1] * 1.02,
+                cx=K[0, 2] + 1.5, cy=K[1, 2], time_offset_s=told.time_offset_ns * 1e-9 + 0.003,
+            ),
+        )  # fmt: skip
+
+
+def _with_truth(made: Path, root: Path) -> Path:
+    """``made`` (linked) with a ``truth/`` whose cam0 has a focal length 1 % shorter in x than
+    its stated one."""
+    root.mkdir()
+    for p in made.iterdir():
+        if p.name != "truth":  # (its own, the same as the stated: ideal sensors)
+            (root / p.name).symlink_to(p)
+    truth = root / "truth" / "mav0"
+    for sensor in ("cam0", "imu0"):
+        (truth / sensor).mkdir(parents=True)
+        text = (made / "mav0" / sensor / "sensor.yaml").read_text()
+        if sensor == "cam0":
+            m = re.search(r"intrinsics: \[([-0-9.e+]+),", text)
+            assert m is not None
+            text = text[: m.start(1)] + repr(float(m.group(1)) * 0.99) + text[m.end(1) :]
+        (truth / sensor / "sensor.yaml").write_text(text)
+    return root
+
+
+def test_an_online_calibration_is_written_against_the_stated_one_and_the_truth(
+    made: Path, tmp_path: Path
+) -> None:
+    """calibration.json: the estimate, the stated calibration and how far apart they are; with
+    the dataset's truth/, each against the truth. An odometry that does not calibrate writes
+    none."""
+    ds = open_dataset(_with_truth(made, tmp_path / "ds"))
+    double = _Calibrating(ds.groundtruth.trajectory)  # type: ignore[union-attr]
+    double.rig = ds.rig  # type: ignore[attr-defined]
+    run = _run(ds, tmp_path / "out", double)
+    cal = json.loads((run.run_dir / "calibration.json").read_text())
+    (cam,) = cal["cameras"]
+    moved = cam["estimated_minus_stated"]
+    assert moved["rotation_deg"] == pytest.approx(0.5, abs=1e-9)
+    assert moved["translation_m"] == pytest.approx(0.0, abs=1e-12)  # turned about its centre
+    assert (moved["fx_rel"], moved["fy_rel"]) == pytest.approx((0.01, 0.02))
+    assert (moved["cx_px"], moved["cy_px"], moved["time_offset_ms"]) == pytest.approx((1.5, 0, 3))
+    # the truth's fx is 0.99 of the stated one: stated 1/0.99 - 1 long, estimated 1.01/0.99 - 1
+    assert cam["stated_minus_truth"]["fx_rel"] == pytest.approx(1 / 0.99 - 1)
+    assert cam["estimated_minus_truth"]["fx_rel"] == pytest.approx(1.01 / 0.99 - 1)
+    assert cam["stated_minus_truth"]["rotation_deg"] == pytest.approx(0.0, abs=1e-6)
+    assert cam["truth"]["intrinsics"][0] == pytest.approx(0.99 * cam["stated"]["intrinsics"][0])
+    plain = _run(ds, tmp_path / "plain", _double(ds))
+    assert not (plain.run_dir / "calibration.json").exists()

@@ -3,6 +3,8 @@ with it, and refusing windows with no baseline or too few features."""
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 
 from quadnav.vio.alignment import corrected_deltas
@@ -86,7 +88,9 @@ def test_a_pure_rotation_has_parallax_but_no_baseline() -> None:
     assert raw > 30.0  # VINS' parallax test alone would accept it
     assert rotation_only_parallax_px(xa, xb, focal_px=FOCAL_PX) < 1.0
     out = vision_sfm(frames, focal_px=FOCAL_PX)
-    assert isinstance(out, str) and "parallax" in out
+    # the refusal says that the frames turned but did not move (not "too little parallax")
+    assert isinstance(out, str) and "turned but hardly moved" in out, out
+    assert re.search(r"at most 0\.\d px of parallax from translation", out), out
 
 
 def test_too_few_common_features_are_refused() -> None:

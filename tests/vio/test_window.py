@@ -247,10 +247,18 @@ def test_intrinsics_told_wrong_behind_a_strong_lens_are_refined_through_it() -> 
         for name, cams in (("lens", (told_cam,)), ("affine", ())):
             true_p, est_p, win = _run_window(told, VioConfig(), cameras=cams)
             errors[name].append(_ate(est_p, true_p))
+            fx, fy, cx, cy = win.intrinsics(0, told_cam)  # what calibration.json reports
             if name == "lens":
                 k = win.K_lens[0]
                 assert abs(k.fx() / cam.K[0, 0] - 1) < 0.005, (seed, k.fx())
                 assert abs(k.fy() / cam.K[1, 1] - 1) < 0.005, (seed, k.fy())
+                assert (fx, fy, cx, cy) == (k.fx(), k.fy(), k.px(), k.py())
+            else:  # the stated pixels of a point where the refined intrinsics put it
+                xs = np.array([[-0.4, -0.3], [0.0, 0.0], [0.5, 0.35]])  # stated normalised
+                u = xs * [K[0, 0], K[1, 1]] + K[:2, 2]
+                xr = win.corrected_xy(xs)
+                np.testing.assert_allclose(xr * [fx, fy] + [cx, cy], u, atol=1e-3)
+                assert abs(fx / cam.K[0, 0] - 1) < 0.006, (seed, fx)  # told 1.3 % short
     assert np.mean(errors["lens"]) < 0.8 * np.mean(errors["affine"]), errors
 
 

@@ -675,9 +675,22 @@ def run_odometry(
             write_tum(run_dir / "estimate_final.tum", rec.final)
         _loop_outputs(vio, rec, run_dir, opt, t0)
     run = _finish(dataset, vio, rec, run_dir, est, cov, (t0, t1), opt, time.perf_counter() - start)
+    _write_calibration(vio, rig, dataset, run_dir)
     if observer is not None:
         observer.finish(run_dir)
     return run
+
+
+def _write_calibration(
+    vio: VisualOdometry, rig: Rig, dataset: VisualInertialDataset, run_dir: Path
+) -> None:
+    """``calibration.json`` of an odometry that refines its calibration online (see
+    :mod:`quadnav.experiments.odometry_calibration`)."""
+    from quadnav.experiments.odometry_calibration import calibration_report, truth_rig
+
+    report = calibration_report(vio, rig, truth_rig(getattr(dataset, "root", None)))
+    if report is not None:
+        write_json(run_dir / "calibration.json", report)
 
 
 def _loop_outputs(

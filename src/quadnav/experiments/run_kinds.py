@@ -225,6 +225,13 @@ _VIO = RunFolderKind(
         RunFile("events.jsonl", "initialisation, failures, resets, time offset, one a line"),
         RunFile("timing.json", "time per stage"),
         RunFile(
+            "calibration.json",
+            "the VIO: each camera's extrinsic, intrinsics and time offset as stated and as "
+            "refined online at the end, how far they moved, and each against the dataset's "
+            "truth/ when it has one",
+            False,
+        ),
+        RunFile(
             "metrics.json",
             "APE (4-DoF, SE(3), Sim(3)), RPE, drift, NEES, counts; with --loop the loops "
             "judged against the truth (loop_precision, loop_recall, ...)",

@@ -41,6 +41,7 @@ from quadnav.geometry.gtsam_bridge import pose3, to_pose
 from quadnav.geometry.multiview import essential_pose, parallax_rad
 from quadnav.messages import ImageFrame, ImuSample
 from quadnav.odometry import (
+    CameraCalibration,
     FrameFeatures,
     KeyframeRecord,
     OdometryEvent,
@@ -223,6 +224,24 @@ class VioEstimator:
             self._retire(everything=True)
         done, self._done = self._done, []
         return done
+
+    def calibration(self) -> tuple[CameraCalibration, ...]:
+        """Each camera used as the window has it now: the extrinsic and intrinsics refined
+        online (``estimate_extrinsic``, ``estimate_intrinsics``), the time offset estimated
+        (``estimate_td``); the stated ones where not refined (a re-start begins from them)."""
+        w = self.window
+        specs = [self.camera_spec] + ([] if self.stereo is None else [self.stereo.right])
+        poses = [w.extrinsic] + ([] if w.T_B_R is None else [to_pose(w.T_B_R)])
+        out = []
+        for side, (spec, T_B_C) in enumerate(zip(specs, poses, strict=False)):
+            fx, fy, cx, cy = w.intrinsics(side, spec.camera)
+            out.append(
+                CameraCalibration(
+                    camera=spec.name, T_B_C=T_B_C, fx=fx, fy=fy, cx=cx, cy=cy,
+                    time_offset_s=self._td_s,
+                )
+            )  # fmt: skip
+        return tuple(out)
 
     def newest_keyframe(self) -> KeyframeRecord | None:
         """The window's newest keyframe as it stands (its pose and landmarks still change

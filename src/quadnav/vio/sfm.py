@@ -166,7 +166,7 @@ def _pick_reference(
 ) -> tuple[int, Pose, float] | str:
     """The oldest frame whose pair with the newest can start the structure, ``T_CL_Cn`` and the
     pair's parallax; or why none can."""
-    newest, best = len(obs) - 1, 0.0
+    newest, best, best_translation = len(obs) - 1, 0.0, 0.0
     for i in range(newest):
         _, xa, xb = _common(obs[i], obs[newest])
         if len(xa) < min_common:
@@ -175,14 +175,24 @@ def _pick_reference(
         best = max(best, parallax)
         if parallax < min_parallax_px:
             continue
-        if rotation_only_parallax_px(xa, xb, focal_px=focal_px) < min_translation_px:
+        translation = rotation_only_parallax_px(xa, xb, focal_px=focal_px)
+        best_translation = max(best_translation, translation)
+        if translation < min_translation_px:
             continue
         rel = relative_pose(xa, xb, focal_px=focal_px)
         if rel is not None:
             return i, rel[0], parallax
+    why = (
+        f"best {best:.1f} px"
+        if best < min_parallax_px
+        else f"frames with {min_parallax_px:g} px turned but hardly moved: at most "
+        f"{best_translation:.1f} px of parallax from translation, {min_translation_px:g} px needed"
+        if best_translation < min_translation_px
+        else "no essential matrix from those that moved"
+    )
     return (
         f"no frame has {min_common} features and a translation's parallax of "
-        f"{min_parallax_px:g} px with the newest (best {best:.1f} px)"
+        f"{min_parallax_px:g} px with the newest ({why})"
     )
 
 

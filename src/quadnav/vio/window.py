@@ -278,6 +278,24 @@ class SlidingWindow:
         ``estimate_extrinsic``)."""
         return to_pose(self.T_B_C)
 
+    def intrinsics(self, side: int, stated: PinholeCamera) -> tuple[float, float, float, float]:
+        """``fx, fy, cx, cy`` (px) of camera ``side`` (0: the camera, 1: its stereo partner) as
+        the window has them: refined through the lens, or the stated ones under the refined
+        correction of their normalised coordinates (unchanged without
+        ``estimate_intrinsics``)."""
+        if self._lens:
+            k = self.K_lens[side]
+            return float(k.fx()), float(k.fy()), float(k.px()), float(k.py())
+        K = stated.K
+        c = self.K_fix[side] if self._intrinsics else gtsam.Cal3_S2(1.0, 1.0, 0.0, 0.0, 0.0)
+        # a stated normalised x = c.fx x' + c.px of the refined x': u = cx + fx x
+        return (
+            float(K[0, 0] * c.fx()),
+            float(K[1, 1] * c.fy()),
+            float(K[0, 2] + K[0, 0] * c.px()),
+            float(K[1, 2] + K[1, 1] * c.py()),
+        )
+
     def corrected_xy(self, xy: FloatArray, side: int = 0) -> FloatArray:
         """Normalised coordinates (from the stated intrinsics) as the window's refined
         intrinsics have them (unchanged without ``estimate_intrinsics``)."""
