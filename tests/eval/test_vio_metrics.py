@@ -16,6 +16,7 @@ from quadnav.eval.vio_metrics import (
     gravity_error_deg,
     nees_band,
     pose_nees,
+    pose_nees_parts,
     pose_nees_summary,
     vio_metrics,
 )
@@ -172,6 +173,25 @@ def test_nees_of_known_gaussian_errors_is_one() -> None:
     assert over.mean_over_dof > over.band_high and over.mean_over_dof == pytest.approx(
         4.0, rel=0.06
     )
+
+
+def test_nees_split_tells_an_overconfident_translation_from_an_honest_rotation() -> None:
+    """Rotation errors as claimed, translation errors twice the claimed sigma: the pose NEES
+    is the full one, the rotation's alone is 1 per dimension and the translation's 4."""
+    rng = np.random.default_rng(11)
+    n = 4000
+    cov = np.diag([1e-4] * 3 + [4e-4] * 3)
+    xi = rng.multivariate_normal(np.zeros(6), cov, size=n) * np.array([1.0] * 3 + [2.0] * 3)
+    est = _moved(_loop(n=n, seconds=200.0), 0.0, (0, 0, 0))
+    R_true = est.R_W_B * Rotation.from_rotvec(xi[:, :3])
+    p_true = est.p_W_B + est.R_W_B.apply(xi[:, 3:])
+    ref = Trajectory(t_ns=est.t_ns, p_W_B=p_true, q_W_B_xyzw=R_true.as_quat())
+    parts = pose_nees_parts(ref, est, np.broadcast_to(cov, (n, 6, 6)))
+    np.testing.assert_allclose(parts[:, 0], pose_nees(ref, est, np.broadcast_to(cov, (n, 6, 6))))
+    assert parts[:, 1].mean() / 3 == pytest.approx(1.0, abs=0.06)
+    assert parts[:, 2].mean() / 3 == pytest.approx(4.0, rel=0.06)
+    # a diagonal covariance: the pose's NEES is the sum of its parts
+    np.testing.assert_allclose(parts[:, 0], parts[:, 1] + parts[:, 2], rtol=1e-9)
 
 
 def test_nees_band_of_one_sample_is_chi_square_6() -> None:

@@ -82,7 +82,7 @@ def test_run_folder_holds_every_output_and_is_complete(made: Path, tmp_path: Pat
     d = run.run_dir
     for name in ("estimate.tum", "groundtruth.tum", "metrics.json", "events.jsonl", "timing.json",
                  "tracks.mp4", "report.html", "config.yaml", "plots/trajectory.png",
-                 "plots/error.png", "plots/timing.png"):  # fmt: skip
+                 "plots/error.png", "plots/timing.png", "nees.csv", "plots/nees.png"):  # fmt: skip
         assert (d / name).is_file(), name
     assert read_run_status(d) == "complete"
     frames = len(ds.frames_of("cam0"))
@@ -101,6 +101,12 @@ def test_run_folder_holds_every_output_and_is_complete(made: Path, tmp_path: Pat
     assert m.initialized_after_s == pytest.approx(
         0.5, abs=0.051
     )  # the first frame at or after 0.5 s
+    nees = np.genfromtxt(d / "nees.csv", delimiter=",", names=True)
+    assert len(nees) == m.frames_with_estimate  # every estimate has its truth here
+    assert nees["nees_pose"].mean() / 6 == pytest.approx(m.nees_pose.mean_over_dof)
+    # the double's errors are drawn from the covariance it claims, rotation and translation
+    for part in ("nees_rotation", "nees_translation"):
+        assert 0.6 < nees[part].mean() / 3 < 1.5, (part, nees[part].mean() / 3)
     saved = json.loads((d / "metrics.json").read_text())
     assert saved["ape_4dof"]["rmse_m"] == pytest.approx(m.ape_4dof.rmse_m)
     assert saved["timing"]["frames"] == frames and "track" in saved["timing"]["stage_ms_per_call"]

@@ -53,9 +53,11 @@ __all__ = [
     "drift_rpe_pct",
     "final_error_m",
     "gravity_error_deg",
+    "in_estimator_gauge",
     "nees_band",
     "pose_covariances",
     "pose_nees",
+    "pose_nees_parts",
     "pose_nees_summary",
     "vio_metrics",
     "yaw_position_alignment",
@@ -263,6 +265,13 @@ def pose_nees(ref: Trajectory, est: Trajectory, cov_pose: FloatArray) -> FloatAr
     or their upper triangles (N, 21; :func:`pose_covariances`): ``xi = (Log(R_est^T R_ref),
     R_est^T (p_ref - p_est))``, GTSAM's right perturbation to first order in the translation.
     Taken :data:`NEES_CHUNK` poses at a time."""
+    return pose_nees_parts(ref, est, cov_pose)[:, 0]
+
+
+def pose_nees_parts(ref: Trajectory, est: Trajectory, cov_pose: FloatArray) -> FloatArray:
+    """(N, 3): each matched pose's NEES (6 degrees of freedom, as :func:`pose_nees`), its
+    rotation's and its translation's alone (3 each, on their marginal covariances): which
+    part of an estimate is overconfident."""
     cov = np.asarray(cov_pose, dtype=np.float64)
     n = len(est)
     if len(ref) != n or cov.shape not in ((n, POSE_DOF, POSE_DOF), (n, len(_TRIU[0]))):
@@ -270,11 +279,19 @@ def pose_nees(ref: Trajectory, est: Trajectory, cov_pose: FloatArray) -> FloatAr
             f"pose NEES needs matched poses and (N, 6, 6) or (N, 21) covariances, got "
             f"{len(ref)}, {n} poses and {cov.shape}"
         )
-    out = np.empty(n)
+    out = np.empty((n, 3))
     for s in range(0, n, NEES_CHUNK):
         c = slice(s, s + NEES_CHUNK)
         out[c] = _nees_rows(ref.select(c), est.select(c), cov[c])
     return out
+
+
+def _quadratic(cov: FloatArray, xi: FloatArray) -> FloatArray:
+    try:
+        sol = np.linalg.solve(cov, xi[..., None])[..., 0]
+    except np.linalg.LinAlgError:
+        raise EvalError("pose NEES: a covariance is singular") from None
+    return np.asarray(np.sum(xi * sol, axis=1), dtype=np.float64)
 
 
 def _nees_rows(ref: Trajectory, est: Trajectory, cov: FloatArray) -> FloatArray:
@@ -284,11 +301,13 @@ def _nees_rows(ref: Trajectory, est: Trajectory, cov: FloatArray) -> FloatArray:
     xi = np.hstack(
         [(R_est.inv() * ref.R_W_B).as_rotvec(), R_est.inv().apply(ref.p_W_B - est.p_W_B)]
     )
-    try:
-        sol = np.linalg.solve(cov, xi[..., None])[..., 0]
-    except np.linalg.LinAlgError:
-        raise EvalError("pose NEES: a covariance is singular") from None
-    return np.asarray(np.sum(xi * sol, axis=1), dtype=np.float64)
+    return np.column_stack(
+        [
+            _quadratic(cov, xi),
+            _quadratic(cov[:, :3, :3], xi[:, :3]),
+            _quadratic(cov[:, 3:, 3:], xi[:, 3:]),
+        ]
+    )
 
 
 def nees_band(samples: int, dof: int = POSE_DOF, confidence: float = 0.95) -> tuple[float, float]:
@@ -352,17 +371,24 @@ def _aligned_or_na(ref: Trajectory, est: Trajectory, method: AlignMethod) -> Ape
         return na(str(exc))
 
 
+def in_estimator_gauge(ref: Trajectory, est: Trajectory, levelled: bool = True) -> Trajectory:
+    """``est`` moved into ``ref``'s frame the way its covariance allows: a levelled estimator's
+    world is fixed up to yaw and position at its first pose, another's (a SLAM's first pose)
+    in all six directions there (see the module)."""
+    if levelled:
+        R, t = yaw_position_alignment(ref, est, 0.0)
+    else:
+        R, t = first_pose_alignment(ref, est)
+    return est.transformed(R, t)
+
+
 def _nees_or_na(
     ref: Trajectory, est: Trajectory, cov: FloatArray | None, levelled: bool
 ) -> NeesSummary | str:
     if cov is None:
         return na("the estimate carries no pose covariance")
-    try:  # the estimator's gauge: yaw and position of its first pose, or all of it (the module)
-        if levelled:
-            R, t = yaw_position_alignment(ref, est, 0.0)
-        else:
-            R, t = first_pose_alignment(ref, est)
-        return pose_nees_summary(pose_nees(ref, est.transformed(R, t), cov))
+    try:
+        return pose_nees_summary(pose_nees(ref, in_estimator_gauge(ref, est, levelled), cov))
     except EvalError as exc:
         return na(str(exc))
 

@@ -2,8 +2,12 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
+
+import numpy as np
 
 from quadnav.errors import EvalError, IoError
 from quadnav.eval.na import fmt_metric
@@ -77,6 +81,67 @@ def _plot_timing(path: Path, timing: OdometryTiming) -> Path:
     return path
 
 
+@contextmanager
+def _writing_plots(run_dir: Path) -> Iterator[None]:
+    """A plot that cannot be written (a full disk, say: matplotlib and PIL raise the OSError as
+    it is) is one line naming the file."""
+    try:
+        yield
+    except OSError as exc:
+        where = exc.filename or run_dir / "plots"
+        raise IoError(f"cannot write {where}: {exc.strerror or exc}") from None
+
+
+#: The window of the NEES plot's running means (s).
+NEES_WINDOW_S = 2.0
+
+
+def write_nees(
+    run_dir: Path, ref: Trajectory | None, est: Trajectory | None, cov: Any, levelled: bool
+) -> None:
+    """``nees.csv``, each pose's NEES (6 degrees of freedom) and its rotation's and
+    translation's alone (3 each), in the gauge the estimator's covariance has; and
+    ``plots/nees.png``, their running means over dimension against time. Nothing without a
+    truth or a covariance."""
+    from quadnav.eval.vio_metrics import in_estimator_gauge, pose_nees_parts
+    from quadnav.io.run_folder import write_csv
+
+    if ref is None or est is None or cov is None or len(est) < 2:
+        return
+    try:
+        parts = pose_nees_parts(ref, in_estimator_gauge(ref, est, levelled), cov)
+    except EvalError:
+        return
+    names = ("nees_pose", "nees_rotation", "nees_translation")
+    write_csv(run_dir / "nees.csv", {"t_ns": est.t_ns} | dict(zip(names, parts.T, strict=True)))
+    with _writing_plots(run_dir):
+        _plot_nees(run_dir / "plots" / "nees.png", ns_to_s(est.t_ns - est.t_ns[0]), parts)
+
+
+def _plot_nees(path: Path, t_s: Any, parts: Any) -> None:
+    plt = _pyplot()
+    dt = float(np.median(np.diff(t_s))) if len(t_s) > 1 else 1.0
+    n = min(max(1, round(NEES_WINDOW_S / max(dt, 1e-9))), len(t_s))  # (a short run: all of it)
+    kernel = np.ones(n) / n
+    fig, ax = plt.subplots(figsize=(9, 4), constrained_layout=True)
+    for k, (label, dof) in enumerate(
+        (("pose (6)", 6), ("rotation (3)", 3), ("translation (3)", 3))
+    ):
+        mean = np.convolve(parts[:, k] / dof, kernel, mode="same")
+        ax.plot(t_s, mean, label=f"{label}: {np.mean(parts[:, k]) / dof:.2f} over the run")
+    # (successive poses' errors are correlated: a band for independent draws would be too narrow)
+    ax.axhspan(0.5, 2.0, color="0.9", label="0.5-2: honest within a factor of 2")
+    ax.axhline(1.0, color="k", lw=0.8)
+    ax.set_yscale("log")
+    ax.set_xlabel("time since the first estimate (s)")
+    ax.set_ylabel(f"NEES / dof, {NEES_WINDOW_S:g} s running mean")
+    ax.set_title("Consistency: 1 is honest, above it the estimate claims too much")
+    ax.legend(loc="upper left", fontsize=8)
+    ax.grid(True, which="both", alpha=0.3)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
 def _write_plots(
     run: OdometryRun, ref: Trajectory | None, est_m: Trajectory | None, truth: Trajectory | None,
     est: Trajectory,
@@ -105,6 +170,8 @@ def _write_plots(
             images.append(plots / "error.png")
     elif len(est):
         images.append(_plot_path(plots / "trajectory.png", None, est, t0))
+    if (plots / "nees.png").is_file():  # (written before, by write_nees)
+        images.append(plots / "nees.png")
     if run.timing.stage_ms_per_frame:
         images.append(_plot_timing(plots / "timing.png", run.timing))
     return images
@@ -207,16 +274,13 @@ def write_odometry_outputs(
     ``loop`` is given)."""
     from quadnav.eval.report import ReportSection, ReportTable, write_report
 
-    try:
+    with _writing_plots(run.run_dir):
         images = _write_plots(run, ref, est_m, truth, est)
         extra = (
             [_loop_section(loop, run.run_dir / "plots" / "loop_graph.png", _t0(truth, est))]
             if loop is not None
             else []
         )
-    except OSError as exc:  # matplotlib and PIL raise it as it is (a full disk, say)
-        where = exc.filename or run.run_dir / "plots"
-        raise IoError(f"cannot write {where}: {exc.strerror or exc}") from None
     t = run.timing
     events = [
         [f"{ns_to_s(e.t_ns - (int(est.t_ns[0]) if len(est) else e.t_ns)):.2f}", e.kind, e.detail]

@@ -790,7 +790,14 @@ def _finish(
         input_counts=counts, final=_final_metrics(rec.final, scored.truth, opt),
     )  # fmt: skip
     write_json(run_dir / "timing.json", dataclasses.asdict(run.timing))
-    from quadnav.experiments.odometry_report import loop_evaluation, write_odometry_outputs
+    from quadnav.experiments.odometry_report import (
+        loop_evaluation,
+        write_nees,
+        write_odometry_outputs,
+    )
+
+    levelled = getattr(vio, "levelled", True)
+    write_nees(run_dir, scored.matched_truth, scored.matched_est, scored.matched_cov, levelled)
 
     loop = loop_evaluation(vio, rec.keyframes.trajectory(), scored.truth)  # None without --loop
     write_json(run_dir / "metrics.json", run.as_json() | (loop.as_metrics() if loop else {}))

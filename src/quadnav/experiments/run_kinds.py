@@ -225,6 +225,12 @@ _VIO = RunFolderKind(
         RunFile("events.jsonl", "initialisation, failures, resets, time offset, one a line"),
         RunFile("timing.json", "time per stage"),
         RunFile(
+            "nees.csv",
+            "each pose's NEES against the ground truth, its rotation's and its translation's "
+            "alone (plotted in plots/nees.png)",
+            False,
+        ),
+        RunFile(
             "calibration.json",
             "the VIO: each camera's extrinsic, intrinsics and time offset as stated and as "
             "refined online at the end, how far they moved, and each against the dataset's "
