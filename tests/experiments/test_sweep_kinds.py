@@ -1,4 +1,4 @@
-"""The sweep's task kinds planar, sim and vio (issue 26): a sweep's table has a row per task with
+"""The sweep's task kinds planar, sim, vio and slam (issue 26): a sweep's table has a row per task with
 its grid values, a row's metrics are those of the same configuration and seed run directly,
 a bad key names ``--grid KEY=...``; the kind comes from the scenario's name or ``--kind``."""
 
@@ -17,6 +17,7 @@ from quadnav.experiments.flight_study import flight_metrics
 from quadnav.experiments.odometry_run import OdometryRunOptions
 from quadnav.experiments.planar import PlanarConfig, run_planar
 from quadnav.experiments.planar_study import planar_metrics
+from quadnav.experiments.slam_run import SlamRequest, run_slam_source
 from quadnav.experiments.sweep import plan_sweep, run_sweep, sweep_spec
 from quadnav.experiments.sweep_engines import SweepEngine
 from quadnav.experiments.sweep_tasks import TASK_KINDS, TaskKind, sim_task_config
@@ -102,6 +103,26 @@ def test_a_vio_sweep_row_is_quadnav_vio_on_that_seeds_sequence(tmp_path: Path) -
     assert t["ape_4dof.rmse_m"][_row(t, key, 60, 1)] != t["ape_4dof.rmse_m"][row]
 
 
+def test_a_slam_sweep_row_is_quadnav_slam_on_that_seeds_sequence(tmp_path: Path) -> None:
+    spec = sweep_spec(None, "room_easy", ["n_features=[800,1200]"], "1-1",
+                      ["duration_s=2", "loop=false"], "slam")  # fmt: skip
+    res = run_sweep(plan_sweep(spec), tmp_path / "s", SweepEngine(jobs=1))
+    assert (res.ok, res.failed) == (2, 0)
+    t = read_parquet_columns(tmp_path / "s" / "results.parquet")
+    assert sorted(zip(t["n_features"], t["seed"], strict=True)) == [(800, 1), (1200, 1)]
+    row = _row(t, "n_features", 800, 1)
+    request = SlamRequest(source="room_easy", seed=1, rig="euroc", out=tmp_path / "slam",
+                          options=OdometryRunOptions(duration_s=2, video=False),
+                          n_features=800, loop=False)  # fmt: skip
+    alone = run_slam_source(request)
+    assert not isinstance(alone.metrics.ape_se3, str) and alone.final is not None
+    assert t["ape_se3.rmse_m"][row] == alone.metrics.ape_se3.rmse_m
+    assert t["frames_with_estimate"][row] == alone.metrics.frames_with_estimate
+    assert t["final_ape_se3.rmse_m"][row] == alone.final["ape_se3"]["rmse_m"]
+    # the key swept is the key run: fewer features, another estimate
+    assert t["ape_se3.rmse_m"][_row(t, "n_features", 1200, 1)] != t["ape_se3.rmse_m"][row]
+
+
 @pytest.mark.parametrize(
     ("scenario", "grid", "named"),
     [
@@ -133,8 +154,10 @@ def test_the_kind_comes_from_the_scenario_or_kind(monkeypatch: pytest.MonkeyPatc
     assert kind(None, "vio") == ("vio", "room_easy")
     with pytest.raises(ConfigError, match=r"^SCENARIO 'nope': .*\(nav, planar, sim, vio"):
         kind("nope")
-    with pytest.raises(ConfigError, match=r"^--kind slam: .*nav, planar, sim, vio"):
-        kind("circle", "slam")
+    with pytest.raises(ConfigError, match=r"^--kind nope: .*nav, planar, sim, vio, slam"):
+        kind("circle", "nope")
+    assert kind("room_easy", "slam") == ("slam", "room_easy")  # vio's names: slam by --kind
+    assert kind(None, "slam") == ("slam", "room_easy")
     with pytest.raises(ConfigError, match=r"^SCENARIO 'circle': neither .* the kind nav"):
         plan_sweep(sweep_spec(None, "circle", ["x=1"], "1", [], "nav"))
     twin = TaskKind(name="twin", description="", build=sim_task_config, run=lambda c, s: {},

@@ -46,6 +46,7 @@ EXAMPLES = (
     "quadnav sweep --kind planar --grid estimator.tau_vel_s=[0.1,0.25] --seeds 5",
     "quadnav sweep thesis003_obstacle --grid thesis003.kp_lin=[0.2,0.3,0.4]",
     "quadnav sweep room_medium --grid vio.window_keyframes=[6,8,10] --seeds 5 --set duration_s=30",
+    "quadnav sweep room_easy --kind slam --grid th_depth_baselines=[22,40] --seeds 3 --set duration_s=10",
 )
 
 GridOpt = Annotated[
@@ -62,8 +63,9 @@ KindOpt = Annotated[
     typer.Option(
         "--kind",
         help="what a task runs: nav (quadnav run), planar (quadnav planar), sim (quadnav sim), "
-        "vio (quadnav vio on a built-in sequence); "
-        "without it, the built-in SCENARIO's kind, and nav for a YAML file",
+        "vio (quadnav vio on a built-in sequence), slam (quadnav slam on one: always given, "
+        "its sequences are vio's); without it, the built-in SCENARIO's kind, and nav for a "
+        "YAML file",
     ),
 ]
 
@@ -164,11 +166,13 @@ def sweep_command(
 
 
 sweep_command.__doc__ = command_help(
-    "Sweep a grid of configuration values x seeds of a run, planar, sim or vio scenario into one table.",
+    "Sweep a grid of configuration values x seeds of a run, planar, sim, vio or slam scenario into one table.",
     "Each (grid point, seed) is one task of the scenario's kind: nav, one seeded flight as "
     "quadnav run flies it; planar, one seed of each experiment of quadnav planar (metrics "
     "<experiment>.<metric>); sim, one seeded flight of quadnav sim; vio, quadnav vio on a "
-    "built-in sequence made for the seed (keys vio.*, sequence, rig, duration_s). The built-in "
+    "built-in sequence made for the seed (keys vio.*, sequence, rig, duration_s); slam, quadnav "
+    "slam on one with a stereo or RGB-D rig (keys n_features, th_depth_baselines, loop, rig, "
+    "duration_s; always --kind slam, as its sequences are vio's). Otherwise the built-in "
     "names of the kinds are disjoint: a name gives its kind, a YAML file is nav unless --kind. "
     "Every grid point's configuration is validated before anything runs. Tasks run "
     "on a local process pool (--jobs) or Dask (--scheduler, --local-cluster); each finished "

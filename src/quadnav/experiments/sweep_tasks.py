@@ -8,8 +8,9 @@ it never raises for a task's own failure, which it returns as a one-line error.
 
 The kinds: ``nav`` (``quadnav run``'s scenarios), ``planar`` (``quadnav planar``'s
 experiments, one seed of each), ``sim`` (``quadnav sim``'s flights) and ``vio`` (``quadnav
-vio`` on a built-in sequence, :mod:`quadnav.experiments.sweep_vio`); the other commands'
-runs (slam) become kinds by :func:`register_task_kind`, the engine unchanged.
+vio`` on a built-in sequence, :mod:`quadnav.experiments.sweep_vio`) and ``slam`` (``quadnav
+slam`` on one, chosen by ``--kind slam``: its sequences' names are vio's); another command's
+runs become a kind by :func:`register_task_kind`, the engine unchanged.
 :func:`kind_of_scenario` picks the kind of a built-in scenario's name (the kinds' names are
 disjoint); a YAML file is a ``nav`` scenario unless the kind is given.
 """
@@ -367,6 +368,41 @@ register_task_kind(
             "ape_4dof.rmse_m",
             "final_error_m",
             "nees_pose.mean_over_dof",
+            "fraction_with_estimate",
+            "failures",
+        ),
+    )
+)
+
+
+# -- slam: quadnav slam on a built-in sequence (experiments/sweep_vio.py) -----------------------
+
+
+def _slam_build(scenario: str, overrides: Sequence[str]) -> ConfigModel:
+    from quadnav.experiments.sweep_vio import slam_task_config
+
+    return slam_task_config(scenario, tuple(overrides))
+
+
+def _slam_task(config: Any, seed: int) -> dict[str, Metric]:
+    from quadnav.experiments.sweep_vio import run_slam_task
+
+    return run_slam_task(config, seed)
+
+
+register_task_kind(
+    TaskKind(
+        name="slam",
+        description="quadnav slam on a built-in sequence made for the seed with a stereo or "
+        "RGB-D rig (keys n_features, th_depth_baselines, loop, rig, duration_s); the "
+        "sequences' names are vio's: give --kind slam",
+        build=_slam_build,
+        run=_slam_task,
+        scenarios=tuple,  # (vio's names: chosen by --kind, never by name)
+        default_scenario="room_easy",
+        headline=(
+            "ape_se3.rmse_m",
+            "final_ape_se3.rmse_m",
             "fraction_with_estimate",
             "failures",
         ),
