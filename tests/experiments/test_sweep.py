@@ -139,6 +139,9 @@ def test_an_interrupted_sweep_resumes_without_redoing_a_task(tmp_path: Path) -> 
     first = list(CALLS[:3])
     assert len(read_parquet_columns(folder / "results.parquet")["task"]) == 3
     assert (folder / "tasks.jsonl").read_text().count("\n") == 3
+    # the plots and report of what finished, saying so
+    assert "Interrupted (Ctrl-C) after 3 of 9 task(s)" in (folder / "report.html").read_text()
+    assert list((folder / "plots").glob("*.png"))
     with (folder / "tasks.jsonl").open("a") as f:
         f.write('{"task": 8, "point": 2, "se')  # a line cut by a kill
     CALLS.clear()
@@ -148,6 +151,7 @@ def test_an_interrupted_sweep_resumes_without_redoing_a_task(tmp_path: Path) -> 
     assert not set(first) & set(CALLS) and len(set(CALLS)) == 6
     t = read_parquet_columns(folder / "results.parquet")
     assert t["task"] == list(range(9)) and _status(folder) == "complete"
+    assert "Interrupted" not in (folder / "report.html").read_text()
     assert sorted(zip(t["vision.delay_s"], t["seed"], strict=True)) == sorted(first + CALLS)
     # journal lines lost: those tasks alone run again
     lines = (folder / "tasks.jsonl").read_text().splitlines()

@@ -368,6 +368,7 @@ def run_sweep(
         run_engine(engine, tasks, collect)
     except KeyboardInterrupt:
         collect.write_table()
+        _outputs_so_far(plan, folder, done, engine)
         finish_run_folder(folder, "interrupted", "interrupted (Ctrl-C)")
         raise
     except BaseException as exc:
@@ -382,10 +383,35 @@ def run_sweep(
                        ran=collect.ran, ok=len(done) - failed, failed=failed, status="complete")  # fmt: skip
 
 
-def _write_outputs(
+def _outputs_so_far(
     plan: SweepPlan, folder: Path, done: Mapping[int, Mapping[str, object]], engine: SweepEngine
 ) -> None:
-    """The plots of the headline metrics against each parameter, and the report."""
+    """An interrupted sweep's plots and report of the tasks that finished, saying it was
+    interrupted (the same command again finishes the rest and draws them anew). A second
+    Ctrl-C, or a plot that cannot be drawn, leaves them out: the table and the journal are
+    written already."""
+    if not done:
+        return
+    note = (
+        f"Interrupted (Ctrl-C) after {len(done)} of {plan.n_tasks} task(s): what is below is "
+        "what finished. Run the same command again to finish the rest."
+    )
+    try:
+        _write_outputs(plan, folder, done, engine, note=note)
+    except (KeyboardInterrupt, QuadnavError, OSError):
+        pass
+
+
+def _write_outputs(
+    plan: SweepPlan,
+    folder: Path,
+    done: Mapping[int, Mapping[str, object]],
+    engine: SweepEngine,
+    *,
+    note: str = "",
+) -> None:
+    """The plots of the headline metrics against each parameter, and the report (``note``
+    first when it is given)."""
     cols = _columns(plan, done)
     params = {a.key: cols[a.key] for a in plan.spec.grid}
     head = [n for n in plan.kind.headline if n in cols] or _metric_names(plan, list(done.values()))
@@ -397,6 +423,7 @@ def _write_outputs(
         title=f"Sweep of {plan.spec.scenario}: {len(plan.points)} grid point(s) x "
         f"{len(plan.seeds)} seed(s)",
         sections=[
+            *([ReportSection(heading="Interrupted", text=note)] if note else []),
             _summary_section(plan, cols, engine),
             _medians_section(plan, cols, metrics),
             *_failed_section(plan, cols),
