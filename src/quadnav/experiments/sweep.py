@@ -13,6 +13,7 @@ finished and marks the folder ``interrupted``.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import time
@@ -396,10 +397,8 @@ def _outputs_so_far(
         f"Interrupted (Ctrl-C) after {len(done)} of {plan.n_tasks} task(s): what is below is "
         "what finished. Run the same command again to finish the rest."
     )
-    try:
+    with contextlib.suppress(KeyboardInterrupt, QuadnavError, OSError):
         _write_outputs(plan, folder, done, engine, note=note)
-    except (KeyboardInterrupt, QuadnavError, OSError):
-        pass
 
 
 def _write_outputs(
