@@ -178,3 +178,38 @@ def test_another_sweep_into_the_folder_is_refused_and_failed_tasks_retried(tmp_p
     (tmp_path / "other" / "x.txt").write_text("x")
     with pytest.raises(ConfigError, match=r"not a sweep folder"):
         run_sweep(_counted_plan([0.1], seeds="1"), tmp_path / "other", SweepEngine(jobs=1))
+
+
+def test_a_scheduler_by_address_runs_the_sweep_and_ctrl_c_keeps_what_finished(
+    tmp_path: Path,
+) -> None:
+    """``--scheduler tcp://...`` (a scheduler this test starts on loopback, its worker's threads
+    in this process) and a Ctrl-C in the middle: the folder is marked interrupted with the
+    finished tasks in its journal and table, the client lets the scheduler be, and the same
+    sweep on the same scheduler finishes only the rest."""
+    dd = pytest.importorskip("distributed")
+    CALLS.clear()
+    STOP_AT[0] = 0
+    plan = _counted_plan([0.1, 0.2, 0.3], seeds="3")
+    folder = tmp_path / "s"
+
+    def ctrl_c_at_the_third(done: int, total: int, what: str) -> None:
+        if done == 3:
+            raise KeyboardInterrupt
+
+    with dd.LocalCluster(n_workers=1, threads_per_worker=2, processes=False, protocol="tcp://",
+                         host="127.0.0.1", dashboard_address=None) as cluster:  # fmt: skip
+        address = cluster.scheduler_address
+        assert address.startswith("tcp://127.0.0.1:")
+        engine = SweepEngine(scheduler=address)
+        with pytest.raises(KeyboardInterrupt):
+            run_sweep(plan, folder, engine, progress=ctrl_c_at_the_third)
+        assert _status(folder) == "interrupted"
+        assert (folder / "tasks.jsonl").read_text().count("\n") == 3
+        assert len(read_parquet_columns(folder / "results.parquet")["task"]) == 3
+        res = run_sweep(plan, folder, engine)
+    assert (res.done_before, res.ran, res.ok, res.status) == (3, 6, 9, "complete")
+    t = read_parquet_columns(folder / "results.parquet")
+    assert t["task"] == list(range(9))
+    for delay, seed, value in zip(t["vision.delay_s"], t["seed"], t["delay_x_seed"], strict=True):
+        assert value == pytest.approx(delay * seed)
