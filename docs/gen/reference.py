@@ -64,6 +64,8 @@ CONFIG_ROOTS: tuple[tuple[str, str, str], ...] = (
      "`--config` (VINS-Mono's YAML or ours) and `--set key=value`"),
     ("quadnav sweep --kind vio", "quadnav.experiments.sweep_vio:VioTaskConfig",
      "a built-in sequence, `--set key=value` and `--grid key=...`; `vio.*` are `quadnav vio`'s"),
+    ("quadnav sweep --kind slam", "quadnav.experiments.sweep_vio:SlamTaskConfig",
+     "a built-in sequence, `--set key=value` and `--grid key=...`; `quadnav slam`'s settings"),
 )  # fmt: skip
 
 #: Name suffixes that state a unit (ARCHITECTURE.md, "Units"), longest first.
@@ -275,8 +277,11 @@ def config_keys(
 
 
 def reached_models(model: type[ConfigModel]) -> set[type[ConfigModel]]:
-    """``model`` and every ConfigModel nested in it."""
-    found = {model}
+    """``model``, the ConfigModels it derives from (their fields are its own, documented
+    with it) and every ConfigModel nested in it."""
+    found = {model} | {
+        b for b in model.__mro__ if isinstance(b, type) and issubclass(b, ConfigModel)
+    }
     for field in model.model_fields.values():
         inner, _ = _nested(field.annotation)
         if inner is not None:

@@ -101,6 +101,18 @@ def _wait_listening(port: int, proc: subprocess.Popen[bytes], seconds: float = 2
     return False
 
 
+def _stop(server: subprocess.Popen[bytes], seconds: float = 60.0) -> None:
+    """Ctrl-C to the server, which saves what it received and exits; a loaded machine (CI's
+    two workers) has taken over 20 s. One that does not exit is killed and fails the test."""
+    server.send_signal(signal.SIGINT)
+    try:
+        server.wait(timeout=seconds)
+    except subprocess.TimeoutExpired:
+        server.kill()
+        server.wait()
+        raise AssertionError(f"rerun --save did not exit within {seconds:g} s of Ctrl-C") from None
+
+
 def test_a_run_streams_its_recording_to_a_server_on_loopback(tmp_path: Path) -> None:
     viewer = _viewer()
     if viewer is None:
@@ -119,8 +131,7 @@ def test_a_run_streams_its_recording_to_a_server_on_loopback(tmp_path: Path) -> 
         assert f"streamed to rerun+http://127.0.0.1:{port}/proxy" in result.stdout
         time.sleep(1.0)
     finally:
-        server.send_signal(signal.SIGINT)
-        server.wait(timeout=20)
+        _stop(server)
     (folder,) = [p for p in (tmp_path / "runs").iterdir() if p.is_dir()]
     written, _ = rows_and_static(folder / "recording.rrd")
     with warnings.catch_warnings():  # (a streamed file may have no footer: read whole)
