@@ -275,7 +275,8 @@ class RefinedTrajectory(Protocol):
 class CameraCalibration:
     """A camera of the rig as an odometry has it: the extrinsic ``T_B_C`` (the camera in the
     body frame), the pinhole intrinsics in pixels (the lens's distortion as stated) and the
-    camera-IMU time offset (s; a frame's stamp plus it is its time on the IMU's clock)."""
+    camera-IMU time offset (s; a frame's stamp plus it is its time on the IMU's clock), with
+    their standard deviations where it estimates them."""
 
     camera: str
     T_B_C: Pose
@@ -284,6 +285,13 @@ class CameraCalibration:
     cx: float
     cy: float
     time_offset_s: float
+    #: the estimate's standard deviations where the odometry has them (None: not estimated):
+    #: the extrinsic's rotation (deg) and translation (m) about and along the camera's axes
+    #: (a perturbation on the right of ``T_B_C``), ``fx, fy, cx, cy`` (px), the offset (s)
+    sigma_rotation_deg: tuple[float, float, float] | None = None
+    sigma_translation_m: tuple[float, float, float] | None = None
+    sigma_intrinsics_px: tuple[float, float, float, float] | None = None
+    sigma_time_offset_s: float | None = None
 
 
 @runtime_checkable

@@ -421,6 +421,8 @@ class _Calibrating(TruthPlusNoise):
             CameraCalibration(
                 camera="cam0", T_B_C=told.T_B_C @ turn, fx=K[0, 0] * 1.01, fy=K[1, 1] * 1.02,
                 cx=K[0, 2] + 1.5, cy=K[1, 2], time_offset_s=told.time_offset_ns * 1e-9 + 0.003,
+                sigma_rotation_deg=(0.1, 0.2, 0.3), sigma_translation_m=(0.001, 0.002, 0.003),
+                sigma_intrinsics_px=(1.0, 2.0, 3.0, 4.0), sigma_time_offset_s=None,
             ),
         )  # fmt: skip
 
@@ -466,5 +468,9 @@ def test_an_online_calibration_is_written_against_the_stated_one_and_the_truth(
     assert cam["estimated_minus_truth"]["fx_rel"] == pytest.approx(1.01 / 0.99 - 1)
     assert cam["stated_minus_truth"]["rotation_deg"] == pytest.approx(0.0, abs=1e-6)
     assert cam["truth"]["intrinsics"][0] == pytest.approx(0.99 * cam["stated"]["intrinsics"][0])
+    assert cam["estimated_sigma"] == {
+        "rotation_deg": [0.1, 0.2, 0.3], "translation_m": [0.001, 0.002, 0.003],
+        "intrinsics": [1.0, 2.0, 3.0, 4.0], "time_offset_ms": None,
+    }  # fmt: skip
     plain = _run(ds, tmp_path / "plain", _double(ds))
     assert not (plain.run_dir / "calibration.json").exists()

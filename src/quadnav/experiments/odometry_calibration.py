@@ -3,7 +3,8 @@
 An odometry that refines its calibration online (:class:`~quadnav.odometry.OnlineCalibration`:
 the VIO's ``estimate_extrinsic``, ``estimate_intrinsics`` and ``estimate_td``) ends a run with
 each camera's extrinsic, intrinsics and time offset as it has them. The file gives, per camera,
-the stated calibration (what the run was told), the estimate at the end, and how far it moved.
+the stated calibration (what the run was told), the estimate at the end with its standard
+deviations (the window's marginals), and how far it moved.
 A dataset made by ``quadnav dataset make`` keeps the calibration its data was made with in
 ``truth/``: then the stated and the estimated calibration are each compared with it, so a user
 sees whether the online calibration went towards the truth (VINS-Mono writes its refined
@@ -66,6 +67,19 @@ def _values(c: CameraCalibration) -> dict[str, object]:
     }
 
 
+def _sigmas(c: CameraCalibration) -> dict[str, object]:
+    """The estimate's standard deviations (None where it is not estimated): the extrinsic's
+    rotation (deg) and translation (m) about and along the camera's axes, ``fx, fy, cx, cy``
+    (px), the time offset (ms)."""
+    td = c.sigma_time_offset_s
+    return {
+        "rotation_deg": None if c.sigma_rotation_deg is None else list(c.sigma_rotation_deg),
+        "translation_m": None if c.sigma_translation_m is None else list(c.sigma_translation_m),
+        "intrinsics": None if c.sigma_intrinsics_px is None else list(c.sigma_intrinsics_px),
+        "time_offset_ms": None if td is None else td * 1e3,
+    }
+
+
 def truth_rig(root: Path | None) -> Rig | None:
     """The rig a ``quadnav dataset make`` folder's data was made with (its ``truth/``), or
     None: not such a folder, or its truth unreadable."""
@@ -93,6 +107,7 @@ def calibration_report(
             "camera": est.camera,
             "stated": _values(told),
             "estimated": _values(est),
+            "estimated_sigma": _sigmas(est),
             "estimated_minus_stated": difference(est, told),
         }
         if truth is not None and est.camera in truth.camera_names:

@@ -93,6 +93,14 @@ class _KeyframeInfo:
     cov_pose: FloatArray | None = None
 
 
+def _three(v: FloatArray) -> tuple[float, float, float]:
+    return float(v[0]), float(v[1]), float(v[2])
+
+
+def _four(v: FloatArray) -> tuple[float, float, float, float]:
+    return float(v[0]), float(v[1]), float(v[2]), float(v[3])
+
+
 def _time_offset_estimator(R_B_C: Rotation, cfg: VioConfig) -> TimeOffsetEstimator:
     """The online camera-IMU time-offset estimator, told the camera's mount. Its window is
     long (30 s by default): it compares rotations between keyframes, a few a second, and over
@@ -150,6 +158,7 @@ class VioEstimator:
         self._last_p = np.zeros(3)
         self._td_s = ns_to_s(spec.time_offset_ns) if cfg.td_s is None else cfg.td_s
         self._td_stated_s = self._td_s  # what the online estimate is weighed against
+        self._td_sigma_s = cfg.td_prior_sigma_s  # the offset's sigma: the stated one's at first
         self._td = (
             _time_offset_estimator(rig.camera(camera).T_B_C.R_A_B, cfg) if cfg.estimate_td else None
         )
@@ -235,10 +244,15 @@ class VioEstimator:
         out = []
         for side, (spec, T_B_C) in enumerate(zip(specs, poses, strict=False)):
             fx, fy, cx, cy = w.intrinsics(side, spec.camera)
+            ext, intr = w.calibration_sigmas(side, spec.camera)
             out.append(
                 CameraCalibration(
                     camera=spec.name, T_B_C=T_B_C, fx=fx, fy=fy, cx=cx, cy=cy,
                     time_offset_s=self._td_s,
+                    sigma_rotation_deg=None if ext is None else _three(np.degrees(ext[:3])),
+                    sigma_translation_m=None if ext is None else _three(ext[3:]),
+                    sigma_intrinsics_px=None if intr is None else _four(intr),
+                    sigma_time_offset_s=self._td_sigma_s if self._td is not None else None,
                 )
             )  # fmt: skip
         return tuple(out)
@@ -895,6 +909,7 @@ class VioEstimator:
         # weighed against the stated offset (its prior): a wandering early estimate moves little
         w = cfg.td_prior_sigma_s**2 / (cfg.td_prior_sigma_s**2 + est.sigma_s**2)
         self._td_s = self._td_stated_s + w * (float(est.td_s) - self._td_stated_s)
+        self._td_sigma_s = float(np.sqrt(w) * est.sigma_s)  # the two sigmas combined
         settled = est.converged and not self._td_settled
         moved = not first and abs(self._td_s - float(self._td_reported_s or 0.0)) > 1e-3
         if first or settled or moved or back:  # first, moved over 1 ms, settled, usable again

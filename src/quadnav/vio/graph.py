@@ -167,6 +167,15 @@ class WindowGraph:
         return int(self._smoother.getFactors().size())
 
     # -- solving ----------------------------------------------------------------------------
+    def marginal(self, key: int) -> FloatArray | None:
+        """The marginal covariance of ``key`` at the last solve (None: not in the window, or
+        GTSAM could not give it)."""
+        try:
+            covs = self._solution(self._smoother, [key], qr=self.on_qr).covariances
+        except GTSAM_ERRORS:
+            return None
+        return covs.get(key)
+
     def solve(self, covariance_of: Sequence[int] = ()) -> GraphSolution:
         """Add what is pending, optimise, marginalise what left the lag; the marginal
         covariances of ``covariance_of`` (keys still in the window). A Cholesky failure is

@@ -296,6 +296,22 @@ class SlidingWindow:
             float(K[1, 2] + K[1, 1] * c.py()),
         )
 
+    def calibration_sigmas(
+        self, side: int, stated: PinholeCamera
+    ) -> tuple[FloatArray | None, FloatArray | None]:
+        """The standard deviations of camera ``side``'s extrinsic (rotation in rad, then
+        translation in m, about and along the camera's axes) and of its ``fx, fy, cx, cy`` (px)
+        at the last solve; None where not estimated or not to be had."""
+        if self.graph is None:
+            return None, None
+        ext = self.graph.marginal(C(side)) if self.config.estimate_extrinsic else None
+        intr = None
+        k_cov = self.graph.marginal(Kc(side)) if self._intrinsics else None
+        if k_cov is not None:  # (fx, fy, skew, u0, v0, ...): in px through the lens
+            sig = np.sqrt(np.clip(np.diag(k_cov)[[0, 1, 3, 4]], 0.0, None))
+            intr = sig if self._lens else sig * stated.K[[0, 1, 0, 1], [0, 1, 0, 1]]
+        return (None if ext is None else np.sqrt(np.clip(np.diag(ext), 0.0, None))), intr
+
     def corrected_xy(self, xy: FloatArray, side: int = 0) -> FloatArray:
         """Normalised coordinates (from the stated intrinsics) as the window's refined
         intrinsics have them (unchanged without ``estimate_intrinsics``)."""
