@@ -23,9 +23,40 @@ JIT_ENABLED = os.environ.get("QUADNAV_JIT", "1").strip() not in {"0", "false", "
 
 def njit(func: F) -> F:
     """``func`` compiled by numba in nopython mode (no fast-math: IEEE results), or ``func``
-    itself when ``QUADNAV_JIT=0``. Compiled lazily at the first call, then cached on disk."""
+    itself when ``QUADNAV_JIT=0``. Compiled at the first call, then cached on disk; numba
+    itself is imported only then, so a command that never runs a kernel does not pay for it
+    (half a second of start-up)."""
     if not JIT_ENABLED:
         return func
-    import numba
+    return cast(F, _LazyKernel(func))
 
-    return cast(F, numba.njit(cache=True, fastmath=False, nogil=True)(func))
+
+class _LazyKernel:
+    """A kernel until its first call: then numba compiles it (after every kernel its module
+    refers to, which it puts in the module's names so that compiled code calls compiled code)
+    and it calls the compiled function. ``py_func`` is the Python function, as numba's."""
+
+
+    def __init__(self, func: Callable[..., Any]) -> None:
+        self.py_func = func
+        self.__name__ = func.__name__
+        self.__qualname__ = func.__qualname__
+        self.__doc__ = func.__doc__
+        self._compiled: Callable[..., Any] | None = None
+
+    def compiled(self) -> Callable[..., Any]:
+        if self._compiled is None:
+            import numba
+
+            # (numba's dispatcher types and compiles at its first call, when the module's
+            # kernels below are dispatchers too)
+            self._compiled = numba.njit(cache=True, fastmath=False, nogil=True)(self.py_func)
+            names = self.py_func.__globals__
+            for key, value in list(names.items()):
+                if isinstance(value, _LazyKernel):
+                    names[key] = value.compiled()
+        return self._compiled
+
+    def __call__(self, *args: Any, **kwargs: Any) -> Any:
+        fn = self._compiled if self._compiled is not None else self.compiled()
+        return fn(*args, **kwargs)

@@ -36,6 +36,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from quadnav.errors import EstimationError, SampleError
+from quadnav.jit import njit
 from quadnav.messages import (
     ImuSample,
     Sample,
@@ -118,9 +119,14 @@ class Kinematics(Protocol):
         ...
 
     def to_estimate(
-        self, nav: NavState, x: FloatArray, names: tuple[str, ...], P: FloatArray | None
+        self,
+        nav: NavState,
+        x: FloatArray,
+        names: tuple[str, ...],
+        P: FloatArray | None,
+        w_B: FloatArray | None = None,
     ) -> StateEstimate:
-        """Package a navigation state in the common 3-D form."""
+        """Package a navigation state in the common 3-D form (``w_B``: the body rate)."""
         ...
 
     @property
@@ -383,8 +389,7 @@ class DelayedHorizonEstimator:
         nav = self.output_nav()
         # The output predictor carries the kinematics' state, not the filter's: its names.
         x = np.concatenate([nav.pos, nav.vel, nav.att])
-        est = self.kin.to_estimate(nav, x, self.kin.output_names, None)
-        return dataclasses.replace(est, w_B=self.body_rate())
+        return self.kin.to_estimate(nav, x, self.kin.output_names, None, self.body_rate())
 
     def body_rate(self) -> FloatArray | None:
         """The newest gyro reading less the filter's gyro bias (None before any IMU sample)."""
@@ -561,20 +566,38 @@ class DelayedHorizonEstimator:
         # Velocity and position: proportional-integral, applied to the whole buffer.
         vel_gain = dt / min(max(self.config.tau_vel_s, dt), 10.0)
         pos_gain = dt / min(max(self.config.tau_pos_s, dt), 10.0)
-        vel_err = nav.vel - self._ob_vel[oldest]
-        pos_err = nav.pos - self._ob_pos[oldest]
-        self._vel_err_integ += vel_err
-        self._pos_err_integ += pos_err
-        vel_corr = vel_err * vel_gain + self._vel_err_integ * (vel_gain**2 * 0.1)
-        pos_corr = pos_err * pos_gain + self._pos_err_integ * (pos_gain**2 * 0.1)
-        self._ob_vel += vel_corr
-        if self.config.propagate_velocity_correction:
-            # A velocity change at the delayed horizon moves every later state by that
-            # change times its age; PX4 leaves this to later integration.
-            age_s = (self._ob_t - self._ob_t[oldest]) * 1e-9
-            self._ob_pos += pos_corr + age_s[:, None] * vel_corr
-        else:
-            self._ob_pos += pos_corr
+        _pi_correct(self._ob_t, self._ob_pos, self._ob_vel, oldest, nav.pos, nav.vel,
+                    self._pos_err_integ, self._vel_err_integ, pos_gain, vel_gain,
+                    self.config.propagate_velocity_correction)  # fmt: skip
+
+
+@njit
+def _pi_correct(
+    ob_t: NDArray[np.int64], ob_pos: FloatArray, ob_vel: FloatArray, oldest: int,
+    pos: FloatArray, vel: FloatArray, pos_integ: FloatArray, vel_integ: FloatArray,
+    pos_gain: float, vel_gain: float, propagate: bool,
+) -> None:  # fmt: skip
+    """The output predictor's velocity and position correction, in place on the whole ring:
+    the error at the delayed horizon (the ring's ``oldest`` entry against the filter's
+    ``pos``, ``vel``) through a proportional-integral gain (PX4's). With ``propagate``, a
+    velocity change at the delayed horizon also moves every later state by that change times
+    its age; PX4 leaves this to later integration."""
+    d = ob_pos.shape[1]
+    vel_corr = np.empty(d)
+    pos_corr = np.empty(d)
+    for k in range(d):
+        vel_err = vel[k] - ob_vel[oldest, k]
+        pos_err = pos[k] - ob_pos[oldest, k]
+        vel_integ[k] += vel_err
+        pos_integ[k] += pos_err
+        vel_corr[k] = vel_err * vel_gain + vel_integ[k] * (vel_gain**2 * 0.1)
+        pos_corr[k] = pos_err * pos_gain + pos_integ[k] * (pos_gain**2 * 0.1)
+    t0 = ob_t[oldest]
+    for i in range(ob_pos.shape[0]):
+        age_s = (ob_t[i] - t0) * 1e-9
+        for k in range(d):
+            ob_vel[i, k] += vel_corr[k]
+            ob_pos[i, k] += pos_corr[k] + age_s * vel_corr[k] if propagate else pos_corr[k]
 
 
 def _is_stamped(sample: object) -> bool:

@@ -56,7 +56,9 @@ from quadnav.geometry.rotations import (
     rotation_matrix_xyzw,
     skew,
     so3_exp,
+    so3_exp_one,
     so3_log,
+    so3_log_one,
     yaw_of,
 )
 from quadnav.jit import njit
@@ -130,13 +132,9 @@ class NavKinematics:
         dtheta_corr: FloatArray | None = None,
     ) -> tuple[FloatArray, FloatArray, FloatArray]:
         if isinstance(dt_s, float) and att.ndim == 1:
-            # One state (the output predictor's hot path): no batching machinery.
-            dth = gyro * dt_s if dtheta_corr is None else gyro * dt_s + dtheta_corr
-            R1 = att.reshape(3, 3) @ so3_exp(dth)
-            a1 = R1 @ accel
-            a1[2] -= self.gravity_m_s2
-            v1 = vel + dt_s * a1
-            return pos + dt_s * v1, v1, R1.ravel()
+            # One state (the output predictor's hot path): one compiled step.
+            corr = _NO_CORRECTION if dtheta_corr is None else dtheta_corr
+            return _strapdown_one(pos, vel, att, gyro, accel, dt_s, corr, self.gravity_m_s2)
         dt = np.asarray(dt_s, dtype=np.float64)
         dtv = dt[..., None] if dt.ndim else dt
         dtheta = np.asarray(gyro, dtype=np.float64) * dtv
@@ -152,14 +150,19 @@ class NavKinematics:
 
     @property
     def output_names(self) -> tuple[str, ...]:
-        return NAV_OUTPUT.names
+        return _OUTPUT_NAMES
 
     def attitude_error(self, att_target: FloatArray, att: FloatArray) -> FloatArray:
         """Body-frame rotation vector taking ``att`` onto ``att_target``."""
-        return so3_log(att.reshape(3, 3).T @ att_target.reshape(3, 3))
+        return _rotation_error(att_target, att)
 
     def to_estimate(
-        self, nav: NavState, x: FloatArray, names: tuple[str, ...], P: FloatArray | None
+        self,
+        nav: NavState,
+        x: FloatArray,
+        names: tuple[str, ...],
+        P: FloatArray | None,
+        w_B: FloatArray | None = None,
     ) -> StateEstimate:
         return StateEstimate(
             t_ns=nav.t_ns,
@@ -169,7 +172,55 @@ class NavKinematics:
             x=x,
             names=names,
             P=P,
+            w_B=w_B,
         )
+
+
+_OUTPUT_NAMES = NAV_OUTPUT.names
+_NO_CORRECTION = np.zeros(3)
+
+
+@njit
+def _strapdown_one(
+    pos: FloatArray, vel: FloatArray, att: FloatArray, gyro: FloatArray, accel: FloatArray,
+    dt: float, dtheta_corr: FloatArray, g: float,
+) -> tuple[FloatArray, FloatArray, FloatArray]:  # fmt: skip
+    """One state's :meth:`NavKinematics.integrate`: ``R' = R Exp(gyro dt + corr)`` (Rodrigues,
+    as :func:`so3_exp`), ``v' = v + dt (R' accel - g z)``, ``p' = p + dt v'``; ``att`` and the
+    returned attitude are flattened rotation matrices."""
+    dth = np.empty(3)
+    for k in range(3):
+        dth[k] = gyro[k] * dt + dtheta_corr[k]
+    E = so3_exp_one(dth)
+    R1 = np.empty(9)
+    for i in range(3):
+        for j in range(3):
+            R1[3 * i + j] = (
+                att[3 * i] * E[0, j] + att[3 * i + 1] * E[1, j] + att[3 * i + 2] * E[2, j]
+            )
+    v1 = np.empty(3)
+    p1 = np.empty(3)
+    for i in range(3):
+        a = R1[3 * i] * accel[0] + R1[3 * i + 1] * accel[1] + R1[3 * i + 2] * accel[2]
+        if i == 2:
+            a -= g
+        v1[i] = vel[i] + dt * a
+        p1[i] = pos[i] + dt * v1[i]
+    return p1, v1, R1
+
+
+@njit
+def _rotation_error(att_target: FloatArray, att: FloatArray) -> FloatArray:
+    """``so3_log(R^T R_target)`` of two flattened rotation matrices (as :func:`so3_log`)."""
+    M = np.empty((3, 3))
+    for i in range(3):
+        for j in range(3):
+            M[i, j] = (
+                att[i] * att_target[j]
+                + att[3 + i] * att_target[3 + j]
+                + att[6 + i] * att_target[6 + j]
+            )
+    return so3_log_one(M)
 
 
 def nav_jacobians(
@@ -1012,21 +1063,17 @@ class NavEkf:
         P = self._P
         if H.shape[1] < P.shape[0]:  # (an observation of the 15 alone, beside the drift)
             H = np.pad(H, ((0, 0), (0, P.shape[0] - H.shape[1])))
-        PHt = P @ H.T
-        S = H @ PHt + Rn
-        # scalar observations (height, range, heading) need no matrix inverse
-        S_inv = 1.0 / S if len(r) == 1 else np.linalg.inv(S)
-        nis = float(r @ S_inv @ r)
-        ratio = nis / (self._gates[len(r)] if gate is None else gate)
+        limit = self._gates[len(r)] if gate is None else gate
+        # The gain, the gate, P - K S K^T and the attitude reset, in one compiled kernel.
+        nis, dx, P_new = _kalman_update(
+            P, np.ascontiguousarray(H, dtype=np.float64), np.ascontiguousarray(Rn, dtype=np.float64),
+            np.ascontiguousarray(r, dtype=np.float64), float(limit),
+        )  # fmt: skip
+        nis = float(nis)
+        ratio = nis / limit
         if ratio > 1.0:
             return FusionResult(accepted=False, innovation=r, nis=nis, test_ratio=ratio)
-        K = PHt @ S_inv
-        dx = K @ r
-        # P - K S K^T (= P - K H P), symmetrised; cheaper than Joseph's form at 15 states and
-        # as well behaved with the symmetrisation and the positive noise of every update.
-        P = P - K @ PHt.T
-        # Inject the error into the nominal state and reset the attitude error's covariance:
-        # P <- Gr P Gr^T with Gr = I except its attitude block B = I - [dtheta/2]x.
+        # Inject the error into the nominal state.
         self.R = self.R @ so3_exp(dx[_ATT])
         self.v = self.v + dx[_VEL]
         self.p = self.p + dx[_POS]
@@ -1034,10 +1081,7 @@ class NavEkf:
         self.ba = self.ba + dx[_BA]
         if self._relative:
             self.odometry_drift += dx[_N:]
-        B = _I3 - 0.5 * skew(dx[_ATT])
-        P[_ATT, :] = B @ P[_ATT, :]
-        P[:, _ATT] = P[:, _ATT] @ B.T
-        self._P = 0.5 * (P + P.T)
+        self._P = P_new
         return FusionResult(accepted=True, innovation=r, nis=nis, test_ratio=ratio)
 
 
@@ -1100,6 +1144,51 @@ def _propagate(
             out[i, j] = acc
             out[j, i] = acc
     return R1, v1, p1, out
+
+
+@njit
+def _kalman_update(
+    P: FloatArray, H: FloatArray, Rn: FloatArray, r: FloatArray, limit: float
+) -> tuple[float, FloatArray, FloatArray]:
+    """One EKF update's linear algebra: the innovation's covariance ``S = H P H^T + Rn``, its
+    NIS ``r^T S^-1 r``; when the NIS is within ``limit``, the correction ``dx = K r`` and
+    ``P - K S K^T`` (= P - K H P; cheaper than Joseph's form at 15 states and as well behaved
+    with the symmetrisation and the positive noise of every update), with the attitude error's
+    reset ``P <- Gr P Gr^T`` (``Gr`` = I but its attitude block ``B = I - [dtheta/2]x``),
+    symmetrised. Beyond ``limit``, ``dx`` is empty and ``P`` comes back untouched."""
+    PHt = P @ H.T
+    S = H @ PHt + Rn
+    S_inv = np.empty_like(S)
+    if r.shape[0] == 1:  # scalar observations (height, range, heading) need no matrix inverse
+        S_inv[0, 0] = 1.0 / S[0, 0]
+    else:
+        S_inv[:, :] = np.linalg.inv(S)
+    nis = float(r @ (S_inv @ r))
+    if nis / limit > 1.0:
+        return nis, np.empty(0), P
+    K = PHt @ S_inv
+    dx = K @ r
+    P1 = P - K @ PHt.T
+    hx, hy, hz = 0.5 * dx[_I_ATT], 0.5 * dx[_I_ATT + 1], 0.5 * dx[_I_ATT + 2]
+    B = np.eye(3)
+    B[0, 1], B[0, 2], B[1, 2] = hz, -hy, hx  # I - [h]x
+    B[1, 0], B[2, 0], B[2, 1] = -hz, hy, -hx
+    n = P1.shape[0]
+    rows = np.empty((3, n))  # B P[att, :]
+    for i in range(3):
+        for j in range(n):
+            rows[i, j] = (
+                B[i, 0] * P1[_I_ATT, j] + B[i, 1] * P1[_I_ATT + 1, j] + B[i, 2] * P1[_I_ATT + 2, j]
+            )
+    P1[_I_ATT : _I_ATT + 3, :] = rows
+    cols = np.empty((n, 3))  # P[:, att] B^T
+    for i in range(n):
+        for j in range(3):
+            cols[i, j] = (
+                P1[i, _I_ATT] * B[j, 0] + P1[i, _I_ATT + 1] * B[j, 1] + P1[i, _I_ATT + 2] * B[j, 2]
+            )
+    P1[:, _I_ATT : _I_ATT + 3] = cols
+    return nis, dx, 0.5 * (P1 + P1.T)
 
 
 @njit

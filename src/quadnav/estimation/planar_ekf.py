@@ -91,7 +91,12 @@ class PlanarKinematics:
         return np.array([0.0, err, 0.0])
 
     def to_estimate(
-        self, nav: NavState, x: FloatArray, names: tuple[str, ...], P: FloatArray | None
+        self,
+        nav: NavState,
+        x: FloatArray,
+        names: tuple[str, ...],
+        P: FloatArray | None,
+        w_B: FloatArray | None = None,
     ) -> StateEstimate:
         half = 0.5 * float(nav.att[0])
         return StateEstimate(
@@ -102,6 +107,7 @@ class PlanarKinematics:
             x=x,
             names=names,
             P=P,
+            w_B=w_B,
         )
 
 

@@ -23,6 +23,7 @@ from typing import Protocol
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
 
 from quadnav.control.base import Controller, Setpoint, SetpointSource, truth_estimate
 from quadnav.control.cascaded_pid import CascadedPid
@@ -49,7 +50,6 @@ from quadnav.experiments.vio_flight import (
     VioCameraSensor,
     VioRecord,
 )
-from quadnav.geometry.rotations import rotation_matrix_xyzw, so3_log
 from quadnav.messages import Sample, StateEstimate, VehicleState
 from quadnav.sim.channels import Channel
 from quadnav.sim.rigid_body import RigidBodyQuadrotor
@@ -316,24 +316,32 @@ def flight_plan(sc: NavScenario, params: RigidBodyParams) -> tuple[Controller, F
 _BIAS_NAMES = ("bgx", "bgy", "bgz", "bax", "bay", "baz")
 
 
+_BIAS_INDEX: dict[tuple[str, ...], list[int | None]] = {}
+
+
 def _biases(est: StateEstimate) -> FloatArray:
     """The estimate's gyro and accelerometer biases by name (NaN where it has none)."""
-    idx = {n: k for k, n in enumerate(est.names)}
-    return np.array([est.x[idx[n]] if n in idx else np.nan for n in _BIAS_NAMES])
+    where = _BIAS_INDEX.get(est.names)
+    if where is None:  # (a filter's names are one tuple for the whole run: looked up once)
+        idx = {n: k for k, n in enumerate(est.names)}
+        where = _BIAS_INDEX.setdefault(est.names, [idx.get(n) for n in _BIAS_NAMES])
+    return np.array([np.nan if k is None else est.x[k] for k in where])
 
 
 class _NavLog:
-    """Typed rows per logged IMU step; the truth kept by time to score the delayed horizon."""
+    """Typed rows per logged IMU step; the delayed horizon scored against the truth logged at
+    its time, all rows at once when the flight is over."""
 
     def __init__(self, *, record_stream: bool) -> None:
         self.t: list[int] = []
         self.truth: list[VehicleState] = []
+        self.true_bias: list[FloatArray] = []
         self.ref_p: list[FloatArray] = []
         self.out: list[StateEstimate] = []
         self.delayed: list[StateEstimate] = []
-        self.err: list[FloatArray] = []
+        self.truth_row: list[int] = []  # the row whose truth is at the delayed time (-1: none)
         self.hover: list[bool | None] = []
-        self._truth_at: dict[int, tuple[VehicleState, FloatArray]] = {}
+        self._row_at: dict[int, int] = {}
         self.stream: list[Sample] | None = [] if record_stream else None
 
     def record(
@@ -345,40 +353,59 @@ class _NavLog:
         dl: StateEstimate,
         hover: bool | None = None,
     ) -> None:
-        self._truth_at[truth.t_ns] = (truth, true_bias)
+        self._row_at[truth.t_ns] = len(self.t)
         self.hover.append(hover)
         self.t.append(truth.t_ns)
         self.truth.append(truth)
+        self.true_bias.append(true_bias)
         self.ref_p.append(ref_p)
         self.out.append(out)
         self.delayed.append(dl)
-        past = self._truth_at.get(dl.t_ns)
-        if past is None:
-            self.err.append(np.full(15, np.nan))
-            return
-        s, b = past
-        dth = so3_log(rotation_matrix_xyzw(dl.q_W_B_xyzw).T @ rotation_matrix_xyzw(s.q_W_B_xyzw))
-        self.err.append(
-            np.concatenate([dth, s.v_W_B - dl.v_W_B, s.p_W_B - dl.p_W_B, b - _biases(dl)])
-        )
+        self.truth_row.append(self._row_at.get(dl.t_ns, -1))
 
     def arrays(self) -> dict[str, FloatArray]:
         d = self.delayed
         P = [x.P if x.P is not None else np.full((15, 15), np.nan) for x in d]
-        return {
+        truth = {
             "truth_p": np.array([s.p_W_B for s in self.truth]),
             "truth_v": np.array([s.v_W_B for s in self.truth]),
             "truth_q": np.array([s.q_W_B_xyzw for s in self.truth]),
+        }
+        dl_x = np.column_stack(
+            [
+                np.array([x.p_W_B for x in d]).reshape(-1, 3),
+                np.array([x.v_W_B for x in d]).reshape(-1, 3),
+                np.array([x.q_W_B_xyzw for x in d]).reshape(-1, 4),
+                np.array([_biases(x) for x in d]).reshape(-1, 6),
+            ]
+        )
+        return {
+            **truth,
             "ref_p": np.array(self.ref_p),
             "output_p": np.array([o.p_W_B for o in self.out]),
             "output_v": np.array([o.v_W_B for o in self.out]),
             "output_q": np.array([o.q_W_B_xyzw for o in self.out]),
-            "delayed_x": np.array(
-                [np.concatenate([x.p_W_B, x.v_W_B, x.q_W_B_xyzw, _biases(x)]) for x in d]
-            ),
-            "delayed_err": np.array(self.err),
+            "delayed_x": dl_x,
+            "delayed_err": self._delayed_err(truth, dl_x),
             "delayed_P": np.array(P),
         }
+
+    def _delayed_err(self, truth: dict[str, FloatArray], dl_x: FloatArray) -> FloatArray:
+        """Per row, the truth at the delayed time less the delayed estimate: attitude (the
+        body-frame rotation vector taking the estimate onto the truth), velocity, position,
+        gyro and accelerometer biases (15); NaN where no truth was logged at that time."""
+        err = np.full((len(self.t), 15), np.nan)
+        rows = np.flatnonzero(np.array(self.truth_row, dtype=np.int64) >= 0)
+        if not len(rows):
+            return err
+        k = np.array(self.truth_row, dtype=np.int64)[rows]
+        dl = dl_x[rows]
+        turn = Rotation.from_quat(dl[:, 6:10]).inv() * Rotation.from_quat(truth["truth_q"][k])
+        err[rows, 0:3] = turn.as_rotvec()
+        err[rows, 3:6] = truth["truth_v"][k] - dl[:, 3:6]
+        err[rows, 6:9] = truth["truth_p"][k] - dl[:, 0:3]
+        err[rows, 9:15] = np.array(self.true_bias)[k] - dl[:, 10:16]
+        return err
 
 
 def _vio_record(channels: list[Channel]) -> VioRecord | None:

@@ -16,6 +16,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.transform import Rotation
 
 from quadnav.errors import GeometryError
+from quadnav.jit import njit
 
 __all__ = [
     "Pose",
@@ -28,6 +29,8 @@ __all__ = [
     "rot_z",
     "rotation_matrix_xyzw",
     "skew",
+    "so3_exp_one",
+    "so3_log_one",
     "unit_quats_xyzw",
     "yaw_of",
 ]
@@ -151,28 +154,8 @@ def so3_exp(rotvec: FloatArray) -> FloatArray:
     much higher cost per call.
     """
     r = np.asarray(rotvec, dtype=np.float64)
-    if r.shape == (3,):  # the common single-vector case, in scalars
-        x, y, z = r.tolist()
-        t2 = x * x + y * y + z * z
-        if t2 < 1e-12:
-            a1, b1 = 1.0 - t2 / 6.0, 0.5 - t2 / 24.0
-        else:
-            t = math.sqrt(t2)
-            a1, b1 = math.sin(t) / t, (1.0 - math.cos(t)) / t2
-        bx, by, bz = b1 * x, b1 * y, b1 * z
-        return np.array(
-            [
-                1.0 - by * y - bz * z,
-                -a1 * z + bx * y,
-                a1 * y + bx * z,
-                a1 * z + bx * y,
-                1.0 - bx * x - bz * z,
-                -a1 * x + by * z,
-                -a1 * y + bx * z,
-                a1 * x + by * z,
-                1.0 - bx * x - by * y,
-            ]
-        ).reshape(3, 3)
+    if r.shape == (3,):  # the common single-vector case, compiled
+        return so3_exp_one(r)
     th2 = np.sum(r * r, axis=-1)[..., None, None]
     th = np.sqrt(th2)
     small = th2 < 1e-12
@@ -187,39 +170,70 @@ def so3_exp(rotvec: FloatArray) -> FloatArray:
 
 def so3_log(R: FloatArray) -> FloatArray:
     """The rotation vector (3,) of a rotation matrix (angles below pi)."""
+    return so3_log_one(np.asarray(R, dtype=np.float64))
+
+
+@njit
+def so3_exp_one(r: FloatArray) -> FloatArray:
+    """:func:`so3_exp` of one rotation vector (3,), compiled (callable from other kernels)."""
+    x, y, z = r[0], r[1], r[2]
+    t2 = x * x + y * y + z * z
+    if t2 < 1e-12:
+        a1, b1 = 1.0 - t2 / 6.0, 0.5 - t2 / 24.0
+    else:
+        t = math.sqrt(t2)
+        a1, b1 = math.sin(t) / t, (1.0 - math.cos(t)) / t2
+    bx, by, bz = b1 * x, b1 * y, b1 * z
+    E = np.empty((3, 3))
+    E[0, 0], E[0, 1], E[0, 2] = 1.0 - by * y - bz * z, -a1 * z + bx * y, a1 * y + bx * z
+    E[1, 0], E[1, 1], E[1, 2] = a1 * z + bx * y, 1.0 - bx * x - bz * z, -a1 * x + by * z
+    E[2, 0], E[2, 1], E[2, 2] = -a1 * y + bx * z, a1 * x + by * z, 1.0 - bx * x - by * y
+    return E
+
+
+@njit
+def so3_log_one(R: FloatArray) -> FloatArray:
+    """:func:`so3_log` of a float64 (3, 3), compiled (callable from other kernels)."""
     c = min(max((R[0, 0] + R[1, 1] + R[2, 2] - 1.0) / 2.0, -1.0), 1.0)
     th = math.acos(c)
-    v = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
-    if th < 1e-6:
-        return 0.5 * v
-    return (th / (2.0 * math.sin(th))) * v
+    v = np.empty(3)
+    v[0], v[1], v[2] = R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]
+    k = 0.5 if th < 1e-6 else th / (2.0 * math.sin(th))
+    for i in range(3):
+        v[i] *= k
+    return v
 
 
 def quat_xyzw_from_matrix(R: FloatArray) -> FloatArray:
     """A unit scalar-last quaternion (w >= 0) of a rotation matrix (Shepperd's method)."""
+    return _quat_xyzw_from_matrix(np.asarray(R, dtype=np.float64))
+
+
+@njit
+def _quat_xyzw_from_matrix(R: FloatArray) -> FloatArray:
+    q = np.empty(4)
     t = R[0, 0] + R[1, 1] + R[2, 2]
     if t > 0:
         s = 2.0 * math.sqrt(1.0 + t)
-        q = np.array(
-            [(R[2, 1] - R[1, 2]) / s, (R[0, 2] - R[2, 0]) / s, (R[1, 0] - R[0, 1]) / s, 0.25 * s]
-        )
+        q[0], q[1], q[2] = (R[2, 1] - R[1, 2]) / s, (R[0, 2] - R[2, 0]) / s, (R[1, 0] - R[0, 1]) / s
+        q[3] = 0.25 * s
     elif R[0, 0] > R[1, 1] and R[0, 0] > R[2, 2]:
         s = 2.0 * math.sqrt(1.0 + R[0, 0] - R[1, 1] - R[2, 2])
-        q = np.array(
-            [0.25 * s, (R[0, 1] + R[1, 0]) / s, (R[0, 2] + R[2, 0]) / s, (R[2, 1] - R[1, 2]) / s]
-        )
+        q[0], q[1], q[2] = 0.25 * s, (R[0, 1] + R[1, 0]) / s, (R[0, 2] + R[2, 0]) / s
+        q[3] = (R[2, 1] - R[1, 2]) / s
     elif R[1, 1] > R[2, 2]:
         s = 2.0 * math.sqrt(1.0 + R[1, 1] - R[0, 0] - R[2, 2])
-        q = np.array(
-            [(R[0, 1] + R[1, 0]) / s, 0.25 * s, (R[1, 2] + R[2, 1]) / s, (R[0, 2] - R[2, 0]) / s]
-        )
+        q[0], q[1], q[2] = (R[0, 1] + R[1, 0]) / s, 0.25 * s, (R[1, 2] + R[2, 1]) / s
+        q[3] = (R[0, 2] - R[2, 0]) / s
     else:
         s = 2.0 * math.sqrt(1.0 + R[2, 2] - R[0, 0] - R[1, 1])
-        q = np.array(
-            [(R[0, 2] + R[2, 0]) / s, (R[1, 2] + R[2, 1]) / s, 0.25 * s, (R[1, 0] - R[0, 1]) / s]
-        )
-    q /= np.linalg.norm(q)
-    return q if q[3] >= 0 else -q
+        q[0], q[1], q[2] = (R[0, 2] + R[2, 0]) / s, (R[1, 2] + R[2, 1]) / s, 0.25 * s
+        q[3] = (R[1, 0] - R[0, 1]) / s
+    n = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    sign = 1.0 if q[3] / n >= 0 else -1.0
+    for i in range(4):
+        q[i] = sign * (q[i] / n)
+    return q
 
 
 def cross3(a: FloatArray, b: FloatArray) -> FloatArray:

@@ -117,7 +117,7 @@ class RigidBodyQuadrotor:
     def step(self, omega_cmd: FloatArray) -> FloatArray:
         """Advance one step with rotor speed commands (clipped to the rotor limits)."""
         cmd = np.asarray(omega_cmd, dtype=np.float64)
-        if cmd.shape != (4,) or not math.isfinite(cmd.sum()):
+        if cmd.shape != (4,) or not _all_finite(cmd):
             raise SimError(f"rotor commands must be 4 finite speeds, got {cmd}")
         wind = self.wind.step(self.dt_s)
         self._wind_now = wind
@@ -128,7 +128,7 @@ class RigidBodyQuadrotor:
                 s = _rk4_step(self.s, cmd, wind, self._consts, self.dt_s)
         if s[2] <= 0.0:
             s = self._on_ground(s)
-        if not math.isfinite(s.sum()):
+        if not _all_finite(s):
             raise SimError(f"the rigid-body simulation diverged at t = {self.t_ns * 1e-9:.4g} s")
         self.last_accel_W = (s[3:6] - self.s[3:6]) / self.dt_s
         self.s = s
@@ -153,11 +153,12 @@ class RigidBodyQuadrotor:
         return self._wind_now
 
     def state(self) -> VehicleState:
-        s = self.s  # (finite and its quaternion a unit one: step() and __init__ see to it)
+        # (finite and its quaternion a unit one: step() and __init__ see to it); one copy, and
+        # the state's fields are views of it
+        s = self.s[0:13].copy()
         return VehicleState.from_checked(
-            self.t_ns, s[0:3].copy(), s[3:6].copy(), self.last_accel_W.copy(), s[6:10].copy(),
-            s[10:13].copy(),
-        )  # fmt: skip
+            self.t_ns, s[0:3], s[3:6], self.last_accel_W.copy(), s[6:10], s[10:13]
+        )
 
     def energy_rot_j(self) -> float:
         w = self.s[10:13]
@@ -165,6 +166,15 @@ class RigidBodyQuadrotor:
 
 
 # -- the compiled kernels (quadnav.jit: numba, or plain Python with QUADNAV_JIT=0) -------------
+@njit
+def _all_finite(a: FloatArray) -> bool:
+    """Whether every entry is finite (a loop: it stops at the first that is not)."""
+    for x in a:  # noqa: SIM110
+        if not math.isfinite(x):
+            return False
+    return True
+
+
 # The model's constants, one float array: k_thrust, k_torque, mass, gravity, Ix, Iy, Iz, the
 # body drag (x, y, z), the rotor lag, the rotor limits, then the rotors' x, y and spin (4 each).
 _N_CONSTS = 13 + 12

@@ -251,13 +251,12 @@ class ImuErrors:
     ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
         """:meth:`draw` of one sample, the same numbers without its arrays: the gyro and
         accelerometer biases the sample carries, then its gyro and accelerometer noise."""
-        noise_g = rng.standard_normal(3) * self.sg
-        noise_a = rng.standard_normal(3) * self.sa
+        z = rng.standard_normal(12)  # the same numbers as four draws of 3, in that order
         sq = math.sqrt(dt_s)
         bg, ba = self.bias_g, self.bias_a
-        self.bias_g = bg + rng.standard_normal(3) * (self.rw_g * sq)
-        self.bias_a = ba + rng.standard_normal(3) * (self.rw_a * sq)
-        return bg, ba, noise_g, noise_a
+        self.bias_g = bg + z[6:9] * (self.rw_g * sq)
+        self.bias_a = ba + z[9:12] * (self.rw_a * sq)
+        return bg, ba, z[0:3] * self.sg, z[3:6] * self.sa
 
     def draw(self, n: int, dt_s: float, rng: Generator) -> ImuErrorDraw:
         """The errors of the next ``n`` samples, ``dt_s`` apart; the biases move on past them.
@@ -308,6 +307,7 @@ class IntegratingImu:
         if self.lever_arm.shape != (3,) or not np.isfinite(self.lever_arm).all():
             raise SimError(f"IMU lever_arm_m must be 3 finite numbers, got {lever_arm_m}")
         self._w_prev: np.ndarray | None = None
+        self._has_lever_arm = bool(self.lever_arm.any())
         self.errors = ImuErrors(
             gyro_sigma_rad_s=gyro_sigma_rad_s,
             accel_sigma_m_s2=accel_sigma_m_s2,
@@ -344,7 +344,7 @@ class IntegratingImu:
         return self.accumulate(truth, (t_ns - t_prev) * 1e-9, rng)
 
     def accumulate(self, truth: VehicleState, dt_s: float, rng: Generator) -> ImuSample | None:
-        if self.lever_arm.any():
+        if self._has_lever_arm:
             a = truth.a_W_B.copy()
             a[2] += self.g
             f_B = rotation_matrix_xyzw(truth.q_W_B_xyzw).T @ a
@@ -363,16 +363,12 @@ class IntegratingImu:
             return None
         T = self._sum_dt
         bg, ba, ng, na = self.errors.draw_one(T, rng)
-        sample = ImuSample(
-            t_ns=truth.t_ns,
-            gyro_rad_s=self._sum_w / T + bg + ng,
-            accel_m_s2=self._sum_f / T + ba + na,
-        )
+        gyro, accel = np.empty(3), np.empty(3)
+        if not _reading(self._sum_w, self._sum_f, T, bg, ba, ng, na, gyro, accel):
+            raise SimError(f"IMU at t_ns={truth.t_ns}: a non-finite reading (the state diverged)")
         self._t_last = truth.t_ns
-        self._sum_w[:] = 0.0
-        self._sum_f[:] = 0.0
         self._sum_dt = 0.0
-        return sample
+        return ImuSample.from_checked(truth.t_ns, gyro, accel)
 
 
 class GpsSensor:
@@ -595,3 +591,20 @@ def _accumulate(
     sum_f[2] += f2 * dt
     for k in range(3):
         sum_w[k] += w[k] * dt
+
+
+@njit
+def _reading(
+    sum_w: FloatArray, sum_f: FloatArray, T: float, bg: FloatArray, ba: FloatArray,
+    ng: FloatArray, na: FloatArray, gyro: FloatArray, accel: FloatArray,
+) -> bool:  # fmt: skip
+    """One IMU sample from its period's sums (the mean rate and specific force plus the
+    biases and noise) into ``gyro`` and ``accel``; the sums zeroed. Whether all is finite."""
+    ok = True
+    for k in range(3):
+        gyro[k] = sum_w[k] / T + bg[k] + ng[k]
+        accel[k] = sum_f[k] / T + ba[k] + na[k]
+        ok = ok and math.isfinite(gyro[k]) and math.isfinite(accel[k])
+        sum_w[k] = 0.0
+        sum_f[k] = 0.0
+    return ok

@@ -1,0 +1,181 @@
+"""The navigation flight's compiled kernels (``quadnav.jit``, issue 26): the rotations, the
+output predictor's step and correction, the EKF's update, the IMU's reading. Each compiled
+kernel against itself run as Python, against an independent reference (SciPy, the batched
+numpy path, the textbook update), and a seeded ``indoor_vision_pose`` flight with the kernels
+compiled against the same flight with them as Python."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from quadnav.estimation import horizon, nav_ekf
+from quadnav.experiments.nav import run_nav
+from quadnav.experiments.scenarios import nav_builtin
+from quadnav.geometry import rotations
+from quadnav.sim import rigid_body, sensors
+from tests.sim import test_jit_kernels
+
+pytestmark = test_jit_kernels.pytestmark  # (skipped where QUADNAV_JIT=0: nothing compiled)
+
+# (module, name) of every kernel a module calls by that name: patched together for the slow path
+SLOW_PATH = [
+    (rotations, "so3_exp_one"),
+    (rotations, "so3_log_one"),
+    (rotations, "_quat_xyzw_from_matrix"),
+    (nav_ekf, "so3_exp_one"),
+    (nav_ekf, "so3_log_one"),
+    (nav_ekf, "_strapdown_one"),
+    (nav_ekf, "_rotation_error"),
+    (nav_ekf, "_kalman_update"),
+    (horizon, "_pi_correct"),
+    (sensors, "_reading"),
+    (rigid_body, "_all_finite"),
+]
+
+
+def _rotations(rng: np.random.Generator) -> list[np.ndarray]:
+    """Random rotations, and rotations near a half turn about each axis (Shepperd's other
+    three branches), and near the identity (Rodrigues' small-angle branch)."""
+    out = list(Rotation.random(20, random_state=rng).as_matrix())
+    for axis in np.eye(3):
+        out.append(Rotation.from_rotvec(axis * 3.0).as_matrix())
+    out.append(Rotation.from_rotvec([1e-8, -2e-8, 3e-9]).as_matrix())
+    return out
+
+
+def test_the_rotation_kernels_are_scipys_and_their_python() -> None:
+    rng = np.random.default_rng(1)
+    for R in _rotations(rng):
+        q = rotations.quat_xyzw_from_matrix(R)
+        ref = Rotation.from_matrix(R).as_quat()
+        np.testing.assert_allclose(q, ref if ref[3] >= 0 else -ref, atol=1e-12)
+        assert q[3] >= 0
+        np.testing.assert_array_equal(q, rotations._quat_xyzw_from_matrix.py_func(R))
+        rv = Rotation.from_matrix(R).as_rotvec()
+        if np.linalg.norm(rv) < 3.1:  # (so3_log is for angles below pi)
+            np.testing.assert_allclose(rotations.so3_log(R), rv, atol=1e-9)
+        np.testing.assert_allclose(
+            rotations.so3_log(R), rotations.so3_log_one.py_func(R), rtol=1e-14, atol=1e-15
+        )
+    for rv in [*rng.normal(0, 1.0, (20, 3)), np.array([1e-9, 0.0, -2e-9])]:
+        E = rotations.so3_exp(rv)
+        np.testing.assert_allclose(E, Rotation.from_rotvec(rv).as_matrix(), atol=1e-13)
+        np.testing.assert_allclose(E, rotations.so3_exp_one.py_func(rv), rtol=1e-14, atol=1e-15)
+
+
+def test_the_output_predictor_step_is_the_batched_strapdown() -> None:
+    """One state's compiled step against the batched numpy path of the same integration (a
+    batch of one), with and without the delta-angle correction."""
+    kin = nav_ekf.NavKinematics()
+    rng = np.random.default_rng(2)
+    for k in range(20):
+        pos, vel = rng.normal(0, 5, 3), rng.normal(0, 2, 3)
+        att = Rotation.random(random_state=rng).as_matrix().ravel()
+        gyro, accel = rng.normal(0, 1, 3), rng.normal(0, 5, 3) + [0, 0, 9.8]
+        corr = rng.normal(0, 1e-3, 3) if k % 2 else None
+        one = kin.integrate(pos, vel, att, gyro, accel, 0.004, corr)
+        batch = kin.integrate(
+            pos[None], vel[None], att[None], gyro[None], accel[None], np.array([0.004]),
+            None if corr is None else corr[None],
+        )  # fmt: skip
+        for a, b in zip(one, batch, strict=True):
+            np.testing.assert_allclose(a, b[0], rtol=1e-12, atol=1e-13)
+        c = np.zeros(3) if corr is None else corr
+        py = nav_ekf._strapdown_one.py_func(pos, vel, att, gyro, accel, 0.004, c, kin.gravity_m_s2)
+        for a, b in zip(one, py, strict=True):
+            np.testing.assert_allclose(a, b, rtol=1e-14, atol=1e-15)
+        R_a, R_b = att, Rotation.random(random_state=rng).as_matrix().ravel()
+        expected = Rotation.from_matrix(R_b.reshape(3, 3).T @ R_a.reshape(3, 3)).as_rotvec()
+        np.testing.assert_allclose(kin.attitude_error(R_a, R_b), expected, atol=1e-9)
+
+
+def test_the_output_correction_is_the_proportional_integral_one() -> None:
+    """The ring's correction against the formula written out in numpy: errors at the oldest
+    entry, their integrals, the gains; every entry moved, later ones also by their age."""
+    rng = np.random.default_rng(3)
+    for propagate in (True, False):
+        L, oldest = 7, 3
+        ob_t = 1_000_000_000 + 4_000_000 * ((np.arange(L) - oldest) % L)
+        ob_pos, ob_vel = rng.normal(size=(L, 3)), rng.normal(size=(L, 3))
+        pos, vel, ip, iv = (rng.normal(size=3) for _ in range(4))
+        exp_pos, exp_vel, exp_ip, exp_iv = ob_pos.copy(), ob_vel.copy(), ip.copy(), iv.copy()
+        vg, pg = 0.02, 0.01
+        ve, pe = vel - exp_vel[oldest], pos - exp_pos[oldest]
+        exp_iv += ve
+        exp_ip += pe
+        vc = ve * vg + exp_iv * (vg**2 * 0.1)
+        pc = pe * pg + exp_ip * (pg**2 * 0.1)
+        exp_vel += vc
+        age = (ob_t - ob_t[oldest]) * 1e-9
+        exp_pos += pc + age[:, None] * vc if propagate else pc
+        horizon._pi_correct(ob_t, ob_pos, ob_vel, oldest, pos, vel, ip, iv, pg, vg, propagate)
+        for got, want in ((ob_pos, exp_pos), (ob_vel, exp_vel), (ip, exp_ip), (iv, exp_iv)):
+            np.testing.assert_allclose(got, want, rtol=1e-14, atol=1e-15)
+
+
+def _textbook_update(
+    P: np.ndarray, H: np.ndarray, Rn: np.ndarray, r: np.ndarray
+) -> tuple[float, np.ndarray, np.ndarray]:
+    S = H @ P @ H.T + Rn
+    K = P @ H.T @ np.linalg.inv(S)
+    dx = K @ r
+    P1 = (np.eye(len(P)) - K @ H) @ P
+    B = np.eye(len(P))
+    B[0:3, 0:3] = np.eye(3) - 0.5 * rotations.skew(dx[0:3])
+    P1 = B @ P1 @ B.T
+    return float(r @ np.linalg.solve(S, r)), dx, 0.5 * (P1 + P1.T)
+
+
+@pytest.mark.parametrize("m", [1, 4])
+def test_the_update_kernel_is_the_textbook_update(m: int) -> None:
+    rng = np.random.default_rng(4 + m)
+    for n in (15, 20):  # the 15 states, and with the odometry frame's drift
+        A = rng.normal(size=(n, n))
+        P = A @ A.T * 0.01 + np.eye(n) * 1e-3
+        H = rng.normal(size=(m, n))
+        Rn = np.diag(rng.uniform(0.01, 0.1, m))
+        r = rng.normal(0, 0.1, m)
+        nis, dx, P1 = nav_ekf._kalman_update(P, H, Rn, r, 1e9)
+        want_nis, want_dx, want_P = _textbook_update(P, H, Rn, r)
+        assert nis == pytest.approx(want_nis, rel=1e-10)
+        np.testing.assert_allclose(dx, want_dx, rtol=1e-9, atol=1e-12)
+        np.testing.assert_allclose(P1, want_P, rtol=1e-8, atol=1e-12)
+        py = nav_ekf._kalman_update.py_func(P, H, Rn, r, 1e9)
+        np.testing.assert_allclose(P1, py[2], rtol=1e-12, atol=1e-15)
+        refused = nav_ekf._kalman_update(P, H, Rn, r, want_nis * 0.99)  # just beyond the gate
+        assert refused[1].size == 0 and refused[2] is P
+
+
+def test_the_imu_reading_kernel_refuses_what_is_not_finite() -> None:
+    sums = [np.array([0.02, -0.01, 0.005]), np.array([0.0, 0.1, 39.2])]
+    gyro, accel = np.empty(3), np.empty(3)
+    bg, ba, ng, na = (np.full(3, v) for v in (0.01, 0.2, 0.001, 0.02))
+    assert sensors._reading(sums[0].copy(), sums[1].copy(), 0.004, bg, ba, ng, na, gyro, accel)
+    np.testing.assert_allclose(gyro, sums[0] / 0.004 + 0.011)
+    np.testing.assert_allclose(accel, sums[1] / 0.004 + 0.22)
+    bad = sums[1].copy()
+    bad[2] = np.nan
+    sw = sums[0].copy()
+    assert not sensors._reading(sw, bad, 0.004, bg, ba, ng, na, gyro, accel)
+    assert not sw.any() and not bad.any()  # the sums start again either way
+    assert rigid_body._all_finite(np.ones(17)) and not rigid_body._all_finite(
+        np.array([1.0, np.inf])
+    )
+
+
+def test_a_seeded_navigation_flight_is_the_same_with_its_kernels_as_python(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    sc = nav_builtin("indoor_vision_pose", ["plan.kind=takeoff_forward", "plan.duration_s=4"])
+    fast = run_nav(sc, 5)
+    for module, name in SLOW_PATH:
+        monkeypatch.setattr(module, name, getattr(module, name).py_func)
+    slow = run_nav(sc, 5)
+    assert len(fast.t_ns) > 1500 and np.isfinite(fast.delayed_err[-1]).all()
+    assert np.linalg.norm(fast.output_p[-1] - fast.truth_p[-1]) < 0.1  # (it flew, and well)
+    for name in ("truth_p", "output_p", "output_q", "delayed_x", "delayed_err", "delayed_P"):
+        np.testing.assert_allclose(
+            getattr(fast, name), getattr(slow, name), rtol=1e-9, atol=1e-9, err_msg=name
+        )
