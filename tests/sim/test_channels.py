@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -119,3 +121,44 @@ def test_repeat_delivers_twice_and_corrupt_is_refused_and_counted() -> None:
     times = [s.t_ns for s in out]
     assert times == [4, 12, 12, 20, 24]  # 8 and 16 refused, 12 twice
     assert corrupt.rejected_invalid == 2 and ch.rejected_invalid == 2
+
+
+class _Hidden:
+    """The same sensor with its idle hint hidden (polled every step), counting its polls."""
+
+    def __init__(self, inner: object) -> None:
+        self.inner, self.polls = inner, 0
+
+    def sample(self, truth: VehicleState, t_ns: int, rng: np.random.Generator) -> object:
+        self.polls += 1
+        return self.inner.sample(truth, t_ns, rng)  # type: ignore[attr-defined]
+
+
+@pytest.mark.parametrize("name", [n for n in _sensors() if not n.startswith("imu")])
+def test_a_channel_skips_the_polls_its_sensor_would_ignore_and_delivers_the_same(
+    name: str,
+) -> None:
+    """Stepped every 2 ms for 6 s, with dropouts: a channel that skips the polls the sensor
+    says it would ignore gives the same samples, at the same times, as one polling every
+    step; it polls about as often as the sensor samples (and not at all in a dropout)."""
+    windows = [(1_000_000_000, 1_500_000_000), (3_002_000_000, 3_003_000_000)]
+    skipping = Dropouts(_sensors()[name][0], windows)  # type: ignore[arg-type]
+    counted = _Hidden(skipping)
+    every = _Hidden(Dropouts(_sensors()[name][0], windows))  # type: ignore[arg-type]
+    a = Channel("a", counted, np.random.default_rng(1))  # type: ignore[arg-type]
+    a._idle = skipping.idle_until_ns  # the hint, with the polls still counted
+    b = Channel("b", every, np.random.default_rng(1))  # type: ignore[arg-type]
+    got: dict[str, list[object]] = {"a": [], "b": []}
+    for k in range(3000):
+        t = k * STEP_NS
+        for ch in (a, b):
+            ch.step(_state(t, z=1.0 + 1e-3 * k), t)
+            got[ch.name] += ch.arrived(t)
+    assert a.sampled_t_ns == b.sampled_t_ns and len(a.sampled_t_ns) > 5
+    assert not [t for t in a.sampled_t_ns if any(s <= t < e for s, e in windows)]
+    fields = [[getattr(x, f.name) for f in dataclasses.fields(x)] for x in got["a"]]  # type: ignore[arg-type]
+    np.testing.assert_equal(  # (the same values: the same draws in the same order)
+        fields,
+        [[getattr(x, f.name) for f in dataclasses.fields(x)] for x in got["b"]],  # type: ignore[arg-type]
+    )
+    assert every.polls == 3000 and counted.polls <= len(a.sampled_t_ns) + 3

@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
@@ -70,6 +70,14 @@ class Dropouts:
         if in_windows(t_ns, self.windows_ns):
             return None
         return self.inner.sample(truth, t_ns, rng)
+
+    def idle_until_ns(self, t_ns: int) -> int | None:
+        """Inside a window, its end (nothing is read there); outside, the inner sensor's."""
+        for a, b in self.windows_ns:
+            if a <= t_ns < b:
+                return b
+        inner = getattr(self.inner, "idle_until_ns", None)
+        return None if inner is None else inner(t_ns)
 
 
 @dataclass
@@ -225,10 +233,17 @@ class Channel:
         if self.delay_ns < 0:
             raise SimError(f"channel {self.name!r}: the delay must be >= 0 ns, got {self.delay_ns}")
         self._line = DelayLine(delay_ns=self.delay_ns)
+        self._idle: Callable[[int], int | None] | None = getattr(self.sensor, "idle_until_ns", None)
+        self._idle_until_ns = 0
 
     def step(self, truth: VehicleState, t_ns: int) -> None:
-        """Read the sensor at ``t_ns``; what it measures goes through the faults into the line."""
+        """Read the sensor at ``t_ns``; what it measures goes through the faults into the line.
+        Polls the sensor says would do nothing (its ``idle_until_ns``) are skipped."""
+        if t_ns < self._idle_until_ns:
+            return
         s = self.sensor.sample(truth, t_ns, self.rng)
+        if self._idle is not None:
+            self._idle_until_ns = self._idle(t_ns) or 0
         if s is None:
             return
         self.sampled_t_ns.append(s.t_ns)
@@ -240,6 +255,8 @@ class Channel:
 
     def arrived(self, t_ns: int) -> list[Sample]:
         """Samples that have arrived by ``t_ns``, in arrival order."""
+        if not self._line.due(t_ns):
+            return []
         return [s for _, s in self._line.pop_arrived(t_ns)]
 
     @property

@@ -68,6 +68,11 @@ class Ticker:
         self.period_ns = int(period_ns)
         self._next_ns: int | None = first_ns
 
+    @property
+    def next_ns(self) -> int | None:
+        """The next due time (``None`` before the first poll)."""
+        return self._next_ns
+
     def due(self, t_ns: int) -> bool:
         """True (and the next due time set) when a sample is due at ``t_ns``."""
         nxt = self._next_ns
@@ -80,9 +85,24 @@ class Ticker:
 
 
 class Sensor(Protocol[S_co]):
-    """A sensor model: reads the truth at ``t_ns``; ``None`` when it has nothing to report."""
+    """A sensor model: reads the truth at ``t_ns``; ``None`` when it has nothing to report.
+
+    A sensor may also say, with ``idle_until_ns(t_ns)``, until when polls after the one at
+    ``t_ns`` would return ``None`` and change nothing (as :class:`PeriodicSensor` does): a
+    :class:`~quadnav.sim.channels.Channel` then skips them. ``None`` there: poll every step."""
 
     def sample(self, truth: VehicleState, t_ns: int, rng: Generator) -> S_co | None: ...
+
+
+class PeriodicSensor:
+    """A sensor read on its :class:`Ticker` and doing nothing between due times (its
+    ``sample`` returns ``None`` before anything else when the ticker is not due)."""
+
+    _ticker: Ticker
+
+    def idle_until_ns(self, t_ns: int) -> int | None:
+        """Polls before this time return ``None`` and change nothing (``None``: unknown yet)."""
+        return self._ticker.next_ns
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -182,6 +202,10 @@ class DelayLine(Generic[S]):
         heapq.heappush(self._heap, (arrival, self._seq, sample))
         self._seq += 1
         return arrival
+
+    def due(self, now_ns: int) -> bool:
+        """Whether a sample has arrived by ``now_ns``."""
+        return bool(self._heap) and self._heap[0][0] <= now_ns
 
     def pop_arrived(self, now_ns: int) -> list[tuple[int, S]]:
         """Samples whose arrival time is <= ``now_ns``, as (arrival_ns, sample), in arrival order."""
@@ -371,7 +395,7 @@ class IntegratingImu:
         return ImuSample.from_checked(truth.t_ns, gyro, accel)
 
 
-class GpsSensor:
+class GpsSensor(PeriodicSensor):
     """A GNSS receiver: geodetic fixes (the local ENU truth about a datum, through
     :class:`~quadnav.geometry.navsat.NavSatTransform`) and
     ENU velocity, with Gaussian noise, at a fixed rate. Outages and glitches are fault
@@ -414,7 +438,7 @@ class GpsSensor:
         )
 
 
-class MagSensor:
+class MagSensor(PeriodicSensor):
     """A magnetometer: the earth field (pointing to magnetic north, declination east of true
     north, dipping down) in the body frame, plus white noise and a hard-iron offset."""
 
@@ -459,7 +483,7 @@ class MagSensor:
         )
 
 
-class BaroSensor:
+class BaroSensor(PeriodicSensor):
     """A barometric altimeter: height above the world origin plus white noise and a slowly
     drifting offset (a random walk, as weather and temperature move a real one)."""
 
@@ -485,7 +509,7 @@ class BaroSensor:
         return HeightSample(t_ns=t_ns, z_m=z, sigma_m=self.sigma)
 
 
-class RangeFinder:
+class RangeFinder(PeriodicSensor):
     """A downward range finder over flat ground at ``ground_z_m``: the distance along the
     body's -z axis, with noise; nothing outside its span or beyond ``max_tilt_rad``."""
 
@@ -525,7 +549,7 @@ class RangeFinder:
         )
 
 
-class VisionPoseSensor:
+class VisionPoseSensor(PeriodicSensor):
     """An external pose (marker or VIO system): the body's position and attitude in a vision
     frame ``V`` that is turned by ``frame_yaw_rad`` about the vertical and offset by
     ``frame_offset_m`` from the world (``T_W_V``), with position and yaw noise. Dropouts and
