@@ -328,6 +328,18 @@ def _biases(est: StateEstimate) -> FloatArray:
     return np.array([np.nan if k is None else est.x[k] for k in where])
 
 
+def _rows_biases(rows: list[StateEstimate]) -> FloatArray:
+    """:func:`_biases` of every row (n, 6), at once where the rows share their names."""
+    if rows and all(x.names is rows[0].names for x in rows):
+        _biases(rows[0])  # (the names' columns looked up)
+        where = _BIAS_INDEX[rows[0].names]
+        X = np.array([x.x for x in rows])
+        return np.column_stack(
+            [X[:, k] if k is not None else np.full(len(rows), np.nan) for k in where]
+        )
+    return np.array([_biases(x) for x in rows]).reshape(-1, 6)
+
+
 class _NavLog:
     """Typed rows per logged IMU step; the delayed horizon scored against the truth logged at
     its time, all rows at once when the flight is over."""
@@ -376,7 +388,7 @@ class _NavLog:
                 np.array([x.p_W_B for x in d]).reshape(-1, 3),
                 np.array([x.v_W_B for x in d]).reshape(-1, 3),
                 np.array([x.q_W_B_xyzw for x in d]).reshape(-1, 4),
-                np.array([_biases(x) for x in d]).reshape(-1, 6),
+                _rows_biases(d),
             ]
         )
         return {
