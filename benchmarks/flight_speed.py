@@ -1,9 +1,10 @@
 """The navigation flight's speed, per component and whole, against another tree of quadnav.
 
 Issue 26's hot paths: the rigid body's RK4 step, the cascaded PID, the IMU's accumulation (each
-simulator step) and the vision pose sensor (each sample), in microseconds a call; one seeded
-flight of ``indoor_vision_pose`` (``run_nav``, in process, 32.5 s of flight at 500 Hz) in
-seconds; and what the user feels, ``quadnav run indoor_vision_pose --seeds 1 --jobs 1`` as a
+simulator step), the vision pose sensor (each sample), the output predictor's step and two
+rotation conversions (each IMU sample), in microseconds a call; one seeded flight of
+``indoor_vision_pose`` (``run_nav``, in process, 32.5 s of flight at 500 Hz) and one task of
+``benchmarks/sweep.py`` (a 60 s flight and its metrics) in seconds; and what the user feels, ``quadnav run indoor_vision_pose --seeds 1 --jobs 1`` as a
 process (start, imports, the flight, metrics, plots, report). ``--before SRC`` (a ``src/`` of
 another revision, e.g. ``git archive fee6776 src | tar -x -C /tmp/before``) is measured in the
 same run, a repeat of each in turn, so that both see the same machine; the table gives the
@@ -72,10 +73,28 @@ out = {
         lambda: vision.sample(truth, next(ticks), rng), 5000
     ),
 }
+from quadnav.estimation.nav_ekf import NavKinematics
+from quadnav.geometry.rotations import quat_xyzw_from_matrix, so3_log
+kin = NavKinematics()
+R9 = np.eye(3).ravel()
+w3, f3, corr = np.array([0.1, -0.2, 0.05]), np.array([0.1, 0.2, 9.8]), np.full(3, 1e-4)
+out["output predictor step (us)"] = per_call_us(
+    lambda: kin.integrate(truth.p_W_B, truth.v_W_B, R9, w3, f3, 0.004, corr), 20000
+)
+Rz = np.array([[0.6, -0.8, 0.0], [0.8, 0.6, 0.0], [0.0, 0.0, 1.0]])
+out["quaternion of a matrix (us)"] = per_call_us(lambda: quat_xyzw_from_matrix(Rz), 20000)
+out["rotation vector of a matrix (us)"] = per_call_us(lambda: so3_log(Rz), 20000)
 sc = nav_builtin("indoor_vision_pose")
 t = time.perf_counter()
 run_nav(sc, 0)
 out["flight, in process (s)"] = time.perf_counter() - t
+from quadnav.experiments.sweep_tasks import _nav_task
+sc60 = nav_builtin("indoor_vision_pose", ["plan.kind=takeoff_forward", "plan.takeoff_s=3.0",
+    "plan.duration_s=56.5", "plan.forward_m=2", "vision.delay_s=0.25"])
+_nav_task(nav_builtin("indoor_vision_pose", ["plan.kind=takeoff_forward", "plan.duration_s=1"]), 1)
+t = time.perf_counter()  # (warm, as in a sweep's worker: the metrics' imports done)
+_nav_task(sc60, 1)
+out["60 s sweep task (s)"] = time.perf_counter() - t
 print(json.dumps(out))
 """
 
