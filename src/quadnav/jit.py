@@ -36,7 +36,6 @@ class _LazyKernel:
     refers to, which it puts in the module's names so that compiled code calls compiled code)
     and it calls the compiled function. ``py_func`` is the Python function, as numba's."""
 
-
     def __init__(self, func: Callable[..., Any]) -> None:
         self.py_func = func
         self.__name__ = func.__name__

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from quadnav.estimation.chi2 import chi2_isf, chi2_ppf, chi2_sf
+from quadnav.estimation.chi2 import chi2_isf, chi2_pdf, chi2_ppf, chi2_sf
 
 
 @pytest.mark.parametrize("dof", [1, 2, 3, 4, 6, 15, 600])
@@ -16,3 +16,5 @@ def test_the_quantiles_are_scipy_stats(dof: int) -> None:
     np.testing.assert_allclose(chi2_isf(1 - p, dof), chi2.isf(1 - p, dof), rtol=1e-10)
     x = np.array([0.0, 0.1, 1.0, dof, 3.0 * dof + 10.0])
     np.testing.assert_allclose(chi2_sf(x, dof), chi2.sf(x, dof), rtol=1e-10, atol=1e-300)
+    x_pdf = np.array([-1.0, 1e-3, 0.1, 1.0, dof, 3.0 * dof + 10.0])
+    np.testing.assert_allclose(chi2_pdf(x_pdf, dof), chi2.pdf(x_pdf, dof), rtol=1e-10, atol=1e-300)

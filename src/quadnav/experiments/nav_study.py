@@ -20,7 +20,7 @@ from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
 from quadnav.errors import ConfigError
-from quadnav.estimation.chi2 import chi2_ppf
+from quadnav.estimation.chi2 import chi2_pdf, chi2_ppf
 from quadnav.estimation.horizon import SourceStats
 from quadnav.estimation.nav_filter import ImuCounts
 from quadnav.eval.metrics import nees
@@ -363,8 +363,6 @@ def _plot_errors(r: NavRunResult, t: FloatArray, path: Path) -> Path:
 
 def _plot_innovations(r: NavRunResult, srcs: list[str], path: Path) -> Path:
     """Innovation test ratios per source (1 = the gate), and the NIS against its chi-square."""
-    from scipy.stats import chi2  # its density, for the plot only
-
     fig, axes = plt.subplots(
         len(srcs),
         2,
@@ -390,7 +388,7 @@ def _plot_innovations(r: NavRunResult, srcs: list[str], path: Path) -> Path:
         hi = float(chi2_ppf(0.999, dof))
         counts, _, _ = row[1].hist(nis[nis < hi], bins=40, density=True, alpha=0.6, label="NIS")
         xs = np.linspace(1e-3, hi, 200)
-        row[1].plot(xs, chi2.pdf(xs, dof), "k", lw=1, label=f"chi2({dof})")
+        row[1].plot(xs, chi2_pdf(xs, dof), "k", lw=1, label=f"chi2({dof})")
         row[1].set_ylim(0, 1.3 * float(np.max(counts, initial=0.1)))
         row[1].legend(fontsize=7)
     axes[0][0].legend(fontsize=7)
