@@ -12,6 +12,7 @@ from pathlib import Path
 import pytest
 
 import quadnav
+from quadnav.jit import JIT_ENABLED
 
 SRC = Path(quadnav.__file__).resolve().parents[1]  # (the copy of the package under test)
 HEAVY = ("cv2", "gtsam")
@@ -65,3 +66,25 @@ def test_importing_the_navigation_experiment_does_not_load_scipy_stats() -> None
     (``quadnav.estimation.chi2`` has them from scipy.special)."""
     code = "import sys, quadnav.experiments.nav\nprint('scipy.stats' in sys.modules)"
     assert _loaded(code) == ["False"]
+
+
+KERNELS_CALLED = """
+import sys
+import numpy as np
+import quadnav.estimation.horizon, quadnav.estimation.nav_ekf, quadnav.sim.rigid_body
+from quadnav.geometry.rotations import so3_log
+before = "numba" in sys.modules
+from quadnav.estimation.nav_ekf import NavKinematics
+p, v, R = NavKinematics().integrate(
+    np.zeros(3), np.zeros(3), np.eye(3).ravel(), np.array([0.0, 0.0, 0.1]), np.zeros(3), 1.0
+)
+print(before, "numba" in sys.modules, round(float(so3_log(R.reshape(3, 3))[2]), 12))
+"""
+
+
+@pytest.mark.skipif(not JIT_ENABLED, reason="QUADNAV_JIT=0 in the environment: numba never loads")
+def test_numba_loads_at_a_kernels_first_call_not_at_import() -> None:
+    """Importing the modules that define compiled kernels costs no numba (half a second of
+    start-up for commands that never run one); the first call loads it, and a kernel that
+    calls another module's kernel (the output predictor's step calls the rotations') runs."""
+    assert _loaded(KERNELS_CALLED) == ["False", "True", "0.1"]
