@@ -176,7 +176,7 @@ def test_the_navigation_prediction_kernel_is_the_textbook_one() -> None:
         F0, G0 = nav_ekf.nav_jacobians(np.eye(3), np.zeros(3), np.zeros(3), dt)
         for fn in (nav_ekf._propagate, nav_ekf._propagate.py_func):
             F, G = F0.copy(), G0.copy()
-            R1, v1, p1, P1 = fn(R, v, p, so3_exp(w * dt), f, dt, g_W, F, G, q, P, True)
+            R1, v1, p1, P1 = fn(R, v, p, w, f, dt, g_W, F, G, q, P, True)
             np.testing.assert_allclose(R1, R @ so3_exp(w * dt), atol=1e-14)
             np.testing.assert_allclose(v1, v + dt * (R1 @ f + g_W), atol=1e-12)
             np.testing.assert_allclose(p1, p + dt * v1, atol=1e-12)
@@ -184,4 +184,4 @@ def test_the_navigation_prediction_kernel_is_the_textbook_one() -> None:
             np.testing.assert_allclose(G, G_ref, atol=1e-13)
             expected = F_ref @ P @ F_ref.T + (G_ref * q) @ G_ref.T
             np.testing.assert_allclose(P1, expected, rtol=1e-11, atol=1e-16)
-            assert fn(R, v, p, so3_exp(w * dt), f, dt, g_W, F, G, q, P, False)[3] is P
+            assert fn(R, v, p, w, f, dt, g_W, F, G, q, P, False)[3] is P

@@ -315,6 +315,9 @@ class _Counters:
     invalid: dict[str, int] = field(default_factory=dict)
 
 
+_NEVER = 2**63 - 1  # (later than any time stamp)
+
+
 class DelayedHorizonEstimator:
     """A filter at the delayed horizon plus PX4's output predictor at the current horizon.
 
@@ -332,6 +335,7 @@ class DelayedHorizonEstimator:
         self._dt_nominal_s = config.imu_period_ns * 1e-9
         self._imu_buffer: deque[tuple[ImuSample, float]] = deque()
         self._obs: dict[str, list[tuple[int, int, Sample]]] = {}
+        self._earliest_obs_ns = _NEVER  # the earliest time of validity buffered in _obs
         self._seq = 0
         self._t_last_imu_ns = check_t_ns(t0_ns, "t0")
         self._t_delayed_ns = self._t_last_imu_ns
@@ -434,6 +438,9 @@ class DelayedHorizonEstimator:
         Nothing a sample carries makes this raise: a late, out-of-order or unusable sample is
         rejected and counted (see :meth:`stats`). Only a non-sample is a programming error.
         """
+        if type(sample) is ImuSample:  # (the common case, hundreds of times a second)
+            self._push_imu(sample)
+            return
         if not isinstance(sample, Sample) and not _is_stamped(sample):
             raise EstimationError(f"push() takes samples, got {type(sample).__name__}")
         if isinstance(sample, ImuSample):
@@ -472,6 +479,7 @@ class DelayedHorizonEstimator:
             return
         queue = self._obs.setdefault(source, [])
         heapq.heappush(queue, (obs.t_ns, self._seq, obs))
+        self._earliest_obs_ns = min(self._earliest_obs_ns, obs.t_ns)
         self._seq += 1
         if len(queue) > self.config.max_observations_per_source:
             # Keep the newest ones: drop the oldest time of validity.
@@ -508,10 +516,13 @@ class DelayedHorizonEstimator:
     def _fuse_due(self) -> None:
         """Fuse, in time order, every buffered observation nearest the delayed horizon's time."""
         limit = self._t_delayed_ns + self.config.imu_period_ns // 2
+        if limit < self._earliest_obs_ns:  # (nothing buffered is due: most IMU steps)
+            return
         due: list[tuple[int, int, Sample]] = []
         for queue in self._obs.values():
             while queue and queue[0][0] <= limit:
                 due.append(heapq.heappop(queue))
+        self._earliest_obs_ns = min((q[0][0] for q in self._obs.values() if q), default=_NEVER)
         due.sort()
         for t_obs, _, obs in due:
             result = self.filter.fuse(obs)

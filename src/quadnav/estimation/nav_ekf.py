@@ -609,7 +609,7 @@ class NavEkf:
         # The mean, F and G's state-dependent blocks, and (without the drift states) P, in
         # one compiled kernel.
         self.R, self.v, self.p, P = _propagate(
-            self.R, self.v, self.p, so3_exp(w * dt_s), f, dt_s, self._g_W, self._F, self._G, q, self._P,
+            self.R, self.v, self.p, w, f, dt_s, self._g_W, self._F, self._G, q, self._P,
             not self._relative,
         )  # fmt: skip
         if self._relative:
@@ -1092,12 +1092,13 @@ _I_NG, _I_NA = _N_G.start, _N_A.start
 
 @njit
 def _propagate(
-    R: FloatArray, v: FloatArray, p: FloatArray, E: FloatArray, f: FloatArray, dt: float,
+    R: FloatArray, v: FloatArray, p: FloatArray, w: FloatArray, f: FloatArray, dt: float,
     g_W: FloatArray, F: FloatArray, G: FloatArray, q: FloatArray, P: FloatArray, with_cov: bool,
 ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:  # fmt: skip
     """One prediction with ``E = Exp(w dt)``: ``R' = R E``, ``v' = v + dt (R' f + g)``,
     ``p' = p + dt v'``; the state-dependent blocks of :func:`nav_jacobians`' ``F`` and ``G``
     written into them; and, ``with_cov``, ``P' = F P F^T + G diag(q) G^T`` (else ``P`` back)."""
+    E = so3_exp_one(w * dt)
     R1 = np.zeros((3, 3))
     for i in range(3):
         for j in range(3):
