@@ -54,6 +54,12 @@ def test_the_vio_settings_reach_the_estimator() -> None:
             ["vio.odometry_mode=absolute", "vio.frame_drift_yaw_rad_sqrt_s=0.01"],
             "vio.frame_drift_yaw_rad_sqrt_s is a setting of vio.odometry_mode=relative",
         ),
+        (
+            "indoor_vio_odometry",
+            ["vio.odometry_mode=absolute", "vio.frame_drift_from_covariance=true"],
+            "vio.frame_drift_from_covariance is a setting of vio.odometry_mode=relative",
+        ),
+        ("indoor_vio", "vio.frame_drift_from_covariance=2", "vio.frame_drift_from_covariance:"),
         # loop closure and maps (issue 23, item 6): the VIO's, not the shortcut's
         ("indoor_vio_odometry", "vio.loop=true", "vio.loop is a setting of the VIO, which"),
         ("indoor_vio", "vio.save_map=true", "vio.save_map saves loop closure's map: set vio.loop"),

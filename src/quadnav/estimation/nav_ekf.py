@@ -364,6 +364,12 @@ class NavEkfConfig:
     # state stays at zero, exactly).
     odometry_scale_sigma: float = 0.0
     odometry_scale_rw_sqrt_s: float = 0.0
+    # Relative mode: the frame's drift also grows by what the odometry says its own uncertainty
+    # grew by from one sample to the next (its position covariance and yaw variance, the rise
+    # only), as a VIO's marginal covariance grows with its drift; its measurement noise is then
+    # its floors alone (its noise from sample to sample), not its whole covariance, which a
+    # white noise would average away at the odometry's rate.
+    odometry_drift_from_covariance: bool = False
     # What a change of an external pose's or odometry's ``reset_counter`` means. By default the
     # source started a new frame (a VIO re-initialised at its own origin): the new frame is
     # anchored where the filter is, so the jump is not taken as motion. The sources named in
@@ -491,6 +497,9 @@ class NavEkf:
         # filter reports).
         self.odometry_drift = np.zeros(_N_DRIFT)
         self._relative = config.odometry_mode == "relative"
+        # per odometry source: its reset counter, position covariance and yaw variance when last
+        # fused (odometry_drift_from_covariance)
+        self._odometry_cov: dict[str, tuple[int, FloatArray, float]] = {}
         if self._relative:
             self._P = np.pad(self._P, (0, _N_DRIFT))
             self._P[_DSCALE, _DSCALE] = config.odometry_scale_sigma**2
@@ -836,6 +845,9 @@ class NavEkf:
         Rn[3:6, 3:6] = Rz @ obs.cov_v @ Rz.T
         Rn[6, 6] = float(j @ obs.cov_pose[3:6, 3:6] @ j)
         floors = [c.odometry_pos_noise_m] * 3 + [c.odometry_vel_noise_m_s] * 3
+        if self._relative and c.odometry_drift_from_covariance:
+            self._grow_drift(obs, Rn[0:3, 0:3], Rn[6, 6])
+            Rn[0:3, 0:3] = Rn[0:3, 6] = Rn[6, 0:3] = Rn[6, 6] = 0.0
         Rn += np.diag(np.maximum(np.square(floors + [c.odometry_yaw_noise_rad]) - np.diag(Rn), 0))
         rotate = c.vision_frame == "rotate"
         parts = [p for p in ODOMETRY_PARTS if p in c.odometry_fuse and not (p == "yaw" and rotate)]
@@ -917,6 +929,19 @@ class NavEkf:
         self.events.append(
             (obs.t_ns, f"{obs.source}: reset counter {obs.reset_counter}, frame drift restarted")
         )
+
+    def _grow_drift(self, obs: OdometrySample, cov_pos: FloatArray, var_yaw: float) -> None:
+        """``odometry_drift_from_covariance``: the frame's drift covariance grows by the rise of
+        the odometry's own position covariance ``cov_pos`` (navigation frame) and yaw variance
+        ``var_yaw`` since its previous sample of the same frame (its reset counter); a fall
+        (the odometry more certain) moves nothing."""
+        prev = self._odometry_cov.get(obs.source)
+        self._odometry_cov[obs.source] = (obs.reset_counter, cov_pos.copy(), var_yaw)
+        if prev is None or prev[0] != obs.reset_counter:
+            return
+        w, U = np.linalg.eigh(0.5 * (cov_pos - prev[1] + (cov_pos - prev[1]).T))
+        self._P[_DP, _DP] += (U * np.maximum(w, 0.0)) @ U.T
+        self._P[_DYAW, _DYAW] += max(var_yaw - prev[2], 0.0)
 
     def _drift_terms(self, r: FloatArray, H: FloatArray) -> tuple[FloatArray, FloatArray]:
         """Relative mode: an odometry's innovation ``r`` (position, velocity, yaw) and its

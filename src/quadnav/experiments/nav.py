@@ -128,6 +128,7 @@ def _ekf_estimator(sc: NavScenario, gravity_m_s2: float, max_delay_ns: int) -> N
         odometry_drift_yaw_rad_sqrt_s=sc.vio.frame_drift_yaw_rad_sqrt_s,
         odometry_scale_sigma=sc.vio.frame_scale_sigma,
         odometry_scale_rw_sqrt_s=sc.vio.frame_scale_rw_sqrt_s,
+        odometry_drift_from_covariance=sc.vio.frame_drift_from_covariance,
     )
     horizon = HorizonConfig(
         imu_period_ns=s_to_ns(1.0 / ic.rate_hz),

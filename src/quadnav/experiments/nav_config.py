@@ -96,7 +96,7 @@ STEREO_RIGS = ("euroc", "zed")
 #: The ``vio`` keys only ``vio.odometry_mode=relative`` reads.
 RELATIVE_ONLY_VIO_KEYS = (
     "frame_drift_m_sqrt_s", "frame_drift_yaw_rad_sqrt_s", "frame_scale_sigma",
-    "frame_scale_rw_sqrt_s",
+    "frame_scale_rw_sqrt_s", "frame_drift_from_covariance",
 )  # fmt: skip
 
 
@@ -205,6 +205,11 @@ class VioSection(VioConfig):
     )
     frame_scale_rw_sqrt_s: float = Field(
         0.0, ge=0, le=1, description="EKF, relative: random walk of the odometry's scale error"
+    )
+    frame_drift_from_covariance: bool = Field(
+        False,
+        description="EKF, relative: the frame's drift also grows as the odometry's own "
+        "covariance does (a VIO's grows with its drift), and its noise is its floors alone",
     )
 
     loop: bool = Field(
