@@ -168,7 +168,9 @@ def test_the_navigation_prediction_kernel_is_the_textbook_one() -> None:
     rng = np.random.default_rng(5)
     for _ in range(20):
         R, dt = Rotation.random(random_state=rng).as_matrix(), float(rng.uniform(0.001, 0.02))
-        v, p, w, f = (rng.normal(0, s, 3) for s in (2.0, 5.0, 1.5, 9.0))
+        v, p, gyro, accel = (rng.normal(0, s, 3) for s in (2.0, 5.0, 1.5, 9.0))
+        bg, ba = rng.normal(0, 0.01, 3), rng.normal(0, 0.1, 3)
+        w, f = gyro - bg, accel - ba
         g_W, q = np.array([0.0, 0.0, -9.80665]), rng.uniform(1e-8, 1e-2, 12)
         L = rng.normal(size=(15, 15))
         P = L @ L.T * 1e-3
@@ -176,7 +178,12 @@ def test_the_navigation_prediction_kernel_is_the_textbook_one() -> None:
         F0, G0 = nav_ekf.nav_jacobians(np.eye(3), np.zeros(3), np.zeros(3), dt)
         for fn in (nav_ekf._propagate, nav_ekf._propagate.py_func):
             F, G = F0.copy(), G0.copy()
-            R1, v1, p1, P1 = fn(R, v, p, w, f, dt, g_W, F, G, q, P, True)
+            out = (np.empty(3), np.empty(3), np.empty((3, 3)), np.empty(3), np.empty(3))
+            P1 = np.full((15, 15), np.nan)
+            fn(R, v, p, gyro, accel, bg, ba, dt, g_W, F, G, q, P, True, (*out, P1))
+            w1, f1, R1, v1, p1 = out
+            np.testing.assert_array_equal(w1, w)
+            np.testing.assert_array_equal(f1, f)
             np.testing.assert_allclose(R1, R @ so3_exp(w * dt), atol=1e-14)
             np.testing.assert_allclose(v1, v + dt * (R1 @ f + g_W), atol=1e-12)
             np.testing.assert_allclose(p1, p + dt * v1, atol=1e-12)
@@ -184,4 +191,7 @@ def test_the_navigation_prediction_kernel_is_the_textbook_one() -> None:
             np.testing.assert_allclose(G, G_ref, atol=1e-13)
             expected = F_ref @ P @ F_ref.T + (G_ref * q) @ G_ref.T
             np.testing.assert_allclose(P1, expected, rtol=1e-11, atol=1e-16)
-            assert fn(R, v, p, w, f, dt, g_W, F, G, q, P, False)[3] is P
+            untouched = np.full((15, 15), np.nan)
+            fn(R, v, p, gyro, accel, bg, ba, dt, g_W, F, G, q, P, False, (*out, untouched))
+            np.testing.assert_allclose(R1, R @ so3_exp(w * dt), atol=1e-14)
+            assert np.isnan(untouched).all()  # (no covariance: P' is not written)
