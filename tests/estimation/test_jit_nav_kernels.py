@@ -32,12 +32,14 @@ SLOW_PATH = [
     (nav_ekf, "_strapdown_ring"),
     (nav_ekf, "_strapdown_into"),
     (nav_ekf, "_state_row"),
+    (nav_ekf, "_estimate_parts"),
     (nav_ekf, "quat_xyzw_one"),
     (nav, "_log_row"),
     (nav_ekf, "_rotation_error"),
     (nav_ekf, "_kalman_update"),
     (horizon, "_pi_correct"),
     (sensors, "_reading"),
+    (sensors, "_draw_one"),
     (rigid_body, "_all_finite"),
 ]
 
@@ -147,8 +149,12 @@ def test_the_logged_state_row_is_the_estimates() -> None:
         want = np.concatenate([ekf.p, ekf.v, q if q[3] >= 0 else -q, ekf.bg, ekf.ba])
         np.testing.assert_allclose(row, want, atol=1e-12)
         np.testing.assert_array_equal(P, ekf.P)
-        est = nav_ekf.NavKinematics().to_estimate(ekf.nav(0), ekf.x, ekf.names, ekf.P)
+        nav_state = ekf.nav(0)
+        est = nav_ekf.NavKinematics().to_estimate(nav_state, ekf.x, ekf.names, ekf.P)
         np.testing.assert_array_equal(row[6:10], est.q_W_B_xyzw)
+        np.testing.assert_array_equal(est.p_W_B, ekf.p)
+        np.testing.assert_array_equal(est.v_W_B, ekf.v)
+        assert est.p_W_B is not nav_state.pos and est.v_W_B is not nav_state.vel  # (copies)
 
 
 def test_the_log_row_kernel_puts_each_part_in_its_columns() -> None:
@@ -220,6 +226,28 @@ def test_the_update_kernel_is_the_textbook_update(m: int) -> None:
         np.testing.assert_allclose(P1, py[2], rtol=1e-12, atol=1e-15)
         refused = nav_ekf._kalman_update(P, H, Rn, r, want_nis * 0.99)  # just beyond the gate
         assert refused[1].size == 0 and refused[2] is P
+
+
+def test_the_imu_draw_kernel_is_the_numpy_draw() -> None:
+    """One sample's errors (the biases it carries, its noise; the biases after it) against the
+    same standard normals in numpy; the biases before the sample are kept as they were."""
+    errors = sensors.ImuErrors(
+        gyro_sigma_rad_s=0.003, accel_sigma_m_s2=0.05, gyro_bias_rw_rad_s_sqrt_s=1e-4,
+        accel_bias_rw_m_s2_sqrt_s=1e-3, gyro_bias0_rad_s=(0.01, -0.02, 0.005),
+        accel_bias0_m_s2=(0.1, 0.0, -0.1),
+    )  # fmt: skip
+    rng, same = np.random.default_rng(9), np.random.default_rng(9)
+    for dt in (0.004, 0.005, 0.0021):
+        bg0, ba0 = errors.bias_g.copy(), errors.bias_a.copy()
+        bg, ba, ng, na = errors.draw_one(dt, rng)
+        z = same.standard_normal(12)
+        np.testing.assert_array_equal(bg, bg0)
+        np.testing.assert_array_equal(ba, ba0)
+        np.testing.assert_array_equal(ng, z[0:3] * 0.003)
+        np.testing.assert_array_equal(na, z[3:6] * 0.05)
+        np.testing.assert_array_equal(errors.bias_g, bg0 + z[6:9] * (1e-4 * np.sqrt(dt)))
+        np.testing.assert_array_equal(errors.bias_a, ba0 + z[9:12] * (1e-3 * np.sqrt(dt)))
+        assert errors.bias_g is not bg and errors.bias_a is not ba
 
 
 def test_the_imu_reading_kernel_refuses_what_is_not_finite() -> None:

@@ -379,6 +379,7 @@ class DelayedHorizonEstimator:
         self._ob_vel = np.tile(nav0.vel, (L, 1))
         self._ob_att = np.tile(nav0.att, (L, 1))
         self._ring = (self._ob_pos, self._ob_vel, self._ob_att)
+        self._ob_t_now = self._t_last_imu_ns  # the time of the ring's head, as an int
         self._ob_head = 0
         self._ob_count = 1
         self._vel_err_integ = np.zeros_like(nav0.vel)
@@ -422,19 +423,24 @@ class DelayedHorizonEstimator:
         )
 
     def output(self) -> StateEstimate:
-        nav = self.output_nav()
+        if self.buffer_length == 1:
+            nav = self.filter.nav(self._t_delayed_ns)
+        else:  # (the ring's rows themselves: to_estimate copies what it keeps)
+            h = self._ob_head
+            nav = NavState(self._ob_t_now, self._ob_pos[h], self._ob_vel[h], self._ob_att[h])
         # The output predictor carries the kinematics' state, not the filter's: its names.
-        x = np.concatenate([nav.pos, nav.vel, nav.att])
+        x = np.concatenate((nav.pos, nav.vel, nav.att))
         return self.kin.to_estimate(nav, x, self.kin.output_names, None, self.body_rate())
 
     def body_rate(self) -> FloatArray | None:
         """The newest gyro reading less the filter's gyro bias (None before any IMU sample)."""
-        if self._last_gyro is None:
+        gyro = self._last_gyro
+        if gyro is None:
             return None
         bg = self.filter.imu_biases()[0]
-        if self._last_gyro.shape != bg.shape:
+        if gyro.shape != bg.shape:
             return None
-        return np.asarray(self._last_gyro - bg, dtype=np.float64)
+        return gyro - bg
 
     # -- statistics ------------------------------------------------------------------------
     @property
@@ -581,7 +587,7 @@ class DelayedHorizonEstimator:
         self._ob_head = h1
         if self._ob_count < self.buffer_length:
             self._ob_count += 1
-        self._ob_t[h1] = imu.t_ns
+        self._ob_t[h1] = self._ob_t_now = imu.t_ns
 
     def _correct_output(self) -> None:
         L = self.buffer_length

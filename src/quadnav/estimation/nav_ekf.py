@@ -174,11 +174,13 @@ class NavKinematics:
         P: FloatArray | None,
         w_B: FloatArray | None = None,
     ) -> StateEstimate:
+        p, v, q = np.empty(3), np.empty(3), np.empty(4)
+        _estimate_parts(nav.pos, nav.vel, nav.att, p, v, q)
         return StateEstimate(
             t_ns=nav.t_ns,
-            p_W_B=nav.pos.copy(),
-            v_W_B=nav.vel.copy(),
-            q_W_B_xyzw=quat_xyzw_from_matrix(nav.att.reshape(3, 3)),
+            p_W_B=p,
+            v_W_B=v,
+            q_W_B_xyzw=q,
             x=x,
             names=names,
             P=P,
@@ -243,6 +245,20 @@ def _strapdown_into(
             a -= g
         v1[i] = vel[i] + dt * a
         p1[i] = pos[i] + dt * v1[i]
+
+
+@njit
+def _estimate_parts(
+    pos: FloatArray, vel: FloatArray, att: FloatArray, p: FloatArray, v: FloatArray,
+    q: FloatArray,
+) -> None:  # fmt: skip
+    """:meth:`NavKinematics.to_estimate`'s arrays: copies of ``pos`` and ``vel`` into ``p`` and
+    ``v``, the quaternion of the flattened rotation matrix ``att`` into ``q``."""
+    R = np.empty((3, 3))
+    for k in range(3):
+        p[k], v[k] = pos[k], vel[k]
+        R[k, 0], R[k, 1], R[k, 2] = att[3 * k], att[3 * k + 1], att[3 * k + 2]
+    q[:] = quat_xyzw_one(R)
 
 
 @njit

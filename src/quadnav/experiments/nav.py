@@ -277,6 +277,7 @@ class _TakeoffPlan:
         self.n_steps = round(sc.flight_s / sc.sim_dt_s)
         self.takeoff_ns = s_to_ns(sc.estimator.align_s + sc.plan.takeoff_s)
         self.target = np.array([sc.plan.forward_m, 0.0, sc.plan.height_m])
+        self._setpoint = Setpoint(p=self.target)  # (the same every step)
         self.outer, self.takeoff = outer, takeoff
         self._done_ns: int | None = None
 
@@ -284,7 +285,7 @@ class _TakeoffPlan:
         return t_ns < self.takeoff_ns
 
     def setpoint(self, i: int) -> Setpoint:
-        return Setpoint(p=self.target)
+        return self._setpoint
 
     def touch_down(self, i: int, z_m: float, vz_m_s: float) -> bool:
         return False

@@ -278,9 +278,10 @@ class ImuErrors:
         z = rng.standard_normal(12)  # the same numbers as four draws of 3, in that order
         sq = math.sqrt(dt_s)
         bg, ba = self.bias_g, self.bias_a
-        self.bias_g = bg + z[6:9] * (self.rw_g * sq)
-        self.bias_a = ba + z[9:12] * (self.rw_a * sq)
-        return bg, ba, z[0:3] * self.sg, z[3:6] * self.sa
+        out = (np.empty(3), np.empty(3), np.empty(3), np.empty(3))  # (new arrays: see _draw_one)
+        _draw_one(z, bg, ba, self.sg, self.sa, self.rw_g * sq, self.rw_a * sq, out)
+        ng, na, self.bias_g, self.bias_a = out
+        return bg, ba, ng, na
 
     def draw(self, n: int, dt_s: float, rng: Generator) -> ImuErrorDraw:
         """The errors of the next ``n`` samples, ``dt_s`` apart; the biases move on past them.
@@ -615,6 +616,23 @@ def _accumulate(
     sum_f[2] += f2 * dt
     for k in range(3):
         sum_w[k] += w[k] * dt
+
+
+@njit
+def _draw_one(
+    z: FloatArray, bg: FloatArray, ba: FloatArray, sg: float, sa: float, step_g: float,
+    step_a: float, out: tuple[FloatArray, FloatArray, FloatArray, FloatArray],
+) -> None:  # fmt: skip
+    """:meth:`ImuErrors.draw_one` from its 12 standard normals ``z``, into ``out``: the gyro
+    and accelerometer noise (``z[0:3] sg``, ``z[3:6] sa``), then the biases after the sample
+    (``bg + z[6:9] step_g``, ``ba + z[9:12] step_a``). New arrays each sample: the biases
+    before it are what the sample carries (and what a log keeps)."""
+    ng, na, bg1, ba1 = out
+    for k in range(3):
+        ng[k] = z[k] * sg
+        na[k] = z[3 + k] * sa
+        bg1[k] = bg[k] + z[6 + k] * step_g
+        ba1[k] = ba[k] + z[9 + k] * step_a
 
 
 @njit
