@@ -176,6 +176,9 @@ class PositionSensor:
         )
 
 
+_NEVER = 2**63 - 1  # (later than any time stamp)
+
+
 class DelayLine(Generic[S]):
     """Holds samples until ``t_ns + delay`` (plus optional uniform jitter) has passed.
 
@@ -190,6 +193,8 @@ class DelayLine(Generic[S]):
         self.jitter_ns = int(jitter_ns)
         self._heap: list[tuple[int, int, S]] = []
         self._seq = 0
+        #: When the first sample queued arrives (later than any time when none is queued).
+        self.next_arrival_ns = _NEVER
 
     def push(self, sample: S, rng: Generator | None = None, *, extra_delay_ns: int = 0) -> int:
         """Queue a sample (``extra_delay_ns``: this one is late); returns its arrival time."""
@@ -201,11 +206,12 @@ class DelayLine(Generic[S]):
         arrival = sample.t_ns + self.delay_ns + extra
         heapq.heappush(self._heap, (arrival, self._seq, sample))
         self._seq += 1
+        self.next_arrival_ns = self._heap[0][0]
         return arrival
 
     def due(self, now_ns: int) -> bool:
         """Whether a sample has arrived by ``now_ns``."""
-        return bool(self._heap) and self._heap[0][0] <= now_ns
+        return self.next_arrival_ns <= now_ns
 
     def pop_arrived(self, now_ns: int) -> list[tuple[int, S]]:
         """Samples whose arrival time is <= ``now_ns``, as (arrival_ns, sample), in arrival order."""
@@ -213,6 +219,7 @@ class DelayLine(Generic[S]):
         while self._heap and self._heap[0][0] <= now_ns:
             arrival, _, sample = heapq.heappop(self._heap)
             out.append((arrival, sample))
+        self.next_arrival_ns = self._heap[0][0] if self._heap else _NEVER
         return out
 
 
