@@ -511,6 +511,23 @@ class VehicleState:
             object.__setattr__(out, name, arr)
         return out
 
+    @classmethod
+    def from_vector(cls, t_ns: int, s: FloatArray, a: FloatArray) -> VehicleState:
+        """:meth:`from_checked` of one fresh float64 array ``s`` (13: position, velocity,
+        quaternion, body rate) and the acceleration ``a`` (3): made read-only once, the fields
+        are views of ``s`` (the simulator's state, a thousand times a second)."""
+        s.flags.writeable = False
+        a.flags.writeable = False
+        out = object.__new__(cls)
+        setattr_ = object.__setattr__
+        setattr_(out, "t_ns", int(t_ns))
+        setattr_(out, "p_W_B", s[0:3])
+        setattr_(out, "v_W_B", s[3:6])
+        setattr_(out, "a_W_B", a)
+        setattr_(out, "q_W_B_xyzw", s[6:10])
+        setattr_(out, "w_B", s[10:13])
+        return out
+
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class TruthSample:

@@ -11,9 +11,11 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from quadnav.estimation import horizon, nav_ekf
+from quadnav.experiments import nav
 from quadnav.experiments.nav import run_nav
 from quadnav.experiments.scenarios import nav_builtin
 from quadnav.geometry import rotations
+from quadnav.messages import ImuSample
 from quadnav.sim import rigid_body, sensors
 from tests.sim import test_jit_kernels
 
@@ -23,14 +25,21 @@ pytestmark = test_jit_kernels.pytestmark  # (skipped where QUADNAV_JIT=0: nothin
 SLOW_PATH = [
     (rotations, "so3_exp_one"),
     (rotations, "so3_log_one"),
-    (rotations, "_quat_xyzw_from_matrix"),
+    (rotations, "quat_xyzw_one"),
     (nav_ekf, "so3_exp_one"),
     (nav_ekf, "so3_log_one"),
     (nav_ekf, "_strapdown_one"),
+    (nav_ekf, "_strapdown_ring"),
+    (nav_ekf, "_strapdown_into"),
+    (nav_ekf, "_state_row"),
+    (nav_ekf, "_estimate_parts"),
+    (nav_ekf, "quat_xyzw_one"),
+    (nav, "_log_row"),
     (nav_ekf, "_rotation_error"),
     (nav_ekf, "_kalman_update"),
     (horizon, "_pi_correct"),
     (sensors, "_reading"),
+    (sensors, "_draw_one"),
     (rigid_body, "_all_finite"),
 ]
 
@@ -52,7 +61,7 @@ def test_the_rotation_kernels_are_scipys_and_their_python() -> None:
         ref = Rotation.from_matrix(R).as_quat()
         np.testing.assert_allclose(q, ref if ref[3] >= 0 else -ref, atol=1e-12)
         assert q[3] >= 0
-        np.testing.assert_array_equal(q, rotations._quat_xyzw_from_matrix.py_func(R))
+        np.testing.assert_array_equal(q, rotations.quat_xyzw_one.py_func(R))
         rv = Rotation.from_matrix(R).as_rotvec()
         if np.linalg.norm(rv) < 3.1:  # (so3_log is for angles below pi)
             np.testing.assert_allclose(rotations.so3_log(R), rv, atol=1e-9)
@@ -89,6 +98,77 @@ def test_the_output_predictor_step_is_the_batched_strapdown() -> None:
         R_a, R_b = att, Rotation.random(random_state=rng).as_matrix().ravel()
         expected = Rotation.from_matrix(R_b.reshape(3, 3).T @ R_a.reshape(3, 3)).as_rotvec()
         np.testing.assert_allclose(kin.attitude_error(R_a, R_b), expected, atol=1e-9)
+
+
+def test_the_output_predictors_ring_step_is_the_batched_strapdown() -> None:
+    """The ring's compiled step (row to row, the biases removed in the kernel) against the
+    batched numpy path of the same integration; the other rows untouched."""
+    kin = nav_ekf.NavKinematics()
+    rng = np.random.default_rng(6)
+    for k in range(20):
+        L, src = 5, k % 5
+        dst = (src + 1) % L
+        ring = (rng.normal(0, 5, (L, 3)), rng.normal(0, 2, (L, 3)), rng.normal(size=(L, 9)))
+        ring[2][src] = Rotation.random(random_state=rng).as_matrix().ravel()
+        gyro, accel = rng.normal(0, 1, 3), rng.normal(0, 5, 3) + [0, 0, 9.8]
+        imu = ImuSample(t_ns=1, gyro_rad_s=gyro, accel_m_s2=accel)
+        biases = (rng.normal(0, 0.01, 3), rng.normal(0, 0.1, 3))
+        corr = rng.normal(0, 1e-3, 3)
+        before = [a.copy() for a in ring]
+        want = kin.integrate(
+            ring[0][src][None], ring[1][src][None], ring[2][src][None],
+            (gyro - biases[0])[None], (accel - biases[1])[None], np.array([0.004]), corr[None],
+        )  # fmt: skip
+        kin.integrate_ring(ring, src, dst, imu, biases, 0.004, corr)
+        for got, was, w in zip(ring, before, want, strict=True):
+            np.testing.assert_allclose(got[dst], w[0], rtol=1e-12, atol=1e-13)
+            others = np.arange(L) != dst
+            np.testing.assert_array_equal(got[others], was[others])
+        slow = tuple(a.copy() for a in before)
+        horizon.integrate_ring(kin, slow, src, dst, imu, biases, 0.004, corr)  # (numpy's)
+        for got, w in zip(ring, slow, strict=True):
+            np.testing.assert_allclose(got, w, rtol=1e-14, atol=1e-15)
+
+
+def test_the_logged_state_row_is_the_estimates() -> None:
+    """The EKF's row for the log (position, velocity, SciPy's quaternion, biases) and its 15
+    states' covariance, with and without the odometry drift's states beside them."""
+    rng = np.random.default_rng(7)
+    for mode in ("absolute", "relative"):
+        config = nav_ekf.NavEkfConfig(odometry_mode=mode)
+        q0 = Rotation.random(random_state=rng).as_quat()
+        ekf = nav_ekf.NavEkf(
+            config, p0=rng.normal(size=3), v0=rng.normal(size=3), q0_xyzw=q0,
+            P0=np.diag(rng.uniform(0.01, 1.0, 15)), bg0=rng.normal(0, 0.01, 3),
+            ba0=rng.normal(0, 0.1, 3),
+        )  # fmt: skip
+        ekf._P = ekf._P + rng.normal(0, 1e-3, ekf._P.shape)
+        row, P = np.full(16, np.nan), np.full((15, 15), np.nan)
+        ekf.state_row(row, P)
+        q = Rotation.from_matrix(ekf.R).as_quat()
+        want = np.concatenate([ekf.p, ekf.v, q if q[3] >= 0 else -q, ekf.bg, ekf.ba])
+        np.testing.assert_allclose(row, want, atol=1e-12)
+        np.testing.assert_array_equal(P, ekf.P)
+        nav_state = ekf.nav(0)
+        est = nav_ekf.NavKinematics().to_estimate(nav_state, ekf.x, ekf.names, ekf.P)
+        np.testing.assert_array_equal(row[6:10], est.q_W_B_xyzw)
+        np.testing.assert_array_equal(est.p_W_B, ekf.p)
+        np.testing.assert_array_equal(est.v_W_B, ekf.v)
+        assert est.p_W_B is not nav_state.pos and est.v_W_B is not nav_state.vel  # (copies)
+
+
+def test_the_log_row_kernel_puts_each_part_in_its_columns() -> None:
+    rng = np.random.default_rng(8)
+    parts = [rng.normal(size=w) for w in (3, 3, 4, 3, 3, 3, 4, 3, 3)]
+    row = np.full(nav._WIDTH, np.nan)
+    nav._log_row(row, *parts)
+    names = ("truth_p", "truth_v", "truth_q", "ref_p", "output_p", "output_v", "output_q")
+    for name, part in zip(names, parts, strict=False):
+        a, b = nav._COLUMNS[name]
+        np.testing.assert_array_equal(row[a:b], part)
+    a, b = nav._COLUMNS["true_bias"]
+    np.testing.assert_array_equal(row[a:b], np.concatenate(parts[7:]))
+    assert np.isnan(row[nav._DELAYED]).all()  # (the estimator writes those)
 
 
 def test_the_output_correction_is_the_proportional_integral_one() -> None:
@@ -146,6 +226,28 @@ def test_the_update_kernel_is_the_textbook_update(m: int) -> None:
         np.testing.assert_allclose(P1, py[2], rtol=1e-12, atol=1e-15)
         refused = nav_ekf._kalman_update(P, H, Rn, r, want_nis * 0.99)  # just beyond the gate
         assert refused[1].size == 0 and refused[2] is P
+
+
+def test_the_imu_draw_kernel_is_the_numpy_draw() -> None:
+    """One sample's errors (the biases it carries, its noise; the biases after it) against the
+    same standard normals in numpy; the biases before the sample are kept as they were."""
+    errors = sensors.ImuErrors(
+        gyro_sigma_rad_s=0.003, accel_sigma_m_s2=0.05, gyro_bias_rw_rad_s_sqrt_s=1e-4,
+        accel_bias_rw_m_s2_sqrt_s=1e-3, gyro_bias0_rad_s=(0.01, -0.02, 0.005),
+        accel_bias0_m_s2=(0.1, 0.0, -0.1),
+    )  # fmt: skip
+    rng, same = np.random.default_rng(9), np.random.default_rng(9)
+    for dt in (0.004, 0.005, 0.0021):
+        bg0, ba0 = errors.bias_g.copy(), errors.bias_a.copy()
+        bg, ba, ng, na = errors.draw_one(dt, rng)
+        z = same.standard_normal(12)
+        np.testing.assert_array_equal(bg, bg0)
+        np.testing.assert_array_equal(ba, ba0)
+        np.testing.assert_array_equal(ng, z[0:3] * 0.003)
+        np.testing.assert_array_equal(na, z[3:6] * 0.05)
+        np.testing.assert_array_equal(errors.bias_g, bg0 + z[6:9] * (1e-4 * np.sqrt(dt)))
+        np.testing.assert_array_equal(errors.bias_a, ba0 + z[9:12] * (1e-3 * np.sqrt(dt)))
+        assert errors.bias_g is not bg and errors.bias_a is not ba
 
 
 def test_the_imu_reading_kernel_refuses_what_is_not_finite() -> None:

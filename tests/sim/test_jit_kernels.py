@@ -23,6 +23,8 @@ pytestmark = pytest.mark.skipif(
 KERNELS = [
     (rigid_body, "_derivative"),
     (rigid_body, "_rk4_step"),
+    (rigid_body, "_step"),
+    (rigid_body, "_all_finite"),
     (cascaded_pid, "_pid_step"),
     (cascaded_pid, "_clip"),
     (cascaded_pid, "_thrust_vector"),
@@ -92,10 +94,11 @@ def test_each_kernel_compiled_gives_what_it_gives_as_python() -> None:
         ):
             fn(s, cmd, wind, consts, out)
         np.testing.assert_allclose(outs[0], outs[1], rtol=1e-13, atol=1e-12)
-        steps = [
-            fn(s, cmd, wind, consts, 0.002)
-            for fn in (rigid_body._rk4_step, rigid_body._rk4_step.py_func)
-        ]
+        steps = [np.empty(17), np.empty(17)]
+        for fn, out in zip(
+            (rigid_body._rk4_step, rigid_body._rk4_step.py_func), steps, strict=True
+        ):
+            fn(s, cmd, wind, consts, 0.002, out)
         np.testing.assert_allclose(steps[0], steps[1], rtol=1e-13, atol=1e-12)
         args = (s[0:3], s[3:6], s[6:10], s[10:13], rng.normal(0, 3, 3), k % 2 == 0,
                 rng.normal(size=3), rng.normal(size=3), float(rng.uniform(-3, 3)), pid._gains, pid._consts)  # fmt: skip
@@ -168,7 +171,9 @@ def test_the_navigation_prediction_kernel_is_the_textbook_one() -> None:
     rng = np.random.default_rng(5)
     for _ in range(20):
         R, dt = Rotation.random(random_state=rng).as_matrix(), float(rng.uniform(0.001, 0.02))
-        v, p, w, f = (rng.normal(0, s, 3) for s in (2.0, 5.0, 1.5, 9.0))
+        v, p, gyro, accel = (rng.normal(0, s, 3) for s in (2.0, 5.0, 1.5, 9.0))
+        bg, ba = rng.normal(0, 0.01, 3), rng.normal(0, 0.1, 3)
+        w, f = gyro - bg, accel - ba
         g_W, q = np.array([0.0, 0.0, -9.80665]), rng.uniform(1e-8, 1e-2, 12)
         L = rng.normal(size=(15, 15))
         P = L @ L.T * 1e-3
@@ -176,7 +181,12 @@ def test_the_navigation_prediction_kernel_is_the_textbook_one() -> None:
         F0, G0 = nav_ekf.nav_jacobians(np.eye(3), np.zeros(3), np.zeros(3), dt)
         for fn in (nav_ekf._propagate, nav_ekf._propagate.py_func):
             F, G = F0.copy(), G0.copy()
-            R1, v1, p1, P1 = fn(R, v, p, w, f, dt, g_W, F, G, q, P, True)
+            out = (np.empty(3), np.empty(3), np.empty((3, 3)), np.empty(3), np.empty(3))
+            P1 = np.full((15, 15), np.nan)
+            fn(R, v, p, gyro, accel, bg, ba, dt, g_W, F, G, q, P, True, (*out, P1))
+            w1, f1, R1, v1, p1 = out
+            np.testing.assert_array_equal(w1, w)
+            np.testing.assert_array_equal(f1, f)
             np.testing.assert_allclose(R1, R @ so3_exp(w * dt), atol=1e-14)
             np.testing.assert_allclose(v1, v + dt * (R1 @ f + g_W), atol=1e-12)
             np.testing.assert_allclose(p1, p + dt * v1, atol=1e-12)
@@ -184,4 +194,37 @@ def test_the_navigation_prediction_kernel_is_the_textbook_one() -> None:
             np.testing.assert_allclose(G, G_ref, atol=1e-13)
             expected = F_ref @ P @ F_ref.T + (G_ref * q) @ G_ref.T
             np.testing.assert_allclose(P1, expected, rtol=1e-11, atol=1e-16)
-            assert fn(R, v, p, w, f, dt, g_W, F, G, q, P, False)[3] is P
+            untouched = np.full((15, 15), np.nan)
+            fn(R, v, p, gyro, accel, bg, ba, dt, g_W, F, G, q, P, False, (*out, untouched))
+            np.testing.assert_allclose(R1, R @ so3_exp(w * dt), atol=1e-14)
+            assert np.isnan(untouched).all()  # (no covariance: P' is not written)
+
+
+def test_the_rigid_body_step_kernel_is_rk4_the_ground_and_the_acceleration() -> None:
+    """``_step`` against its parts in numpy: the RK4 step, the ground plane (a state below it
+    put on it, and stopped when sinking), the acceleration over the step; a command or a state
+    that is not finite refused, and said which."""
+    p = RigidBodyParams()
+    consts = rigid_body._model_constants(p)
+    rng = np.random.default_rng(12)
+    for k in range(30):
+        s = _random_state(rng, p)
+        s[2] = rng.uniform(-0.01, 0.005) if k % 2 else s[2]  # half of them at the ground
+        cmd, wind = p.hover_omega_rad_s * rng.uniform(0, 2, 4), rng.normal(size=3)
+        want = np.empty(17)
+        rigid_body._rk4_step(s, cmd, wind, consts, 0.002, want)
+        if want[2] <= 0.0:
+            want[2] = 0.0
+            if want[5] < 0.0:
+                want[[3, 4, 5, 10, 11, 12]] = 0.0
+        out, accel = np.full(17, np.nan), np.full(3, np.nan)
+        assert rigid_body._step(s, cmd, wind, consts, 0.002, out, accel) == rigid_body._OK
+        np.testing.assert_array_equal(out, want)
+        np.testing.assert_allclose(accel, (want[3:6] - s[3:6]) / 0.002, rtol=1e-15)
+    bad = cmd.copy()
+    bad[1] = np.nan
+    out = np.full(17, 7.0)
+    assert rigid_body._step(s, bad, wind, consts, 0.002, out, accel) == rigid_body._BAD_COMMAND
+    assert (out == 7.0).all()
+    s[0] = np.inf
+    assert rigid_body._step(s, cmd, wind, consts, 0.002, out, accel) == rigid_body._DIVERGED

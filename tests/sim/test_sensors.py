@@ -180,3 +180,23 @@ def test_imu_lever_arm_adds_the_centripetal_acceleration() -> None:
     assert out is not None
     # w x (w x r) = -|w|^2 r: 0.4 m/s^2 towards the centre, on top of gravity
     np.testing.assert_allclose(out.accel_m_s2, [-0.4, 0.0, GRAVITY_M_S2], atol=1e-9)
+
+
+def test_a_delay_lines_next_arrival_follows_its_queue() -> None:
+    """``next_arrival_ns`` (what a channel looks at each step) is the earliest queued arrival,
+    after pushes out of order and pops, and later than any time once the line is empty."""
+    line: DelayLine[PositionSample] = DelayLine(delay_ns=100)
+    never = line.next_arrival_ns
+    assert not line.due(2**62)
+
+    def fix(t_ns: int) -> PositionSample:
+        return PositionSample(t_ns=t_ns, p_W_B=np.zeros(3), sigma_m=0.1)
+
+    line.push(fix(50))
+    line.push(fix(20), extra_delay_ns=200)  # arrives at 320, after the first (150)
+    line.push(fix(10))
+    assert line.next_arrival_ns == 110 and line.due(110) and not line.due(109)
+    assert [a for a, _ in line.pop_arrived(150)] == [110, 150]
+    assert line.next_arrival_ns == 320
+    assert [a for a, _ in line.pop_arrived(10_000)] == [320]
+    assert line.next_arrival_ns == never and not line.pop_arrived(2**62)

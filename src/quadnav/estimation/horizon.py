@@ -58,6 +58,7 @@ __all__ = [
     "SourceStats",
     "fusion_arrays",
     "imu_buffer_length",
+    "integrate_ring",
     "require_positive",
 ]
 
@@ -114,6 +115,16 @@ class Kinematics(Protocol):
         dtheta_corr: FloatArray | None = None,
     ) -> tuple[FloatArray, FloatArray, FloatArray]: ...
 
+    def integrate_ring(
+        self, ring: tuple[FloatArray, FloatArray, FloatArray], src: int, dst: int,
+        imu: ImuSample, biases: tuple[FloatArray, FloatArray], dt_s: float,
+        dtheta_corr: FloatArray,
+    ) -> None:  # fmt: skip
+        """The output predictor's step: row ``src`` of the ring's ``(pos, vel, att)`` integrated
+        with the IMU sample less the gyro and accelerometer ``biases`` into row ``dst`` (as
+        :meth:`integrate` of one state; :func:`integrate_ring` is that)."""
+        ...
+
     def attitude_error(self, att_target: FloatArray, att: FloatArray) -> FloatArray:
         """The delta angle (3,) that rotates ``att`` onto ``att_target``."""
         ...
@@ -133,6 +144,21 @@ class Kinematics(Protocol):
     def output_names(self) -> tuple[str, ...]:
         """Names of the output predictor's state ``concatenate([pos, vel, att])``."""
         ...
+
+
+def integrate_ring(
+    kin: Kinematics, ring: tuple[FloatArray, FloatArray, FloatArray], src: int, dst: int,
+    imu: ImuSample, biases: tuple[FloatArray, FloatArray], dt_s: float, dtheta_corr: FloatArray,
+) -> None:  # fmt: skip
+    """:meth:`Kinematics.integrate_ring` through :meth:`Kinematics.integrate` (for kinematics
+    with no compiled step of their own)."""
+    pos, vel, att = ring
+    out = kin.integrate(
+        pos[src], vel[src], att[src], imu.gyro_rad_s - biases[0], imu.accel_m_s2 - biases[1],
+        dt_s, dtheta_corr,
+    )  # fmt: skip
+    for arr, row in zip(ring, out, strict=True):
+        arr[dst] = row
 
 
 class Estimator(Protocol):
@@ -332,7 +358,12 @@ class DelayedHorizonEstimator:
         self.buffer_length = imu_buffer_length(
             max_delay_ns=config.max_delay_ns, imu_period_ns=config.imu_period_ns
         )
-        self._dt_nominal_s = config.imu_period_ns * 1e-9
+        self._dt_nominal_s = dt = config.imu_period_ns * 1e-9
+        # The output correction's position and velocity gains (PX4's dt / tau)
+        self._pi_gains = (
+            dt / min(max(config.tau_pos_s, dt), 10.0),
+            dt / min(max(config.tau_vel_s, dt), 10.0),
+        )
         self._imu_buffer: deque[tuple[ImuSample, float]] = deque()
         self._obs: dict[str, list[tuple[int, int, Sample]]] = {}
         self._earliest_obs_ns = _NEVER  # the earliest time of validity buffered in _obs
@@ -347,6 +378,8 @@ class DelayedHorizonEstimator:
         self._ob_pos = np.tile(nav0.pos, (L, 1))
         self._ob_vel = np.tile(nav0.vel, (L, 1))
         self._ob_att = np.tile(nav0.att, (L, 1))
+        self._ring = (self._ob_pos, self._ob_vel, self._ob_att)
+        self._ob_t_now = self._t_last_imu_ns  # the time of the ring's head, as an int
         self._ob_head = 0
         self._ob_count = 1
         self._vel_err_integ = np.zeros_like(nav0.vel)
@@ -390,19 +423,24 @@ class DelayedHorizonEstimator:
         )
 
     def output(self) -> StateEstimate:
-        nav = self.output_nav()
+        if self.buffer_length == 1:
+            nav = self.filter.nav(self._t_delayed_ns)
+        else:  # (the ring's rows themselves: to_estimate copies what it keeps)
+            h = self._ob_head
+            nav = NavState(self._ob_t_now, self._ob_pos[h], self._ob_vel[h], self._ob_att[h])
         # The output predictor carries the kinematics' state, not the filter's: its names.
-        x = np.concatenate([nav.pos, nav.vel, nav.att])
+        x = np.concatenate((nav.pos, nav.vel, nav.att))
         return self.kin.to_estimate(nav, x, self.kin.output_names, None, self.body_rate())
 
     def body_rate(self) -> FloatArray | None:
         """The newest gyro reading less the filter's gyro bias (None before any IMU sample)."""
-        if self._last_gyro is None:
+        gyro = self._last_gyro
+        if gyro is None:
             return None
         bg = self.filter.imu_biases()[0]
-        if self._last_gyro.shape != bg.shape:
+        if gyro.shape != bg.shape:
             return None
-        return np.asarray(self._last_gyro - bg, dtype=np.float64)
+        return gyro - bg
 
     # -- statistics ------------------------------------------------------------------------
     @property
@@ -541,23 +579,15 @@ class DelayedHorizonEstimator:
     # -- output predictor ----------------------------------------------------------------
     def _integrate_output(self, imu: ImuSample, dt_s: float) -> None:
         h = self._ob_head
-        b_g, b_a = self.filter.imu_biases()  # the filter's latest bias estimates, as PX4 does
-        pos, vel, att = self.kin.integrate(
-            self._ob_pos[h],
-            self._ob_vel[h],
-            self._ob_att[h],
-            imu.gyro_rad_s - b_g,
-            imu.accel_m_s2 - b_a,
-            dt_s,
-            self._dtheta_corr,
+        h1 = h + 1 if h + 1 < self.buffer_length else 0
+        # (the filter's latest bias estimates, as PX4 does)
+        self.kin.integrate_ring(
+            self._ring, h, h1, imu, self.filter.imu_biases(), dt_s, self._dtheta_corr
         )
-        h = (h + 1) % self.buffer_length
-        self._ob_head = h
-        self._ob_count = min(self._ob_count + 1, self.buffer_length)
-        self._ob_t[h] = imu.t_ns
-        self._ob_pos[h] = pos
-        self._ob_vel[h] = vel
-        self._ob_att[h] = att
+        self._ob_head = h1
+        if self._ob_count < self.buffer_length:
+            self._ob_count += 1
+        self._ob_t[h1] = self._ob_t_now = imu.t_ns
 
     def _correct_output(self) -> None:
         L = self.buffer_length
@@ -575,8 +605,7 @@ class DelayedHorizonEstimator:
         att_gain = 0.5 * dt / time_delay_s
         self._dtheta_corr = self.kin.attitude_error(nav.att, self._ob_att[oldest]) * att_gain
         # Velocity and position: proportional-integral, applied to the whole buffer.
-        vel_gain = dt / min(max(self.config.tau_vel_s, dt), 10.0)
-        pos_gain = dt / min(max(self.config.tau_pos_s, dt), 10.0)
+        pos_gain, vel_gain = self._pi_gains
         _pi_correct(self._ob_t, self._ob_pos, self._ob_vel, oldest, nav.pos, nav.vel,
                     self._pos_err_integ, self._vel_err_integ, pos_gain, vel_gain,
                     self.config.propagate_velocity_correction)  # fmt: skip

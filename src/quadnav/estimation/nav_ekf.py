@@ -53,6 +53,7 @@ from quadnav.estimation.nav_observations import (
 from quadnav.geometry.navsat import GeoDatum, NavSatTransform
 from quadnav.geometry.rotations import (
     quat_xyzw_from_matrix,
+    quat_xyzw_one,
     rotation_matrix_xyzw,
     skew,
     so3_exp,
@@ -148,6 +149,15 @@ class NavKinematics:
         pos_new = pos + dtv * vel_new
         return pos_new, vel_new, R_new.reshape(*R_new.shape[:-2], 9)
 
+    def integrate_ring(
+        self, ring: tuple[FloatArray, FloatArray, FloatArray], src: int, dst: int,
+        imu: ImuSample, biases: tuple[FloatArray, FloatArray], dt_s: float,
+        dtheta_corr: FloatArray,
+    ) -> None:  # fmt: skip
+        """:meth:`integrate` of the ring's row ``src`` into its row ``dst``, in one kernel."""
+        _strapdown_ring(ring, src, dst, imu.gyro_rad_s, imu.accel_m_s2, biases, dt_s,
+                        dtheta_corr, self.gravity_m_s2)  # fmt: skip
+
     @property
     def output_names(self) -> tuple[str, ...]:
         return _OUTPUT_NAMES
@@ -164,11 +174,13 @@ class NavKinematics:
         P: FloatArray | None,
         w_B: FloatArray | None = None,
     ) -> StateEstimate:
+        p, v, q = np.empty(3), np.empty(3), np.empty(4)
+        _estimate_parts(nav.pos, nav.vel, nav.att, p, v, q)
         return StateEstimate(
             t_ns=nav.t_ns,
-            p_W_B=nav.pos.copy(),
-            v_W_B=nav.vel.copy(),
-            q_W_B_xyzw=quat_xyzw_from_matrix(nav.att.reshape(3, 3)),
+            p_W_B=p,
+            v_W_B=v,
+            q_W_B_xyzw=q,
             x=x,
             names=names,
             P=P,
@@ -188,25 +200,81 @@ def _strapdown_one(
     """One state's :meth:`NavKinematics.integrate`: ``R' = R Exp(gyro dt + corr)`` (Rodrigues,
     as :func:`so3_exp`), ``v' = v + dt (R' accel - g z)``, ``p' = p + dt v'``; ``att`` and the
     returned attitude are flattened rotation matrices."""
+    p1, v1, R1 = np.empty(3), np.empty(3), np.empty(9)
+    _strapdown_into(pos, vel, att, gyro, accel, dt, dtheta_corr, g, p1, v1, R1)
+    return p1, v1, R1
+
+
+@njit
+def _strapdown_ring(
+    ring: tuple[FloatArray, FloatArray, FloatArray], src: int, dst: int, gyro: FloatArray,
+    accel: FloatArray, biases: tuple[FloatArray, FloatArray], dt: float,
+    dtheta_corr: FloatArray, g: float,
+) -> None:  # fmt: skip
+    """:func:`_strapdown_one` of the ring's row ``src`` (positions, velocities, attitudes)
+    into its row ``dst``, with the readings less the ``biases`` (gyro, accelerometer)."""
+    pos, vel, att = ring
+    w, f = np.empty(3), np.empty(3)
+    for k in range(3):
+        w[k] = gyro[k] - biases[0][k]
+        f[k] = accel[k] - biases[1][k]
+    _strapdown_into(
+        pos[src], vel[src], att[src], w, f, dt, dtheta_corr, g, pos[dst], vel[dst], att[dst]
+    )
+
+
+@njit
+def _strapdown_into(
+    pos: FloatArray, vel: FloatArray, att: FloatArray, gyro: FloatArray, accel: FloatArray,
+    dt: float, dtheta_corr: FloatArray, g: float, p1: FloatArray, v1: FloatArray,
+    R1: FloatArray,
+) -> None:  # fmt: skip
+    """:func:`_strapdown_one`'s step into ``p1``, ``v1``, ``R1`` (not the inputs' arrays)."""
     dth = np.empty(3)
     for k in range(3):
         dth[k] = gyro[k] * dt + dtheta_corr[k]
     E = so3_exp_one(dth)
-    R1 = np.empty(9)
     for i in range(3):
         for j in range(3):
             R1[3 * i + j] = (
                 att[3 * i] * E[0, j] + att[3 * i + 1] * E[1, j] + att[3 * i + 2] * E[2, j]
             )
-    v1 = np.empty(3)
-    p1 = np.empty(3)
     for i in range(3):
         a = R1[3 * i] * accel[0] + R1[3 * i + 1] * accel[1] + R1[3 * i + 2] * accel[2]
         if i == 2:
             a -= g
         v1[i] = vel[i] + dt * a
         p1[i] = pos[i] + dt * v1[i]
-    return p1, v1, R1
+
+
+@njit
+def _estimate_parts(
+    pos: FloatArray, vel: FloatArray, att: FloatArray, p: FloatArray, v: FloatArray,
+    q: FloatArray,
+) -> None:  # fmt: skip
+    """:meth:`NavKinematics.to_estimate`'s arrays: copies of ``pos`` and ``vel`` into ``p`` and
+    ``v``, the quaternion of the flattened rotation matrix ``att`` into ``q``."""
+    R = np.empty((3, 3))
+    for k in range(3):
+        p[k], v[k] = pos[k], vel[k]
+        R[k, 0], R[k, 1], R[k, 2] = att[3 * k], att[3 * k + 1], att[3 * k + 2]
+    q[:] = quat_xyzw_one(R)
+
+
+@njit
+def _state_row(
+    R: FloatArray, v: FloatArray, p: FloatArray, bg: FloatArray, ba: FloatArray,
+    P_all: FloatArray, row: FloatArray, P: FloatArray,
+) -> None:  # fmt: skip
+    """:meth:`NavEkf.state_row`."""
+    q = quat_xyzw_one(R)
+    for k in range(3):
+        row[k], row[3 + k], row[10 + k], row[13 + k] = p[k], v[k], bg[k], ba[k]
+    for k in range(4):
+        row[6 + k] = q[k]
+    for i in range(_N):
+        for j in range(_N):
+            P[i, j] = P_all[i, j]
 
 
 @njit
@@ -566,6 +634,12 @@ class NavEkf:
     def nav(self, t_ns: int) -> NavState:
         return NavState(t_ns, self.p.copy(), self.v.copy(), self.R.ravel().copy())
 
+    def state_row(self, row: FloatArray, P: FloatArray) -> None:
+        """The state for a log, in one kernel: ``p``, ``v``, the quaternion (xyzw, as
+        :func:`quat_xyzw_from_matrix`), ``b_g``, ``b_a`` into ``row`` (16); the 15 error
+        states' covariance into ``P`` (15x15)."""
+        _state_row(self.R, self.v, self.p, self.bg, self.ba, self._P, row, P)
+
     def can_fuse(self, obs: Sample) -> bool:
         """Whether a model is registered for the sample's type (or a base of it) and accepts
         this sample (PX4's quality checks of a flow or an odometry sample)."""
@@ -601,9 +675,6 @@ class NavEkf:
         )
 
     def predict(self, imu: ImuSample, dt_s: float) -> None:
-        w = imu.gyro_rad_s - self.bg
-        f = imu.accel_m_s2 - self.ba
-        self._w_B = w
         if dt_s != self._jac_dt:
             self._set_step(dt_s)
         clipped = clip_axes(imu)
@@ -615,12 +686,16 @@ class NavEkf:
                 if clipped >> k & 1:
                     i = _N_A.start + k
                     q[i] = max(q[i], self.config.clipped_accel_sigma_m_s2**2)
-        # The mean, F and G's state-dependent blocks, and (without the drift states) P, in
-        # one compiled kernel.
-        self.R, self.v, self.p, P = _propagate(
-            self.R, self.v, self.p, w, f, dt_s, self._g_W, self._F, self._G, q, self._P,
-            not self._relative,
+        # The biases removed, the mean, F and G's state-dependent blocks, and (without the
+        # drift states) P, in one compiled kernel, into new arrays (what was read before
+        # stays as it was).
+        w, f, R, v, p = np.empty(3), np.empty(3), np.empty((3, 3)), np.empty(3), np.empty(3)
+        P = self._P if self._relative else np.empty_like(self._P)
+        _propagate(
+            self.R, self.v, self.p, imu.gyro_rad_s, imu.accel_m_s2, self.bg, self.ba, dt_s,
+            self._g_W, self._F, self._G, q, self._P, not self._relative, (w, f, R, v, p, P),
         )  # fmt: skip
+        self._w_B, self.R, self.v, self.p = w, R, v, p
         if self._relative:
             P = self._predict_with_drift(self._F, self._G, q, dt_s)
         if self.bias_gate is not None:
@@ -1117,16 +1192,24 @@ _I_NG, _I_NA = _N_G.start, _N_A.start
 
 @njit
 def _propagate(
-    R: FloatArray, v: FloatArray, p: FloatArray, w: FloatArray, f: FloatArray, dt: float,
-    g_W: FloatArray, F: FloatArray, G: FloatArray, q: FloatArray, P: FloatArray, with_cov: bool,
-) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:  # fmt: skip
-    """One prediction with ``E = Exp(w dt)``: ``R' = R E``, ``v' = v + dt (R' f + g)``,
-    ``p' = p + dt v'``; the state-dependent blocks of :func:`nav_jacobians`' ``F`` and ``G``
-    written into them; and, ``with_cov``, ``P' = F P F^T + G diag(q) G^T`` (else ``P`` back)."""
+    R: FloatArray, v: FloatArray, p: FloatArray, gyro: FloatArray, accel: FloatArray,
+    bg: FloatArray, ba: FloatArray, dt: float, g_W: FloatArray, F: FloatArray, G: FloatArray,
+    q: FloatArray, P: FloatArray, with_cov: bool,
+    out: tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray],
+) -> None:  # fmt: skip
+    """One prediction into ``out`` = (w, f, R', v', p', P'): the rate ``w = gyro - bg`` and
+    the specific force ``f = accel - ba``; with ``E = Exp(w dt)``, ``R' = R E``,
+    ``v' = v + dt (R' f + g)``, ``p' = p + dt v'``; the state-dependent blocks of
+    :func:`nav_jacobians`' ``F`` and ``G`` written into them; and, ``with_cov``,
+    ``P' = F P F^T + G diag(q) G^T`` (else ``P'`` is not written)."""
+    w, f, R1, v1, p1, P1 = out
+    for k in range(3):
+        w[k] = gyro[k] - bg[k]
+        f[k] = accel[k] - ba[k]
     E = so3_exp_one(w * dt)
-    R1 = np.zeros((3, 3))
     for i in range(3):
         for j in range(3):
+            R1[i, j] = 0.0
             for k in range(3):
                 R1[i, j] += R[i, k] * E[k, j]
     Rf = np.empty((3, 3))  # R' skew(f)
@@ -1134,11 +1217,10 @@ def _propagate(
         Rf[i, 0] = R1[i, 1] * f[2] - R1[i, 2] * f[1]
         Rf[i, 1] = R1[i, 2] * f[0] - R1[i, 0] * f[2]
         Rf[i, 2] = R1[i, 0] * f[1] - R1[i, 1] * f[0]
-    a = np.empty(3)
     for i in range(3):
-        a[i] = R1[i, 0] * f[0] + R1[i, 1] * f[1] + R1[i, 2] * f[2] + g_W[i]
-    v1 = v + dt * a
-    p1 = p + dt * v1
+        a = R1[i, 0] * f[0] + R1[i, 1] * f[1] + R1[i, 2] * f[2] + g_W[i]
+        v1[i] = v[i] + dt * a
+        p1[i] = p[i] + dt * v1[i]
     for i in range(3):
         for j in range(3):
             F[_I_ATT + i, _I_ATT + j] = E[j, i]  # Exp(-w dt)
@@ -1156,10 +1238,9 @@ def _propagate(
             G[_I_POS + i, _I_NG + j] = F[_I_POS + i, _I_BG + j]
             G[_I_POS + i, _I_NA + j] = F[_I_POS + i, _I_BA + j]
     if not with_cov:
-        return R1, v1, p1, P
+        return
     n, m = F.shape[0], G.shape[1]
     FP = _matmul(F, P)
-    out = np.empty((n, n))
     for i in range(n):
         for j in range(i, n):
             acc = 0.0
@@ -1167,9 +1248,8 @@ def _propagate(
                 acc += FP[i, k] * F[j, k]
             for k in range(m):
                 acc += G[i, k] * q[k] * G[j, k]
-            out[i, j] = acc
-            out[j, i] = acc
-    return R1, v1, p1, out
+            P1[i, j] = acc
+            P1[j, i] = acc
 
 
 @njit

@@ -119,6 +119,12 @@ class NavEstimator(Protocol):
 
     def delayed(self) -> StateEstimate: ...
 
+    def delayed_row(self, row: FloatArray, P: FloatArray) -> int:
+        """The delayed horizon for a log without building an estimate: its position, velocity,
+        quaternion (xyzw) and gyro and accelerometer biases (NaN where it has none) into
+        ``row`` (16), its covariance into ``P`` (15x15, NaN where it has none); its time."""
+        ...
+
     def report(self) -> EstimatorReport: ...
 
 
@@ -274,6 +280,7 @@ class AligningNavFilter:
         self.gyro_bias_at_rest = gyro_bias_at_rest
         self._data = _AlignmentData()
         self.horizon: DelayedHorizonEstimator | None = None
+        self._ekf: NavEkf  # the horizon's filter, once aligned
 
     @property
     def ready(self) -> bool:
@@ -321,9 +328,12 @@ class AligningNavFilter:
             accel_bias_m_s2=s.accel_bias_m_s2,
         )
         bg0 = np.mean([x.gyro_rad_s for x in d.imu], axis=0) if self.gyro_bias_at_rest else None
-        return build_nav_filter(
+        horizon = build_nav_filter(
             self.setup, t0_ns=t_ns, p0=p0, q0_xyzw=R0.as_quat(), sigmas=sigmas, gyro_bias0=bg0
         )
+        assert isinstance(horizon.filter, NavEkf)  # (build_nav_filter's)
+        self._ekf = horizon.filter
+        return horizon
 
     def _ready(self) -> DelayedHorizonEstimator:
         if self.horizon is None:
@@ -335,6 +345,11 @@ class AligningNavFilter:
 
     def delayed(self) -> StateEstimate:
         return self._ready().delayed()
+
+    def delayed_row(self, row: FloatArray, P: FloatArray) -> int:
+        h = self._ready()
+        self._ekf.state_row(row, P)  # (the filter is at the delayed horizon)
+        return h.t_delayed_ns
 
     def report(self) -> EstimatorReport:
         if self.horizon is None:
@@ -405,6 +420,12 @@ class TruthEstimator:
 
     def delayed(self) -> StateEstimate:
         return self.output()
+
+    def delayed_row(self, row: FloatArray, P: FloatArray) -> int:
+        s = self.output()
+        row[0:3], row[3:6], row[6:10], row[10:16] = s.p_W_B, s.v_W_B, s.q_W_B_xyzw, np.nan
+        P[:] = np.nan
+        return s.t_ns
 
     def report(self) -> EstimatorReport:
         sources = {src: c.snapshot() for src, c in self._ignored.items()}

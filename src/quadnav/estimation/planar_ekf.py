@@ -28,7 +28,7 @@ from numpy.typing import NDArray
 
 from quadnav.errors import EstimationError
 from quadnav.estimation.chi2 import chi2_ppf
-from quadnav.estimation.horizon import FusionResult, NavState
+from quadnav.estimation.horizon import FusionResult, NavState, integrate_ring
 from quadnav.messages import ImuSample, PositionSample, Sample, StateEstimate
 from quadnav.units import GRAVITY_M_S2
 
@@ -81,6 +81,13 @@ class PlanarKinematics:
         vel_new = vel + dtv * a
         pos_new = pos + dtv * vel_new
         return pos_new, vel_new, att_new
+
+    def integrate_ring(
+        self, ring: tuple[FloatArray, FloatArray, FloatArray], src: int, dst: int,
+        imu: ImuSample, biases: tuple[FloatArray, FloatArray], dt_s: float,
+        dtheta_corr: FloatArray,
+    ) -> None:  # fmt: skip
+        integrate_ring(self, ring, src, dst, imu, biases, dt_s, dtheta_corr)
 
     @property
     def output_names(self) -> tuple[str, ...]:

@@ -50,6 +50,7 @@ from quadnav.experiments.vio_flight import (
     VioCameraSensor,
     VioRecord,
 )
+from quadnav.jit import njit
 from quadnav.messages import Sample, StateEstimate, VehicleState
 from quadnav.sim.channels import Channel
 from quadnav.sim.rigid_body import RigidBodyQuadrotor
@@ -277,6 +278,7 @@ class _TakeoffPlan:
         self.n_steps = round(sc.flight_s / sc.sim_dt_s)
         self.takeoff_ns = s_to_ns(sc.estimator.align_s + sc.plan.takeoff_s)
         self.target = np.array([sc.plan.forward_m, 0.0, sc.plan.height_m])
+        self._setpoint = Setpoint(p=self.target)  # (the same every step)
         self.outer, self.takeoff = outer, takeoff
         self._done_ns: int | None = None
 
@@ -284,7 +286,7 @@ class _TakeoffPlan:
         return t_ns < self.takeoff_ns
 
     def setpoint(self, i: int) -> Setpoint:
-        return Setpoint(p=self.target)
+        return self._setpoint
 
     def touch_down(self, i: int, z_m: float, vz_m_s: float) -> bool:
         return False
@@ -314,96 +316,67 @@ def flight_plan(sc: NavScenario, params: RigidBodyParams) -> tuple[Controller, F
     return OuterLoopController(outer, pid, rate_hz=gains.rate_hz), _TakeoffPlan(sc, outer, takeoff)
 
 
-_BIAS_NAMES = ("bgx", "bgy", "bgz", "bax", "bay", "baz")
-
-
-_BIAS_INDEX: dict[tuple[str, ...], list[int | None]] = {}
-
-
-def _biases(est: StateEstimate) -> FloatArray:
-    """The estimate's gyro and accelerometer biases by name (NaN where it has none)."""
-    where = _BIAS_INDEX.get(est.names)
-    if where is None:  # (a filter's names are one tuple for the whole run: looked up once)
-        idx = {n: k for k, n in enumerate(est.names)}
-        where = _BIAS_INDEX.setdefault(est.names, [idx.get(n) for n in _BIAS_NAMES])
-    return np.array([np.nan if k is None else est.x[k] for k in where])
-
-
-def _rows_biases(rows: list[StateEstimate]) -> FloatArray:
-    """:func:`_biases` of every row (n, 6), at once where the rows share their names."""
-    if rows and all(x.names is rows[0].names for x in rows):
-        _biases(rows[0])  # (the names' columns looked up)
-        where = _BIAS_INDEX[rows[0].names]
-        X = np.array([x.x for x in rows])
-        return np.column_stack(
-            [X[:, k] if k is not None else np.full(len(rows), np.nan) for k in where]
-        )
-    return np.array([_biases(x) for x in rows]).reshape(-1, 6)
-
-
 class _NavLog:
-    """Typed rows per logged IMU step; the delayed horizon scored against the truth logged at
-    its time, all rows at once when the flight is over."""
+    """Rows per logged IMU step, in arrays as they come (blocks of ``_BLOCK`` rows): the
+    truth, the plan's position, the output, the delayed horizon (its state and covariance,
+    written by the estimator itself) and the IMU's true biases. The delayed horizon is scored
+    against the truth logged at its time, all rows at once when the flight is over."""
 
     def __init__(self, *, record_stream: bool) -> None:
         self.t: list[int] = []
-        self.truth: list[VehicleState] = []
-        self.true_bias: list[FloatArray] = []
-        self.ref_p: list[FloatArray] = []
-        self.out: list[StateEstimate] = []
-        self.delayed: list[StateEstimate] = []
+        self.t_delayed: list[int] = []
         self.truth_row: list[int] = []  # the row whose truth is at the delayed time (-1: none)
         self.hover: list[bool | None] = []
         self._row_at: dict[int, int] = {}
+        self._rows: list[FloatArray] = []  # blocks of (_BLOCK, _WIDTH)
+        self._P: list[FloatArray] = []  # blocks of (_BLOCK, 15, 15)
         self.stream: list[Sample] | None = [] if record_stream else None
 
     def record(
         self,
         truth: VehicleState,
-        true_bias: FloatArray,
+        true_bias: tuple[FloatArray, FloatArray] | None,
         ref_p: FloatArray,
         out: StateEstimate,
-        dl: StateEstimate,
+        est: NavEstimator,
         hover: bool | None = None,
     ) -> None:
+        """One row; the delayed horizon is read from ``est`` (:meth:`NavEstimator.delayed_row`)."""
+        k = len(self.t) % _BLOCK
+        if k == 0:
+            self._rows.append(np.empty((_BLOCK, _WIDTH)))
+            self._P.append(np.empty((_BLOCK, 15, 15)))
+        row = self._rows[-1][k]
+        bg, ba = _NO_BIAS if true_bias is None else true_bias
+        _log_row(row, truth.p_W_B, truth.v_W_B, truth.q_W_B_xyzw, ref_p, out.p_W_B, out.v_W_B,
+                 out.q_W_B_xyzw, bg, ba)  # fmt: skip
+        t_dl = est.delayed_row(row[_DELAYED], self._P[-1][k])
         self._row_at[truth.t_ns] = len(self.t)
         self.hover.append(hover)
         self.t.append(truth.t_ns)
-        self.truth.append(truth)
-        self.true_bias.append(true_bias)
-        self.ref_p.append(ref_p)
-        self.out.append(out)
-        self.delayed.append(dl)
-        self.truth_row.append(self._row_at.get(dl.t_ns, -1))
+        self.t_delayed.append(t_dl)
+        self.truth_row.append(self._row_at.get(t_dl, -1))
 
     def arrays(self) -> dict[str, FloatArray]:
-        d = self.delayed
-        P = [x.P if x.P is not None else np.full((15, 15), np.nan) for x in d]
-        truth = {
-            "truth_p": np.array([s.p_W_B for s in self.truth]),
-            "truth_v": np.array([s.v_W_B for s in self.truth]),
-            "truth_q": np.array([s.q_W_B_xyzw for s in self.truth]),
-        }
-        dl_x = np.column_stack(
-            [
-                np.array([x.p_W_B for x in d]).reshape(-1, 3),
-                np.array([x.v_W_B for x in d]).reshape(-1, 3),
-                np.array([x.q_W_B_xyzw for x in d]).reshape(-1, 4),
-                _rows_biases(d),
-            ]
-        )
+        n = len(self.t)
+        rows = np.concatenate(self._rows)[:n]
+        col = {name: rows[:, a:b] for name, (a, b) in _COLUMNS.items()}
+        truth = {k: np.ascontiguousarray(col[k]) for k in ("truth_p", "truth_v", "truth_q")}
+        dl_x = np.ascontiguousarray(col["delayed_x"])
         return {
             **truth,
-            "ref_p": np.array(self.ref_p),
-            "output_p": np.array([o.p_W_B for o in self.out]),
-            "output_v": np.array([o.v_W_B for o in self.out]),
-            "output_q": np.array([o.q_W_B_xyzw for o in self.out]),
+            "ref_p": np.ascontiguousarray(col["ref_p"]),
+            "output_p": np.ascontiguousarray(col["output_p"]),
+            "output_v": np.ascontiguousarray(col["output_v"]),
+            "output_q": np.ascontiguousarray(col["output_q"]),
             "delayed_x": dl_x,
-            "delayed_err": self._delayed_err(truth, dl_x),
-            "delayed_P": np.array(P),
+            "delayed_err": self._delayed_err(truth, dl_x, col["true_bias"]),
+            "delayed_P": np.concatenate(self._P)[:n],
         }
 
-    def _delayed_err(self, truth: dict[str, FloatArray], dl_x: FloatArray) -> FloatArray:
+    def _delayed_err(
+        self, truth: dict[str, FloatArray], dl_x: FloatArray, true_bias: FloatArray
+    ) -> FloatArray:
         """Per row, the truth at the delayed time less the delayed estimate: attitude (the
         body-frame rotation vector taking the estimate onto the truth), velocity, position,
         gyro and accelerometer biases (15); NaN where no truth was logged at that time."""
@@ -417,8 +390,41 @@ class _NavLog:
         err[rows, 0:3] = turn.as_rotvec()
         err[rows, 3:6] = truth["truth_v"][k] - dl[:, 3:6]
         err[rows, 6:9] = truth["truth_p"][k] - dl[:, 0:3]
-        err[rows, 9:15] = np.array(self.true_bias)[k] - dl[:, 10:16]
+        err[rows, 9:15] = true_bias[k] - dl[:, 10:16]
         return err
+
+
+# A log row's columns: the truth's position, velocity and quaternion, the plan's position, the
+# output's position, velocity and quaternion, the delayed horizon's state (p, v, q, b_g, b_a:
+# NavEstimator.delayed_row) and the IMU's true biases
+_COLUMNS = {
+    name: (a, a + w)
+    for name, w, a in zip(
+        ("truth_p", "truth_v", "truth_q", "ref_p", "output_p", "output_v", "output_q",
+         "delayed_x", "true_bias"),
+        (3, 3, 4, 3, 3, 3, 4, 16, 6),
+        (0, 3, 6, 10, 13, 16, 19, 23, 39),
+        strict=True,
+    )
+}  # fmt: skip
+_WIDTH = 45
+_DELAYED = slice(*_COLUMNS["delayed_x"])
+_BLOCK = 4096
+_NO_BIAS = (np.full(3, np.nan), np.full(3, np.nan))
+
+
+@njit
+def _log_row(
+    row: FloatArray, tp: FloatArray, tv: FloatArray, tq: FloatArray, ref_p: FloatArray,
+    op: FloatArray, ov: FloatArray, oq: FloatArray, bg: FloatArray, ba: FloatArray,
+) -> None:  # fmt: skip
+    """``row``'s columns (:data:`_COLUMNS`) but the delayed horizon's: the truth's position,
+    velocity and quaternion, the plan's position, the output's, the true biases."""
+    for k in range(3):
+        row[k], row[3 + k], row[10 + k], row[13 + k] = tp[k], tv[k], ref_p[k], op[k]
+        row[16 + k], row[39 + k], row[42 + k] = ov[k], bg[k], ba[k]
+    for k in range(4):
+        row[6 + k], row[19 + k] = tq[k], oq[k]
 
 
 def _vio_record(channels: list[Channel]) -> VioRecord | None:
@@ -439,7 +445,7 @@ def _result(
         scenario=sc,
         seed=seed,
         t_ns=np.array(log.t, dtype=np.int64),
-        t_delayed_ns=np.array([x.t_ns for x in log.delayed], dtype=np.int64),
+        t_delayed_ns=np.array(log.t_delayed, dtype=np.int64),
         vision_t_ns=times.get("vision", np.zeros(0, dtype=np.int64)),
         fusion=report.fusion,
         sources=report.sources,
@@ -458,12 +464,11 @@ def _result(
     )
 
 
-def _true_biases(imu: Channel) -> FloatArray:
+def _true_biases(imu: Channel) -> tuple[FloatArray, FloatArray] | None:
+    """The gyro and accelerometer biases the IMU's next sample carries (None: it has none)."""
     sensor = imu.sensor
     bg, ba = getattr(sensor, "bias_g", None), getattr(sensor, "bias_a", None)
-    if bg is None or ba is None:
-        return np.full(6, np.nan)
-    return np.concatenate([bg, ba])
+    return None if bg is None or ba is None else (bg, ba)
 
 
 def run_nav(
@@ -504,8 +509,8 @@ def run_nav(
             if pushed or out is None:  # (an estimate changes only with what it is pushed)
                 out = est.output() if est.ready else None
             if was_ready and out is not None and imu.sampled_t_ns and imu.sampled_t_ns[-1] == t:
-                dl, hover = est.delayed(), plan.hovering(t)
-                log.record(truth, _true_biases(imu), plan.ref_p(i), out, dl, hover)
+                hover = plan.hovering(t)
+                log.record(truth, _true_biases(imu), plan.ref_p(i), out, est, hover)
             if phase.motors_off:
                 cmd = np.zeros(4)
             else:

@@ -24,6 +24,7 @@ __all__ = [
     "cross3",
     "geodesic_angle_rad",
     "quat_wxyz_to_xyzw",
+    "quat_xyzw_one",
     "quat_xyzw_to_wxyz",
     "rot_y",
     "rot_z",
@@ -206,11 +207,13 @@ def so3_log_one(R: FloatArray) -> FloatArray:
 
 def quat_xyzw_from_matrix(R: FloatArray) -> FloatArray:
     """A unit scalar-last quaternion (w >= 0) of a rotation matrix (Shepperd's method)."""
-    return _quat_xyzw_from_matrix(np.asarray(R, dtype=np.float64))
+    return quat_xyzw_one(np.asarray(R, dtype=np.float64))
 
 
 @njit
-def _quat_xyzw_from_matrix(R: FloatArray) -> FloatArray:
+def quat_xyzw_one(R: FloatArray) -> FloatArray:
+    """:func:`quat_xyzw_from_matrix` of a float64 (3, 3), compiled (callable from other
+    kernels)."""
     q = np.empty(4)
     t = R[0, 0] + R[1, 1] + R[2, 2]
     if t > 0:

@@ -59,6 +59,9 @@ class Wind:
             if rng is not None and self.sigma > 0
             else np.zeros(3)
         )
+        # Without gusts the wind is the mean, the same (read-only) array every step.
+        self._steady = np.asarray(self.mean + self.gust, dtype=np.float64)
+        self._steady.flags.writeable = False
 
     def step(self, dt_s: float) -> FloatArray:
         """Advance the gusts by ``dt_s`` and return the wind velocity (world frame, m/s)."""
@@ -67,7 +70,8 @@ class Wind:
             self.gust = a * self.gust + self.sigma * math.sqrt(
                 1 - a * a
             ) * self.rng.standard_normal(3)
-        return np.asarray(self.mean + self.gust, dtype=np.float64)
+            return np.asarray(self.mean + self.gust, dtype=np.float64)
+        return self._steady
 
 
 class RigidBodyQuadrotor:
@@ -117,34 +121,23 @@ class RigidBodyQuadrotor:
     def step(self, omega_cmd: FloatArray) -> FloatArray:
         """Advance one step with rotor speed commands (clipped to the rotor limits)."""
         cmd = np.asarray(omega_cmd, dtype=np.float64)
-        if cmd.shape != (4,) or not _all_finite(cmd):
+        if cmd.shape != (4,):
             raise SimError(f"rotor commands must be 4 finite speeds, got {cmd}")
         wind = self.wind.step(self.dt_s)
         self._wind_now = wind
+        s, accel = np.empty(17), np.empty(3)
         if JIT_ENABLED:  # (compiled code raises no floating-point warnings)
-            s = _rk4_step(self.s, cmd, wind, self._consts, self.dt_s)
+            status = _step(self.s, cmd, wind, self._consts, self.dt_s, s, accel)
         else:
             with np.errstate(all="ignore"):  # a diverging state is caught below, in one line
-                s = _rk4_step(self.s, cmd, wind, self._consts, self.dt_s)
-        if s[2] <= 0.0:
-            s = self._on_ground(s)
-        if not _all_finite(s):
+                status = _step(self.s, cmd, wind, self._consts, self.dt_s, s, accel)
+        if status == _BAD_COMMAND:
+            raise SimError(f"rotor commands must be 4 finite speeds, got {cmd}")
+        if status == _DIVERGED:
             raise SimError(f"the rigid-body simulation diverged at t = {self.t_ns * 1e-9:.4g} s")
-        self.last_accel_W = (s[3:6] - self.s[3:6]) / self.dt_s
+        self.last_accel_W = accel
         self.s = s
         self.t_ns += self.dt_ns
-        return s
-
-    def _on_ground(self, s: FloatArray) -> FloatArray:
-        """The ground plane: no sinking; touching it stops the vehicle where it stands.
-
-        The attitude is kept (legs hold it), so nothing turns without the gyro seeing it; the
-        stop itself shows in the accelerometer as the landing shock.
-        """
-        s[2] = 0.0
-        if s[5] < 0.0:
-            s[3:6] = 0.0
-            s[10:13] = 0.0
         return s
 
     # -- views -----------------------------------------------------------------------------
@@ -155,10 +148,7 @@ class RigidBodyQuadrotor:
     def state(self) -> VehicleState:
         # (finite and its quaternion a unit one: step() and __init__ see to it); one copy, and
         # the state's fields are views of it
-        s = self.s[0:13].copy()
-        return VehicleState.from_checked(
-            self.t_ns, s[0:3], s[3:6], self.last_accel_W.copy(), s[6:10], s[10:13]
-        )
+        return VehicleState.from_vector(self.t_ns, self.s[0:13].copy(), self.last_accel_W.copy())
 
     def energy_rot_j(self) -> float:
         w = self.s[10:13]
@@ -242,12 +232,44 @@ def _derivative(
         out[13 + i] = (cmd[i] - s[13 + i]) / motor_tau
 
 
+_OK, _BAD_COMMAND, _DIVERGED = 0, 1, 2  # what _step says
+
+
+@njit
+def _step(
+    s: FloatArray, omega_cmd: FloatArray, wind: FloatArray, c: FloatArray, dt: float,
+    out: FloatArray, accel: FloatArray,
+) -> int:  # fmt: skip
+    """:meth:`RigidBodyQuadrotor.step`'s kernel: the commands checked (``_BAD_COMMAND`` if one
+    is not finite: nothing written), one RK4 step into ``out``, the ground plane (no sinking;
+    touching it stops the vehicle where it stands, its attitude kept: legs hold it, so nothing
+    turns without the gyro seeing it, and the stop shows in the accelerometer as the landing
+    shock), the new state checked (``_DIVERGED``), the acceleration over the step into
+    ``accel``."""
+    if not _all_finite(omega_cmd):
+        return _BAD_COMMAND
+    _rk4_step(s, omega_cmd, wind, c, dt, out)
+    if out[2] <= 0.0:
+        out[2] = 0.0
+        if out[5] < 0.0:
+            for i in range(3):
+                out[3 + i] = 0.0
+                out[10 + i] = 0.0
+    if not _all_finite(out):
+        return _DIVERGED
+    for i in range(3):
+        accel[i] = (out[3 + i] - s[3 + i]) / dt
+    return _OK
+
+
 @njit
 def _rk4_step(
-    s: FloatArray, omega_cmd: FloatArray, wind: FloatArray, c: FloatArray, dt: float
-) -> FloatArray:
-    """One RK4 step (Simulink's ode4; commands and wind held over it), the quaternion
-    renormalised and the rotor speeds clipped to their limits; the commands are clipped first."""
+    s: FloatArray, omega_cmd: FloatArray, wind: FloatArray, c: FloatArray, dt: float,
+    out: FloatArray,
+) -> None:  # fmt: skip
+    """One RK4 step (Simulink's ode4; commands and wind held over it) into ``out``, the
+    quaternion renormalised and the rotor speeds clipped to their limits; the commands are
+    clipped first."""
     n = s.shape[0]
     om_min, om_max = c[11], c[12]
     cmd = np.empty(4)
@@ -265,7 +287,6 @@ def _rk4_step(
     for i in range(n):
         x[i] = s[i] + dt * k3[i]
     _derivative(x, cmd, wind, c, k4)
-    out = np.empty(n)
     for i in range(n):
         out[i] = s[i] + (dt / 6.0) * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
     qn = math.sqrt(out[6] * out[6] + out[7] * out[7] + out[8] * out[8] + out[9] * out[9])
@@ -273,4 +294,3 @@ def _rk4_step(
         out[i] /= qn
     for i in range(13, 17):
         out[i] = min(max(out[i], om_min), om_max)
-    return out

@@ -176,6 +176,9 @@ class PositionSensor:
         )
 
 
+_NEVER = 2**63 - 1  # (later than any time stamp)
+
+
 class DelayLine(Generic[S]):
     """Holds samples until ``t_ns + delay`` (plus optional uniform jitter) has passed.
 
@@ -190,6 +193,8 @@ class DelayLine(Generic[S]):
         self.jitter_ns = int(jitter_ns)
         self._heap: list[tuple[int, int, S]] = []
         self._seq = 0
+        #: When the first sample queued arrives (later than any time when none is queued).
+        self.next_arrival_ns = _NEVER
 
     def push(self, sample: S, rng: Generator | None = None, *, extra_delay_ns: int = 0) -> int:
         """Queue a sample (``extra_delay_ns``: this one is late); returns its arrival time."""
@@ -201,11 +206,12 @@ class DelayLine(Generic[S]):
         arrival = sample.t_ns + self.delay_ns + extra
         heapq.heappush(self._heap, (arrival, self._seq, sample))
         self._seq += 1
+        self.next_arrival_ns = self._heap[0][0]
         return arrival
 
     def due(self, now_ns: int) -> bool:
         """Whether a sample has arrived by ``now_ns``."""
-        return bool(self._heap) and self._heap[0][0] <= now_ns
+        return self.next_arrival_ns <= now_ns
 
     def pop_arrived(self, now_ns: int) -> list[tuple[int, S]]:
         """Samples whose arrival time is <= ``now_ns``, as (arrival_ns, sample), in arrival order."""
@@ -213,6 +219,7 @@ class DelayLine(Generic[S]):
         while self._heap and self._heap[0][0] <= now_ns:
             arrival, _, sample = heapq.heappop(self._heap)
             out.append((arrival, sample))
+        self.next_arrival_ns = self._heap[0][0] if self._heap else _NEVER
         return out
 
 
@@ -278,9 +285,10 @@ class ImuErrors:
         z = rng.standard_normal(12)  # the same numbers as four draws of 3, in that order
         sq = math.sqrt(dt_s)
         bg, ba = self.bias_g, self.bias_a
-        self.bias_g = bg + z[6:9] * (self.rw_g * sq)
-        self.bias_a = ba + z[9:12] * (self.rw_a * sq)
-        return bg, ba, z[0:3] * self.sg, z[3:6] * self.sa
+        out = (np.empty(3), np.empty(3), np.empty(3), np.empty(3))  # (new arrays: see _draw_one)
+        _draw_one(z, bg, ba, self.sg, self.sa, self.rw_g * sq, self.rw_a * sq, out)
+        ng, na, self.bias_g, self.bias_a = out
+        return bg, ba, ng, na
 
     def draw(self, n: int, dt_s: float, rng: Generator) -> ImuErrorDraw:
         """The errors of the next ``n`` samples, ``dt_s`` apart; the biases move on past them.
@@ -615,6 +623,23 @@ def _accumulate(
     sum_f[2] += f2 * dt
     for k in range(3):
         sum_w[k] += w[k] * dt
+
+
+@njit
+def _draw_one(
+    z: FloatArray, bg: FloatArray, ba: FloatArray, sg: float, sa: float, step_g: float,
+    step_a: float, out: tuple[FloatArray, FloatArray, FloatArray, FloatArray],
+) -> None:  # fmt: skip
+    """:meth:`ImuErrors.draw_one` from its 12 standard normals ``z``, into ``out``: the gyro
+    and accelerometer noise (``z[0:3] sg``, ``z[3:6] sa``), then the biases after the sample
+    (``bg + z[6:9] step_g``, ``ba + z[9:12] step_a``). New arrays each sample: the biases
+    before it are what the sample carries (and what a log keeps)."""
+    ng, na, bg1, ba1 = out
+    for k in range(3):
+        ng[k] = z[k] * sg
+        na[k] = z[3 + k] * sa
+        bg1[k] = bg[k] + z[6 + k] * step_g
+        ba1[k] = ba[k] + z[9 + k] * step_a
 
 
 @njit
