@@ -565,8 +565,7 @@ class NavEkf:
         # filter reports).
         self.odometry_drift = np.zeros(_N_DRIFT)
         self._relative = config.odometry_mode == "relative"
-        # per odometry source: its reset counter, position covariance and yaw variance when last
-        # fused (odometry_drift_from_covariance)
+        # per odometry source: its counter, position and yaw (co)variance when last fused
         self._odometry_cov: dict[str, tuple[int, FloatArray, float]] = {}
         if self._relative:
             self._P = np.pad(self._P, (0, _N_DRIFT))

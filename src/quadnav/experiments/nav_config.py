@@ -531,7 +531,7 @@ class NavScenario(ConfigModel):
             return (
                 f"vio.{drift[0]} is a setting of vio.odometry_mode=relative, which "
                 "vio.odometry_mode=absolute does not use: set vio.odometry_mode=relative or "
-                "leave it out"
+                f"leave it at its default ({getattr(default, drift[0])})"
             )
         shortcut = [k for k in changed if k in SHORTCUT_ONLY_VIO_KEYS]
         if v.source == "camera" and shortcut:
