@@ -56,6 +56,7 @@ __all__ = [
     "build_vio_sensor",
     "flight_rig",
     "flight_world",
+    "planned_path",
     "vehicle_odometry",
     "vio_imu",
     "with_loop_closure",
@@ -196,12 +197,21 @@ def vio_imu(
     )
 
 
+def planned_path(sc: NavScenario) -> FloatArray:
+    """The route the flight's plan flies (N, 3, world ENU): take-off, then ``forward_m`` ahead
+    (``takeoff_forward``), or the square's waypoints, every lap, and the landing."""
+    if sc.plan.kind == "takeoff_forward":
+        h, fwd = sc.plan.height_m, sc.plan.forward_m
+        return np.array([[0.0, 0.0, 0.0], [0.0, 0.0, h], [fwd, 0.0, h]])
+    return np.asarray(sc.waypoints().points_m, dtype=np.float64)
+
+
 def flight_world(sc: NavScenario) -> Scene:
-    """The world of the flight: built around the take-off-and-forward route (obstacles kept
-    a metre from it) and a margin of a metre about it."""
-    h, fwd = sc.plan.height_m, sc.plan.forward_m
-    path = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, h], [fwd, 0.0, h]])
-    return world_around(path, sc.vio.world, sc.vio.world_seed)
+    """The world of the flight: built around the route its plan flies (obstacles kept a metre
+    from it) and a margin of a metre about it. (Until 2026-12-04 it was built around the
+    take-off-and-forward route whatever the plan: ``outdoor_vio_gps``'s 20 m square flew
+    through the yard's buildings.)"""
+    return world_around(planned_path(sc), sc.vio.world, sc.vio.world_seed)
 
 
 def world_around(path_W: FloatArray, world: str, seed: int) -> Scene:
