@@ -109,3 +109,38 @@ def test_a_drift_the_odometry_reports_is_corrected_by_the_fixes() -> None:
     assert rmse_cov < 0.7 * rmse_fixed
     assert 0.5 < np.mean([c[1] for c, _ in runs]) / 3 < 2.0
     assert np.mean([f[1] for _, f in runs]) / 3 > 4.0
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_relative_odometry_started_in_the_air_does_not_move_the_filter(seed: int) -> None:
+    """A VIO that starts in flight has its frame at its first keyframe (here 2.4 m below and
+    3 m behind where the filter is at its first sample, turned 35 degrees): in relative mode,
+    beside GNSS, that frame is anchored where the filter is, so the odometry's first samples
+    move nothing. (Taken as the navigation frame itself, it pulled outdoor_vio_gps's filter
+    2.5 m down at the VIO's start.)"""
+    rng = np.random.default_rng(seed)
+    ekf, est = _filter(True)
+    v = np.array([SPEED_M_S, 0.0, 0.0])
+    start = np.array([SPEED_M_S * 1.0, 0.0, -2.4])  # the VIO's origin in the world
+    c, s = np.cos(np.radians(35.0)), np.sin(np.radians(35.0))
+    R_V_W = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])  # world into its frame
+    q_V_B = [0.0, 0.0, -np.sin(np.radians(17.5)), np.cos(np.radians(17.5))]
+    worst = 0.0
+    for k in range(1, int(10.0 * 250) + 1):
+        t = k * _IMU_NS
+        est.push(ImuSample(t_ns=t, gyro_rad_s=np.zeros(3), accel_m_s2=[0.0, 0.0, GRAVITY_M_S2]))
+        if k > 500 and k % 12 == 0:  # the odometry from 2 s on
+            p_odo = R_V_W @ (v * t * 1e-9 - start) + rng.normal(0, NOISE_M, 3)
+            cov = np.diag([NOISE_M**2] * 3 + [0.005**2] * 3)
+            odo = OdometrySample(
+                t_ns=t, p_W_B=p_odo, q_W_B_xyzw=q_V_B, v_W_B=R_V_W @ v, cov_pose=cov,
+                cov_v=np.eye(3) * 0.01,
+            )  # fmt: skip
+            est.push(odo)
+        if k % 125 == 0:  # GNSS at 2 Hz, 1.5 m
+            fix = v * t * 1e-9 + rng.normal(0, GPS_SIGMA_M, 3)
+            est.push(PositionSample(t_ns=t, p_W_B=fix, sigma_m=GPS_SIGMA_M, source="gps"))
+        worst = max(worst, float(np.linalg.norm(ekf.p - v * est.t_delayed_ns * 1e-9)))
+    assert worst < 0.1  # 15 m with the frame taken as the world's
+    # the yaw of the odometry's frame is the filter's, not the odometry's
+    assert abs(ekf.R[1, 0]) < 0.02

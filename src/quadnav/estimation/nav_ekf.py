@@ -824,20 +824,29 @@ class NavEkf:
         reset = anchor is not None and obs.reset_counter != anchor.counter
         yaw_now = math.remainder(yaw_of(self.R) - yaw_of(R_meas), 2 * math.pi)
         n_avg = self.config.vision_anchor_samples
-        if anchor is None and not rotate:
+        # A relative odometry's frame is wherever it started (a VIO's first keyframe, in the
+        # air if it started there). While another source holds the position (GNSS), it is
+        # anchored where the filter is, as after a reset, as PX4's EKF2 starts its external
+        # vision's position bias beside GNSS; alone, its frame is the navigation frame.
+        relative = self._relative and isinstance(obs, OdometrySample)
+        first_own = anchor is None and relative and self._held_by_another(src, obs.t_ns)
+        if anchor is None and not rotate and not first_own:
             # The first frame of an absolute source is the navigation frame itself.
             anchor = _FrameAnchor(obs.reset_counter, 0.0, np.zeros(3), np.zeros(3), n_avg)
         elif anchor is not None and reset and src in self.config.follow_resets:
             anchor.counter = obs.reset_counter  # the same frame, corrected: reset to it
             self._follow_pending.add(src)
         elif anchor is None or reset:
-            anchor = _FrameAnchor(obs.reset_counter, yaw_now, obs.p_W_B.copy(), self.p.copy(), 0)
+            # (a relative odometry's frame on its first sample: its noise then joins the
+            # frame's drift, which the filter estimates, rather than being averaged out)
+            n0 = n_avg if first_own else 0
+            anchor = _FrameAnchor(obs.reset_counter, yaw_now, obs.p_W_B.copy(), self.p.copy(), n0)
             if reset:
                 self.events.append(
                     (obs.t_ns, f"{src}: reset counter {obs.reset_counter}, frame re-anchored")
                 )
-                if self._relative and isinstance(obs, OdometrySample):
-                    self._reanchor_drift()
+            if relative and (reset or first_own):
+                self._reanchor_drift(first_sample=first_own)
         self._ev_anchor[src] = anchor
         if anchor.n < n_avg:
             # A single noisy pose would freeze its noise into the frame for good: average the
@@ -1037,15 +1046,19 @@ class NavEkf:
         Hd[6, 3] = 1.0
         return r, np.hstack([H, Hd])
 
-    def _reanchor_drift(self) -> None:
+    def _reanchor_drift(self, *, first_sample: bool = False) -> None:
         """A re-anchored odometry frame starts where the filter is: its drift is zero, its error
-        the filter's position and heading error (so the new frame adds no information)."""
+        the filter's position and heading error (so the new frame adds no information), and,
+        anchored on one ``first_sample``, that sample's noise (the odometry's floors)."""
         P = self._P
         self.odometry_drift[:] = 0.0
         src = np.r_[np.arange(_POS.start, _POS.stop), _YAW]
         dst = np.r_[np.arange(_DP.start, _DP.stop), _DYAW]
         P[dst, :] = -P[src, :]
         P[:, dst] = -P[:, src]  # (the drift block becomes P[src, src])
+        if first_sample:
+            c = self.config
+            P[dst, dst] += np.array([c.odometry_pos_noise_m**2] * 3 + [c.odometry_yaw_noise_rad**2])
         # a new frame's scale is its own: known only as well as at the start
         self._reset_entries(
             slice(_DSCALE, _DSCALE + 1), np.array([self.config.odometry_scale_sigma**2])
