@@ -162,7 +162,8 @@ _ENTRIES = (
                 if not o.startswith(("vio.source", "vio.drift", "vio.scale"))
             ),
             # on realistic sensors the VIO drifts ten times the fixed rates: taken from its own
-            # covariance, the median of 5 seeds went from 1.68 to 0.86 m (2026-12-04 page)
+            # covariance, the median of 5 seeds is 0.725 m against 0.852 m with the fixed rates
+            # (2026-12-04 session 20 page)
             "vio.frame_drift_from_covariance=true",
         ),
     ),
