@@ -123,6 +123,32 @@ def test_a_gnss_fix_places_the_aligned_filter_and_sets_its_sigma() -> None:
     assert np.sqrt(d.P[6, 6]) == pytest.approx(1.4)  # type: ignore[index]
 
 
+def test_a_surveyed_start_places_the_filter_where_it_stands_whatever_the_gnss_says() -> None:
+    """``start_pose``: the pad the vehicle aligns on, surveyed. The filter starts there (not at
+    the first fix, 10.8 m off), with the heading given and the start's sigmas; roll and pitch
+    are still levelled from gravity."""
+    start = (2.0, 3.0, 0.5, np.radians(30.0))
+    a = AlignmentSigmas(start_pose=start, start_pos_sigma_m=0.05, start_yaw_sigma_rad=0.02)
+    f = AligningNavFilter(SETUP, align_ns=8_000_000, alignment=a)
+    import pymap3d
+
+    lat, lon, alt = pymap3d.enu2geodetic(10.0, -4.0, 0.0, 47.0, 8.0, 400.0)
+    fix = GpsSample(
+        t_ns=0, lat_deg=lat, lon_deg=lon, alt_m=alt, v_enu_m_s=np.zeros(3), sigma_h_m=0.7,
+        sigma_v_m=1.0, sigma_vel_m_s=0.1,
+    )  # fmt: skip
+    f.push(fix)
+    tilted = Rotation.from_euler("x", 0.05)  # standing 0.05 rad rolled
+    for t in (4_000_000, 8_000_000):
+        f.push(ImuSample(t_ns=t, gyro_rad_s=np.zeros(3), accel_m_s2=tilted.inv().apply([0, 0, G])))
+    d = f.delayed()
+    np.testing.assert_allclose(d.p_W_B, [2.0, 3.0, 0.5], atol=1e-9)
+    yaw, _, roll = Rotation.from_quat(d.q_W_B_xyzw).as_euler("ZYX")
+    assert yaw == pytest.approx(np.radians(30.0)) and roll == pytest.approx(0.05)
+    sig = np.sqrt(np.diag(d.P))  # type: ignore[arg-type]
+    assert sig[6] == pytest.approx(0.05) and sig[2] == pytest.approx(0.02)
+
+
 def test_no_estimate_before_alignment_and_reports_are_frozen_snapshots() -> None:
     f = AligningNavFilter(SETUP, align_ns=8_000_000)
     with pytest.raises(EstimationError, match="alignment"):

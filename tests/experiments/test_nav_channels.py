@@ -73,3 +73,16 @@ def test_the_zero_velocity_channel_is_a_registered_pseudo_source() -> None:
     assert [e.name for e in CHANNELS][-1] == "imu"  # the IMU moves the clock on last
     assert is_pseudo_source("landed") and not is_pseudo_source("vision")
     assert not is_pseudo_source("something else")
+
+
+def test_a_surveyed_start_from_the_config_starts_the_flight_there() -> None:
+    """``estimator.start_pose`` (heading in degrees) reaches the alignment: the GNSS flight
+    starts within the start's sigma of where it stands, not at its first fix (1.5 m noise)."""
+    over = ["gps.sigma_h_m=1.5", "gps.sigma_v_m=2.5", *SHORT]
+    surveyed = run_nav(nav_builtin("outdoor_gps", [*over, "estimator.start_pose=[0,0,0,0]"]), 0)
+    levelled = run_nav(nav_builtin("outdoor_gps", over), 0)
+    first = np.flatnonzero(np.isfinite(surveyed.output_p[:, 0]))[0]
+    start_err = np.linalg.norm(surveyed.output_p[first] - surveyed.truth_p[first])
+    assert start_err < 0.05
+    first = np.flatnonzero(np.isfinite(levelled.output_p[:, 0]))[0]
+    assert np.linalg.norm(levelled.output_p[first] - levelled.truth_p[first]) > 10 * start_err

@@ -243,6 +243,11 @@ class AlignmentSigmas:
     yaw_from_mag_rad: float = 0.1
     yaw_unknown_rad: float = 1.0
     pos_unknown_m: float = 0.1
+    # a surveyed start (x, y, z in the navigation frame, heading in rad): the pose the vehicle
+    # stands at while it aligns, with these sigmas; None: from the sensors
+    start_pose: tuple[float, float, float, float] | None = None
+    start_pos_sigma_m: float = 0.05
+    start_yaw_sigma_rad: float = 0.02
 
 
 @dataclass
@@ -311,7 +316,12 @@ class AligningNavFilter:
         R0, p0 = ground_alignment(
             d.imu, pose, mag=d.mag, declination_rad=cfg.mag_declination_rad, gps_enu_m=gps_enu
         )
-        if pose is not None:
+        if a.start_pose is not None:  # surveyed: the start's position and heading as given
+            x, y, z, heading = a.start_pose
+            p0 = np.array([x, y, z])
+            R0 = Rotation.from_euler("ZYX", [heading, *R0.as_euler("ZYX")[1:]])
+            yaw, pos = a.start_yaw_sigma_rad, a.start_pos_sigma_m
+        elif pose is not None:
             yaw, pos = (a.pose_factor * s for s in pose_sigmas(pose))
         else:
             yaw = a.yaw_from_mag_rad if d.mag else a.yaw_unknown_rad

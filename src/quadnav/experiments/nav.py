@@ -151,6 +151,9 @@ def _ekf_estimator(sc: NavScenario, gravity_m_s2: float, max_delay_ns: int) -> N
         yaw_from_mag_rad=es.init_yaw_sigma_mag_rad,
         yaw_unknown_rad=es.init_yaw_sigma_unknown_rad,
         pos_unknown_m=es.init_pos_sigma_unknown_m,
+        start_pose=_start_pose(es.start_pose),
+        start_pos_sigma_m=es.start_pos_sigma_m,
+        start_yaw_sigma_rad=math.radians(es.start_yaw_sigma_deg),
     )
     return AligningNavFilter(
         NavFilterSetup(ekf=ekf, horizon=horizon, sigmas=sigmas),
@@ -159,6 +162,13 @@ def _ekf_estimator(sc: NavScenario, gravity_m_s2: float, max_delay_ns: int) -> N
         heading_from_pose=es.vision_frame != "rotate",
         gyro_bias_at_rest=es.gyro_bias_at_rest,
     )
+
+
+def _start_pose(
+    pose: tuple[float, float, float, float] | None,
+) -> tuple[float, float, float, float] | None:
+    """``estimator.start_pose`` with its heading in radians."""
+    return None if pose is None else (pose[0], pose[1], pose[2], math.radians(pose[3]))
 
 
 def _truth_estimator(sc: NavScenario, gravity_m_s2: float, max_delay_ns: int) -> NavEstimator:

@@ -403,6 +403,16 @@ class EstimatorSection(ConfigModel):
     init_pos_sigma_unknown_m: float = Field(
         0.1, ge=MIN_SIGMA, description="P0: position unobserved"
     )
+    start_pose: tuple[float, float, float, float] | None = Field(
+        None,
+        description="a surveyed start: x, y, z (m, the navigation frame) and heading (deg, "
+        "counter-clockwise from +x) of the vehicle while it aligns, known to start_pos_sigma_m "
+        "and start_yaw_sigma_deg; None: levelled from the sensors (GNSS, a pose, the origin)",
+    )
+    start_pos_sigma_m: float = Field(0.05, ge=MIN_SIGMA, description="P0: a surveyed start's")
+    start_yaw_sigma_deg: float = Field(
+        1.0, ge=MIN_SIGMA, le=180.0, description="P0: a surveyed start's heading"
+    )
     gyro_bias_at_rest: bool = Field(
         False, description="start the gyro bias at the mean gyro reading on the ground (at rest)"
     )
