@@ -33,6 +33,7 @@ SLOW_PATH = [
     (nav_ekf, "_strapdown_into"),
     (nav_ekf, "_state_row"),
     (nav_ekf, "_estimate_parts"),
+    (nav_ekf, "_output_parts"),
     (nav_ekf, "quat_xyzw_one"),
     (nav, "_log_row"),
     (nav_ekf, "_rotation_error"),
@@ -40,6 +41,7 @@ SLOW_PATH = [
     (horizon, "_pi_correct"),
     (sensors, "_reading"),
     (sensors, "_draw_one"),
+    (sensors, "_draw_reading"),
     (rigid_body, "_all_finite"),
 ]
 
@@ -157,6 +159,25 @@ def test_the_logged_state_row_is_the_estimates() -> None:
         assert est.p_W_B is not nav_state.pos and est.v_W_B is not nav_state.vel  # (copies)
 
 
+def test_the_output_estimate_is_the_rings_state_in_numpy() -> None:
+    """The output predictor's estimate from its kernel: copies of the ring's row, SciPy's
+    quaternion, ``x`` the concatenated row, the names and the body rate as given."""
+    rng = np.random.default_rng(11)
+    kin = nav_ekf.NavKinematics()
+    for R in _rotations(rng):
+        pos, vel, att = rng.normal(size=3), rng.normal(size=3), R.ravel().copy()
+        w = rng.normal(size=3)
+        est = kin.output_estimate(horizon.NavState(7, pos, vel, att), w)
+        want = kin.to_estimate(
+            horizon.NavState(7, pos, vel, att), np.concatenate((pos, vel, att)),
+            kin.output_names, None, w,
+        )  # fmt: skip
+        for name in ("p_W_B", "v_W_B", "q_W_B_xyzw", "x"):
+            np.testing.assert_array_equal(getattr(est, name), getattr(want, name), err_msg=name)
+        assert est.t_ns == 7 and est.names == kin.output_names and est.P is None and est.w_B is w
+        assert not np.shares_memory(est.p_W_B, pos) and not np.shares_memory(est.x, att)
+
+
 def test_the_log_row_kernel_puts_each_part_in_its_columns() -> None:
     rng = np.random.default_rng(8)
     parts = [rng.normal(size=w) for w in (3, 3, 4, 3, 3, 3, 4, 3, 3)]
@@ -248,6 +269,31 @@ def test_the_imu_draw_kernel_is_the_numpy_draw() -> None:
         np.testing.assert_array_equal(errors.bias_g, bg0 + z[6:9] * (1e-4 * np.sqrt(dt)))
         np.testing.assert_array_equal(errors.bias_a, ba0 + z[9:12] * (1e-3 * np.sqrt(dt)))
         assert errors.bias_g is not bg and errors.bias_a is not ba
+
+
+def test_the_imu_reading_in_one_kernel_is_the_draw_then_the_reading() -> None:
+    """:meth:`ImuErrors.reading_one` against :meth:`ImuErrors.draw_one` and the reading in
+    numpy, on the same numbers: the same reading, the same biases after it, the sums zeroed."""
+    kw = dict(gyro_sigma_rad_s=0.003, accel_sigma_m_s2=0.05, gyro_bias_rw_rad_s_sqrt_s=1e-4,
+              accel_bias_rw_m_s2_sqrt_s=1e-3, gyro_bias0_rad_s=(0.01, -0.02, 0.005),
+              accel_bias0_m_s2=(0.1, 0.0, -0.1))  # fmt: skip
+    one, two = sensors.ImuErrors(**kw), sensors.ImuErrors(**kw)  # type: ignore[arg-type]
+    rng, same = np.random.default_rng(10), np.random.default_rng(10)
+    for dt in (0.004, 0.005, 0.0021):
+        sums = (rng.normal(size=3) * dt, rng.normal(size=3) * dt)
+        same.normal(size=3), same.normal(size=3)
+        want_sums = (sums[0].copy(), sums[1].copy())
+        bg_before = one.bias_g
+        gyro, accel = np.empty(3), np.empty(3)
+        assert one.reading_one(sums, dt, rng, gyro, accel)
+        bg, ba, ng, na = two.draw_one(dt, same)
+        np.testing.assert_array_equal(gyro, want_sums[0] / dt + bg + ng)
+        np.testing.assert_array_equal(accel, want_sums[1] / dt + ba + na)
+        np.testing.assert_array_equal(one.bias_g, two.bias_g)
+        np.testing.assert_array_equal(one.bias_a, two.bias_a)
+        assert not sums[0].any() and not sums[1].any() and one.bias_g is not bg_before
+    bad = (np.array([0.0, np.nan, 0.0]), np.zeros(3))
+    assert not one.reading_one(bad, 0.004, rng, np.empty(3), np.empty(3))
 
 
 def test_the_imu_reading_kernel_refuses_what_is_not_finite() -> None:

@@ -140,6 +140,11 @@ class Kinematics(Protocol):
         """Package a navigation state in the common 3-D form (``w_B``: the body rate)."""
         ...
 
+    def output_estimate(self, nav: NavState, w_B: FloatArray | None) -> StateEstimate:
+        """:meth:`to_estimate` of the output predictor's state: ``x`` its
+        ``concatenate([pos, vel, att])`` (:attr:`output_names`), no covariance."""
+        ...
+
     @property
     def output_names(self) -> tuple[str, ...]:
         """Names of the output predictor's state ``concatenate([pos, vel, att])``."""
@@ -429,8 +434,7 @@ class DelayedHorizonEstimator:
             h = self._ob_head
             nav = NavState(self._ob_t_now, self._ob_pos[h], self._ob_vel[h], self._ob_att[h])
         # The output predictor carries the kinematics' state, not the filter's: its names.
-        x = np.concatenate((nav.pos, nav.vel, nav.att))
-        return self.kin.to_estimate(nav, x, self.kin.output_names, None, self.body_rate())
+        return self.kin.output_estimate(nav, self.body_rate())
 
     def body_rate(self) -> FloatArray | None:
         """The newest gyro reading less the filter's gyro bias (None before any IMU sample)."""

@@ -187,6 +187,17 @@ class NavKinematics:
             w_B=w_B,
         )
 
+    def output_estimate(self, nav: NavState, w_B: FloatArray | None) -> StateEstimate:
+        """:meth:`to_estimate` of the output predictor's state, its arrays (copies, the
+        quaternion, ``x``) from one kernel (hundreds of times a second)."""
+        pos, vel, att = nav.pos, nav.vel, nav.att
+        p, v, q = np.empty(3), np.empty(3), np.empty(4)
+        x = np.empty(len(pos) + len(vel) + len(att))
+        _output_parts(pos, vel, att, p, v, q, x)
+        return StateEstimate(
+            t_ns=nav.t_ns, p_W_B=p, v_W_B=v, q_W_B_xyzw=q, x=x, names=_OUTPUT_NAMES, w_B=w_B
+        )
+
 
 _OUTPUT_NAMES = NAV_OUTPUT.names
 _NO_CORRECTION = np.zeros(3)
@@ -259,6 +270,23 @@ def _estimate_parts(
         p[k], v[k] = pos[k], vel[k]
         R[k, 0], R[k, 1], R[k, 2] = att[3 * k], att[3 * k + 1], att[3 * k + 2]
     q[:] = quat_xyzw_one(R)
+
+
+@njit
+def _output_parts(
+    pos: FloatArray, vel: FloatArray, att: FloatArray, p: FloatArray, v: FloatArray,
+    q: FloatArray, x: FloatArray,
+) -> None:  # fmt: skip
+    """:meth:`NavKinematics.output_estimate`'s arrays: :func:`_estimate_parts`' ``p``, ``v``,
+    ``q``, and ``x = concatenate([pos, vel, att])``."""
+    _estimate_parts(pos, vel, att, p, v, q)
+    n_p, n_v = pos.shape[0], vel.shape[0]
+    for k in range(n_p):
+        x[k] = pos[k]
+    for k in range(n_v):
+        x[n_p + k] = vel[k]
+    for k in range(att.shape[0]):
+        x[n_p + n_v + k] = att[k]
 
 
 @njit

@@ -97,6 +97,10 @@ class PlanarKinematics:
         err = math.remainder(float(att_target[0] - att[0]), 2.0 * math.pi)
         return np.array([0.0, err, 0.0])
 
+    def output_estimate(self, nav: NavState, w_B: FloatArray | None) -> StateEstimate:
+        x = np.concatenate((nav.pos, nav.vel, nav.att))
+        return self.to_estimate(nav, x, self.output_names, None, w_B)
+
     def to_estimate(
         self,
         nav: NavState,

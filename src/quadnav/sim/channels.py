@@ -247,6 +247,9 @@ class Channel:
         if s is None:
             return
         self.sampled_t_ns.append(s.t_ns)
+        if not self.faults:  # (most channels: the sample as it is)
+            self._line.push(s)
+            return
         out: list[tuple[Any, int]] = [(s, 0)]
         for fault in self.faults:
             out = [(d, extra + more) for x, extra in out for d, more in fault.deliver(x)]
