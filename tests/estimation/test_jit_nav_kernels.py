@@ -39,6 +39,9 @@ SLOW_PATH = [
     (nav_ekf, "_rotation_error"),
     (nav_ekf, "_kalman_update"),
     (horizon, "_pi_correct"),
+    (nav_ekf, "_pi_correct"),
+    (nav_ekf, "_correct_ring"),
+    (nav_ekf, "_inject"),
     (sensors, "_reading"),
     (sensors, "_draw_one"),
     (sensors, "_draw_reading"),
@@ -214,6 +217,46 @@ def test_the_output_correction_is_the_proportional_integral_one() -> None:
         horizon._pi_correct(ob_t, ob_pos, ob_vel, oldest, pos, vel, ip, iv, pg, vg, propagate)
         for got, want in ((ob_pos, exp_pos), (ob_vel, exp_vel), (ip, exp_ip), (iv, exp_iv)):
             np.testing.assert_allclose(got, want, rtol=1e-14, atol=1e-15)
+
+
+def test_the_ring_correction_in_one_kernel_is_the_attitude_error_and_the_pi_one() -> None:
+    """:meth:`NavKinematics.correct_ring` (one kernel) against the generic
+    :func:`horizon.correct_ring` (the attitude error, then :func:`_pi_correct`): the same ring
+    and integrals, bit for bit; the delta angle is SciPy's rotation error times the gain."""
+    rng = np.random.default_rng(12)
+    kin = nav_ekf.NavKinematics()
+    for propagate in (True, False):
+        L, oldest = 7, 2
+        ring_t = 1_000_000_000 + 4_000_000 * ((np.arange(L) - oldest) % L)
+        att = np.stack([R.ravel() for R in Rotation.random(L, random_state=rng).as_matrix()])
+        ring = (rng.normal(size=(L, 3)), rng.normal(size=(L, 3)), att)
+        R_nav = Rotation.random(random_state=rng).as_matrix()
+        nav_state = horizon.NavState(0, rng.normal(size=3), rng.normal(size=3), R_nav.ravel())
+        integ = (rng.normal(size=3), rng.normal(size=3))
+        gains = (0.05, 0.01, 0.02)
+        same = tuple(a.copy() for a in ring), tuple(a.copy() for a in integ)
+        got = kin.correct_ring(ring, ring_t, oldest, nav_state, integ, gains, propagate)
+        want = horizon.correct_ring(kin, *same[:1], ring_t, oldest, nav_state, same[1], gains,
+                                    propagate)  # fmt: skip
+        np.testing.assert_array_equal(got, want)
+        for a, b in zip((*ring, *integ), (*same[0], *same[1]), strict=True):
+            np.testing.assert_array_equal(a, b)
+        turn = Rotation.from_matrix(att[oldest].reshape(3, 3).T @ R_nav).as_rotvec()
+        np.testing.assert_allclose(got, turn * gains[0], rtol=1e-9, atol=1e-15)
+
+
+def test_the_injection_kernel_adds_the_correction() -> None:
+    """An update's correction into new arrays: the velocity, position and biases plus their
+    parts of ``dx``, as numpy adds them; the attitude's turn is SciPy's."""
+    rng = np.random.default_rng(13)
+    dx, v, p, bg, ba = rng.normal(size=15) * 0.1, *(rng.normal(size=3) for _ in range(4))
+    out = tuple(np.full(3, np.nan) for _ in range(4)) + (np.full((3, 3), np.nan),)
+    nav_ekf._inject(dx, v, p, bg, ba, out)
+    for got, want in zip(out[:4], (v + dx[3:6], p + dx[6:9], bg + dx[9:12], ba + dx[12:15]),
+                         strict=True):  # fmt: skip
+        np.testing.assert_array_equal(got, want)
+    np.testing.assert_array_equal(out[4], rotations.so3_exp(dx[0:3]))
+    np.testing.assert_allclose(out[4], Rotation.from_rotvec(dx[0:3]).as_matrix(), atol=1e-15)
 
 
 def _textbook_update(

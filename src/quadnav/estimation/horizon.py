@@ -56,6 +56,7 @@ __all__ = [
     "SourceCounters",
     "SourceFusion",
     "SourceStats",
+    "correct_ring",
     "fusion_arrays",
     "imu_buffer_length",
     "integrate_ring",
@@ -129,6 +130,16 @@ class Kinematics(Protocol):
         """The delta angle (3,) that rotates ``att`` onto ``att_target``."""
         ...
 
+    def correct_ring(
+        self, ring: tuple[FloatArray, FloatArray, FloatArray], ring_t: NDArray[np.int64],
+        oldest: int, nav: NavState, integrals: tuple[FloatArray, FloatArray],
+        gains: tuple[float, float, float], propagate: bool,
+    ) -> FloatArray:  # fmt: skip
+        """The output predictor's correction towards the delayed horizon's ``nav`` (as
+        :func:`correct_ring`, which it is): the ring's positions and velocities in place, and
+        the attitude's delta-angle correction (3,) returned."""
+        ...
+
     def to_estimate(
         self,
         nav: NavState,
@@ -164,6 +175,22 @@ def integrate_ring(
     )  # fmt: skip
     for arr, row in zip(ring, out, strict=True):
         arr[dst] = row
+
+
+def correct_ring(
+    kin: Kinematics, ring: tuple[FloatArray, FloatArray, FloatArray], ring_t: NDArray[np.int64],
+    oldest: int, nav: NavState, integrals: tuple[FloatArray, FloatArray],
+    gains: tuple[float, float, float], propagate: bool,
+) -> FloatArray:  # fmt: skip
+    """:meth:`Kinematics.correct_ring` through :meth:`Kinematics.attitude_error`: the error of
+    the ring's ``oldest`` attitude times the attitude gain (``gains``: attitude, position,
+    velocity) is returned; :func:`_pi_correct` moves the ring's positions and velocities with
+    the position and velocity ``integrals``."""
+    pos, vel, att = ring
+    dtheta = kin.attitude_error(nav.att, att[oldest]) * gains[0]
+    _pi_correct(ring_t, pos, vel, oldest, nav.pos, nav.vel, integrals[0], integrals[1],
+                gains[1], gains[2], propagate)  # fmt: skip
+    return dtheta
 
 
 class Estimator(Protocol):
@@ -389,6 +416,7 @@ class DelayedHorizonEstimator:
         self._ob_count = 1
         self._vel_err_integ = np.zeros_like(nav0.vel)
         self._pos_err_integ = np.zeros_like(nav0.pos)
+        self._integrals = (self._pos_err_integ, self._vel_err_integ)
         self._dtheta_corr = np.zeros(3)
         self._last_gyro: FloatArray | None = None
         self._counters = _Counters()
@@ -607,12 +635,13 @@ class DelayedHorizonEstimator:
         # Attitude: a delta-angle correction with PX4's gain 0.5 * dt / delay.
         time_delay_s = max((self._t_last_imu_ns - self._t_delayed_ns) * 1e-9, dt)
         att_gain = 0.5 * dt / time_delay_s
-        self._dtheta_corr = self.kin.attitude_error(nav.att, self._ob_att[oldest]) * att_gain
         # Velocity and position: proportional-integral, applied to the whole buffer.
         pos_gain, vel_gain = self._pi_gains
-        _pi_correct(self._ob_t, self._ob_pos, self._ob_vel, oldest, nav.pos, nav.vel,
-                    self._pos_err_integ, self._vel_err_integ, pos_gain, vel_gain,
-                    self.config.propagate_velocity_correction)  # fmt: skip
+        gains = (att_gain, pos_gain, vel_gain)
+        self._dtheta_corr = self.kin.correct_ring(
+            self._ring, self._ob_t, oldest, nav, self._integrals, gains,
+            self.config.propagate_velocity_correction,
+        )  # fmt: skip
 
 
 @njit

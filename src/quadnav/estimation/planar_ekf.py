@@ -28,7 +28,7 @@ from numpy.typing import NDArray
 
 from quadnav.errors import EstimationError
 from quadnav.estimation.chi2 import chi2_ppf
-from quadnav.estimation.horizon import FusionResult, NavState, integrate_ring
+from quadnav.estimation.horizon import FusionResult, NavState, correct_ring, integrate_ring
 from quadnav.messages import ImuSample, PositionSample, Sample, StateEstimate
 from quadnav.units import GRAVITY_M_S2
 
@@ -100,6 +100,13 @@ class PlanarKinematics:
     def output_estimate(self, nav: NavState, w_B: FloatArray | None) -> StateEstimate:
         x = np.concatenate((nav.pos, nav.vel, nav.att))
         return self.to_estimate(nav, x, self.output_names, None, w_B)
+
+    def correct_ring(
+        self, ring: tuple[FloatArray, FloatArray, FloatArray], ring_t: NDArray[np.int64],
+        oldest: int, nav: NavState, integrals: tuple[FloatArray, FloatArray],
+        gains: tuple[float, float, float], propagate: bool,
+    ) -> FloatArray:  # fmt: skip
+        return correct_ring(self, ring, ring_t, oldest, nav, integrals, gains, propagate)
 
     def to_estimate(
         self,

@@ -498,9 +498,12 @@ def run_nav(
             t = truth.t_ns
             phase.motors_off = plan.on_ground(i, t)
             was_ready, pushed = est.ready, False
+            for ch in channels:  # (the times first: most steps, most channels do nothing)
+                if t >= ch.idle_until_ns:
+                    ch.step(truth, t)
             for ch in channels:
-                ch.step(truth, t)
-            for ch in channels:
+                if t < ch.next_arrival_ns:
+                    continue
                 for smp in ch.arrived(t):
                     est.push(smp)
                     pushed = True
