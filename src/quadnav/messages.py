@@ -543,9 +543,9 @@ class VehicleState:
 
     @classmethod
     def from_vector(cls, t_ns: int, s: FloatArray, a: FloatArray) -> VehicleState:
-        """:meth:`from_checked` of one fresh float64 array ``s`` (13: position, velocity,
-        quaternion, body rate) and the acceleration ``a`` (3): made read-only once, the fields
-        are views of ``s`` (the simulator's state, a thousand times a second)."""
+        """:meth:`from_checked` of one fresh float64 array ``s`` (its first 13: position,
+        velocity, quaternion, body rate) and the acceleration ``a`` (3): made read-only once,
+        the fields are views of ``s`` (the simulator's state, a thousand times a second)."""
         s.flags.writeable = False
         a.flags.writeable = False
         out = object.__new__(cls)

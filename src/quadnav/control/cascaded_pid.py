@@ -126,12 +126,7 @@ class CascadedPid:
         _pid_step(est.p_W_B, est.v_W_B, est.q_W_B_xyzw, w, p, has_p, v, a, yaw, self._gains,
                   self._consts, self._st, out)  # fmt: skip
         # (the command's arrays are views of this call's own output)
-        return Command(
-            thrust_n=float(out[7]),
-            torque_B_nm=out[4:7],
-            rotor_rad_s=out[0:4],
-            saturated=bool(out[8] > 0.0),
-        )
+        return Command.of_rotors(float(out[7]), out[4:7], out[0:4], bool(out[8] > 0.0))
 
     def _setpoint_args(
         self, ref: Setpoint

@@ -291,7 +291,10 @@ class DelayedFilter(Protocol):
 
     def fuse(self, obs: Sample) -> FusionResult: ...
 
-    def nav(self, t_ns: int) -> NavState: ...
+    def nav(self, t_ns: int, *, copy: bool = True) -> NavState:
+        """The mean's position, velocity and attitude at ``t_ns``: copies, or with ``copy``
+        false the filter's own arrays (to be read at once, before the filter moves on)."""
+        ...
 
     @property
     def x(self) -> FloatArray: ...
@@ -391,6 +394,7 @@ class DelayedHorizonEstimator:
             max_delay_ns=config.max_delay_ns, imu_period_ns=config.imu_period_ns
         )
         self._dt_nominal_s = dt = config.imu_period_ns * 1e-9
+        self._half_period_ns = config.imu_period_ns // 2  # (an observation this near is due)
         # The output correction's position and velocity gains (PX4's dt / tau)
         self._pi_gains = (
             dt / min(max(config.tau_pos_s, dt), 10.0),
@@ -576,16 +580,19 @@ class DelayedHorizonEstimator:
     # -- delayed horizon -----------------------------------------------------------------
     def _step_delayed(self, imu: ImuSample, dt_s: float) -> None:
         # Observations nearest the horizon's current time that arrived while the horizon sat
-        # there (at start-up, or just in time) are fused before it moves on.
-        self._fuse_due()
+        # there (at start-up, or just in time) are fused before it moves on. (Most steps have
+        # nothing due: _fuse_due's own first test, without its call.)
+        if self._t_delayed_ns + self._half_period_ns >= self._earliest_obs_ns:
+            self._fuse_due()
         self.filter.predict(imu, dt_s)
         self._t_delayed_ns = imu.t_ns
         self._fusion_started = True
-        self._fuse_due()
+        if imu.t_ns + self._half_period_ns >= self._earliest_obs_ns:
+            self._fuse_due()
 
     def _fuse_due(self) -> None:
         """Fuse, in time order, every buffered observation nearest the delayed horizon's time."""
-        limit = self._t_delayed_ns + self.config.imu_period_ns // 2
+        limit = self._t_delayed_ns + self._half_period_ns
         if limit < self._earliest_obs_ns:  # (nothing buffered is due: most IMU steps)
             return
         due: list[tuple[int, int, Sample]] = []
@@ -630,7 +637,7 @@ class DelayedHorizonEstimator:
                 f"output buffer at {self._ob_t[oldest]} ns but delayed horizon at "
                 f"{self._t_delayed_ns} ns"
             )
-        nav = self.filter.nav(self._t_delayed_ns)
+        nav = self.filter.nav(self._t_delayed_ns, copy=False)  # (read by the correction alone)
         dt = self._dt_nominal_s
         # Attitude: a delta-angle correction with PX4's gain 0.5 * dt / delay.
         time_delay_s = max((self._t_last_imu_ns - self._t_delayed_ns) * 1e-9, dt)

@@ -686,7 +686,9 @@ class NavEkf:
     def q_xyzw(self) -> FloatArray:
         return quat_xyzw_from_matrix(self.R)
 
-    def nav(self, t_ns: int) -> NavState:
+    def nav(self, t_ns: int, *, copy: bool = True) -> NavState:
+        if not copy:
+            return NavState(t_ns, self.p, self.v, self.R.ravel())
         return NavState(t_ns, self.p.copy(), self.v.copy(), self.R.ravel().copy())
 
     def state_row(self, row: FloatArray, P: FloatArray) -> None:

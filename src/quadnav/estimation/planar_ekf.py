@@ -216,8 +216,10 @@ class PlanarEkf:
     def P(self) -> FloatArray:
         return self._P
 
-    def nav(self, t_ns: int) -> NavState:
+    def nav(self, t_ns: int, *, copy: bool = True) -> NavState:
         x = self._x
+        if not copy:
+            return NavState(t_ns, x[0:2], x[2:4], x[4:5])
         return NavState(t_ns, x[0:2].copy(), x[2:4].copy(), x[4:5].copy())
 
     def predict(self, imu: ImuSample, dt_s: float) -> None:
