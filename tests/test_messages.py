@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from quadnav.errors import SampleError
-from quadnav.messages import ImuSample, PositionSample, VehicleState
+from quadnav.messages import HeightSample, ImuSample, PoseSample, PositionSample, VehicleState
 
 
 def test_imu_sample_is_validated_and_immutable() -> None:
@@ -88,3 +88,17 @@ def test_an_image_frame_loads_lazily_and_says_which_file_is_bad() -> None:
         none.image()
     with pytest.raises(SampleError, match="exposure_s"):
         ImageFrame(t_ns=10, camera="cam0", load=load, exposure_s=float("nan"))
+
+
+def test_the_simulators_unchecked_samples_are_the_checked_ones() -> None:
+    """A simulated vision pose and barometer height made without the checks are the samples
+    the constructor makes of the same values (read-only arrays, the defaults)."""
+    p, q = np.array([0.1, -2.0, 1.5]), np.array([0.0, 0.0, 0.6, 0.8])
+    fast = PoseSample.from_checked(5, p.copy(), q.copy(), 0.02, 0.05)
+    slow = PoseSample(t_ns=5, p_W_B=p, q_W_B_xyzw=q, sigma_pos_m=0.02, sigma_yaw_rad=0.05)
+    for name in ("t_ns", "sigma_pos_m", "sigma_yaw_rad", "reset_counter", "source", "cov_p_m2"):
+        assert getattr(fast, name) == getattr(slow, name), name
+    for arr, want in ((fast.p_W_B, p), (fast.q_W_B_xyzw, q)):
+        np.testing.assert_array_equal(arr, want)
+        assert not arr.flags.writeable
+    assert HeightSample.from_checked(7, 1.25, 0.1) == HeightSample(t_ns=7, z_m=1.25, sigma_m=0.1)

@@ -203,6 +203,24 @@ class PoseSample:
             c = _spd(self.cov_p_m2, (3, 3), "PoseSample.cov_p_m2")
             object.__setattr__(self, "cov_p_m2", c)
 
+    @classmethod
+    def from_checked(
+        cls, t_ns: int, p: FloatArray, q: FloatArray, sigma_pos_m: float, sigma_yaw_rad: float
+    ) -> PoseSample:
+        """A ``"vision"`` pose (no reset, no covariance) from fresh finite float64 arrays, a unit
+        quaternion and positive sigmas its maker has checked: the simulated vision pose skips
+        the checks (as :meth:`ImuSample.from_checked`), which cost more than the pose itself."""
+        out = object.__new__(cls)
+        p.flags.writeable = False
+        q.flags.writeable = False
+        for name, value in (
+            ("t_ns", int(t_ns)), ("p_W_B", p), ("q_W_B_xyzw", q),
+            ("sigma_pos_m", float(sigma_pos_m)), ("sigma_yaw_rad", float(sigma_yaw_rad)),
+            ("reset_counter", 0), ("source", "vision"), ("cov_p_m2", None),
+        ):  # fmt: skip
+            object.__setattr__(out, name, value)
+        return out
+
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class VelocitySample:
@@ -241,6 +259,18 @@ class HeightSample:
             object.__setattr__(self, name, v)
         if self.sigma_m <= 0:
             raise SampleError(f"HeightSample.sigma_m must be > 0, got {self.sigma_m}")
+
+    @classmethod
+    def from_checked(cls, t_ns: int, z_m: float, sigma_m: float) -> HeightSample:
+        """A ``"baro"`` height from a finite height and a positive sigma its maker has checked
+        (the simulated barometer, as :meth:`ImuSample.from_checked`)."""
+        out = object.__new__(cls)
+        setattr_ = object.__setattr__
+        setattr_(out, "t_ns", int(t_ns))
+        setattr_(out, "z_m", float(z_m))
+        setattr_(out, "sigma_m", float(sigma_m))
+        setattr_(out, "source", "baro")
+        return out
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -513,9 +543,9 @@ class VehicleState:
 
     @classmethod
     def from_vector(cls, t_ns: int, s: FloatArray, a: FloatArray) -> VehicleState:
-        """:meth:`from_checked` of one fresh float64 array ``s`` (13: position, velocity,
-        quaternion, body rate) and the acceleration ``a`` (3): made read-only once, the fields
-        are views of ``s`` (the simulator's state, a thousand times a second)."""
+        """:meth:`from_checked` of one fresh float64 array ``s`` (its first 13: position,
+        velocity, quaternion, body rate) and the acceleration ``a`` (3): made read-only once,
+        the fields are views of ``s`` (the simulator's state, a thousand times a second)."""
         s.flags.writeable = False
         a.flags.writeable = False
         out = object.__new__(cls)

@@ -87,6 +87,13 @@ def test_command_carries_one_torque_and_says_when_it_has_no_rotor_speeds() -> No
         Command(thrust_n=1.0, tau_B_rad_s2=np.zeros(3)).rotors()
 
 
+def test_a_rotor_command_made_without_its_check_is_the_checked_one() -> None:
+    torque, rotors = np.array([0.1, -0.2, 0.0]), np.full(4, 400.0)
+    fast = Command.of_rotors(9.5, torque, rotors, True)
+    slow = Command(thrust_n=9.5, torque_B_nm=torque, rotor_rad_s=rotors, saturated=True)
+    assert fast == slow and fast.kind == "rotor_speeds" and fast.rotors() is rotors
+
+
 def test_euler_and_rate_conversions_agree_with_scipy_and_invert() -> None:
     rng = np.random.default_rng(3)
     for _ in range(50):

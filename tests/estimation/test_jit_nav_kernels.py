@@ -33,13 +33,18 @@ SLOW_PATH = [
     (nav_ekf, "_strapdown_into"),
     (nav_ekf, "_state_row"),
     (nav_ekf, "_estimate_parts"),
+    (nav_ekf, "_output_parts"),
     (nav_ekf, "quat_xyzw_one"),
     (nav, "_log_row"),
     (nav_ekf, "_rotation_error"),
     (nav_ekf, "_kalman_update"),
     (horizon, "_pi_correct"),
+    (nav_ekf, "_pi_correct"),
+    (nav_ekf, "_correct_ring"),
+    (nav_ekf, "_inject"),
     (sensors, "_reading"),
     (sensors, "_draw_one"),
+    (sensors, "_draw_reading"),
     (rigid_body, "_all_finite"),
 ]
 
@@ -157,6 +162,25 @@ def test_the_logged_state_row_is_the_estimates() -> None:
         assert est.p_W_B is not nav_state.pos and est.v_W_B is not nav_state.vel  # (copies)
 
 
+def test_the_output_estimate_is_the_rings_state_in_numpy() -> None:
+    """The output predictor's estimate from its kernel: copies of the ring's row, SciPy's
+    quaternion, ``x`` the concatenated row, the names and the body rate as given."""
+    rng = np.random.default_rng(11)
+    kin = nav_ekf.NavKinematics()
+    for R in _rotations(rng):
+        pos, vel, att = rng.normal(size=3), rng.normal(size=3), R.ravel().copy()
+        w = rng.normal(size=3)
+        est = kin.output_estimate(horizon.NavState(7, pos, vel, att), w)
+        want = kin.to_estimate(
+            horizon.NavState(7, pos, vel, att), np.concatenate((pos, vel, att)),
+            kin.output_names, None, w,
+        )  # fmt: skip
+        for name in ("p_W_B", "v_W_B", "q_W_B_xyzw", "x"):
+            np.testing.assert_array_equal(getattr(est, name), getattr(want, name), err_msg=name)
+        assert est.t_ns == 7 and est.names == kin.output_names and est.P is None and est.w_B is w
+        assert not np.shares_memory(est.p_W_B, pos) and not np.shares_memory(est.x, att)
+
+
 def test_the_log_row_kernel_puts_each_part_in_its_columns() -> None:
     rng = np.random.default_rng(8)
     parts = [rng.normal(size=w) for w in (3, 3, 4, 3, 3, 3, 4, 3, 3)]
@@ -193,6 +217,46 @@ def test_the_output_correction_is_the_proportional_integral_one() -> None:
         horizon._pi_correct(ob_t, ob_pos, ob_vel, oldest, pos, vel, ip, iv, pg, vg, propagate)
         for got, want in ((ob_pos, exp_pos), (ob_vel, exp_vel), (ip, exp_ip), (iv, exp_iv)):
             np.testing.assert_allclose(got, want, rtol=1e-14, atol=1e-15)
+
+
+def test_the_ring_correction_in_one_kernel_is_the_attitude_error_and_the_pi_one() -> None:
+    """:meth:`NavKinematics.correct_ring` (one kernel) against the generic
+    :func:`horizon.correct_ring` (the attitude error, then :func:`_pi_correct`): the same ring
+    and integrals, bit for bit; the delta angle is SciPy's rotation error times the gain."""
+    rng = np.random.default_rng(12)
+    kin = nav_ekf.NavKinematics()
+    for propagate in (True, False):
+        L, oldest = 7, 2
+        ring_t = 1_000_000_000 + 4_000_000 * ((np.arange(L) - oldest) % L)
+        att = np.stack([R.ravel() for R in Rotation.random(L, random_state=rng).as_matrix()])
+        ring = (rng.normal(size=(L, 3)), rng.normal(size=(L, 3)), att)
+        R_nav = Rotation.random(random_state=rng).as_matrix()
+        nav_state = horizon.NavState(0, rng.normal(size=3), rng.normal(size=3), R_nav.ravel())
+        integ = (rng.normal(size=3), rng.normal(size=3))
+        gains = (0.05, 0.01, 0.02)
+        same = tuple(a.copy() for a in ring), tuple(a.copy() for a in integ)
+        got = kin.correct_ring(ring, ring_t, oldest, nav_state, integ, gains, propagate)
+        want = horizon.correct_ring(kin, *same[:1], ring_t, oldest, nav_state, same[1], gains,
+                                    propagate)  # fmt: skip
+        np.testing.assert_array_equal(got, want)
+        for a, b in zip((*ring, *integ), (*same[0], *same[1]), strict=True):
+            np.testing.assert_array_equal(a, b)
+        turn = Rotation.from_matrix(att[oldest].reshape(3, 3).T @ R_nav).as_rotvec()
+        np.testing.assert_allclose(got, turn * gains[0], rtol=1e-9, atol=1e-15)
+
+
+def test_the_injection_kernel_adds_the_correction() -> None:
+    """An update's correction into new arrays: the velocity, position and biases plus their
+    parts of ``dx``, as numpy adds them; the attitude's turn is SciPy's."""
+    rng = np.random.default_rng(13)
+    dx, v, p, bg, ba = rng.normal(size=15) * 0.1, *(rng.normal(size=3) for _ in range(4))
+    out = tuple(np.full(3, np.nan) for _ in range(4)) + (np.full((3, 3), np.nan),)
+    nav_ekf._inject(dx, v, p, bg, ba, out)
+    for got, want in zip(out[:4], (v + dx[3:6], p + dx[6:9], bg + dx[9:12], ba + dx[12:15]),
+                         strict=True):  # fmt: skip
+        np.testing.assert_array_equal(got, want)
+    np.testing.assert_array_equal(out[4], rotations.so3_exp(dx[0:3]))
+    np.testing.assert_allclose(out[4], Rotation.from_rotvec(dx[0:3]).as_matrix(), atol=1e-15)
 
 
 def _textbook_update(
@@ -248,6 +312,31 @@ def test_the_imu_draw_kernel_is_the_numpy_draw() -> None:
         np.testing.assert_array_equal(errors.bias_g, bg0 + z[6:9] * (1e-4 * np.sqrt(dt)))
         np.testing.assert_array_equal(errors.bias_a, ba0 + z[9:12] * (1e-3 * np.sqrt(dt)))
         assert errors.bias_g is not bg and errors.bias_a is not ba
+
+
+def test_the_imu_reading_in_one_kernel_is_the_draw_then_the_reading() -> None:
+    """:meth:`ImuErrors.reading_one` against :meth:`ImuErrors.draw_one` and the reading in
+    numpy, on the same numbers: the same reading, the same biases after it, the sums zeroed."""
+    kw = dict(gyro_sigma_rad_s=0.003, accel_sigma_m_s2=0.05, gyro_bias_rw_rad_s_sqrt_s=1e-4,
+              accel_bias_rw_m_s2_sqrt_s=1e-3, gyro_bias0_rad_s=(0.01, -0.02, 0.005),
+              accel_bias0_m_s2=(0.1, 0.0, -0.1))  # fmt: skip
+    one, two = sensors.ImuErrors(**kw), sensors.ImuErrors(**kw)  # type: ignore[arg-type]
+    rng, same = np.random.default_rng(10), np.random.default_rng(10)
+    for dt in (0.004, 0.005, 0.0021):
+        sums = (rng.normal(size=3) * dt, rng.normal(size=3) * dt)
+        same.normal(size=3), same.normal(size=3)
+        want_sums = (sums[0].copy(), sums[1].copy())
+        bg_before = one.bias_g
+        gyro, accel = np.empty(3), np.empty(3)
+        assert one.reading_one(sums, dt, rng, gyro, accel)
+        bg, ba, ng, na = two.draw_one(dt, same)
+        np.testing.assert_array_equal(gyro, want_sums[0] / dt + bg + ng)
+        np.testing.assert_array_equal(accel, want_sums[1] / dt + ba + na)
+        np.testing.assert_array_equal(one.bias_g, two.bias_g)
+        np.testing.assert_array_equal(one.bias_a, two.bias_a)
+        assert not sums[0].any() and not sums[1].any() and one.bias_g is not bg_before
+    bad = (np.array([0.0, np.nan, 0.0]), np.zeros(3))
+    assert not one.reading_one(bad, 0.004, rng, np.empty(3), np.empty(3))
 
 
 def test_the_imu_reading_kernel_refuses_what_is_not_finite() -> None:

@@ -10,6 +10,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from quadnav.errors import EstimationError
+from quadnav.eval.metrics import nees
+from quadnav.experiments import nav_study
 from quadnav.experiments.nav import NavScenario, ground_alignment, run_nav
 from quadnav.experiments.nav_study import nav_metrics, run_nav_study
 from quadnav.messages import ImuSample, PoseSample
@@ -185,3 +187,22 @@ def test_camera_flight_vision_in_the_loop() -> None:
     assert np.sqrt(np.mean(err[hover] ** 2)) <= 0.05
     assert m.sources["vision"].fused > 600  # images turned into poses
     assert m.nis_above_95pct_gate["vision"] <= 0.10
+
+
+def test_the_nees_rows_are_a_view_when_they_are_one_run() -> None:
+    """The airborne rows of the NEES: one run is a slice (a view of the covariances, the same
+    numbers as the copy a mask takes), anything else the mask itself."""
+    run = np.zeros(10, dtype=bool)
+    run[3:8] = True
+    assert nav_study._rows(run) == slice(3, 8)
+    gaps = run.copy()
+    gaps[5] = False
+    assert nav_study._rows(gaps) is gaps
+    none = np.zeros(4, dtype=bool)
+    assert nav_study._rows(none) is none
+    rng = np.random.default_rng(4)
+    A = rng.normal(size=(10, 15, 15))
+    P, e = A @ A.transpose(0, 2, 1) + np.eye(15), rng.normal(size=(10, 15))
+    np.testing.assert_array_equal(
+        nees(e[nav_study._rows(run)], P[nav_study._rows(run)]), nees(e[run], P[run])
+    )

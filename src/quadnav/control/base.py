@@ -95,6 +95,21 @@ class Command:
         if (self.torque_B_nm is None) == (self.tau_B_rad_s2 is None):
             raise ControlError("a Command gives exactly one of torque_B_nm and tau_B_rad_s2")
 
+    @classmethod
+    def of_rotors(
+        cls, thrust_n: float, torque_B_nm: FloatArray, rotor_rad_s: FloatArray, saturated: bool
+    ) -> Command:
+        """A ``rotor_speeds`` command with its torque (valid by construction: no check), for a
+        controller called every simulator step."""
+        out = object.__new__(cls)
+        setattr_ = object.__setattr__
+        setattr_(out, "thrust_n", thrust_n)
+        setattr_(out, "torque_B_nm", torque_B_nm)
+        setattr_(out, "tau_B_rad_s2", None)
+        setattr_(out, "rotor_rad_s", rotor_rad_s)
+        setattr_(out, "saturated", saturated)
+        return out
+
     @property
     def kind(self) -> CommandKind:
         if self.rotor_rad_s is not None:

@@ -103,6 +103,8 @@ class CascadedPid:
         # the first call: a flag each says whether there is one).
         self._st = np.zeros(_N_STATE)
         self._none3 = np.zeros(3)
+        self._ref: Setpoint | None = None  # the last setpoint, and its kernel arguments
+        self._ref_args = self._setpoint_args(Setpoint())
 
     @property
     def vel_integral(self) -> FloatArray:
@@ -117,21 +119,27 @@ class CascadedPid:
     def __call__(self, t_ns: int, est: StateEstimate, ref: Setpoint) -> Command:
         """Rotor speed commands (rad/s) for the setpoint (``t_ns`` unused: fixed ``dt_s``)."""
         w = require_rate(est, "the cascaded PID")
-        z = self._none3
+        if ref is not self._ref:  # (an outer loop holds one setpoint for many calls)
+            self._ref, self._ref_args = ref, self._setpoint_args(ref)
+        p, has_p, v, a, yaw = self._ref_args
         out = np.empty(9)
-        _pid_step(
-            est.p_W_B, est.v_W_B, est.q_W_B_xyzw, w,
+        _pid_step(est.p_W_B, est.v_W_B, est.q_W_B_xyzw, w, p, has_p, v, a, yaw, self._gains,
+                  self._consts, self._st, out)  # fmt: skip
+        # (the command's arrays are views of this call's own output)
+        return Command.of_rotors(float(out[7]), out[4:7], out[0:4], bool(out[8] > 0.0))
+
+    def _setpoint_args(
+        self, ref: Setpoint
+    ) -> tuple[FloatArray, bool, FloatArray, FloatArray, float]:
+        """The kernel's setpoint arguments: position (zeros when none, and whether there is
+        one), velocity, acceleration (zeros when none), yaw."""
+        z = self._none3
+        return (
             z if ref.p is None else np.asarray(ref.p, dtype=np.float64), ref.p is not None,
             z if ref.v is None else np.asarray(ref.v, dtype=np.float64),
             z if ref.a is None else np.asarray(ref.a, dtype=np.float64),
-            float(ref.yaw_rad), self._gains, self._consts, self._st, out,
+            float(ref.yaw_rad),
         )  # fmt: skip
-        return Command(
-            thrust_n=float(out[7]),
-            torque_B_nm=out[4:7].copy(),
-            rotor_rad_s=out[0:4].copy(),
-            saturated=bool(out[8] > 0.0),
-        )
 
 
 # -- the compiled kernel (quadnav.jit) ---------------------------------------------------------

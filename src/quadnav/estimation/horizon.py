@@ -56,6 +56,7 @@ __all__ = [
     "SourceCounters",
     "SourceFusion",
     "SourceStats",
+    "correct_ring",
     "fusion_arrays",
     "imu_buffer_length",
     "integrate_ring",
@@ -129,6 +130,16 @@ class Kinematics(Protocol):
         """The delta angle (3,) that rotates ``att`` onto ``att_target``."""
         ...
 
+    def correct_ring(
+        self, ring: tuple[FloatArray, FloatArray, FloatArray], ring_t: NDArray[np.int64],
+        oldest: int, nav: NavState, integrals: tuple[FloatArray, FloatArray],
+        gains: tuple[float, float, float], propagate: bool,
+    ) -> FloatArray:  # fmt: skip
+        """The output predictor's correction towards the delayed horizon's ``nav`` (as
+        :func:`correct_ring`, which it is): the ring's positions and velocities in place, and
+        the attitude's delta-angle correction (3,) returned."""
+        ...
+
     def to_estimate(
         self,
         nav: NavState,
@@ -138,6 +149,11 @@ class Kinematics(Protocol):
         w_B: FloatArray | None = None,
     ) -> StateEstimate:
         """Package a navigation state in the common 3-D form (``w_B``: the body rate)."""
+        ...
+
+    def output_estimate(self, nav: NavState, w_B: FloatArray | None) -> StateEstimate:
+        """:meth:`to_estimate` of the output predictor's state: ``x`` its
+        ``concatenate([pos, vel, att])`` (:attr:`output_names`), no covariance."""
         ...
 
     @property
@@ -159,6 +175,22 @@ def integrate_ring(
     )  # fmt: skip
     for arr, row in zip(ring, out, strict=True):
         arr[dst] = row
+
+
+def correct_ring(
+    kin: Kinematics, ring: tuple[FloatArray, FloatArray, FloatArray], ring_t: NDArray[np.int64],
+    oldest: int, nav: NavState, integrals: tuple[FloatArray, FloatArray],
+    gains: tuple[float, float, float], propagate: bool,
+) -> FloatArray:  # fmt: skip
+    """:meth:`Kinematics.correct_ring` through :meth:`Kinematics.attitude_error`: the error of
+    the ring's ``oldest`` attitude times the attitude gain (``gains``: attitude, position,
+    velocity) is returned; :func:`_pi_correct` moves the ring's positions and velocities with
+    the position and velocity ``integrals``."""
+    pos, vel, att = ring
+    dtheta = kin.attitude_error(nav.att, att[oldest]) * gains[0]
+    _pi_correct(ring_t, pos, vel, oldest, nav.pos, nav.vel, integrals[0], integrals[1],
+                gains[1], gains[2], propagate)  # fmt: skip
+    return dtheta
 
 
 class Estimator(Protocol):
@@ -259,7 +291,10 @@ class DelayedFilter(Protocol):
 
     def fuse(self, obs: Sample) -> FusionResult: ...
 
-    def nav(self, t_ns: int) -> NavState: ...
+    def nav(self, t_ns: int, *, copy: bool = True) -> NavState:
+        """The mean's position, velocity and attitude at ``t_ns``: copies, or with ``copy``
+        false the filter's own arrays (to be read at once, before the filter moves on)."""
+        ...
 
     @property
     def x(self) -> FloatArray: ...
@@ -359,6 +394,7 @@ class DelayedHorizonEstimator:
             max_delay_ns=config.max_delay_ns, imu_period_ns=config.imu_period_ns
         )
         self._dt_nominal_s = dt = config.imu_period_ns * 1e-9
+        self._half_period_ns = config.imu_period_ns // 2  # (an observation this near is due)
         # The output correction's position and velocity gains (PX4's dt / tau)
         self._pi_gains = (
             dt / min(max(config.tau_pos_s, dt), 10.0),
@@ -384,6 +420,7 @@ class DelayedHorizonEstimator:
         self._ob_count = 1
         self._vel_err_integ = np.zeros_like(nav0.vel)
         self._pos_err_integ = np.zeros_like(nav0.pos)
+        self._integrals = (self._pos_err_integ, self._vel_err_integ)
         self._dtheta_corr = np.zeros(3)
         self._last_gyro: FloatArray | None = None
         self._counters = _Counters()
@@ -429,8 +466,7 @@ class DelayedHorizonEstimator:
             h = self._ob_head
             nav = NavState(self._ob_t_now, self._ob_pos[h], self._ob_vel[h], self._ob_att[h])
         # The output predictor carries the kinematics' state, not the filter's: its names.
-        x = np.concatenate((nav.pos, nav.vel, nav.att))
-        return self.kin.to_estimate(nav, x, self.kin.output_names, None, self.body_rate())
+        return self.kin.output_estimate(nav, self.body_rate())
 
     def body_rate(self) -> FloatArray | None:
         """The newest gyro reading less the filter's gyro bias (None before any IMU sample)."""
@@ -544,16 +580,19 @@ class DelayedHorizonEstimator:
     # -- delayed horizon -----------------------------------------------------------------
     def _step_delayed(self, imu: ImuSample, dt_s: float) -> None:
         # Observations nearest the horizon's current time that arrived while the horizon sat
-        # there (at start-up, or just in time) are fused before it moves on.
-        self._fuse_due()
+        # there (at start-up, or just in time) are fused before it moves on. (Most steps have
+        # nothing due: _fuse_due's own first test, without its call.)
+        if self._t_delayed_ns + self._half_period_ns >= self._earliest_obs_ns:
+            self._fuse_due()
         self.filter.predict(imu, dt_s)
         self._t_delayed_ns = imu.t_ns
         self._fusion_started = True
-        self._fuse_due()
+        if imu.t_ns + self._half_period_ns >= self._earliest_obs_ns:
+            self._fuse_due()
 
     def _fuse_due(self) -> None:
         """Fuse, in time order, every buffered observation nearest the delayed horizon's time."""
-        limit = self._t_delayed_ns + self.config.imu_period_ns // 2
+        limit = self._t_delayed_ns + self._half_period_ns
         if limit < self._earliest_obs_ns:  # (nothing buffered is due: most IMU steps)
             return
         due: list[tuple[int, int, Sample]] = []
@@ -598,17 +637,18 @@ class DelayedHorizonEstimator:
                 f"output buffer at {self._ob_t[oldest]} ns but delayed horizon at "
                 f"{self._t_delayed_ns} ns"
             )
-        nav = self.filter.nav(self._t_delayed_ns)
+        nav = self.filter.nav(self._t_delayed_ns, copy=False)  # (read by the correction alone)
         dt = self._dt_nominal_s
         # Attitude: a delta-angle correction with PX4's gain 0.5 * dt / delay.
         time_delay_s = max((self._t_last_imu_ns - self._t_delayed_ns) * 1e-9, dt)
         att_gain = 0.5 * dt / time_delay_s
-        self._dtheta_corr = self.kin.attitude_error(nav.att, self._ob_att[oldest]) * att_gain
         # Velocity and position: proportional-integral, applied to the whole buffer.
         pos_gain, vel_gain = self._pi_gains
-        _pi_correct(self._ob_t, self._ob_pos, self._ob_vel, oldest, nav.pos, nav.vel,
-                    self._pos_err_integ, self._vel_err_integ, pos_gain, vel_gain,
-                    self.config.propagate_velocity_correction)  # fmt: skip
+        gains = (att_gain, pos_gain, vel_gain)
+        self._dtheta_corr = self.kin.correct_ring(
+            self._ring, self._ob_t, oldest, nav, self._integrals, gains,
+            self.config.propagate_velocity_correction,
+        )  # fmt: skip
 
 
 @njit

@@ -33,7 +33,7 @@ from scipy.spatial.transform import Rotation
 from quadnav.errors import EstimationError
 from quadnav.estimation.bias_estimator import BiasEstimator
 from quadnav.estimation.chi2 import chi2_isf, chi2_ppf, chi2_sf
-from quadnav.estimation.horizon import FusionResult, NavState, require_positive
+from quadnav.estimation.horizon import FusionResult, NavState, _pi_correct, require_positive
 from quadnav.estimation.imu_clipping import (
     BADACC_NOISE_M_S2,
     BiasLearningGate,
@@ -104,6 +104,8 @@ _N_G, _N_A, _N_BG, _N_BA = (NAV_NOISE[b] for b in ("gyro", "accel", "gyro_bias",
 
 
 _I3 = np.eye(3)
+_H_POSE_YAW = np.zeros((4, _N))  # a pose's rows: its position (the yaw's are the attitude's)
+_H_POSE_YAW[0:3, _POS] = _I3
 # An odometry observation's rows (position, velocity, yaw) by part
 _ODO_ROWS = {"pos": np.arange(0, 3), "vel": np.arange(3, 6), "yaw": np.arange(6, 7)}
 # The odometry frame's drift (odometry_mode="relative"), after the 15: its position offset and
@@ -166,6 +168,17 @@ class NavKinematics:
         """Body-frame rotation vector taking ``att`` onto ``att_target``."""
         return _rotation_error(att_target, att)
 
+    def correct_ring(
+        self, ring: tuple[FloatArray, FloatArray, FloatArray], ring_t: NDArray[np.int64],
+        oldest: int, nav: NavState, integrals: tuple[FloatArray, FloatArray],
+        gains: tuple[float, float, float], propagate: bool,
+    ) -> FloatArray:  # fmt: skip
+        """:func:`~quadnav.estimation.horizon.correct_ring` in one kernel."""
+        dtheta = np.empty(3)
+        _correct_ring(ring, ring_t, oldest, nav.pos, nav.vel, nav.att, integrals, gains,
+                      propagate, dtheta)  # fmt: skip
+        return dtheta
+
     def to_estimate(
         self,
         nav: NavState,
@@ -185,6 +198,17 @@ class NavKinematics:
             names=names,
             P=P,
             w_B=w_B,
+        )
+
+    def output_estimate(self, nav: NavState, w_B: FloatArray | None) -> StateEstimate:
+        """:meth:`to_estimate` of the output predictor's state, its arrays (copies, the
+        quaternion, ``x``) from one kernel (hundreds of times a second)."""
+        pos, vel, att = nav.pos, nav.vel, nav.att
+        p, v, q = np.empty(3), np.empty(3), np.empty(4)
+        x = np.empty(len(pos) + len(vel) + len(att))
+        _output_parts(pos, vel, att, p, v, q, x)
+        return StateEstimate(
+            t_ns=nav.t_ns, p_W_B=p, v_W_B=v, q_W_B_xyzw=q, x=x, names=_OUTPUT_NAMES, w_B=w_B
         )
 
 
@@ -262,6 +286,23 @@ def _estimate_parts(
 
 
 @njit
+def _output_parts(
+    pos: FloatArray, vel: FloatArray, att: FloatArray, p: FloatArray, v: FloatArray,
+    q: FloatArray, x: FloatArray,
+) -> None:  # fmt: skip
+    """:meth:`NavKinematics.output_estimate`'s arrays: :func:`_estimate_parts`' ``p``, ``v``,
+    ``q``, and ``x = concatenate([pos, vel, att])``."""
+    _estimate_parts(pos, vel, att, p, v, q)
+    n_p, n_v = pos.shape[0], vel.shape[0]
+    for k in range(n_p):
+        x[k] = pos[k]
+    for k in range(n_v):
+        x[n_p + k] = vel[k]
+    for k in range(att.shape[0]):
+        x[n_p + n_v + k] = att[k]
+
+
+@njit
 def _state_row(
     R: FloatArray, v: FloatArray, p: FloatArray, bg: FloatArray, ba: FloatArray,
     P_all: FloatArray, row: FloatArray, P: FloatArray,
@@ -275,6 +316,21 @@ def _state_row(
     for i in range(_N):
         for j in range(_N):
             P[i, j] = P_all[i, j]
+
+
+@njit
+def _correct_ring(
+    ring: tuple[FloatArray, FloatArray, FloatArray], ring_t: NDArray[np.int64], oldest: int,
+    pos: FloatArray, vel: FloatArray, att: FloatArray, integrals: tuple[FloatArray, FloatArray],
+    gains: tuple[float, float, float], propagate: bool, dtheta: FloatArray,
+) -> None:  # fmt: skip
+    """:meth:`NavKinematics.correct_ring`: the attitude error of the ring's ``oldest`` row
+    times the attitude gain into ``dtheta``, and :func:`_pi_correct` of the ring."""
+    err = _rotation_error(att, ring[2][oldest])
+    for k in range(3):
+        dtheta[k] = err[k] * gains[0]
+    _pi_correct(ring_t, ring[0], ring[1], oldest, pos, vel, integrals[0], integrals[1],
+                gains[1], gains[2], propagate)  # fmt: skip
 
 
 @njit
@@ -630,7 +686,9 @@ class NavEkf:
     def q_xyzw(self) -> FloatArray:
         return quat_xyzw_from_matrix(self.R)
 
-    def nav(self, t_ns: int) -> NavState:
+    def nav(self, t_ns: int, *, copy: bool = True) -> NavState:
+        if not copy:
+            return NavState(t_ns, self.p, self.v, self.R.ravel())
         return NavState(t_ns, self.p.copy(), self.v.copy(), self.R.ravel().copy())
 
     def state_row(self, row: FloatArray, P: FloatArray) -> None:
@@ -879,10 +937,10 @@ class NavEkf:
         first pose and at every reset, so a jump flagged by the reset counter is not motion."""
         R_meas = rotation_matrix_xyzw(obs.q_W_B_xyzw)
         anchor = self._vision_anchor(obs, R_meas)
-        Rz = so3_exp(np.array([0.0, 0.0, anchor.yaw]))
+        Rz = so3_exp_one(np.array([0.0, 0.0, anchor.yaw]))
         d_W = Rz @ (obs.p_W_B - anchor.p_V0)
         p_W = anchor.p_W0 + d_W
-        C = np.eye(3) * obs.sigma_pos_m**2 if obs.cov_p_m2 is None else obs.cov_p_m2
+        C = _I3 * obs.sigma_pos_m**2 if obs.cov_p_m2 is None else obs.cov_p_m2
         if self.config.vision_frame == "rotate":
             H = np.zeros((3, _N))
             H[:, _POS] = np.eye(3)
@@ -890,11 +948,12 @@ class NavEkf:
             if obs.source in self._follow_pending:
                 return self._follow(obs, np.diag(Rn), p=p_W)
             return self._gated(obs, p_W - self.p, H, Rn, p_W)
-        H = np.zeros((4, _N))
-        H[0:3, _POS] = np.eye(3)
+        H = _H_POSE_YAW.copy()
         H[3, _ATT] = yaw_jacobian(self.R)
         r_yaw = math.remainder(yaw_of(R_meas) + anchor.yaw - yaw_of(self.R), 2 * math.pi)
-        r = np.concatenate([p_W - self.p, [r_yaw]])
+        r = np.empty(4)
+        np.subtract(p_W, self.p, out=r[0:3])
+        r[3] = r_yaw
         Rn = np.zeros((4, 4))
         Rn[0:3, 0:3] = Rz @ C @ Rz.T  # (a full covariance, a marker pose's, into the world)
         Rn[3, 3] = obs.sigma_yaw_rad**2
@@ -1185,12 +1244,11 @@ class NavEkf:
         ratio = nis / limit
         if ratio > 1.0:
             return FusionResult(accepted=False, innovation=r, nis=nis, test_ratio=ratio)
-        # Inject the error into the nominal state.
-        self.R = self.R @ so3_exp(dx[_ATT])
-        self.v = self.v + dx[_VEL]
-        self.p = self.p + dx[_POS]
-        self.bg = self.bg + dx[_BG]
-        self.ba = self.ba + dx[_BA]
+        # Inject the error into the nominal state (new arrays; the rotation's product in numpy).
+        v, p, bg, ba, E = np.empty(3), np.empty(3), np.empty(3), np.empty(3), np.empty((3, 3))
+        _inject(dx, self.v, self.p, self.bg, self.ba, (v, p, bg, ba, E))
+        self.R = self.R @ E
+        self.v, self.p, self.bg, self.ba = v, p, bg, ba
         if self._relative:
             self.odometry_drift += dx[_N:]
         self._P = P_new
@@ -1307,6 +1365,23 @@ def _kalman_update(
             )
     P1[:, _I_ATT : _I_ATT + 3] = cols
     return nis, dx, 0.5 * (P1 + P1.T)
+
+
+@njit
+def _inject(
+    dx: FloatArray, v: FloatArray, p: FloatArray, bg: FloatArray, ba: FloatArray,
+    out: tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray],
+) -> None:  # fmt: skip
+    """An update's correction ``dx`` into ``out`` = (v', p', b_g', b_a', E): the velocity,
+    position and biases plus their parts of ``dx``, and ``E = Exp(dx_att)`` (the attitude's
+    turn, ``R' = R E``)."""
+    v1, p1, bg1, ba1, E = out
+    for k in range(3):
+        v1[k] = v[k] + dx[_I_VEL + k]
+        p1[k] = p[k] + dx[_I_POS + k]
+        bg1[k] = bg[k] + dx[_I_BG + k]
+        ba1[k] = ba[k] + dx[_I_BA + k]
+    E[:, :] = so3_exp_one(dx[_I_ATT : _I_ATT + 3])
 
 
 @njit

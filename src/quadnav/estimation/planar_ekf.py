@@ -28,7 +28,7 @@ from numpy.typing import NDArray
 
 from quadnav.errors import EstimationError
 from quadnav.estimation.chi2 import chi2_ppf
-from quadnav.estimation.horizon import FusionResult, NavState, integrate_ring
+from quadnav.estimation.horizon import FusionResult, NavState, correct_ring, integrate_ring
 from quadnav.messages import ImuSample, PositionSample, Sample, StateEstimate
 from quadnav.units import GRAVITY_M_S2
 
@@ -96,6 +96,17 @@ class PlanarKinematics:
     def attitude_error(self, att_target: FloatArray, att: FloatArray) -> FloatArray:
         err = math.remainder(float(att_target[0] - att[0]), 2.0 * math.pi)
         return np.array([0.0, err, 0.0])
+
+    def output_estimate(self, nav: NavState, w_B: FloatArray | None) -> StateEstimate:
+        x = np.concatenate((nav.pos, nav.vel, nav.att))
+        return self.to_estimate(nav, x, self.output_names, None, w_B)
+
+    def correct_ring(
+        self, ring: tuple[FloatArray, FloatArray, FloatArray], ring_t: NDArray[np.int64],
+        oldest: int, nav: NavState, integrals: tuple[FloatArray, FloatArray],
+        gains: tuple[float, float, float], propagate: bool,
+    ) -> FloatArray:  # fmt: skip
+        return correct_ring(self, ring, ring_t, oldest, nav, integrals, gains, propagate)
 
     def to_estimate(
         self,
@@ -205,8 +216,10 @@ class PlanarEkf:
     def P(self) -> FloatArray:
         return self._P
 
-    def nav(self, t_ns: int) -> NavState:
+    def nav(self, t_ns: int, *, copy: bool = True) -> NavState:
         x = self._x
+        if not copy:
+            return NavState(t_ns, x[0:2], x[2:4], x[4:5])
         return NavState(t_ns, x[0:2].copy(), x[2:4].copy(), x[4:5].copy())
 
     def predict(self, imu: ImuSample, dt_s: float) -> None:

@@ -180,6 +180,15 @@ def _drift(r: NavRunResult) -> tuple[float, float, Metric]:
     return end, dist, pct
 
 
+def _rows(mask: NDArray[np.bool_]) -> NDArray[np.bool_] | slice:
+    """The rows of ``mask``: a slice when they are one run (the flight's airborne part: a view
+    of the covariances, not a copy of tens of megabytes), else the mask itself."""
+    idx = np.flatnonzero(mask)
+    if len(idx) and idx[-1] - idx[0] + 1 == len(idx):
+        return slice(int(idx[0]), int(idx[-1]) + 1)
+    return mask
+
+
 def nav_metrics(r: NavRunResult) -> NavMetrics:
     """The issue-5 numbers of one flight."""
     t = _t_s(r)
@@ -213,7 +222,8 @@ def nav_metrics(r: NavRunResult) -> NavMetrics:
         delayed_rmse_m=rms_or_na(np.linalg.norm(r.delayed_err[ok, 6:9], axis=1), in_air),
         attitude_rmse_deg=att_rmse if isinstance(att_rmse, str) else math.degrees(att_rmse),
         nees_mean=mean_or_na(
-            nees(r.delayed_err[ok_P], r.delayed_P[ok_P]) if ok_P.any() else [], no_cov
+            nees(r.delayed_err[_rows(ok_P)], r.delayed_P[_rows(ok_P)]) if ok_P.any() else [],
+            no_cov,
         ),
         nis_above_95pct_gate=_nis_ratios(r),
         sources=dict(r.sources),

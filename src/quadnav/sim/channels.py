@@ -219,7 +219,11 @@ class CorruptAt:
 @dataclass
 class Channel:
     """One sensor stream of a closed loop: ``sensor`` (already wrapped by its sensor faults),
-    then ``faults`` on each sample, then a delay line of ``delay_ns``; its own ``rng``."""
+    then ``faults`` on each sample, then a delay line of ``delay_ns``; its own ``rng``.
+
+    A loop of many steps may read two times first (plain attributes, cheaper than a call):
+    :meth:`step` does nothing before ``idle_until_ns`` and :meth:`arrived` has nothing before
+    ``next_arrival_ns``."""
 
     name: str
     sensor: Sensor[Any]
@@ -234,30 +238,40 @@ class Channel:
             raise SimError(f"channel {self.name!r}: the delay must be >= 0 ns, got {self.delay_ns}")
         self._line = DelayLine(delay_ns=self.delay_ns)
         self._idle: Callable[[int], int | None] | None = getattr(self.sensor, "idle_until_ns", None)
-        self._idle_until_ns = 0
+        #: Polls before this time do nothing (the sensor's ``idle_until_ns``).
+        self.idle_until_ns = 0
+        #: Nothing arrives before this time (the delay line's first arrival).
+        self.next_arrival_ns = self._line.next_arrival_ns
 
     def step(self, truth: VehicleState, t_ns: int) -> None:
         """Read the sensor at ``t_ns``; what it measures goes through the faults into the line.
         Polls the sensor says would do nothing (its ``idle_until_ns``) are skipped."""
-        if t_ns < self._idle_until_ns:
+        if t_ns < self.idle_until_ns:
             return
         s = self.sensor.sample(truth, t_ns, self.rng)
         if self._idle is not None:
-            self._idle_until_ns = self._idle(t_ns) or 0
+            self.idle_until_ns = self._idle(t_ns) or 0
         if s is None:
             return
         self.sampled_t_ns.append(s.t_ns)
-        out: list[tuple[Any, int]] = [(s, 0)]
-        for fault in self.faults:
-            out = [(d, extra + more) for x, extra in out for d, more in fault.deliver(x)]
-        for d, extra in out:
-            self._line.push(d, extra_delay_ns=extra)
+        line = self._line
+        if not self.faults:  # (most channels: the sample as it is)
+            line.push(s)
+        else:
+            out: list[tuple[Any, int]] = [(s, 0)]
+            for fault in self.faults:
+                out = [(d, extra + more) for x, extra in out for d, more in fault.deliver(x)]
+            for d, extra in out:
+                line.push(d, extra_delay_ns=extra)
+        self.next_arrival_ns = line.next_arrival_ns
 
     def arrived(self, t_ns: int) -> list[Sample]:
         """Samples that have arrived by ``t_ns``, in arrival order."""
-        if t_ns < self._line.next_arrival_ns:  # (DelayLine.due, without its call)
+        if t_ns < self.next_arrival_ns:  # (DelayLine.due, without its call)
             return []
-        return [s for _, s in self._line.pop_arrived(t_ns)]
+        out = [s for _, s in self._line.pop_arrived(t_ns)]
+        self.next_arrival_ns = self._line.next_arrival_ns
+        return out
 
     @property
     def rejected_invalid(self) -> int:

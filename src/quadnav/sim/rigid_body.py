@@ -146,9 +146,10 @@ class RigidBodyQuadrotor:
         return self._wind_now
 
     def state(self) -> VehicleState:
-        # (finite and its quaternion a unit one: step() and __init__ see to it); one copy, and
-        # the state's fields are views of it
-        return VehicleState.from_vector(self.t_ns, self.s[0:13].copy(), self.last_accel_W.copy())
+        # (finite and its quaternion a unit one: step() and __init__ see to it). No copies: each
+        # step makes a new state array and acceleration and never writes into them again; they
+        # become read-only here (the first 13 entries the state's, its fields views of them)
+        return VehicleState.from_vector(self.t_ns, self.s, self.last_accel_W)
 
     def energy_rot_j(self) -> float:
         w = self.s[10:13]

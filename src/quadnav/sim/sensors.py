@@ -290,6 +290,21 @@ class ImuErrors:
         ng, na, self.bias_g, self.bias_a = out
         return bg, ba, ng, na
 
+    def reading_one(
+        self, sums: tuple[FloatArray, FloatArray], dt_s: float, rng: Generator,
+        gyro: FloatArray, accel: FloatArray,
+    ) -> bool:  # fmt: skip
+        """One sample's reading into ``gyro`` and ``accel``: the mean rate and specific force of
+        its period's ``sums`` (rate, specific force: zeroed) plus :meth:`draw_one`'s errors (the
+        same numbers, in one kernel); the biases move on. Whether all is finite."""
+        z = rng.standard_normal(12)
+        sq = math.sqrt(dt_s)
+        bg1, ba1 = np.empty(3), np.empty(3)  # (new arrays: see _draw_one)
+        ok: bool = _draw_reading(z, self.bias_g, self.bias_a, self.sg, self.sa, self.rw_g * sq,
+                                 self.rw_a * sq, bg1, ba1, sums[0], sums[1], dt_s, gyro, accel)  # fmt: skip
+        self.bias_g, self.bias_a = bg1, ba1
+        return ok
+
     def draw(self, n: int, dt_s: float, rng: Generator) -> ImuErrorDraw:
         """The errors of the next ``n`` samples, ``dt_s`` apart; the biases move on past them.
         (One sample draws gyro noise, accel noise, gyro step, accel step: 3 normals each.)"""
@@ -355,6 +370,7 @@ class IntegratingImu:
         self._ticker = Ticker(self.period_ns, first_ns=self._t_last + self.period_ns)
         self._sum_w = np.zeros(3)
         self._sum_f = np.zeros(3)
+        self._sums = (self._sum_w, self._sum_f)
         self._sum_dt = 0.0
 
     @property
@@ -393,10 +409,8 @@ class IntegratingImu:
         self._sum_dt += dt_s
         if not self._ticker.due(truth.t_ns):
             return None
-        T = self._sum_dt
-        bg, ba, ng, na = self.errors.draw_one(T, rng)
         gyro, accel = np.empty(3), np.empty(3)
-        if not _reading(self._sum_w, self._sum_f, T, bg, ba, ng, na, gyro, accel):
+        if not self.errors.reading_one(self._sums, self._sum_dt, rng, gyro, accel):
             raise SimError(f"IMU at t_ns={truth.t_ns}: a non-finite reading (the state diverged)")
         self._t_last = truth.t_ns
         self._sum_dt = 0.0
@@ -514,7 +528,8 @@ class BaroSensor(PeriodicSensor):
             return None
         self.offset += self.drift * math.sqrt(self.period_ns * 1e-9) * rng.standard_normal()
         z = float(truth.p_W_B[2]) + self.offset + self.sigma * rng.standard_normal()
-        return HeightSample(t_ns=t_ns, z_m=z, sigma_m=self.sigma)
+        # (finite: the truth is, and so are the sigmas; the sample needs no checks)
+        return HeightSample.from_checked(t_ns, z, self.sigma)
 
 
 class RangeFinder(PeriodicSensor):
@@ -593,12 +608,13 @@ class VisionPoseSensor(PeriodicSensor):
             @ rotation_matrix_xyzw(truth.q_W_B_xyzw)
             @ rot_z(self.yaw_sigma * rng.standard_normal())
         )
-        return PoseSample(
-            t_ns=t_ns,
-            p_W_B=p_V + self.sigma * rng.standard_normal(3),
-            q_W_B_xyzw=quat_xyzw_from_matrix(R_V_B),
-            sigma_pos_m=self.sigma,
-            sigma_yaw_rad=self.yaw_sigma,
+        # (fresh finite arrays, a unit quaternion: the sample needs no checks)
+        return PoseSample.from_checked(
+            t_ns,
+            p_V + self.sigma * rng.standard_normal(3),
+            quat_xyzw_from_matrix(R_V_B),
+            self.sigma,
+            self.yaw_sigma,
         )
 
 
@@ -640,6 +656,20 @@ def _draw_one(
         na[k] = z[3 + k] * sa
         bg1[k] = bg[k] + z[6 + k] * step_g
         ba1[k] = ba[k] + z[9 + k] * step_a
+
+
+@njit
+def _draw_reading(
+    z: FloatArray, bg: FloatArray, ba: FloatArray, sg: float, sa: float, step_g: float,
+    step_a: float, bg1: FloatArray, ba1: FloatArray, sum_w: FloatArray, sum_f: FloatArray,
+    T: float, gyro: FloatArray, accel: FloatArray,
+) -> bool:  # fmt: skip
+    """:func:`_draw_one` (the noise and the biases after the sample into ``bg1``, ``ba1``) and
+    :func:`_reading` with it, in one kernel: :meth:`ImuErrors.reading_one`."""
+    ng, na = np.empty(3), np.empty(3)
+    _draw_one(z, bg, ba, sg, sa, step_g, step_a, (ng, na, bg1, ba1))
+    ok: bool = _reading(sum_w, sum_f, T, bg, ba, ng, na, gyro, accel)
+    return ok
 
 
 @njit
