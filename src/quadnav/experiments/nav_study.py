@@ -23,6 +23,7 @@ from quadnav.errors import ConfigError
 from quadnav.estimation.chi2 import chi2_pdf, chi2_ppf
 from quadnav.estimation.horizon import SourceStats
 from quadnav.estimation.nav_filter import ImuCounts
+from quadnav.eval.fusion_reference import random_walk_fusion_reference
 from quadnav.eval.metrics import nees
 from quadnav.eval.na import Metric, max_or_na, mean_or_na, median_or_na, na, rms_or_na
 from quadnav.eval.report import ReportSection, ReportTable, write_report
@@ -98,6 +99,11 @@ class NavMetrics:
     #: translation APE after a 4-DoF (position and yaw) alignment, RMSE
     vio_ate_m: Metric = field(default_factory=lambda: na("no visual odometry"))
     vio_alone_m: Metric = field(default_factory=lambda: na("no visual odometry"))
+    #: with GPS: this odometry fused with the scenario's GPS positions by a random-walk filter
+    #: at the rate that suits this flight, chosen with hindsight (a reference, not a bound:
+    #: :mod:`quadnav.eval.fusion_reference`), and that rate (m^2/s an axis)
+    vio_gps_reference_m: Metric = field(default_factory=lambda: na("no visual odometry"))
+    vio_gps_reference_rate: Metric = field(default_factory=lambda: na("no visual odometry"))
     #: with loop closure: its places judged against the truth (``loop_precision``,
     #: ``loop_recall``, the measurements' median errors; :mod:`quadnav.eval.loop_eval`)
     vio_loop: dict[str, Any] = field(default_factory=dict)
@@ -262,7 +268,26 @@ def _vio_metrics(r: NavRunResult) -> dict[str, Any]:
         "vio_loop": dict((v.loop or {}).get("evaluation") or {}),
         "vio_ate_m": _odometry_ate(v),
         "vio_alone_m": _odometry_alone(v),
+        **_gps_reference(r.scenario, v),
     }
+
+
+def _gps_reference(sc: NavScenario, v: VioRecord) -> dict[str, Metric]:
+    """With GPS: :func:`~quadnav.eval.fusion_reference.random_walk_fusion_reference` of the odometry
+    alone's errors (its states' times on the flight's clock) and the scenario's GPS."""
+    if not sc.gps.enabled:
+        why = na("no GPS")
+        return {"vio_gps_reference_m": why, "vio_gps_reference_rate": why}
+    alone = _odometry_alone_positions(v)
+    if isinstance(alone, str):
+        return {"vio_gps_reference_m": alone, "vio_gps_reference_rate": alone}
+    t_s, est, truth = alone
+    g = sc.gps
+    b = random_walk_fusion_reference(
+        t_s, est - truth, (g.sigma_h_m, g.sigma_h_m, g.sigma_v_m), g.rate_hz,
+        outages_s=g.outages_s,
+    )  # fmt: skip
+    return {"vio_gps_reference_m": b.rmse_m, "vio_gps_reference_rate": b.rate_m2_s}
 
 
 def _odometry_ate(v: VioRecord) -> Metric:
@@ -284,6 +309,16 @@ def _odometry_alone(v: VioRecord) -> Metric:
     After a reset (a new world) the odometry goes on from where it last was: its new world put
     at the last pose it gave before, as a vehicle on it alone would carry on (the motion while it
     gave nothing counts as error: nothing else knew it)."""
+    alone = _odometry_alone_positions(v)
+    if isinstance(alone, str):
+        return alone
+    _, est, p_ref = alone
+    return float(np.sqrt(np.mean(np.sum((est - p_ref) ** 2, axis=1))))
+
+
+def _odometry_alone_positions(v: VioRecord) -> tuple[FloatArray, FloatArray, FloatArray] | str:
+    """:func:`_odometry_alone`'s states: their times (s), positions and the true ones (or why
+    there are none)."""
     ok = np.isfinite(v.truth_p_W_B).all(axis=1)
     if ok.sum() < 3:
         return na("fewer than 3 odometry states")
@@ -298,7 +333,7 @@ def _odometry_alone(v: VioRecord) -> Metric:
         est[a:b] = Rz.apply(p[a:b] - p[a]) + anchor_p
         anchor_p = est[b - 1]
         anchor_q = (Rz * Rotation.from_quat(q[b - 1])).as_quat()
-    return float(np.sqrt(np.mean(np.sum((est - p_ref) ** 2, axis=1))))
+    return v.t_ns[ok].astype(np.float64) * 1e-9, est, p_ref
 
 
 def _bias_error_fractions(r: NavRunResult) -> dict[str, Metric]:
@@ -547,6 +582,7 @@ class NavSummary:
     end_position_error_m: Metric
     vio_ate_m: Metric
     vio_alone_m: Metric
+    vio_gps_reference_m: Metric
     # what was refused and reset, summed over the seeds (non-zero counts only), and the
     # filter's own log of each seed ("seed N, t s: what")
     refused: dict[str, int] = field(default_factory=dict)
@@ -631,6 +667,7 @@ def summarize_nav_seeds(per_seed: list[NavMetrics]) -> NavSummary:
         end_position_error_m=median_or_na(m.end_position_error_m for m in per_seed),
         vio_ate_m=median_or_na(m.vio_ate_m for m in per_seed),
         vio_alone_m=median_or_na(m.vio_alone_m for m in per_seed),
+        vio_gps_reference_m=median_or_na(m.vio_gps_reference_m for m in per_seed),
         refused=refusal_counts(per_seed),
         filter_events=[f"seed {m.seed}, {e}" for m in per_seed for e in m.filter_events],
     )
