@@ -131,3 +131,23 @@ def test_on_realistic_sensors_the_fusion_is_at_most_0_7x_the_better_alone() -> N
         ratios.append(_rmse(fused) / min(vio_alone, _rmse(gps)))
     assert np.median(ratios) <= 0.7, ratios
     assert max(ratios) <= 0.9, ratios
+
+
+def test_the_reference_names_why_it_is_missing_instead_of_ending_the_run() -> None:
+    """An odometry with two states at one time (or a flight without GPS) gives the reference
+    as n/a with the reason; the flight's other metrics are not lost to it."""
+    from quadnav.experiments.nav_study import _gps_reference
+    from quadnav.experiments.vio_flight import VioRecord
+
+    n = 5
+    level = np.tile([0.0, 0.0, 0.0, 1.0], (n, 1))
+    v = VioRecord(
+        t_ns=np.array([0, 1, 1, 2, 3], dtype=np.int64) * 100_000_000,
+        p_W_B=np.zeros((n, 3)), q_W_B_xyzw=level, reset_counter=np.zeros(n, dtype=np.int64),
+        truth_p_W_B=np.zeros((n, 3)), truth_q_W_B_xyzw=level,
+    )  # fmt: skip
+    out = _gps_reference(nav_builtin("outdoor_vio_gps_odometry"), v)
+    assert str(out["vio_gps_reference_m"]).startswith("n/a: ")
+    assert "must increase" in str(out["vio_gps_reference_m"])
+    no_gps = _gps_reference(nav_builtin("indoor_vio_odometry"), v)
+    assert no_gps["vio_gps_reference_m"] == "n/a: no GPS"

@@ -19,7 +19,7 @@ from matplotlib.figure import Figure
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
-from quadnav.errors import ConfigError
+from quadnav.errors import ConfigError, EvalError
 from quadnav.estimation.chi2 import chi2_pdf, chi2_ppf
 from quadnav.estimation.horizon import SourceStats
 from quadnav.estimation.nav_filter import ImuCounts
@@ -283,10 +283,14 @@ def _gps_reference(sc: NavScenario, v: VioRecord) -> dict[str, Metric]:
         return {"vio_gps_reference_m": alone, "vio_gps_reference_rate": alone}
     t_s, est, truth = alone
     g = sc.gps
-    b = random_walk_fusion_reference(
-        t_s, est - truth, (g.sigma_h_m, g.sigma_h_m, g.sigma_v_m), g.rate_hz,
-        outages_s=g.outages_s,
-    )  # fmt: skip
+    try:
+        b = random_walk_fusion_reference(
+            t_s, est - truth, (g.sigma_h_m, g.sigma_h_m, g.sigma_v_m), g.rate_hz,
+            outages_s=g.outages_s,
+        )  # fmt: skip
+    except EvalError as exc:  # (a metric the flight's states cannot give does not end the run)
+        why = na(str(exc))
+        return {"vio_gps_reference_m": why, "vio_gps_reference_rate": why}
     return {"vio_gps_reference_m": b.rmse_m, "vio_gps_reference_rate": b.rate_m2_s}
 
 
