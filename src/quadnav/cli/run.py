@@ -164,7 +164,7 @@ def run_command(
         ("NEES (15 states), mean over a flight", s.nees_mean),
         ("the visual odometry's own ATE, 4-DoF (m)", s.vio_ate_m),
         ("the visual odometry alone, from its first state (m)", s.vio_alone_m),
-        ("it and the GPS by a random-walk filter tuned after the fact (m)", s.vio_gps_reference_m),
+        ("VIO + GPS, random-walk filter tuned after the fact (m)", s.vio_gps_reference_m),
         ("horizontal error at the end, landed (m)", s.end_horizontal_error_m),
         ("position error at the end (3-D) (m)", s.end_position_error_m),
         ("  = drift in % of the distance flown", s.drift_percent),
