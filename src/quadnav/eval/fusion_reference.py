@@ -47,7 +47,7 @@ class FusionReference:
 
 
 def random_walk_fusion_reference(
-    t_s: FloatArray,
+    t_ns: NDArray[np.int64],
     err_m: FloatArray,
     fix_sigma_m: Sequence[float],
     fix_rate_hz: float,
@@ -57,12 +57,15 @@ def random_walk_fusion_reference(
     seed: int = 0,
     rates_m2_s: Sequence[float] = RATES_M2_S,
 ) -> FusionReference:
-    """The reference for an odometry whose position error is ``err_m`` (N, 3) at times ``t_s``
+    """The reference for an odometry whose position error is ``err_m`` (N, 3) at times ``t_ns``
     (N, increasing; zero error at the first, where it was put on the truth), fused with fixes
     of noise ``fix_sigma_m`` (east, north, up) every ``1 / fix_rate_hz`` seconds from the first
-    time, none inside ``outages_s`` ([start, end) in the same clock). Each fix is taken at the
+    time, none inside ``outages_s`` ([start, end) in seconds of the same clock). Each fix is taken at the
     first odometry time at or after it. ``draws`` noise draws (from ``seed``) per rate."""
-    t = np.asarray(t_s, dtype=np.float64)
+    t_int = np.asarray(t_ns)
+    if t_int.ndim != 1 or not np.issubdtype(t_int.dtype, np.integer):
+        raise EvalError(f"the odometry's times must be integer ns, got {t_int.dtype} {t_int.shape}")
+    t = t_int.astype(np.float64) * 1e-9
     e = np.asarray(err_m, dtype=np.float64)
     sigma = np.asarray(fix_sigma_m, dtype=np.float64)
     if t.ndim != 1 or e.shape != (len(t), 3) or len(t) < 2:

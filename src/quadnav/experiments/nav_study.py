@@ -281,11 +281,11 @@ def _gps_reference(sc: NavScenario, v: VioRecord) -> dict[str, Metric]:
     alone = _odometry_alone_positions(v)
     if isinstance(alone, str):
         return {"vio_gps_reference_m": alone, "vio_gps_reference_rate": alone}
-    t_s, est, truth = alone
+    t_ns, est, truth = alone
     g = sc.gps
     try:
         b = random_walk_fusion_reference(
-            t_s, est - truth, (g.sigma_h_m, g.sigma_h_m, g.sigma_v_m), g.rate_hz,
+            t_ns, est - truth, (g.sigma_h_m, g.sigma_h_m, g.sigma_v_m), g.rate_hz,
             outages_s=g.outages_s,
         )  # fmt: skip
     except EvalError as exc:  # (a metric the flight's states cannot give does not end the run)
@@ -320,8 +320,10 @@ def _odometry_alone(v: VioRecord) -> Metric:
     return float(np.sqrt(np.mean(np.sum((est - p_ref) ** 2, axis=1))))
 
 
-def _odometry_alone_positions(v: VioRecord) -> tuple[FloatArray, FloatArray, FloatArray] | str:
-    """:func:`_odometry_alone`'s states: their times (s), positions and the true ones (or why
+def _odometry_alone_positions(
+    v: VioRecord,
+) -> tuple[NDArray[np.int64], FloatArray, FloatArray] | str:
+    """:func:`_odometry_alone`'s states: their times (ns), positions and the true ones (or why
     there are none)."""
     ok = np.isfinite(v.truth_p_W_B).all(axis=1)
     if ok.sum() < 3:
@@ -337,7 +339,7 @@ def _odometry_alone_positions(v: VioRecord) -> tuple[FloatArray, FloatArray, Flo
         est[a:b] = Rz.apply(p[a:b] - p[a]) + anchor_p
         anchor_p = est[b - 1]
         anchor_q = (Rz * Rotation.from_quat(q[b - 1])).as_quat()
-    return v.t_ns[ok].astype(np.float64) * 1e-9, est, p_ref
+    return v.t_ns[ok], est, p_ref
 
 
 def _bias_error_fractions(r: NavRunResult) -> dict[str, Metric]:
