@@ -3,6 +3,7 @@ bound is checked (issue 21, item 6)."""
 
 from __future__ import annotations
 
+import threading
 import time
 import tracemalloc
 
@@ -51,3 +52,31 @@ def test_a_huge_range_is_refused_at_once_without_building_it() -> None:
     finally:
         tracemalloc.stop()
     assert peak < 1_000_000 and time.perf_counter() - start < 1.0
+
+
+def _slow_task(seconds: float) -> float:
+    time.sleep(seconds)
+    return seconds
+
+
+def test_a_stopped_pool_leaves_nothing_for_the_exit_hook_to_wake() -> None:
+    """After a Ctrl-C the pool is ended at once, its manager thread has ended and is off the
+    list that concurrent.futures' exit hook writes to (the hook's write to a pipe the thread had
+    closed printed a 'Bad file descriptor' traceback under load). The pool's thread was read
+    after shutdown() had cleared it until session 21, so none of this happened."""
+    from concurrent.futures import ProcessPoolExecutor
+    from concurrent.futures import process as futures_process
+
+    from quadnav.experiments.seeds import _terminate
+
+    pool = ProcessPoolExecutor(max_workers=2)
+    futures = [pool.submit(_slow_task, 5.0) for _ in range(4)]
+    time.sleep(0.5)  # (the workers have started the first two)
+    manager: threading.Thread | None = getattr(pool, "_executor_manager_thread", None)
+    assert manager is not None and manager in futures_process._threads_wakeups
+    t0 = time.monotonic()
+    _terminate(pool)
+    assert time.monotonic() - t0 < 4.0  # the running tasks were ended, not waited for
+    assert not manager.is_alive()
+    assert manager not in futures_process._threads_wakeups
+    assert all(f.cancelled() or f.done() for f in futures[2:])

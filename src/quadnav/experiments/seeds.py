@@ -62,17 +62,17 @@ def _terminate(pool: ProcessPoolExecutor) -> None:
     """Stop a pool at once: cancel what has not started, end the workers that have."""
     # ProcessPoolExecutor has no public way to end running workers; each is a Process.
     procs = list((getattr(pool, "_processes", None) or {}).values())
+    # (read before shutdown(), which sets the pool's thread to None: read after, as it was
+    # until session 21, nothing below ran and the race stayed open)
+    manager = getattr(pool, "_executor_manager_thread", None)
     pool.shutdown(wait=False, cancel_futures=True)
     for proc in procs:
         proc.terminate()
     for proc in procs:
         proc.join(timeout=5)
-    # Its manager thread closes the pool's wake-up pipe as it ends; let it end now, before the
-    # interpreter's exit hook writes to that pipe (under load the two raced: "Bad file
-    # descriptor" and a traceback after a Ctrl-C).
-    # Joining it narrowed the race but did not close it (a CI run under load still printed the
-    # traceback): the hook wakes every manager it knows, so the pool's is taken off its list.
-    manager = getattr(pool, "_executor_manager_thread", None)
+    # Its manager thread closes the pool's wake-up pipe as it ends; let it end now, and take it
+    # off the list the interpreter's exit hook wakes (that hook writes to the pipe: under load
+    # the two raced, "Bad file descriptor" and a traceback after a Ctrl-C).
     if manager is not None:
         manager.join(timeout=5)
         from concurrent.futures import process as futures_process
