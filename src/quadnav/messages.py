@@ -58,8 +58,15 @@ def _array(value: Any, shape: tuple[int, ...], what: str) -> FloatArray:
         raise SampleError(f"{what} must have shape {shape}, got {arr.shape}")
     if not np.isfinite(arr).all():
         raise SampleError(f"{what} holds a non-finite value: {arr.ravel().tolist()}")
-    arr.flags.writeable = False
+    arr.setflags(write=False)
     return arr
+
+
+def slot_setters(cls: type, *names: str) -> tuple[Callable[[object, object], None], ...]:
+    """The ``__set__`` of the named slots of a frozen ``slots`` dataclass: what a hot path's
+    constructor (``object.__new__`` then these, no checks) calls, a third of the dataclass's
+    own ``__init__``'s cost (which goes through ``object.__setattr__`` per field)."""
+    return tuple(cls.__dict__[name].__set__ for name in names)
 
 
 def _unit_quat(value: Any, what: str) -> FloatArray:
@@ -102,11 +109,12 @@ class ImuSample:
         simulated IMU, hundreds of times a second, skips the checks (as
         :meth:`VehicleState.from_checked`)."""
         out = object.__new__(cls)
-        object.__setattr__(out, "t_ns", int(t_ns))
-        gyro.flags.writeable = False
-        accel.flags.writeable = False
-        object.__setattr__(out, "gyro_rad_s", gyro)
-        object.__setattr__(out, "accel_m_s2", accel)
+        set_t, set_gyro, set_accel = _IMU_SLOTS
+        set_t(out, int(t_ns))
+        gyro.setflags(write=False)
+        accel.setflags(write=False)
+        set_gyro(out, gyro)
+        set_accel(out, accel)
         return out
 
 
@@ -211,14 +219,11 @@ class PoseSample:
         quaternion and positive sigmas its maker has checked: the simulated vision pose skips
         the checks (as :meth:`ImuSample.from_checked`), which cost more than the pose itself."""
         out = object.__new__(cls)
-        p.flags.writeable = False
-        q.flags.writeable = False
-        for name, value in (
-            ("t_ns", int(t_ns)), ("p_W_B", p), ("q_W_B_xyzw", q),
-            ("sigma_pos_m", float(sigma_pos_m)), ("sigma_yaw_rad", float(sigma_yaw_rad)),
-            ("reset_counter", 0), ("source", "vision"), ("cov_p_m2", None),
-        ):  # fmt: skip
-            object.__setattr__(out, name, value)
+        p.setflags(write=False)
+        q.setflags(write=False)
+        values = (int(t_ns), p, q, float(sigma_pos_m), float(sigma_yaw_rad), 0, "vision", None)
+        for set_, value in zip(_POSE_SLOTS, values, strict=True):
+            set_(out, value)
         return out
 
 
@@ -443,7 +448,7 @@ class RangeScan:
             raise SampleError(
                 "RangeScan.ranges_m must be a non-empty 1-D array of ranges >= 0 (inf: no hit)"
             )
-        r.flags.writeable = False
+        r.setflags(write=False)
         object.__setattr__(self, "ranges_m", r)
 
     @property
@@ -537,7 +542,7 @@ class VehicleState:
         out = object.__new__(cls)
         object.__setattr__(out, "t_ns", int(t_ns))
         for name, arr in (("p_W_B", p), ("v_W_B", v), ("a_W_B", a), ("q_W_B_xyzw", q), ("w_B", w)):
-            arr.flags.writeable = False
+            arr.setflags(write=False)
             object.__setattr__(out, name, arr)
         return out
 
@@ -546,16 +551,16 @@ class VehicleState:
         """:meth:`from_checked` of one fresh float64 array ``s`` (its first 13: position,
         velocity, quaternion, body rate) and the acceleration ``a`` (3): made read-only once,
         the fields are views of ``s`` (the simulator's state, a thousand times a second)."""
-        s.flags.writeable = False
-        a.flags.writeable = False
+        s.setflags(write=False)
+        a.setflags(write=False)
         out = object.__new__(cls)
-        setattr_ = object.__setattr__
-        setattr_(out, "t_ns", int(t_ns))
-        setattr_(out, "p_W_B", s[0:3])
-        setattr_(out, "v_W_B", s[3:6])
-        setattr_(out, "a_W_B", a)
-        setattr_(out, "q_W_B_xyzw", s[6:10])
-        setattr_(out, "w_B", s[10:13])
+        set_t, set_p, set_v, set_a, set_q, set_w = _VEHICLE_SLOTS
+        set_t(out, int(t_ns))
+        set_p(out, s[0:3])
+        set_v(out, s[3:6])
+        set_a(out, a)
+        set_q(out, s[6:10])
+        set_w(out, s[10:13])
         return out
 
 
@@ -573,6 +578,13 @@ class TruthSample:
 
 
 Sample = ImuSample | Observation | TruthSample
+
+_IMU_SLOTS = slot_setters(ImuSample, "t_ns", "gyro_rad_s", "accel_m_s2")
+_POSE_SLOTS = slot_setters(
+    PoseSample, "t_ns", "p_W_B", "q_W_B_xyzw", "sigma_pos_m", "sigma_yaw_rad", "reset_counter",
+    "source", "cov_p_m2",
+)  # fmt: skip
+_VEHICLE_SLOTS = slot_setters(VehicleState, "t_ns", "p_W_B", "v_W_B", "a_W_B", "q_W_B_xyzw", "w_B")
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -593,3 +605,27 @@ class StateEstimate:
     P: FloatArray | None = field(default=None)
     #: The body's angular rate (rad/s, body frame, gyro bias removed), where the estimator has one.
     w_B: FloatArray | None = field(default=None)
+
+    @classmethod
+    def from_checked(
+        cls, t_ns: int, p: FloatArray, v: FloatArray, q: FloatArray, x: FloatArray,
+        names: tuple[str, ...], P: FloatArray | None, w_B: FloatArray | None,
+    ) -> StateEstimate:  # fmt: skip
+        """An estimate from arrays its maker owns and has checked (an output predictor's,
+        hundreds of times a second), without the dataclass's ``__init__``."""
+        out = object.__new__(cls)
+        set_t, set_p, set_v, set_q, set_x, set_names, set_P, set_w = _ESTIMATE_SLOTS
+        set_t(out, t_ns)
+        set_p(out, p)
+        set_v(out, v)
+        set_q(out, q)
+        set_x(out, x)
+        set_names(out, names)
+        set_P(out, P)
+        set_w(out, w_B)
+        return out
+
+
+_ESTIMATE_SLOTS = slot_setters(
+    StateEstimate, "t_ns", "p_W_B", "v_W_B", "q_W_B_xyzw", "x", "names", "P", "w_B"
+)

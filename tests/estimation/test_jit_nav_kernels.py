@@ -247,16 +247,18 @@ def test_the_ring_correction_in_one_kernel_is_the_attitude_error_and_the_pi_one(
 
 def test_the_injection_kernel_adds_the_correction() -> None:
     """An update's correction into new arrays: the velocity, position and biases plus their
-    parts of ``dx``, as numpy adds them; the attitude's turn is SciPy's."""
+    parts of ``dx``, as numpy adds them; the attitude turned by SciPy's rotation of its part."""
     rng = np.random.default_rng(13)
     dx, v, p, bg, ba = rng.normal(size=15) * 0.1, *(rng.normal(size=3) for _ in range(4))
+    R = Rotation.from_rotvec(rng.normal(size=3)).as_matrix()
     out = tuple(np.full(3, np.nan) for _ in range(4)) + (np.full((3, 3), np.nan),)
-    nav_ekf._inject(dx, v, p, bg, ba, out)
+    nav_ekf._inject(dx, R, v, p, bg, ba, out)
     for got, want in zip(out[:4], (v + dx[3:6], p + dx[6:9], bg + dx[9:12], ba + dx[12:15]),
                          strict=True):  # fmt: skip
         np.testing.assert_array_equal(got, want)
-    np.testing.assert_array_equal(out[4], rotations.so3_exp(dx[0:3]))
-    np.testing.assert_allclose(out[4], Rotation.from_rotvec(dx[0:3]).as_matrix(), atol=1e-15)
+    want_R = R @ Rotation.from_rotvec(dx[0:3]).as_matrix()
+    np.testing.assert_allclose(out[4], want_R, atol=1e-15)
+    assert not np.allclose(out[4], R, atol=1e-3)  # (the turn is there, not the old attitude)
 
 
 def _textbook_update(

@@ -31,7 +31,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from quadnav.errors import ControlError
-from quadnav.messages import StateEstimate, VehicleState
+from quadnav.messages import StateEstimate, VehicleState, slot_setters
 
 __all__ = [
     "TRUTH_STATE_NAMES",
@@ -102,12 +102,12 @@ class Command:
         """A ``rotor_speeds`` command with its torque (valid by construction: no check), for a
         controller called every simulator step."""
         out = object.__new__(cls)
-        setattr_ = object.__setattr__
-        setattr_(out, "thrust_n", thrust_n)
-        setattr_(out, "torque_B_nm", torque_B_nm)
-        setattr_(out, "tau_B_rad_s2", None)
-        setattr_(out, "rotor_rad_s", rotor_rad_s)
-        setattr_(out, "saturated", saturated)
+        set_thrust, set_torque, set_tau, set_rotor, set_saturated = _COMMAND_SLOTS
+        set_thrust(out, thrust_n)
+        set_torque(out, torque_B_nm)
+        set_tau(out, None)
+        set_rotor(out, rotor_rad_s)
+        set_saturated(out, saturated)
         return out
 
     @property
@@ -127,6 +127,11 @@ class Command:
         out = self.torque_B_nm if self.torque_B_nm is not None else self.tau_B_rad_s2
         assert out is not None  # __post_init__ guarantees one
         return out
+
+
+_COMMAND_SLOTS = slot_setters(
+    Command, "thrust_n", "torque_B_nm", "tau_B_rad_s2", "rotor_rad_s", "saturated"
+)
 
 
 class Controller(Protocol):

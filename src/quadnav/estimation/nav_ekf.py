@@ -207,9 +207,7 @@ class NavKinematics:
         p, v, q = np.empty(3), np.empty(3), np.empty(4)
         x = np.empty(len(pos) + len(vel) + len(att))
         _output_parts(pos, vel, att, p, v, q, x)
-        return StateEstimate(
-            t_ns=nav.t_ns, p_W_B=p, v_W_B=v, q_W_B_xyzw=q, x=x, names=_OUTPUT_NAMES, w_B=w_B
-        )
+        return StateEstimate.from_checked(nav.t_ns, p, v, q, x, _OUTPUT_NAMES, None, w_B)
 
 
 _OUTPUT_NAMES = NAV_OUTPUT.names
@@ -1244,11 +1242,10 @@ class NavEkf:
         ratio = nis / limit
         if ratio > 1.0:
             return FusionResult(accepted=False, innovation=r, nis=nis, test_ratio=ratio)
-        # Inject the error into the nominal state (new arrays; the rotation's product in numpy).
-        v, p, bg, ba, E = np.empty(3), np.empty(3), np.empty(3), np.empty(3), np.empty((3, 3))
-        _inject(dx, self.v, self.p, self.bg, self.ba, (v, p, bg, ba, E))
-        self.R = self.R @ E
-        self.v, self.p, self.bg, self.ba = v, p, bg, ba
+        # Inject the error into the nominal state (new arrays).
+        v, p, bg, ba, R = np.empty(3), np.empty(3), np.empty(3), np.empty(3), np.empty((3, 3))
+        _inject(dx, self.R, self.v, self.p, self.bg, self.ba, (v, p, bg, ba, R))
+        self.R, self.v, self.p, self.bg, self.ba = R, v, p, bg, ba
         if self._relative:
             self.odometry_drift += dx[_N:]
         self._P = P_new
@@ -1332,19 +1329,53 @@ def _kalman_update(
     with the symmetrisation and the positive noise of every update), with the attitude error's
     reset ``P <- Gr P Gr^T`` (``Gr`` = I but its attitude block ``B = I - [dtheta/2]x``),
     symmetrised. Beyond ``limit``, ``dx`` is empty and ``P`` comes back untouched."""
-    PHt = P @ H.T
-    S = H @ PHt + Rn
+    n, m = P.shape[0], H.shape[0]
+    # (in loops over H's nonzero entries: an observation sees a few of the states, and BLAS's
+    # calls cost more than these small products)
+    PHt = np.zeros((n, m))
+    for a in range(m):
+        for k in range(n):
+            h = H[a, k]
+            if h != 0.0:
+                for i in range(n):
+                    PHt[i, a] += P[i, k] * h
+    S = Rn.copy()
+    for a in range(m):
+        for k in range(n):
+            h = H[a, k]
+            if h != 0.0:
+                for b in range(m):
+                    S[a, b] += h * PHt[k, b]
     S_inv = np.empty_like(S)
-    if r.shape[0] == 1:  # scalar observations (height, range, heading) need no matrix inverse
+    if m == 1:  # scalar observations (height, range, heading) need no matrix inverse
         S_inv[0, 0] = 1.0 / S[0, 0]
     else:
         S_inv[:, :] = np.linalg.inv(S)
-    nis = float(r @ (S_inv @ r))
+    Sr = np.zeros(m)
+    nis = 0.0
+    for a in range(m):
+        for b in range(m):
+            Sr[a] += S_inv[a, b] * r[b]
+        nis += r[a] * Sr[a]
     if nis / limit > 1.0:
         return nis, np.empty(0), P
-    K = PHt @ S_inv
-    dx = K @ r
-    P1 = P - K @ PHt.T
+    K = np.zeros((n, m))
+    dx = np.zeros(n)
+    for i in range(n):
+        for a in range(m):
+            acc = 0.0
+            for b in range(m):
+                acc += PHt[i, b] * S_inv[b, a]
+            K[i, a] = acc
+        for a in range(m):
+            dx[i] += PHt[i, a] * Sr[a]
+    P1 = P.copy()
+    for i in range(n):
+        for j in range(n):
+            acc = 0.0
+            for a in range(m):
+                acc += K[i, a] * PHt[j, a]
+            P1[i, j] -= acc
     hx, hy, hz = 0.5 * dx[_I_ATT], 0.5 * dx[_I_ATT + 1], 0.5 * dx[_I_ATT + 2]
     B = np.eye(3)
     B[0, 1], B[0, 2], B[1, 2] = hz, -hy, hx  # I - [h]x
@@ -1369,19 +1400,22 @@ def _kalman_update(
 
 @njit
 def _inject(
-    dx: FloatArray, v: FloatArray, p: FloatArray, bg: FloatArray, ba: FloatArray,
+    dx: FloatArray, R: FloatArray, v: FloatArray, p: FloatArray, bg: FloatArray, ba: FloatArray,
     out: tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray],
 ) -> None:  # fmt: skip
-    """An update's correction ``dx`` into ``out`` = (v', p', b_g', b_a', E): the velocity,
-    position and biases plus their parts of ``dx``, and ``E = Exp(dx_att)`` (the attitude's
-    turn, ``R' = R E``)."""
-    v1, p1, bg1, ba1, E = out
+    """An update's correction ``dx`` into ``out`` = (v', p', b_g', b_a', R'): the velocity,
+    position and biases plus their parts of ``dx``, and the attitude turned by its part,
+    ``R' = R Exp(dx_att)``."""
+    v1, p1, bg1, ba1, R1 = out
     for k in range(3):
         v1[k] = v[k] + dx[_I_VEL + k]
         p1[k] = p[k] + dx[_I_POS + k]
         bg1[k] = bg[k] + dx[_I_BG + k]
         ba1[k] = ba[k] + dx[_I_BA + k]
-    E[:, :] = so3_exp_one(dx[_I_ATT : _I_ATT + 3])
+    E = so3_exp_one(dx[_I_ATT : _I_ATT + 3])
+    for i in range(3):
+        for j in range(3):
+            R1[i, j] = R[i, 0] * E[0, j] + R[i, 1] * E[1, j] + R[i, 2] * E[2, j]
 
 
 @njit

@@ -19,7 +19,7 @@ from numpy.typing import NDArray
 
 from quadnav.errors import SimError
 from quadnav.geometry.navsat import GeoDatum, NavSatTransform
-from quadnav.geometry.rotations import quat_xyzw_from_matrix, rot_z, rotation_matrix_xyzw
+from quadnav.geometry.rotations import quat_xyzw_one, rot_z, rotation_matrix_xyzw
 from quadnav.jit import njit
 from quadnav.messages import (
     GpsSample,
@@ -602,20 +602,50 @@ class VisionPoseSensor(PeriodicSensor):
     def sample(self, truth: VehicleState, t_ns: int, rng: Generator) -> PoseSample | None:
         if not self._ticker.due(t_ns):
             return None
-        p_V = self._R_V_W @ (truth.p_W_B - self.p_W_V)
-        R_V_B = (
-            self._R_V_W
-            @ rotation_matrix_xyzw(truth.q_W_B_xyzw)
-            @ rot_z(self.yaw_sigma * rng.standard_normal())
-        )
+        yaw_err = self.yaw_sigma * rng.standard_normal()
+        noise = rng.standard_normal(3)
+        p, q = np.empty(3), np.empty(4)
+        _vision_pose(self._R_V_W, self.p_W_V, truth.p_W_B, truth.q_W_B_xyzw, yaw_err,
+                     self.sigma, noise, p, q)  # fmt: skip
         # (fresh finite arrays, a unit quaternion: the sample needs no checks)
-        return PoseSample.from_checked(
-            t_ns,
-            p_V + self.sigma * rng.standard_normal(3),
-            quat_xyzw_from_matrix(R_V_B),
-            self.sigma,
-            self.yaw_sigma,
-        )
+        return PoseSample.from_checked(t_ns, p, q, self.sigma, self.yaw_sigma)
+
+
+@njit
+def _vision_pose(
+    R_V_W: FloatArray, p_W_V: FloatArray, p_W_B: FloatArray, q_W_B: FloatArray, yaw_err: float,
+    sigma: float, noise: FloatArray, p: FloatArray, q: FloatArray,
+) -> None:  # fmt: skip
+    """:class:`VisionPoseSensor`'s reading into ``p`` and ``q``: the position in the vision
+    frame, ``R_V_W (p_W_B - p_W_V) + sigma noise``, and the quaternion of
+    ``R_V_B = R_V_W R(q_W_B) R_z(yaw_err)``."""
+    R = np.empty((3, 3))
+    qx, qy, qz, qw = q_W_B[0], q_W_B[1], q_W_B[2], q_W_B[3]
+    R[0, 0], R[0, 1], R[0, 2] = (
+        1 - 2 * (qy * qy + qz * qz),
+        2 * (qx * qy - qw * qz),
+        2 * (qx * qz + qw * qy),
+    )
+    R[1, 0], R[1, 1], R[1, 2] = (
+        2 * (qx * qy + qw * qz),
+        1 - 2 * (qx * qx + qz * qz),
+        2 * (qy * qz - qw * qx),
+    )
+    R[2, 0], R[2, 1], R[2, 2] = (
+        2 * (qx * qz - qw * qy),
+        2 * (qy * qz + qw * qx),
+        1 - 2 * (qx * qx + qy * qy),
+    )
+    c, s = math.cos(yaw_err), math.sin(yaw_err)
+    M = np.empty((3, 3))  # R_V_W R(q_W_B) R_z(yaw_err)
+    for i in range(3):
+        d = p_W_B[0] - p_W_V[0], p_W_B[1] - p_W_V[1], p_W_B[2] - p_W_V[2]
+        p[i] = R_V_W[i, 0] * d[0] + R_V_W[i, 1] * d[1] + R_V_W[i, 2] * d[2] + sigma * noise[i]
+        a0 = R_V_W[i, 0] * R[0, 0] + R_V_W[i, 1] * R[1, 0] + R_V_W[i, 2] * R[2, 0]
+        a1 = R_V_W[i, 0] * R[0, 1] + R_V_W[i, 1] * R[1, 1] + R_V_W[i, 2] * R[2, 1]
+        a2 = R_V_W[i, 0] * R[0, 2] + R_V_W[i, 1] * R[1, 2] + R_V_W[i, 2] * R[2, 2]
+        M[i, 0], M[i, 1], M[i, 2] = a0 * c + a1 * s, a1 * c - a0 * s, a2
+    q[:] = quat_xyzw_one(M)
 
 
 @njit
