@@ -45,6 +45,7 @@ SLOW_PATH = [
     (sensors, "_reading"),
     (sensors, "_draw_one"),
     (sensors, "_draw_reading"),
+    (sensors, "_vision_pose"),
     (rigid_body, "_all_finite"),
 ]
 
@@ -164,20 +165,25 @@ def test_the_logged_state_row_is_the_estimates() -> None:
 
 def test_the_output_estimate_is_the_rings_state_in_numpy() -> None:
     """The output predictor's estimate from its kernel: copies of the ring's row, SciPy's
-    quaternion, ``x`` the concatenated row, the names and the body rate as given."""
+    quaternion, ``x`` the concatenated row, the names and the body rate (the gyro less its bias)."""
     rng = np.random.default_rng(11)
     kin = nav_ekf.NavKinematics()
     for R in _rotations(rng):
         pos, vel, att = rng.normal(size=3), rng.normal(size=3), R.ravel().copy()
-        w = rng.normal(size=3)
-        est = kin.output_estimate(horizon.NavState(7, pos, vel, att), w)
+        gyro, bg = rng.normal(size=3), rng.normal(size=3) * 0.1
+        est = kin.output_estimate(horizon.NavState(7, pos, vel, att), gyro, bg)
         want = kin.to_estimate(
             horizon.NavState(7, pos, vel, att), np.concatenate((pos, vel, att)),
-            kin.output_names, None, w,
+            kin.output_names, None, gyro - bg,
         )  # fmt: skip
-        for name in ("p_W_B", "v_W_B", "q_W_B_xyzw", "x"):
+        for name in ("p_W_B", "v_W_B", "q_W_B_xyzw", "x", "w_B"):
             np.testing.assert_array_equal(getattr(est, name), getattr(want, name), err_msg=name)
-        assert est.t_ns == 7 and est.names == kin.output_names and est.P is None and est.w_B is w
+        assert est.t_ns == 7 and est.names == kin.output_names and est.P is None
+        # without a gyro reading, or with a bias of another shape, there is no body rate
+        for no_rate in ((None, bg), (gyro, np.zeros(1))):
+            est = kin.output_estimate(horizon.NavState(7, pos, vel, att), *no_rate)
+            assert est.w_B is None
+            np.testing.assert_array_equal(est.p_W_B, pos)
         assert not np.shares_memory(est.p_W_B, pos) and not np.shares_memory(est.x, att)
 
 
@@ -356,6 +362,31 @@ def test_the_imu_reading_kernel_refuses_what_is_not_finite() -> None:
     assert rigid_body._all_finite(np.ones(17)) and not rigid_body._all_finite(
         np.array([1.0, np.inf])
     )
+
+
+def test_the_vision_pose_kernel_is_the_frames_rotations_in_scipy() -> None:
+    """The simulated vision pose from its kernel against SciPy's rotations of the same numbers:
+    the position into the vision frame plus its noise, the attitude turned by the frame and
+    by the yaw error; its Python the same."""
+    rng = np.random.default_rng(17)
+    for R in _rotations(rng):
+        frame_yaw, yaw_err, sigma = rng.uniform(-3, 3), rng.normal(0, 0.1), 0.05
+        R_V_W = Rotation.from_euler("z", -frame_yaw).as_matrix()
+        p_W_V, p_W_B, noise = rng.normal(size=3), rng.normal(0, 3, 3), rng.normal(size=3)
+        q_W_B = Rotation.from_matrix(R).as_quat()
+        p, q = np.full(3, np.nan), np.full(4, np.nan)
+        sensors._vision_pose(R_V_W, p_W_V, p_W_B, q_W_B, yaw_err, sigma, noise, p, q)
+        np.testing.assert_allclose(p, R_V_W @ (p_W_B - p_W_V) + sigma * noise, atol=1e-12)
+        want = (
+            Rotation.from_euler("z", -frame_yaw) * Rotation.from_quat(q_W_B)
+            * Rotation.from_euler("z", yaw_err)
+        )  # fmt: skip
+        assert (Rotation.from_quat(q) * want.inv()).magnitude() < 1e-9
+        assert q[3] >= 0
+        p2, q2 = np.empty(3), np.empty(4)
+        sensors._vision_pose.py_func(R_V_W, p_W_V, p_W_B, q_W_B, yaw_err, sigma, noise, p2, q2)
+        np.testing.assert_allclose(p2, p, rtol=1e-14, atol=1e-15)
+        np.testing.assert_allclose(q2, q, rtol=1e-14, atol=1e-15)
 
 
 def test_a_seeded_navigation_flight_is_the_same_with_its_kernels_as_python(

@@ -97,6 +97,14 @@ class NavState:
         return NavState(self.t_ns, self.pos.copy(), self.vel.copy(), self.att.copy())
 
 
+def body_rate(gyro: FloatArray | None, bias_g: FloatArray) -> FloatArray | None:
+    """A gyro reading less the gyro bias (None without a reading, or where the shapes differ:
+    a filter whose bias is not the reading's)."""
+    if gyro is None or gyro.shape != bias_g.shape:
+        return None
+    return gyro - bias_g
+
+
 class Kinematics(Protocol):
     """Strapdown integration shared by a filter's mean, the output predictor and diagnostics.
 
@@ -151,9 +159,12 @@ class Kinematics(Protocol):
         """Package a navigation state in the common 3-D form (``w_B``: the body rate)."""
         ...
 
-    def output_estimate(self, nav: NavState, w_B: FloatArray | None) -> StateEstimate:
+    def output_estimate(
+        self, nav: NavState, gyro: FloatArray | None, bias_g: FloatArray
+    ) -> StateEstimate:
         """:meth:`to_estimate` of the output predictor's state: ``x`` its
-        ``concatenate([pos, vel, att])`` (:attr:`output_names`), no covariance."""
+        ``concatenate([pos, vel, att])`` (:attr:`output_names`), no covariance; the body rate
+        ``gyro - bias_g`` (None without a gyro reading, or where the shapes differ)."""
         ...
 
     @property
@@ -466,17 +477,7 @@ class DelayedHorizonEstimator:
             h = self._ob_head
             nav = NavState(self._ob_t_now, self._ob_pos[h], self._ob_vel[h], self._ob_att[h])
         # The output predictor carries the kinematics' state, not the filter's: its names.
-        return self.kin.output_estimate(nav, self.body_rate())
-
-    def body_rate(self) -> FloatArray | None:
-        """The newest gyro reading less the filter's gyro bias (None before any IMU sample)."""
-        gyro = self._last_gyro
-        if gyro is None:
-            return None
-        bg = self.filter.imu_biases()[0]
-        if gyro.shape != bg.shape:
-            return None
-        return gyro - bg
+        return self.kin.output_estimate(nav, self._last_gyro, self.filter.imu_biases()[0])
 
     # -- statistics ------------------------------------------------------------------------
     @property

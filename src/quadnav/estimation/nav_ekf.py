@@ -200,14 +200,20 @@ class NavKinematics:
             w_B=w_B,
         )
 
-    def output_estimate(self, nav: NavState, w_B: FloatArray | None) -> StateEstimate:
+    def output_estimate(
+        self, nav: NavState, gyro: FloatArray | None, bias_g: FloatArray
+    ) -> StateEstimate:
         """:meth:`to_estimate` of the output predictor's state, its arrays (copies, the
-        quaternion, ``x``) from one kernel (hundreds of times a second)."""
+        quaternion, ``x``, the body rate) from one kernel (hundreds of times a second)."""
         pos, vel, att = nav.pos, nav.vel, nav.att
         p, v, q = np.empty(3), np.empty(3), np.empty(4)
         x = np.empty(len(pos) + len(vel) + len(att))
-        _output_parts(pos, vel, att, p, v, q, x)
-        return StateEstimate.from_checked(nav.t_ns, p, v, q, x, _OUTPUT_NAMES, None, w_B)
+        if gyro is None or gyro.shape != bias_g.shape:
+            _output_parts(pos, vel, att, _NO_CORRECTION, _NO_CORRECTION, p, v, q, x, None)
+            return StateEstimate.from_checked(nav.t_ns, p, v, q, x, _OUTPUT_NAMES, None, None)
+        w = np.empty(3)
+        _output_parts(pos, vel, att, gyro, bias_g, p, v, q, x, w)
+        return StateEstimate.from_checked(nav.t_ns, p, v, q, x, _OUTPUT_NAMES, None, w)
 
 
 _OUTPUT_NAMES = NAV_OUTPUT.names
@@ -285,12 +291,15 @@ def _estimate_parts(
 
 @njit
 def _output_parts(
-    pos: FloatArray, vel: FloatArray, att: FloatArray, p: FloatArray, v: FloatArray,
-    q: FloatArray, x: FloatArray,
+    pos: FloatArray, vel: FloatArray, att: FloatArray, gyro: FloatArray, bias_g: FloatArray,
+    p: FloatArray, v: FloatArray, q: FloatArray, x: FloatArray, w: FloatArray | None,
 ) -> None:  # fmt: skip
     """:meth:`NavKinematics.output_estimate`'s arrays: :func:`_estimate_parts`' ``p``, ``v``,
-    ``q``, and ``x = concatenate([pos, vel, att])``."""
+    ``q``, ``x = concatenate([pos, vel, att])`` and (unless None) ``w = gyro - bias_g``."""
     _estimate_parts(pos, vel, att, p, v, q)
+    if w is not None:
+        for k in range(3):
+            w[k] = gyro[k] - bias_g[k]
     n_p, n_v = pos.shape[0], vel.shape[0]
     for k in range(n_p):
         x[k] = pos[k]

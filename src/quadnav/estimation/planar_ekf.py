@@ -28,7 +28,13 @@ from numpy.typing import NDArray
 
 from quadnav.errors import EstimationError
 from quadnav.estimation.chi2 import chi2_ppf
-from quadnav.estimation.horizon import FusionResult, NavState, correct_ring, integrate_ring
+from quadnav.estimation.horizon import (
+    FusionResult,
+    NavState,
+    body_rate,
+    correct_ring,
+    integrate_ring,
+)
 from quadnav.messages import ImuSample, PositionSample, Sample, StateEstimate
 from quadnav.units import GRAVITY_M_S2
 
@@ -97,9 +103,11 @@ class PlanarKinematics:
         err = math.remainder(float(att_target[0] - att[0]), 2.0 * math.pi)
         return np.array([0.0, err, 0.0])
 
-    def output_estimate(self, nav: NavState, w_B: FloatArray | None) -> StateEstimate:
+    def output_estimate(
+        self, nav: NavState, gyro: FloatArray | None, bias_g: FloatArray
+    ) -> StateEstimate:
         x = np.concatenate((nav.pos, nav.vel, nav.att))
-        return self.to_estimate(nav, x, self.output_names, None, w_B)
+        return self.to_estimate(nav, x, self.output_names, None, body_rate(gyro, bias_g))
 
     def correct_ring(
         self, ring: tuple[FloatArray, FloatArray, FloatArray], ring_t: NDArray[np.int64],
