@@ -2,7 +2,8 @@
 
 Issue 26's hot paths: the rigid body's RK4 step, the cascaded PID, the IMU's accumulation (each
 simulator step), the vision pose sensor (each sample), the output predictor's step and two
-rotation conversions (each IMU sample), in microseconds a call; one seeded flight of
+rotation conversions (each IMU sample), the EKF's prediction (each IMU sample) and its update
+with a vision pose (tens a second), in microseconds a call; one seeded flight of
 ``indoor_vision_pose`` (``run_nav``, in process, 32.5 s of flight at 500 Hz) and one task of
 ``benchmarks/sweep.py`` (a 60 s flight and its metrics) in seconds; and what the user feels, ``quadnav run indoor_vision_pose --seeds 1 --jobs 1`` as a
 process (start, imports, the flight, metrics, plots, report). ``--before SRC`` (a ``src/`` of
@@ -81,6 +82,16 @@ w3, f3, corr = np.array([0.1, -0.2, 0.05]), np.array([0.1, 0.2, 9.8]), np.full(3
 out["output predictor step (us)"] = per_call_us(
     lambda: kin.integrate(truth.p_W_B, truth.v_W_B, R9, w3, f3, 0.004, corr), 20000
 )
+from quadnav.estimation.nav_ekf import NavEkf, NavEkfConfig
+from quadnav.messages import ImuSample, PoseSample
+ekf = NavEkf(NavEkfConfig(), p0=np.zeros(3), v0=np.zeros(3), q0_xyzw=np.array([0, 0, 0, 1.0]),
+             P0=np.eye(15) * 1e-2)
+imu_s = ImuSample(t_ns=4_000_000, gyro_rad_s=w3, accel_m_s2=f3)
+out["EKF prediction (us)"] = per_call_us(lambda: ekf.predict(imu_s, 0.004), 20000)
+pose_times = iter(range(10**9, 10**15, 10**6))
+out["EKF update, a vision pose (us)"] = per_call_us(lambda: ekf.fuse(PoseSample(
+    t_ns=next(pose_times), p_W_B=ekf.p.copy(), q_W_B_xyzw=np.array([0, 0, 0, 1.0]),
+    sigma_pos_m=0.01, sigma_yaw_rad=0.01)), 5000)
 Rz = np.array([[0.6, -0.8, 0.0], [0.8, 0.6, 0.0], [0.0, 0.0, 1.0]])
 out["quaternion of a matrix (us)"] = per_call_us(lambda: quat_xyzw_from_matrix(Rz), 20000)
 out["rotation vector of a matrix (us)"] = per_call_us(lambda: so3_log(Rz), 20000)
@@ -149,16 +160,19 @@ def main() -> None:
         for name, rs in runs.items()
     }  # fmt: skip
     print(f"\nflight speed, one core ({_CORE}), {args.repeats} repeats, medians (best)")
-    head = f"  {'':28s}{'now':>18s}"
+    w = max(len(k) for k in rows) + 2
+    head = f"  {'':{w}s}{'now':>18s}"
     if "before" in table:
         head += f"{'before':>18s}{'before/now':>12s}"
     print(head)
     for k in rows:
         now = table["now"][k]
-        line = f"  {k:28s}{now['median']:>10.2f} ({now['best']:.2f})"
+        cell = f"{now['median']:.2f} ({now['best']:.2f})"
+        line = f"  {k:{w}s}{cell:>18s}"
         if "before" in table:
             b = table["before"][k]
-            line += f"{b['median']:>10.2f} ({b['best']:.2f}){b['median'] / now['median']:>10.2f}x"
+            cell = f"{b['median']:.2f} ({b['best']:.2f})"
+            line += f"{cell:>18s}{b['median'] / now['median']:>11.2f}x"
         print(line)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     record = {
