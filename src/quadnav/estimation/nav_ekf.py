@@ -1316,16 +1316,26 @@ def _propagate(
     if not with_cov:
         return
     n, m = F.shape[0], G.shape[1]
+    # Row by row of F and G, over their nonzero entries (a step's F is mostly identity and
+    # zeros, G mostly zeros): the terms of the dense sums in their order, a third of the work.
     FP = _matmul(F, P)
-    for i in range(n):
-        for j in range(i, n):
-            acc = 0.0
-            for k in range(n):
-                acc += FP[i, k] * F[j, k]
-            for k in range(m):
-                acc += G[i, k] * q[k] * G[j, k]
-            P1[i, j] = acc
-            P1[j, i] = acc
+    row = np.empty(n)
+    for j in range(n):
+        row[:] = 0.0
+        for k in range(n):
+            a = F[j, k]
+            if a != 0.0:
+                for i in range(n):
+                    row[i] += a * FP[i, k]
+        for k in range(m):
+            b = G[j, k]
+            if b != 0.0:
+                qk = q[k]
+                for i in range(n):
+                    row[i] += G[i, k] * qk * b
+        for i in range(j + 1):
+            P1[i, j] = row[i]
+            P1[j, i] = row[i]
 
 
 @njit
