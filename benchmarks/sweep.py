@@ -3,7 +3,10 @@
 minute and the time 1,000 flights would take.
 
 The whole sweep is timed as a user feels it (the pool's start-up, the workers' imports, the
-table, plots and report), and each task's own wall time is read back from the table.
+table, plots and report), and each task's own wall time is read back from the table. Before
+the pool starts, one task is timed alone on one core (``task_alone_s``, warm, best of three):
+this machine's speed moves from day to day, and that number lets two days' sweeps be set side
+by side.
 
     python benchmarks/sweep.py [--flights 20] [--jobs 2] [--flight-s 60]
 """
@@ -12,11 +15,13 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
@@ -51,6 +56,7 @@ def main() -> None:
         None, "indoor_vision_pose", ["vision.delay_s=0.25"], str(args.flights), overrides
     )
     plan = plan_sweep(spec)
+    alone_s = _one_task_alone(plan)
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.perf_counter()
         res = run_sweep(plan, Path(tmp) / "sweep", SweepEngine(jobs=args.jobs))
@@ -66,6 +72,7 @@ def main() -> None:
         "flight_s": args.flight_s,
         "sweep_wall_s": wall_s,
         "task_wall_median_s": task_s[len(task_s) // 2] if task_s else None,
+        "task_alone_s": alone_s,
         "flights_per_minute": per_min,
         "projected_1000_flights_min": 1000.0 / per_min if per_min else None,
         "cpu_count": os.cpu_count(),
@@ -76,6 +83,20 @@ def main() -> None:
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(row, indent=2) + "\n")
     print(f"wrote {args.out}")
+
+
+def _one_task_alone(plan: Any) -> float:
+    """The sweep's first task run here before the pool starts, warm (a first run loads the
+    kernels), the best of three: this machine's speed today, on one core with the other idle,
+    to set the sweep's time beside on another day."""
+    point, seed = plan.task(0)
+    plan.kind.run(point.config, seed)
+    best = math.inf
+    for _ in range(3):
+        t0 = time.perf_counter()
+        plan.kind.run(point.config, seed)
+        best = min(best, time.perf_counter() - t0)
+    return best
 
 
 if __name__ == "__main__":
