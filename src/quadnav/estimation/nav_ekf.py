@@ -1351,13 +1351,7 @@ def _kalman_update(
     n, m = P.shape[0], H.shape[0]
     # (in loops over H's nonzero entries: an observation sees a few of the states, and BLAS's
     # calls cost more than these small products)
-    PHt = np.zeros((n, m))
-    for a in range(m):
-        for k in range(n):
-            h = H[a, k]
-            if h != 0.0:
-                for i in range(n):
-                    PHt[i, a] += P[i, k] * h
+    PHt = _matmul(H, P.T).T
     S = Rn.copy()
     for a in range(m):
         for k in range(n):
