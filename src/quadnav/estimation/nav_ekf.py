@@ -1352,13 +1352,7 @@ def _kalman_update(
     # (in loops over H's nonzero entries: an observation sees a few of the states, and BLAS's
     # calls cost more than these small products)
     PHt = _matmul(H, P.T).T
-    S = Rn.copy()
-    for a in range(m):
-        for k in range(n):
-            h = H[a, k]
-            if h != 0.0:
-                for b in range(m):
-                    S[a, b] += h * PHt[k, b]
+    S = _matmul(H, PHt) + Rn
     S_inv = np.empty_like(S)
     if m == 1:  # scalar observations (height, range, heading) need no matrix inverse
         S_inv[0, 0] = 1.0 / S[0, 0]
