@@ -89,8 +89,20 @@ class DriftingOdometry:
             self.truth.append(T)
             self.odo.append(D @ T)
         self.reset_at = reset_at
+        #: an honest covariance, as the VIO's: the random walk's variance since the odometry's
+        #: frame began (its yaw's at a metre from the origin included), the jump's besides
+        walk = 0.015**2 + 0.006**2
+        self.var_m2 = [
+            (k - max(reset_at, 0) if 0 <= reset_at <= k else k) * walk
+            + (0.3**2 if 0 <= jump_at <= k and jump is not None and not 0 <= reset_at <= k else 0.0)
+            for k in range(laps * PER_LAP)
+        ]  # fmt: skip
         self._pending: list[KeyframeRecord] = []
         self._newest: KeyframeRecord | None = None
+
+    def cov_pose(self, k: int) -> np.ndarray:
+        """The pose covariance at keyframe ``k`` (rotation, then position)."""
+        return np.diag([1e-4] * 3 + [1e-4 + self.var_m2[k]] * 3)
 
     def record(self, k: int) -> KeyframeRecord:
         T, T_odo = self.truth[k], self.odo[k]
@@ -105,7 +117,7 @@ class DriftingOdometry:
             xy[inside] + self.rng.normal(0, 0.7 / FOCAL_PX, (int(inside.sum()), 2)),
         )
         return KeyframeRecord(
-            index=k, t_ns=k * 200_000_000, reset_counter=self.reset_counter(k), T_W_B=T_odo, cov_pose=np.eye(6) * 1e-4,
+            index=k, t_ns=k * 200_000_000, reset_counter=self.reset_counter(k), T_W_B=T_odo, cov_pose=self.cov_pose(k),
             camera="cam0", image=None, ids=vis.astype(np.int64), uv_px=xy * FOCAL_PX + 376, xy=xy,
             descriptors=_flip((self.desc if k < PER_LAP else self.desc_later)[vis], 4, self.rng), described=np.ones(len(vis), bool),
             landmark_ids=vis.astype(np.int64), landmarks_W=D @ X_seen[vis],
@@ -128,7 +140,7 @@ class DriftingOdometry:
         self._pending.append(self._newest)
         return OdometryState(
             t_ns=k * 200_000_000, T_W_B=self.odo[k], v_W_B=np.zeros(3), gyro_bias=np.zeros(3),
-            accel_bias=np.zeros(3), cov_pose=np.eye(6) * 1e-4, cov_v=np.eye(3) * 1e-4,
+            accel_bias=np.zeros(3), cov_pose=self.cov_pose(k), cov_v=np.eye(3) * 1e-4,
             reset_counter=self.reset_counter(k),
         )  # fmt: skip
 

@@ -127,3 +127,56 @@ def test_a_look_alike_room_metres_away_passes_the_geometry_but_not_the_drift_che
         assert any("drift" in e.detail for e in loop.events if e.kind == "loop_rejected")
     finally:
         loop.close()
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_look_alike_inside_the_path_allowance_is_refused_by_the_odometrys_covariance(
+    seed: int,
+) -> None:
+    """The identical room 0.8 m along: less than the path rule allows after the 6 m flown
+    between the laps (0.3 m + 10 %), so without the odometry's covariance the second lap
+    closes loops to the first; against the covariance (about 0.11 m an axis by then) the move
+    is seven sigma, and every such loop is refused."""
+    for use in (False, True):
+        odo = DriftingOdometry(seed, shift_m=0.8)
+        config = dataclasses.replace(LOOP, use_odometry_covariance=use)
+        loop = LoopClosure(odo, CAMERA, config=config)
+        try:
+            for k in range(len(odo.truth)):
+                loop.push(_frame(k))
+            loop.keyframes(final=True)
+            across = [(o, n) for o, n in loop.stats.loops if (o < PER_LAP) != (n < PER_LAP)]
+            if not use:
+                assert across, loop.stats  # what the path rule alone lets through
+                continue
+            assert not across, loop.stats
+            assert loop.stats.rejected["drift"] >= 1, loop.stats
+            assert any("chi-square" in e.detail for e in loop.events if e.kind == "loop_rejected")
+        finally:
+            loop.close()
+
+
+def test_an_odometry_that_drifts_faster_than_the_graph_assumes_is_corrected_by_its_covariance() -> (
+    None
+):
+    """The default graph holds a step to 5 mm; this odometry walks 1.5 cm and 0.3 degrees a
+    keyframe, and says so in its covariance. Its sequential edges loosened by that growth, the
+    loops pull the second lap much nearer the truth than the fixed 5 mm edges let them (four
+    seeds: 0.06-0.07 m against 0.10-0.15 m)."""
+    for seed in range(4):
+        rmse = []
+        for use in (False, True):
+            odo = DriftingOdometry(seed)
+            config = LoopConfig(executor="thread", use_odometry_covariance=use)
+            loop = LoopClosure(odo, CAMERA, config=config)
+            try:
+                for k in range(len(odo.truth)):
+                    loop.push(_frame(k))
+                loop.keyframes(final=True)
+                poses = loop.graph.keyframe_poses()
+            finally:
+                loop.close()
+            corrected = [poses[k] for k in range(PER_LAP, len(odo.truth))]
+            rmse.append(_rmse(corrected, odo.truth[PER_LAP:]))
+        fixed, loosened = rmse
+        assert loosened < 0.75 * fixed, (seed, rmse)

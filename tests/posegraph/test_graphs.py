@@ -20,6 +20,7 @@ from quadnav.posegraph import (
     anchors,
     build_graph,
     levenberg_marquardt,
+    sequential_covariances,
     solve,
     split_yaw,
 )
@@ -171,6 +172,9 @@ def test_bad_input_is_a_one_line_error() -> None:
             )
         ),
         lambda: PoseGraphConfig(loop_sigma_m=0.0),
+        lambda: PoseGraphProblem.from_poses([0, 1], d.odometry[:2], step_var=[0.0, np.nan]),
+        lambda: PoseGraphProblem.from_poses([0, 1], d.odometry[:2], step_var=[0.0, -1e-4]),
+        lambda: PoseGraphProblem.from_poses([0, 1], d.odometry[:2], step_var=[0.0]),
     ]
     for case in cases:
         with pytest.raises(PoseGraphError) as err:
@@ -211,3 +215,35 @@ def test_our_levenberg_marquardt_reaches_gtsams_minimum() -> None:
         assert graph.error(ours) == pytest.approx(graph.error(theirs), rel=1e-6)
         for k in range(120):
             np.testing.assert_allclose(ours.atVector(k), theirs.atVector(k), atol=1e-5)
+
+
+def test_the_odometrys_variance_growth_loosens_the_sequential_edges() -> None:
+    """Two edges a keyframe (harmonic number 1 + 1/2 = 1.5), 1 cm a step: a step whose
+    variance grew by 4e-4 m^2 counts 6e-4 (1.5 times), one that grew by less than the 1e-4 the
+    config allows counts 1e-4; an edge spans the steps between its keyframes. The yaw keeps the
+    config's sigma, and without the growth every step is the config's."""
+    cfg = PoseGraphConfig(
+        sequential_edges=2, sequential_sigma_m=0.01, sequential_sigma_yaw_rad=0.002
+    )
+    d = _loop(0)
+    poses = d.odometry[:4]
+    grown = PoseGraphProblem.from_poses(
+        range(4), poses, config=cfg, step_var=[0.0, 4e-4, 0.0, 2e-5]
+    )
+    got = {(i, j): np.diag(c) for i, j, _, c in sequential_covariances(grown)}
+    assert set(got) == {(0, 1), (1, 2), (0, 2), (2, 3), (1, 3)}
+    expect_m2 = {(0, 1): 6e-4, (1, 2): 1e-4, (0, 2): 7e-4, (2, 3): 1e-4, (1, 3): 2e-4}
+    for edge, var in expect_m2.items():
+        np.testing.assert_allclose(got[edge][:3], var, rtol=1e-12)
+        k = edge[1] - edge[0]
+        np.testing.assert_allclose(got[edge][3], k * 0.002**2, rtol=1e-12)
+    plain = PoseGraphProblem.from_poses(range(4), poses, config=cfg)
+    for _i, _j, k, c in sequential_covariances(plain):
+        np.testing.assert_allclose(np.diag(c), [k * 1e-4] * 3 + [k * 0.002**2], rtol=1e-12)
+    se3 = PoseGraphConfig(kind="se3", sequential_edges=2, sequential_sigma_m=0.01)
+    six = sequential_covariances(
+        PoseGraphProblem.from_poses(range(4), poses, config=se3, step_var=[0.0, 4e-4, 0.0, 0.0])
+    )
+    first = np.diag(six[0][3])
+    np.testing.assert_allclose(first[3:], 6e-4, rtol=1e-12)  # the translation's, after rotation
+    np.testing.assert_allclose(first[:3], se3.sequential_sigma_rot_rad**2, rtol=1e-12)

@@ -17,6 +17,7 @@ from quadnav.posegraph.graphs import (
     anchors,
     build_graph,
     levenberg_marquardt,
+    sequential_covariances,
     sequential_pairs,
     solve,
 )
@@ -49,6 +50,7 @@ __all__ = [
     "four_dof_error",
     "four_dof_factor",
     "levenberg_marquardt",
+    "sequential_covariances",
     "sequential_pairs",
     "solve",
     "split_yaw",

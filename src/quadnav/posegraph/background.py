@@ -22,6 +22,7 @@ work with ``if __name__ == "__main__":`` (Python's rule for any spawned process)
 from __future__ import annotations
 
 import dataclasses
+import math
 import multiprocessing
 import threading
 from collections import Counter
@@ -90,6 +91,7 @@ class BackgroundPoseGraph:
         self._moved: Counter[int] = Counter()  # how many times set_frame moved each frame
         self._solved_frames: set[int] = set()  # the frames the latest solve's poses hold for
         self._fixed: list[bool] = []
+        self._step_var: list[float | None] = []
         self._latest = DriftCorrection()
         self.optimizations = 0
         self.failures = 0
@@ -124,16 +126,19 @@ class BackgroundPoseGraph:
 
     def add_pose(
         self, index: int, T_O_B: Pose, *, t_ns: int = 0, reset_counter: int = 0,
-        fixed: bool = False,
+        fixed: bool = False, step_var: float | None = None,
     ) -> bool:  # fmt: skip
         """Take keyframe ``index`` at odometry pose ``T_O_B`` (``fixed``: held there, a loaded
-        map's); refused and counted: a non-finite pose (``nonfinite_pose``), an index not above
-        the last (``index_order``)."""
+        map's; ``step_var``: the growth of the odometry's position variance since its keyframe
+        before, m^2 an axis, see :class:`PoseGraphConfig`); refused and counted: a non-finite
+        pose (``nonfinite_pose``), an index not above the last (``index_order``)."""
         with self._cv:
             q = T_O_B.R_A_B.as_quat()
             if not np.isfinite(q).all():
                 self._rejected["nonfinite_pose"] += 1
                 return False
+            if step_var is not None and not (math.isfinite(step_var) and step_var >= 0.0):
+                step_var = 0.0  # a growth the odometry cannot have: the config's sigma alone
             if self._indices and index <= self._indices[-1]:
                 self._rejected["index_order"] += 1
                 return False
@@ -144,6 +149,7 @@ class BackgroundPoseGraph:
             self._poses.append(T_O_B)
             self._quats.append(q)
             self._fixed.append(bool(fixed))
+            self._step_var.append(None if step_var is None else float(step_var))
             return True
 
     def add_loop(self, edge: LoopEdge) -> bool:
@@ -266,7 +272,11 @@ class BackgroundPoseGraph:
             loops=tuple(self._loops),
             config=self.config,
             fixed=np.array(self._fixed, bool) if any(self._fixed) else None,
-        )
+            step_var=(
+                None if all(v is None for v in self._step_var)
+                else np.array([v or 0.0 for v in self._step_var], np.float64)
+            ),
+        )  # fmt: skip
         return problem, len(self._indices), dict(self._moved)
 
     def _run(self) -> None:

@@ -31,7 +31,10 @@ from quadnav.posegraph.types import (
     PoseGraphResult,
 )
 
-__all__ = ["anchors", "build_graph", "levenberg_marquardt", "sequential_pairs", "solve"]
+__all__ = [
+    "anchors", "build_graph", "levenberg_marquardt", "sequential_covariances", "sequential_pairs",
+    "solve",
+]  # fmt: skip
 
 _FIXED_SIGMA = 1e-6  # the prior that holds an anchor keyframe
 
@@ -47,6 +50,34 @@ def sequential_pairs(problem: PoseGraphProblem) -> list[tuple[int, int, int]]:
         for k in range(1, problem.config.sequential_edges + 1):
             if j - k >= 0 and rc[j - k] == rc[j] and not (held[j] and held[j - k]):
                 out.append((j - k, j, k))
+    return out
+
+
+def sequential_covariances(
+    problem: PoseGraphProblem,
+) -> list[tuple[int, int, int, FloatArray]]:
+    """Each sequential edge ``(i, j, k)`` with its covariance: ``k`` times the config's
+    sigmas squared; with the problem's ``step_var``, the position's variance is the sum over
+    the steps the edge spans of the larger of ``sequential_sigma_m`` squared and the step's
+    variance growth times the harmonic number of ``sequential_edges``
+    (:class:`PoseGraphConfig`)."""
+    config = problem.config
+    var = _sigmas(config, loop=False) ** 2
+    pos = slice(0, 3) if config.kind == "4dof" else slice(3, 6)
+    out = []
+    if problem.step_var is None:
+        steps = None
+    else:
+        h = sum(1.0 / n for n in range(1, config.sequential_edges + 1))
+        steps = np.concatenate(
+            [[0.0], np.cumsum(np.maximum(problem.step_var * h, config.sequential_sigma_m**2))]
+        )
+    for i, j, k in sequential_pairs(problem):
+        v = var * k
+        if steps is not None:
+            v = v.copy()
+            v[pos] = steps[j + 1] - steps[i + 1]
+        out.append((i, j, k, np.diag(v)))
     return out
 
 
@@ -247,10 +278,9 @@ def build_graph(
     values = gtsam.Values()
     edge, fixed, tilts = _builder(config)(config, R, problem.positions, values)
     graph = gtsam.NonlinearFactorGraph()
-    seq = np.diag(_sigmas(config, loop=False) ** 2)
     factors = []
-    for i, j, k in sequential_pairs(problem):
-        factors += edge(i, j, T[i].between(T[j]), 1.0, seq * k, False)
+    for i, j, _k, cov in sequential_covariances(problem):
+        factors += edge(i, j, T[i].between(T[j]), 1.0, cov, False)
     pos = {int(k): n for n, k in enumerate(problem.indices)}
     plain = []
     for e in problem.loops:

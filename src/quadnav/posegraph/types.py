@@ -55,6 +55,11 @@ class PoseGraphConfig:
     Sequential edges join each keyframe to its ``sequential_edges`` predecessors of the same
     odometry frame (VINS-Mono: 4) with the relative pose the odometry gives; the edge to the
     k-th predecessor gets ``sqrt(k)`` times the sigmas (the odometry's drift is a random walk).
+    Where the problem carries the odometry's own ``step_var`` (the growth of its position
+    variance from one keyframe to the next), a step's position variance is the larger of
+    ``sequential_sigma_m`` squared and that growth times the harmonic number of
+    ``sequential_edges`` (the overlapping edges count each step's information that many times
+    over), and an edge's is the sum over the steps it spans.
     Loop edges get the ``loop_*`` sigmas (or their own covariance) under the ``robust`` kernel
     (``robust_k`` in sigmas of the whitened residual). A 4-DoF graph's ``four_dof_factor``:
     ``custom`` (our factor of VINS-Mono's error) or ``native`` (GTSAM's ``Pose2`` and height
@@ -147,7 +152,9 @@ class PoseGraphProblem:
     each (``reset_counters``), their odometry poses ``T_O_B`` as ``positions`` (N, 3) and
     ``quats_xyzw`` (N, 4), the ``loops`` and the configuration; ``fixed`` (N,) the keyframes
     held where they are (a map loaded from disk, as VINS-Mono holds its previous pose graph;
-    None: only the first of each connected part). Build it with :meth:`from_poses`, which
+    None: only the first of each connected part); ``step_var`` (N,) the growth of the
+    odometry's position variance (m^2 an axis) from the keyframe before (None: the config's
+    sigmas alone; see :class:`PoseGraphConfig`). Build it with :meth:`from_poses`, which
     refuses bad input with a one-line :class:`PoseGraphError`."""
 
     indices: IntArray
@@ -157,6 +164,7 @@ class PoseGraphProblem:
     loops: tuple[LoopEdge, ...] = ()
     config: PoseGraphConfig = field(default_factory=PoseGraphConfig)
     fixed: NDArray[np.bool_] | None = None
+    step_var: FloatArray | None = None
 
     @classmethod
     def from_poses(
@@ -168,6 +176,7 @@ class PoseGraphProblem:
         reset_counters: Sequence[int] | None = None,
         config: PoseGraphConfig | None = None,
         fixed: Sequence[bool] | None = None,
+        step_var: Sequence[float] | None = None,
     ) -> PoseGraphProblem:
         """The problem of keyframes ``indices`` at odometry poses ``poses`` with ``loops``."""
         idx = np.asarray(indices, dtype=np.int64)
@@ -189,6 +198,11 @@ class PoseGraphProblem:
         held = None if fixed is None else np.asarray(fixed, dtype=bool)
         if held is not None and held.shape != idx.shape:
             raise PoseGraphError("fixed needs one value per keyframe")
+        steps = None if step_var is None else np.asarray(step_var, dtype=np.float64)
+        if steps is not None and (
+            steps.shape != idx.shape or not np.all(np.isfinite(steps)) or np.any(steps < 0)
+        ):
+            raise PoseGraphError("step_var needs one finite, non-negative value per keyframe")
         known = set(idx.tolist())
         for e in loops:
             if e.old not in known or e.new not in known:
@@ -201,6 +215,7 @@ class PoseGraphProblem:
             loops=tuple(loops),
             config=config or PoseGraphConfig(),
             fixed=held,
+            step_var=steps,
         )
 
     def poses(self) -> tuple[Pose, ...]:
