@@ -236,3 +236,42 @@ def test_a_loop_measured_right_is_true_even_beyond_the_same_place_distance() -> 
     assert ev.places[0].truth_distance_m == pytest.approx(np.hypot(4 * np.sin(np.pi / 10), 0.3))
     assert [p.verdict for p in ev.places] == ["true", "false"]
     assert ev.precision == pytest.approx(0.5)
+
+
+def _with_error(traj: Trajectory, err: np.ndarray) -> Trajectory:
+    return Trajectory(t_ns=traj.t_ns, p_W_B=traj.p_W_B + err, q_W_B_xyzw=traj.q_W_B_xyzw)
+
+
+def test_the_revisit_bound_takes_out_a_drift_between_revisits_but_not_jitter() -> None:
+    """Perfect loops at every revisit: a drift that builds up over the second lap (1 cm a
+    keyframe along x, 0.5 cm along y) is taken out; an error that jumps from one keyframe to the
+    next (2 cm, white) is not: loops tie places, they cannot smooth the odometry between them."""
+    from quadnav.eval.loop_eval import _aligned as aligned
+    from quadnav.eval.loop_eval import revisit_bound
+    from quadnav.posegraph import PoseGraphConfig
+
+    graph = PoseGraphConfig(sequential_sigma_m=0.02)
+    k = np.arange(len(KEYFRAMES))
+    drift = np.outer(np.clip(k - PER_LAP, 0, None), [0.01, 0.005, 0.0])
+    drifted = _with_error(KEYFRAMES, drift)
+    _, err, _ = aligned(TRUTH, drifted)
+    before = float(np.sqrt(np.mean(err**2)))
+    bound = revisit_bound(drifted, TRUTH, graph)
+    assert isinstance(bound, float) and before > 0.1
+    assert bound < 0.2 * before, (bound, before)
+    rng = np.random.default_rng(0)
+    jitter = _with_error(KEYFRAMES, rng.normal(0.0, 0.02, (len(KEYFRAMES), 3)))
+    _, err, _ = aligned(TRUTH, jitter)
+    before = float(np.sqrt(np.mean(err**2)))
+    bound = revisit_bound(jitter, TRUTH, graph)
+    assert isinstance(bound, float) and bound > 0.8 * before, (bound, before)
+
+
+def test_the_revisit_bound_needs_a_truth_and_a_revisit() -> None:
+    from quadnav.eval.loop_eval import revisit_bound
+    from quadnav.posegraph import PoseGraphConfig
+
+    graph = PoseGraphConfig()
+    assert is_na(revisit_bound(KEYFRAMES, None, graph))
+    first_half_lap = KEYFRAMES.select(np.arange(PER_LAP // 2))
+    assert is_na(revisit_bound(first_half_lap, TRUTH, graph))

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from contextlib import contextmanager
+from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -216,7 +217,7 @@ def loop_evaluation(
     """Loop closure's places and keyframes judged against the truth (None: the odometry
     closes no loops), recall counted over the detector's excluded window and the closer's
     gap between loops (:mod:`quadnav.eval.loop_eval`)."""
-    from quadnav.eval.loop_eval import LoopEvalConfig, evaluate_loops
+    from quadnav.eval.loop_eval import LoopEvalConfig, evaluate_loops, revisit_bound
     from quadnav.loop import LoopClosure
 
     if not isinstance(vio, LoopClosure):
@@ -225,7 +226,11 @@ def loop_evaluation(
         exclude_keyframes=max(1, vio.config.detector.exclude_recent),
         recall_window=vio.config.min_keyframes_between,
     )
-    return evaluate_loops(vio.own_places(), keyframes, vio.corrected_keyframes(), truth, cfg)
+    ev = evaluate_loops(vio.own_places(), keyframes, vio.corrected_keyframes(), truth, cfg)
+    steps = vio.step_variances()
+    step_var = None if steps is None else np.array([steps.get(int(t), 0.0) for t in keyframes.t_ns])
+    bound = revisit_bound(keyframes, truth, vio.config.graph, cfg, step_var=step_var)
+    return replace(ev, bound_m=bound)
 
 
 def _loop_section(loop: LoopEvaluation, path: Path, t0_ns: int) -> ReportSection:

@@ -292,6 +292,7 @@ class LoopClosure:
         self._odometry_events = 0  # how many of the odometry's events are in ``_events``
         self._last_loop = -(10**9)
         self._t_of: dict[int, int] = {}  # graph index -> its time
+        self._step_of: dict[int, float | None] = {}  # graph index -> its variance growth
         self._path_m: dict[int, float] = {}  # graph index -> path flown since the first
         self._last_kf: KeyframeRecord | None = None
         self._map_loops: tuple[LoopEdge, ...] = ()
@@ -384,6 +385,14 @@ class LoopClosure:
             q_W_B_xyzw=np.array([poses[k].R_A_B.as_quat() for _, k in keep]).reshape(-1, 4),
             name="keyframes_loop",
         )
+
+    def step_variances(self) -> dict[int, float] | None:
+        """Each of this run's keyframes' growth of the odometry's position variance, by its
+        time (what its sequential edges were given; None when the odometry's covariance is not
+        used)."""
+        if not self.config.use_odometry_covariance:
+            return None
+        return {self._t_of[k]: v or 0.0 for k, v in self._step_of.items() if k in self._t_of}
 
     def own_places(self) -> list[PlaceEvent]:
         """The places recognised between two keyframes of this run (not a loaded map's, whose
@@ -584,6 +593,7 @@ class LoopClosure:
         self._segment_of[k_new] = seg.id
         self._raw[k_new] = rec.T_W_B
         step_var = self._step_var(rec, seg.id)
+        self._step_of[k_new] = step_var
         self._note_path(rec, seg.id)
         self.stats.keyframes += 1
         self.graph.add_pose(k_new, rec.T_W_B, t_ns=rec.t_ns, reset_counter=seg.id,

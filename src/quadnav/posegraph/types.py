@@ -176,7 +176,7 @@ class PoseGraphProblem:
         reset_counters: Sequence[int] | None = None,
         config: PoseGraphConfig | None = None,
         fixed: Sequence[bool] | None = None,
-        step_var: Sequence[float] | None = None,
+        step_var: Sequence[float] | FloatArray | None = None,
     ) -> PoseGraphProblem:
         """The problem of keyframes ``indices`` at odometry poses ``poses`` with ``loops``."""
         idx = np.asarray(indices, dtype=np.int64)
