@@ -472,5 +472,41 @@ def test_an_online_calibration_is_written_against_the_stated_one_and_the_truth(
         "rotation_deg": [0.1, 0.2, 0.3], "translation_m": [0.001, 0.002, 0.003],
         "intrinsics": [1.0, 2.0, 3.0, 4.0], "time_offset_ms": None,
     }  # fmt: skip
+    # the same as a camchain a later run takes with --calibration: it states the estimate
+    again = open_dataset(ds.root, calibration=run.run_dir / "camchain_online.yaml").rig
+    est = double.calibration()[0]
+    cam0 = again.camera("cam0")
+    np.testing.assert_allclose(cam0.camera.K[[0, 1, 0, 1], [0, 1, 2, 2]],
+                               [est.fx, est.fy, est.cx, est.cy], rtol=1e-9)  # fmt: skip
+    turn = est.T_B_C.inverse() @ cam0.T_B_C
+    assert np.degrees(turn.R_A_B.magnitude()) < 1e-6 and np.linalg.norm(turn.p_A_B) < 1e-9
+    assert cam0.time_offset_ns * 1e-9 == pytest.approx(est.time_offset_s, abs=1e-9)
+    np.testing.assert_allclose(cam0.camera.dist, ds.rig.camera("cam0").camera.dist)
     plain = _run(ds, tmp_path / "plain", _double(ds))
     assert not (plain.run_dir / "calibration.json").exists()
+    assert not (plain.run_dir / "camchain_online.yaml").exists()
+
+
+def test_loop_closure_passes_its_odometrys_online_calibration_through(made: Path) -> None:
+    """Wrapped in loop closure, a calibrating odometry's calibration is still read (so a
+    --loop run writes calibration.json); an odometry that calibrates nothing gives none."""
+    from quadnav.loop import LoopClosure, LoopConfig
+
+    ds = open_dataset(made)
+    double = _Calibrating(ds.groundtruth.trajectory)  # type: ignore[union-attr]
+    double.rig = ds.rig  # type: ignore[attr-defined]
+    config = LoopConfig(executor="inline")
+    loop = LoopClosure(double, ds.rig.camera("cam0"), config=config)
+    try:
+        (got,), (want,) = loop.calibration(), double.calibration()
+        assert (got.camera, got.fx, got.fy, got.cx, got.cy, got.time_offset_s) == (
+            want.camera, want.fx, want.fy, want.cx, want.cy, want.time_offset_s,
+        )  # fmt: skip
+        np.testing.assert_allclose(got.T_B_C.R_A_B.as_matrix(), want.T_B_C.R_A_B.as_matrix())
+    finally:
+        loop.close()
+    plain = LoopClosure(_double(ds), ds.rig.camera("cam0"), config=config)
+    try:
+        assert plain.calibration() == ()
+    finally:
+        plain.close()

@@ -17,6 +17,8 @@ relative, the principal point in px and the time offset in ms.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -25,11 +27,15 @@ from quadnav.errors import IoError
 from quadnav.geometry.rotations import Pose
 from quadnav.odometry import CameraCalibration, OnlineCalibration
 from quadnav.rig import CameraSpec, Rig
-from quadnav.units import ns_to_s
+from quadnav.units import NS_PER_S, ns_to_s
 
-__all__ = ["as_calibration", "calibration_report", "difference", "truth_rig"]
+__all__ = [
+    "CAMCHAIN_ONLINE", "as_calibration", "calibrated_rig", "calibration_report", "difference", "truth_rig",
+]  # fmt: skip
 
 TRUTH_FOLDER = "truth"
+#: the calibration at the end of a run as a Kalibr camchain, for ``--calibration``
+CAMCHAIN_ONLINE = "camchain_online.yaml"
 
 
 def as_calibration(spec: CameraSpec) -> CameraCalibration:
@@ -39,6 +45,25 @@ def as_calibration(spec: CameraSpec) -> CameraCalibration:
         camera=spec.name, T_B_C=spec.T_B_C, fx=float(K[0, 0]), fy=float(K[1, 1]),
         cx=float(K[0, 2]), cy=float(K[1, 2]), time_offset_s=ns_to_s(spec.time_offset_ns),
     )  # fmt: skip
+
+
+def calibrated_rig(stated: Rig, calibration: Sequence[CameraCalibration]) -> Rig:
+    """``stated`` with each camera of ``calibration`` as the odometry had it: its extrinsic,
+    pinhole intrinsics and time offset (the lens's distortion, resolution and rate as stated).
+    Written as a Kalibr camchain (``camchain_online.yaml``), it is what a later run in the
+    same rig takes with ``--calibration``."""
+    by_name = {c.camera: c for c in calibration}
+    cams = []
+    for spec in stated.cameras:
+        c = by_name.get(spec.name)
+        if c is not None:
+            K = np.array([[c.fx, 0.0, c.cx], [0.0, c.fy, c.cy], [0.0, 0.0, 1.0]])
+            spec = replace(
+                spec, camera=replace(spec.camera, K=K), T_B_C=c.T_B_C,
+                time_offset_ns=round(c.time_offset_s * NS_PER_S),
+            )  # fmt: skip
+        cams.append(spec)
+    return replace(stated, cameras=tuple(cams))
 
 
 def _rotation_deg(a: Pose, b: Pose) -> float:
@@ -98,10 +123,10 @@ def calibration_report(
 ) -> dict[str, object] | None:
     """``calibration.json``'s content (see the module), or None for an odometry that does not
     refine its calibration."""
-    if not isinstance(odometry, OnlineCalibration):
+    if not isinstance(odometry, OnlineCalibration) or not (now := odometry.calibration()):
         return None
     cams: list[dict[str, object]] = []
-    for est in odometry.calibration():
+    for est in now:
         told = as_calibration(stated.camera(est.camera))
         entry: dict[str, object] = {
             "camera": est.camera,

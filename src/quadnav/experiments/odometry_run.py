@@ -42,6 +42,7 @@ from quadnav.odometry import (
     KeyframeRecord,
     OdometryEvent,
     OdometryState,
+    OnlineCalibration,
     RefinedTrajectory,
     VisualOdometry,
 )
@@ -686,11 +687,18 @@ def _write_calibration(
 ) -> None:
     """``calibration.json`` of an odometry that refines its calibration online (see
     :mod:`quadnav.experiments.odometry_calibration`)."""
-    from quadnav.experiments.odometry_calibration import calibration_report, truth_rig
+    from quadnav.experiments.odometry_calibration import (
+        CAMCHAIN_ONLINE,
+        calibrated_rig,
+        calibration_report,
+        truth_rig,
+    )
+    from quadnav.io.datasets.kalibr import write_camchain
 
     report = calibration_report(vio, rig, truth_rig(getattr(dataset, "root", None)))
-    if report is not None:
+    if report is not None and isinstance(vio, OnlineCalibration):
         write_json(run_dir / "calibration.json", report)
+        write_camchain(run_dir / CAMCHAIN_ONLINE, calibrated_rig(rig, vio.calibration()))
 
 
 def _loop_outputs(

@@ -238,6 +238,12 @@ _VIO = RunFolderKind(
             False,
         ),
         RunFile(
+            "camchain_online.yaml",
+            "the VIO: the calibration refined online, at the end, as a Kalibr camchain: a later "
+            "run with the same rig takes it with --calibration",
+            False,
+        ),
+        RunFile(
             "metrics.json",
             "APE (4-DoF, SE(3), Sim(3)), RPE, drift, NEES, counts; with --loop the loops "
             "judged against the truth (loop_precision, loop_recall, ...)",

@@ -44,11 +44,13 @@ from quadnav.loop.relocalize import (
 )
 from quadnav.messages import ImageFrame, ImuSample
 from quadnav.odometry import (
+    CameraCalibration,
     EventKind,
     FrameFeatures,
     KeyframeRecord,
     OdometryEvent,
     OdometryState,
+    OnlineCalibration,
     StageTiming,
     VisualOdometry,
 )
@@ -362,6 +364,12 @@ class LoopClosure:
 
     def timing(self) -> StageTiming:
         return self.odometry.timing()
+
+    def calibration(self) -> tuple[CameraCalibration, ...]:
+        """The wrapped odometry's calibration as it has it now, when it refines one online
+        (:class:`~quadnav.odometry.OnlineCalibration`); none otherwise."""
+        inner = self.odometry
+        return inner.calibration() if isinstance(inner, OnlineCalibration) else ()
 
     def close(self) -> None:
         """Stop the pose graph's thread and worker (its counts kept in :attr:`stats`)."""
