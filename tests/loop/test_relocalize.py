@@ -15,10 +15,8 @@ from quadnav.odometry import OdometryState
 from quadnav.posegraph import PoseGraphConfig
 from tests.loop.drifting import CAMERA, PER_LAP, DriftingOdometry
 
-#: (the drifting odometry's covariance is a random walk's from each frame's first keyframe,
-#: with no start-up rise for loop closure to let settle)
 LOOP = LoopConfig(
-    executor="thread", covariance_settle_s=0.0,
+    executor="thread",
     graph=PoseGraphConfig(sequential_sigma_m=0.015, sequential_sigma_yaw_rad=0.006,
                           loop_sigma_m=0.02, loop_sigma_yaw_rad=0.01),
 )  # fmt: skip

@@ -108,10 +108,7 @@ class LoopConfig:
     The odometry's own covariance is used twice (``use_odometry_covariance``): a keyframe's
     sequential edges are loosened where its position variance grew faster than ``graph``'s
     sequential sigma allows (a fast drift, as corridor1's height, that loops can then correct;
-    see :class:`~quadnav.posegraph.PoseGraphConfig`; not over an odometry frame's first
-    ``covariance_settle_s``, where a VIO's marginal rises from its start's prior to its window's
-    own level, which is not drift: counted there, that rise let loops bend the first lap of the
-    hall's stereo laps), and a loop within one segment is refused
+    see :class:`~quadnav.posegraph.PoseGraphConfig`), and a loop within one segment is refused
     as drift when the move it implies has a chi-square, against both keyframes' position
     covariances and the loop's own, above ``max_drift_chi2`` (16.27: 99.9 % for three
     degrees of freedom; 0: no such check). On the real motions (stereo, realistic sensors) true
@@ -135,7 +132,6 @@ class LoopConfig:
     loop_floor_m: float = 0.015
     loop_floor_yaw_rad: float = 0.007
     use_odometry_covariance: bool = True
-    covariance_settle_s: float = 5.0
     max_drift_chi2: float = 16.27
 
     def __post_init__(self) -> None:
@@ -156,10 +152,9 @@ class LoopConfig:
             raise LoopError(f"LoopConfig.extra_corners must be 0-5000, got {self.extra_corners}")
         for name in ("image_gap_s", "relocalize_window_s", "relocalize_agree_m",
                      "relocalize_agree_rad", "relocalize_max_jump_m", "relocalize_max_jump_rad",
-                     "loop_floor_m", "loop_floor_yaw_rad", "max_drift_chi2",
-                     "covariance_settle_s"):  # fmt: skip
+                     "loop_floor_m", "loop_floor_yaw_rad", "max_drift_chi2"):  # fmt: skip
             v = getattr(self, name)
-            least = 0.0 if name.startswith(("loop_floor", "max_drift", "covariance")) else 1e-9
+            least = 0.0 if name.startswith(("loop_floor", "max_drift")) else 1e-9
             if not (math.isfinite(v) and least <= v <= 1e4):
                 raise LoopError(f"LoopConfig.{name} must be in [{least:g}, 10000], got {v}")
         if self.executor not in ("process", "thread", "inline"):
@@ -300,7 +295,6 @@ class LoopClosure:
         self._last_loop = -(10**9)
         self._t_of: dict[int, int] = {}  # graph index -> its time
         self._step_of: dict[int, float | None] = {}  # graph index -> its variance growth
-        self._frame_began: dict[int, int] = {}  # odometry frame -> its first keyframe's time
         self._path_m: dict[int, float] = {}  # graph index -> path flown since the first
         self._last_kf: KeyframeRecord | None = None
         self._map_loops: tuple[LoopEdge, ...] = ()
@@ -704,12 +698,9 @@ class LoopClosure:
         covariance is not used)."""
         if not self.config.use_odometry_covariance:
             return None
-        began = self._frame_began.setdefault(rec.reset_counter, rec.t_ns)
         last = self._last_kf
         if last is None or self._segment_of.get(last.index) != segment:
             return 0.0
-        if rec.t_ns - began < s_to_ns(self.config.covariance_settle_s):
-            return 0.0  # the odometry's marginal still rising from its start's prior
         grow = (np.trace(rec.cov_pose[3:, 3:]) - np.trace(last.cov_pose[3:, 3:])) / 3.0
         return float(grow) if math.isfinite(grow) and grow > 0.0 else 0.0
 
