@@ -275,3 +275,24 @@ def test_the_revisit_bound_needs_a_truth_and_a_revisit() -> None:
     assert is_na(revisit_bound(KEYFRAMES, None, graph))
     first_half_lap = KEYFRAMES.select(np.arange(PER_LAP // 2))
     assert is_na(revisit_bound(first_half_lap, TRUTH, graph))
+
+
+def test_the_revisit_bound_keeps_a_reset_odometrys_frames_apart() -> None:
+    """The odometry re-initialised at the second lap, in a frame 2 m and 30 degrees from the
+    first: given each keyframe's frame, the loops put the second lap back on the first (no
+    drift: nothing is left); as one frame, the step across the reset pulls against them."""
+    from quadnav.eval.loop_eval import revisit_bound
+    from quadnav.posegraph import PoseGraphConfig
+
+    second = np.arange(len(KEYFRAMES)) >= PER_LAP
+    R = Rotation.from_euler("z", 30.0, degrees=True)
+    jumped = KEYFRAMES.transformed(R, np.array([2.0, -1.0, 0.3]))
+    p = np.where(second[:, None], jumped.p_W_B, KEYFRAMES.p_W_B)
+    q = np.where(second[:, None], jumped.q_W_B_xyzw, KEYFRAMES.q_W_B_xyzw)
+    reset = Trajectory(t_ns=KEYFRAMES.t_ns, p_W_B=p, q_W_B_xyzw=q)
+    graph = PoseGraphConfig(sequential_sigma_m=0.02)
+    apart = revisit_bound(reset, TRUTH, graph, segments=second.astype(np.int64))
+    together = revisit_bound(reset, TRUTH, graph)
+    assert isinstance(apart, float) and isinstance(together, float)
+    assert apart < 0.01, apart
+    assert together > 10 * apart, (together, apart)

@@ -331,13 +331,16 @@ def _revisit_pairs(truth_kf: Trajectory, cfg: LoopEvalConfig, every: int) -> lis
 
 def revisit_bound(
     keyframes: Trajectory, truth: Trajectory | None, graph: PoseGraphConfig,
-    config: LoopEvalConfig | None = None, *, step_var: FloatArray | None = None, every: int = 5,
-    sigma_m: float = 0.01, sigma_yaw_rad: float = 0.005,
+    config: LoopEvalConfig | None = None, *, step_var: FloatArray | None = None,
+    segments: IntArray | None = None, every: int = 5, sigma_m: float = 0.01,
+    sigma_yaw_rad: float = 0.005,
 ) -> Metric:  # fmt: skip
     """The keyframes' position RMSE (m; 4-DoF aligned as the run's APE) after a pose graph
     ``graph`` with a loop at every revisit the truth shows, measured from the truth and held to
     ``sigma_m`` and ``sigma_yaw_rad`` (see the module); ``step_var``: the odometry's variance
-    growth per keyframe, as the run's graph had it. ``n/a`` without a truth or a revisit."""
+    growth per keyframe, as the run's graph had it; ``segments``: each keyframe's odometry
+    frame (no sequential edge joins two: an odometry reset, a gap in the images; None: one
+    frame). ``n/a`` without a truth or a revisit."""
     from quadnav.geometry.rotations import Pose
     from quadnav.posegraph import LoopEdge, PoseGraphProblem, solve
 
@@ -361,8 +364,9 @@ def revisit_bound(
     loops = [LoopEdge(old=i, new=j, T_old_new=truths[i].inverse() @ truths[j], cov=cov)
              for i, j in pairs]  # fmt: skip
     steps = None if step_var is None else np.asarray(step_var, dtype=np.float64)[rows]
+    frames = None if segments is None else np.asarray(segments, dtype=np.int64)[rows]
     problem = PoseGraphProblem.from_poses(
-        range(len(kf)), poses, loops, config=graph, step_var=steps
+        range(len(kf)), poses, loops, config=graph, step_var=steps, reset_counters=frames
     )
     result = solve(problem)
     fixed = Trajectory(

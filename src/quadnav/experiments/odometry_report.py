@@ -229,7 +229,11 @@ def loop_evaluation(
     ev = evaluate_loops(vio.own_places(), keyframes, vio.corrected_keyframes(), truth, cfg)
     steps = vio.step_variances()
     step_var = None if steps is None else np.array([steps.get(int(t), 0.0) for t in keyframes.t_ns])
-    bound = revisit_bound(keyframes, truth, vio.config.graph, cfg, step_var=step_var)
+    seg = vio.segment_by_time()
+    segments = np.array([seg.get(int(t), -1) for t in keyframes.t_ns], dtype=np.int64)
+    bound = revisit_bound(
+        keyframes, truth, vio.config.graph, cfg, step_var=step_var, segments=segments
+    )
     return replace(ev, bound_m=bound)
 
 

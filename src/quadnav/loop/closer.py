@@ -402,6 +402,10 @@ class LoopClosure:
             return None
         return {self._t_of[k]: v or 0.0 for k, v in self._step_of.items() if k in self._t_of}
 
+    def segment_by_time(self) -> dict[int, int]:
+        """Each of this run's keyframes' segment (its frame in the pose graph), by its time."""
+        return {t: self._segment_of[k] for k, t in self._t_of.items() if k in self._segment_of}
+
     def own_places(self) -> list[PlaceEvent]:
         """The places recognised between two keyframes of this run (not a loaded map's, whose
         times are those of the flight that made it)."""

@@ -173,7 +173,7 @@ class PoseGraphProblem:
         poses: Sequence[Pose],
         loops: Sequence[LoopEdge] = (),
         *,
-        reset_counters: Sequence[int] | None = None,
+        reset_counters: Sequence[int] | IntArray | None = None,
         config: PoseGraphConfig | None = None,
         fixed: Sequence[bool] | None = None,
         step_var: Sequence[float] | FloatArray | None = None,
