@@ -27,6 +27,15 @@ def _frame(k: int) -> ImageFrame:
     return ImageFrame(t_ns=k * 200_000_000, camera="cam0", load=lambda: np.zeros((8, 8), np.uint8))
 
 
+def _fly_laps(loop: LoopClosure, odo: DriftingOdometry) -> list[tuple[int, int]]:
+    """Every frame of ``odo`` through ``loop``, then its last keyframes; the loops it closed
+    between the two laps."""
+    for k in range(len(odo.truth)):
+        loop.push(_frame(k))
+    loop.keyframes(final=True)
+    return [(o, n) for o, n in loop.stats.loops if (o < PER_LAP) != (n < PER_LAP)]
+
+
 def _rmse(poses: Sequence[Pose], truth: Sequence[Pose]) -> float:
     d = np.array([p.p_A_B - t.p_A_B for p, t in zip(poses, truth, strict=True)])
     return float(np.sqrt((d**2).sum(axis=1).mean()))
@@ -118,10 +127,7 @@ def test_a_look_alike_room_metres_away_passes_the_geometry_but_not_the_drift_che
     odo = DriftingOdometry(6, shift_m=3.0)
     loop = LoopClosure(odo, CAMERA, config=LOOP)
     try:
-        for k in range(len(odo.truth)):
-            loop.push(_frame(k))
-        loop.keyframes(final=True)
-        across = [(o, n) for o, n in loop.stats.loops if (o < PER_LAP) != (n < PER_LAP)]
+        across = _fly_laps(loop, odo)
         assert not across, loop.stats
         assert loop.stats.rejected["drift"] >= 1, loop.stats
         assert any("drift" in e.detail for e in loop.events if e.kind == "loop_rejected")
@@ -142,10 +148,7 @@ def test_a_look_alike_inside_the_path_allowance_is_refused_by_the_odometrys_cova
         config = dataclasses.replace(LOOP, use_odometry_covariance=use)
         loop = LoopClosure(odo, CAMERA, config=config)
         try:
-            for k in range(len(odo.truth)):
-                loop.push(_frame(k))
-            loop.keyframes(final=True)
-            across = [(o, n) for o, n in loop.stats.loops if (o < PER_LAP) != (n < PER_LAP)]
+            across = _fly_laps(loop, odo)
             if not use:
                 assert across, loop.stats  # what the path rule alone lets through
                 continue
