@@ -38,6 +38,7 @@ __all__ = [
     "EventKind",
     "FrameFeatures",
     "KeyframeRecord",
+    "KeyframeStep",
     "OdometryEvent",
     "OdometryState",
     "OnlineCalibration",
@@ -155,6 +156,25 @@ def _rows(a: object, cols: int | None, dtype: type, name: str) -> NDArray[np.gen
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
+class KeyframeStep:
+    """A keyframe's position step from an earlier keyframe of the same odometry frame: the
+    earlier one's ``index`` (``after``) and the step's covariance ``cov_W`` (3x3, m^2, in the
+    odometry's world), from the two poses' joint marginal when the later one was solved. The
+    difference of the two marginals is not it: a marginal also holds what the two poses share
+    (the heading's error times their distance from the start, the scale's), which rises and
+    falls as the vehicle flies away and back."""
+
+    after: int
+    cov_W: FloatArray
+
+    def __post_init__(self) -> None:
+        cov = np.asarray(self.cov_W, np.float64)
+        if cov.shape != (3, 3) or not np.isfinite(cov).all():
+            raise SampleError(f"KeyframeStep.cov_W must be a finite 3x3, got {cov.shape}")
+        object.__setattr__(self, "cov_W", cov)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
 class KeyframeRecord:
     """A keyframe an odometry has finished with: its number ``index`` (unique in the run), time,
     ``reset_counter`` (the odometry frame it is in), pose ``T_W_B`` and its ``cov_pose`` (body
@@ -167,7 +187,8 @@ class KeyframeRecord:
     zeros and ``described`` False). The landmarks it sees: ``landmark_ids`` (track ids, a subset
     of ``ids``) and their positions ``landmarks_W`` in the odometry's world. ``T_B_C``: the
     camera's extrinsic as the odometry had it (refined online, it differs from the rig's
-    stated one; None: the rig's)."""
+    stated one; None: the rig's). ``step``: its position step's covariance from the keyframe
+    before (:class:`KeyframeStep`; None when the odometry gives none)."""
 
     index: int
     t_ns: int
@@ -184,6 +205,7 @@ class KeyframeRecord:
     landmark_ids: IntArray = field(default_factory=lambda: np.zeros(0, np.int64))
     landmarks_W: FloatArray = field(default_factory=lambda: np.zeros((0, 3)))
     T_B_C: Pose | None = None
+    step: KeyframeStep | None = None
 
     def __post_init__(self) -> None:
         ids = _rows(self.ids, None, np.int64, "ids")

@@ -14,6 +14,7 @@ from quadnav.messages import ImageFrame, ImuSample
 from quadnav.odometry import (
     FrameFeatures,
     KeyframeRecord,
+    KeyframeStep,
     OdometryEvent,
     OdometryState,
     StageTiming,
@@ -45,13 +46,18 @@ class DriftingOdometry:
     def __init__(
         self, seed: int, laps: int = 2, *, another_room: bool = False, shift_m: float = 0.0,
         drift_seed: int | None = None, frame: Pose | None = None, jump_at: int = -1,
-        jump: Pose | None = None, reset_at: int = -1,
+        jump: Pose | None = None, reset_at: int = -1, swing_m2: float = 0.0,
+        steps: bool = False, steps_told: float = 1.0,
     ) -> None:  # fmt: skip
         """``drift_seed``: another drift in the same room (a second flight); ``frame``: the
         odometry's frame in the world; ``jump`` added to the drift at keyframe ``jump_at`` (a
         dead reckoning through a camera blackout); from keyframe ``reset_at`` on, the odometry
         has re-initialised (``reset_counter`` 1) in a new frame of its own, whose origin is the
-        body there, its yaw the body's."""
+        body there, its yaw the body's. ``swing_m2``: the covariance also holds an error the
+        poses share (a heading's at the start, as a VIO's marginal does), of that variance per
+        square metre from the start: it rises and falls over a lap. ``steps``: the records
+        carry each step's own covariance (:class:`KeyframeStep`), which that shared error does
+        not touch, ``steps_told`` times the true one."""
         rng = np.random.default_rng(seed)
         drift_rng = rng if drift_seed is None else np.random.default_rng(drift_seed)
         self.rng = rng
@@ -97,12 +103,17 @@ class DriftingOdometry:
             + (0.3**2 if 0 <= jump_at <= k and jump is not None and not 0 <= reset_at <= k else 0.0)
             for k in range(laps * PER_LAP)
         ]  # fmt: skip
+        self.walk_m2 = walk
+        self.swing_m2 = swing_m2
+        self.steps = steps
+        self.steps_told = steps_told
         self._pending: list[KeyframeRecord] = []
         self._newest: KeyframeRecord | None = None
 
     def cov_pose(self, k: int) -> np.ndarray:
         """The pose covariance at keyframe ``k`` (rotation, then position)."""
-        return np.diag([1e-4] * 3 + [1e-4 + self.var_m2[k]] * 3)
+        far = float(np.sum((self.truth[k].p_A_B - self.truth[0].p_A_B) ** 2))
+        return np.diag([1e-4] * 3 + [1e-4 + self.var_m2[k] + self.swing_m2 * far] * 3)
 
     def record(self, k: int) -> KeyframeRecord:
         T, T_odo = self.truth[k], self.odo[k]
@@ -121,6 +132,7 @@ class DriftingOdometry:
             camera="cam0", image=None, ids=vis.astype(np.int64), uv_px=xy * FOCAL_PX + 376, xy=xy,
             descriptors=_flip((self.desc if k < PER_LAP else self.desc_later)[vis], 4, self.rng), described=np.ones(len(vis), bool),
             landmark_ids=vis.astype(np.int64), landmarks_W=D @ X_seen[vis],
+            step=KeyframeStep(after=k - 1, cov_W=np.eye(3) * self.walk_m2 * self.steps_told) if self.steps and k else None,
         )  # fmt: skip
 
     def reset_counter(self, k: int) -> int:

@@ -12,6 +12,7 @@ import pytest
 from quadnav.geometry.rotations import Pose
 from quadnav.loop import LoopClosure, LoopConfig
 from quadnav.messages import ImageFrame
+from quadnav.odometry import KeyframeStep
 from quadnav.posegraph import PoseGraphConfig
 from tests.loop.drifting import CAMERA, PER_LAP, T_B_C, DriftingOdometry
 
@@ -183,3 +184,76 @@ def test_an_odometry_that_drifts_faster_than_the_graph_assumes_is_corrected_by_i
             rmse.append(_rmse(corrected, odo.truth[PER_LAP:]))
         fixed, loosened = rmse
         assert loosened < 0.75 * fixed, (seed, rmse)
+
+
+def test_the_steps_own_covariance_is_used_where_the_marginal_swings() -> None:
+    """An odometry whose marginal also holds an error its poses share (0.01 m^2 per square
+    metre from the start: it rises over the first half of a lap and falls over the second)
+    and whose records carry each step's own covariance: the edges get the steps' variances
+    (the walk's, a keyframe at a time), not the marginal's swings; without the steps the
+    closer falls back on the marginal's growth (none while it falls)."""
+    for steps in (True, False):
+        odo = DriftingOdometry(0, swing_m2=0.01, steps=steps)
+        config = LoopConfig(executor="inline", learn_step_scale=False)
+        loop = LoopClosure(odo, CAMERA, config=config)
+        try:
+            for k in range(PER_LAP):
+                loop.push(_frame(k))
+            got = loop.step_variances()
+        finally:
+            loop.close()
+        assert got is not None
+        v = np.array([got[k * 200_000_000] for k in range(1, PER_LAP - 1)])
+        if steps:
+            np.testing.assert_allclose(v, odo.walk_m2, rtol=1e-9)
+        else:  # the growth of walk + swing: more while it rises, nothing while it falls
+            rising, falling = v[: PER_LAP // 2 - 2], v[PER_LAP // 2 + 1 :]
+            assert (rising > odo.walk_m2).all() and (falling == 0.0).all()
+
+
+def test_a_step_from_a_keyframe_before_the_last_counts_only_what_it_adds() -> None:
+    """A step given from two keyframes back (the window dropped the keyframe between): the
+    edge from the keyframe before gets the step's variance less the one before's."""
+    odo = DriftingOdometry(1, steps=True)
+    loop = LoopClosure(odo, CAMERA, config=LoopConfig(executor="inline"))
+    records = [odo.record(k) for k in range(4)]
+    records[3] = dataclasses.replace(
+        records[3], step=KeyframeStep(after=1, cov_W=np.eye(3) * 3 * odo.walk_m2)
+    )
+    try:
+        for r in records:
+            loop._take(r)
+        got = loop.step_variances()
+    finally:
+        loop.close()
+    assert got is not None
+    assert [got[r.t_ns] for r in records] == pytest.approx(
+        [0.0, odo.walk_m2, odo.walk_m2, 2 * odo.walk_m2], rel=1e-9
+    )
+
+
+@pytest.mark.parametrize("told", [1.0, 1.0 / 9.0])
+def test_the_loops_find_how_much_the_steps_understate_the_drift(told: float) -> None:
+    """An odometry that states its steps' variance right, or 9 times too small (as a
+    monocular VIO's steps leave out its scale's slow wander): the loops' moves against the
+    steps' variance give a scale near 1 for the first, several times for the second (pooled
+    over the loops of four seeds, each pulled towards 1 by three loops' worth)."""
+    found = []
+    for seed in range(4):
+        odo = DriftingOdometry(seed, steps=True, steps_told=told)
+        loop = LoopClosure(odo, CAMERA, config=LoopConfig(executor="inline"))
+        try:
+            _fly_laps(loop, odo)
+        finally:
+            loop.close()
+        assert loop.stats.step_scale_loops >= 5, loop.stats
+        found.append(loop.stats.step_scale)
+        steps = loop.step_variances()
+        assert steps is not None  # what the edges were given: the stated steps, scaled
+        assert steps[PER_LAP * 200_000_000] == pytest.approx(
+            odo.walk_m2 * told * loop.stats.step_scale, rel=1e-9
+        )
+    if told == 1.0:
+        assert max(found) < 2.0, found
+    else:
+        assert 3.0 < float(np.median(found)) < 15.0, found

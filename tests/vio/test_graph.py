@@ -144,3 +144,36 @@ def test_removing_the_factors_on_some_keys_finds_those_a_full_look_finds() -> No
     left = graph._smoother.getFactors()
     kept = [left.at(i) for i in range(left.size()) if left.at(i) is not None]
     assert not any(isinstance(f, gtsam.BetweenFactorVector) and 3 in list(f.keys()) for f in kept)
+
+
+@pytest.mark.parametrize("smoother", ["isam2", "batch"])
+def test_the_step_between_two_keys_is_what_the_whole_window_says(smoother: str) -> None:
+    """The cross-covariance of two keys gives their difference's covariance as QR on the whole
+    window does. Two keys that each close a loop to the start share the start's error (its
+    prior's sigma of 100): their marginals are both about 100 squared, and the growth from one
+    to the next says nothing of the step between them, which the cross-covariance gets."""
+    graph = WindowGraph(VioConfig(smoother=smoother), lag=20.0)
+    _chain(graph, 0, 6, sigma=1.0)
+    loop = gtsam.noiseModel.Isotropic.Sigma(3, 0.2)
+    graph.add(gtsam.BetweenFactorVector(0, 6, 6 * STEP, loop))
+    graph.solve()
+    _chain(graph, 7, 7, sigma=1.0)
+    graph.add(gtsam.BetweenFactorVector(0, 7, 7 * STEP, gtsam.noiseModel.Isotropic.Sigma(3, 0.05)))
+    sol = graph.solve(covariance_of=(7,), cross_of=[(6, 7), (99, 7)])
+    assert set(sol.cross) == {(6, 7)}  # a key the window does not hold is skipped
+    lin = graph._smoother.getFactors().linearize(sol.estimate)
+    ordering = gtsam.Ordering()
+    for k in range(8):
+        ordering.push_back(k)
+    info, _ = lin.hessian(ordering)
+    d = np.zeros((3, 24))
+    d[:, 21:24], d[:, 18:21] = np.eye(3), -np.eye(3)
+    want = d @ np.linalg.inv(info) @ d.T
+    got = sol.covariances[7] + sol.covariances[6] - sol.cross[(6, 7)] - sol.cross[(6, 7)].T
+    # the marginals are 1e4 and the step 0.04: agreement to about 1e-9 of the marginals
+    np.testing.assert_allclose(got, want, atol=1e-4)
+    # the step: the 0.2 and 0.05 loops with the unit step between them, about 0.2 squared
+    assert 0.03 < float(want[0, 0]) < 0.05
+    assert sol.covariances[7][0, 0] > 9_000.0
+    # the newest key's marginal shrinks (its loop is the tighter) while the step is 0.04
+    assert float(sol.covariances[7][0, 0] - sol.covariances[6][0, 0]) < -0.03

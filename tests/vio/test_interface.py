@@ -143,3 +143,26 @@ def test_a_record_carries_only_landmarks_its_views_place(run: _Run) -> None:
             cs = [centres[m] for m in near if m == n or j in run.records[m].ids]
             angles.append(parallax_rad(p, np.array(cs)))
     assert len(angles) > 200 and np.quantile(angles, 0.05) >= 0.9 * need, np.quantile(angles, 0.05)
+
+
+def test_a_record_carries_its_step_from_an_earlier_keyframe(run: _Run) -> None:
+    """Each record after a frame's first carries its position step's covariance from an
+    earlier record of the same frame (the one before, or two before where the window dropped
+    the keyframe between): symmetric, positive definite, and a few millimetres, much tighter
+    than the marginal, which also holds what the poses share."""
+    stepped = [r for r in run.records if r.step is not None]
+    assert len(stepped) >= 0.9 * (len(run.records) - 1)
+    index = {r.index: n for n, r in enumerate(run.records)}
+    for r in stepped:
+        assert r.step is not None
+        assert r.step.after in index and index[r.step.after] in (
+            index[r.index] - 1,
+            index[r.index] - 2,
+        )
+        cov = r.step.cov_W
+        np.testing.assert_allclose(cov, cov.T, atol=1e-15)
+        sd = np.sqrt(np.linalg.eigvalsh(cov))
+        assert sd.min() > 1e-5 and sd.max() < 0.02, (r.index, sd)
+    late = stepped[len(stepped) // 2 :]
+    ratio = [np.trace(r.step.cov_W) / np.trace(r.cov_pose[3:, 3:]) for r in late if r.step]
+    assert float(np.median(ratio)) < 0.25

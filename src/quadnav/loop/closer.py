@@ -85,6 +85,10 @@ LOOP_GRAPH = PoseGraphConfig(
 LOOP_DETECTOR = LoopDetectorConfig(min_normalised_score=0.3, temporal_consistency=5)
 
 
+#: how many keyframes' chained step variances a segment keeps (a window's worth, and more)
+_CHAIN_KEPT = 64
+
+
 @dataclass(frozen=True, slots=True, kw_only=True)
 class LoopConfig:
     """Loop closure's settings: place recognition (``detector``), verification, the fewest
@@ -112,7 +116,17 @@ class LoopConfig:
     as drift when the move it implies has a chi-square, against both keyframes' position
     covariances and the loop's own, above ``max_drift_chi2`` (16.27: 99.9 % for three
     degrees of freedom; 0: no such check). On the real motions (stereo, realistic sensors) true
-    loops came at 0.6-5 and the false ones, two metres off, at about 2,000."""
+    loops came at 0.6-5 and the false ones, two metres off, at about 2,000.
+
+    The sequential edges' variance is the odometry's steps' (:class:`KeyframeStep`), which
+    treats each step's error as its own. A monocular VIO's errors are not: its scale wanders
+    slowly, so over a lap it drifts more than its steps add up to. With
+    ``learn_step_scale``, the loops say by how much: each accepted loop within a segment
+    compares the move it measures with the steps' variance between its keyframes (plus its
+    own), pooled over the loops so far and pulled towards 1 by ``step_scale_prior_loops``
+    loops' worth of agreement; the steps are scaled by that, never below 1 (never tighter
+    than the odometry says) nor above ``max_step_scale``. On the hall's mono laps (realistic
+    sensors) the loops found 2.6-9x; on stereo runs about 1."""
 
     detector: LoopDetectorConfig = field(default_factory=lambda: LOOP_DETECTOR)
     verification: VerificationConfig = field(default_factory=VerificationConfig)
@@ -133,6 +147,9 @@ class LoopConfig:
     loop_floor_yaw_rad: float = 0.007
     use_odometry_covariance: bool = True
     max_drift_chi2: float = 16.27
+    learn_step_scale: bool = True
+    step_scale_prior_loops: float = 3.0
+    max_step_scale: float = 100.0
 
     def __post_init__(self) -> None:
         if not 0 <= self.min_keyframes_between <= 100_000:
@@ -152,11 +169,14 @@ class LoopConfig:
             raise LoopError(f"LoopConfig.extra_corners must be 0-5000, got {self.extra_corners}")
         for name in ("image_gap_s", "relocalize_window_s", "relocalize_agree_m",
                      "relocalize_agree_rad", "relocalize_max_jump_m", "relocalize_max_jump_rad",
-                     "loop_floor_m", "loop_floor_yaw_rad", "max_drift_chi2"):  # fmt: skip
+                     "loop_floor_m", "loop_floor_yaw_rad", "max_drift_chi2",
+                     "step_scale_prior_loops"):  # fmt: skip
             v = getattr(self, name)
-            least = 0.0 if name.startswith(("loop_floor", "max_drift")) else 1e-9
+            least = 0.0 if name.startswith(("loop_floor", "max_drift", "step_")) else 1e-9
             if not (math.isfinite(v) and least <= v <= 1e4):
                 raise LoopError(f"LoopConfig.{name} must be in [{least:g}, 10000], got {v}")
+        if not (math.isfinite(self.max_step_scale) and 1.0 <= self.max_step_scale <= 1e6):
+            raise LoopError(f"LoopConfig.max_step_scale must be 1-1e6, got {self.max_step_scale}")
         if self.executor not in ("process", "thread", "inline"):
             raise LoopError(
                 f"LoopConfig.executor must be process, thread or inline, got {self.executor!r}"
@@ -213,6 +233,10 @@ class LoopStats:
     optimizations: int = 0
     failures: int = 0
     last_error: str = ""
+    #: the scale the loops found for the odometry's step variances (1: as it says; see
+    #: :class:`LoopConfig`'s ``learn_step_scale``) and how many loops measured it
+    step_scale: float = 1.0
+    step_scale_loops: int = 0
 
     @property
     def loops(self) -> list[tuple[int, int]]:
@@ -229,7 +253,8 @@ class LoopStats:
             "segments": self.segments, "map_keyframes": self.map_keyframes,
             "joins": self.joins, "relocalize_rejected": dict(self.relocalize_rejected),
             "graph_optimizations": self.optimizations, "graph_failures": self.failures,
-            "graph_last_error": self.last_error,
+            "graph_last_error": self.last_error, "step_scale": self.step_scale,
+            "step_scale_loops": self.step_scale_loops,
         }  # fmt: skip
 
 
@@ -295,6 +320,9 @@ class LoopClosure:
         self._last_loop = -(10**9)
         self._t_of: dict[int, int] = {}  # graph index -> its time
         self._step_of: dict[int, float | None] = {}  # graph index -> its variance growth
+        self._chain: dict[int, float] = {}  # this segment's keyframes' chained step variance
+        self._cum: dict[int, float] = {}  # this run's keyframes: step variances summed in a segment
+        self._scale_sums = [0.0, 0.0]  # the loops' squared moves beyond their own, the steps'
         self._path_m: dict[int, float] = {}  # graph index -> path flown since the first
         self._last_kf: KeyframeRecord | None = None
         self._map_loops: tuple[LoopEdge, ...] = ()
@@ -395,12 +423,15 @@ class LoopClosure:
         )
 
     def step_variances(self) -> dict[int, float] | None:
-        """Each of this run's keyframes' growth of the odometry's position variance, by its
-        time (what its sequential edges were given; None when the odometry's covariance is not
-        used)."""
+        """Each of this run's keyframes' step variance, by its time, as the graph's last solve
+        gave its sequential edges (times the steps' scale the loops found; None when the
+        odometry's covariance is not used)."""
         if not self.config.use_odometry_covariance:
             return None
-        return {self._t_of[k]: v or 0.0 for k, v in self._step_of.items() if k in self._t_of}
+        scale = self.stats.step_scale
+        return {
+            self._t_of[k]: (v or 0.0) * scale for k, v in self._step_of.items() if k in self._t_of
+        }
 
     def segment_by_time(self) -> dict[int, int]:
         """Each of this run's keyframes' segment (its frame in the pose graph), by its time."""
@@ -606,6 +637,10 @@ class LoopClosure:
         self._raw[k_new] = rec.T_W_B
         step_var = self._step_var(rec, seg.id)
         self._step_of[k_new] = step_var
+        last = self._last_kf
+        joined = last is not None and self._segment_of.get(last.index) == seg.id
+        base = self._cum.get(last.index, 0.0) if joined and last is not None else 0.0
+        self._cum[k_new] = base + (step_var or 0.0)
         self._note_path(rec, seg.id)
         self.stats.keyframes += 1
         self.graph.add_pose(k_new, rec.T_W_B, t_ns=rec.t_ns, reset_counter=seg.id,
@@ -680,7 +715,36 @@ class LoopClosure:
         c = self.config
         floor = np.diag([c.loop_floor_m**2] * 3 + [c.loop_floor_yaw_rad**2])
         cov = cov_4dof + floor if c.graph.kind == "4dof" else None
+        self._learn_step_scale(old, new, T_old_new, cov_4dof[:3, :3] + floor[:3, :3])
         self.graph.add_loop(LoopEdge(old=old, new=new, T_old_new=T_old_new, cov=cov))
+
+    def _learn_step_scale(self, old: int, new: int, T_old_new: Pose, cov_loop: FloatArray) -> None:
+        """A loop within a segment of this run measures the odometry's drift between its
+        keyframes: its squared move beyond its own variance, against the steps' variance
+        between them. Pooled over the loops, pulled towards 1, the steps' scale (see
+        :class:`LoopConfig`), given to the graph."""
+        c = self.config
+        if not (c.learn_step_scale and c.use_odometry_covariance):
+            return
+        if old not in self._cum or new not in self._cum:
+            return
+        if self._segment_of.get(old) != self._segment_of.get(new):
+            return
+        steps = 3.0 * (self._cum[new] - self._cum[old])
+        if not (math.isfinite(steps) and steps > 0.0):
+            return
+        rel = self._raw[old].inverse() @ self._raw[new]
+        beyond = float(np.sum((rel.p_A_B - T_old_new.p_A_B) ** 2) - np.trace(cov_loop))
+        if not math.isfinite(beyond):
+            return
+        self._scale_sums[0] += beyond
+        self._scale_sums[1] += steps
+        st = self.stats
+        st.step_scale_loops += 1
+        n, prior = st.step_scale_loops, c.step_scale_prior_loops
+        found = self._scale_sums[0] / self._scale_sums[1]
+        st.step_scale = min(max((n * found + prior) / (n + prior), 1.0), c.max_step_scale)
+        self.graph.scale_steps(st.step_scale)
 
     def _reject(self, rec: KeyframeRecord, place: PlaceEvent, why: str) -> None:
         self.stats.rejected[place.stage] += 1
@@ -697,15 +761,28 @@ class LoopClosure:
         self._last_kf = rec
 
     def _step_var(self, rec: KeyframeRecord, segment: int) -> float | None:
-        """How much the odometry's position variance (m^2, the mean of its axes) grew since
-        the keyframe before in this segment (0 for a segment's first; None when the odometry's
-        covariance is not used)."""
+        """The odometry's position variance (m^2, the mean of its axes) added since the
+        keyframe before in this segment (0 for a segment's first; None when the odometry's
+        covariance is not used). From the keyframes' steps (:class:`KeyframeStep`) where the
+        odometry gives them: their variances are chained, so a step from a keyframe before the
+        last one counts only what it adds. Else the growth of the position marginal, which
+        also swings with the heading's and scale's shared error (see :class:`KeyframeStep`)."""
         if not self.config.use_odometry_covariance:
             return None
         last = self._last_kf
         if last is None or self._segment_of.get(last.index) != segment:
+            self._chain = {rec.index: 0.0}
             return 0.0
-        grow = (np.trace(rec.cov_pose[3:, 3:]) - np.trace(last.cov_pose[3:, 3:])) / 3.0
+        step = rec.step
+        base = None if step is None else self._chain.get(step.after + self._offset)
+        if step is not None and base is not None and last.index in self._chain:
+            self._chain[rec.index] = base + float(np.trace(step.cov_W)) / 3.0
+            grow = self._chain[rec.index] - self._chain[last.index]
+            for k in list(self._chain)[:-_CHAIN_KEPT]:  # a step reaches back a window at most
+                del self._chain[k]
+        else:
+            self._chain = {rec.index: 0.0}
+            grow = (np.trace(rec.cov_pose[3:, 3:]) - np.trace(last.cov_pose[3:, 3:])) / 3.0
         return float(grow) if math.isfinite(grow) and grow > 0.0 else 0.0
 
     def _implied_drift(

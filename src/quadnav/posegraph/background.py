@@ -92,6 +92,7 @@ class BackgroundPoseGraph:
         self._solved_frames: set[int] = set()  # the frames the latest solve's poses hold for
         self._fixed: list[bool] = []
         self._step_var: list[float | None] = []
+        self._step_scale = 1.0
         self._latest = DriftCorrection()
         self.optimizations = 0
         self.failures = 0
@@ -151,6 +152,15 @@ class BackgroundPoseGraph:
             self._fixed.append(bool(fixed))
             self._step_var.append(None if step_var is None else float(step_var))
             return True
+
+    def scale_steps(self, factor: float) -> None:
+        """From the next solve on, every keyframe's ``step_var`` is taken ``factor`` times (a
+        scale the loops found for the odometry's stated steps); refused: not finite and
+        positive."""
+        if not (math.isfinite(factor) and factor > 0.0):
+            raise PoseGraphError(f"a step scale must be finite and positive, got {factor}")
+        with self._cv:
+            self._step_scale = float(factor)
 
     def add_loop(self, edge: LoopEdge) -> bool:
         """Take a verified loop and start an optimisation; refused and counted: a keyframe the
@@ -274,7 +284,7 @@ class BackgroundPoseGraph:
             fixed=np.array(self._fixed, bool) if any(self._fixed) else None,
             step_var=(
                 None if all(v is None for v in self._step_var)
-                else np.array([v or 0.0 for v in self._step_var], np.float64)
+                else np.array([v or 0.0 for v in self._step_var], np.float64) * self._step_scale
             ),
         )  # fmt: skip
         return problem, len(self._indices), dict(self._moved)

@@ -44,6 +44,7 @@ from quadnav.odometry import (
     CameraCalibration,
     FrameFeatures,
     KeyframeRecord,
+    KeyframeStep,
     OdometryEvent,
     OdometryState,
     StageTiming,
@@ -91,6 +92,7 @@ class _KeyframeInfo:
     described: NDArray[np.bool_] | None
     keyframe: Keyframe | None = None
     cov_pose: FloatArray | None = None
+    step: KeyframeStep | None = None
 
 
 def _three(v: FloatArray) -> tuple[float, float, float]:
@@ -152,6 +154,7 @@ class VioEstimator:
         self._reset_counter = 0
         self._next_kf = 0
         self._cov_pose = np.eye(6) * 1e-6
+        self._step: KeyframeStep | None = None  # the last solve's (see SolveResult.step)
         self._cov_v = np.eye(3) * 1e-6
         self._cov_bias = np.eye(6) * 1e-6
         self._restarted_kf: int | None = None  # the keyframe of the last restart in place
@@ -720,6 +723,7 @@ class VioEstimator:
         info = self._kf_info.get(kf.index)
         if info is not None:
             info.cov_pose = np.array(self._cov_pose)
+            info.step, self._step = self._step, None
         self._last_p = np.asarray(kf.pose.translation(), np.float64)
         return self._state(
             kf.t_ns, kf.pose, kf.velocity, kf.bias, self._cov_pose, self._cov_v,
@@ -801,6 +805,7 @@ class VioEstimator:
         if reason is not None:
             return self._fail(frame.t_ns, reason)
         self._cov_pose, self._cov_v, self._cov_bias = res.cov_pose, res.cov_v, res.cov_bias
+        self._step = res.step
         self._retire()
         self._run_from(new)
         self._feed_time_offset(prev, new)
@@ -979,7 +984,7 @@ class VioEstimator:
             xy=self.window.corrected_xy(f.xy), descriptors=info.descriptors, described=info.described,
             landmark_ids=np.array([j for j, _ in seen], np.int64),
             landmarks_W=np.array([p for _, p in seen], np.float64).reshape(-1, 3),
-            T_B_C=self.window.extrinsic,
+            T_B_C=self.window.extrinsic, step=info.step,
         )  # fmt: skip
 
     def _fixed_landmarks(

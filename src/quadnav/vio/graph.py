@@ -51,12 +51,15 @@ GTSAM_ERRORS = (RuntimeError, IndexError, ValueError)
 @dataclass(frozen=True, slots=True)
 class GraphSolution:
     """A solve's estimate, the graph's total error there, the marginal covariances asked
-    for (by key), and whether Cholesky failed and QR redid it."""
+    for (by key), the cross-covariances asked for (by pair of keys: ``cov(a, b)``, rows
+    ``a``'s tangent, columns ``b``'s; a pair GTSAM could not give is absent), and whether
+    Cholesky failed and QR redid it."""
 
     estimate: gtsam.Values
     error: float
     covariances: dict[int, FloatArray]
     qr_fallback: bool = False
+    cross: dict[tuple[int, int], FloatArray] = dataclasses.field(default_factory=dict)
 
 
 class WindowGraph:
@@ -176,9 +179,13 @@ class WindowGraph:
             return None
         return covs.get(key)
 
-    def solve(self, covariance_of: Sequence[int] = ()) -> GraphSolution:
+    def solve(
+        self, covariance_of: Sequence[int] = (), cross_of: Sequence[tuple[int, int]] = ()
+    ) -> GraphSolution:
         """Add what is pending, optimise, marginalise what left the lag; the marginal
-        covariances of ``covariance_of`` (keys still in the window). A Cholesky failure is
+        covariances of ``covariance_of`` (keys still in the window) and the cross-covariances
+        of the pairs ``cross_of`` (iSAM2 on Cholesky only: from the same joint marginal, at
+        little cost; a key the solve marginalised is skipped). A Cholesky failure is
         redone with QR (see the module); GTSAM's errors otherwise pass through
         (:data:`GTSAM_ERRORS`): the caller says why a solve failed."""
         pending = _Pending(self._graph, self._values, dict(self._stamps.items()), self._remove)
@@ -194,7 +201,7 @@ class WindowGraph:
                 sm.update(
                     pending.graph, pending.values, dict(pending.stamps.items()), pending.remove
                 )
-            sol = self._solution(sm, covariance_of, qr=self._qr_left > 1)
+            sol = self._solution(sm, covariance_of, qr=self._qr_left > 1, cross_of=cross_of)
             self._qr_left = max(self._qr_left - 1, 0)
         except GTSAM_ERRORS:
             if self._qr_left > 1 or self.config.qr_fallback_solves == 0:
@@ -241,6 +248,7 @@ class WindowGraph:
         covariance_of: Sequence[int],
         *,
         qr: bool,
+        cross_of: Sequence[tuple[int, int]] = (),
     ) -> GraphSolution:
         """The smoother's estimate, error and marginal covariances (iSAM2's from its Bayes
         tree, factorised as the smoother is: on Cholesky, the keys' joint marginal at once,
@@ -250,9 +258,12 @@ class WindowGraph:
         est = sm.calculateEstimate()
         error = float(sm.getFactors().error(est))
         covs: dict[int, FloatArray] = {}
+        cross: dict[tuple[int, int], FloatArray] = {}
         if covariance_of and np.isfinite(error):
+            pairs = [(a, b) for a, b in cross_of if est.exists(a) and est.exists(b)]
             if isinstance(sm, gtsam.IncrementalFixedLagSmoother):
-                covs = {} if qr else _joint_marginals(sm, covariance_of)
+                if not qr:
+                    covs, cross = _joint_marginals(sm, covariance_of, pairs)
                 covs = covs or {k: np.asarray(sm.marginalCovariance(k)) for k in covariance_of}
             elif qr:
                 lin = sm.getFactors().linearize(est)
@@ -265,21 +276,31 @@ class WindowGraph:
             else:
                 marg = gtsam.Marginals(sm.getFactors(), est)
                 covs = {k: np.asarray(marg.marginalCovariance(k)) for k in covariance_of}
-        return GraphSolution(estimate=est, error=error, covariances=covs)
+                for a, b in pairs:
+                    joint = marg.jointMarginalCovariance([a, b])
+                    covs.setdefault(a, np.asarray(joint.at(a, a), np.float64))
+                    cross[(a, b)] = np.asarray(joint.at(a, b), np.float64)
+        return GraphSolution(estimate=est, error=error, covariances=covs, cross=cross)
 
 
 def _joint_marginals(
-    sm: gtsam.IncrementalFixedLagSmoother, keys: Sequence[int]
-) -> dict[int, FloatArray]:
-    """The marginal covariances of ``keys`` from their joint marginal in iSAM2's Bayes tree;
-    empty for fewer than two keys or if GTSAM fails (the caller then asks one key at a time)."""
-    if len(keys) < 2:
-        return {}
+    sm: gtsam.IncrementalFixedLagSmoother,
+    keys: Sequence[int],
+    pairs: Sequence[tuple[int, int]] = (),
+) -> tuple[dict[int, FloatArray], dict[tuple[int, int], FloatArray]]:
+    """The marginal covariances of ``keys`` and the pairs' keys, and the cross-covariances of
+    ``pairs``, from one joint marginal in iSAM2's Bayes tree; empty for fewer than two keys or
+    if GTSAM fails (the caller then asks one key at a time)."""
+    every = list(dict.fromkeys([*keys, *(k for pair in pairs for k in pair)]))
+    if len(every) < 2:
+        return {}, {}
     try:
-        joint = sm.getISAM2().jointMarginalCovariance(list(keys))
-        return {k: np.asarray(joint.at(k, k), np.float64) for k in keys}
+        joint = sm.getISAM2().jointMarginalCovariance(every)
+        covs = {k: np.asarray(joint.at(k, k), np.float64) for k in every}
+        cross = {(a, b): np.asarray(joint.at(a, b), np.float64) for a, b in pairs}
     except GTSAM_ERRORS:
-        return {}
+        return {}, {}
+    return covs, cross
 
 
 @dataclass(frozen=True, slots=True)

@@ -41,9 +41,10 @@ from quadnav.geometry import Pose
 from quadnav.geometry.camera import PinholeCamera
 from quadnav.geometry.gtsam_bridge import pose3, to_pose
 from quadnav.geometry.rotations import skew
+from quadnav.odometry import KeyframeStep
 from quadnav.vio.config import VioConfig
 from quadnav.vio.frontend import FeatureManager, normalised
-from quadnav.vio.graph import GTSAM_ERRORS, WindowGraph
+from quadnav.vio.graph import GTSAM_ERRORS, GraphSolution, WindowGraph
 from quadnav.vio.landmarks import Admission, LandmarkBook
 
 __all__ = [
@@ -137,6 +138,8 @@ class SolveResult:
     added: int = 0
     dropped: int = 0
     error: float = 0.0
+    #: the newest keyframe's position step from the window's keyframe before it
+    step: KeyframeStep | None = None
     #: Cholesky refused the window and QR solved it (see :mod:`quadnav.vio.graph`)
     qr_fallback: bool = False
 
@@ -253,6 +256,7 @@ class SlidingWindow:
         self._clock = 0.0
         self._stamp_of: dict[int, float] = {}
         self._anchored: dict[int, list[int]] = {}  # keyframe -> its landmarks' key numbers
+        self._dropping: int | None = None  # the keyframe the next solve drops
 
     # -- what the rest of the VIO reads -----------------------------------------------------
     @property
@@ -458,6 +462,7 @@ class SlidingWindow:
             keys = [*state_keys(j), *(L(n) for n in self._anchored.pop(j, ()))]
             for key in keys:
                 self.graph.restamp(key, DROPPED)  # out at the next solve
+            self._dropping = j
         else:
             self._clock += 1.0
         self.keyframes.append(kf)
@@ -598,8 +603,11 @@ class SlidingWindow:
             raise VioError("the window has not been started")
         added = self._add_landmarks(features)
         x, v, b = state_keys(self.newest.index)
+        before = [kf.index for kf in self.keyframes[:-1] if kf.index != self._dropping]
+        pairs = [(X(before[-1]), x)] if before else []
+        self._dropping = None
         try:
-            sol = self.graph.solve(covariance_of=(x, v, b))
+            sol = self.graph.solve(covariance_of=(x, v, b), cross_of=pairs)
             if not np.isfinite(sol.error):
                 return SolveResult(ok=False, reason="the optimisation diverged (non-finite error)")
             dropped = self._read_back(sol.estimate, features)
@@ -609,4 +617,29 @@ class SlidingWindow:
         return SolveResult(
             ok=True, cov_pose=sol.covariances[x], cov_v=sol.covariances[v],
             cov_bias=sol.covariances[b], qr_fallback=sol.qr_fallback, landmarks=len(self.landmarks), added=added, dropped=dropped, error=sol.error,
+            step=self._step(sol, pairs),
         )  # fmt: skip
+
+    def _step(self, sol: GraphSolution, pairs: list[tuple[int, int]]) -> KeyframeStep | None:
+        """The newest keyframe's position step from the keyframe before it in the window, and
+        its covariance in ``W`` (m^2) from their joint marginal: ``R_j S_jj R_j^T + R_i S_ii
+        R_i^T - R_i S_ij R_j^T - (R_i S_ij R_j^T)^T`` with GTSAM's right perturbation of a
+        pose's translation (``p + R dt``). None when the solve gave no cross-covariance."""
+        if not pairs or pairs[0] not in sol.cross:
+            return None
+        xi, xj = pairs[0]
+        cov_i = sol.covariances.get(xi)
+        if cov_i is None:
+            return None
+        est = sol.estimate
+        Ri = est.atPose3(xi).rotation().matrix()
+        Rj = est.atPose3(xj).rotation().matrix()
+        Sjj = sol.covariances[xj][3:, 3:]
+        Sii = cov_i[3:, 3:]
+        Sij = sol.cross[pairs[0]][3:, 3:]
+        c = Ri @ Sij @ Rj.T
+        cov = Rj @ Sjj @ Rj.T + Ri @ Sii @ Ri.T - c - c.T
+        cov = 0.5 * (cov + cov.T)
+        if not np.isfinite(cov).all():
+            return None
+        return KeyframeStep(after=int(gtsam.Symbol(xi).index()), cov_W=cov)
