@@ -637,10 +637,7 @@ class LoopClosure:
         self._raw[k_new] = rec.T_W_B
         step_var = self._step_var(rec, seg.id)
         self._step_of[k_new] = step_var
-        last = self._last_kf
-        joined = last is not None and self._segment_of.get(last.index) == seg.id
-        base = self._cum.get(last.index, 0.0) if joined and last is not None else 0.0
-        self._cum[k_new] = base + (step_var or 0.0)
+        self._note_steps(k_new, seg.id, step_var)
         self._note_path(rec, seg.id)
         self.stats.keyframes += 1
         self.graph.add_pose(k_new, rec.T_W_B, t_ns=rec.t_ns, reset_counter=seg.id,
@@ -750,6 +747,14 @@ class LoopClosure:
         self.stats.rejected[place.stage] += 1
         self.stats.places.append(place)
         self._event(rec, "loop_rejected", f"keyframe {place.old}: {why}")
+
+    def _note_steps(self, k: int, segment: int, step_var: float | None) -> None:
+        """Keyframe ``k``'s step variances summed since its segment's first (what a loop
+        within the segment compares its move with)."""
+        last = self._last_kf
+        same = last is not None and self._segment_of.get(last.index) == segment
+        base = self._cum.get(last.index, 0.0) if same and last is not None else 0.0
+        self._cum[k] = base + (step_var or 0.0)
 
     def _note_path(self, rec: KeyframeRecord, segment: int) -> None:
         last = self._last_kf
