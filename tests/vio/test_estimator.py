@@ -7,14 +7,16 @@ import dataclasses
 import itertools
 
 import cv2
+import gtsam
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
 from quadnav.messages import ImageFrame, ImuSample
-from quadnav.odometry import TRACKING_EVENTS, OdometryState
+from quadnav.odometry import TRACKING_EVENTS, FrameFeatures, OdometryState
 from quadnav.rig import rig_named
 from quadnav.vio import VioConfig, VioEstimator
+from quadnav.vio.window import Keyframe
 from quadnav.vision.tracking import TrackedFrame
 from tests.shared_data import SHARED, needs
 
@@ -274,3 +276,39 @@ def _spy_rotations(vio: VioEstimator) -> list[tuple[int, np.ndarray | None]]:
 
     vio.frontend.tracker.track = spy  # type: ignore[method-assign]
     return given
+
+
+class _Window:
+    """What ``_still_px`` reads of a window: its landmarks, the camera's mount, the focal."""
+
+    def __init__(self, points: dict[int, np.ndarray]) -> None:
+        self.points = points
+        self.T_B_C = gtsam.Pose3()  # the camera looks along the body's z
+        self.focal_px = 460.0
+
+    def landmark_position(self, track: int) -> np.ndarray | None:
+        return self.points.get(track)
+
+
+@pytest.mark.parametrize(("depth_m", "want_px"), [(5.0, 0.46), (0.5, 1.5), (50.0, 0.046)])
+def test_a_hover_far_from_its_landmarks_is_not_taken_for_rest(
+    depth_m: float, want_px: float
+) -> None:
+    """At rest, features stand within ``static_image_motion_px`` (1.5 px). A hover that
+    drifts at 5 cm/s moves landmarks 5 m away by 2.3 px over 0.5 s, 1 cm/s by 0.46 px: the
+    test must tell twice the zero-velocity sigma (5 mm/s) from rest, so far landmarks lower
+    the limit (2 x 0.005 x 0.5 x 460 / depth); near ones keep 1.5 px, as does a frame with
+    fewer than 10 landmarks placed."""
+    vio = VioEstimator(rig_named("thesis003_sim"))
+    rng = np.random.default_rng(0)
+    xy = rng.uniform(-1.0, 1.0, (30, 2))
+    points = {j: np.array([x * depth_m, y * depth_m, depth_m]) for j, (x, y) in enumerate(xy)}
+    vio.window = _Window(points)  # type: ignore[assignment]
+    kf = Keyframe(index=0, t_ns=0, pose=gtsam.Pose3(), velocity=np.zeros(3), bias=None)
+    frame = FrameFeatures(
+        t_ns=500_000_000, ids=np.arange(30), uv_px=np.zeros((30, 2)), xy=np.zeros((30, 2)),
+        velocity_xy_s=np.zeros((30, 2)),
+    )  # fmt: skip
+    assert vio._still_px(kf, frame, 0.5) == pytest.approx(want_px, rel=1e-9)
+    few = dataclasses.replace(frame, ids=np.arange(9))
+    assert vio._still_px(kf, few, 0.5) == 1.5

@@ -419,10 +419,14 @@ class VioEstimator:
         ref = next((f for f in self._recent if f.t_ns >= since_ns), None)
         return ref is not None and ref is not frame and self._stood(ref, frame)
 
-    def _stood(self, ref: FrameFeatures, frame: FrameFeatures) -> bool:
-        """The features of ``frame`` are where they were in ``ref`` (median, >= 10 of them)."""
+    def _stood(
+        self, ref: FrameFeatures, frame: FrameFeatures, most_px: float | None = None
+    ) -> bool:
+        """The features of ``frame`` are where they were in ``ref`` (median, >= 10 of them,
+        within ``most_px``; by default ``static_image_motion_px``)."""
         motion, n = median_motion_px(ref, frame)
-        return n >= 10 and motion < self.config.static_image_motion_px
+        limit = self.config.static_image_motion_px if most_px is None else most_px
+        return n >= 10 and motion < limit
 
     def _try_init(self, frame: FrameFeatures) -> OdometryState | None:
         cfg = self.config
@@ -731,14 +735,39 @@ class VioEstimator:
         )  # fmt: skip
 
     def _still_since(self, kf: Keyframe, frame: FrameFeatures) -> bool:
-        """At rest from keyframe ``kf`` to this frame: a quiet IMU and features that stood."""
+        """At rest from keyframe ``kf`` to this frame: a quiet IMU and features that stood,
+        still enough to tell a velocity of ``static_velocity_sigma_m_s`` (what the constraint
+        at rest claims) from none. A hovering quadrotor's IMU reads as one at rest, and a slow
+        drift moves far features by less than ``static_image_motion_px``: at 4.9 m, 5 cm/s
+        over 0.5 s is 2.3 px, 1 cm/s 0.5 px. Held at zero velocity, the VIO then stood still
+        while the vehicle drifted (0.5 m in 7 s in one simulated flight). So the features must
+        have moved less than twice that sigma would move them over the span at the median
+        depth of the landmarks the frame sees (:meth:`_still_px`)."""
         cfg = self.config
         st = imu_stillness(self.imu.samples, kf.t_ns, frame.t_ns, cfg.static_lowpass_s)
         span = (frame.t_ns - kf.t_ns) * 1e-9
         if not is_still(st, cfg, span):
             return False
         ref = self.frontend.last_keyframe
-        return ref is not None and self._stood(ref, frame)
+        return ref is not None and self._stood(ref, frame, self._still_px(kf, frame, span))
+
+    def _still_px(self, kf: Keyframe, frame: FrameFeatures, span_s: float) -> float:
+        """The most median feature motion (px) that still tells the vehicle stood over
+        ``span_s``: ``static_image_motion_px``, or less where the landmarks are far (twice
+        ``static_velocity_sigma_m_s`` over the span, at their median depth from ``kf``)."""
+        cfg = self.config
+        position = self.window.landmark_position
+        points = [p for j in frame.ids.tolist() if (p := position(j)) is not None]
+        if len(points) < 10:
+            return cfg.static_image_motion_px
+        T_W_C = kf.pose.compose(self.window.T_B_C)
+        R, t = T_W_C.rotation().matrix(), np.asarray(T_W_C.translation(), np.float64)
+        depth = (np.asarray(points, np.float64) - t) @ R[:, 2]
+        depth = depth[depth > 0.0]
+        if depth.size < 10:
+            return cfg.static_image_motion_px
+        seen = 2.0 * cfg.static_velocity_sigma_m_s * span_s * self.window.focal_px
+        return min(cfg.static_image_motion_px, seen / float(np.median(depth)))
 
     def _track(self, frame: FrameFeatures) -> OdometryState | None:
         cfg = self.config
