@@ -85,10 +85,6 @@ LOOP_GRAPH = PoseGraphConfig(
 LOOP_DETECTOR = LoopDetectorConfig(min_normalised_score=0.3, temporal_consistency=5)
 
 
-#: how many keyframes' chained step variances a segment keeps (a window's worth, and more)
-_CHAIN_KEPT = 64
-
-
 @dataclass(frozen=True, slots=True, kw_only=True)
 class LoopConfig:
     """Loop closure's settings: place recognition (``detector``), verification, the fewest
@@ -322,7 +318,6 @@ class LoopClosure:
         self._last_loop = -(10**9)
         self._t_of: dict[int, int] = {}  # graph index -> its time
         self._step_of: dict[int, float | None] = {}  # graph index -> its variance growth
-        self._chain: dict[int, float] = {}  # this segment's keyframes' chained step variance
         self._cum: dict[int, float] = {}  # this run's keyframes: step variances summed in a segment
         self._scale_sum = 0.0  # the loops' ratios of their moves to the steps' variance
         self._path_m: dict[int, float] = {}  # graph index -> path flown since the first
@@ -769,24 +764,20 @@ class LoopClosure:
         """The odometry's position variance (m^2, the mean of its axes) added since the
         keyframe before in this segment (0 for a segment's first; None when the odometry's
         covariance is not used). From the keyframes' steps (:class:`KeyframeStep`) where the
-        odometry gives them: their variances are chained, so a step from a keyframe before the
-        last one counts only what it adds. Else the growth of the position marginal, which
+        odometry gives them: summed along the segment (:meth:`_note_steps`), so a step from a
+        keyframe before the last one counts only what it adds. Else the growth of the position marginal, which
         also swings with the heading's and scale's shared error (see :class:`KeyframeStep`)."""
         if not self.config.use_odometry_covariance:
             return None
         last = self._last_kf
         if last is None or self._segment_of.get(last.index) != segment:
-            self._chain = {rec.index: 0.0}
             return 0.0
         step = rec.step
-        base = None if step is None else self._chain.get(step.after + self._offset)
-        if step is not None and base is not None and last.index in self._chain:
-            self._chain[rec.index] = base + float(np.trace(step.cov_W)) / 3.0
-            grow = self._chain[rec.index] - self._chain[last.index]
-            for k in list(self._chain)[:-_CHAIN_KEPT]:  # a step reaches back a window at most
-                del self._chain[k]
+        after = None if step is None else step.after + self._offset
+        if step is not None and after in self._cum and self._segment_of.get(after) == segment:
+            # the sum to this keyframe less the sum to the one before (:meth:`_note_steps`)
+            grow = self._cum[after] + float(np.trace(step.cov_W)) / 3.0 - self._cum[last.index]
         else:
-            self._chain = {rec.index: 0.0}
             grow = (np.trace(rec.cov_pose[3:, 3:]) - np.trace(last.cov_pose[3:, 3:])) / 3.0
         return float(grow) if math.isfinite(grow) and grow > 0.0 else 0.0
 
