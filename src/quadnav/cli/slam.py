@@ -59,11 +59,19 @@ SlamLoopOpt = Annotated[
     bool,
     typer.Option("--loop/--no-loop", help="close loops (an SE(3) pose graph, points fused)"),
 ]
+FinalBaOpt = Annotated[
+    bool,
+    typer.Option(
+        "--final-ba/--no-final-ba",
+        help="adjust every keyframe and point once more at the end: the final map, its "
+        "trajectory (estimate_final.tum) and a saved map (the causal estimate is not touched)",
+    ),
+]
 
 
 def resolve_slam_request(
     dataset: str, start_s: float, duration_s: float | None, seed: int, rig: str, out: Path,
-    *, features: int = 1200, th_depth: float = 40.0, loop: bool = True,
+    *, features: int = 1200, th_depth: float = 40.0, loop: bool = True, final_ba: bool = True,
     save_map: Path | None = None,
     load_map: Path | None = None, localization_only: bool = False, blackout: str | None = None,
     calibration: Path | None = None, rerun: RerunOptions | None = None,
@@ -79,7 +87,7 @@ def resolve_slam_request(
         th_depth_baselines=th_depth,
         options=OdometryRunOptions(start_s=start_s, duration_s=duration_s, video=False,
                                    blackout_s=parse_blackout(blackout)),
-        loop=loop, save_map=save_map,
+        loop=loop, final_ba=final_ba, save_map=save_map,
         load_map=load_map, localization_only=localization_only, calibration=calibration,
         rerun=rerun,
     )  # fmt: skip
@@ -94,7 +102,7 @@ def check_example(params: CommandParams) -> None:
         optional_param(params, "duration_s", float), param(params, "seed", int),
         param(params, "rig", str), param(params, "out", Path),
         features=param(params, "features", int), th_depth=param(params, "th_depth", float),
-        loop=param(params, "loop", bool),
+        loop=param(params, "loop", bool), final_ba=param(params, "final_ba", bool),
         save_map=optional_param(params, "save_map", Path),
         load_map=optional_param(params, "load_map", Path),
         localization_only=param(params, "localization_only", bool),
@@ -170,6 +178,7 @@ def slam_command(
         ),
     ] = 40.0,
     loop: SlamLoopOpt = True,
+    final_ba: FinalBaOpt = True,
     save_map: SlamSaveMapOpt = None,
     load_map: SlamLoadMapOpt = None,
     localization_only: LocalizationOpt = False,
@@ -198,7 +207,7 @@ def slam_command(
         raise ConfigError(f"--calibration {calibration}: no such file or folder")
     request = resolve_slam_request(
         dataset, start_s, duration_s, seed, rig, out, features=features, th_depth=th_depth,
-        loop=loop, save_map=save_map, load_map=load_map,
+        loop=loop, final_ba=final_ba, save_map=save_map, load_map=load_map,
         localization_only=localization_only, blackout=blackout, calibration=calibration,
         rerun=rerun_request(rerun, rerun_connect, rerun_spawn),
     )  # fmt: skip

@@ -65,7 +65,7 @@ FINAL_KEYFRAMES = "keyframes_final.tum"
 class SlamRequest:
     """One ``quadnav slam`` run: the source, its span and outputs, the seed and rig of a
     built-in sequence, the runs' folder, the SLAM's features and ThDepth, its loop closing
-    (``loop``), the map saved at the end (``save_map``) or started on (``load_map``),
+    (``loop``) and final bundle adjustment (``final_ba``), the map saved at the end (``save_map``) or started on (``load_map``),
     ``localization_only``, and a ``calibration`` replacing the dataset's."""
 
     source: str
@@ -76,6 +76,7 @@ class SlamRequest:
     n_features: int = 1200
     th_depth_baselines: float = 40.0
     loop: bool = True
+    final_ba: bool = True
     save_map: Path | None = None
     load_map: Path | None = None
     localization_only: bool = False
@@ -156,7 +157,8 @@ def _config(request: SlamRequest) -> SlamConfig:
 
     return SlamConfig(orb=OrbConfig(n_features=request.n_features),
                       th_depth_baselines=request.th_depth_baselines,
-                      loop_closing=LoopClosingConfig(enabled=request.loop))  # fmt: skip
+                      loop_closing=LoopClosingConfig(enabled=request.loop),
+                      final_ba=request.final_ba)  # fmt: skip
 
 
 def run_slam_source(

@@ -106,7 +106,10 @@ class SlamConfig:
     projected into each frame (the newest, and those that see most of the last frame's
     points); ``local_ba_keyframes``: the newest keyframe and its most covisible ones adjusted
     after each keyframe; ``global_ba``: every keyframe and point adjusted after a loop is
-    closed (ORB-SLAM2 does it in a thread; here inline); ``relocalization``: after a loss
+    closed (ORB-SLAM2 does it in a thread; here inline); ``final_ba``: the same once more when
+    the run ends (the first ``keyframes(final=True)``), so that the final map, its trajectory and
+    a saved map are adjusted over every keyframe (the causal estimate is not touched; a
+    localization-only run adjusts nothing); ``relocalization``: after a loss
     (:mod:`quadnav.slam.relocalization`); ``loop_closing``: :mod:`quadnav.slam.loop_closing`."""
 
     orb: OrbConfig = field(default_factory=OrbConfig)
@@ -127,6 +130,7 @@ class SlamConfig:
     local_mapping: bool = True
     local_ba_keyframes: int = 5
     global_ba: bool = True
+    final_ba: bool = True
     relocalization: RelocalizationConfig = field(default_factory=RelocalizationConfig)
     loop_closing: LoopClosingConfig = field(default_factory=LoopClosingConfig)
 

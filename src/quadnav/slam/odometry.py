@@ -54,6 +54,7 @@ from quadnav.odometry import (
 from quadnav.rig import Rig
 from quadnav.slam.config import SlamConfig
 from quadnav.slam.frame import Frame, StereoCamera, rgbd_frame, stereo_frame
+from quadnav.slam.local_mapping import global_bundle_adjustment
 from quadnav.slam.map import SlamKeyframe, SlamMap
 from quadnav.slam.tracking import StereoTracker, TrackResult
 from quadnav.vision.orb import OrbExtractor
@@ -120,6 +121,21 @@ class SlamOdometry:
         self._rejected: Counter[str] = Counter()
         self._seconds: dict[str, float] = {}
         self._calls: Counter[str] = Counter()
+        self._finished = False  # (the run's end: the final bundle adjustment done)
+
+    def _final_adjustment(self) -> None:
+        """At the run's end (``config.final_ba``, while mapping): every keyframe and point
+        adjusted once more (:func:`~quadnav.slam.local_mapping.global_bundle_adjustment`), timed
+        as the stage ``final_ba``; a failed solve leaves the map as it was, counted
+        (``final_ba_failed``)."""
+        if not (self.config.final_ba and self.tracker.mapping):
+            return
+        t0 = time.perf_counter()
+        try:
+            global_bundle_adjustment(self.tracker.map)
+        except (RuntimeError, ValueError, np.linalg.LinAlgError):  # (GTSAM: indeterminant)
+            self._rejected["final_ba_failed"] += 1  # (the map as it was: the run's end stands)
+        self._time("final_ba", time.perf_counter() - t0)
 
     def _stereo_rig(self, rig: Rig) -> None:
         from quadnav.vision.stereo import StereoRectifier
@@ -190,6 +206,9 @@ class SlamOdometry:
         return self._frame(left, lambda: self._mono_frame(left))
 
     def keyframes(self, *, final: bool = False) -> Sequence[KeyframeRecord]:
+        if final and not self._finished:
+            self._finished = True
+            self._final_adjustment()
         kfs = self.tracker.map.keyframes
         upto = len(kfs) if final else len(kfs) - self.config.local_ba_keyframes
         out = [self._record(kf) for kf in kfs[self._published : max(upto, self._published)]]
