@@ -148,6 +148,30 @@ def test_the_final_bundle_adjustment_runs_once_when_the_run_ends(stereo_run: tup
     assert slam.keyframes(final=True) == [] and _final_ba_calls(slam) == 1
 
 
+def test_the_adjustment_bounded_to_the_newest_keyframes_holds_the_older_ones(
+    stereo_run: tuple,
+) -> None:
+    """``newest=2``: the two newest keyframes and their points move (the map was moved off its
+    optimum first), every older keyframe stays where it was to the bit."""
+    import copy
+
+    from quadnav.geometry.rotations import Pose
+    from quadnav.slam.local_mapping import global_bundle_adjustment
+
+    _, slam, _ = stereo_run
+    m = copy.deepcopy(slam.tracker.map)
+    kfs = [kf for kf in m.keyframes if not kf.bad]
+    assert len(kfs) >= 4
+    for kf in kfs[-2:]:  # (1 cm off along x, so that the adjustment has work to do)
+        kf.T_C_W = Pose.from_quat_xyzw(kf.T_C_W.R_A_B.as_quat(), kf.T_C_W.p_A_B + [0.01, 0, 0])
+    before = [kf.T_C_W.matrix() for kf in kfs]
+    adjusted, points = global_bundle_adjustment(m, newest=2)
+    assert adjusted == 2 and points > 0
+    after = [kf.T_C_W.matrix() for kf in kfs]
+    assert all(np.array_equal(a, b) for a, b in zip(after[:-2], before[:-2], strict=True))
+    assert all(np.abs(a - b).max() > 1e-3 for a, b in zip(after[-2:], before[-2:], strict=True))
+
+
 def test_a_final_bundle_adjustment_that_fails_leaves_the_map_and_is_counted(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:

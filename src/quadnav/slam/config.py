@@ -109,7 +109,9 @@ class SlamConfig:
     closed (ORB-SLAM2 does it in a thread; here inline); ``final_ba``: the same once more when
     the run ends (the first ``keyframes(final=True)``), so that the final map, its trajectory and
     a saved map are adjusted over every keyframe (the causal estimate is not touched; a
-    localization-only run adjusts nothing); ``relocalization``: after a loss
+    localization-only run adjusts nothing), over the newest ``final_ba_keyframes`` keyframes
+    at most (the older ones that see their points held: a long run's end stays bounded);
+    ``relocalization``: after a loss
     (:mod:`quadnav.slam.relocalization`); ``loop_closing``: :mod:`quadnav.slam.loop_closing`."""
 
     orb: OrbConfig = field(default_factory=OrbConfig)
@@ -131,6 +133,7 @@ class SlamConfig:
     local_ba_keyframes: int = 5
     global_ba: bool = True
     final_ba: bool = True
+    final_ba_keyframes: int = 300
     relocalization: RelocalizationConfig = field(default_factory=RelocalizationConfig)
     loop_closing: LoopClosingConfig = field(default_factory=LoopClosingConfig)
 
@@ -149,6 +152,7 @@ class SlamConfig:
             "local_keyframes",
             "local_ba_keyframes",
             "keyframe_min_observers",
+            "final_ba_keyframes",
         )
         if self.keyframe_every < 0:
             raise SlamError(f"SlamConfig.keyframe_every must be >= 0, got {self.keyframe_every}")  # fmt: skip

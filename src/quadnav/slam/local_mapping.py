@@ -85,20 +85,33 @@ def local_mapping(
                               dropped=dropped, keyframes_culled=n_kf, created=made)  # fmt: skip
 
 
-def global_bundle_adjustment(m: SlamMap, *, iterations: int = 10) -> tuple[int, int]:
+def global_bundle_adjustment(
+    m: SlamMap, *, iterations: int = 10, newest: int | None = None
+) -> tuple[int, int]:
     """ORB-SLAM2's ``GlobalBundleAdjustemnt`` after a loop: every keyframe (the first held) and
     every point they see, adjusted together (``iterations`` a pass, two passes, the second
-    without the first's outliers); the map takes the result. (keyframes, points) adjusted."""
+    without the first's outliers); the map takes the result. ``newest``: only the newest so
+    many keyframes and their points, the older keyframes that see those points held (a long
+    run's adjustment bounded). (keyframes, points) adjusted."""
     kfs = [kf for kf in m.keyframes if not kf.bad]
-    pts = m.local_points(kfs)
-    if len(kfs) < 2 or len(pts) == 0:
+    n_held = 1
+    if newest is not None and len(kfs) > newest + 1:
+        local = kfs[-newest:]
+        pts = m.local_points(local)
+        held = [kf for kf in kfs[:-newest] if np.isin(kf.points, pts).any()]
+        if not held:
+            held, local = [local[0]], local[1:]
+        kfs, n_held = [*held, *local], len(held)
+    else:
+        pts = m.local_points(kfs)
+    if len(kfs) - n_held < 1 or len(pts) == 0:
         return 0, 0
-    problem, _ = _problem(m, kfs, pts, n_held=1)
+    problem, _ = _problem(m, kfs, pts, n_held=n_held)
     out = local_bundle_adjustment(problem, kfs[0].frame.camera.intrinsics, iterations=iterations)
-    for kf, T_W_C in zip(kfs[1:], out.T_W_C[1:], strict=True):
+    for kf, T_W_C in zip(kfs[n_held:], out.T_W_C[n_held:], strict=True):
         kf.T_C_W = T_W_C.inverse()
     m.X_W[pts] = out.X_W
-    return len(kfs) - 1, len(pts)
+    return len(kfs) - n_held, len(pts)
 
 
 def cull_keyframes(

@@ -132,7 +132,7 @@ class SlamOdometry:
             return
         t0 = time.perf_counter()
         try:
-            global_bundle_adjustment(self.tracker.map)
+            global_bundle_adjustment(self.tracker.map, newest=self.config.final_ba_keyframes)
         except (RuntimeError, ValueError, np.linalg.LinAlgError):  # (GTSAM: indeterminant)
             self._rejected["final_ba_failed"] += 1  # (the map as it was: the run's end stands)
         self._time("final_ba", time.perf_counter() - t0)
