@@ -110,7 +110,9 @@ class SlamConfig:
     the run ends (the first ``keyframes(final=True)``), so that the final map, its trajectory and
     a saved map are adjusted over every keyframe (the causal estimate is not touched; a
     localization-only run adjusts nothing), over the newest ``final_ba_keyframes`` keyframes
-    at most (the older ones that see their points held: a long run's end stays bounded);
+    at most (the older ones that see their points held: a long run's end stays bounded), with
+    the rectified pair's intrinsics estimated too when ``final_ba_intrinsics`` (a calibration a
+    little off what is stated shows as a distorted map);
     ``relocalization``: after a loss
     (:mod:`quadnav.slam.relocalization`); ``loop_closing``: :mod:`quadnav.slam.loop_closing`."""
 
@@ -134,6 +136,7 @@ class SlamConfig:
     global_ba: bool = True
     final_ba: bool = True
     final_ba_keyframes: int = 300
+    final_ba_intrinsics: bool = True
     relocalization: RelocalizationConfig = field(default_factory=RelocalizationConfig)
     loop_closing: LoopClosingConfig = field(default_factory=LoopClosingConfig)
 

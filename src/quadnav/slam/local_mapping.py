@@ -13,13 +13,19 @@ other keyframes for ``redundancy`` (90 %) of them or more is culled (ORB-SLAM2's
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
 from quadnav.slam.map import SlamKeyframe, SlamMap
-from quadnav.slam.optimizer import BundleProblem, local_bundle_adjustment
+from quadnav.slam.optimizer import (
+    BundleProblem,
+    local_bundle_adjustment,
+    self_calibrating_adjustment,
+)
 
 __all__ = [
+    "GlobalAdjustment",
     "LocalMappingReport",
     "create_points",
     "cull_keyframes",
@@ -85,14 +91,25 @@ def local_mapping(
                               dropped=dropped, keyframes_culled=n_kf, created=made)  # fmt: skip
 
 
+class GlobalAdjustment(NamedTuple):
+    """What :func:`global_bundle_adjustment` did: keyframes and points adjusted, and the left
+    rectified camera's refined ``(fx, fy, cx, cy, fx b)`` when it estimated them (else None)."""
+
+    keyframes: int
+    points: int
+    intrinsics: tuple[float, float, float, float, float] | None = None
+
+
 def global_bundle_adjustment(
-    m: SlamMap, *, iterations: int = 10, newest: int | None = None
-) -> tuple[int, int]:
+    m: SlamMap, *, iterations: int = 10, newest: int | None = None, intrinsics: bool = False
+) -> GlobalAdjustment:
     """ORB-SLAM2's ``GlobalBundleAdjustemnt`` after a loop: every keyframe (the first held) and
     every point they see, adjusted together (``iterations`` a pass, two passes, the second
     without the first's outliers); the map takes the result. ``newest``: only the newest so
     many keyframes and their points, the older keyframes that see those points held (a long
-    run's adjustment bounded). (keyframes, points) adjusted."""
+    run's adjustment bounded). ``intrinsics``: the pair's intrinsics estimated too
+    (:func:`~quadnav.slam.optimizer.self_calibrating_adjustment`; the map's camera is not
+    changed: the result says them)."""
     kfs = [kf for kf in m.keyframes if not kf.bad]
     n_held = 1
     if newest is not None and len(kfs) > newest + 1:
@@ -105,13 +122,18 @@ def global_bundle_adjustment(
     else:
         pts = m.local_points(kfs)
     if len(kfs) - n_held < 1 or len(pts) == 0:
-        return 0, 0
+        return GlobalAdjustment(0, 0)
     problem, _ = _problem(m, kfs, pts, n_held=n_held)
-    out = local_bundle_adjustment(problem, kfs[0].frame.camera.intrinsics, iterations=iterations)
+    cam = kfs[0].frame.camera.intrinsics
+    refined = None
+    if intrinsics:
+        out, refined = self_calibrating_adjustment(problem, cam)
+    else:
+        out = local_bundle_adjustment(problem, cam, iterations=iterations)
     for kf, T_W_C in zip(kfs[n_held:], out.T_W_C[n_held:], strict=True):
         kf.T_C_W = T_W_C.inverse()
     m.X_W[pts] = out.X_W
-    return len(kfs) - n_held, len(pts)
+    return GlobalAdjustment(len(kfs) - n_held, len(pts), refined)
 
 
 def cull_keyframes(

@@ -122,6 +122,9 @@ class SlamOdometry:
         self._seconds: dict[str, float] = {}
         self._calls: Counter[str] = Counter()
         self._finished = False  # (the run's end: the final bundle adjustment done)
+        #: the left rectified camera's ``(fx, fy, cx, cy, fx b)`` as the final adjustment
+        #: estimated them (None: not estimated)
+        self.final_intrinsics: tuple[float, float, float, float, float] | None = None
 
     def _final_adjustment(self) -> None:
         """At the run's end (``config.final_ba``, while mapping): every keyframe and point
@@ -132,7 +135,11 @@ class SlamOdometry:
             return
         t0 = time.perf_counter()
         try:
-            global_bundle_adjustment(self.tracker.map, newest=self.config.final_ba_keyframes)
+            done = global_bundle_adjustment(
+                self.tracker.map, newest=self.config.final_ba_keyframes,
+                intrinsics=self.config.final_ba_intrinsics,
+            )  # fmt: skip
+            self.final_intrinsics = done.intrinsics
         except (RuntimeError, ValueError, np.linalg.LinAlgError):  # (GTSAM: indeterminant)
             self._rejected["final_ba_failed"] += 1  # (the map as it was: the run's end stands)
         self._time("final_ba", time.perf_counter() - t0)

@@ -15,6 +15,10 @@ show it: the gate keeps those that agree)."""
 
 from __future__ import annotations
 
+import os
+import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -27,7 +31,10 @@ from quadnav.geometry.rotations import Pose, so3_exp
 if TYPE_CHECKING:  # (GTSAM loads only for a bundle adjustment)
     import gtsam
 
-__all__ = ["BundleProblem", "BundleResult", "PoseFit", "local_bundle_adjustment", "optimize_pose"]
+__all__ = [
+    "BundleProblem", "BundleResult", "PoseFit", "local_bundle_adjustment", "optimize_pose",
+    "self_calibrating_adjustment",
+]  # fmt: skip
 
 FloatArray = NDArray[np.float64]
 CHI2_STEREO, CHI2_MONO = 7.815, 5.991
@@ -233,6 +240,135 @@ def _bundle_graph(
             graph.add(gtsam.GenericProjectionFactorCal3_S2(np.array([u, v]), noise,
                                                            gtsam.symbol("x", k), gtsam.symbol("l", j), Km))  # fmt: skip
     return graph, values
+
+
+Intrinsics = tuple[float, float, float, float, float]
+
+
+def self_calibrating_adjustment(
+    problem: BundleProblem,
+    cam: Intrinsics,
+    *,
+    passes: int = 2,
+    iterations: int = 50,
+    focal_sigma: float = 0.02,
+    centre_sigma_px: float = 5.0,
+    rig_sigma: float = 1e-3,
+) -> tuple[BundleResult, Intrinsics]:
+    """The bundle adjustment with the rectified pair's intrinsics estimated as well
+    (self-calibration): each camera of the pair its own pinhole (fx, fy, cx, cy), a prior at
+    ``cam`` of ``focal_sigma`` (relative) and ``centre_sigma_px``; the right camera a pose of
+    its own held within ``rig_sigma`` (rad and m, each axis) of the rectified baseline from the
+    left one; each observation a projection (GTSAM's ``GeneralSFMFactor2``; a stereo one in both
+    cameras) under a Huber kernel of its level's sigma, the held keyframes by a micro-prior;
+    observations of points behind their camera left out, and after a pass those beyond the gate.
+    The result, and the left camera's refined ``(fx, fy, cx, cy, fx b)``."""
+    import gtsam
+
+    fx, fy, cx, cy, bf = cam
+    b = bf / fx
+    stated = gtsam.Cal3_S2(fx, fy, 0.0, cx, cy)
+    K = (stated, stated)
+    poses, points = list(problem.T_W_C), np.asarray(problem.X_W, np.float64).copy()
+    keep = _in_front(problem, poses, points)
+    refined = cam
+    for _ in range(passes):
+        graph, values = _self_calibrating_graph(problem, keep, poses, points, K, b, rig_sigma)
+        prior = gtsam.noiseModel.Diagonal.Sigmas(
+            np.array([focal_sigma * fx, focal_sigma * fy, 1e-6, centre_sigma_px, centre_sigma_px])
+        )
+        for side in (0, 1):
+            graph.add(gtsam.PriorFactorCal3_S2(gtsam.symbol("k", side), stated, prior))
+        params = gtsam.LevenbergMarquardtParams()
+        params.setMaxIterations(iterations)
+        with _c_stdout_silenced():  # (GTSAM prints each landmark it finds behind a camera)
+            out = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
+        poses = [_pose(out.atPose3(gtsam.symbol("x", k))) for k in range(len(poses))]
+        points = np.array([out.atPoint3(gtsam.symbol("l", j)) for j in range(len(points))])
+        points = points.reshape(-1, 3)
+        K = (out.atCal3_S2(gtsam.symbol("k", 0)), out.atCal3_S2(gtsam.symbol("k", 1)))
+        refined = (K[0].fx(), K[0].fy(), K[0].px(), K[0].py(), K[0].fx() * b)
+        keep = _within_gate(problem, poses, points, refined)
+    return BundleResult(T_W_C=tuple(poses), X_W=points, inliers=keep), refined
+
+
+def _pose(p: gtsam.Pose3) -> Pose:
+    from quadnav.geometry.gtsam_bridge import to_pose
+
+    return to_pose(p)
+
+
+def _self_calibrating_graph(
+    p: BundleProblem, keep: NDArray[np.bool_], poses: list[Pose], points: FloatArray,
+    K: tuple[gtsam.Cal3_S2, gtsam.Cal3_S2], baseline_m: float, rig_sigma: float,
+) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values]:  # fmt: skip
+    import gtsam
+
+    from quadnav.geometry.gtsam_bridge import pose3
+
+    def x(k: int) -> int:
+        return int(gtsam.symbol("x", k))
+
+    def r(k: int) -> int:
+        return int(gtsam.symbol("r", k))
+
+    def lm(j: int) -> int:
+        return int(gtsam.symbol("l", j))
+
+    T_L_R = gtsam.Pose3(gtsam.Rot3(), np.array([baseline_m, 0.0, 0.0]))
+    rig = gtsam.noiseModel.Isotropic.Sigma(6, rig_sigma)
+    held = gtsam.noiseModel.Isotropic.Sigma(6, 1e-6)
+    graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+    for k, T in enumerate(poses):
+        values.insert(x(k), pose3(T))
+        values.insert(r(k), pose3(T).compose(T_L_R))
+        graph.add(gtsam.BetweenFactorPose3(x(k), r(k), T_L_R, rig))
+        if p.fixed[k]:
+            graph.add(gtsam.PriorFactorPose3(x(k), pose3(T), held))
+    for j, X in enumerate(points):
+        values.insert(lm(j), np.asarray(X, np.float64))
+    for side in (0, 1):
+        values.insert(gtsam.symbol("k", side), K[side])
+    kernel = gtsam.noiseModel.mEstimator.Huber.Create(np.sqrt(CHI2_MONO))
+    for m in np.flatnonzero(keep):
+        k, j = int(p.obs_kf[m]), int(p.obs_pt[m])
+        noise = gtsam.noiseModel.Robust.Create(
+            kernel, gtsam.noiseModel.Isotropic.Sigma(2, float(np.sqrt(p.obs_sigma2[m])))
+        )
+        u, v = p.obs_uv[m]
+        graph.add(gtsam.GeneralSFMFactor2Cal3_S2(np.array([u, v]), noise, x(k), lm(j), gtsam.symbol("k", 0)))  # fmt: skip
+        if p.obs_ur[m] >= 0:
+            graph.add(gtsam.GeneralSFMFactor2Cal3_S2(np.array([float(p.obs_ur[m]), v]), noise, r(k), lm(j), gtsam.symbol("k", 1)))  # fmt: skip
+    return graph, values
+
+
+def _in_front(p: BundleProblem, poses: list[Pose], points: FloatArray) -> NDArray[np.bool_]:
+    """The observations whose point is at least 5 cm in front of its camera."""
+    keep = np.zeros(len(p.obs_kf), bool)
+    for k, T in enumerate(poses):
+        m = np.flatnonzero(p.obs_kf == k)
+        if len(m):
+            keep[m] = (T.inverse() @ points[p.obs_pt[m]])[:, 2] > 0.05
+    return keep
+
+
+@contextmanager
+def _c_stdout_silenced() -> Iterator[None]:
+    """C's standard output (file descriptor 1) sent to the null device meanwhile, Python's
+    streams flushed first; nothing done where it cannot be duplicated."""
+    try:
+        sys.stdout.flush()
+        saved = os.dup(1)
+    except (OSError, ValueError):
+        yield
+        return
+    try:
+        with open(os.devnull, "wb") as null:
+            os.dup2(null.fileno(), 1)
+        yield
+    finally:
+        os.dup2(saved, 1)
+        os.close(saved)
 
 
 def _within_gate(
