@@ -1,5 +1,7 @@
-"""Memory of a long VIO run (issue 22, item 9: the peak RSS of a 30-minute sequence within 1.2x
-of a 3-minute one's): ``quadnav.vio.VioEstimator`` through the one odometry runner
+"""Memory of a long VIO or SLAM run (issue 22, item 9: the peak RSS of a 30-minute sequence
+within 1.2x of a 3-minute one's; issue 24: the SLAM's): ``quadnav.vio.VioEstimator`` (or,
+``--odometry slam``, ``quadnav.slam.SlamOdometry`` on a stereo ``--rig`` such as ``euroc``, its
+final adjustment included) through the one odometry runner
 (``experiments/odometry_run.py`` ``run_odometry``, as ``quadnav vio`` runs it, no video) on a
 built-in sequence's motion (its Lissajous flight loops its room for as long as it is asked),
 for each ``--minutes``, each in its own process. The images are rendered when the runner reads
@@ -19,7 +21,7 @@ output's cost, given per frame, apart from the estimator's.
 One core: the process pins itself to ``--core`` before numpy, OpenCV or GTSAM load (children
 inherit the mask), as ``benchmarks/vio.py`` does; importing the script (its tests) pins nothing.
 
-    python benchmarks/vio_memory.py [--minutes 3 30] [--sequence room_easy] [--rig euroc_mono]
+    python benchmarks/vio_memory.py [--minutes 3 30] [--odometry vio] [--sequence room_easy] [--rig euroc_mono]
         [--sensors ideal] [--seed 0] [--every 200] [--scale 1] [--core 0]
         [--out benchmarks/results/vio_memory.json]
 """
@@ -35,8 +37,9 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
+from typing import Any
 
 #: What a child prints before its JSON line, so that the parent finds it among other output.
 RESULT_TAG = "vio_memory_result "
@@ -102,7 +105,6 @@ def _child(args: argparse.Namespace) -> dict[str, object]:
 
     from quadnav.experiments.datasets import rendered_dataset, sequence_spec
     from quadnav.experiments.odometry_run import OdometryRunOptions, run_odometry
-    from quadnav.vio import VioConfig, VioEstimator
 
     cv2.setNumThreads(1)
     rss: dict[str, object] = {"imports": _rss_kb()}
@@ -124,7 +126,7 @@ def _child(args: argparse.Namespace) -> dict[str, object]:
 
     with tempfile.TemporaryDirectory() as out:
         run = run_odometry(
-            dataset, dataset.rig, lambda r: VioEstimator(r, VioConfig(), camera="cam0"),
+            dataset, dataset.rig, _odometry(args.odometry),
             Path(out), options=OdometryRunOptions(video=False), name=args.sequence,
             progress=progress,
         )  # fmt: skip
@@ -139,6 +141,17 @@ def _child(args: argparse.Namespace) -> dict[str, object]:
         "setup_s": setup_s, "run_s": run.timing.wall_s, "frames_per_s": run.timing.frames_per_s,
         "rss_kb": rss, "peak_reset": reset, "samples": samples,
     }  # fmt: skip
+
+
+def _odometry(kind: str) -> Callable[[Any], Any]:
+    """The estimator's maker for the runner."""
+    if kind == "slam":
+        from quadnav.slam.odometry import SlamOdometry
+
+        return lambda rig: SlamOdometry(rig)
+    from quadnav.vio import VioConfig, VioEstimator
+
+    return lambda rig: VioEstimator(rig, VioConfig(), camera="cam0")
 
 
 # -- the parent ---------------------------------------------------------------------------------
@@ -158,6 +171,7 @@ def parse_child_output(stdout: str) -> dict[str, object]:
 def _run_child(args: argparse.Namespace, minutes: float) -> dict[str, object]:
     cmd = [sys.executable, __file__, "--child", f"{minutes:g}", "--core", str(args.core)]
     cmd += ["--sequence", args.sequence, "--rig", args.rig, "--sensors", args.sensors]
+    cmd += ["--odometry", args.odometry]
     cmd += ["--seed", str(args.seed), "--every", str(args.every), "--scale", f"{args.scale:g}"]
     env = {**os.environ, "MALLOC_MMAP_THRESHOLD_": str(MMAP_THRESHOLD)}
     with tempfile.TemporaryFile("w+") as stdout:
@@ -258,8 +272,9 @@ def _pin(core: int) -> None:
 
 
 def _parse() -> argparse.Namespace:
-    parser = argparse.ArgumentParser(description="VIO memory over a long run, one core")
+    parser = argparse.ArgumentParser(description="VIO or SLAM memory over a long run, one core")
     parser.add_argument("--minutes", type=float, nargs="+", default=[3.0, 30.0])
+    parser.add_argument("--odometry", choices=("vio", "slam"), default="vio")
     parser.add_argument("--sequence", default="room_easy")
     parser.add_argument("--rig", default="euroc_mono")
     parser.add_argument("--sensors", choices=("ideal", "realistic"), default="ideal")
@@ -293,7 +308,7 @@ def main() -> None:
         except QuadnavError as exc:
             _fail(str(exc))
         return
-    print(f"VIO memory on {args.sequence}'s motion, rig {args.rig}, {args.sensors} sensors, "
+    print(f"{args.odometry.upper()} memory on {args.sequence}'s motion, rig {args.rig}, {args.sensors} sensors, "
           f"seed {args.seed}, one core (affinity {sorted(os.sched_getaffinity(0))}); RSS in MB",
           flush=True)  # fmt: skip
     runs: list[dict[str, object]] = []
@@ -315,7 +330,7 @@ def _result(args: argparse.Namespace, runs: list[dict[str, object]]) -> dict[str
     from quadnav.io.run_folder import write_text
 
     result: dict[str, object] = {
-        "benchmark": "vio_memory", "python": platform.python_version(),
+        "benchmark": "vio_memory", "odometry": args.odometry, "python": platform.python_version(),
         "sequence": args.sequence, "rig": args.rig, "sensors": args.sensors, "seed": args.seed,
         "core": args.core, "every_frames": args.every, "scale": args.scale,
         "malloc_mmap_threshold_bytes": MMAP_THRESHOLD, "runs": runs,
