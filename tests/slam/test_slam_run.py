@@ -196,10 +196,10 @@ def test_the_final_adjustment_brings_the_final_map_nearer_the_truth(
 ) -> None:
     """EuRoC V1_02's real motion (30 s in the room, synthetic images, realistic sensors: each
     camera's calibration off what it states, blur, light changes), seeds 0-2: the map's
-    keyframes after the run's final adjustment are nearer the truth (SE(3)) than before it, by
-    5 % or more over the seeds, and no seed is more than 5 % worse. (Measured before this test
-    was written: seeds 0 and 1 went 0.036 to 0.030 m and 0.050 to 0.047 m; 40 s, seeds 0-4 in
-    the results of 2026-12-05.)"""
+    keyframes after the run's final adjustment (the intrinsics estimated with it) are nearer
+    the truth (SE(3)) than before it, to 0.75 or less over the seeds, and no seed is worse.
+    (Measured before this test was written: 0.036, 0.050 and 0.035 m before, 0.025, 0.018 and
+    0.020 m after, 0.52 over the seeds; with the intrinsics held 0.030, 0.047 and 0.035 m.)"""
     from quadnav.eval.evaluate import EvalOptions, evaluate_pair
     from quadnav.experiments.slam_run import final_keyframes
 
@@ -217,7 +217,7 @@ def test_the_final_adjustment_brings_the_final_map_nearer_the_truth(
         slam.keyframes(final=True)
         after.append(evaluate_pair(truth, final_keyframes(slam), opts).metrics.ape_trans_m.rmse)
     b, a = np.array(before), np.array(after)
-    assert a.mean() < 0.95 * b.mean() and np.all(a < 1.05 * b), (b, a)
+    assert a.mean() < 0.75 * b.mean() and np.all(a < b), (b, a)
 
 
 def test_a_saved_map_reloads_exactly_and_a_run_localizes_in_it(
