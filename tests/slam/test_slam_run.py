@@ -148,6 +148,27 @@ def test_the_final_bundle_adjustment_runs_once_when_the_run_ends(stereo_run: tup
     assert slam.keyframes(final=True) == [] and _final_ba_calls(slam) == 1
 
 
+def test_the_intrinsics_the_final_adjustment_found_are_written(
+    stereo_run: tuple, tmp_path: Path
+) -> None:
+    """Ideal sensors (the calibration as stated): what it found is within 1 % of what is
+    stated, and the run folder's ``final_intrinsics.json`` says both."""
+    import json
+
+    from quadnav.experiments.slam_run import _write_final_intrinsics
+
+    _, slam, _ = stereo_run
+    assert slam.final_intrinsics is not None
+    fx, fy, cx, cy, _ = slam.final_intrinsics
+    c = slam.camera
+    assert np.allclose([fx, fy, cx, cy], [c.fx, c.fy, c.cx, c.cy], atol=0.01 * c.fx)
+    _write_final_intrinsics(slam, tmp_path / "final_intrinsics.json")
+    found = json.loads((tmp_path / "final_intrinsics.json").read_text())
+    assert found["estimated"] == {"fx": fx, "fy": fy, "cx": cx, "cy": cy}
+    assert found["stated"]["baseline_m"] == c.baseline_m
+    assert found["difference"]["fy"] == pytest.approx(fy - c.fy)
+
+
 def test_the_adjustment_bounded_to_the_newest_keyframes_holds_the_older_ones(
     stereo_run: tuple,
 ) -> None:

@@ -49,6 +49,7 @@ if TYPE_CHECKING:
     from quadnav.slam.odometry import DepthSource
 
 __all__ = [
+    "FINAL_INTRINSICS",
     "FINAL_KEYFRAMES",
     "SendingOdometry",
     "SlamRequest",
@@ -59,6 +60,8 @@ __all__ = [
 
 #: the run folder's file of the map's keyframes at the end of the run (:func:`final_keyframes`)
 FINAL_KEYFRAMES = "keyframes_final.tum"
+#: the run folder's file of the intrinsics the final bundle adjustment estimated
+FINAL_INTRINSICS = "final_intrinsics.json"
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -210,6 +213,7 @@ def run_slam_source(
     )  # fmt: skip
     if made:
         write_tum(run.run_dir / FINAL_KEYFRAMES, final_keyframes(made[0]))
+        _write_final_intrinsics(made[0], run.run_dir / FINAL_INTRINSICS)
     if recorder is not None:  # from the folder's files and viz.npz, as quadnav view would
         recorder.record(run.run_dir, "odometry")
     if request.save_map is not None and made:
@@ -217,6 +221,29 @@ def run_slam_source(
 
         save_slam_map(request.save_map, made[0].slam_map, made[0].camera)
     return run
+
+
+def _write_final_intrinsics(slam: SlamOdometry, path: Path) -> None:
+    """The rectified left camera's intrinsics as stated and as the final adjustment estimated
+    them (nothing written when it did not)."""
+    import json
+
+    from quadnav.io.run_folder import write_text
+
+    found = slam.final_intrinsics
+    if found is None:
+        return
+    c = slam.camera
+    stated = {"fx": c.fx, "fy": c.fy, "cx": c.cx, "cy": c.cy, "baseline_m": c.baseline_m}
+    keys = ("fx", "fy", "cx", "cy")
+    estimated = dict(zip(keys, found[:4], strict=True))
+    text = json.dumps({
+        "what": "the rectified left camera (px), as stated and as the final bundle adjustment "
+        "estimated it with the map (the tracking used the stated one)",
+        "stated": stated, "estimated": estimated,
+        "difference": {k: estimated[k] - stated[k] for k in keys},
+    }, indent=2)  # fmt: skip
+    write_text(path, text + "\n")
 
 
 def final_keyframes(slam: SlamOdometry) -> Trajectory:

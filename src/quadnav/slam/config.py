@@ -111,8 +111,9 @@ class SlamConfig:
     a saved map are adjusted over every keyframe (the causal estimate is not touched; a
     localization-only run adjusts nothing), over the newest ``final_ba_keyframes`` keyframes
     at most (the older ones that see their points held: a long run's end stays bounded), with
-    the rectified pair's intrinsics estimated too when ``final_ba_intrinsics`` (a calibration a
-    little off what is stated shows as a distorted map);
+    a stereo pair's rectified intrinsics estimated too when ``final_ba_intrinsics`` (a
+    calibration a little off what is stated shows as a distorted map; written to the run
+    folder's ``final_intrinsics.json``);
     ``relocalization``: after a loss
     (:mod:`quadnav.slam.relocalization`); ``loop_closing``: :mod:`quadnav.slam.loop_closing`."""
 

@@ -136,9 +136,10 @@ class SlamOdometry:
         t0 = time.perf_counter()
         try:
             done = global_bundle_adjustment(
-                self.tracker.map, newest=self.config.final_ba_keyframes,
-                intrinsics=self.config.final_ba_intrinsics,
-            )  # fmt: skip
+                self.tracker.map,
+                newest=self.config.final_ba_keyframes,
+                intrinsics=self.config.final_ba_intrinsics and self.rectifier is not None,
+            )  # fmt: skip  (a stereo pair's: an RGB-D camera's right one is virtual)
             self.final_intrinsics = done.intrinsics
         except (RuntimeError, ValueError, np.linalg.LinAlgError):  # (GTSAM: indeterminant)
             self._rejected["final_ba_failed"] += 1  # (the map as it was: the run's end stands)
