@@ -265,6 +265,8 @@ def self_calibrating_adjustment(
     The result, and the left camera's refined ``(fx, fy, cx, cy, fx b)``."""
     import gtsam
 
+    from quadnav.geometry.gtsam_bridge import to_pose
+
     fx, fy, cx, cy, bf = cam
     b = bf / fx
     stated = gtsam.Cal3_S2(fx, fy, 0.0, cx, cy)
@@ -283,19 +285,13 @@ def self_calibrating_adjustment(
         params.setMaxIterations(iterations)
         with _c_stdout_silenced():  # (GTSAM prints each landmark it finds behind a camera)
             out = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
-        poses = [_pose(out.atPose3(gtsam.symbol("x", k))) for k in range(len(poses))]
+        poses = [to_pose(out.atPose3(gtsam.symbol("x", k))) for k in range(len(poses))]
         points = np.array([out.atPoint3(gtsam.symbol("l", j)) for j in range(len(points))])
         points = points.reshape(-1, 3)
         K = (out.atCal3_S2(gtsam.symbol("k", 0)), out.atCal3_S2(gtsam.symbol("k", 1)))
         refined = (K[0].fx(), K[0].fy(), K[0].px(), K[0].py(), K[0].fx() * b)
         keep = _within_gate(problem, poses, points, refined)
     return BundleResult(T_W_C=tuple(poses), X_W=points, inliers=keep), refined
-
-
-def _pose(p: gtsam.Pose3) -> Pose:
-    from quadnav.geometry.gtsam_bridge import to_pose
-
-    return to_pose(p)
 
 
 def _self_calibrating_graph(
