@@ -7,15 +7,20 @@ frames through their keyframes as the loop left them) takes the drift out of the
 
 from __future__ import annotations
 
+import dataclasses
 import re
+from typing import Any
 
 import numpy as np
+import pytest
 from scipy.spatial.transform import Rotation
 
 from quadnav.geometry.rotations import Pose
 from quadnav.slam import SlamConfig, StereoTracker, stereo_frame
 from quadnav.slam.config import LoopClosingConfig
+from quadnav.slam.local_mapping import GlobalAdjustment
 from quadnav.slam.loop_closing import LoopClosingReport
+from quadnav.slam.map import SlamMap
 from quadnav.vision.orb import OrbExtractor
 from tests.slam.test_tracking import RIG, B, _errors, _pose
 from tests.slam.test_tracking import renderer as renderer  # (the fixture)
@@ -111,3 +116,34 @@ def test_a_loop_asking_more_than_the_drift_can_be_is_refused(renderer: object) -
         assert 0.04 < asked < 0.15 and bound < 0.02 < asked, text
     err = _errors(truth, est)
     assert min(err[N + 1 :]) > 0.05, err  # (still drifted: nothing was corrected)
+
+
+def test_a_loops_adjustment_is_bounded_to_the_newest_keyframes(
+    renderer: object, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """``global_ba_keyframes=3``: the adjustment after the loop moves the three newest
+    keyframes, every older one keeps the pose the loop's pose graph gave it (a long run's
+    adjustment after each loop stays bounded), and the drift still comes out."""
+    import quadnav.slam.tracking as tracking
+
+    seen: list[tuple[list[np.ndarray], list[np.ndarray], int]] = []
+    real = tracking.global_bundle_adjustment
+
+    def spy(m: SlamMap, **kw: Any) -> GlobalAdjustment:
+        before = [kf.T_C_W.matrix() for kf in m.keyframes]
+        out = real(m, **kw)
+        seen.append((before, [kf.T_C_W.matrix() for kf in m.keyframes], out.keyframes))
+        return out
+
+    monkeypatch.setattr(tracking, "global_bundle_adjustment", spy)
+    cfg = dataclasses.replace(
+        _config(LoopClosingConfig(min_gap_keyframes=3, consistency=1)), global_ba_keyframes=3
+    )
+    _, truth, est, loops = _out_and_back(cfg, renderer, N)
+    assert loops and len(seen) == len(loops)
+    before, after, adjusted = seen[0]
+    assert adjusted == 3 and len(before) > 6
+    moved = [not np.array_equal(a, b) for a, b in zip(before, after, strict=True)]
+    assert not any(moved[:-3]) and all(moved[-3:]), moved
+    err = _errors(truth, est)
+    assert max(err[loops[0][0] + 1 :]) < 0.02

@@ -106,7 +106,10 @@ class SlamConfig:
     projected into each frame (the newest, and those that see most of the last frame's
     points); ``local_ba_keyframes``: the newest keyframe and its most covisible ones adjusted
     after each keyframe; ``global_ba``: every keyframe and point adjusted after a loop is
-    closed (ORB-SLAM2 does it in a thread; here inline); ``final_ba``: the same once more when
+    closed (ORB-SLAM2 does it in a thread; here inline), over the newest
+    ``global_ba_keyframes`` keyframes at most (the older ones that see their points held: its
+    cost grows faster than the map, 18 s at 190 keyframes, and it stops the tracking while it
+    runs); ``final_ba``: the same once more when
     the run ends (the first ``keyframes(final=True)``), so that the final map, its trajectory and
     a saved map are adjusted over every keyframe (the causal estimate is not touched; a
     localization-only run adjusts nothing), over the newest ``final_ba_keyframes`` keyframes
@@ -135,6 +138,7 @@ class SlamConfig:
     local_mapping: bool = True
     local_ba_keyframes: int = 5
     global_ba: bool = True
+    global_ba_keyframes: int = 100
     final_ba: bool = True
     final_ba_keyframes: int = 300
     final_ba_intrinsics: bool = True
@@ -156,6 +160,7 @@ class SlamConfig:
             "local_keyframes",
             "local_ba_keyframes",
             "keyframe_min_observers",
+            "global_ba_keyframes",
             "final_ba_keyframes",
         )
         if self.keyframe_every < 0:

@@ -12,6 +12,7 @@ other keyframes for ``redundancy`` (90 %) of them or more is culled (ORB-SLAM2's
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -68,8 +69,11 @@ def local_mapping(
         return LocalMappingReport(culled=len(culled), adjusted=0, held=0, dropped=0, created=made)
     pts = m.local_points(local)
     local_ids = {kf.index for kf in local}
-    held = [kf for kf in reversed(slam_map.keyframes)
-            if kf.index not in local_ids and not kf.bad and np.isin(kf.points, pts).any()][:max_held]  # fmt: skip
+    mark = m.marks(pts)
+    held = list(itertools.islice(
+        (kf for kf in reversed(m.keyframes)
+         if kf.index not in local_ids and not kf.bad and mark[kf.points].any()), max_held,
+    ))  # fmt: skip
     if not held:  # (the first keyframes: the oldest local one holds the frame)
         held, local = [local[0]], local[1:]
     kfs = [*held, *local]
@@ -115,7 +119,8 @@ def global_bundle_adjustment(
     if newest is not None and len(kfs) > newest + 1:
         local = kfs[-newest:]
         pts = m.local_points(local)
-        held = [kf for kf in kfs[:-newest] if np.isin(kf.points, pts).any()]
+        mark = m.marks(pts)
+        held = [kf for kf in kfs[:-newest] if mark[kf.points].any()]
         if not held:
             held, local = [local[0]], local[1:]
         kfs, n_held = [*held, *local], len(held)

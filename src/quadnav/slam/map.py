@@ -141,9 +141,19 @@ class SlamMap:
 
     def cull(self, ids: IntArray) -> None:
         """Points ``ids`` are bad: no keyframe keeps them."""
+        if len(ids) == 0:
+            return
         self.bad[ids] = True
+        mark = self.marks(ids)
         for kf in self.keyframes:
-            kf.points[np.isin(kf.points, ids)] = -1
+            kf.points[mark[kf.points]] = -1
+
+    def marks(self, ids: IntArray) -> NDArray[np.bool_]:
+        """A flag per map point, set at ``ids``, and one more (unset) at the end, so that a
+        keyframe's ``points`` index it directly (its -1, no point, reads the unset one)."""
+        mark = np.zeros(len(self.X_W) + 1, bool)
+        mark[np.asarray(ids, np.int64)] = True
+        return mark
 
     def local_points(self, keyframes: list[SlamKeyframe]) -> IntArray:
         """The good map points these keyframes observe."""
@@ -156,8 +166,7 @@ class SlamMap:
 
     def sharing(self, ids: IntArray, *, among: list[SlamKeyframe] | None = None) -> IntArray:
         """How many of the points ``ids`` each keyframe (of ``among``; default all) observes."""
-        mark = np.zeros(len(self.X_W) + 1, bool)
-        mark[np.asarray(ids, np.int64)] = True
+        mark = self.marks(ids)
         kfs = self.keyframes if among is None else among
         return np.array([int(mark[kf.points].sum()) for kf in kfs], np.int64)
 
