@@ -75,6 +75,7 @@ def resolve_slam_request(
     save_map: Path | None = None,
     load_map: Path | None = None, localization_only: bool = False, blackout: str | None = None,
     calibration: Path | None = None, rerun: RerunOptions | None = None,
+    intrinsics: Path | None = None,
 ) -> SlamRequest:  # fmt: skip
     """The validated request (no dataset read, no folder made)."""
     check_range(start_s, "--start", 0.0, 1e6, "s")
@@ -89,7 +90,7 @@ def resolve_slam_request(
                                    blackout_s=parse_blackout(blackout)),
         loop=loop, final_ba=final_ba, save_map=save_map,
         load_map=load_map, localization_only=localization_only, calibration=calibration,
-        rerun=rerun,
+        rerun=rerun, intrinsics=intrinsics,
     )  # fmt: skip
     check_slam_request(request)
     return request
@@ -108,6 +109,7 @@ def check_example(params: CommandParams) -> None:
         localization_only=param(params, "localization_only", bool),
         blackout=optional_param(params, "blackout", str),
         calibration=optional_param(params, "calibration", Path), rerun=rerun_param(params),
+        intrinsics=optional_param(params, "intrinsics", Path),
     )  # fmt: skip
 
 
@@ -118,6 +120,7 @@ EXAMPLES = (
     "quadnav slam room_easy --duration 20 --save-map maps/room",
     "quadnav slam room_easy --seed 1 --load-map maps/room --localization-only",
     "quadnav slam room_easy --duration 30 --blackout 10:3 --no-loop",
+    "quadnav slam data/V1_02_medium --intrinsics runs/first/final_intrinsics.json",
     "quadnav slam room_easy --rig rgbd --duration 20",
     "quadnav slam hall_laps --rig zed --features 1000 --out /tmp/runs",
     "quadnav slam room_laps --rerun",
@@ -190,6 +193,14 @@ def slam_command(
             help="Kalibr camchain or EuRoC folder replacing the dataset's calibration",
         ),
     ] = None,
+    intrinsics: Annotated[
+        Path | None,
+        typer.Option(
+            "--intrinsics",
+            help="an earlier run's final_intrinsics.json: track in the rectified camera its "
+            "final adjustment estimated (the calibration's error it found)",
+        ),
+    ] = None,
     out: OutOpt = Path("runs"),
     serial: Annotated[
         str | None,
@@ -209,7 +220,7 @@ def slam_command(
         dataset, start_s, duration_s, seed, rig, out, features=features, th_depth=th_depth,
         loop=loop, final_ba=final_ba, save_map=save_map, load_map=load_map,
         localization_only=localization_only, blackout=blackout, calibration=calibration,
-        rerun=rerun_request(rerun, rerun_connect, rerun_spawn),
+        rerun=rerun_request(rerun, rerun_connect, rerun_spawn), intrinsics=intrinsics,
     )  # fmt: skip
     link = None if serial is None else open_serial(serial, 115200)
     write = None if link is None else link.write  # type: ignore[attr-defined]

@@ -9,7 +9,7 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NamedTuple
 
 from quadnav.errors import ConfigError
 from quadnav.experiments.odometry_run import (
@@ -62,6 +62,8 @@ __all__ = [
 FINAL_KEYFRAMES = "keyframes_final.tum"
 #: the run folder's file of the intrinsics the final bundle adjustment estimated
 FINAL_INTRINSICS = "final_intrinsics.json"
+#: its ``format`` (read back by ``--intrinsics``)
+FINAL_INTRINSICS_FORMAT = "quadnav-final-intrinsics 1"
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -69,7 +71,8 @@ class SlamRequest:
     """One ``quadnav slam`` run: the source, its span and outputs, the seed and rig of a
     built-in sequence, the runs' folder, the SLAM's features and ThDepth, its loop closing
     (``loop``) and final bundle adjustment (``final_ba``), the map saved at the end (``save_map``) or started on (``load_map``),
-    ``localization_only``, and a ``calibration`` replacing the dataset's."""
+    ``localization_only``, a ``calibration`` replacing the dataset's, and ``intrinsics``: an
+    earlier run's ``final_intrinsics.json`` whose estimated rectified camera is tracked in."""
 
     source: str
     options: OdometryRunOptions = field(default_factory=OdometryRunOptions)
@@ -85,6 +88,8 @@ class SlamRequest:
     localization_only: bool = False
     #: a Kalibr camchain or EuRoC folder whose calibration replaces the dataset's own
     calibration: Path | None = None
+    #: an earlier run's final_intrinsics.json: the rectified camera its final adjustment found
+    intrinsics: Path | None = None
     #: write the run's rerun recording (``recording.rrd``, with ``viz.npz``) into its folder
     rerun: RerunOptions | None = None
 
@@ -179,6 +184,8 @@ def run_slam_source(
 
     opt = request.options
     loaded = None
+    # (a missing or malformed file fails before anything is made, as a map does)
+    found = None if request.intrinsics is None else read_final_intrinsics(request.intrinsics)
     if request.load_map is not None:  # (a missing or corrupt map fails before anything is made)
         from quadnav.io.slam_map import load_slam_map
 
@@ -202,7 +209,7 @@ def run_slam_source(
     depth = _depth_source(dataset) if not dataset.rig.stereo else None
 
     def make(rig: Rig) -> VisualOdometry:
-        made.append(_slam(request, rig, cfg, loaded, depth))
+        made.append(_slam(request, rig, cfg, loaded, depth, found))
         return made[-1] if serial is None else SendingOdometry(made[-1], FrameSender(serial))
 
     recorder = RecordingProcess(request.rerun) if request.rerun else None  # imports rerun meanwhile
@@ -219,7 +226,7 @@ def run_slam_source(
     if request.save_map is not None and made:
         from quadnav.io.slam_map import save_slam_map
 
-        save_slam_map(request.save_map, made[0].slam_map, made[0].camera)
+        save_slam_map(request.save_map, made[0].slam_map, made[0].map_camera)
     return run
 
 
@@ -233,17 +240,65 @@ def _write_final_intrinsics(slam: SlamOdometry, path: Path) -> None:
     found = slam.final_intrinsics
     if found is None:
         return
-    c = slam.camera
-    stated = {"fx": c.fx, "fy": c.fy, "cx": c.cx, "cy": c.cy, "baseline_m": c.baseline_m}
     keys = ("fx", "fy", "cx", "cy")
+
+    def camera(c: StereoCamera) -> dict[str, float]:
+        return {"fx": c.fx, "fy": c.fy, "cx": c.cx, "cy": c.cy, "baseline_m": c.baseline_m}
+
+    stated = camera(slam.rectified)
     estimated = dict(zip(keys, found[:4], strict=True))
     text = json.dumps({
-        "what": "the rectified left camera (px), as stated and as the final bundle adjustment "
-        "estimated it with the map (the tracking used the stated one)",
-        "stated": stated, "estimated": estimated,
+        "what": "the rectified left camera (px): as the calibration states it (stated), as the "
+        "tracking used it (tracked_with: the stated one, or one given by --intrinsics) and as "
+        "the final bundle adjustment estimated it with the map (estimated; give this file to "
+        "the next run's --intrinsics to track in it)",
+        "format": FINAL_INTRINSICS_FORMAT,
+        "stated": stated, "tracked_with": camera(slam.camera), "estimated": estimated,
         "difference": {k: estimated[k] - stated[k] for k in keys},
     }, indent=2)  # fmt: skip
     write_text(path, text + "\n")
+
+
+class FoundIntrinsics(NamedTuple):
+    """A ``final_intrinsics.json``: the rectified camera as stated, and as estimated."""
+
+    stated: tuple[float, float, float, float, float]  # (fx, fy, cx, cy, baseline_m)
+    estimated: tuple[float, float, float, float]  # (fx, fy, cx, cy)
+
+
+def read_final_intrinsics(path: Path) -> FoundIntrinsics:
+    """An earlier run's ``final_intrinsics.json`` (:data:`FINAL_INTRINSICS`); a missing or
+    malformed file is a one-line :class:`~quadnav.errors.ConfigError` naming ``--intrinsics``."""
+    import json
+    import math
+
+    if not path.is_file():
+        raise ConfigError(f"--intrinsics {path}: no such file (a SLAM run's {FINAL_INTRINSICS})")
+    try:
+        data = json.loads(path.read_text())
+        stated = tuple(float(data["stated"][k]) for k in ("fx", "fy", "cx", "cy", "baseline_m"))
+        est = tuple(float(data["estimated"][k]) for k in ("fx", "fy", "cx", "cy"))
+    except (OSError, UnicodeDecodeError, ValueError, KeyError, TypeError) as exc:
+        raise ConfigError(
+            f"--intrinsics {path}: not a SLAM run's {FINAL_INTRINSICS} ({type(exc).__name__}: "
+            f"{exc})"
+        ) from None
+    if not all(math.isfinite(v) for v in (*stated, *est)):
+        raise ConfigError(f"--intrinsics {path}: a value is not finite")
+    return FoundIntrinsics(stated=stated, estimated=est)  # type: ignore[arg-type]
+
+
+def _check_found_for(found: FoundIntrinsics, rectified: StereoCamera) -> str | None:
+    """Why ``found`` was not estimated for this rectified camera (None when it was: the
+    stated camera the same within 0.1 %)."""
+    here = (rectified.fx, rectified.fy, rectified.cx, rectified.cy, rectified.baseline_m)
+    for name, a, b in zip(("fx", "fy", "cx", "cy", "baseline_m"), found.stated, here, strict=True):
+        if abs(a - b) > 1e-3 * max(abs(b), 1e-3):
+            return (
+                f"estimated for another rectified camera ({name} {a:.6g} there, {b:.6g} here); "
+                "the calibration differs"
+            )
+    return None
 
 
 def final_keyframes(slam: SlamOdometry) -> Trajectory:
@@ -277,15 +332,26 @@ def _depth_source(dataset: VisualInertialDataset) -> DepthSource:
 
 def _slam(
     request: SlamRequest, rig: Rig, cfg: SlamConfig, loaded: tuple[SlamMap, StereoCamera] | None,
-    depth: DepthSource | None,
+    depth: DepthSource | None, found: FoundIntrinsics | None = None,
 ) -> SlamOdometry:  # fmt: skip
     from quadnav.errors import SlamError
     from quadnav.slam import SlamOdometry
 
-    if loaded is None:
+    given = None if found is None else found.estimated
+    if found is not None:
+        try:
+            odo = SlamOdometry(rig, cfg, depth=depth, intrinsics=given)
+        except SlamError as exc:
+            raise SlamError(f"--intrinsics {request.intrinsics}: {exc}") from None
+        if (why := _check_found_for(found, odo.rectified)) is not None:
+            raise SlamError(f"--intrinsics {request.intrinsics}: {why}")
+        if loaded is None:
+            return odo
+    elif loaded is None:
         return SlamOdometry(rig, cfg, depth=depth)
     try:
         return SlamOdometry(rig, cfg, slam_map=loaded[0], map_camera=loaded[1],
-                            mapping=not request.localization_only, depth=depth)  # fmt: skip
+                            mapping=not request.localization_only, depth=depth,
+                            intrinsics=given)  # fmt: skip
     except SlamError as exc:
         raise SlamError(f"--load-map {request.load_map}: {exc}") from None

@@ -107,13 +107,15 @@ class SlamConfig:
     points); ``local_ba_keyframes``: the newest keyframe and its most covisible ones adjusted
     after each keyframe; ``global_ba``: every keyframe and point adjusted after a loop is
     closed (ORB-SLAM2 does it in a thread; here inline), over the newest
-    ``global_ba_keyframes`` keyframes at most (the older ones that see their points held: its
-    cost grows faster than the map, 18 s at 190 keyframes, and it stops the tracking while it
-    runs); ``final_ba``: the same once more when
+    ``global_ba_keyframes`` keyframes at most, the ``global_ba_held`` older ones that see the
+    most of their points held (its cost grew faster than the map, 18 s at 190 keyframes, and it
+    stops the tracking while it runs; in a place a run keeps coming back to, every older
+    keyframe sees the newest ones' points); ``final_ba``: the same once more when
     the run ends (the first ``keyframes(final=True)``), so that the final map, its trajectory and
     a saved map are adjusted over every keyframe (the causal estimate is not touched; a
     localization-only run adjusts nothing), over the newest ``final_ba_keyframes`` keyframes
-    at most (the older ones that see their points held: a long run's end stays bounded), with
+    at most (``global_ba_held`` older ones that see their points held: a long run's end stays
+    bounded), with
     a stereo pair's rectified intrinsics estimated too when ``final_ba_intrinsics`` (a
     calibration a little off what is stated shows as a distorted map; written to the run
     folder's ``final_intrinsics.json``);
@@ -138,7 +140,8 @@ class SlamConfig:
     local_mapping: bool = True
     local_ba_keyframes: int = 5
     global_ba: bool = True
-    global_ba_keyframes: int = 100
+    global_ba_keyframes: int = 60
+    global_ba_held: int = 20
     final_ba: bool = True
     final_ba_keyframes: int = 300
     final_ba_intrinsics: bool = True
@@ -161,6 +164,7 @@ class SlamConfig:
             "local_ba_keyframes",
             "keyframe_min_observers",
             "global_ba_keyframes",
+            "global_ba_held",
             "final_ba_keyframes",
         )
         if self.keyframe_every < 0:

@@ -105,13 +105,16 @@ class GlobalAdjustment(NamedTuple):
 
 
 def global_bundle_adjustment(
-    m: SlamMap, *, iterations: int = 10, newest: int | None = None, intrinsics: bool = False
-) -> GlobalAdjustment:
+    m: SlamMap, *, iterations: int = 10, newest: int | None = None, intrinsics: bool = False,
+    max_held: int | None = None,
+) -> GlobalAdjustment:  # fmt: skip
     """ORB-SLAM2's ``GlobalBundleAdjustemnt`` after a loop: every keyframe (the first held) and
     every point they see, adjusted together (``iterations`` a pass, two passes, the second
     without the first's outliers); the map takes the result. ``newest``: only the newest so
     many keyframes and their points, the older keyframes that see those points held (a long
-    run's adjustment bounded). ``intrinsics``: the pair's intrinsics estimated too
+    run's adjustment bounded), the ``max_held`` of them that see the most of the points when
+    given (the others' observations left out: in a place the run keeps coming back to, every
+    older keyframe sees them). ``intrinsics``: the pair's intrinsics estimated too
     (:func:`~quadnav.slam.optimizer.self_calibrating_adjustment`; the map's camera is not
     changed: the result says them)."""
     kfs = [kf for kf in m.keyframes if not kf.bad]
@@ -119,8 +122,10 @@ def global_bundle_adjustment(
     if newest is not None and len(kfs) > newest + 1:
         local = kfs[-newest:]
         pts = m.local_points(local)
-        mark = m.marks(pts)
-        held = [kf for kf in kfs[:-newest] if mark[kf.points].any()]
+        older = kfs[:-newest]
+        counts = m.sharing(pts, among=older)
+        seen = [i for i in np.argsort(-counts, kind="stable") if counts[i] > 0]
+        held = [older[i] for i in sorted(seen[:max_held] if max_held is not None else seen)]
         if not held:
             held, local = [local[0]], local[1:]
         kfs, n_held = [*held, *local], len(held)

@@ -198,7 +198,7 @@ class SlamMap:
             "kf_n": np.array([len(kf.frame) for kf in kfs], np.int64),
             "kf_bad": np.array([kf.bad for kf in kfs], bool),
             "kp_u_right": np.concatenate([kf.frame.stereo.u_right for kf in kfs]),
-            "kp_depth_m": np.concatenate([kf.frame.stereo.depth_m for kf in kfs]),
+            "kp_depth_m": np.concatenate([_depth_in(kf.frame, camera) for kf in kfs]),
             "kp_close": np.concatenate([kf.frame.close for kf in kfs]),
             "kp_point": np.concatenate([kf.points for kf in kfs]),
             "scales": kfs[0].frame.features.scales,
@@ -219,6 +219,15 @@ class SlamMap:
             raise SlamError(
                 f"the map's arrays are inconsistent ({type(exc).__name__}: {exc})"
             ) from None
+
+
+def _depth_in(frame: Frame, camera: StereoCamera) -> NDArray[np.float64]:
+    """A frame's keypoint depths in ``camera``: a stereo depth is ``fx b`` over the
+    disparity, so a map saved in another focal length (a self-calibrated one) scales them."""
+    d = frame.stereo.depth_m
+    if camera.bf == frame.camera.bf:
+        return d
+    return np.where(d > 0, d * (camera.bf / frame.camera.bf), d)
 
 
 def _from_arrays(

@@ -26,6 +26,13 @@ odometry's world). On a map saved before (``slam_map``, made with the same recti
 odometry starts lost and relocalizes; its world is the map's (the world of the run that made
 it). ``mapping=False``: localization only. A map made with another camera (focal lengths,
 centre or baseline more than 2 % apart) is a :class:`~quadnav.errors.SlamError`.
+
+The rectified left camera's intrinsics the SLAM measures in are the rectification's, unless
+``intrinsics`` (fx, fy, cx, cy) gives others for the same rectification (a stereo rig's): those
+an earlier run's final adjustment estimated (its ``final_intrinsics.json``), which hold the
+calibration's error that the rectification cannot. A loaded map is tracked in the camera it
+was saved with (a map saved after a self-calibrating final adjustment: the estimated one);
+:attr:`SlamOdometry.map_camera` is the camera the map is in now.
 """
 
 from __future__ import annotations
@@ -34,6 +41,7 @@ import math
 import time
 from collections import Counter
 from collections.abc import Callable, Mapping, Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
@@ -60,6 +68,9 @@ from quadnav.slam.tracking import StereoTracker, TrackResult
 from quadnav.vision.orb import OrbExtractor
 from quadnav.vision.stereo_match import StereoKeypoints
 from quadnav.vision.tracking import as_grey
+
+if TYPE_CHECKING:
+    from quadnav.vision.stereo import StereoRectifier
 
 FloatArray = NDArray[np.float64]
 
@@ -89,10 +100,13 @@ class SlamOdometry:
         self, rig: Rig, config: SlamConfig | None = None, *, slam_map: SlamMap | None = None,
         map_camera: StereoCamera | None = None, mapping: bool = True,
         depth: DepthSource | None = None,
+        intrinsics: tuple[float, float, float, float] | None = None,
     ) -> None:  # fmt: skip
         self.config = config or SlamConfig()
         self._depth = depth
-        self.rectifier = None
+        self.rectifier: StereoRectifier | None = None
+        self.camera: StereoCamera
+        self.T_B_C: Pose
         self._R0 = np.eye(3)  # (the rectification's turn of the left camera: x_rect = R0 x)
         if rig.stereo:
             self._stereo_rig(rig)
@@ -104,8 +118,15 @@ class SlamOdometry:
                 "RGB-D rig"
             )
         self.T_V_B = rig.T_V_B
+        #: the camera the rectification gives (keypoints are mapped back to the lens through it)
+        self.rectified = self.camera
+        if intrinsics is not None:
+            self.camera = _given_intrinsics(self.camera, intrinsics, stereo=rig.stereo)
         if slam_map is not None:
             _check_same_camera(self.camera, map_camera)
+            assert map_camera is not None
+            if intrinsics is None:  # (the map's own: it was adjusted in it)
+                self.camera = map_camera
         self.extractor = OrbExtractor(self.config.orb)
         self.tracker = StereoTracker(self.config, slam_map=slam_map, mapping=mapping)
         # the odometry's world from the SLAM's (the first keyframe's rectified left camera)
@@ -138,6 +159,7 @@ class SlamOdometry:
             done = global_bundle_adjustment(
                 self.tracker.map,
                 newest=self.config.final_ba_keyframes,
+                max_held=self.config.global_ba_held,
                 intrinsics=self.config.final_ba_intrinsics and self.rectifier is not None,
             )  # fmt: skip  (a stereo pair's: an RGB-D camera's right one is virtual)
             self.final_intrinsics = done.intrinsics
@@ -243,6 +265,15 @@ class SlamOdometry:
     @property
     def slam_map(self) -> SlamMap:
         return self.tracker.map
+
+    @property
+    def map_camera(self) -> StereoCamera:
+        """The camera the map is in now: the one tracked with, or the one the final adjustment
+        estimated with the map (a saved map keeps it)."""
+        if self.final_intrinsics is None:
+            return self.camera
+        fx, fy, cx, cy, _ = self.final_intrinsics
+        return StereoCamera(fx=fx, fy=fy, cx=cx, cy=cy, baseline_m=self.camera.baseline_m)
 
     @property
     def events(self) -> tuple[OdometryEvent, ...]:
@@ -365,7 +396,7 @@ class SlamOdometry:
     def _in_lens(self, uv_rect: FloatArray) -> tuple[FloatArray, FloatArray]:
         """Rectified keypoints in the left camera: through its lens (pixels) and undistorted
         (normalised)."""
-        c, n = self.camera, len(uv_rect)
+        c, n = self.rectified, len(uv_rect)
         rect = np.column_stack(
             [(uv_rect[:, 0] - c.cx) / c.fx, (uv_rect[:, 1] - c.cy) / c.fy, np.ones(n)]
         )
@@ -402,6 +433,29 @@ class SlamOdometry:
     def _time(self, stage: str, seconds: float) -> None:
         self._seconds[stage] = self._seconds.get(stage, 0.0) + seconds
         self._calls[stage] += 1
+
+
+def _given_intrinsics(
+    rectified: StereoCamera, intrinsics: Sequence[float], *, stereo: bool
+) -> StereoCamera:
+    """The rectified camera with ``intrinsics`` (fx, fy, cx, cy) instead of its own: a stereo
+    rig's only, finite, and within 5 % (focal lengths) and 5 % of the width (centre) of the
+    rectification's, as an estimate of the same camera's error is."""
+    if not stereo:
+        raise SlamError("intrinsics: given for a stereo rig's rectified camera; this rig is RGB-D")
+    vals = tuple(float(v) for v in intrinsics)
+    if len(vals) != 4 or not all(math.isfinite(v) for v in vals):
+        raise SlamError(f"intrinsics: four finite numbers (fx, fy, cx, cy), got {vals}")
+    fx, fy, cx, cy = vals
+    r = rectified
+    for name, a, b, scale in (("fx", fx, r.fx, r.fx), ("fy", fy, r.fy, r.fy),
+                              ("cx", cx, r.cx, 2 * r.cx), ("cy", cy, r.cy, 2 * r.cy)):  # fmt: skip
+        if abs(a - b) > 0.05 * scale:
+            raise SlamError(
+                f"intrinsics: {name} {a:.6g} px is more than 5 % off this rig's rectified "
+                f"camera ({b:.6g} px): not an estimate for this camera"
+            )
+    return StereoCamera(fx=fx, fy=fy, cx=cx, cy=cy, baseline_m=r.baseline_m)
 
 
 def _check_same_camera(camera: StereoCamera, made_with: StereoCamera | None) -> None:

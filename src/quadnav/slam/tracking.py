@@ -391,7 +391,10 @@ class StereoTracker:
             )
         self._loop = self.loop_closer.after_keyframe(kf, self.map, self.database, self._fit_on)
         if self._loop is not None and self.config.global_ba:
-            global_bundle_adjustment(self.map, newest=self.config.global_ba_keyframes)
+            cfg = self.config
+            global_bundle_adjustment(
+                self.map, newest=cfg.global_ba_keyframes, max_held=cfg.global_ba_held
+            )
         self._T_C_W_last = kf.T_C_W
         return kf.T_C_W
 
