@@ -17,9 +17,12 @@ def fail(message: str) -> None:
 
 
 def pin_to_core(argv: list[str]) -> int:
-    """Pin this process to the core given by ``--core`` in ``argv`` (default 0), set the BLAS
-    and OpenMP pools to one thread, and return the core."""
-    arg = argv[argv.index("--core") + 1] if "--core" in argv[:-1] else "0"
+    """Pin this process to the core given by ``--core`` in ``argv`` (default: the one core it
+    was started on, as a benchmark's child is, else 0), set the BLAS and OpenMP pools to one
+    thread, and return the core."""
+    inherited = sorted(os.sched_getaffinity(0))
+    default = str(inherited[0]) if len(inherited) == 1 else "0"
+    arg = argv[argv.index("--core") + 1] if "--core" in argv[:-1] else default
     try:
         core = int(arg)
         os.sched_setaffinity(0, {core})

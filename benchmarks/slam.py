@@ -112,6 +112,7 @@ def measure_once(dataset: Path, frames: int = 0) -> dict[str, object]:
         calls["extract"] += 1
         return "ORB left" if calls["extract"] % 2 else "ORB right"
 
+    assert odo.rectifier is not None  # (a stereo rig)
     odo.rectifier.rectify = _timed(odo.rectifier.rectify, sec, lambda: "rectification")  # type: ignore[method-assign]
     odo.extractor.extract = _timed(odo.extractor.extract, sec, orb_side)  # type: ignore[method-assign]
     saved = {m: {k: getattr(m, k) for k in ks} for m, ks in (
@@ -148,10 +149,9 @@ def _child(dataset: Path, src: Path | None, frames: int) -> dict[str, object]:
     env = dict(os.environ)
     if src is not None:
         env["PYTHONPATH"] = str(src)
-    done = subprocess.run(
-        [sys.executable, str(Path(__file__).resolve()), "--measure", str(dataset), str(frames)],
-        capture_output=True, text=True, env=env, check=False,
-    )  # fmt: skip
+    cmd = [sys.executable, str(Path(__file__).resolve()), "--measure", str(dataset), str(frames)]
+    cmd += ["--core", str(_CORE)]  # (the child pins itself too: to this core)
+    done = subprocess.run(cmd, capture_output=True, text=True, env=env, check=False)
     if done.returncode != 0:
         _fail(f"the measuring run on {dataset} failed: {done.stderr.strip()[-300:]}")
     return dict(json.loads(done.stdout.strip().splitlines()[-1]))
