@@ -124,9 +124,16 @@ def _child(args: argparse.Namespace) -> dict[str, object]:
         if done % args.every == 0 or done == total:
             samples.append((done, time.perf_counter() - tic - setup_s, _rss_kb()))
 
+    made: list[Any] = []
+    maker = _odometry(args.odometry)
+
+    def make(rig: Any) -> Any:
+        made.append(maker(rig))
+        return made[-1]
+
     with tempfile.TemporaryDirectory() as out:
         run = run_odometry(
-            dataset, dataset.rig, _odometry(args.odometry),
+            dataset, dataset.rig, make,
             Path(out), options=OdometryRunOptions(video=False), name=args.sequence,
             progress=progress,
         )  # fmt: skip
@@ -139,8 +146,19 @@ def _child(args: argparse.Namespace) -> dict[str, object]:
         "minutes": args.child, "frames": m.frames, "frames_with_estimate": m.frames_with_estimate,
         "failures": m.failures, "reinitializations": m.reinitializations, "ape_se3_m": ape,
         "setup_s": setup_s, "run_s": run.timing.wall_s, "frames_per_s": run.timing.frames_per_s,
-        "rss_kb": rss, "peak_reset": reset, "samples": samples,
+        "rss_kb": rss, "peak_reset": reset, "samples": samples, "map": _map_size(made),
     }  # fmt: skip
+
+
+def _map_size(made: Sequence[Any]) -> dict[str, int] | None:
+    """The SLAM's map at the end: keyframes (all, and not culled), points, and the bytes of
+    its arrays (``SlamMap.nbytes``); None for the VIO."""
+    m = getattr(made[0], "slam_map", None) if made else None
+    if m is None:
+        return None
+    good = sum(not kf.bad for kf in m.keyframes)
+    return {"keyframes": len(m.keyframes), "good_keyframes": good, "points": len(m),
+            "nbytes": m.nbytes()}  # fmt: skip
 
 
 def _odometry(kind: str) -> Callable[[Any], Any]:
@@ -257,6 +275,14 @@ def table(runs: Sequence[Mapping[str, object]]) -> list[str]:
             f"{_mb(rss['setup_peak']):>8} {_mb(rss['run_peak']):>7} "
             f"{_mb(r['whole_process_peak_kb']):>10} {f'{g:.0f}' if g is not None else 'n/a':>13}"
         )
+    for r in runs:
+        mp = r.get("map")
+        if isinstance(mp, Mapping) and mp["keyframes"]:
+            lines.append(
+                f"{float(r['minutes']):g} min: the map at the end {mp['keyframes']} keyframes "  # type: ignore[arg-type]
+                f"({mp['good_keyframes']} not culled), {mp['points']} points, its arrays "
+                f"{mp['nbytes'] / 1e6:.1f} MB ({mp['nbytes'] / 1e3 / mp['keyframes']:.1f} kB a keyframe)"
+            )
     return lines
 
 

@@ -109,3 +109,16 @@ def test_bad_input_is_one_line(args: list[str], message: str) -> None:
     assert done.returncode == 2, done.stderr
     lines = done.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith(message), done.stderr
+
+
+def test_the_slam_maps_size_is_a_line_under_the_table(bench: ModuleType) -> None:
+    run = _child(30, setup_peak=600_000, run_peak=308_000, dataset=260_000)
+    run |= {"whole_process_peak_kb": 600_000,
+            "map": {"keyframes": 400, "good_keyframes": 390, "points": 50_000, "nbytes": 49_000_000}}  # fmt: skip
+    vio = _child(3, setup_peak=1, run_peak=1, dataset=1) | {"map": None, "whole_process_peak_kb": 1}
+    lines = bench.table([run, vio])
+    assert len(lines) == 5  # (the head, its rule, two runs, one map)
+    assert lines[-1] == (
+        "30 min: the map at the end 400 keyframes (390 not culled), 50000 points, its arrays "
+        "49.0 MB (122.5 kB a keyframe)"
+    )

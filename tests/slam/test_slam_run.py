@@ -534,3 +534,14 @@ def test_a_run_s_final_intrinsics_read_back_and_bad_files_are_one_line_errors(
     (tmp_path / "nan.json").write_text(path.read_text().replace(str(found.estimated[0]), "NaN"))
     with pytest.raises(ConfigError, match="a value is not finite"):
         read_final_intrinsics(tmp_path / "nan.json")
+
+
+def test_the_maps_bytes_are_its_arrays(stereo_run: tuple) -> None:
+    """``SlamMap.nbytes``: the points' and keyframes' arrays, the same bytes as the saved map's
+    arrays of them (a file's other arrays, its keyframes' times and poses, apart)."""
+    _, slam, _ = stereo_run
+    m = slam.tracker.map
+    _, arrays = m.to_arrays(slam.camera)
+    per_kf = {"kf_t_ns", "kf_T_C_W", "kf_n", "kf_bad", "scales"}
+    assert m.nbytes() == sum(a.nbytes for k, a in arrays.items() if k not in per_kf)
+    assert m.nbytes() > len(m.keyframes) * 1000 * 32  # (1,200 descriptors of 32 bytes each)

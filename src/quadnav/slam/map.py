@@ -179,6 +179,27 @@ class SlamMap:
         order = [int(i) for i in np.argsort(-counts, kind="stable")[: max(n - 1, 0)]]
         return [kf, *(self.keyframes[i] for i in order if counts[i] > 0)]
 
+    def nbytes(self) -> int:
+        """The bytes the map's arrays hold: its points' (position, descriptor, level, maker,
+        observers, culled) and its keyframes' (each keypoint's position, level, angle, score,
+        size, descriptor, right coordinate, depth, closeness and point), not counting the
+        objects around them."""
+        points = (
+            self.X_W,
+            self.descriptors,
+            self.octave,
+            self.first_keyframe,
+            self.n_obs,
+            self.bad,
+        )
+        total = sum(a.nbytes for a in points)
+        for kf in self.keyframes:
+            f, st = kf.frame.features, kf.frame.stereo
+            arrays = (f.uv_px, f.octave, f.angle_deg, f.response, f.size_px, f.descriptors,
+                      st.u_right, st.depth_m, kf.frame.close, kf.points)  # fmt: skip
+            total += sum(np.asarray(a).nbytes for a in arrays)
+        return int(total)
+
     # -- as arrays, for a file -----------------------------------------------------------------
     def to_arrays(self, camera: StereoCamera) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
         """The head and arrays of the map (see the module)."""
