@@ -340,7 +340,7 @@ def main() -> None:
     runs: list[dict[str, object]] = []
     for minutes in sorted(args.minutes):
         runs.append(_run_child(args, minutes))
-        print(table(runs)[-1], flush=True)  # each run as it ends; the JSON so far
+        print(table(runs[-1:])[2], flush=True)  # each run's row as it ends; the JSON so far
         result = _result(args, runs)
     print("\n".join(table(runs)))
     r = result.get("ratios_longest_over_shortest")
