@@ -534,6 +534,9 @@ def test_a_run_s_final_intrinsics_read_back_and_bad_files_are_one_line_errors(
     (tmp_path / "nan.json").write_text(path.read_text().replace(str(found.estimated[0]), "NaN"))
     with pytest.raises(ConfigError, match="a value is not finite"):
         read_final_intrinsics(tmp_path / "nan.json")
+    (tmp_path / "neg.json").write_text(path.read_text().replace(str(found.estimated[0]), "-1"))
+    with pytest.raises(ConfigError, match="a focal length or the baseline is not positive"):
+        read_final_intrinsics(tmp_path / "neg.json")
 
 
 def test_the_maps_bytes_are_its_arrays(stereo_run: tuple) -> None:

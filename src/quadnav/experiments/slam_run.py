@@ -285,20 +285,24 @@ def read_final_intrinsics(path: Path) -> FoundIntrinsics:
         ) from None
     if not all(math.isfinite(v) for v in (*stated, *est)):
         raise ConfigError(f"--intrinsics {path}: a value is not finite")
+    if min(stated[0], stated[1], stated[4], est[0], est[1]) <= 0:
+        raise ConfigError(f"--intrinsics {path}: a focal length or the baseline is not positive")
     return FoundIntrinsics(stated=stated, estimated=est)  # type: ignore[arg-type]
 
 
 def _check_found_for(found: FoundIntrinsics, rectified: StereoCamera) -> str | None:
     """Why ``found`` was not estimated for this rectified camera (None when it was: the
     stated camera the same within 0.1 %)."""
-    here = (rectified.fx, rectified.fy, rectified.cx, rectified.cy, rectified.baseline_m)
-    for name, a, b in zip(("fx", "fy", "cx", "cy", "baseline_m"), found.stated, here, strict=True):
-        if abs(a - b) > 1e-3 * max(abs(b), 1e-3):
-            return (
-                f"estimated for another rectified camera ({name} {a:.6g} there, {b:.6g} here); "
-                "the calibration differs"
-            )
-    return None
+    from quadnav.slam.frame import StereoCamera
+
+    fx, fy, cx, cy, baseline_m = found.stated
+    there = StereoCamera(fx=fx, fy=fy, cx=cx, cy=cy, baseline_m=baseline_m)
+    why = rectified.mismatch(there, 1e-3)
+    return (
+        None
+        if why is None
+        else (f"estimated for another rectified camera ({why}); the calibration differs")
+    )
 
 
 def final_keyframes(slam: SlamOdometry) -> Trajectory:

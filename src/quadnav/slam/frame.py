@@ -45,6 +45,15 @@ class StereoCamera:
         """``fx b``: disparity (px) times depth (m)."""
         return self.fx * self.baseline_m
 
+    def mismatch(self, there: StereoCamera, rel_tol: float) -> str | None:
+        """The first of fx, fy, cx, cy and the baseline further than ``rel_tol`` (relative)
+        from ``there``'s, as ``fx 441.7 there, 436.2 here``; None when all are within."""
+        for name in ("fx", "fy", "cx", "cy", "baseline_m"):
+            a, b = getattr(self, name), getattr(there, name)
+            if abs(a - b) > rel_tol * max(abs(b), 1e-3):
+                return f"{name} {b:.6g} there, {a:.6g} here"
+        return None
+
     @property
     def intrinsics(self) -> tuple[float, float, float, float, float]:
         """(fx, fy, cx, cy, fx b), as the optimisers take them."""

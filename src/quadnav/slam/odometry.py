@@ -463,9 +463,5 @@ def _check_same_camera(camera: StereoCamera, made_with: StereoCamera | None) -> 
     baseline within 2 % (a recalibration of the same camera passes, as loop closure's maps)."""
     if made_with is None:
         raise SlamError("a loaded map needs the camera it was made with (map_camera)")
-    for name in ("fx", "fy", "cx", "cy", "baseline_m"):
-        a, b = getattr(camera, name), getattr(made_with, name)
-        if abs(a - b) > 0.02 * max(abs(b), 1e-3):
-            raise SlamError(
-                f"the map was made with another camera ({name} {b:.6g} there, {a:.6g} here)"
-            )
+    if (why := camera.mismatch(made_with, 0.02)) is not None:
+        raise SlamError(f"the map was made with another camera ({why})")
