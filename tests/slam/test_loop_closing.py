@@ -19,7 +19,7 @@ from quadnav.geometry.rotations import Pose
 from quadnav.slam import SlamConfig, StereoTracker, stereo_frame
 from quadnav.slam.config import LoopClosingConfig
 from quadnav.slam.local_mapping import GlobalAdjustment
-from quadnav.slam.loop_closing import LoopClosingReport
+from quadnav.slam.loop_closing import LoopCloser, LoopClosingReport
 from quadnav.slam.map import SlamMap
 from quadnav.vision.orb import OrbExtractor
 from tests.slam.test_tracking import RIG, B, _errors, _pose
@@ -147,3 +147,33 @@ def test_a_loops_adjustment_is_bounded_to_the_newest_keyframes(
     assert not any(moved[:-3]) and all(moved[-3:]), moved
     err = _errors(truth, est)
     assert max(err[loops[0][0] + 1 :]) < 0.02
+
+
+def test_the_drift_a_loop_may_correct_grows_along_the_maps_shortest_way() -> None:
+    """Two laps of a circle (2 m radius, 30 keyframes a lap): a loop from keyframe 58 to 28
+    (the same place a lap apart) may correct 3 % of the 12.6 m lap between them, until a loop
+    closed from 56 to 26 joins the laps: the way from 28 to 58 is then 4 keyframes (1.7 m) and
+    a jump of 0.3 m is a place that repeats, no longer drift."""
+    from quadnav.slam.map import SlamKeyframe
+
+    m = SlamMap()
+    none = np.zeros(0, np.int64)
+    for k in range(60):
+        a = 2 * np.pi * k / 30
+        T_W_C = Pose(Rotation.from_euler("z", a), np.array([2 * np.cos(a), 2 * np.sin(a), 1.0]))
+        m.keyframes.append(SlamKeyframe(index=k, T_C_W=T_W_C.inverse(), frame=None, points=none))  # type: ignore[arg-type]
+    kf, old = m.keyframes[58], m.keyframes[28]
+
+    def asks(shift_m: float) -> Pose:  # (the loop's pose of keyframe 58)
+        return kf.T_C_W @ Pose(Rotation.identity(), np.array([shift_m, 0.0, 0.0]))
+
+    fresh = LoopCloser(LoopClosingConfig())
+    assert fresh._implausible(kf, m, old, asks(0.3), []) is None  # (0.1 + 3 % of 12.6 m)
+    assert fresh._implausible(kf, m, old, asks(0.6), []) is not None
+    joined = LoopCloser(LoopClosingConfig())
+    joined.closed.append(LoopClosingReport(old=26, new=56, inliers=100, moved_m=0.0,
+                                           turned_rad=0.0, fused=0, edges=0))  # fmt: skip
+    assert joined._way_m(m, 28, 58, []) == pytest.approx(4 * 4 * np.sin(np.pi / 30), rel=1e-6)
+    assert joined._implausible(kf, m, old, asks(0.1), []) is None
+    why = joined._implausible(kf, m, old, asks(0.3), [])
+    assert why is not None and "moves 0.300 m" in why and "drift can be 0.150 m" in why

@@ -20,8 +20,9 @@ class LoopClosingConfig:
     ``max_hamming``, ``ratio``, ``min_matches``, ``ransac_px``: the descriptor matching and PnP;
     ``loop_sigma_m``, ``loop_sigma_rad``: the loop edge's; ``edge_sigma_m``,
     ``edge_sigma_rad``: the essential graph's other edges; ``max_drift_*``: the largest
-    correction a loop may ask (m, plus a fraction of the path since the old keyframe; deg):
-    a stereo SLAM drifts about 1 % of its path, a repeated texture asks for its period."""
+    correction a loop may ask (m, plus a fraction of the shortest way from the old keyframe
+    through the map; deg): a stereo SLAM drifts about 1 % of its path, a repeated texture asks
+    for its period."""
 
     enabled: bool = True
     min_gap_keyframes: int = 20
@@ -100,12 +101,14 @@ class SlamConfig:
     ratio, ORB-SLAM2's code takes 0.75 for a stereo or RGB-D camera): not within
     ``keyframe_max_frames`` of a relocalization; when the frame tracks under
     ``keyframe_ratio`` of its reference keyframe's points (those ``keyframe_min_observers``
-    keyframes see), or fewer than ``close_tracked`` close points while ``close_untracked``
+    keyframes see: ORB-SLAM2's 3; with fewer, a map whose points are fused counts most of them
+    and keyframes come twice as often), or fewer than ``close_tracked`` close points while ``close_untracked``
     more could be made (ORB-SLAM2's stereo rule), if it tracks at least
     ``keyframe_min_tracked``; ``local_keyframes``: the map points of so many keyframes are
     projected into each frame (the newest, and those that see most of the last frame's
     points); ``local_ba_keyframes``: the newest keyframe and its most covisible ones adjusted
-    after each keyframe; ``global_ba``: every keyframe and point adjusted after a loop is
+    after each keyframe; ``fuse_neighbours``: the new keyframe's points fused with those of
+    its covisible keyframes after each keyframe (ORB-SLAM2's ``SearchInNeighbors``); ``global_ba``: every keyframe and point adjusted after a loop is
     closed (ORB-SLAM2 does it in a thread; here inline), over the newest
     ``global_ba_keyframes`` keyframes at most, the ``global_ba_held`` older ones that see the
     most of their points held (its cost grew faster than the map, 18 s at 190 keyframes, and it
@@ -132,13 +135,14 @@ class SlamConfig:
     keyframe_max_frames: int = 20
     keyframe_ratio: float = 0.75
     keyframe_min_tracked: int = 50
-    keyframe_min_observers: int = 2
+    keyframe_min_observers: int = 3
     keyframe_every: int = 0
     close_tracked: int = 100
     close_untracked: int = 70
     local_keyframes: int = 10
     local_mapping: bool = True
     local_ba_keyframes: int = 5
+    fuse_neighbours: bool = True
     global_ba: bool = True
     global_ba_keyframes: int = 60
     global_ba_held: int = 20

@@ -2,7 +2,8 @@
 points triangulated between the keyframe and its covisible ones from keypoints that observe none
 (:func:`create_points`), the recent map points culled (a point made two or more keyframes ago
 that fewer than two keyframes see: ORB-SLAM2's stereo rule, three observations or fewer with a
-stereo one counting twice), then the local bundle adjustment
+stereo one counting twice), the keyframe's points fused with its neighbours'
+(:func:`fuse_neighbours`), then the local bundle adjustment
 (:func:`~quadnav.slam.optimizer.local_bundle_adjustment`) over the newest keyframe, its most
 covisible ones and the points they see, the other keyframes that see those points held; its
 outlier observations are forgotten and points seen by no keyframe culled. Last, the keyframe culling: a keyframe covisible
@@ -30,6 +31,7 @@ __all__ = [
     "LocalMappingReport",
     "create_points",
     "cull_keyframes",
+    "fuse_neighbours",
     "global_bundle_adjustment",
     "local_mapping",
 ]
@@ -55,14 +57,18 @@ def local_mapping(
     max_held: int = 5,
     redundancy: float = 0.9,
     neighbours: int = 10,
+    fuse: bool = True,
 ) -> LocalMappingReport:
     """One pass after the newest keyframe (see the module)."""
     newest = slam_map.keyframes[-1].index
     m = slam_map
-    made = create_points(m, m.keyframes[-1], m.covisible(m.keyframes[-1], neighbours + 1)[1:])
+    near = m.covisible(m.keyframes[-1], neighbours + 1)[1:]
+    made = create_points(m, m.keyframes[-1], near)
     recent = (newest - m.first_keyframe >= 2) & (m.n_obs < min_observations) & ~m.bad
     culled = np.flatnonzero(recent)
     m.cull(culled)
+    if fuse:
+        fuse_neighbours(m, m.keyframes[-1], near)
     covisible = m.covisible(m.keyframes[-1], local_keyframes)
     local = sorted((kf for kf in covisible if not kf.bad), key=lambda kf: kf.index)
     if len(local) < 2:
@@ -253,3 +259,64 @@ def create_points(
 def _normalised(kf: SlamKeyframe, kps: np.ndarray) -> np.ndarray:
     c, uv = kf.frame.camera, kf.frame.features.uv_px[kps]
     return np.column_stack([(uv[:, 0] - c.cx) / c.fx, (uv[:, 1] - c.cy) / c.fy])
+
+
+def fuse_neighbours(
+    m: SlamMap, kf: SlamKeyframe, neighbours: list[SlamKeyframe], *, second: int = 5,
+    radius_px: float = 3.0, max_hamming: int = 50,
+) -> int:  # fmt: skip
+    """ORB-SLAM2's ``SearchInNeighbors``: ``kf``'s points projected into its ``neighbours``
+    and the ``second`` most covisible of each, and theirs into ``kf``, each fused with the
+    point a keypoint there already observes (the one fewer keyframes see replaced by the
+    other) or observed there. A place seen again makes its points again where tracking missed
+    the old ones; fused, the map keeps one of each, its keyframes share them (covisibility,
+    culling) and the adjustments join their views. How many points were fused or observed."""
+    targets: dict[int, SlamKeyframe] = {}
+    for nb in neighbours:
+        for t in [nb, *m.covisible(nb, second + 1)[1:]]:
+            if not t.bad and t.index != kf.index:
+                targets.setdefault(t.index, t)
+    n = 0
+    for t in targets.values():
+        n += _fuse_into(m, t, kf.points, radius_px=radius_px, max_hamming=max_hamming)
+    theirs = np.concatenate([t.points for t in targets.values()] or [np.zeros(0, np.int64)])
+    n += _fuse_into(m, kf, theirs, radius_px=radius_px, max_hamming=max_hamming)
+    return n
+
+
+def _fuse_into(
+    m: SlamMap, kf: SlamKeyframe, ids: np.ndarray, *, radius_px: float, max_hamming: int
+) -> int:
+    """Points ``ids`` (not culled, not observed by ``kf`` yet) projected into ``kf`` and fused
+    there (see :func:`fuse_neighbours`), within ORB-SLAM2's chi-square gate of the keypoint's
+    level (5.991 for a keypoint without a right coordinate, 7.815 with one)."""
+    from quadnav.slam.tracking import search_by_projection
+
+    ids = np.unique(ids[ids >= 0])
+    ids = ids[~m.bad[ids] & ~m.marks(kf.points[kf.points >= 0])[ids]]
+    if len(ids) == 0:
+        return 0
+    kp, j, _ = search_by_projection(kf.frame, m.X_W[ids], m.descriptors[ids], m.octave[ids],
+                                    kf.T_C_W, radius_px, max_hamming)  # fmt: skip
+    p = ids[j]
+    c, f = kf.frame.camera, kf.frame.features
+    X = kf.T_C_W @ m.X_W[p]
+    z = np.maximum(X[:, 2], 1e-9)
+    u, v = c.fx * X[:, 0] / z + c.cx, c.fy * X[:, 1] / z + c.cy
+    ur, kur = u - c.bf / z, kf.frame.stereo.u_right[kp]
+    e2 = (u - f.uv_px[kp, 0]) ** 2 + (v - f.uv_px[kp, 1]) ** 2
+    e2 = e2 + np.where(kur >= 0, (ur - kur) ** 2, 0.0)
+    gate = np.where(kur >= 0, 7.815, 5.991) * f.scales[f.octave[kp]] ** 2
+    n = 0
+    for k, pt in zip(kp[e2 < gate].tolist(), p[e2 < gate].tolist(), strict=True):
+        if m.bad[pt] or (kf.points == pt).any():  # (fused away, or found at another keypoint)
+            continue
+        q = int(kf.points[k])
+        if q < 0:
+            m.observe(kf, np.array([k]), np.array([pt]))
+        elif m.n_obs[q] >= m.n_obs[pt]:
+            m.replace(pt, q)
+        else:
+            m.replace(q, pt)
+        n += 1
+    return n

@@ -16,8 +16,9 @@ after each keyframe in the tracker's thread.
    loop's edge, the first keyframe held. Each keyframe takes its corrected pose, each map point
    moves with the keyframe that made it.
    Before it, the loop must ask for no more than the drift can be: a correction over
-   ``max_drift_m`` plus ``max_drift_fraction`` of the path since the old keyframe, or over
-   ``max_drift_deg``, is a place that repeats and is refused (``rejected``).
+   ``max_drift_m`` plus ``max_drift_fraction`` of the shortest way from the old keyframe to the
+   new one through the map (keyframe to keyframe, the essential graph, the loops closed), or
+   over ``max_drift_deg``, is a place that repeats and is refused (``rejected``).
 4. **Fusion.** The old points found in the keyframe replace the duplicates it had made of them,
    in every keyframe that observes a duplicate.
 
@@ -97,13 +98,14 @@ class LoopCloser:
         if found is None:
             return None
         T_C_W, kps, ids = found
-        refusal = self._implausible(kf, m, m.keyframes[cand], T_C_W)
+        edges = self._essential_edges(m)
+        refusal = self._implausible(kf, m, m.keyframes[cand], T_C_W, edges)
         if refusal is not None:
             self.rejected += 1
             self.refusals.append(refusal)
             self._streak.clear()
             return None
-        report = self._correct(kf, m, m.keyframes[cand], T_C_W, kps, ids)
+        report = self._correct(kf, m, m.keyframes[cand], T_C_W, kps, ids, edges)
         self._last_loop = kf.index
         self._streak.clear()
         self.closed.append(report)
@@ -156,16 +158,16 @@ class LoopCloser:
         return out
 
     def _implausible(
-        self, kf: SlamKeyframe, m: SlamMap, old: SlamKeyframe, T_C_W: Pose
-    ) -> str | None:
+        self, kf: SlamKeyframe, m: SlamMap, old: SlamKeyframe, T_C_W: Pose,
+        edges: list[LoopEdge],
+    ) -> str | None:  # fmt: skip
         """Why the loop is refused, or None when it moves ``kf`` by no more than the drift can
-        have grown since ``old``: ``max_drift_m`` plus ``max_drift_fraction`` of the path between
-        them (the keyframes'), and ``max_drift_deg``. A place that repeats (a wallpaper's period,
-        a second identical shelf) passes every geometric check and asks for a jump of that
-        period."""
+        have grown between it and ``old``: ``max_drift_m`` plus ``max_drift_fraction`` of the
+        shortest way between them through the map (:meth:`_way_m`), and ``max_drift_deg``. A
+        place that repeats (a wallpaper's period, a second identical shelf) passes every
+        geometric check and asks for a jump of that period."""
         cfg = self.config
-        path = [k.T_C_W.inverse().p_A_B for k in m.keyframes[old.index : kf.index + 1] if not k.bad]
-        length = float(np.linalg.norm(np.diff(np.array(path), axis=0), axis=1).sum())
+        length = self._way_m(m, old.index, kf.index, edges)
         moved = float(np.linalg.norm(kf.T_C_W.inverse().p_A_B - T_C_W.inverse().p_A_B))
         turned = float(np.degrees((kf.T_C_W.R_A_B * T_C_W.R_A_B.inv()).magnitude()))
         bound = cfg.max_drift_m + cfg.max_drift_fraction * length
@@ -176,16 +178,34 @@ class LoopCloser:
             f"{turned:.2f} deg; the drift can be {bound:.3f} m and {cfg.max_drift_deg:g} deg"
         )
 
+    def _way_m(self, m: SlamMap, a: int, b: int, edges: list[LoopEdge]) -> float:
+        """The shortest way (m) from keyframe ``a`` to ``b`` over the map's graph: from each
+        keyframe to the next, along the essential graph's ``edges`` and the loops closed
+        before, each as long as the keyframes are apart now. The drift between two keyframes
+        grows along the way the map joins them: after a lap that closed a loop it is the way
+        back through that loop, not every lap since (in a room flown around for minutes, 3 %
+        of the whole path would let any jump through)."""
+        from scipy.sparse import coo_matrix
+        from scipy.sparse.csgraph import dijkstra
+
+        n = len(m.keyframes)
+        pos = np.array([k.T_C_W.inverse().p_A_B for k in m.keyframes])
+        pairs = [(i, i + 1) for i in range(n - 1)]
+        pairs += [(e.old, e.new) for e in edges] + [(r.old, r.new) for r in self.closed]
+        i, j = np.array(pairs, np.int64).reshape(-1, 2).T
+        w = np.linalg.norm(pos[i] - pos[j], axis=1) + 1e-9  # (zero would be no edge)
+        graph = coo_matrix((w, (i, j)), shape=(n, n)).tocsr()
+        return float(dijkstra(graph, directed=False, indices=a)[b])
+
     # -- correction ------------------------------------------------------------------------------
     def _correct(
         self, kf: SlamKeyframe, m: SlamMap, old: SlamKeyframe, T_C_W: Pose, kps: IntArray,
-        ids: IntArray,
+        ids: IntArray, edges: list[LoopEdge],
     ) -> LoopClosingReport:  # fmt: skip
         from quadnav.posegraph import PoseGraphConfig, PoseGraphProblem, solve
 
         cfg = self.config
         before = [k.T_C_W for k in m.keyframes]
-        edges = self._essential_edges(m)
         T_old_new = old.T_C_W @ T_C_W.inverse()  # (the new camera in the old one's frame)
         loop = _edge(old.index, kf.index, T_old_new, cfg.loop_sigma_m, cfg.loop_sigma_rad)
         graph = PoseGraphConfig(kind="se3", sequential_sigma_m=cfg.edge_sigma_m,
@@ -231,10 +251,11 @@ def _edge(old: int, new: int, T_old_new: Pose, sigma_m: float, sigma_rad: float)
 
 def _move_points(m: SlamMap, before: list[Pose]) -> None:
     """Each map point moved with the keyframe that made it (its pose ``before`` to now)."""
-    ref = m.first_keyframe
+    order = np.argsort(m.first_keyframe, kind="stable")
+    ends = np.searchsorted(m.first_keyframe[order], np.arange(len(m.keyframes) + 1))
     for k, kf in enumerate(m.keyframes):
-        sel = ref == k
-        if sel.any():
+        sel = order[ends[k] : ends[k + 1]]
+        if len(sel):
             m.X_W[sel] = kf.T_C_W.inverse() @ (before[k] @ m.X_W[sel])
 
 
@@ -244,19 +265,10 @@ def _fuse(m: SlamMap, kf: SlamKeyframe, kps: IntArray, ids: IntArray) -> int:
     fused = 0
     for kp, old in zip(kps.tolist(), ids.tolist(), strict=True):
         dup = int(kf.points[kp])
-        if dup == old:
+        if dup == old or m.bad[old]:  # (an old point this fusion has just replaced)
             continue
         if dup >= 0:
-            for other in m.keyframes:
-                hit = other.points == dup
-                if hit.any():
-                    if (other.points == old).any():  # (it sees the old one already)
-                        m.forget(other, np.flatnonzero(hit))
-                    else:
-                        other.points[hit] = old
-                        m.n_obs[old] += int(hit.sum())
-                        m.n_obs[dup] -= int(hit.sum())
-            m.bad[dup] = True
+            m.replace(dup, old)
             fused += 1
         elif not (kf.points == old).any():
             m.observe(kf, np.array([kp]), np.array([old]))

@@ -1,7 +1,7 @@
 """The SLAM's map: map points (position, descriptor, the level first seen at, the keyframe that
 made them, how many keyframes observe them, whether culled) and keyframes (their pose, frame
 and, per keypoint, the map point it observes or -1); which keyframes see the same points (the
-covisibility of ORB-SLAM2, counted when asked); and the map as arrays for a file
+covisibility of ORB-SLAM2, counted when asked from each point's observers); and the map as arrays for a file
 (:mod:`quadnav.io.slam_map`), format ``quadnav-slam-map`` version 1:
 
 - the head: ``format``, ``version``, the numbers of ``keyframes`` and ``points``, and the
@@ -17,6 +17,7 @@ covisibility of ORB-SLAM2, counted when asked); and the map as arrays for a file
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 from typing import Any
 
@@ -71,10 +72,64 @@ def pose_now(kf: SlamKeyframe, keyframes: list[SlamKeyframe]) -> Pose:
     return T @ kf.T_C_W
 
 
+class _Observations:
+    """Which keyframes observe each map point (ORB-SLAM2's ``MapPoint::mObservations``): an
+    append-only log of (keyframe, keypoint) entries linked per point (``head``, ``nxt``). An
+    entry stands while that keyframe's keypoint still observes that point, so forgetting,
+    culling and fusing need not touch the log; it is read through :meth:`SlamMap.observers`."""
+
+    def __init__(self) -> None:
+        self.head = np.full(0, -1, np.int64)
+        self.kf = np.zeros(0, np.int32)
+        self.kp = np.zeros(0, np.int32)
+        self.nxt = np.zeros(0, np.int64)
+        self.n = 0
+
+    def add(self, k: int, kps: IntArray, ids: IntArray, n_points: int) -> None:
+        """Keyframe ``k`` observes points ``ids`` at keypoints ``kps``."""
+        if len(self.head) < n_points:
+            self.head = np.r_[self.head, np.full(n_points - len(self.head), -1, np.int64)]
+        m = len(ids)
+        if m == 0:
+            return
+        if self.n + m > len(self.kf):
+            cap = max(2 * len(self.kf), self.n + m, 1024)
+            self.kf, self.kp, self.nxt = (np.r_[a, np.zeros(cap - len(a), a.dtype)]
+                                          for a in (self.kf, self.kp, self.nxt))  # fmt: skip
+        e = np.arange(self.n, self.n + m, dtype=np.int64)
+        self.kf[e], self.kp[e] = k, kps
+        order = np.argsort(ids, kind="stable")  # (a point twice in one call: chained in order)
+        sp, se = ids[order], e[order]
+        first = np.r_[True, sp[1:] != sp[:-1]]
+        self.nxt[se] = np.where(first, self.head[sp], np.r_[-1, se[:-1]])
+        last = np.r_[sp[1:] != sp[:-1], True]
+        self.head[sp[last]] = se[last]
+        self.n += m
+
+    def entries(self, ids: IntArray) -> tuple[IntArray, IntArray, IntArray]:
+        """Every entry of points ``ids``, standing or not: (keyframe, keypoint, point)."""
+        cur, ps = self.head[ids], ids
+        es, pts = [], []
+        while True:
+            sel = cur >= 0
+            cur, ps = cur[sel], ps[sel]
+            if not len(cur):
+                break
+            es.append(cur)
+            pts.append(ps)
+            cur = self.nxt[cur]
+        if not es:
+            empty = np.zeros(0, np.int64)
+            return empty, empty, empty
+        e = np.concatenate(es)
+        return self.kf[e].astype(np.int64), self.kp[e].astype(np.int64), np.concatenate(pts)
+
+
 class SlamMap:
     """Map points in growing arrays (ids are indices, never reused) and the keyframes."""
 
     def __init__(self) -> None:
+        self._obs = _Observations()
         self.X_W = np.zeros((0, 3))
         self.descriptors = np.zeros((0, 32), np.uint8)
         self.octave = np.zeros(0, np.int64)
@@ -129,8 +184,43 @@ class SlamMap:
 
     def observe(self, kf: SlamKeyframe, kps: IntArray, ids: IntArray) -> None:
         """Keyframe ``kf`` sees map points ``ids`` at its keypoints ``kps``."""
+        kps = np.asarray(kps, np.int64)
+        ids = np.broadcast_to(np.asarray(ids, np.int64), kps.shape)
         kf.points[kps] = ids
         np.add.at(self.n_obs, ids, 1)
+        self._obs.add(kf.index, kps, ids, len(self.X_W))
+
+    def replace(self, dup: int, keep: int) -> None:
+        """Point ``dup`` is point ``keep`` seen again: every keyframe that observes ``dup``
+        observes ``keep`` there instead (or forgets it, when it sees ``keep`` already), and
+        ``dup`` is culled (ORB-SLAM2's ``MapPoint::Replace``)."""
+        ks, hits, _ = self.observers(np.array([dup]))
+        for k in np.unique(ks):
+            other, hit = self.keyframes[int(k)], hits[ks == k]
+            if (other.points == keep).any():
+                self.forget(other, hit)
+            else:
+                self.observe(other, hit, np.full(len(hit), keep))
+                self.n_obs[dup] -= len(hit)
+        self.bad[dup] = True
+
+    def observers(self, ids: IntArray) -> tuple[IntArray, IntArray, IntArray]:
+        """Who observes the points ``ids`` now: (keyframe index, keypoint, point) per
+        observation, each once."""
+        ids = np.unique(np.asarray(ids, np.int64))
+        k, kp, p = self._obs.entries(ids[(ids >= 0) & (ids < len(self.X_W))])
+        if not len(k):
+            return k, kp, p
+        now = np.empty(len(k), np.int64)
+        order = np.argsort(k, kind="stable")
+        bounds = np.flatnonzero(np.r_[True, k[order][1:] != k[order][:-1], True])
+        for a, b in itertools.pairwise(bounds.tolist()):
+            sl = order[a:b]
+            now[sl] = self.keyframes[int(k[sl[0]])].points[kp[sl]]
+        keep = now == p
+        k, kp, p = k[keep], kp[keep], p[keep]
+        _, first = np.unique(k * (1 << 32) + kp, return_index=True)
+        return k[first], kp[first], p[first]
 
     def forget(self, kf: SlamKeyframe, kps: IntArray) -> None:
         """Keyframe ``kf`` no longer sees the points at its keypoints ``kps`` (outliers)."""
@@ -144,9 +234,9 @@ class SlamMap:
         if len(ids) == 0:
             return
         self.bad[ids] = True
-        mark = self.marks(ids)
-        for kf in self.keyframes:
-            kf.points[mark[kf.points]] = -1
+        k, kp, _ = self.observers(ids)
+        for i in np.unique(k):
+            self.keyframes[int(i)].points[kp[k == i]] = -1
 
     def marks(self, ids: IntArray) -> NDArray[np.bool_]:
         """A flag per map point, set at ``ids``, and one more (unset) at the end, so that a
@@ -166,9 +256,11 @@ class SlamMap:
 
     def sharing(self, ids: IntArray, *, among: list[SlamKeyframe] | None = None) -> IntArray:
         """How many of the points ``ids`` each keyframe (of ``among``; default all) observes."""
-        mark = self.marks(ids)
-        kfs = self.keyframes if among is None else among
-        return np.array([int(mark[kf.points].sum()) for kf in kfs], np.int64)
+        k, _, _ = self.observers(ids)
+        counts = np.bincount(k, minlength=len(self.keyframes)).astype(np.int64)
+        if among is None:
+            return counts
+        return counts[np.array([kf.index for kf in among], np.int64)]
 
     def covisible(self, kf: SlamKeyframe, n: int) -> list[SlamKeyframe]:
         """``kf`` and the ``n - 1`` keyframes that share the most of its points with it (ORB-
@@ -282,7 +374,9 @@ def _from_arrays(
                                  depth_m=np.asarray(a["kp_depth_m"][sl], np.float64))  # fmt: skip
         frame = Frame(t_ns=int(a["kf_t_ns"][k]), features=features, stereo=stereo,
                       close=np.asarray(a["kp_close"][sl], bool), camera=camera)  # fmt: skip
+        points = np.asarray(a["kp_point"][sl], np.int64)
         m.keyframes.append(SlamKeyframe(index=k, T_C_W=Pose.from_matrix(T), frame=frame,
-                                        points=np.asarray(a["kp_point"][sl], np.int64),
-                                        bad=bool(bad[k])))  # fmt: skip
+                                        points=points.copy(), bad=bool(bad[k])))  # fmt: skip
+        seen = np.flatnonzero(points >= 0)
+        m._obs.add(k, seen, points[seen], n_pts)
     return m, camera

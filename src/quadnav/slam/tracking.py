@@ -387,8 +387,9 @@ class StereoTracker:
         self._since_keyframe = 0
         if self.config.local_mapping:
             self.last_mapping = local_mapping(
-                self.map, local_keyframes=self.config.local_ba_keyframes
-            )
+                self.map, local_keyframes=self.config.local_ba_keyframes,
+                fuse=self.config.fuse_neighbours,
+            )  # fmt: skip
         self._loop = self.loop_closer.after_keyframe(kf, self.map, self.database, self._fit_on)
         if self._loop is not None and self.config.global_ba:
             cfg = self.config
