@@ -154,6 +154,7 @@ def test_the_drift_a_loop_may_correct_grows_along_the_maps_shortest_way() -> Non
     (the same place a lap apart) may correct 3 % of the 12.6 m lap between them, until a loop
     closed from 56 to 26 joins the laps: the way from 28 to 58 is then 4 keyframes (1.7 m) and
     a jump of 0.3 m is a place that repeats, no longer drift."""
+    from quadnav.posegraph import LoopEdge
     from quadnav.slam.map import SlamKeyframe
 
     m = SlamMap()
@@ -173,7 +174,16 @@ def test_the_drift_a_loop_may_correct_grows_along_the_maps_shortest_way() -> Non
     joined = LoopCloser(LoopClosingConfig())
     joined.closed.append(LoopClosingReport(old=26, new=56, inliers=100, moved_m=0.0,
                                            turned_rad=0.0, fused=0, edges=0))  # fmt: skip
-    assert joined._way_m(m, 28, 58, []) == pytest.approx(4 * 4 * np.sin(np.pi / 30), rel=1e-6)
+    way = 4 * 4 * np.sin(np.pi / 30)  # (four chords of the circle)
+    assert joined._way_m(m, 28, 58, []) == pytest.approx(way, rel=1e-6)
+    # the same pair again as an essential edge is still one way, not twice as long
+    twice = [LoopEdge(old=26, new=56, T_old_new=Pose.identity(), cov=np.eye(6))] * 2
+    assert joined._way_m(m, 28, 58, twice) == pytest.approx(way, rel=1e-6)
+    # a keyframe culled on the way counts where its parent has it now
+    m.keyframes[57].bad, m.keyframes[57].parent = True, 56
+    m.keyframes[57].T_C_P = m.keyframes[57].T_C_W @ m.keyframes[56].T_C_W.inverse()
+    m.keyframes[57].T_C_W = Pose(Rotation.identity(), np.array([50.0, 0.0, 0.0]))  # (stale)
+    assert joined._way_m(m, 28, 58, []) == pytest.approx(way, rel=1e-6)
     assert joined._implausible(kf, m, old, asks(0.1), []) is None
     why = joined._implausible(kf, m, old, asks(0.3), [])
     assert why is not None and "moves 0.300 m" in why and "drift can be 0.150 m" in why

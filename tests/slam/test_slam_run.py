@@ -103,6 +103,7 @@ def test_keyframe_records_put_their_landmarks_where_their_keypoints_see_them(
     cam = euroc().cameras[0]
     # (the final adjustment estimated the camera too: the map is its, the lens the stated one)
     moved = _self_calibration_px(slam)
+    assert moved < 3.0, moved  # (ideal images: 2.2 px measured on these 4 s; 0.2 without fusion)
     for rec in recs:
         assert rec.T_B_C is None and len(rec.landmark_ids) >= 100
         row = {int(i): k for k, i in enumerate(rec.ids)}

@@ -35,7 +35,7 @@ from numpy.typing import NDArray
 from quadnav.geometry.rotations import Pose
 from quadnav.slam.config import LoopClosingConfig
 from quadnav.slam.frame import Frame
-from quadnav.slam.map import SlamKeyframe, SlamMap
+from quadnav.slam.map import SlamKeyframe, SlamMap, pose_now
 from quadnav.slam.relocalization import KeyframeDatabase
 
 if TYPE_CHECKING:
@@ -170,7 +170,8 @@ class LoopCloser:
         length = self._way_m(m, old.index, kf.index, edges)
         moved = float(np.linalg.norm(kf.T_C_W.inverse().p_A_B - T_C_W.inverse().p_A_B))
         turned = float(np.degrees((kf.T_C_W.R_A_B * T_C_W.R_A_B.inv()).magnitude()))
-        bound = cfg.max_drift_m + cfg.max_drift_fraction * length
+        bound = cfg.max_drift_m + cfg.max_drift_fraction * length  # (no way: max_drift_m)
+        bound = bound if np.isfinite(bound) else cfg.max_drift_m
         if moved <= bound and turned <= cfg.max_drift_deg:
             return None
         return (
@@ -189,10 +190,12 @@ class LoopCloser:
         from scipy.sparse.csgraph import dijkstra
 
         n = len(m.keyframes)
-        pos = np.array([k.T_C_W.inverse().p_A_B for k in m.keyframes])
+        # (a culled keyframe where its parent has it now: its own pose no longer moves)
+        pos = np.array([pose_now(k, m.keyframes).inverse().p_A_B for k in m.keyframes])
         pairs = [(i, i + 1) for i in range(n - 1)]
         pairs += [(e.old, e.new) for e in edges] + [(r.old, r.new) for r in self.closed]
-        i, j = np.array(pairs, np.int64).reshape(-1, 2).T
+        # (each pair once: a sparse matrix adds up the duplicates of an entry)
+        i, j = np.unique(np.sort(np.array(pairs, np.int64).reshape(-1, 2), axis=1), axis=0).T
         w = np.linalg.norm(pos[i] - pos[j], axis=1) + 1e-9  # (zero would be no edge)
         graph = coo_matrix((w, (i, j)), shape=(n, n)).tocsr()
         return float(dijkstra(graph, directed=False, indices=a)[b])
