@@ -102,13 +102,15 @@ class SlamConfig:
     ``keyframe_max_frames`` of a relocalization; when the frame tracks under
     ``keyframe_ratio`` of its reference keyframe's points (those ``keyframe_min_observers``
     keyframes see: ORB-SLAM2's 3; with fewer, a map whose points are fused counts most of them
-    and keyframes come twice as often), or fewer than ``close_tracked`` close points while ``close_untracked``
+    and keyframes come twice as often), or fewer than ``close_tracked`` close points while
+    ``close_untracked``
     more could be made (ORB-SLAM2's stereo rule), if it tracks at least
     ``keyframe_min_tracked``; ``local_keyframes``: the map points of so many keyframes are
     projected into each frame (the newest, and those that see most of the last frame's
     points); ``local_ba_keyframes``: the newest keyframe and its most covisible ones adjusted
     after each keyframe; ``fuse_neighbours``: the new keyframe's points fused with those of
-    its covisible keyframes after each keyframe (ORB-SLAM2's ``SearchInNeighbors``); ``global_ba``: every keyframe and point adjusted after a loop is
+    its covisible keyframes after each keyframe (ORB-SLAM2's ``SearchInNeighbors``);
+    ``global_ba``: every keyframe and point adjusted after a loop is
     closed (ORB-SLAM2 does it in a thread; here inline), over the newest
     ``global_ba_keyframes`` keyframes at most, the ``global_ba_held`` older ones that see the
     most of their points held (its cost grew faster than the map, 18 s at 190 keyframes, and it

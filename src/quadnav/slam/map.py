@@ -1,8 +1,8 @@
 """The SLAM's map: map points (position, descriptor, the level first seen at, the keyframe that
 made them, how many keyframes observe them, whether culled) and keyframes (their pose, frame
 and, per keypoint, the map point it observes or -1); which keyframes see the same points (the
-covisibility of ORB-SLAM2, counted when asked from each point's observers); and the map as arrays for a file
-(:mod:`quadnav.io.slam_map`), format ``quadnav-slam-map`` version 1:
+covisibility of ORB-SLAM2, counted when asked from each point's observers); and the map as
+arrays for a file (:mod:`quadnav.io.slam_map`), format ``quadnav-slam-map`` version 1:
 
 - the head: ``format``, ``version``, the numbers of ``keyframes`` and ``points``, and the
   rectified ``camera`` (fx, fy, cx, cy in px, ``baseline_m``) every keyframe was measured in;
