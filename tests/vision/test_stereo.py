@@ -123,3 +123,56 @@ def test_an_already_rectified_pair_stays_as_it_is(tmp_path: object) -> None:
     out, _ = rect.rectify(img, img)
     assert np.abs(out[5:-5, 5:-5].astype(int) - img[5:-5, 5:-5]).max() <= 1
     np.testing.assert_allclose(rect.Q[2, 3], K[0, 0], rtol=1e-6)  # Q's focal length
+
+
+def test_a_fix_found_later_makes_the_pair_the_ideal_one() -> None:
+    """A parallel pinhole pair as stated, the real one otherwise: each camera 1.3 % longer in
+    focal length and 2 px off in cx, the right one turned 0.1 deg about its axis and 0.05 deg
+    about its vertical. Folded into the maps as a :class:`RectificationFix`, every point lands
+    where the ideal rectified pair of the real left camera puts it (within 0.05 px; the stated
+    maps miss the right image's by over 0.5 px, and the real rows differ by over 0.6 px), and
+    ``uncorrected`` gives back where the stated maps have it."""
+    from quadnav.vision.stereo import RectificationFix
+
+    K = np.array([[458.0, 0.0, 376.0], [0.0, 458.0, 240.0], [0.0, 0.0, 1.0]])
+    lens = PinholeCamera(K, np.zeros(0), 752, 480)
+    b = 0.11
+    left = CameraSpec(name="cam0", camera=lens, T_B_C=Pose.identity(), rate_hz=20.0)
+    right = CameraSpec(
+        name="cam1", camera=lens, T_B_C=Pose(Rotation.identity(), np.array([b, 0, 0])), rate_hz=20.0
+    )
+    rect = StereoRectifier(Rig(name="pair", cameras=(left, right), imu=None))
+    K_true = K @ np.diag([1.013, 1.013, 1.0]) + np.array([[0, 0, 2.0], [0, 0, 0], [0, 0, 0]])
+    K_true_r = K_true + np.array([[0, 0, 0.3], [0, 0, 0], [0, 0, 0]])
+    R_true = Rotation.from_rotvec(np.radians([0.0, 0.05, 0.1])).as_matrix()
+    fix = RectificationFix(K_left=K_true, dist_left=np.zeros(4), K_right=K_true_r,
+                           dist_right=np.zeros(4), R_left_right=R_true)  # fmt: skip
+    fixed = rect.corrected(fix)
+    rng = np.random.default_rng(0)
+    p = np.c_[rng.uniform(-1.5, 1.5, (300, 2)), rng.uniform(2.0, 6.0, 300)]
+    raw_l = ((p / p[:, 2:]) @ K_true.T)[:, :2]
+    p_r = (p - [b, 0.0, 0.0]) @ R_true  # (R^T (p - t): the point in the real right camera)
+    raw_r = ((p_r / p_r[:, 2:]) @ K_true_r.T)[:, :2]
+    ideal_l = ((p / p[:, 2:]) @ K_true.T)[:, :2]  # (the fixed pair's camera is the real left one's)
+    q = p - [b, 0.0, 0.0]
+    ideal_r = ((q / q[:, 2:]) @ K_true.T)[:, :2]
+
+    def looked_up(maps: tuple[np.ndarray, np.ndarray], px: np.ndarray) -> np.ndarray:
+        mx, my = cv2.convertMaps(maps[0], maps[1], cv2.CV_32FC1)
+        x, y = px[:, 0].astype(np.float32)[None], px[:, 1].astype(np.float32)[None]
+        return np.c_[
+            cv2.remap(mx, x, y, cv2.INTER_LINEAR)[0], cv2.remap(my, x, y, cv2.INTER_LINEAR)[0]
+        ]
+
+    inside = np.all((ideal_l > 20) & (ideal_l < (732, 460)) & (ideal_r > 20) & (ideal_r < (732, 460)), axis=1)  # fmt: skip
+    assert inside.sum() > 150
+    err_l = np.linalg.norm(looked_up(fixed.maps[0], ideal_l[inside]) - raw_l[inside], axis=1)
+    err_r = np.linalg.norm(looked_up(fixed.maps[1], ideal_r[inside]) - raw_r[inside], axis=1)
+    assert err_l.max() < 0.05 and err_r.max() < 0.05, (err_l.max(), err_r.max())
+    stated_r = np.linalg.norm(looked_up(rect.maps[1], ideal_r[inside]) - raw_r[inside], axis=1)
+    assert stated_r.max() > 0.5 and np.ptp(raw_r[inside, 1] - raw_l[inside, 1]) > 0.6
+    np.testing.assert_allclose(fixed.uncorrected(ideal_l[inside]), raw_l[inside], atol=1e-6)
+    np.testing.assert_allclose(fixed.K, K_true, atol=1e-12)
+    assert fixed.baseline_m == pytest.approx(b, rel=1e-9) and fixed.fix is fix
+    with pytest.raises(VisionError, match="corrected already"):
+        fixed.corrected(fix)

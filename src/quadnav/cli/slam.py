@@ -197,8 +197,9 @@ def slam_command(
         Path | None,
         typer.Option(
             "--intrinsics",
-            help="an earlier run's final_intrinsics.json: track in the rectified camera its "
-            "final adjustment estimated (the calibration's error it found)",
+            help="an earlier run's final_intrinsics.json: track in the calibration its final "
+            "adjustment estimated (the rectified camera, and the distortion and the rig's turn "
+            "it found, folded into the rectification)",
         ),
     ] = None,
     out: OutOpt = Path("runs"),

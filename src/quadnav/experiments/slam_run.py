@@ -9,7 +9,7 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import TYPE_CHECKING, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 from quadnav.errors import ConfigError
 from quadnav.experiments.odometry_run import (
@@ -47,6 +47,7 @@ if TYPE_CHECKING:
     from quadnav.slam.frame import StereoCamera
     from quadnav.slam.map import SlamMap
     from quadnav.slam.odometry import DepthSource
+    from quadnav.vision.stereo import RectificationFix
 
 __all__ = [
     "FINAL_INTRINSICS",
@@ -235,6 +236,8 @@ def _write_final_intrinsics(slam: SlamOdometry, path: Path) -> None:
     them (nothing written when it did not)."""
     import json
 
+    import numpy as np
+
     from quadnav.io.run_folder import write_text
 
     found = slam.final_intrinsics
@@ -247,23 +250,45 @@ def _write_final_intrinsics(slam: SlamOdometry, path: Path) -> None:
 
     stated = camera(slam.rectified)
     estimated = dict(zip(keys, found[:4], strict=True))
+    extra: dict[str, object] = {}
+    cal = slam.final_calibration
+    if cal is not None:
+        names = ("k1", "k2", "p1", "p2")
+        extra["keyframes"] = cal.keyframes
+        extra["right_estimated"] = dict(zip(keys, cal.right, strict=True))
+        extra["distortion"] = {side: dict(zip(names, d, strict=True))
+                               for side, d in zip(("left", "right"), cal.distortion, strict=True)}  # fmt: skip
+        extra["right_from_left"] = {
+            "rotation_deg": [float(v) for v in np.degrees(cal.T_L_R.R_A_B.as_rotvec())],
+            "translation_m": [float(v) for v in cal.T_L_R.p_A_B],
+        }
     text = json.dumps({
         "what": "the rectified left camera (px): as the calibration states it (stated), as the "
         "tracking used it (tracked_with: the stated one, or one given by --intrinsics) and as "
         "the final bundle adjustment estimated it with the map (estimated; give this file to "
-        "the next run's --intrinsics to track in it)",
+        "the next run's --intrinsics to track in it); the adjustment also found the right "
+        "camera's (right_estimated), the distortion left in each rectified image (OpenCV's k1, "
+        "k2, p1, p2; a calibration's error undistorts them wrongly) and the right camera's "
+        "pose from the left one (rotation vector, translation; the baseline's length held), "
+        "which the next run folds into its rectification, from this many keyframes (under ten "
+        "determine it poorly); rectification: whether this run's "
+        "was the stated calibration's or corrected by an earlier run's file",
         "format": FINAL_INTRINSICS_FORMAT,
+        "rectification": "stated" if slam.fix is None else "corrected",
         "stated": stated, "tracked_with": camera(slam.camera), "estimated": estimated,
-        "difference": {k: estimated[k] - stated[k] for k in keys},
+        "difference": {k: estimated[k] - stated[k] for k in keys}, **extra,
     }, indent=2)  # fmt: skip
     write_text(path, text + "\n")
 
 
 class FoundIntrinsics(NamedTuple):
-    """A ``final_intrinsics.json``: the rectified camera as stated, and as estimated."""
+    """A ``final_intrinsics.json``: the rectified camera as stated, and as estimated; with the
+    rest of what was found (the right camera, the distortion, the rig) when the file has it, as
+    the rectification's fix (None: an older file, the left pinhole only)."""
 
     stated: tuple[float, float, float, float, float]  # (fx, fy, cx, cy, baseline_m)
     estimated: tuple[float, float, float, float]  # (fx, fy, cx, cy)
+    fix: RectificationFix | None = None
 
 
 def read_final_intrinsics(path: Path) -> FoundIntrinsics:
@@ -283,11 +308,50 @@ def read_final_intrinsics(path: Path) -> FoundIntrinsics:
             f"--intrinsics {path}: not a SLAM run's {FINAL_INTRINSICS} ({type(exc).__name__}: "
             f"{exc})"
         ) from None
+    if data.get("rectification", "stated") != "stated":
+        raise ConfigError(
+            f"--intrinsics {path}: made by a run that tracked in an earlier run's calibration "
+            "(its values are relative to that one); give the earlier run's file"
+        )
     if not all(math.isfinite(v) for v in (*stated, *est)):
         raise ConfigError(f"--intrinsics {path}: a value is not finite")
     if min(stated[0], stated[1], stated[4], est[0], est[1]) <= 0:
         raise ConfigError(f"--intrinsics {path}: a focal length or the baseline is not positive")
-    return FoundIntrinsics(stated=stated, estimated=est)  # type: ignore[arg-type]
+    try:
+        fix = _fix_of(data, est) if "distortion" in data else None
+    except (ValueError, KeyError, TypeError) as exc:
+        raise ConfigError(
+            f"--intrinsics {path}: the calibration found is unreadable ({type(exc).__name__}: "
+            f"{exc})"
+        ) from None
+    return FoundIntrinsics(stated=stated, estimated=est, fix=fix)  # type: ignore[arg-type]
+
+
+def _fix_of(data: dict[str, Any], est: tuple[float, ...]) -> RectificationFix:
+    """The rectification's fix a ``final_intrinsics.json`` gives (its right camera, distortion
+    and rig); a value missing, of the wrong kind or not finite raises (the caller names the
+    option)."""
+    import numpy as np
+
+    from quadnav.errors import VisionError
+    from quadnav.vision.stereo import RectificationFix
+
+    right = [float(data["right_estimated"][k]) for k in ("fx", "fy", "cx", "cy")]
+    dist = [
+        [float(data["distortion"][side][k]) for k in ("k1", "k2", "p1", "p2")]
+        for side in ("left", "right")
+    ]
+    turn = np.radians([float(v) for v in data["right_from_left"]["rotation_deg"]])
+    if not np.all(np.isfinite([*right, *dist[0], *dist[1]])):
+        raise ValueError("the right camera or a distortion is not finite")
+    if turn.shape == (3,) and np.degrees(np.linalg.norm(turn)) > 5.0:
+        raise ValueError("the rig turned over 5 deg: not a small fix")
+    if np.abs(np.array(dist)).max() > 1.0:
+        raise ValueError("a distortion over 1: not a small fix")
+    try:
+        return RectificationFix.of(est, right, dist[0], dist[1], turn)
+    except VisionError as exc:
+        raise ValueError(str(exc)) from None
 
 
 def _check_found_for(found: FoundIntrinsics, rectified: StereoCamera) -> str | None:
@@ -342,9 +406,10 @@ def _slam(
     from quadnav.slam import SlamOdometry
 
     given = None if found is None else found.estimated
+    fix = None if found is None else found.fix
     if found is not None:
         try:
-            odo = SlamOdometry(rig, cfg, depth=depth, intrinsics=given)
+            odo = SlamOdometry(rig, cfg, depth=depth, intrinsics=given, fix=fix)
         except SlamError as exc:
             raise SlamError(f"--intrinsics {request.intrinsics}: {exc}") from None
         if (why := _check_found_for(found, odo.rectified)) is not None:
@@ -356,6 +421,6 @@ def _slam(
     try:
         return SlamOdometry(rig, cfg, slam_map=loaded[0], map_camera=loaded[1],
                             mapping=not request.localization_only, depth=depth,
-                            intrinsics=given)  # fmt: skip
+                            intrinsics=given, fix=fix)  # fmt: skip
     except SlamError as exc:
         raise SlamError(f"--load-map {request.load_map}: {exc}") from None

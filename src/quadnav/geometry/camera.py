@@ -76,9 +76,8 @@ class PinholeCamera:
         p = np.asarray(p_C, dtype=np.float64).reshape(-1, 1, 3)
         if self.model == "equidistant":
             px, _ = cv2.fisheye.projectPoints(p, np.zeros(3), np.zeros(3), self.K, self.dist)
-        else:
-            px, _ = cv2.projectPoints(p, np.zeros(3), np.zeros(3), self.K, self.dist)
-        return np.asarray(px.reshape(-1, 2), dtype=np.float64)
+            return np.asarray(px.reshape(-1, 2), dtype=np.float64)
+        return project_radtan(self.K, self.dist, p)
 
     @property
     def distorted(self) -> bool:
@@ -109,6 +108,14 @@ class PinholeCamera:
         K[0] *= sx
         K[1] *= sy
         return PinholeCamera(K, self.dist.copy(), width, height, self.model)
+
+
+def project_radtan(K: FloatArray, dist: FloatArray, p_C: FloatArray) -> FloatArray:
+    """Pixels (N, 2) of points (N, 3, in front) in a camera of matrix ``K`` (3x3) and OpenCV's
+    radial-tangential coefficients ``dist`` (``k1, k2, p1, p2``...; none: a pinhole)."""
+    p = np.asarray(p_C, dtype=np.float64).reshape(-1, 1, 3)
+    px, _ = cv2.projectPoints(p, np.zeros(3), np.zeros(3), K, dist)
+    return np.asarray(px.reshape(-1, 2), dtype=np.float64)
 
 
 def thesis_camera() -> PinholeCamera:

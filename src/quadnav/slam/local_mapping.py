@@ -22,6 +22,7 @@ import numpy as np
 from quadnav.slam.map import SlamKeyframe, SlamMap
 from quadnav.slam.optimizer import (
     BundleProblem,
+    SelfCalibration,
     local_bundle_adjustment,
     self_calibrating_adjustment,
 )
@@ -103,11 +104,13 @@ def local_mapping(
 
 class GlobalAdjustment(NamedTuple):
     """What :func:`global_bundle_adjustment` did: keyframes and points adjusted, and the left
-    rectified camera's refined ``(fx, fy, cx, cy, fx b)`` when it estimated them (else None)."""
+    rectified camera's refined ``(fx, fy, cx, cy, fx b)`` when it estimated them (else None),
+    with the rest of what it found (``calibration``: the distortion left, the rig)."""
 
     keyframes: int
     points: int
     intrinsics: tuple[float, float, float, float, float] | None = None
+    calibration: SelfCalibration | None = None
 
 
 def global_bundle_adjustment(
@@ -141,15 +144,16 @@ def global_bundle_adjustment(
         return GlobalAdjustment(0, 0)
     problem, _ = _problem(m, kfs, pts, n_held=n_held)
     cam = kfs[0].frame.camera.intrinsics
-    refined = None
+    found = None
     if intrinsics:
-        out, refined = self_calibrating_adjustment(problem, cam)
+        out, found = self_calibrating_adjustment(problem, cam)
     else:
         out = local_bundle_adjustment(problem, cam, iterations=iterations)
     for kf, T_W_C in zip(kfs[n_held:], out.T_W_C[n_held:], strict=True):
         kf.T_C_W = T_W_C.inverse()
     m.X_W[pts] = out.X_W
-    return GlobalAdjustment(len(kfs) - n_held, len(pts), refined)
+    refined = None if found is None else found.intrinsics
+    return GlobalAdjustment(len(kfs) - n_held, len(pts), refined, found)
 
 
 def cull_keyframes(

@@ -30,7 +30,11 @@ centre or baseline more than 2 % apart) is a :class:`~quadnav.errors.SlamError`.
 The rectified left camera's intrinsics the SLAM measures in are the rectification's, unless
 ``intrinsics`` (fx, fy, cx, cy) gives others for the same rectification (a stereo rig's): those
 an earlier run's final adjustment estimated (its ``final_intrinsics.json``), which hold the
-calibration's error that the rectification cannot. A loaded map is tracked in the camera it
+calibration's error that the rectification cannot. ``fix`` (with those ``intrinsics``, its
+left camera's) folds the rest of what that adjustment found into the rectification (the
+distortion the stated lens model left in each image, the right camera, the rig's turn:
+:class:`~quadnav.vision.stereo.RectificationFix`), so that the pair comes out as the ideal
+rectified pair of the camera found. A loaded map is tracked in the camera it
 was saved with (a map saved after a self-calibrating final adjustment: the estimated one);
 :attr:`SlamOdometry.map_camera` is the camera the map is in now.
 """
@@ -70,7 +74,8 @@ from quadnav.vision.stereo_match import StereoKeypoints
 from quadnav.vision.tracking import as_grey
 
 if TYPE_CHECKING:
-    from quadnav.vision.stereo import StereoRectifier
+    from quadnav.slam.optimizer import SelfCalibration
+    from quadnav.vision.stereo import RectificationFix, StereoRectifier
 
 FloatArray = NDArray[np.float64]
 
@@ -101,8 +106,11 @@ class SlamOdometry:
         map_camera: StereoCamera | None = None, mapping: bool = True,
         depth: DepthSource | None = None,
         intrinsics: tuple[float, float, float, float] | None = None,
+        fix: RectificationFix | None = None,
     ) -> None:  # fmt: skip
         self.config = config or SlamConfig()
+        #: an earlier run's calibration folded into the rectification (None: the stated one's)
+        self.fix = fix
         self._depth = depth
         self.rectifier: StereoRectifier | None = None
         self.camera: StereoCamera
@@ -122,6 +130,8 @@ class SlamOdometry:
         self.rectified = self.camera
         if intrinsics is not None:
             self.camera = _given_intrinsics(self.camera, intrinsics, stereo=rig.stereo)
+        if fix is not None:
+            self.rectifier = self._corrected(fix, intrinsics)
         if slam_map is not None:
             _check_same_camera(self.camera, map_camera)
             assert map_camera is not None
@@ -146,6 +156,8 @@ class SlamOdometry:
         #: the left rectified camera's ``(fx, fy, cx, cy, fx b)`` as the final adjustment
         #: estimated them (None: not estimated)
         self.final_intrinsics: tuple[float, float, float, float, float] | None = None
+        #: the rest of what it found: the distortion left in the rectified images, the rig
+        self.final_calibration: SelfCalibration | None = None
 
     def _final_adjustment(self) -> None:
         """At the run's end (``config.final_ba``, while mapping): every keyframe and point
@@ -163,6 +175,7 @@ class SlamOdometry:
                 intrinsics=self.config.final_ba_intrinsics and self.rectifier is not None,
             )  # fmt: skip  (a stereo pair's: an RGB-D camera's right one is virtual)
             self.final_intrinsics = done.intrinsics
+            self.final_calibration = done.calibration
         except (RuntimeError, ValueError, np.linalg.LinAlgError):  # (GTSAM: indeterminant)
             self._rejected["final_ba_failed"] += 1  # (the map as it was: the run's end stands)
         self._time("final_ba", time.perf_counter() - t0)
@@ -261,6 +274,20 @@ class SlamOdometry:
         if len(kfs) == 0 or kfs[-1].index < self._published:
             return None
         return self._record(kfs[-1])
+
+    def _corrected(
+        self, fix: RectificationFix, intrinsics: tuple[float, float, float, float] | None
+    ) -> StereoRectifier:
+        """The rectification with ``fix`` folded in; ``intrinsics`` must be its left camera's
+        (the camera the corrected pair is in)."""
+        if self.rectifier is None:
+            raise SlamError("fix: a stereo rig's rectification; this rig is RGB-D")
+        K = np.asarray(fix.K_left)
+        if intrinsics is None or not np.allclose(
+            intrinsics, (K[0, 0], K[1, 1], K[0, 2], K[1, 2]), rtol=0.0, atol=1e-9
+        ):
+            raise SlamError("fix: the intrinsics given must be its left camera's")
+        return self.rectifier.corrected(fix)
 
     @property
     def slam_map(self) -> SlamMap:
@@ -397,6 +424,8 @@ class SlamOdometry:
         """Rectified keypoints in the left camera: through its lens (pixels) and undistorted
         (normalised)."""
         c, n = self.rectified, len(uv_rect)
+        if self.rectifier is not None:  # (a corrected pair's pixels where the stated one has them)
+            uv_rect = self.rectifier.uncorrected(uv_rect)
         rect = np.column_stack(
             [(uv_rect[:, 0] - c.cx) / c.fx, (uv_rect[:, 1] - c.cy) / c.fy, np.ones(n)]
         )

@@ -17,10 +17,10 @@ from __future__ import annotations
 
 import os
 import sys
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -30,6 +30,8 @@ from quadnav.geometry.rotations import Pose, so3_exp
 
 if TYPE_CHECKING:  # (GTSAM loads only for a bundle adjustment)
     import gtsam
+
+    from quadnav.vision.stereo import RectificationFix
 
 __all__ = [
     "BundleProblem", "BundleResult", "PoseFit", "local_bundle_adjustment", "optimize_pose",
@@ -251,6 +253,28 @@ def _bundle_graph(
 Intrinsics = tuple[float, float, float, float, float]
 
 
+class SelfCalibration(NamedTuple):
+    """What a self-calibrating adjustment found: the left rectified camera's pinhole ``(fx, fy,
+    cx, cy, fx b)``, the right one's ``(fx, fy, cx, cy)`` (its fy and cy the left one's: its rows
+    are not measured), the distortion left in each rectified
+    image of the pair (OpenCV's ``k1, k2, p1, p2``, left then right) and the right camera's pose
+    from the left one (``T_L_R``), and how many keyframes it was found from (a few, as in a
+    short flight down a hall, determine it poorly)."""
+
+    intrinsics: Intrinsics
+    right: tuple[float, float, float, float]
+    distortion: tuple[tuple[float, float, float, float], tuple[float, float, float, float]]
+    T_L_R: Pose
+    keyframes: int = 0  # (the views it was found from, held ones too)
+
+    def fix(self) -> RectificationFix:
+        """What was found, as a fix a rectification folds in (the next run's)."""
+        from quadnav.vision.stereo import RectificationFix
+
+        turn = self.T_L_R.R_A_B.as_rotvec()
+        return RectificationFix.of(self.intrinsics[:4], self.right, *self.distortion, turn)
+
+
 def self_calibrating_adjustment(
     problem: BundleProblem,
     cam: Intrinsics,
@@ -259,34 +283,50 @@ def self_calibrating_adjustment(
     iterations: int = 50,
     focal_sigma: float = 0.02,
     centre_sigma_px: float = 5.0,
+    distortion_sigma: tuple[float, float, float, float] = (0.01, 0.01, 0.001, 0.001),
     rig_sigma: float = 1e-3,
-) -> tuple[BundleResult, Intrinsics]:
-    """The bundle adjustment with the rectified pair's intrinsics estimated as well
-    (self-calibration): each camera of the pair its own pinhole (fx, fy, cx, cy), a prior at
-    ``cam`` of ``focal_sigma`` (relative) and ``centre_sigma_px``; the right camera a pose of
-    its own held within ``rig_sigma`` (rad and m, each axis) of the rectified baseline from the
-    left one; each observation a projection (GTSAM's ``GeneralSFMFactor2``; a stereo one in both
-    cameras) under a Huber kernel of its level's sigma, the held keyframes by a micro-prior;
-    observations of points behind their camera left out, and after a pass those beyond the gate.
-    The result, and the left camera's refined ``(fx, fy, cx, cy, fx b)``."""
+) -> tuple[BundleResult, SelfCalibration]:
+    """The bundle adjustment with the rectified pair's calibration estimated as well
+    (self-calibration). Each camera of the pair has its own pinhole (fx, fy, cx, cy) with a prior
+    at ``cam`` of ``focal_sigma`` (relative) and ``centre_sigma_px``, and the distortion its
+    images were rectified without (a calibration's error in focal length or principal point
+    undistorts them wrongly: up to 3 px at the edges on EuRoC's lens for 1.3 % and 2 px): OpenCV's
+    ``k1, k2, p1, p2`` (GTSAM's ``Cal3DS2``) about zero within ``distortion_sigma``. The right
+    camera is one pose from the left for the whole rig (its rotation and its offset across
+    the baseline within ``rig_sigma``, rad and m; the baseline's length held: the map's
+    scale). Each observation is a projection (GTSAM's ``GeneralSFMFactor2``, the right one
+    through the rig) under a Huber kernel of its level's sigma, the held keyframes held by a
+    micro-prior; observations of points behind their camera are left out, and after a pass
+    those beyond the gate. The result, and what was found (:class:`SelfCalibration`)."""
     import gtsam
 
     from quadnav.geometry.gtsam_bridge import to_pose
 
     fx, fy, cx, cy, bf = cam
     b = bf / fx
-    stated = gtsam.Cal3_S2(fx, fy, 0.0, cx, cy)
+    stated = gtsam.Cal3DS2(fx, fy, 0.0, cx, cy, 0.0, 0.0, 0.0, 0.0)
     K = (stated, stated)
+    T_L_R = gtsam.Pose3(gtsam.Rot3(), np.array([b, 0.0, 0.0]))
     poses, points = list(problem.T_W_C), np.asarray(problem.X_W, np.float64).copy()
     keep = _in_front(problem, poses, points)
-    refined = cam
+    prior = gtsam.noiseModel.Diagonal.Sigmas(
+        np.array(
+            [
+                focal_sigma * fx,
+                focal_sigma * fy,
+                1e-6,
+                centre_sigma_px,
+                centre_sigma_px,
+                *distortion_sigma,
+            ]
+        )
+    )
     for _ in range(passes):
-        graph, values = _self_calibrating_graph(problem, keep, poses, points, K, b, rig_sigma)
-        prior = gtsam.noiseModel.Diagonal.Sigmas(
-            np.array([focal_sigma * fx, focal_sigma * fy, 1e-6, centre_sigma_px, centre_sigma_px])
+        graph, values = _self_calibrating_graph(
+            problem, keep, poses, points, K, T_L_R, b, rig_sigma
         )
         for side in (0, 1):
-            graph.add(gtsam.PriorFactorCal3_S2(gtsam.symbol("k", side), stated, prior))
+            graph.add(gtsam.PriorFactorCal3DS2(gtsam.symbol("k", side), stated, prior))
         params = gtsam.LevenbergMarquardtParams()
         params.setMaxIterations(iterations)
         with _c_stdout_silenced():  # (GTSAM prints each landmark it finds behind a camera)
@@ -294,37 +334,57 @@ def self_calibrating_adjustment(
         poses = [to_pose(out.atPose3(gtsam.symbol("x", k))) for k in range(len(poses))]
         points = np.array([out.atPoint3(gtsam.symbol("l", j)) for j in range(len(points))])
         points = points.reshape(-1, 3)
-        K = (out.atCal3_S2(gtsam.symbol("k", 0)), out.atCal3_S2(gtsam.symbol("k", 1)))
-        refined = (K[0].fx(), K[0].fy(), K[0].px(), K[0].py(), K[0].fx() * b)
-        keep = _within_gate(problem, poses, points, refined)
-    return BundleResult(T_W_C=tuple(poses), X_W=points, inliers=keep), refined
+        K = (out.atCal3DS2(gtsam.symbol("k", 0)), out.atCal3DS2(gtsam.symbol("k", 1)))
+        T_L_R = out.atPose3(gtsam.symbol("b", 0))
+        keep = _within_gate_calibrated(problem, poses, points, K, to_pose(T_L_R))
+    k0, k1 = (np.asarray(k.vector(), np.float64) for k in K)  # (fx, fy, s, u0, v0, ...)
+    found = SelfCalibration(
+        intrinsics=(float(k0[0]), float(k0[1]), float(k0[3]), float(k0[4]), float(k0[0]) * b),
+        # (the right image's rows are not measured: its fy and cy are the left one's)
+        right=(float(k1[0]), float(k0[1]), float(k1[3]), float(k0[4])),
+        distortion=(_distortion(K[0]), _distortion(K[1])), T_L_R=to_pose(T_L_R),
+        keyframes=len(poses),
+    )  # fmt: skip
+    return BundleResult(T_W_C=tuple(poses), X_W=points, inliers=keep), found
+
+
+def _matrix_and_distortion(K: gtsam.Cal3DS2) -> tuple[FloatArray, FloatArray]:
+    """The camera matrix and OpenCV's ``k1, k2, p1, p2`` of GTSAM's ``Cal3DS2``."""
+    return np.asarray(K.K(), np.float64), np.array(_distortion(K))
+
+
+def _distortion(K: gtsam.Cal3DS2) -> tuple[float, float, float, float]:
+    v = np.asarray(K.vector(), np.float64)  # (fx, fy, s, u0, v0, k1, k2, p1, p2)
+    return float(v[5]), float(v[6]), float(v[7]), float(v[8])
 
 
 def _self_calibrating_graph(
     p: BundleProblem, keep: NDArray[np.bool_], poses: list[Pose], points: FloatArray,
-    K: tuple[gtsam.Cal3_S2, gtsam.Cal3_S2], baseline_m: float, rig_sigma: float,
+    K: tuple[gtsam.Cal3DS2, gtsam.Cal3DS2], T_L_R: gtsam.Pose3, baseline_m: float,
+    rig_sigma: float,
 ) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values]:  # fmt: skip
     import gtsam
+    from gtsam_unstable import ProjectionFactorPPPCCal3DS2
 
     from quadnav.geometry.gtsam_bridge import pose3
 
     def x(k: int) -> int:
         return int(gtsam.symbol("x", k))
 
-    def r(k: int) -> int:
-        return int(gtsam.symbol("r", k))
-
     def lm(j: int) -> int:
         return int(gtsam.symbol("l", j))
 
-    T_L_R = gtsam.Pose3(gtsam.Rot3(), np.array([baseline_m, 0.0, 0.0]))
-    rig = gtsam.noiseModel.Isotropic.Sigma(6, rig_sigma)
+    rig_key = int(gtsam.symbol("b", 0))
     held = gtsam.noiseModel.Isotropic.Sigma(6, HELD_SIGMA)
     graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+    # (one right camera for the whole rig: its rotation and its offset across the baseline
+    # within rig_sigma of the rectified one; the baseline's length held, the map's scale)
+    values.insert(rig_key, T_L_R)
+    rig = gtsam.noiseModel.Diagonal.Sigmas(np.array([rig_sigma] * 3 + [1e-7, rig_sigma, rig_sigma]))
+    stated = gtsam.Pose3(gtsam.Rot3(), np.array([baseline_m, 0.0, 0.0]))
+    graph.add(gtsam.PriorFactorPose3(rig_key, stated, rig))
     for k, T in enumerate(poses):
         values.insert(x(k), pose3(T))
-        values.insert(r(k), pose3(T).compose(T_L_R))
-        graph.add(gtsam.BetweenFactorPose3(x(k), r(k), T_L_R, rig))
         if p.fixed[k]:
             graph.add(gtsam.PriorFactorPose3(x(k), pose3(T), held))
     for j, X in enumerate(points):
@@ -332,16 +392,68 @@ def _self_calibrating_graph(
     for side in (0, 1):
         values.insert(gtsam.symbol("k", side), K[side])
     kernel = gtsam.noiseModel.mEstimator.Huber.Create(np.sqrt(CHI2_MONO))
+    k0, k1 = gtsam.symbol("k", 0), gtsam.symbol("k", 1)
     for m in np.flatnonzero(keep):
         k, j = int(p.obs_kf[m]), int(p.obs_pt[m])
         noise = gtsam.noiseModel.Robust.Create(
             kernel, gtsam.noiseModel.Isotropic.Sigma(2, float(np.sqrt(p.obs_sigma2[m])))
         )
         u, v = p.obs_uv[m]
-        graph.add(gtsam.GeneralSFMFactor2Cal3_S2(np.array([u, v]), noise, x(k), lm(j), gtsam.symbol("k", 0)))  # fmt: skip
+        graph.add(gtsam.GeneralSFMFactor2Cal3DS2(np.array([u, v]), noise, x(k), lm(j), k0))
         if p.obs_ur[m] >= 0:
-            graph.add(gtsam.GeneralSFMFactor2Cal3_S2(np.array([float(p.obs_ur[m]), v]), noise, r(k), lm(j), gtsam.symbol("k", 1)))  # fmt: skip
+            # (the right image's row is not measured: the pair's match is searched along the
+            # left one's; a turn of the rig about its axis shifts it, and is found from u_R)
+            right = np.array([float(p.obs_ur[m]), v])
+            sigma = float(np.sqrt(p.obs_sigma2[m]))
+            noise = gtsam.noiseModel.Robust.Create(
+                kernel, gtsam.noiseModel.Diagonal.Sigmas(np.array([sigma, _UNMEASURED * sigma]))
+            )
+            graph.add(ProjectionFactorPPPCCal3DS2(right, noise, x(k), rig_key, lm(j), k1,
+                                                  False, False))  # fmt: skip
     return graph, values
+
+
+def _within_gate_calibrated(
+    p: BundleProblem, poses: list[Pose], points: FloatArray,
+    K: tuple[gtsam.Cal3DS2, gtsam.Cal3DS2], T_L_R: Pose,
+) -> NDArray[np.bool_]:  # fmt: skip
+    """:func:`_within_gate` through the calibration found: each camera's distortion, the right
+    camera through the rig."""
+    from quadnav.geometry.camera import project_radtan
+
+    Ks = [_matrix_and_distortion(k) for k in K]
+
+    def errors(m: NDArray[np.int64], X: FloatArray) -> tuple[NDArray[np.bool_], FloatArray]:
+        XR = T_L_R.inverse() @ X
+        ok = (X[:, 2] > 0) & (XR[:, 2] > 0)
+        X[~ok, 2], XR[~ok, 2] = 1.0, 1.0  # (their chi-square does not count)
+        uv, ur = project_radtan(*Ks[0], X), project_radtan(*Ks[1], XR)
+        e2 = np.sum((p.obs_uv[m] - uv) ** 2, axis=1)
+        stereo = p.obs_ur[m] >= 0  # (u_R only: the right row is not measured)
+        return ok, e2 + np.where(stereo, (p.obs_ur[m] - ur[:, 0]) ** 2, 0.0)
+
+    return _gate(p, poses, points, errors)
+
+
+def _gate(
+    p: BundleProblem, poses: list[Pose], points: FloatArray,
+    errors: Callable[[NDArray[np.int64], FloatArray], tuple[NDArray[np.bool_], FloatArray]],
+) -> NDArray[np.bool_]:  # fmt: skip
+    """Each observation's chi-square under its level's sigma against its gate (stereo or mono),
+    its point in front: ``errors(observations, points in the camera)`` gives which are in
+    front and their squared errors (px^2)."""
+    keep = np.zeros(len(p.obs_kf), bool)
+    for k, T in enumerate(poses):
+        m = np.flatnonzero(p.obs_kf == k)
+        if len(m) == 0:
+            continue
+        ok, e2 = errors(m, T.inverse() @ points[p.obs_pt[m]])
+        chi2 = e2 / p.obs_sigma2[m]
+        keep[m] = ok & (chi2 <= np.where(p.obs_ur[m] >= 0, CHI2_STEREO, CHI2_MONO))
+    return keep
+
+
+_UNMEASURED = 1e3  # (a residual's sigma, in its level's: a coordinate not measured)
 
 
 def _in_front(p: BundleProblem, poses: list[Pose], points: FloatArray) -> NDArray[np.bool_]:
@@ -381,19 +493,14 @@ def _within_gate(
 ) -> NDArray[np.bool_]:
     """Each observation's chi-square under its level's sigma against its gate, in front."""
     fx, fy, cx, cy, bf = cam
-    keep = np.zeros(len(p.obs_kf), bool)
-    for k, T in enumerate(poses):
-        m = np.flatnonzero(p.obs_kf == k)
-        if len(m) == 0:
-            continue
-        X = T.inverse() @ points[p.obs_pt[m]]
+
+    def errors(m: NDArray[np.int64], X: FloatArray) -> tuple[NDArray[np.bool_], FloatArray]:
         z = X[:, 2]
         ok = z > 0
         zz = np.where(ok, z, 1.0)
         u, v = fx * X[:, 0] / zz + cx, fy * X[:, 1] / zz + cy
-        stereo = p.obs_ur[m] >= 0
         e2 = (p.obs_uv[m, 0] - u) ** 2 + (p.obs_uv[m, 1] - v) ** 2
-        e2 = e2 + np.where(stereo, (p.obs_ur[m] - (u - bf / zz)) ** 2, 0.0)
-        chi2 = e2 / p.obs_sigma2[m]
-        keep[m] = ok & (chi2 <= np.where(stereo, CHI2_STEREO, CHI2_MONO))
-    return keep
+        stereo = p.obs_ur[m] >= 0
+        return ok, e2 + np.where(stereo, (p.obs_ur[m] - (u - bf / zz)) ** 2, 0.0)
+
+    return _gate(p, poses, points, errors)
