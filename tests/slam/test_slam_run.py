@@ -517,6 +517,7 @@ def test_a_run_s_final_intrinsics_read_back_and_bad_files_are_one_line_errors(
     from quadnav.experiments.slam_run import (
         _check_found_for,
         _write_final_intrinsics,
+        few_views_note,
         read_final_intrinsics,
     )
 
@@ -546,9 +547,16 @@ def test_a_run_s_final_intrinsics_read_back_and_bad_files_are_one_line_errors(
     assert found.fix is not None and slam.final_calibration is not None
     made = slam.final_calibration.fix()
     for a, b in ((found.fix.K_left, made.K_left), (found.fix.K_right, made.K_right),
-                 (found.fix.dist_left, made.dist_left), (found.fix.R_left_right, made.R_left_right)):  # fmt: skip
+                 (found.fix.dist_left, made.dist_left), (found.fix.dist_right, made.dist_right),
+                 (found.fix.R_left_right, made.R_left_right)):  # fmt: skip
         np.testing.assert_allclose(a, b, atol=1e-9)
     data = json.loads(path.read_text())
+    assert found.keyframes == slam.final_calibration.keyframes == data["keyframes"] > 0
+    for views, said in ((4, True), (40, False)):
+        (tmp_path / "views.json").write_text(json.dumps({**data, "keyframes": views}))
+        note = few_views_note(read_final_intrinsics(tmp_path / "views.json"), path)
+        assert (note is not None) == said
+        assert note is None or "found from 4 keyframes; under 10 determine it poorly" in note
     for name, change, message in (
         ("corrected", {"rectification": "corrected"}, "made by a run that tracked in an earlier"),
         ("turned", {"right_from_left": {"rotation_deg": [0, 9.0, 0], "translation_m": [0.1, 0, 0]}},
@@ -556,6 +564,8 @@ def test_a_run_s_final_intrinsics_read_back_and_bad_files_are_one_line_errors(
         ("nan", {"distortion": {"left": dict.fromkeys(("k1", "k2", "p1", "p2"), float("nan")),
                                 "right": data["distortion"]["right"]}}, "not finite"),
         ("short", {"right_estimated": {"fx": 1.0}}, "KeyError"),
+        ("wide", {"right_estimated": {**data["right_estimated"], "fx": 0.5 * data["right_estimated"]["fx"]}},
+         "right camera's fx is more than 5 % off"),
     ):  # fmt: skip
         (tmp_path / f"{name}.json").write_text(json.dumps({**data, **change}))
         with pytest.raises(ConfigError, match=rf"^--intrinsics .*{name}.json: .*{message}"):

@@ -356,6 +356,7 @@ def test_the_self_calibrating_adjustment_finds_the_rig_and_the_distortion_left(s
     assert abs(found.distortion[0][0] - 0.02) < 0.004, found.distortion
     roll = np.degrees(found.T_L_R.R_A_B.as_rotvec()[2])
     assert abs(roll - 0.1) < 0.03, roll
+    assert abs(found.T_L_R.p_A_B[0] - B) < 1e-5  # (the baseline held: the map's scale)
     ours, theirs = _rms(out.T_W_C, truth), _rms(plain.T_W_C, truth)
     assert ours < 0.5 * theirs, (ours, theirs)
 

@@ -127,11 +127,13 @@ def test_an_already_rectified_pair_stays_as_it_is(tmp_path: object) -> None:
 
 def test_a_fix_found_later_makes_the_pair_the_ideal_one() -> None:
     """A parallel pinhole pair as stated, the real one otherwise: each camera 1.3 % longer in
-    focal length and 2 px off in cx, the right one turned 0.1 deg about its axis and 0.05 deg
-    about its vertical. Folded into the maps as a :class:`RectificationFix`, every point lands
+    focal length and 2 px off in cx, with a little distortion of its own (k1 0.01 and 0.012,
+    a tangential term), the right one turned 0.1 deg about its axis and 0.05 deg about its
+    vertical. Folded into the maps as a :class:`RectificationFix`, every point lands
     where the ideal rectified pair of the real left camera puts it (within 0.05 px; the stated
     maps miss the right image's by over 0.5 px, and the real rows differ by over 0.6 px), and
     ``uncorrected`` gives back where the stated maps have it."""
+    from quadnav.geometry.camera import project_radtan
     from quadnav.vision.stereo import RectificationFix
 
     K = np.array([[458.0, 0.0, 376.0], [0.0, 458.0, 240.0], [0.0, 0.0, 1.0]])
@@ -145,14 +147,15 @@ def test_a_fix_found_later_makes_the_pair_the_ideal_one() -> None:
     K_true = K @ np.diag([1.013, 1.013, 1.0]) + np.array([[0, 0, 2.0], [0, 0, 0], [0, 0, 0]])
     K_true_r = K_true + np.array([[0, 0, 0.3], [0, 0, 0], [0, 0, 0]])
     R_true = Rotation.from_rotvec(np.radians([0.0, 0.05, 0.1])).as_matrix()
-    fix = RectificationFix(K_left=K_true, dist_left=np.zeros(4), K_right=K_true_r,
-                           dist_right=np.zeros(4), R_left_right=R_true)  # fmt: skip
+    dist_l, dist_r = np.array([0.01, 0.0, 0.0005, 0.0]), np.array([0.012, 0.0, 0.0, 0.0004])
+    fix = RectificationFix(K_left=K_true, dist_left=dist_l, K_right=K_true_r,
+                           dist_right=dist_r, R_left_right=R_true)  # fmt: skip
     fixed = rect.corrected(fix)
     rng = np.random.default_rng(0)
     p = np.c_[rng.uniform(-1.5, 1.5, (300, 2)), rng.uniform(2.0, 6.0, 300)]
-    raw_l = ((p / p[:, 2:]) @ K_true.T)[:, :2]
+    raw_l = project_radtan(K_true, dist_l, p)  # (the stated maps are the identity here)
     p_r = (p - [b, 0.0, 0.0]) @ R_true  # (R^T (p - t): the point in the real right camera)
-    raw_r = ((p_r / p_r[:, 2:]) @ K_true_r.T)[:, :2]
+    raw_r = project_radtan(K_true_r, dist_r, p_r)
     ideal_l = ((p / p[:, 2:]) @ K_true.T)[:, :2]  # (the fixed pair's camera is the real left one's)
     q = p - [b, 0.0, 0.0]
     ideal_r = ((q / q[:, 2:]) @ K_true.T)[:, :2]
@@ -176,3 +179,8 @@ def test_a_fix_found_later_makes_the_pair_the_ideal_one() -> None:
     assert fixed.baseline_m == pytest.approx(b, rel=1e-9) and fixed.fix is fix
     with pytest.raises(VisionError, match="corrected already"):
         fixed.corrected(fix)
+    with pytest.raises(VisionError, match="not for a corrected rectification"):
+        fixed.rectify_points(0, raw_l[:3])
+    with pytest.raises(VisionError, match="focal lengths must be positive"):
+        RectificationFix(K_left=K_true, dist_left=dist_l, K_right=0 * K_true_r,
+                         dist_right=dist_r, R_left_right=R_true)  # fmt: skip

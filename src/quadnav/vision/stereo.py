@@ -30,7 +30,7 @@ __all__ = ["RectificationFix", "StereoRectifier"]
 FloatArray = NDArray[np.float64]
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(frozen=True, slots=True, eq=False)
 class RectificationFix:
     """What a rectified pair really is, found after it was rectified: each image's camera
     matrix (``K_left``, ``K_right``, 3x3), the distortion left in it (OpenCV's ``k1, k2, p1,
@@ -53,6 +53,9 @@ class RectificationFix:
         R = np.asarray(self.R_left_right)
         if not np.allclose(R @ R.T, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0:
             raise VisionError("a rectification fix's R_left_right is not a rotation")
+        for K in (np.asarray(self.K_left), np.asarray(self.K_right)):
+            if K[0, 0] <= 0 or K[1, 1] <= 0:
+                raise VisionError("a rectification fix's focal lengths must be positive")
 
     @classmethod
     def of(
@@ -180,8 +183,10 @@ class StereoRectifier:
         return np.asarray(out_l, dtype=np.uint8), np.asarray(out_r, dtype=np.uint8)
 
     def rectify_points(self, which: int, px: FloatArray) -> FloatArray:
-        """Rectified pixels (N, 2) of original ones of camera ``which`` (0 left, 1 right); the
-        stated rectification's (:meth:`uncorrected`)."""
+        """Rectified pixels (N, 2) of original ones of camera ``which`` (0 left, 1 right); not
+        for a corrected rectification (its ``R1`` no longer describes the right camera)."""
+        if self.fix is not None:
+            raise VisionError("rectify_points: not for a corrected rectification")
         spec = (self.left, self.right)[which]
         R, P = (self.R0, self.P0) if which == 0 else (self.R1, self.P1)
         return spec.camera.undistort_pixels(px, R=R, P=P)
@@ -241,6 +246,8 @@ def _fold(
     fx, fy = cv2.convertMaps(maps[0], maps[1], cv2.CV_32FC1)
     nx = cv2.remap(fx, sx, sy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=-1)
     ny = cv2.remap(fy, sx, sy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=-1)
+    outside = (sx < 0) | (sx > w - 1) | (sy < 0) | (sy > h - 1)  # (not blended with the fill)
+    nx[outside], ny[outside] = -1.0, -1.0
     m1, m2 = cv2.convertMaps(nx, ny, cv2.CV_16SC2)
     return np.asarray(m1), np.asarray(m2)
 
