@@ -554,8 +554,9 @@ def test_a_run_s_final_intrinsics_read_back_and_bad_files_are_one_line_errors(
     assert found.keyframes == slam.final_calibration.keyframes == data["keyframes"] > 0
     for views, said in ((4, True), (40, False)):
         (tmp_path / "views.json").write_text(json.dumps({**data, "keyframes": views}))
-        note = few_views_note(read_final_intrinsics(tmp_path / "views.json"), path)
+        note = few_views_note(read_final_intrinsics(tmp_path / "views.json"))
         assert (note is not None) == said
+        assert note is None or note.startswith(f"--intrinsics {tmp_path / 'views.json'}: its")
         assert note is None or "found from 4 keyframes; under 10 determine it poorly" in note
     for name, change, message in (
         ("corrected", {"rectification": "corrected"}, "made by a run that tracked in an earlier"),
@@ -570,6 +571,30 @@ def test_a_run_s_final_intrinsics_read_back_and_bad_files_are_one_line_errors(
         (tmp_path / f"{name}.json").write_text(json.dumps({**data, **change}))
         with pytest.raises(ConfigError, match=rf"^--intrinsics .*{name}.json: .*{message}"):
             read_final_intrinsics(tmp_path / f"{name}.json")
+
+
+def test_a_saved_map_keeps_the_calibration_it_was_adjusted_in(tmp_path: Path) -> None:
+    """``--save-map`` writes the run's ``final_intrinsics.json`` into the map's folder; a run
+    that loads the map (without ``--intrinsics``) tracks in that calibration and says so; a
+    broken one there is a one-line error naming ``--load-map``."""
+    from quadnav.errors import ConfigError
+    from quadnav.experiments.slam_run import FINAL_INTRINSICS, SlamRequest, run_slam_source
+
+    opts = OdometryRunOptions(duration_s=3.0, video=False)
+    first = SlamRequest(source="room_easy", rig="euroc", out=tmp_path / "runs", options=opts,
+                        loop=False, save_map=tmp_path / "map")  # fmt: skip
+    run_slam_source(first)
+    own = tmp_path / "map" / FINAL_INTRINSICS
+    assert own.is_file()
+    again = SlamRequest(source="room_easy", rig="euroc", out=tmp_path / "runs", options=opts,
+                        load_map=tmp_path / "map", localization_only=True)  # fmt: skip
+    run = run_slam_source(again)
+    said = [n for n in run.notes if "tracked in the calibration the map was adjusted in" in n]
+    assert said and said[0].startswith(f"--load-map {own}: ")
+    assert run.metrics.frames_with_estimate > 0
+    own.write_text("{")
+    with pytest.raises(ConfigError, match=rf"^--load-map {own}: not a SLAM run's"):
+        run_slam_source(again)
 
 
 def test_the_maps_bytes_are_its_arrays(stereo_run: tuple) -> None:

@@ -191,6 +191,9 @@ def run_slam_source(
         from quadnav.io.slam_map import load_slam_map
 
         loaded = load_slam_map(request.load_map)
+        own = request.load_map / FINAL_INTRINSICS  # (the calibration the map was adjusted in)
+        if found is None and own.is_file():
+            found = read_final_intrinsics(own, option="--load-map")
     dataset = resolve_dataset(
         request.source, seed=request.seed, rig=request.rig, duration_s=opt.duration_s,
         start_s=opt.start_s, cache_root=request.out, calibration=request.calibration,
@@ -228,9 +231,12 @@ def run_slam_source(
         from quadnav.io.slam_map import save_slam_map
 
         save_slam_map(request.save_map, made[0].slam_map, made[0].map_camera)
-    if found is not None and (note := few_views_note(found, request.intrinsics)) is not None:
-        run = replace(run, notes=(*run.notes, note))
-    return run
+        # (with the calibration the map was adjusted in: a run that loads it tracks in it)
+        _write_final_intrinsics(made[0], request.save_map / FINAL_INTRINSICS)
+    notes = [] if found is None else [few_views_note(found)]
+    if found is not None and found.source.startswith("--load-map"):
+        notes.append(f"{found.source}: tracked in the calibration the map was adjusted in")
+    return replace(run, notes=(*run.notes, *(n for n in notes if n)))
 
 
 #: a calibration found from fewer keyframes than this is poorly determined (MH_01's 40 s down
@@ -238,13 +244,13 @@ def run_slam_source(
 FEW_VIEWS = 10
 
 
-def few_views_note(found: FoundIntrinsics, path: Path | None) -> str | None:
-    """A note when ``found`` (``--intrinsics path``) came from fewer than :data:`FEW_VIEWS`
-    keyframes; None otherwise, or when the file does not say."""
+def few_views_note(found: FoundIntrinsics) -> str | None:
+    """A note when ``found`` came from fewer than :data:`FEW_VIEWS` keyframes; None otherwise,
+    or when its file does not say."""
     if found.keyframes is None or found.keyframes >= FEW_VIEWS:
         return None
     return (
-        f"--intrinsics {path}: its calibration was found from {found.keyframes} keyframes; "
+        f"{found.source}: its calibration was found from {found.keyframes} keyframes; "
         f"under {FEW_VIEWS} determine it poorly, and tracking in it may be worse"
     )
 
@@ -308,45 +314,49 @@ class FoundIntrinsics(NamedTuple):
     estimated: tuple[float, float, float, float]  # (fx, fy, cx, cy)
     fix: RectificationFix | None = None
     keyframes: int | None = None  # (the views it was found from; None: not said)
+    source: str = "--intrinsics"  # (where it came from: the option and file, for messages)
 
 
-def read_final_intrinsics(path: Path) -> FoundIntrinsics:
+def read_final_intrinsics(path: Path, *, option: str = "--intrinsics") -> FoundIntrinsics:
     """An earlier run's ``final_intrinsics.json`` (:data:`FINAL_INTRINSICS`); a missing or
-    malformed file is a one-line :class:`~quadnav.errors.ConfigError` naming ``--intrinsics``."""
+    malformed file is a one-line :class:`~quadnav.errors.ConfigError` naming ``option``
+    (``--load-map`` for the one a saved map's folder holds)."""
     import json
     import math
 
     if not path.is_file():
-        raise ConfigError(f"--intrinsics {path}: no such file (a SLAM run's {FINAL_INTRINSICS})")
+        raise ConfigError(f"{option} {path}: no such file (a SLAM run's {FINAL_INTRINSICS})")
     try:
         data = json.loads(path.read_text())
         stated = tuple(float(data["stated"][k]) for k in ("fx", "fy", "cx", "cy", "baseline_m"))
         est = tuple(float(data["estimated"][k]) for k in ("fx", "fy", "cx", "cy"))
     except (OSError, UnicodeDecodeError, ValueError, KeyError, TypeError, OverflowError) as exc:
         raise ConfigError(
-            f"--intrinsics {path}: not a SLAM run's {FINAL_INTRINSICS} ({type(exc).__name__}: "
-            f"{exc})"
+            f"{option} {path}: not a SLAM run's {FINAL_INTRINSICS} ({type(exc).__name__}: {exc})"
         ) from None
     if data.get("rectification", "stated") != "stated":
         raise ConfigError(
-            f"--intrinsics {path}: made by a run that tracked in an earlier run's calibration "
+            f"{option} {path}: made by a run that tracked in an earlier run's calibration "
             "(its values are relative to that one); give the earlier run's file"
         )
     if not all(math.isfinite(v) for v in (*stated, *est)):
-        raise ConfigError(f"--intrinsics {path}: a value is not finite")
+        raise ConfigError(f"{option} {path}: a value is not finite")
     if min(stated[0], stated[1], stated[4], est[0], est[1]) <= 0:
-        raise ConfigError(f"--intrinsics {path}: a focal length or the baseline is not positive")
+        raise ConfigError(f"{option} {path}: a focal length or the baseline is not positive")
     try:
         fix = _fix_of(data, est) if "distortion" in data else None
     except (ValueError, KeyError, TypeError, OverflowError) as exc:
         raise ConfigError(
-            f"--intrinsics {path}: the calibration found is unreadable ({type(exc).__name__}: "
-            f"{exc})"
+            f"{option} {path}: the calibration found is unreadable ({type(exc).__name__}: {exc})"
         ) from None
     views = data.get("keyframes")
     ok = isinstance(views, int | float) and not isinstance(views, bool)
     views = int(views) if ok and math.isfinite(views) and 0 <= views < 10**9 else None
-    return FoundIntrinsics(stated=stated, estimated=est, fix=fix, keyframes=views)  # type: ignore[arg-type]
+    return FoundIntrinsics(
+        stated=stated,  # type: ignore[arg-type]
+        estimated=est,  # type: ignore[arg-type]
+        fix=fix, keyframes=views, source=f"{option} {path}",
+    )  # fmt: skip
 
 
 def _fix_of(data: dict[str, Any], est: tuple[float, ...]) -> RectificationFix:
@@ -439,9 +449,9 @@ def _slam(
         try:
             odo = SlamOdometry(rig, cfg, depth=depth, intrinsics=given, fix=fix)
         except SlamError as exc:
-            raise SlamError(f"--intrinsics {request.intrinsics}: {exc}") from None
+            raise SlamError(f"{found.source}: {exc}") from None
         if (why := _check_found_for(found, odo.rectified)) is not None:
-            raise SlamError(f"--intrinsics {request.intrinsics}: {why}")
+            raise SlamError(f"{found.source}: {why}")
         if loaded is None:
             return odo
     elif loaded is None:
