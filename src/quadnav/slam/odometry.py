@@ -153,10 +153,8 @@ class SlamOdometry:
         self._seconds: dict[str, float] = {}
         self._calls: Counter[str] = Counter()
         self._finished = False  # (the run's end: the final bundle adjustment done)
-        #: the left rectified camera's ``(fx, fy, cx, cy, fx b)`` as the final adjustment
-        #: estimated them (None: not estimated)
-        self.final_intrinsics: tuple[float, float, float, float, float] | None = None
-        #: the rest of what it found: the distortion left in the rectified images, the rig
+        #: what the final adjustment found with the map (None: not estimated): the rectified
+        #: pair's pinholes, the distortion left in its images, the rig
         self.final_calibration: SelfCalibration | None = None
 
     def _final_adjustment(self) -> None:
@@ -174,7 +172,6 @@ class SlamOdometry:
                 max_held=self.config.global_ba_held,
                 intrinsics=self.config.final_ba_intrinsics and self.rectifier is not None,
             )  # fmt: skip  (a stereo pair's: an RGB-D camera's right one is virtual)
-            self.final_intrinsics = done.intrinsics
             self.final_calibration = done.calibration
         except (RuntimeError, ValueError, np.linalg.LinAlgError):  # (GTSAM: indeterminant)
             self._rejected["final_ba_failed"] += 1  # (the map as it was: the run's end stands)
@@ -288,6 +285,13 @@ class SlamOdometry:
         ):
             raise SlamError("fix: the intrinsics given must be its left camera's")
         return self.rectifier.corrected(fix)
+
+    @property
+    def final_intrinsics(self) -> tuple[float, float, float, float, float] | None:
+        """The left rectified camera's ``(fx, fy, cx, cy, fx b)`` as the final adjustment
+        estimated them (None: not estimated)."""
+        cal = self.final_calibration
+        return None if cal is None else cal.intrinsics
 
     @property
     def slam_map(self) -> SlamMap:
