@@ -124,6 +124,7 @@ def resolve_request(
     load_map: Path | None = None,
     loop_set: list[str] | None = None,
     rerun: RerunOptions | None = None,
+    final_ba: bool = False,
 ) -> VioRequest:
     """The validated request (no dataset read, no folder made). ``--stereo`` uses the rig's
     second camera; a built-in sequence is then made with EuRoC's stereo rig unless ``--rig``
@@ -136,9 +137,13 @@ def resolve_request(
         video_every=video_every, blackout_s=parse_blackout(blackout), save_map=save_map,
     )  # fmt: skip
     rig_name = rig or ("euroc" if stereo else "euroc_mono")
+    overrides = (
+        *set_,
+        *(["stereo=true"] if stereo else []),
+        *(["final_smoothing=true"] if final_ba else []),
+    )
     request = VioRequest(
-        sources=tuple(datasets), config=config,
-        overrides=(*set_, "stereo=true") if stereo else tuple(set_), options=options,
+        sources=tuple(datasets), config=config, overrides=overrides, options=options,
         seed=seed, seeds=parse_seeds(seeds) if seeds is not None else None, rig=rig_name,
         out=out, calibration=calibration,
         loop=loop or save_map is not None or load_map is not None or bool(loop_set),
@@ -176,6 +181,7 @@ def check_example(params: CommandParams) -> None:
         save_map=optional_param(params, "save_map", Path),
         load_map=optional_param(params, "load_map", Path),
         loop_set=strings_param(params, "loop_set"), rerun=rerun_param(params),
+        final_ba=param(params, "final_ba", bool),
     )  # fmt: skip
 
 
@@ -192,6 +198,7 @@ EXAMPLES = (
     "quadnav vio data/room_again --stereo --load-map /tmp/room_map --no-video",
     "quadnav vio hall_laps --stereo --loop --blackout 50:3 --no-video",
     "quadnav vio room_easy --duration 20 --no-video --rerun",
+    "quadnav vio room_medium --stereo --final-ba --no-video",
 )
 
 
@@ -202,6 +209,12 @@ def _print_run(run: OdometryRun) -> None:
     table.add_row(*row_cells(row_of(run, run.dataset, None))[2:])
     console.print(table)
     m = run.metrics
+    final = (run.final or {}).get("ape_se3")
+    if isinstance(final, dict):
+        console.print(
+            f"final trajectory (--final-ba, not causal): APE after SE(3) {final['rmse_m']:.4f} m",
+            highlight=False,
+        )
     said = set(run.notes)  # each reason a column is n/a, once (no ground truth: all of them)
     for label, value in (
         ("metrics", m.ape_4dof), ("drift final (%)", m.drift_final_pct),
@@ -291,6 +304,15 @@ def vio_command(
     rerun: OdometryRerunOpt = False,
     rerun_connect: RerunConnectOpt = None,
     rerun_spawn: RerunSpawnOpt = False,
+    final_ba: Annotated[
+        bool,
+        typer.Option(
+            "--final-ba/--no-final-ba",
+            help="at the end, optimise the whole run's graph at once (every keyframe's IMU, "
+            "observations and the calibration): estimate_final.tum, not causal, as ORB-SLAM3 "
+            "saves its trajectory; the whole graph is kept in memory (stereo at 20 Hz: about 200 MB a minute)",
+        ),
+    ] = False,
 ) -> None:
     if calibration is not None and not calibration.exists():  # (a documented example's need not)
         raise ConfigError(f"--calibration {calibration}: no such file or folder")
@@ -298,7 +320,7 @@ def vio_command(
         datasets, config, list(set_ or []), camera, start_s, duration_s, seed, seeds, rig, out,
         video=video, video_every=video_every, calibration=calibration, stereo=stereo, loop=loop,
         blackout=blackout, save_map=save_map, load_map=load_map, loop_set=loop_set,
-        rerun=rerun_request(rerun, rerun_connect, rerun_spawn),
+        rerun=rerun_request(rerun, rerun_connect, rerun_spawn), final_ba=final_ba,
     )  # fmt: skip
     if len(datasets) == 1 and seeds is None:
         with progress_bar("vio") as update:

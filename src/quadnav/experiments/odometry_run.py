@@ -749,11 +749,17 @@ def _blackout_json(
 
 
 def _final_metrics(
-    final: Trajectory | None, truth: Trajectory | None, opt: OdometryRunOptions
+    final: Trajectory | None,
+    truth: Trajectory | None,
+    opt: OdometryRunOptions,
+    vio: VisualOdometry | None = None,
 ) -> dict[str, object] | None:
-    """The final trajectory's APE after SE(3) and Sim(3) alignments (None: none, or no truth)."""
+    """The final trajectory's APE after SE(3) and Sim(3) alignments (None: none, or no truth),
+    with what the odometry's final smoothing did where it has one."""
     if final is None or truth is None or len(final) < 3:
         return None
+    report = getattr(vio, "smoothing", None)
+    smoothing = {"smoothing": dataclasses.asdict(report)} if report is not None else {}
     try:
         ref_m, est_m = associate(truth, final, t_max_diff_s=opt.t_max_diff_s, interpolate=True)
     except EvalError:
@@ -762,6 +768,7 @@ def _final_metrics(
         "ape_se3": dataclasses.asdict(ape_summary(ref_m, est_m, "se3")),
         "ape_sim3": dataclasses.asdict(ape_summary(ref_m, est_m, "sim3")),
         "note": "every tracked frame through its reference keyframe's final pose (not causal)",
+        **smoothing,
     }
 
 
@@ -795,7 +802,7 @@ def _finish(
     run = OdometryRun(
         run_dir=run_dir, dataset=dataset.name, camera=opt.camera, metrics=metrics,
         timing=_timing(vio, rec, wall_s), events=vio.events, notes=tuple(notes),
-        input_counts=counts, final=_final_metrics(rec.final, scored.truth, opt),
+        input_counts=counts, final=_final_metrics(rec.final, scored.truth, opt, vio),
     )  # fmt: skip
     write_json(run_dir / "timing.json", dataclasses.asdict(run.timing))
     from quadnav.experiments.odometry_report import (

@@ -292,6 +292,15 @@ class VioConfig(ConfigModel):
         le=20.0,
         description="a left-right match this far off its epipolar line is dropped",
     )
+    final_smoothing: bool = Field(
+        False,
+        description="keep the whole run's graph and, at the end, optimise all of it at once "
+        "(every keyframe's IMU, observations and calibration): the final trajectory "
+        "(estimate_final.tum), not causal; memory grows with the run (about 1 kB an observation)",
+    )
+    final_smoothing_iterations: int = Field(
+        30, ge=1, le=1000, description="Levenberg-Marquardt steps of the final smoothing"
+    )
     describe_keyframes: bool = Field(
         True, description="ORB descriptors at each keyframe's corners, for place recognition"
     )

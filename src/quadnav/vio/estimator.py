@@ -39,6 +39,7 @@ from scipy.spatial.transform import Rotation
 from quadnav.errors import SampleError, VioError, VisionError
 from quadnav.geometry.gtsam_bridge import pose3, to_pose
 from quadnav.geometry.multiview import essential_pose, parallax_rad
+from quadnav.geometry.trajectory import Trajectory
 from quadnav.messages import ImageFrame, ImuSample
 from quadnav.odometry import (
     CameraCalibration,
@@ -53,6 +54,7 @@ from quadnav.rig import Rig
 from quadnav.units import NS_PER_S, ns_to_s, s_to_ns
 from quadnav.vio.config import VioConfig
 from quadnav.vio.failure import InputLog, SolvedState, state_failure, tracking_failure
+from quadnav.vio.final import FrameTrail, SmoothingReport, smooth_segments
 from quadnav.vio.frontend import FeatureManager, Frontend, median_motion_px
 from quadnav.vio.imu_noise import ImuNoiseMonitor, MeasuredNoise
 from quadnav.vio.initialization import InitFailure, try_visual_inertial_init
@@ -185,6 +187,9 @@ class VioEstimator:
         self._right_px: NDArray[np.uint8] | None = None  # its stereo partner's pixels
         self.stereo = StereoFrontend(rig, camera, cfg) if cfg.stereo else None
         self.window = self._new_window()
+        self._trail = FrameTrail()  # what the final trajectory is made of
+        #: the final smoothing's outcome (None: not run)
+        self.smoothing: SmoothingReport | None = None
 
     # -- the protocol -----------------------------------------------------------------------
     @property
@@ -236,6 +241,25 @@ class VioEstimator:
             self._retire(everything=True)
         done, self._done = self._done, []
         return done
+
+    def final_trajectory(self) -> Trajectory:
+        """Every tracked frame through its reference keyframe's last pose: the window's when
+        it left, or (``final_smoothing``) a smoothing of the whole run's graph, done here once
+        (see :mod:`quadnav.vio.final`). Not causal."""
+        for kf in self.window.keyframes:
+            self._trail.keyframe(kf.index, kf.pose)
+        if not self.config.final_smoothing:
+            return self._trail.trajectory()
+        segments = list(self.window.segments)
+        if self.window.graph is not None:
+            hist = self.window.graph.history()
+            if hist.factors.size():
+                segments.append(hist)
+        with self._stage("final_smoothing"):
+            poses, self.smoothing = smooth_segments(
+                segments, self.config.final_smoothing_iterations
+            )
+        return self._trail.trajectory(poses)
 
     def calibration(self) -> tuple[CameraCalibration, ...]:
         """Each camera used as the window has it now: the extrinsic and intrinsics refined
@@ -682,6 +706,8 @@ class VioEstimator:
         preintegration's (rotation, position; velocity in the world)."""
         kf = self.window.newest
         pr = ImuPropagator.predict(kf.pose, kf.velocity, kf.bias, pim, self._cov_pose, self._cov_v)
+        if status == "tracking":
+            self._trail.frame(t_ns, kf.index, kf.pose, pr.pose)
         return self._state(
             t_ns, pr.pose, pr.velocity, kf.bias, pr.cov_pose, pr.cov_v, status, False, tracked
         )
@@ -729,6 +755,7 @@ class VioEstimator:
             info.cov_pose = np.array(self._cov_pose)
             info.step, self._step = self._step, None
         self._last_p = np.asarray(kf.pose.translation(), np.float64)
+        self._trail.frame(kf.t_ns, kf.index, kf.pose, kf.pose)
         return self._state(
             kf.t_ns, kf.pose, kf.velocity, kf.bias, self._cov_pose, self._cov_v,
             "tracking", True, len(frame.ids),
@@ -994,6 +1021,7 @@ class VioEstimator:
         for k in sorted(set(self._kf_info) - inside):
             info = self._kf_info.pop(k)
             if info.keyframe is not None:
+                self._trail.keyframe(k, info.keyframe.pose)
                 self._done.append(self._record(k, info))
         excess = len(self._done) - self.config.max_unread_keyframes
         if excess > 0:  # nobody reads them: the oldest go (memory stays bounded), counted
@@ -1065,7 +1093,10 @@ class VioEstimator:
             self._last_p = np.asarray(self.window.keyframes[-1].pose.translation(), np.float64)
         self._retire(everything=True)
         self._candidates.clear()
+        old = self.window
+        old.close_segment()
         self.window = self._new_window()
+        self.window.segments = old.segments
         self.features.clear()
         self.frontend.reset()
         self._recent.clear()

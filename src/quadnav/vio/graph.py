@@ -25,6 +25,11 @@ on.
 Other parts of the system add factors through :meth:`WindowGraph.add` (one-off) or through a
 hook the window calls for each new keyframe (GPS, loop-closure priors: see
 :class:`~quadnav.vio.window.SlidingWindow`).
+
+With ``history`` the graph also keeps every factor it was given (less those removed) and each
+variable's last estimate, marginalised or not: :meth:`WindowGraph.history` is the whole run's
+graph again, for a smoothing over all of it at the end (``VioConfig.final_smoothing``). It
+grows with the run (about 1 kB per observation).
 """
 
 from __future__ import annotations
@@ -40,7 +45,7 @@ from numpy.typing import NDArray
 
 from quadnav.vio.config import VioConfig
 
-__all__ = ["GTSAM_ERRORS", "GraphSolution", "WindowGraph"]
+__all__ = ["GTSAM_ERRORS", "GraphHistory", "GraphSolution", "WindowGraph"]
 
 FloatArray = NDArray[np.float64]
 
@@ -62,11 +67,20 @@ class GraphSolution:
     cross: dict[tuple[int, int], FloatArray] = dataclasses.field(default_factory=dict)
 
 
+@dataclass(frozen=True, slots=True)
+class GraphHistory:
+    """Every factor a window was given and not removed, and each variable's last estimate
+    (its starting value if no solve has seen it): the whole segment's graph again."""
+
+    factors: gtsam.NonlinearFactorGraph
+    values: gtsam.Values
+
+
 class WindowGraph:
     """A fixed-lag smoother over keys stamped with a time (the keyframe number); see the
-    module."""
+    module. ``history``: keep the whole graph too (:meth:`history`)."""
 
-    def __init__(self, config: VioConfig, lag: float) -> None:
+    def __init__(self, config: VioConfig, lag: float, *, history: bool = False) -> None:
         self.config = config
         self.lag = float(lag)
         self._smoother: gtsam.BatchFixedLagSmoother | gtsam.IncrementalFixedLagSmoother
@@ -82,6 +96,10 @@ class WindowGraph:
         self._qr_hold = config.qr_fallback_solves  # QR solves after the next fallback
         #: solves that Cholesky failed and QR redid
         self.fallbacks = 0
+        self._history = history
+        self._hist: list[gtsam.NonlinearFactor | None] = []
+        self._hist_of: dict[int, list[int]] = {}  # key -> its factors' places in _hist
+        self._hist_values = gtsam.Values()
 
     def _new_smoother(
         self, *, qr: bool = False
@@ -123,6 +141,10 @@ class WindowGraph:
         """A new variable with its starting value, stamped (it leaves the lag with it)."""
         self._values.insert(key, value)
         self._stamps[key] = float(stamp)
+        if self._history and not self._hist_values.exists(key):
+            one = gtsam.Values()
+            one.insert(key, value)
+            self._hist_values.insert(one)
 
     def restamp(self, key: int, stamp: float) -> None:
         """A variable already in the graph made as new as ``stamp`` (one that must never leave
@@ -132,20 +154,36 @@ class WindowGraph:
     def add(self, factor: gtsam.NonlinearFactor) -> None:
         """A factor for the next solve; its keys must be in the graph by then."""
         self._graph.add(factor)
+        if self._history:
+            at = len(self._hist)
+            self._hist.append(factor)
+            for key in factor.keys():  # noqa: SIM118 (a GTSAM factor)
+                self._hist_of.setdefault(int(key), []).append(at)
 
     def add_all(self, factors: Sequence[gtsam.NonlinearFactor]) -> None:
         for f in factors:
-            self._graph.add(f)
+            self.add(f)
+
+    def history(self) -> GraphHistory:
+        """The whole graph so far (see the module; empty without ``history``)."""
+        graph = gtsam.NonlinearFactorGraph()
+        for f in self._hist:
+            if f is not None:
+                graph.add(f)
+        return GraphHistory(graph, gtsam.Values(self._hist_values))
 
     def remove_where(
         self,
         keep: Callable[[gtsam.NonlinearFactor], bool],
         touching: Collection[int] | None = None,
+        *,
+        forget: bool = True,
     ) -> int:
         """Drop, at the next solve, the smoother's factors for which ``keep`` is False; how
         many. ``touching``: only factors on one of these keys are looked at (``keep`` must keep
         every other): GTSAM's variable index finds them, instead of a look at every factor
-        (0.1 ms for a window's 1,500 slots, against 2 ms)."""
+        (0.1 ms for a window's 1,500 slots, against 2 ms). ``forget`` False: the history keeps
+        them (dropped from the window for its cost, not because they are wrong)."""
         fs = self._smoother.getFactors()
         if touching is None:
             candidates: Iterable[int] = range(fs.size())
@@ -161,7 +199,24 @@ class WindowGraph:
             if f is not None and not keep(f):
                 slots.append(i)
         self._remove.extend(slots)
+        if self._history and forget:
+            self._forget(keep, touching)
         return len(slots)
+
+    def _forget(
+        self, keep: Callable[[gtsam.NonlinearFactor], bool], touching: Collection[int] | None
+    ) -> None:
+        """The history's factors ``keep`` refuses dropped too (those marginalised already
+        included: a landmark found bad leaves the whole run's graph)."""
+        places = (
+            range(len(self._hist))
+            if touching is None
+            else sorted({i for key in touching for i in self._hist_of.get(int(key), ())})
+        )
+        for i in places:
+            f = self._hist[i]
+            if f is not None and not keep(f):
+                self._hist[i] = None
 
     @property
     def factor_slots(self) -> int:
@@ -215,6 +270,8 @@ class WindowGraph:
             self._qr_hold = min(2 * self._qr_hold, 64 * base) if back_to_cholesky else base
             self._qr_left = self._qr_hold + 1
         self._smoother = sm
+        if self._history:
+            self._hist_values.insert_or_assign(sol.estimate)
         # copies (the smoother returns its own graph and values, which change in place); the
         # linearisation point, not the estimate: the marginal factors iSAM2 keeps are linear
         # in the step from it (rebuilt at the estimate, a window's error triples)

@@ -44,7 +44,7 @@ from quadnav.geometry.rotations import skew
 from quadnav.odometry import KeyframeStep
 from quadnav.vio.config import VioConfig
 from quadnav.vio.frontend import FeatureManager, normalised
-from quadnav.vio.graph import GTSAM_ERRORS, GraphSolution, WindowGraph
+from quadnav.vio.graph import GTSAM_ERRORS, GraphHistory, GraphSolution, WindowGraph
 from quadnav.vio.landmarks import Admission, LandmarkBook
 
 __all__ = [
@@ -253,6 +253,8 @@ class SlidingWindow:
         self.book = LandmarkBook(config, focal_px, baseline)
         self._hooks: list[FactorHook] = []
         self.graph: WindowGraph | None = None
+        #: the run's finished segments' graphs (``final_smoothing``): see :meth:`close_segment`
+        self.segments: list[GraphHistory] = []
         self._clock = 0.0
         self._stamp_of: dict[int, float] = {}
         self._anchored: dict[int, list[int]] = {}  # keyframe -> its landmarks' key numbers
@@ -342,6 +344,15 @@ class SlidingWindow:
         fy, py = np.polyfit(true[:, 1], stated[:, 1], 1)
         return gtsam.Cal3_S2(float(fx), float(fy), 0.0, float(px_), float(py))
 
+    def close_segment(self) -> None:
+        """The graph so far kept as a finished segment of the run's history (with
+        ``final_smoothing``; a restart or a reset begins the next)."""
+        if self.graph is not None and self.config.final_smoothing:
+            hist = self.graph.history()
+            if hist.factors.size():
+                self.segments.append(hist)
+        self.graph = None
+
     def add_hook(self, hook: FactorHook) -> None:
         """Call ``hook`` for each keyframe entering the window (the first included) and add
         the factors it returns (a GPS fix, a loop-closure prior)."""
@@ -350,7 +361,10 @@ class SlidingWindow:
     # -- building ---------------------------------------------------------------------------
     def start(self, kf: Keyframe, prior: StatePrior) -> None:
         """A new window from ``kf`` with a Gaussian ``prior`` on its state."""
-        self.graph = WindowGraph(self.config, self.config.window_keyframes - 0.5)
+        self.close_segment()
+        self.graph = WindowGraph(
+            self.config, self.config.window_keyframes - 0.5, history=self.config.final_smoothing
+        )
         self.keyframes = [kf]
         self.book.clear()
         #: the smoother's clock: one tick per keyframe kept (a keyframe that replaces the
@@ -456,6 +470,7 @@ class SlidingWindow:
             self.graph.remove_where(
                 lambda f: not (isinstance(f, PROJECTIONS) and not {xj}.isdisjoint(f.keys())),
                 touching=(xj,),
+                forget=False,  # (a smoothing of the whole run can afford them)
             )
             # and the landmarks anchored in it leave with it (the clock stands still: they
             # would stay for as long as the vehicle hovers)
