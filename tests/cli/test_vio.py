@@ -142,6 +142,7 @@ def test_a_blackout_withholds_the_images_and_starts_a_segment(
         (["room_easy", "--blackout", "20"], "--blackout '20': give START:SECONDS"),
         (["room_easy", "--blackout", "20:-3"], "--blackout's length"),
         (["room_easy", "--loop-set", "nope=1"], "--loop-set nope: unknown key"),
+        (["room_easy", "--loop", "--final-ba"], "--final-ba: not with loop closure"),
     ],
 )
 def test_bad_input_is_one_line_naming_the_option(

@@ -136,6 +136,12 @@ def resolve_request(
         camera=camera, start_s=start_s, duration_s=duration_s, video=video,
         video_every=video_every, blackout_s=parse_blackout(blackout), save_map=save_map,
     )  # fmt: skip
+    looping = loop or save_map is not None or load_map is not None or bool(loop_set)
+    if final_ba and looping:
+        raise ConfigError(
+            "--final-ba: not with loop closure (--loop, --save-map, --load-map); its pose "
+            "graph's keyframes are the run's keyframes_loop.tum"
+        )
     rig_name = rig or ("euroc" if stereo else "euroc_mono")
     overrides = (
         *set_,
@@ -146,7 +152,7 @@ def resolve_request(
         sources=tuple(datasets), config=config, overrides=overrides, options=options,
         seed=seed, seeds=parse_seeds(seeds) if seeds is not None else None, rig=rig_name,
         out=out, calibration=calibration,
-        loop=loop or save_map is not None or load_map is not None or bool(loop_set),
+        loop=looping,
         load_map=load_map, loop_overrides=tuple(loop_set or ()), rerun=rerun,
     )  # fmt: skip
     check_request(request)

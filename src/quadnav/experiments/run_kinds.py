@@ -221,6 +221,12 @@ _VIO = RunFolderKind(
         *_COMMON,
         RunFile("estimate.tum", "the VIO's estimate of the rig's body (TUM)"),
         RunFile("keyframes.tum", "the keyframes the VIO published, at their final estimates (TUM)"),
+        RunFile(
+            "estimate_final.tum",
+            "each tracked frame through its keyframe's pose at the end, the whole run smoothed "
+            "with --final-ba (not causal; TUM; not with --loop: see keyframes_loop.tum)",
+            False,
+        ),
         RunFile("groundtruth.tum", "the dataset's ground truth (TUM)", False),
         RunFile("events.jsonl", "initialisation, failures, resets, time offset, one a line"),
         RunFile("timing.json", "time per stage"),

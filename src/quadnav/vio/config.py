@@ -233,6 +233,13 @@ class VioConfig(ConfigModel):
     imu_noise_window_s: float = Field(
         2.0, ge=0.2, le=60.0, description="the readings the in-flight noise is measured over (s)"
     )
+    accel_noise_inflation: float = Field(
+        1.0,
+        ge=0.1,
+        le=100.0,
+        description="multiplies the accelerometer's white-noise density the preintegration "
+        "uses (after the in-flight measurement)",
+    )
     imu_walk_scale: float = Field(
         1.0, ge=0.01, le=100.0, description="multiplies the rig's stated IMU bias random walks"
     )
@@ -297,6 +304,14 @@ class VioConfig(ConfigModel):
         description="keep the whole run's graph and, at the end, optimise all of it at once "
         "(every keyframe's IMU, observations and calibration): the final trajectory "
         "(estimate_final.tum), not causal; memory grows with the run (about 1 kB an observation)",
+    )
+    final_smoothing_accel_inflation: float = Field(
+        2.0,
+        ge=1.0,
+        le=100.0,
+        description="the final smoothing preintegrates the IMU again with the accelerometer's "
+        "noise density times this (1: as the window had it): weighed at its true in-flight "
+        "level, the smoothing's scale came out about 1 % large",
     )
     final_smoothing_iterations: int = Field(
         30, ge=1, le=1000, description="Levenberg-Marquardt steps of the final smoothing"

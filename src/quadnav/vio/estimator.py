@@ -54,7 +54,7 @@ from quadnav.rig import Rig
 from quadnav.units import NS_PER_S, ns_to_s, s_to_ns
 from quadnav.vio.config import VioConfig
 from quadnav.vio.failure import InputLog, SolvedState, state_failure, tracking_failure
-from quadnav.vio.final import FrameTrail, SmoothingReport, smooth_segments
+from quadnav.vio.final import FrameTrail, ImuLog, SmoothingReport, reweighed, smooth_segments
 from quadnav.vio.frontend import FeatureManager, Frontend, median_motion_px
 from quadnav.vio.imu_noise import ImuNoiseMonitor, MeasuredNoise
 from quadnav.vio.initialization import InitFailure, try_visual_inertial_init
@@ -133,7 +133,9 @@ class VioEstimator:
             gyro_random_walk=w * n.gyro_random_walk, accel_random_walk=w * n.accel_random_walk,
         )  # fmt: skip
         self._noise = noise  # stated, times the user's scales
-        self._params = imu_params(noise, g_norm=cfg.g_norm)
+        self._params = imu_params(
+            noise, g_norm=cfg.g_norm, accel_inflation=cfg.accel_noise_inflation
+        )
         self.noise_monitor = (
             ImuNoiseMonitor(cfg.imu_noise_window_s, rig.imu.rate_hz)
             if cfg.imu_noise_online
@@ -188,6 +190,7 @@ class VioEstimator:
         self.stereo = StereoFrontend(rig, camera, cfg) if cfg.stereo else None
         self.window = self._new_window()
         self._trail = FrameTrail()  # what the final trajectory is made of
+        self._imu_log = ImuLog() if cfg.final_smoothing else None  # and its IMU
         #: the final smoothing's outcome (None: not run)
         self.smoothing: SmoothingReport | None = None
 
@@ -255,10 +258,16 @@ class VioEstimator:
             hist = self.window.graph.history()
             if hist.factors.size():
                 segments.append(hist)
+        cfg = self.config
         with self._stage("final_smoothing"):
-            poses, self.smoothing = smooth_segments(
-                segments, self.config.final_smoothing_iterations
-            )
+            if cfg.final_smoothing_accel_inflation != 1.0 and self._imu_log is not None:
+                params = imu_params(
+                    self._noise, g_norm=cfg.g_norm, measured=self.imu_noise,
+                    accel_inflation=cfg.accel_noise_inflation * cfg.final_smoothing_accel_inflation,
+                )  # fmt: skip
+                times, log, hold = self.window.kf_times, self._imu_log, self._hold_ns()
+                segments = [reweighed(g, times, log, params, hold_ns=hold)[0] for g in segments]
+            poses, self.smoothing = smooth_segments(segments, cfg.final_smoothing_iterations)
         return self._trail.trajectory(poses)
 
     def calibration(self) -> tuple[CameraCalibration, ...]:
@@ -298,6 +307,8 @@ class VioEstimator:
         if not self.input.imu_ok(sample):
             return None
         self.imu.push(sample)  # (the running propagation carried to it)
+        if self._imu_log is not None:
+            self._imu_log.push(sample)
         if self.noise_monitor is not None:
             self.noise_monitor.push(sample.t_ns, sample.gyro_rad_s, sample.accel_m_s2)
         if self.stereo is not None and self.stereo.overdue(sample.t_ns):
@@ -659,7 +670,10 @@ class VioEstimator:
             if np.all(np.abs(rel - 1.0) < 0.1):
                 return
         self.imu_noise = measured
-        self._params = imu_params(self._noise, g_norm=self.config.g_norm, measured=measured)
+        self._params = imu_params(
+            self._noise, g_norm=self.config.g_norm, measured=measured,
+            accel_inflation=self.config.accel_noise_inflation,
+        )  # fmt: skip
         self.imu.params = self._params
         self._report_imu_noise(t_ns, measured)
 
@@ -1096,7 +1110,7 @@ class VioEstimator:
         old = self.window
         old.close_segment()
         self.window = self._new_window()
-        self.window.segments = old.segments
+        self.window.segments, self.window.kf_times = old.segments, old.kf_times
         self.features.clear()
         self.frontend.reset()
         self._recent.clear()

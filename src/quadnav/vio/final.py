@@ -11,10 +11,18 @@ estimates. A restart in place begins from keyframes the segment before also has:
 segment is moved rigidly onto the earlier one's smoothed pose of the first keyframe they
 share, so the trajectory does not jump there. A segment whose smoothing fails keeps its
 window's poses, and is counted.
+
+The IMU factors are preintegrated again there from the run's readings (:class:`ImuLog`) with
+the accelerometer's noise density times ``final_smoothing_accel_inflation``: on realistic
+sensors (an accelerometer at EuRoC's in-flight 0.062 m/s^2/sqrt(Hz)) a smoothing that weighs it
+at its true level comes out about 1 % too large in scale on V1_02's motion (at the level on the
+ground, 0.014, it does not; nor with the accelerometer weighed less): measured on the
+2026-12-05 (session 29) results page.
 """
 
 from __future__ import annotations
 
+import bisect
 from dataclasses import dataclass, field
 
 import gtsam
@@ -22,10 +30,13 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
+from quadnav.errors import VioError
 from quadnav.geometry.trajectory import Trajectory
+from quadnav.messages import ImuSample
 from quadnav.vio.graph import GTSAM_ERRORS, GraphHistory
+from quadnav.vio.preintegration import preintegrate
 
-__all__ = ["FrameTrail", "SmoothingReport", "smooth_segments"]
+__all__ = ["FrameTrail", "ImuLog", "SmoothingReport", "reweighed", "smooth_segments"]
 
 FloatArray = NDArray[np.float64]
 
@@ -95,6 +106,63 @@ def _keyframe_poses(values: gtsam.Values) -> dict[int, gtsam.Pose3]:
         if s.chr() == x:
             out[int(s.index())] = values.atPose3(key)
     return out
+
+
+@dataclass(slots=True)
+class ImuLog:
+    """Every IMU reading the odometry accepted, in time order (about 150 bytes each: 30
+    minutes at 200 Hz hold 54 MB), for the final smoothing's preintegration."""
+
+    _t: list[int] = field(default_factory=list)
+    _samples: list[ImuSample] = field(default_factory=list)
+
+    def push(self, sample: ImuSample) -> None:
+        if self._t and sample.t_ns <= self._t[-1]:
+            return
+        self._t.append(int(sample.t_ns))
+        self._samples.append(sample)
+
+    def covering(self, t0_ns: int, t1_ns: int) -> list[ImuSample]:
+        """The readings a span from ``t0_ns`` to ``t1_ns`` integrates (the one at or before
+        ``t0_ns`` first, the first after ``t1_ns`` last)."""
+        i = max(bisect.bisect_right(self._t, t0_ns) - 1, 0)
+        j = bisect.bisect_left(self._t, t1_ns, lo=i)
+        return self._samples[i : j + 1]
+
+
+def reweighed(
+    seg: GraphHistory,
+    times: dict[int, int],
+    log: ImuLog,
+    params: gtsam.PreintegrationCombinedParams,
+    *,
+    hold_ns: int = 0,
+) -> tuple[GraphHistory, int]:
+    """``seg`` with each IMU factor between keyframes whose times ``times`` has (keyframe
+    number -> ns) preintegrated again from ``log`` with ``params``, at the factor's own bias;
+    how many. A factor the log does not cover is kept as it was."""
+    x = ord("x")
+    out = gtsam.NonlinearFactorGraph()
+    done = 0
+    for i in range(seg.factors.size()):
+        f = seg.factors.at(i)
+        if isinstance(f, gtsam.CombinedImuFactor):
+            keys = list(f.keys())
+            a, b = gtsam.Symbol(keys[0]), gtsam.Symbol(keys[2])
+            t0, t1 = times.get(int(a.index())), times.get(int(b.index()))
+            if a.chr() == x and b.chr() == x and t0 is not None and t1 is not None:
+                bias = f.preintegratedMeasurements().biasHat()
+                try:
+                    pim = preintegrate(params, log.covering(t0, t1), t0, t1, bias, hold_ns=hold_ns)
+                except VioError:
+                    pim = None
+                if pim is not None:
+                    f = gtsam.CombinedImuFactor(
+                        keys[0], keys[1], keys[2], keys[3], keys[4], keys[5], pim
+                    )
+                    done += 1
+        out.add(f)
+    return GraphHistory(out, seg.values), done
 
 
 @dataclass(slots=True)

@@ -41,6 +41,7 @@ def imu_params(
     g_norm: float = GRAVITY_M_S2,
     integration_sigma: float = 1e-4,
     measured: MeasuredNoise | None = None,
+    accel_inflation: float = 1.0,
 ) -> gtsam.PreintegrationCombinedParams:
     """GTSAM's combined-IMU parameters from the densities (their squares are the continuous-
     time covariances GTSAM wants), gravity ``g_norm`` along -z. With ``measured`` (the noise
@@ -53,6 +54,7 @@ def imu_params(
     accel = np.full(3, max(noise.accel_noise_density, _MIN_NOISE))
     if measured is not None:
         gyro, accel = np.maximum(gyro, measured.gyro), np.maximum(accel, measured.accel)
+    accel = accel * float(accel_inflation)
     p.setGyroscopeCovariance(np.diag(gyro**2))
     p.setAccelerometerCovariance(np.diag(accel**2))
     p.setBiasOmegaCovariance(I3 * max(noise.gyro_random_walk, _MIN_WALK) ** 2)

@@ -255,6 +255,8 @@ class SlidingWindow:
         self.graph: WindowGraph | None = None
         #: the run's finished segments' graphs (``final_smoothing``): see :meth:`close_segment`
         self.segments: list[GraphHistory] = []
+        #: each keyframe's time (ns, the IMU's clock) by its number (``final_smoothing``)
+        self.kf_times: dict[int, int] = {}
         self._clock = 0.0
         self._stamp_of: dict[int, float] = {}
         self._anchored: dict[int, list[int]] = {}  # keyframe -> its landmarks' key numbers
@@ -433,6 +435,8 @@ class SlidingWindow:
         assert self.graph is not None
         x, v, b = state_keys(kf.index)
         self._stamp_of[kf.index] = self._clock
+        if self.config.final_smoothing:
+            self.kf_times[kf.index] = int(kf.t_ns)
         for key, value in ((x, kf.pose), (v, kf.velocity), (b, kf.bias)):
             self.graph.insert(key, value, self._clock)
         if self._online:  # never marginalised: always as new as the newest
