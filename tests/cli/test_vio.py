@@ -57,6 +57,29 @@ def test_the_sequence_is_made_once(first_run: tuple[Path, Path]) -> None:
     assert not (Path(result.stdout.strip().splitlines()[-1]) / "tracks.mp4").exists()
 
 
+def test_final_ba_writes_the_smoothed_trajectory_into_the_metrics_and_the_report(
+    first_run: tuple[Path, Path],
+) -> None:
+    """``--final-ba`` on the same 4 s: ``metrics.json``'s ``final`` has the smoothing's report
+    (one segment, none failed, the graph's error lowered), the final APE is printed and in
+    the report; without it (the first run) the final trajectory is the window's, unsmoothed."""
+    out, plain = first_run
+    result = runner.invoke(app, ["vio", "room_easy", "--duration", "4", "--no-video",
+                                 "--final-ba", "--out", str(out)])  # fmt: skip
+    assert result.exit_code == 0, result.output
+    assert "final trajectory (--final-ba, not causal): APE after SE(3)" in result.stdout
+    run_dir = Path(result.stdout.strip().splitlines()[-1])
+    final = json.loads((run_dir / "metrics.json").read_text())["final"]
+    said = f"APE after SE(3) {final['ape_se3']['rmse_m']:.4f} m"
+    assert said in result.stdout  # the number printed is the one scored
+    sm = final["smoothing"]
+    assert sm["segments"] == 1 and sm["failed"] == 0 and sm["error_after"] < sm["error_before"]
+    assert final["ape_se3"]["rmse_m"] < 0.05
+    assert "final trajectory (not causal): APE SE(3)" in (run_dir / "report.html").read_text()
+    plain_final = json.loads((plain / "metrics.json").read_text())["final"]
+    assert "smoothing" not in plain_final and plain_final["ape_se3"]["rmse_m"] < 0.05
+
+
 def test_loop_closure_without_a_revisit_leaves_the_estimate_and_reports(
     first_run: tuple[Path, Path],
 ) -> None:
@@ -220,7 +243,8 @@ def test_a_run_at_rest_gives_no_drift_in_percent_and_no_unused_cameras_notes(
     assert not any("missing images" in n or "cam1" in n for n in notes), notes
     (row,) = [ln for ln in result.stdout.splitlines() if ln.startswith("│")]
     cells = [c.strip() for c in row.strip("│").split("│")]
-    assert cells[2:4] == ["n/a", "n/a"]  # drift final and RPE (%), after ATE and final error
+    # drift final and RPE (%), after ATE, the final trajectory's APE and the final error
+    assert cells[3:5] == ["n/a", "n/a"]
 
 
 def test_an_out_that_is_a_file_is_named(tmp_path: Path) -> None:

@@ -352,6 +352,9 @@ def test_study_over_seeds_and_folders(made: Path, tmp_path: Path) -> None:
     assert seq.ate_mean_m == pytest.approx(np.mean(ates[:3]))
     assert seq.ate_median_m == pytest.approx(np.median(ates[:3]))
     assert study.groups[1].runs == 1
+    # the double gives no final trajectory: its column says why, the group's mean too
+    assert all(str(r.final_ape_se3_m).startswith("n/a") for r in study.rows)
+    assert str(seq.final_ape_se3_mean_m).startswith("n/a")
     d = study.run_dir
     assert read_run_status(d) == "complete"
     assert all(r.run_dir.parent == d / "runs" for r in runs)
