@@ -52,6 +52,7 @@ def test_the_history_keeps_what_the_lag_marginalised_and_forgets_what_was_remove
             g.insert(X(k), _truth(k).compose(off), float(k))
             g.add(gtsam.BetweenFactorPose3(X(k - 1), X(k), STEP, _noise(1e-2)))
             g.solve()
+            g.commit()
     hist = graph.history()
     assert hist.factors.size() == 8  # the prior and seven steps, though the lag holds 3
     for k in range(8):  # each at its last estimate: the solved chain, not the start
@@ -61,6 +62,27 @@ def test_the_history_keeps_what_the_lag_marginalised_and_forgets_what_was_remove
     assert graph.history().factors.size() == 8
     graph.remove_where(lambda f: X(7) not in list(f.keys()), touching=(X(7),))
     assert graph.history().factors.size() == 7
+
+
+def test_a_refused_solve_leaves_the_history_as_it_was_committed() -> None:
+    """Two poses committed; a third added and solved, then refused (rolled back): its factor
+    and variable leave the history, and the values stay those of the committed solve."""
+    graph = WindowGraph(VioConfig(), lag=10.0, history=True)
+    graph.insert(X(0), gtsam.Pose3(), 0.0)
+    graph.add(gtsam.PriorFactorPose3(X(0), gtsam.Pose3(), _noise(1e-3)))
+    graph.insert(X(1), _truth(1).compose(gtsam.Pose3(gtsam.Rot3(), np.ones(3))), 1.0)
+    graph.add(gtsam.BetweenFactorPose3(X(0), X(1), STEP, _noise(1e-2)))
+    graph.solve()
+    graph.commit()
+    bad = gtsam.Pose3(gtsam.Rot3(), np.array([50.0, 0.0, 0.0]))
+    graph.insert(X(2), bad, 2.0)
+    graph.add(gtsam.BetweenFactorPose3(X(1), X(2), bad, _noise(1e-6)))
+    graph.add(gtsam.PriorFactorPose3(X(1), bad, _noise(1e-6)))  # pulls X(1) away
+    graph.solve()
+    graph.rollback()
+    hist = graph.history()
+    assert hist.factors.size() == 2 and not hist.values.exists(X(2))
+    assert hist.values.atPose3(X(1)).equals(_truth(1), 1e-6)
 
 
 def _segment(first: int, last: int, at: gtsam.Pose3, *, landmark: bool = False) -> GraphHistory:
@@ -200,8 +222,8 @@ def test_the_final_smoothing_beats_the_causal_estimate_over_seeds(
 
 def test_the_imu_preintegrated_again_from_the_log_is_the_factor_it_replaces() -> None:
     """Readings of a turning, accelerating body at 200 Hz; a factor preintegrated from the
-    live spans, then again from the log (same parameters, same bias): the same error at any
-    values. With the accelerometer's noise doubled its error at values off the measurement
+    live spans, then again from the log (the parameters in use at the span's end, the
+    factor's bias): the same error at any values. With the accelerometer's noise doubled its error at values off the measurement
     is lower (the same residual, weighed less), and a factor the log does not cover is kept."""
     from gtsam.symbol_shorthand import B, V
 
@@ -223,6 +245,8 @@ def test_the_imu_preintegrated_again_from_the_log_is_the_factor_it_replaces() ->
         log.push(s)
     noise = ImuNoiseModel.euroc_adis16448_in_flight()
     params = imu_params(noise)
+    log.use_params(0, imu_params(ImuNoiseModel.euroc_adis16448()))  # replaced before 0.35 s
+    log.use_params(300_000_000, params)
     bias = gtsam.imuBias.ConstantBias(np.array([0.01, 0.0, -0.02]), np.array([0.001, 0.0, 0.0]))
     times = {0: 100_000_000, 1: 350_000_000, 2: 3_000_000_000}
     pim = preintegrate(params, samples, times[0], times[1], bias)
@@ -238,11 +262,10 @@ def test_the_imu_preintegrated_again_from_the_log_is_the_factor_it_replaces() ->
         v.insert(X(k), gtsam.Pose3(gtsam.Rot3.Yaw(0.1 * k), np.array([0.2 * k, 0.0, 0.0])))
         v.insert(V(k), np.array([0.5, 0.1 * k, 0.0]))
         v.insert(B(k), bias)
-    same, n = reweighed(GraphHistory(g, v), times, log, params)
+    same, n = reweighed(GraphHistory(g, v), times, log)
     assert n == 1  # the second span (to 3 s) is past the log's 2 s: kept as it was
     assert same.factors.at(0).error(v) == pytest.approx(f.error(v), rel=1e-9)
     assert same.factors.at(1) is not None
     assert same.factors.at(1).error(v) == pytest.approx(far.error(v), rel=1e-12)
-    loose = imu_params(noise, accel_inflation=2.0)
-    lighter, _ = reweighed(GraphHistory(g, v), times, log, loose)
+    lighter, _ = reweighed(GraphHistory(g, v), times, log, 2.0)
     assert 0.0 < lighter.factors.at(0).error(v) < 0.9 * f.error(v)

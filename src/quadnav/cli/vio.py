@@ -82,6 +82,17 @@ LoadMapOpt = Annotated[
         "reports in its frame (turns --loop on)",
     ),
 ]
+#: ``--final-ba`` of ``quadnav vio``.
+FinalBaOpt = Annotated[
+    bool,
+    typer.Option(
+        "--final-ba/--no-final-ba",
+        help="at the end, optimise the whole run's graph at once (every keyframe's IMU, "
+        "observations and the calibration): estimate_final.tum, not causal, as ORB-SLAM3 "
+        "saves its trajectory; the whole graph is kept in memory (stereo at 20 Hz: about "
+        "200 MB a minute)",
+    ),
+]
 #: ``--rerun`` of ``quadnav vio`` and ``quadnav slam``.
 OdometryRerunOpt = Annotated[
     bool,
@@ -216,7 +227,7 @@ def _print_run(run: OdometryRun) -> None:
     console.print(table)
     m = run.metrics
     final = (run.final or {}).get("ape_se3")
-    if isinstance(final, dict):
+    if isinstance(final, dict) and "smoothing" in (run.final or {}):
         console.print(
             f"final trajectory (--final-ba, not causal): APE after SE(3) {final['rmse_m']:.4f} m",
             highlight=False,
@@ -310,15 +321,7 @@ def vio_command(
     rerun: OdometryRerunOpt = False,
     rerun_connect: RerunConnectOpt = None,
     rerun_spawn: RerunSpawnOpt = False,
-    final_ba: Annotated[
-        bool,
-        typer.Option(
-            "--final-ba/--no-final-ba",
-            help="at the end, optimise the whole run's graph at once (every keyframe's IMU, "
-            "observations and the calibration): estimate_final.tum, not causal, as ORB-SLAM3 "
-            "saves its trajectory; the whole graph is kept in memory (stereo at 20 Hz: about 200 MB a minute)",
-        ),
-    ] = False,
+    final_ba: FinalBaOpt = False,
 ) -> None:
     if calibration is not None and not calibration.exists():  # (a documented example's need not)
         raise ConfigError(f"--calibration {calibration}: no such file or folder")

@@ -643,6 +643,7 @@ def run_odometry(
     rec = _Record(observer=observer)
     if observer is not None:
         observer.begin(rig, opt.camera, len(frames))
+    completed = False
     try:
         _loop(
             vio,
@@ -665,13 +666,14 @@ def run_odometry(
         rec.published(vio.keyframes(final=True))
         # (the last keyframes' loops and events come with them)
         _flush_events(vio, rec, run_dir / "events.jsonl", t0)
+        completed = True
     finally:
         if video is not None:
             video.close()
         est, cov = _estimate(rec.states)
         write_tum(run_dir / "estimate.tum", est)
         write_tum(run_dir / "keyframes.tum", rec.keyframes.trajectory())
-        if isinstance(vio, RefinedTrajectory):
+        if completed and isinstance(vio, RefinedTrajectory):  # (not on the way out of an error)
             rec.final = vio.final_trajectory()
             write_tum(run_dir / "estimate_final.tum", rec.final)
         _loop_outputs(vio, rec, run_dir, opt, t0)
@@ -756,14 +758,16 @@ def _final_metrics(
 ) -> dict[str, object] | None:
     """The final trajectory's APE after SE(3) and Sim(3) alignments (None: none, or no truth),
     with what the odometry's final smoothing did where it has one."""
-    if final is None or truth is None or len(final) < 3:
-        return None
     report = getattr(vio, "smoothing", None)
-    smoothing = {"smoothing": dataclasses.asdict(report)} if report is not None else {}
+    smoothing: dict[str, object] = (
+        {"smoothing": dataclasses.asdict(report)} if report is not None else {}
+    )
+    if final is None or truth is None or len(final) < 3:
+        return smoothing or None
     try:
         ref_m, est_m = associate(truth, final, t_max_diff_s=opt.t_max_diff_s, interpolate=True)
     except EvalError:
-        return None
+        return smoothing or None
     return {
         "ape_se3": dataclasses.asdict(ape_summary(ref_m, est_m, "se3")),
         "ape_sim3": dataclasses.asdict(ape_summary(ref_m, est_m, "sim3")),

@@ -175,6 +175,11 @@ def run_vio_source(
         VioConfig, request.config, request.overrides, dataset.rig, camera=opt.camera
     )
     check_vio_rig(rig, source)
+    if cfg.final_smoothing and request.loop:
+        raise ConfigError(
+            "final_smoothing: not with loop closure (--loop, --save-map, --load-map); its "
+            "pose graph's keyframes are the run's keyframes_loop.tum"
+        )
     text = f"# dataset: {dataset.root}\n# rig: {rig.name}\n{dump_config(cfg)}"
     name = Path(source).name if Path(source).exists() else f"{source}_s{seed}"
 

@@ -191,6 +191,9 @@ class VioEstimator:
         self.window = self._new_window()
         self._trail = FrameTrail()  # what the final trajectory is made of
         self._imu_log = ImuLog() if cfg.final_smoothing else None  # and its IMU
+        if self._imu_log is not None:
+            self._imu_log.use_params(0, self._params)
+        self._final: tuple[int, Trajectory] | None = None  # the last smoothing's, by frames
         #: the final smoothing's outcome (None: not run)
         self.smoothing: SmoothingReport | None = None
 
@@ -245,14 +248,21 @@ class VioEstimator:
         done, self._done = self._done, []
         return done
 
+    def _commit(self) -> None:
+        """A solve accepted: the run's history takes it, and the final trajectory the window's
+        keyframes where it put them (a refused solve's poses never reach either)."""
+        self.window.commit()
+        for kf in self.window.keyframes:
+            self._trail.keyframe(kf.index, kf.pose)
+
     def final_trajectory(self) -> Trajectory:
         """Every tracked frame through its reference keyframe's last pose: the window's when
         it left, or (``final_smoothing``) a smoothing of the whole run's graph, done here once
         (see :mod:`quadnav.vio.final`). Not causal."""
-        for kf in self.window.keyframes:
-            self._trail.keyframe(kf.index, kf.pose)
         if not self.config.final_smoothing:
             return self._trail.trajectory()
+        if self._final is not None and self._final[0] == len(self._trail):
+            return self._final[1]  # (nothing new since: the smoothing is not redone)
         segments = list(self.window.segments)
         if self.window.graph is not None:
             hist = self.window.graph.history()
@@ -260,15 +270,14 @@ class VioEstimator:
                 segments.append(hist)
         cfg = self.config
         with self._stage("final_smoothing"):
-            if cfg.final_smoothing_accel_inflation != 1.0 and self._imu_log is not None:
-                params = imu_params(
-                    self._noise, g_norm=cfg.g_norm, measured=self.imu_noise,
-                    accel_inflation=cfg.accel_noise_inflation * cfg.final_smoothing_accel_inflation,
-                )  # fmt: skip
+            a = cfg.final_smoothing_accel_inflation
+            if a != 1.0 and self._imu_log is not None:
                 times, log, hold = self.window.kf_times, self._imu_log, self._hold_ns()
-                segments = [reweighed(g, times, log, params, hold_ns=hold)[0] for g in segments]
+                segments = [reweighed(g, times, log, a, hold_ns=hold)[0] for g in segments]
             poses, self.smoothing = smooth_segments(segments, cfg.final_smoothing_iterations)
-        return self._trail.trajectory(poses)
+        final = self._trail.trajectory(poses)
+        self._final = (len(self._trail), final)
+        return final
 
     def calibration(self) -> tuple[CameraCalibration, ...]:
         """Each camera used as the window has it now: the extrinsic and intrinsics refined
@@ -495,6 +504,7 @@ class VioEstimator:
         self._cov_pose = self._first_pose_cov(start.R_W_B.as_matrix(), GAUGE_POSITION_SIGMA_M, tilt)
         self._cov_v, self._cov_bias = prior.cov_v, prior.cov_bias
         self._add_features(kf, frame)
+        self._commit()
         self._begin(frame, "static")
         return self._keyframe_state(frame)
 
@@ -644,6 +654,7 @@ class VioEstimator:
         res = self.window.solve(self.features)
         if res.ok:
             self._cov_pose, self._cov_v, self._cov_bias = res.cov_pose, res.cov_v, res.cov_bias
+        self._commit()
         self._retire()
         self._begin(frames[-1], "visual" if self.stereo is None else "visual, stereo")
         return self._keyframe_state(frames[-1])
@@ -675,6 +686,8 @@ class VioEstimator:
             accel_inflation=self.config.accel_noise_inflation,
         )  # fmt: skip
         self.imu.params = self._params
+        if self._imu_log is not None:
+            self._imu_log.use_params(t_ns, self._params)
         self._report_imu_noise(t_ns, measured)
 
     def _report_imu_noise(self, t_ns: int, measured: MeasuredNoise) -> None:
@@ -876,6 +889,7 @@ class VioEstimator:
             return self._fail(frame.t_ns, reason)
         self._cov_pose, self._cov_v, self._cov_bias = res.cov_pose, res.cov_v, res.cov_bias
         self._step = res.step
+        self._commit()
         self._retire()
         self._run_from(new)
         self._feed_time_offset(prev, new)
@@ -898,6 +912,7 @@ class VioEstimator:
         if last is not None and kf.index - last < cfg.window_keyframes:
             return SolveResult(ok=False, reason=f"{reason} (again within a window of a restart)")
         window = self.window
+        window.rollback()  # the failed keyframe's factors leave the run's history
         points = {j: p for j in window.landmarks if (p := window.landmark_position(j)) is not None}
         a = cfg.restart_inflation
         prior = StatePrior(
@@ -941,7 +956,10 @@ class VioEstimator:
         for k1 in kfs[1:]:
             window.push(k1)
         with self._stage("optimize"):
-            return window.solve(features)
+            res = window.solve(features)
+        if not res.ok:
+            window.discard()  # not a segment of the run's history
+        return res
 
     def _feed_time_offset(self, a: Keyframe, b: Keyframe) -> None:
         """The rotation of consecutive optimised camera poses, at the images' own stamps (the
@@ -1035,7 +1053,6 @@ class VioEstimator:
         for k in sorted(set(self._kf_info) - inside):
             info = self._kf_info.pop(k)
             if info.keyframe is not None:
-                self._trail.keyframe(k, info.keyframe.pose)
                 self._done.append(self._record(k, info))
         excess = len(self._done) - self.config.max_unread_keyframes
         if excess > 0:  # nobody reads them: the oldest go (memory stays bounded), counted
@@ -1108,6 +1125,7 @@ class VioEstimator:
         self._retire(everything=True)
         self._candidates.clear()
         old = self.window
+        old.rollback()  # what the failure refused leaves the run's history
         old.close_segment()
         self.window = self._new_window()
         self.window.segments, self.window.kf_times = old.segments, old.kf_times

@@ -115,6 +115,20 @@ class ImuLog:
 
     _t: list[int] = field(default_factory=list)
     _samples: list[ImuSample] = field(default_factory=list)
+    #: the preintegration's parameters in use from each time on (the noise measured then)
+    _params_t: list[int] = field(default_factory=list)
+    _params: list[gtsam.PreintegrationCombinedParams] = field(default_factory=list)
+
+    def use_params(self, t_ns: int, params: gtsam.PreintegrationCombinedParams) -> None:
+        """The odometry preintegrates with ``params`` from ``t_ns`` on."""
+        self._params_t.append(int(t_ns))
+        self._params.append(params)
+
+    def params_at(self, t_ns: int) -> gtsam.PreintegrationCombinedParams | None:
+        """The parameters in use at ``t_ns`` (the first ones before any change)."""
+        if not self._params:
+            return None
+        return self._params[max(bisect.bisect_right(self._params_t, t_ns) - 1, 0)]
 
     def push(self, sample: ImuSample) -> None:
         if self._t and sample.t_ns <= self._t[-1]:
@@ -130,20 +144,36 @@ class ImuLog:
         return self._samples[i : j + 1]
 
 
+def _inflated(
+    p: gtsam.PreintegrationCombinedParams, accel_inflation: float
+) -> gtsam.PreintegrationCombinedParams:
+    """A copy of ``p`` with the accelerometer's noise density times ``accel_inflation``."""
+    q = gtsam.PreintegrationCombinedParams.MakeSharedU(float(-np.asarray(p.n_gravity)[2]))
+    q.setGyroscopeCovariance(p.getGyroscopeCovariance())
+    q.setAccelerometerCovariance(p.getAccelerometerCovariance() * float(accel_inflation) ** 2)
+    q.setBiasOmegaCovariance(p.getBiasOmegaCovariance())
+    q.setBiasAccCovariance(p.getBiasAccCovariance())
+    q.setIntegrationCovariance(p.getIntegrationCovariance())
+    return q
+
+
 def reweighed(
     seg: GraphHistory,
     times: dict[int, int],
     log: ImuLog,
-    params: gtsam.PreintegrationCombinedParams,
+    accel_inflation: float = 1.0,
     *,
     hold_ns: int = 0,
 ) -> tuple[GraphHistory, int]:
     """``seg`` with each IMU factor between keyframes whose times ``times`` has (keyframe
-    number -> ns) preintegrated again from ``log`` with ``params``, at the factor's own bias;
-    how many. A factor the log does not cover is kept as it was."""
+    number -> ns) preintegrated again from ``log`` with the parameters in use when it was
+    made (the noise the window measured then), the accelerometer's noise times
+    ``accel_inflation``, at its own bias; how many. A factor the log does not cover is kept
+    as it was."""
     x = ord("x")
     out = gtsam.NonlinearFactorGraph()
     done = 0
+    made: dict[int, gtsam.PreintegrationCombinedParams] = {}
     for i in range(seg.factors.size()):
         f = seg.factors.at(i)
         if isinstance(f, gtsam.CombinedImuFactor):
@@ -151,11 +181,16 @@ def reweighed(
             a, b = gtsam.Symbol(keys[0]), gtsam.Symbol(keys[2])
             t0, t1 = times.get(int(a.index())), times.get(int(b.index()))
             if a.chr() == x and b.chr() == x and t0 is not None and t1 is not None:
-                bias = f.preintegratedMeasurements().biasHat()
-                try:
-                    pim = preintegrate(params, log.covering(t0, t1), t0, t1, bias, hold_ns=hold_ns)
-                except VioError:
-                    pim = None
+                bias, p = f.preintegratedMeasurements().biasHat(), log.params_at(t1)
+                pim = None
+                if p is not None:
+                    params = made.setdefault(id(p), _inflated(p, accel_inflation))
+                    try:
+                        pim = preintegrate(
+                            params, log.covering(t0, t1), t0, t1, bias, hold_ns=hold_ns
+                        )
+                    except VioError:
+                        pim = None
                 if pim is not None:
                     f = gtsam.CombinedImuFactor(
                         keys[0], keys[1], keys[2], keys[3], keys[4], keys[5], pim
@@ -184,6 +219,9 @@ class FrameTrail:
         self._ref.append(int(k))
         self._rel.append(np.asarray(T_W_K.between(T_W_B).matrix()[:3], np.float64))
         self.keyframe_poses.setdefault(int(k), T_W_K)
+
+    def __len__(self) -> int:
+        return len(self._t_ns)
 
     def keyframe(self, k: int, T_W_K: gtsam.Pose3) -> None:
         """Keyframe ``k``'s latest pose (the window's, when it leaves)."""

@@ -27,7 +27,8 @@ hook the window calls for each new keyframe (GPS, loop-closure priors: see
 :class:`~quadnav.vio.window.SlidingWindow`).
 
 With ``history`` the graph also keeps every factor it was given (less those removed) and each
-variable's last estimate, marginalised or not: :meth:`WindowGraph.history` is the whole run's
+variable's last accepted estimate (:meth:`WindowGraph.commit`; :meth:`WindowGraph.rollback`
+drops what came since), marginalised or not: :meth:`WindowGraph.history` is the whole run's
 graph again, for a smoothing over all of it at the end (``VioConfig.final_smoothing``). It
 grows with the run (about 1 kB per observation).
 """
@@ -100,6 +101,9 @@ class WindowGraph:
         self._hist: list[gtsam.NonlinearFactor | None] = []
         self._hist_of: dict[int, list[int]] = {}  # key -> its factors' places in _hist
         self._hist_values = gtsam.Values()
+        self._hist_mark = 0  # the history's factors from here on are not committed yet
+        self._hist_new: list[int] = []  # keys first inserted since the last commit
+        self._solved: gtsam.Values | None = None  # the last solve's estimate, not committed
 
     def _new_smoother(
         self, *, qr: bool = False
@@ -145,6 +149,7 @@ class WindowGraph:
             one = gtsam.Values()
             one.insert(key, value)
             self._hist_values.insert(one)
+            self._hist_new.append(key)
 
     def restamp(self, key: int, stamp: float) -> None:
         """A variable already in the graph made as new as ``stamp`` (one that must never leave
@@ -163,6 +168,27 @@ class WindowGraph:
     def add_all(self, factors: Sequence[gtsam.NonlinearFactor]) -> None:
         for f in factors:
             self.add(f)
+
+    def commit(self) -> None:
+        """The caller accepted the last solve: its estimate becomes the history's values, and
+        the factors and variables given so far stay in it (see :meth:`rollback`)."""
+        if self._solved is not None:
+            self._hist_values.insert_or_assign(self._solved)
+        self._solved = None
+        self._hist_mark = len(self._hist)
+        self._hist_new = []
+
+    def rollback(self) -> None:
+        """The caller refused what came since the last commit (a solve that diverged or gave
+        an implausible state): its factors and new variables leave the history, and the
+        history keeps the last committed estimates."""
+        for i in range(self._hist_mark, len(self._hist)):
+            self._hist[i] = None
+        for key in self._hist_new:
+            if self._hist_values.exists(key):
+                self._hist_values.erase(key)
+        self._hist_new = []
+        self._solved = None
 
     def history(self) -> GraphHistory:
         """The whole graph so far (see the module; empty without ``history``)."""
@@ -270,8 +296,8 @@ class WindowGraph:
             self._qr_hold = min(2 * self._qr_hold, 64 * base) if back_to_cholesky else base
             self._qr_left = self._qr_hold + 1
         self._smoother = sm
-        if self._history:
-            self._hist_values.insert_or_assign(sol.estimate)
+        if self._history:  # the history takes it once the caller accepts it (commit)
+            self._solved = sol.estimate
         # copies (the smoother returns its own graph and values, which change in place); the
         # linearisation point, not the estimate: the marginal factors iSAM2 keeps are linear
         # in the step from it (rebuilt at the estimate, a window's error triples)

@@ -355,6 +355,20 @@ class SlidingWindow:
                 self.segments.append(hist)
         self.graph = None
 
+    def commit(self) -> None:
+        """The last solve accepted (the history takes its estimate; see ``WindowGraph``)."""
+        if self.graph is not None:
+            self.graph.commit()
+
+    def rollback(self) -> None:
+        """What came since the last accepted solve leaves the history."""
+        if self.graph is not None:
+            self.graph.rollback()
+
+    def discard(self) -> None:
+        """The graph dropped without keeping it as a segment (a restart that failed)."""
+        self.graph = None
+
     def add_hook(self, hook: FactorHook) -> None:
         """Call ``hook`` for each keyframe entering the window (the first included) and add
         the factors it returns (a GPS fix, a loop-closure prior)."""
