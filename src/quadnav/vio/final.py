@@ -8,8 +8,9 @@ the next) is its window's every factor again (each keyframe's IMU, its observati
 landmarks' weak priors, the calibration's priors; not the marginal factors, which would count
 the same information twice), optimised at once by Levenberg-Marquardt from the window's
 estimates. A restart in place begins from keyframes the segment before also has: the later
-segment is moved rigidly onto the earlier one's smoothed pose of the first keyframe they
-share, so the trajectory does not jump there. A segment whose smoothing fails keeps its
+segment is turned about the vertical and shifted onto the earlier one's smoothed pose of the
+first keyframe they share (its position and heading; gravity fixes roll and pitch in both),
+so the trajectory does not jump there. A segment whose smoothing fails keeps its
 window's poses, and is counted.
 
 The IMU factors are preintegrated again there from the run's readings (:class:`ImuLog`) with
@@ -75,8 +76,7 @@ def smooth_segments(
         mine = _keyframe_poses(est)
         shared = sorted(set(mine) & set(poses))
         if shared:  # a restart in place: moved onto the earlier segment where they meet
-            k = shared[0]
-            fix = poses[k].compose(mine[k].inverse())
+            fix = _yaw_and_position(poses[shared[0]], mine[shared[0]])
             mine = {j: fix.compose(p) for j, p in mine.items()}
         poses.update(mine)
         kfs += len(mine)
@@ -86,6 +86,15 @@ def smooth_segments(
         error_before=before, error_after=after, failures=tuple(why),
     )  # fmt: skip
     return poses, report
+
+
+def _yaw_and_position(target: gtsam.Pose3, pose: gtsam.Pose3) -> gtsam.Pose3:
+    """The turn about the vertical and the shift that put ``pose`` at ``target``'s position
+    and heading (roll and pitch are left alone: gravity fixes them in both segments)."""
+    yaw = target.rotation().yaw() - pose.rotation().yaw()
+    R = gtsam.Rot3.Yaw(yaw)
+    t = np.asarray(target.translation()) - R.matrix() @ np.asarray(pose.translation())
+    return gtsam.Pose3(R, t)
 
 
 def _smooth(seg: GraphHistory, iterations: int) -> tuple[gtsam.Values, float, float]:
