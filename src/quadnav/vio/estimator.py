@@ -190,7 +190,8 @@ class VioEstimator:
         self.stereo = StereoFrontend(rig, camera, cfg) if cfg.stereo else None
         self.window = self._new_window()
         self._trail = FrameTrail()  # what the final trajectory is made of
-        self._imu_log = ImuLog() if cfg.final_smoothing else None  # and its IMU
+        reweigh = cfg.final_smoothing and cfg.final_smoothing_accel_inflation != 1.0
+        self._imu_log = ImuLog() if reweigh else None  # and its IMU, to weigh it again
         if self._imu_log is not None:
             self._imu_log.use_params(0, self._params)
         self._final: tuple[int, Trajectory] | None = None  # the last smoothing's, by frames

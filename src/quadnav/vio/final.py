@@ -13,12 +13,12 @@ first keyframe they share (its position and heading; gravity fixes roll and pitc
 so the trajectory does not jump there. A segment whose smoothing fails keeps its
 window's poses, and is counted.
 
-The IMU factors are preintegrated again there from the run's readings (:class:`ImuLog`) with
-the accelerometer's noise density times ``final_smoothing_accel_inflation``: on realistic
-sensors (an accelerometer at EuRoC's in-flight 0.062 m/s^2/sqrt(Hz)) a smoothing that weighs it
-at its true level comes out about 1 % too large in scale on V1_02's motion (at the level on the
-ground, 0.014, it does not; nor with the accelerometer weighed less): measured on the
-2026-12-05 (session 29) results page.
+With ``final_smoothing_accel_inflation`` over 1, the IMU factors are preintegrated again
+there from the run's readings (:class:`ImuLog`) with the accelerometer's noise density
+times it. On realistic sensors (an accelerometer at EuRoC's in-flight 0.062 m/s^2/sqrt(Hz)),
+a smoothing that weighs it at its true level came out about 1 % too large in scale on V1_02's
+motion, and 2 took that out; on MH_01's and corridor1's it cost more than it gave: measured
+on the 2026-12-05 (session 29) results page.
 """
 
 from __future__ import annotations
