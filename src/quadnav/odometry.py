@@ -39,6 +39,8 @@ __all__ = [
     "FrameFeatures",
     "KeyframeRecord",
     "KeyframeStep",
+    "LoopConstraint",
+    "LoopRefinedTrajectory",
     "OdometryEvent",
     "OdometryState",
     "OnlineCalibration",
@@ -291,6 +293,36 @@ class RefinedTrajectory(Protocol):
     evaluate for a SLAM; the causal estimate is each frame's state when it was pushed."""
 
     def final_trajectory(self) -> Trajectory: ...
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class LoopConstraint:
+    """A verified loop between two keyframes of one odometry (its keyframe numbers): the
+    ``new`` one's body pose in the ``old`` one's, ``T_old_new``, and its 6x6 covariance
+    ``cov`` in the module's convention (rx, ry, rz, x, y, z at ``new``, in its body frame)."""
+
+    old: int
+    new: int
+    T_old_new: Pose
+    cov: FloatArray
+
+    def __post_init__(self) -> None:
+        c = np.asarray(self.cov, dtype=np.float64)
+        if c.shape != (6, 6) or not np.all(np.isfinite(c)):
+            raise SampleError(f"LoopConstraint: cov must be a finite 6x6 matrix, got {c.shape}")
+        if np.any(np.linalg.eigvalsh(0.5 * (c + c.T)) <= 0.0):
+            raise SampleError("LoopConstraint: cov must be positive definite")
+
+
+@runtime_checkable
+class LoopRefinedTrajectory(Protocol):
+    """An odometry whose final trajectory a loop closer can refine: through the keyframe
+    poses its pose graph found (by the odometry's keyframe number), or, when the odometry
+    smooths its whole run at the end, with the loops as factors of that smoothing."""
+
+    def final_trajectory_with(
+        self, loops: Sequence[LoopConstraint], keyframe_poses: Mapping[int, Pose]
+    ) -> Trajectory: ...
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

@@ -4,15 +4,16 @@ closed, and the corrected keyframes are far nearer the truth than the odometry's
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 import pytest
 
 from quadnav.geometry.rotations import Pose
+from quadnav.geometry.trajectory import Trajectory
 from quadnav.loop import LoopClosure, LoopConfig
 from quadnav.messages import ImageFrame
-from quadnav.odometry import KeyframeStep
+from quadnav.odometry import KeyframeStep, LoopConstraint
 from quadnav.posegraph import PoseGraphConfig
 from tests.loop.drifting import CAMERA, PER_LAP, T_B_C, DriftingOdometry
 
@@ -260,3 +261,65 @@ def test_the_loops_find_how_much_the_steps_understate_the_drift(told: float) -> 
         assert 3.0 < float(np.median(found)) < 9.0, found
     else:
         assert min(found) > 5.0 and max(found) <= 10.0, found
+
+
+class _Refining(DriftingOdometry):
+    """The drifting odometry as one whose final trajectory a loop closer refines: it keeps
+    what it was given."""
+
+    given: tuple[Sequence[LoopConstraint], Mapping[int, Pose]] | None = None
+
+    def final_trajectory_with(
+        self, loops: Sequence[LoopConstraint], keyframe_poses: Mapping[int, Pose]
+    ) -> Trajectory:
+        self.given = (loops, keyframe_poses)
+        return Trajectory(t_ns=np.zeros(0, np.int64), p_W_B=np.zeros((0, 3)),
+                          q_W_B_xyzw=np.zeros((0, 4)), name="final")  # fmt: skip
+
+
+def test_the_final_trajectory_is_refined_with_the_runs_loops_and_its_pose_graph() -> None:
+    """A loop-refinable odometry gets, for its final trajectory, each accepted loop as a
+    6-DoF constraint between its own keyframe numbers, near the truth's relative pose, at a
+    covariance no tighter than the loop floors, and the pose graph's keyframe poses; one that
+    cannot refine gives the corrected keyframes."""
+    odo = _Refining(0)
+    loop = LoopClosure(odo, CAMERA, config=LOOP)
+    try:
+        _fly_laps(loop, odo)
+        loop.final_trajectory()
+        assert odo.given is not None
+        loops, poses = odo.given
+        assert len(loops) == loop.stats.accepted >= 1
+        assert {(c.old, c.new) for c in loops} == set(loop.stats.loops)
+        for c in loops:
+            true = odo.truth[c.old].inverse() @ odo.truth[c.new]
+            assert np.linalg.norm(c.T_old_new.p_A_B - true.p_A_B) < 0.1
+            assert np.all(np.diag(c.cov)[3:] >= LOOP.loop_floor_m**2 * 0.999)
+            assert np.all(np.diag(c.cov)[:3] >= LOOP.loop_floor_yaw_rad**2 * 0.999)
+        graph = loop.graph.keyframe_poses()
+        assert set(poses) == set(graph)
+        assert all(np.allclose(poses[k].p_A_B, graph[k].p_A_B) for k in poses)
+    finally:
+        loop.close()
+    plain = DriftingOdometry(0)
+    loop = LoopClosure(plain, CAMERA, config=LOOP)
+    try:
+        _fly_laps(loop, plain)
+        got = loop.final_trajectory()
+        assert len(got) == len(plain.truth)
+        assert np.allclose(got.p_W_B, loop.corrected_keyframes().p_W_B)
+    finally:
+        loop.close()
+
+
+def test_a_loops_position_covariance_is_turned_into_the_new_keyframes_frame() -> None:
+    """The new keyframe turned 90 degrees from the old: the old one's x variance is the new
+    one's y variance and its y the new one's x; the yaw's variance goes to all three turns."""
+    from scipy.spatial.transform import Rotation
+
+    from quadnav.loop.closer import loop_constraint
+
+    T = Pose(Rotation.from_euler("z", 90, degrees=True), np.array([0.5, 0.0, 0.0]))
+    c = loop_constraint(3, 9, T, np.diag([1e-4, 4e-4, 9e-4, 2e-5]))
+    assert (c.old, c.new) == (3, 9)
+    assert np.allclose(np.diag(c.cov), [2e-5, 2e-5, 2e-5, 4e-4, 1e-4, 9e-4])

@@ -269,3 +269,69 @@ def test_the_imu_preintegrated_again_from_the_log_is_the_factor_it_replaces() ->
     assert same.factors.at(1).error(v) == pytest.approx(far.error(v), rel=1e-12)
     lighter, _ = reweighed(GraphHistory(g, v), times, log, 2.0)
     assert 0.0 < lighter.factors.at(0).error(v) < 0.9 * f.error(v)
+
+
+def _drifting_chain(n: int) -> GraphHistory:
+    """A prior on the first of ``n`` poses and odometry steps that each turn 0.01 rad and
+    move 2 cm more than :data:`STEP`: the chain drifts, each pose at its dead reckoning."""
+    graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+    graph.add(gtsam.PriorFactorPose3(X(0), gtsam.Pose3(), _noise(1e-4)))
+    biased = STEP.compose(gtsam.Pose3(gtsam.Rot3.Yaw(0.01), np.array([0.02, 0.0, 0.0])))
+    T = gtsam.Pose3()
+    values.insert(X(0), T)
+    for k in range(1, n):
+        graph.add(gtsam.BetweenFactorPose3(X(k - 1), X(k), biased, _noise(1e-2)))
+        T = T.compose(biased)
+        values.insert(X(k), T)
+    return GraphHistory(graph, values)
+
+
+def _position_error(poses: dict[int, gtsam.Pose3], k: int) -> float:
+    return float(np.linalg.norm(np.asarray(poses[k].translation()) - _truth(k).translation()))
+
+
+def test_a_loop_inside_a_segment_takes_out_the_drift_it_measured() -> None:
+    """A chain of 24 poses drifting 2 cm and 0.01 rad a step: a loop from pose 0 to pose 23 at
+    the truth's relative pose brings the end within a tenth of its drift and the middle
+    nearer by a quarter (the drift is the same every step: spread evenly, the loop leaves some
+    of it mid-way); a loop naming a pose the segment has not is counted as unused and changes
+    nothing."""
+    from quadnav.geometry.gtsam_bridge import to_pose
+    from quadnav.odometry import LoopConstraint
+
+    n = 24
+    seg = _drifting_chain(n)
+    free, rep0 = smooth_segments([seg], 30)
+    assert rep0.loops == 0 and rep0.loops_unused == 0
+    cov = np.diag([1e-6] * 3 + [1e-4] * 3)
+    true_loop = LoopConstraint(old=0, new=n - 1, T_old_new=to_pose(_truth(n - 1)), cov=cov)
+    elsewhere = LoopConstraint(old=0, new=n + 5, T_old_new=to_pose(_truth(n + 5)), cov=cov)
+    closed, rep = smooth_segments([seg], 30, [true_loop, elsewhere])
+    assert rep.loops == 1 and rep.loops_unused == 1
+    assert _position_error(free, n - 1) > 1.0  # the chain did drift
+    assert _position_error(closed, n - 1) < 0.1 * _position_error(free, n - 1)
+    mid = n // 2
+    assert _position_error(closed, mid) < 0.75 * _position_error(free, mid)
+    assert seg.factors.size() == n  # the segment's own graph is left as it was
+    only_elsewhere, rep2 = smooth_segments([seg], 30, [elsewhere])
+    assert rep2.loops == 0 and rep2.loops_unused == 1
+    assert only_elsewhere[n - 1].equals(free[n - 1], 1e-9)
+
+
+@pytest.mark.parametrize(
+    ("cov", "said"),
+    [
+        (np.full((6, 6), np.nan), "finite 6x6"),
+        (np.eye(3), "finite 6x6"),
+        (np.diag([1e-4] * 5 + [0.0]), "positive definite"),
+    ],
+)
+def test_a_loop_constraint_with_a_covariance_that_is_not_one_is_refused(
+    cov: np.ndarray, said: str
+) -> None:
+    from quadnav.errors import SampleError
+    from quadnav.geometry.rotations import Pose
+    from quadnav.odometry import LoopConstraint
+
+    with pytest.raises(SampleError, match=said):
+        LoopConstraint(old=0, new=3, T_old_new=Pose.identity(), cov=cov)

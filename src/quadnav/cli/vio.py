@@ -89,8 +89,8 @@ FinalBaOpt = Annotated[
         "--final-ba/--no-final-ba",
         help="at the end, optimise the whole run's graph at once (every keyframe's IMU, "
         "observations and the calibration): estimate_final.tum, not causal, as ORB-SLAM3 "
-        "saves its trajectory; the whole graph is kept in memory (stereo at 20 Hz: about "
-        "200 MB a minute)",
+        "saves its trajectory; with --loop, the loops too; the whole graph is kept in "
+        "memory (stereo at 20 Hz: about 200 MB a minute)",
     ),
 ]
 #: ``--rerun`` of ``quadnav vio`` and ``quadnav slam``.
@@ -148,10 +148,10 @@ def resolve_request(
         video_every=video_every, blackout_s=parse_blackout(blackout), save_map=save_map,
     )  # fmt: skip
     looping = loop or save_map is not None or load_map is not None or bool(loop_set)
-    if final_ba and looping:
+    if final_ba and (save_map is not None or load_map is not None):
         raise ConfigError(
-            "--final-ba: not with loop closure (--loop, --save-map, --load-map); its pose "
-            "graph's keyframes are the run's keyframes_loop.tum"
+            "--final-ba: not with --save-map or --load-map (a map holds the pose graph's "
+            "keyframes, in its frame); --loop --final-ba smooths the run with its loops"
         )
     rig_name = rig or ("euroc" if stereo else "euroc_mono")
     overrides = (
@@ -227,9 +227,13 @@ def _print_run(run: OdometryRun) -> None:
     console.print(table)
     m = run.metrics
     final = (run.final or {}).get("ape_se3")
-    if isinstance(final, dict) and "smoothing" in (run.final or {}):
+    smoothing = (run.final or {}).get("smoothing")
+    if isinstance(final, dict) and isinstance(smoothing, dict):
+        loops = smoothing.get("loops", 0)
+        with_loops = f" with {loops} loops" if loops else ""
         console.print(
-            f"final trajectory (--final-ba, not causal): APE after SE(3) {final['rmse_m']:.4f} m",
+            f"final trajectory (--final-ba{with_loops}, not causal): APE after SE(3) "
+            f"{final['rmse_m']:.4f} m",
             highlight=False,
         )
     said = set(run.notes)  # each reason a column is n/a, once (no ground truth: all of them)

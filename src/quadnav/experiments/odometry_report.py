@@ -188,6 +188,11 @@ def _final_rows(final: Mapping[str, object] | None) -> list[list[object]]:
         if isinstance(ape, Mapping) and isinstance(ape.get("rmse_m"), int | float):
             rows.append([f"final trajectory (not causal): APE {label} RMSE (m)",
                          fmt_metric(float(ape["rmse_m"]), ".4g")])  # fmt: skip
+    sm = final.get("smoothing")
+    if isinstance(sm, Mapping):
+        rows.append(["final smoothing: segments, failed, loops as factors (unused)",
+                     f"{sm.get('segments')}, {sm.get('failed')}, {sm.get('loops', 0)} "
+                     f"({sm.get('loops_unused', 0)})"])  # fmt: skip
     return rows
 
 

@@ -175,10 +175,10 @@ def run_vio_source(
         VioConfig, request.config, request.overrides, dataset.rig, camera=opt.camera
     )
     check_vio_rig(rig, source)
-    if cfg.final_smoothing and request.loop:
+    if cfg.final_smoothing and (request.load_map is not None or opt.save_map is not None):
         raise ConfigError(
-            "final_smoothing: not with loop closure (--loop, --save-map, --load-map); its "
-            "pose graph's keyframes are the run's keyframes_loop.tum"
+            "final_smoothing: not with --save-map or --load-map (a map holds the pose graph's "
+            "keyframes, in its frame); --loop --final-ba smooths the run with its loops"
         )
     text = f"# dataset: {dataset.root}\n# rig: {rig.name}\n{dump_config(cfg)}"
     name = Path(source).name if Path(source).exists() else f"{source}_s{seed}"

@@ -48,6 +48,8 @@ from quadnav.odometry import (
     EventKind,
     FrameFeatures,
     KeyframeRecord,
+    LoopConstraint,
+    LoopRefinedTrajectory,
     OdometryEvent,
     OdometryState,
     OnlineCalibration,
@@ -68,7 +70,15 @@ FloatArray = NDArray[np.float64]
 #: The longest the last keyframes wait for the pose graph's solve (s): a run never hangs on it.
 FINAL_WAIT_S = 60.0
 
-__all__ = ["LOOP_GRAPH", "LoopClosure", "LoopConfig", "LoopStats", "PlaceEvent", "local_map"]
+__all__ = [
+    "LOOP_GRAPH",
+    "LoopClosure",
+    "LoopConfig",
+    "LoopStats",
+    "PlaceEvent",
+    "local_map",
+    "loop_constraint",
+]
 
 #: The pose graph of loop closure. A loop edge carries the covariance its PnP fixes (a few
 #: centimetres and a degree on 25-50 inliers); the odometry between keyframes is held to 5 mm
@@ -256,6 +266,18 @@ class LoopStats:
         }  # fmt: skip
 
 
+def loop_constraint(old: int, new: int, T_old_new: Pose, cov_4dof: FloatArray) -> LoopConstraint:
+    """A verified loop as a 6-DoF constraint (:class:`~quadnav.odometry.LoopConstraint`): the
+    position's covariance (in the old keyframe's body frame) turned into the new one's, and
+    the yaw's variance for all three turns (PnP fixes roll and pitch as well as yaw)."""
+    c = np.asarray(cov_4dof, dtype=np.float64)
+    R = T_old_new.R_A_B.as_matrix()
+    cov = np.zeros((6, 6))
+    cov[:3, :3] = np.eye(3) * c[3, 3]
+    cov[3:, 3:] = R.T @ c[:3, :3] @ R
+    return LoopConstraint(old=old, new=new, T_old_new=T_old_new, cov=cov)
+
+
 def local_map(old: KeyframeRecord, near: Sequence[KeyframeRecord], T_B_C: Pose) -> KeyframeRecord:
     """Keyframe ``old`` with the landmarks its neighbours ``near`` saw (those of its odometry
     frame, described, in front of its camera): each landmark once, described as the keyframe
@@ -331,6 +353,7 @@ class LoopClosure:
         self._reloc_tried = -1  # the newest keyframe last looked up
         self._jumps = 0  # output jumps at relocalization
         self._last_output: Pose | None = None  # the last corrected pose given out
+        self._own_loops: list[LoopConstraint] = []  # this run's loops, for a final smoothing
         self.map_camera = MapCamera.of(camera)
         if loop_map is not None:
             self._load(loop_map)
@@ -418,6 +441,26 @@ class LoopClosure:
             q_W_B_xyzw=np.array([poses[k].R_A_B.as_quat() for _, k in keep]).reshape(-1, 4),
             name="keyframes_loop",
         )
+
+    @property
+    def smoothing(self) -> object | None:
+        """The wrapped odometry's final smoothing's report, where it has one."""
+        return getattr(self.odometry, "smoothing", None)
+
+    def final_trajectory(self) -> Trajectory:
+        """Every frame of the run again, not causal: the wrapped odometry's final trajectory
+        (:class:`~quadnav.odometry.LoopRefinedTrajectory`) through the keyframe poses of the
+        latest pose graph, or, when it smooths its run at the end, with this run's loops as
+        factors of that smoothing; an odometry that cannot: the corrected keyframes."""
+        inner = self.odometry
+        if not isinstance(inner, LoopRefinedTrajectory):
+            return self.corrected_keyframes()
+        self.graph.wait(timeout_s=FINAL_WAIT_S)
+        poses = {
+            k - self._offset: p for k, p in self.graph.keyframe_poses().items()
+            if self._segment_of.get(k, MAP_FRAME) != MAP_FRAME
+        }  # fmt: skip
+        return inner.final_trajectory_with(tuple(self._own_loops), poses)
 
     def step_variances(self) -> dict[int, float] | None:
         """Each of this run's keyframes' step variance, by its time, as the graph's last solve
@@ -711,6 +754,10 @@ class LoopClosure:
         cov = cov_4dof + floor if c.graph.kind == "4dof" else None
         self._learn_step_scale(old, new, T_old_new, cov_4dof[:3, :3] + floor[:3, :3])
         self.graph.add_loop(LoopEdge(old=old, new=new, T_old_new=T_old_new, cov=cov))
+        if MAP_FRAME not in (self._segment_of.get(old), self._segment_of.get(new)):
+            self._own_loops.append(loop_constraint(
+                old - self._offset, new - self._offset, T_old_new, cov_4dof + floor
+            ))  # fmt: skip
 
     def _learn_step_scale(self, old: int, new: int, T_old_new: Pose, cov_loop: FloatArray) -> None:
         """A loop within a segment of this run measures the odometry's drift between its

@@ -27,7 +27,7 @@ import itertools
 import math
 import time
 from collections import deque
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 
@@ -39,6 +39,7 @@ from scipy.spatial.transform import Rotation
 from quadnav.errors import SampleError, VioError, VisionError
 from quadnav.geometry.gtsam_bridge import pose3, to_pose
 from quadnav.geometry.multiview import essential_pose, parallax_rad
+from quadnav.geometry.rotations import Pose
 from quadnav.geometry.trajectory import Trajectory
 from quadnav.messages import ImageFrame, ImuSample
 from quadnav.odometry import (
@@ -46,6 +47,7 @@ from quadnav.odometry import (
     FrameFeatures,
     KeyframeRecord,
     KeyframeStep,
+    LoopConstraint,
     OdometryEvent,
     OdometryState,
     StageTiming,
@@ -194,7 +196,8 @@ class VioEstimator:
         self._imu_log = ImuLog() if reweigh else None  # and its IMU, to weigh it again
         if self._imu_log is not None:
             self._imu_log.use_params(0, self._params)
-        self._final: tuple[int, Trajectory] | None = None  # the last smoothing's, by frames
+        #: the last smoothing's trajectory, by the frames and loops it was made from
+        self._final: tuple[tuple[int, int], Trajectory] | None = None
         #: the final smoothing's outcome (None: not run)
         self.smoothing: SmoothingReport | None = None
 
@@ -260,9 +263,19 @@ class VioEstimator:
         """Every tracked frame through its reference keyframe's last pose: the window's when
         it left, or (``final_smoothing``) a smoothing of the whole run's graph, done here once
         (see :mod:`quadnav.vio.final`). Not causal."""
+        return self.final_trajectory_with((), {})
+
+    def final_trajectory_with(
+        self, loops: Sequence[LoopConstraint], keyframe_poses: Mapping[int, Pose]
+    ) -> Trajectory:
+        """The final trajectory a loop closer refines (:class:`~quadnav.odometry.
+        LoopRefinedTrajectory`): with ``final_smoothing``, the smoothing with the ``loops`` as
+        factors; without, every frame through the ``keyframe_poses`` its pose graph found
+        (a keyframe it has not, through its last pose)."""
         if not self.config.final_smoothing:
-            return self._trail.trajectory()
-        if self._final is not None and self._final[0] == len(self._trail):
+            return self._trail.trajectory({k: pose3(p) for k, p in keyframe_poses.items()})
+        key = (len(self._trail), len(loops))
+        if self._final is not None and self._final[0] == key:
             return self._final[1]  # (nothing new since: the smoothing is not redone)
         segments = list(self.window.segments)
         if self.window.graph is not None:
@@ -275,9 +288,9 @@ class VioEstimator:
             if a != 1.0 and self._imu_log is not None:
                 times, log, hold = self.window.kf_times, self._imu_log, self._hold_ns()
                 segments = [reweighed(g, times, log, a, hold_ns=hold)[0] for g in segments]
-            poses, self.smoothing = smooth_segments(segments, cfg.final_smoothing_iterations)
+            poses, self.smoothing = smooth_segments(segments, cfg.final_smoothing_iterations, loops)
         final = self._trail.trajectory(poses)
-        self._final = (len(self._trail), final)
+        self._final = (key, final)
         return final
 
     def calibration(self) -> tuple[CameraCalibration, ...]:

@@ -19,11 +19,19 @@ times it. On realistic sensors (an accelerometer at EuRoC's in-flight 0.062 m/s^
 a smoothing that weighs it at its true level came out about 1 % too large in scale on V1_02's
 motion, and 2 took that out; on MH_01's and corridor1's it cost more than it gave: measured
 on the 2026-12-05 (session 29) results page.
+
+With loop closure (``quadnav vio --loop --final-ba``), each verified loop between two
+keyframes of one segment is a factor of that segment's smoothing too: the new keyframe's pose
+relative to the old one's, at the loop's covariance, behind a Huber kernel
+(:data:`LOOP_HUBER_K`), so the IMU and the images spread the drift the loop measured over the
+keyframes between (ORB-SLAM3's global adjustment after a loop, here once at the end). A loop
+between two segments is not used, and is counted.
 """
 
 from __future__ import annotations
 
 import bisect
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import gtsam
@@ -32,14 +40,27 @@ from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
 from quadnav.errors import VioError
+from quadnav.geometry.gtsam_bridge import pose3
 from quadnav.geometry.trajectory import Trajectory
 from quadnav.messages import ImuSample
+from quadnav.odometry import LoopConstraint
 from quadnav.vio.graph import GTSAM_ERRORS, GraphHistory
 from quadnav.vio.preintegration import preintegrate
 
-__all__ = ["FrameTrail", "ImuLog", "SmoothingReport", "reweighed", "smooth_segments"]
+__all__ = [
+    "LOOP_HUBER_K",
+    "FrameTrail",
+    "ImuLog",
+    "SmoothingReport",
+    "loop_factor",
+    "reweighed",
+    "smooth_segments",
+]
 
 FloatArray = NDArray[np.float64]
+
+#: a loop's residual (in its sigmas) beyond which its factor's weight falls as 1/residual
+LOOP_HUBER_K = 2.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -53,16 +74,48 @@ class SmoothingReport:
     error_before: float = 0.0
     error_after: float = 0.0
     failures: tuple[str, ...] = ()
+    #: loops given as factors, and those that were not (their keyframes in two segments)
+    loops: int = 0
+    loops_unused: int = 0
+
+
+def loop_factor(loop: LoopConstraint) -> gtsam.BetweenFactorPose3:
+    """``loop`` as a factor between its keyframes' poses (keys ``x``), Huber-weighted."""
+    noise = gtsam.noiseModel.Robust.Create(
+        gtsam.noiseModel.mEstimator.Huber.Create(LOOP_HUBER_K),
+        gtsam.noiseModel.Gaussian.Covariance(np.asarray(loop.cov, dtype=np.float64)),
+    )
+    return gtsam.BetweenFactorPose3(
+        gtsam.symbol("x", loop.old), gtsam.symbol("x", loop.new), pose3(loop.T_old_new), noise
+    )
+
+
+def _with_loops(seg: GraphHistory, loops: Sequence[LoopConstraint]) -> tuple[GraphHistory, int]:
+    """``seg`` with the loops whose two keyframes it holds as factors (the segment's own
+    graph left as it is); how many."""
+    mine = [
+        lp for lp in loops
+        if seg.values.exists(gtsam.symbol("x", lp.old))
+        and seg.values.exists(gtsam.symbol("x", lp.new))
+    ]  # fmt: skip
+    if not mine:
+        return seg, 0
+    graph = gtsam.NonlinearFactorGraph()
+    graph.push_back(seg.factors)
+    for lp in mine:
+        graph.add(loop_factor(lp))
+    return GraphHistory(graph, seg.values), len(mine)
 
 
 def smooth_segments(
-    segments: list[GraphHistory], iterations: int
+    segments: list[GraphHistory], iterations: int, loops: Sequence[LoopConstraint] = ()
 ) -> tuple[dict[int, gtsam.Pose3], SmoothingReport]:
-    """Each segment's keyframe poses (by keyframe number) after smoothing it whole (see the
-    module); the report says how it went."""
+    """Each segment's keyframe poses (by keyframe number) after smoothing it whole, with the
+    ``loops`` inside it as factors (see the module); the report says how it went."""
     poses: dict[int, gtsam.Pose3] = {}
-    failed, kfs, before, after, why = 0, 0, 0.0, 0.0, []
+    failed, kfs, before, after, why, used = 0, 0, 0.0, 0.0, [], 0
     for seg in segments:
+        seg, n_loops = _with_loops(seg, loops)
         try:
             est, e0, e1 = _smooth(seg, iterations)
         except GTSAM_ERRORS as exc:
@@ -80,10 +133,11 @@ def smooth_segments(
             mine = {j: fix.compose(p) for j, p in mine.items()}
         poses.update(mine)
         kfs += len(mine)
-        before, after = before + e0, after + e1
+        before, after, used = before + e0, after + e1, used + n_loops
     report = SmoothingReport(
         segments=len(segments) - failed, failed=failed, keyframes=kfs,
         error_before=before, error_after=after, failures=tuple(why),
+        loops=used, loops_unused=len(loops) - used,
     )  # fmt: skip
     return poses, report
 
