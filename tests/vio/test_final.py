@@ -335,3 +335,30 @@ def test_a_loop_constraint_with_a_covariance_that_is_not_one_is_refused(
 
     with pytest.raises(SampleError, match=said):
         LoopConstraint(old=0, new=3, T_old_new=Pose.identity(), cov=cov)
+
+
+def test_a_new_start_the_pose_graph_joined_is_moved_onto_its_poses() -> None:
+    """Two segments sharing no keyframe (a re-initialisation), the second in a frame of its
+    own (turned 0.5 rad, 3 m away): given the pose graph's poses of its keyframes, it is
+    turned and shifted onto them; without them it stays where its own start put it. The
+    first segment is never moved."""
+
+    def chain(first: int, frame: gtsam.Pose3) -> GraphHistory:
+        graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+        graph.add(gtsam.PriorFactorPose3(X(first), frame.compose(_truth(first)), _noise(1e-4)))
+        values.insert(X(first), frame.compose(_truth(first)))
+        for k in range(first + 1, first + 8):
+            graph.add(gtsam.BetweenFactorPose3(X(k - 1), X(k), STEP, _noise(1e-3)))
+            values.insert(X(k), frame.compose(_truth(k)))
+        return GraphHistory(graph, values)
+
+    own = gtsam.Pose3(gtsam.Rot3.Yaw(0.5), np.array([3.0, -1.0, 0.0]))
+    segs = [chain(0, gtsam.Pose3()), chain(20, own)]
+    anchor = {k: _truth(k) for k in range(20, 28)}
+    joined, rep = smooth_segments(segs, 30, anchor=anchor)
+    assert rep.segments == 2 and rep.failed == 0
+    assert all(_position_error(joined, k) < 1e-4 for k in [*range(8), *range(20, 28)])
+    apart, _ = smooth_segments(segs, 30)
+    assert all(_position_error(apart, k) > 1.0 for k in range(20, 28))
+    only_first = smooth_segments(segs[:1], 30, anchor={0: own})[0]
+    assert _position_error(only_first, 0) < 1e-6  # (the first segment keeps its frame)

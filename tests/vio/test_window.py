@@ -288,3 +288,59 @@ def test_dropping_the_previous_newest_keeps_the_older_keyframes() -> None:
     assert kept == list(range(20 - cfg.window_keyframes + 1, 20)) + [n - 1], kept
     _, plain_p, _ = _run_window(scene, cfg)
     assert _ate(est_p, true_p) < max(0.05, 1.5 * _ate(plain_p, true_p))
+
+
+def _cal(fx: float, fy: float, u0: float, v0: float) -> gtsam.Cal3DS2:
+    return gtsam.Cal3DS2(fx, fy, 0.0, u0, v0, -0.28, 0.07, 2e-4, 2e-5)
+
+
+def test_a_stereo_pairs_intrinsics_move_together_and_keep_their_stated_difference() -> None:
+    """Two cameras' intrinsics, each with a loose prior around what is stated (2 %, 3 px),
+    and the data pulling the first camera's focal length 1 % up and its principal point 2 px
+    over: tied, the second follows by at least 95 % of that (its own prior pulls it back by
+    the ratio of the variances, 0.5^2 / 3^2); untied, it stays where it was stated. The tie's Jacobians are the
+    numerical ones."""
+    from gtsam.symbol_shorthand import K
+
+    from quadnav.vio.window import pair_intrinsics_factor
+
+    s0, s1 = _cal(460.0, 458.0, 370.0, 250.0), _cal(458.0, 456.5, 381.0, 255.0)
+    gap = (np.asarray(s1.vector()) - np.asarray(s0.vector()))[[0, 1, 3, 4]]
+    loose = gtsam.noiseModel.Diagonal.Sigmas(np.array([9.2, 9.2, 1e-4, 3, 3] + [1e-4] * 4))
+    data = gtsam.noiseModel.Diagonal.Sigmas(np.array([0.5, 0.5, 1e3, 0.2, 0.2] + [1e3] * 4))
+    pulled = _cal(464.6, 458.0, 372.0, 250.0)
+
+    def solve(tied: bool) -> tuple[gtsam.Cal3DS2, gtsam.Cal3DS2]:
+        g, v = gtsam.NonlinearFactorGraph(), gtsam.Values()
+        for key, stated in ((K(0), s0), (K(1), s1)):
+            v.insert(key, stated)
+            g.add(gtsam.PriorFactorCal3DS2(key, stated, loose))
+        g.add(gtsam.PriorFactorCal3DS2(K(0), pulled, data))
+        if tied:
+            sig = np.array([0.002 * 460, 0.002 * 458, 0.5, 0.5])
+            g.add(pair_intrinsics_factor(K(0), K(1), gap, sig, gtsam.Values.atCal3DS2))
+        est = gtsam.LevenbergMarquardtOptimizer(g, v).optimize()
+        return est.atCal3DS2(K(0)), est.atCal3DS2(K(1))
+
+    a, b = solve(tied=True)
+    assert a.fx() > 463.0 and a.px() > 371.5  # the data moved the first camera
+    assert b.fx() - s1.fx() > 0.95 * (a.fx() - s0.fx())
+    assert b.px() - s1.px() > 0.95 * (a.px() - s0.px())
+    assert abs((b.py() - a.py()) - (s1.py() - s0.py())) < 0.01  # (nothing pulled it)
+    _, b_free = solve(tied=False)
+    assert abs(b_free.fx() - s1.fx()) < 0.01 and abs(b_free.px() - s1.px()) < 0.01
+    # the Jacobians against central differences in each calibration's local coordinates
+    f = pair_intrinsics_factor(K(0), K(1), gap, np.ones(4), gtsam.Values.atCal3DS2)
+    v = gtsam.Values()
+    v.insert(K(0), _cal(461.0, 457.0, 369.0, 251.0))
+    v.insert(K(1), _cal(457.5, 457.0, 382.0, 254.0))
+    jac = f.linearize(v).jacobian()[0]  # whitened (sigmas 1): [H0 | H1]
+    for col, (key, cal) in enumerate(((K(0), v.atCal3DS2(K(0))), (K(1), v.atCal3DS2(K(1))))):
+        for j in range(9):
+            d = np.zeros(9)
+            d[j] = 1e-4
+            up, down = gtsam.Values(v), gtsam.Values(v)
+            up.update(key, cal.retract(d))
+            down.update(key, cal.retract(-d))
+            num = (f.unwhitenedError(up) - f.unwhitenedError(down)) / 2e-4
+            assert np.allclose(jac[:, 9 * col + j], num, atol=1e-6)

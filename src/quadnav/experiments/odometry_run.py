@@ -673,10 +673,12 @@ def run_odometry(
         est, cov = _estimate(rec.states)
         write_tum(run_dir / "estimate.tum", est)
         write_tum(run_dir / "keyframes.tum", rec.keyframes.trajectory())
-        if completed and isinstance(vio, RefinedTrajectory):  # (not on the way out of an error)
-            rec.final = vio.final_trajectory()
-            write_tum(run_dir / "estimate_final.tum", rec.final)
-        _loop_outputs(vio, rec, run_dir, opt, t0)
+        try:
+            if completed and isinstance(vio, RefinedTrajectory):  # (not out of an error)
+                rec.final = vio.final_trajectory()
+                write_tum(run_dir / "estimate_final.tum", rec.final)
+        finally:  # (a loop closer's outputs and its worker stopped, whatever happened)
+            _loop_outputs(vio, rec, run_dir, opt, t0)
     run = _finish(dataset, vio, rec, run_dir, est, cov, (t0, t1), opt, time.perf_counter() - start)
     _write_calibration(vio, rig, dataset, run_dir)
     if observer is not None:

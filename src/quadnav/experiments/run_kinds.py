@@ -223,8 +223,9 @@ _VIO = RunFolderKind(
         RunFile("keyframes.tum", "the keyframes the VIO published, at their final estimates (TUM)"),
         RunFile(
             "estimate_final.tum",
-            "each tracked frame through its keyframe's pose at the end, the whole run smoothed "
-            "with --final-ba (not causal; TUM; not with --loop: see keyframes_loop.tum)",
+            "each tracked frame through its keyframe's pose at the end: the window's, the "
+            "last pose graph's (--loop), or the whole run smoothed (--final-ba, with the "
+            "loops as factors with --loop); not causal; TUM",
             False,
         ),
         RunFile("groundtruth.tum", "the dataset's ground truth (TUM)", False),

@@ -245,6 +245,8 @@ class LoopStats:
     #: :class:`LoopConfig`'s ``learn_step_scale``) and how many loops measured it
     step_scale: float = 1.0
     step_scale_loops: int = 0
+    #: loops the pose graph took but a final smoothing cannot (a degenerate covariance)
+    unsmoothable: int = 0
 
     @property
     def loops(self) -> list[tuple[int, int]]:
@@ -262,7 +264,7 @@ class LoopStats:
             "joins": self.joins, "relocalize_rejected": dict(self.relocalize_rejected),
             "graph_optimizations": self.optimizations, "graph_failures": self.failures,
             "graph_last_error": self.last_error, "step_scale": self.step_scale,
-            "step_scale_loops": self.step_scale_loops,
+            "step_scale_loops": self.step_scale_loops, "unsmoothable_loops": self.unsmoothable,
         }  # fmt: skip
 
 
@@ -753,11 +755,14 @@ class LoopClosure:
         floor = np.diag([c.loop_floor_m**2] * 3 + [c.loop_floor_yaw_rad**2])
         cov = cov_4dof + floor if c.graph.kind == "4dof" else None
         self._learn_step_scale(old, new, T_old_new, cov_4dof[:3, :3] + floor[:3, :3])
-        self.graph.add_loop(LoopEdge(old=old, new=new, T_old_new=T_old_new, cov=cov))
-        if MAP_FRAME not in (self._segment_of.get(old), self._segment_of.get(new)):
-            self._own_loops.append(loop_constraint(
-                old - self._offset, new - self._offset, T_old_new, cov_4dof + floor
-            ))  # fmt: skip
+        taken = self.graph.add_loop(LoopEdge(old=old, new=new, T_old_new=T_old_new, cov=cov))
+        if taken and MAP_FRAME not in (self._segment_of.get(old), self._segment_of.get(new)):
+            try:
+                self._own_loops.append(loop_constraint(
+                    old - self._offset, new - self._offset, T_old_new, cov_4dof + floor
+                ))  # fmt: skip
+            except QuadnavError:  # (a covariance that is none: the pose graph has the loop)
+                self.stats.unsmoothable += 1
 
     def _learn_step_scale(self, old: int, new: int, T_old_new: Pose, cov_loop: FloatArray) -> None:
         """A loop within a segment of this run measures the odometry's drift between its

@@ -276,7 +276,29 @@ class VioConfig(ConfigModel):
         "may be off (the pair moves with the estimated extrinsic)",
     )
     stereo_extrinsic_sigma_m: float = Field(
-        0.001, gt=0.0, le=0.1, description="stereo: the same for the baseline vector"
+        0.0003,
+        gt=0.0,
+        le=0.1,
+        description="stereo: the same for the baseline vector (it sets the stereo scale: at "
+        "1 mm, 0.9 % of EuRoC's baseline, the IMU's noise pulled realistic V1_02's scale off)",
+    )
+    stereo_tie_intrinsics: bool = Field(
+        True,
+        description="stereo, refining the intrinsics: hold the second camera's focal lengths "
+        "and principal point to the first's by their stated difference (the disparity, hence "
+        "the stereo scale, rests on it; each camera's own prior leaves the pair free together)",
+    )
+    stereo_intrinsics_focal_sigma: float = Field(
+        0.002,
+        gt=0.0,
+        le=0.5,
+        description="stereo: how far the pair's focal-length ratio may be off",
+    )
+    stereo_intrinsics_principal_sigma_px: float = Field(
+        0.5,
+        gt=0.0,
+        le=100.0,
+        description="stereo: how far the pair's principal-point difference may be off (px)",
     )
     stereo: bool = Field(
         False, description="use the rig's second camera: depth at once and stereo factors"

@@ -197,7 +197,7 @@ class VioEstimator:
         if self._imu_log is not None:
             self._imu_log.use_params(0, self._params)
         #: the last smoothing's trajectory, by the frames and loops it was made from
-        self._final: tuple[tuple[int, int], Trajectory] | None = None
+        self._final: tuple[tuple[int, tuple[tuple[int, int], ...]], Trajectory] | None = None
         #: the final smoothing's outcome (None: not run)
         self.smoothing: SmoothingReport | None = None
 
@@ -274,7 +274,7 @@ class VioEstimator:
         (a keyframe it has not, through its last pose)."""
         if not self.config.final_smoothing:
             return self._trail.trajectory({k: pose3(p) for k, p in keyframe_poses.items()})
-        key = (len(self._trail), len(loops))
+        key = (len(self._trail), tuple((lp.old, lp.new) for lp in loops))
         if self._final is not None and self._final[0] == key:
             return self._final[1]  # (nothing new since: the smoothing is not redone)
         segments = list(self.window.segments)
@@ -288,7 +288,10 @@ class VioEstimator:
             if a != 1.0 and self._imu_log is not None:
                 times, log, hold = self.window.kf_times, self._imu_log, self._hold_ns()
                 segments = [reweighed(g, times, log, a, hold_ns=hold)[0] for g in segments]
-            poses, self.smoothing = smooth_segments(segments, cfg.final_smoothing_iterations, loops)
+            anchor = {k: pose3(p) for k, p in keyframe_poses.items()}
+            poses, self.smoothing = smooth_segments(
+                segments, cfg.final_smoothing_iterations, loops, anchor
+            )
         final = self._trail.trajectory(poses)
         self._final = (key, final)
         return final

@@ -31,7 +31,7 @@ between two segments is not used, and is counted.
 from __future__ import annotations
 
 import bisect
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 import gtsam
@@ -90,56 +90,87 @@ def loop_factor(loop: LoopConstraint) -> gtsam.BetweenFactorPose3:
     )
 
 
-def _with_loops(seg: GraphHistory, loops: Sequence[LoopConstraint]) -> tuple[GraphHistory, int]:
+def _with_loops(
+    seg: GraphHistory, loops: Sequence[LoopConstraint]
+) -> tuple[GraphHistory, set[tuple[int, int]]]:
     """``seg`` with the loops whose two keyframes it holds as factors (the segment's own
-    graph left as it is); how many."""
+    graph left as it is); which (old, new)."""
     mine = [
         lp for lp in loops
         if seg.values.exists(gtsam.symbol("x", lp.old))
         and seg.values.exists(gtsam.symbol("x", lp.new))
     ]  # fmt: skip
     if not mine:
-        return seg, 0
+        return seg, set()
     graph = gtsam.NonlinearFactorGraph()
     graph.push_back(seg.factors)
     for lp in mine:
         graph.add(loop_factor(lp))
-    return GraphHistory(graph, seg.values), len(mine)
+    return GraphHistory(graph, seg.values), {(lp.old, lp.new) for lp in mine}
 
 
 def smooth_segments(
-    segments: list[GraphHistory], iterations: int, loops: Sequence[LoopConstraint] = ()
+    segments: list[GraphHistory],
+    iterations: int,
+    loops: Sequence[LoopConstraint] = (),
+    anchor: Mapping[int, gtsam.Pose3] | None = None,
 ) -> tuple[dict[int, gtsam.Pose3], SmoothingReport]:
     """Each segment's keyframe poses (by keyframe number) after smoothing it whole, with the
-    ``loops`` inside it as factors (see the module); the report says how it went."""
+    ``loops`` inside it as factors (see the module); the report says how it went. ``anchor``:
+    keyframe poses a loop closer's pose graph found, in its frame: a later segment that shares
+    no keyframe with an earlier one (a re-initialisation, which only the pose graph joined) is
+    turned about the vertical and shifted onto them, and a segment whose smoothing fails takes
+    them."""
     poses: dict[int, gtsam.Pose3] = {}
-    failed, kfs, before, after, why, used = 0, 0, 0.0, 0.0, [], 0
+    anchor = anchor or {}
+    failed, kfs, before, after, why = 0, 0, 0.0, 0.0, []
+    used: set[tuple[int, int]] = set()
     for seg in segments:
-        seg, n_loops = _with_loops(seg, loops)
+        seg, mine_loops = _with_loops(seg, loops)
         try:
             est, e0, e1 = _smooth(seg, iterations)
-        except GTSAM_ERRORS as exc:
+            if not np.isfinite(e1) or e1 > e0:
+                raise VioError(f"the smoothing did not lower the error ({e0:.4g} to {e1:.4g})")
+        except (*GTSAM_ERRORS, VioError) as exc:
             failed += 1
             why.append(next((ln for ln in str(exc).splitlines() if ln.strip()), "GTSAM failed"))
-            continue
-        if not np.isfinite(e1) or e1 > e0:
-            failed += 1
-            why.append(f"the smoothing did not lower the error ({e0:.4g} to {e1:.4g})")
+            held = _keyframe_poses(seg.values)
+            poses.update({k: anchor[k] for k in held if k in anchor and k not in poses})
             continue
         mine = _keyframe_poses(est)
         shared = sorted(set(mine) & set(poses))
+        common = sorted(set(mine) & set(anchor))
         if shared:  # a restart in place: moved onto the earlier segment where they meet
             fix = _yaw_and_position(poses[shared[0]], mine[shared[0]])
             mine = {j: fix.compose(p) for j, p in mine.items()}
+        elif poses and common:  # a new start the pose graph joined: onto its poses
+            fix = _fit_yaw_and_position([anchor[k] for k in common], [mine[k] for k in common])
+            mine = {j: fix.compose(p) for j, p in mine.items()}
         poses.update(mine)
         kfs += len(mine)
-        before, after, used = before + e0, after + e1, used + n_loops
+        before, after = before + e0, after + e1
+        used.update(mine_loops)
     report = SmoothingReport(
         segments=len(segments) - failed, failed=failed, keyframes=kfs,
         error_before=before, error_after=after, failures=tuple(why),
-        loops=used, loops_unused=len(loops) - used,
+        loops=len(used), loops_unused=len({(lp.old, lp.new) for lp in loops} - used),
     )  # fmt: skip
     return poses, report
+
+
+def _fit_yaw_and_position(
+    targets: Sequence[gtsam.Pose3], poses: Sequence[gtsam.Pose3]
+) -> gtsam.Pose3:
+    """The turn about the vertical (the mean of the headings' differences) and the shift (the
+    mean of the positions' after the turn) that put ``poses`` onto ``targets``."""
+    d = np.array(
+        [t.rotation().yaw() - p.rotation().yaw() for t, p in zip(targets, poses, strict=True)]
+    )
+    yaw = float(np.arctan2(np.sin(d).mean(), np.cos(d).mean()))
+    R = gtsam.Rot3.Yaw(yaw)
+    q = np.array([np.asarray(t.translation()) for t in targets])
+    p = np.array([R.matrix() @ np.asarray(x.translation()) for x in poses])
+    return gtsam.Pose3(R, (q - p).mean(axis=0))
 
 
 def _yaw_and_position(target: gtsam.Pose3, pose: gtsam.Pose3) -> gtsam.Pose3:

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import gtsam
 import gtsam_unstable
@@ -164,6 +165,37 @@ _LENS = {
         gtsam.PriorFactorCal3Fisheye,
     ),
 }  # fmt: skip
+#: the rows of a calibration's vector a stereo pair's relative intrinsics tie: fx, fy, u0, v0
+#: (the same rows in ``Cal3_S2``, ``Cal3DS2`` and ``Cal3Fisheye``)
+_PAIR_ROWS = np.array([0, 1, 3, 4])
+
+
+def pair_intrinsics_factor(
+    k0: int, k1: int, stated_gap: FloatArray, sigmas: FloatArray, get: Callable[..., Any]
+) -> gtsam.CustomFactor:
+    """A stereo pair's two intrinsics tied: the second camera's focal lengths and principal
+    point minus the first's, as stated (``stated_gap``), within ``sigmas``. The pair's
+    disparity is the depth, so its relative intrinsics fix the stereo scale; each camera's
+    own prior leaves the pair free to move together. ``get``: ``Values``' accessor of the
+    calibration's type."""
+    gap = np.asarray(stated_gap, np.float64)
+
+    def error(
+        this: gtsam.CustomFactor, values: gtsam.Values, H: list[FloatArray] | None
+    ) -> FloatArray:
+        a, b = get(values, this.keys()[0]), get(values, this.keys()[1])
+        va, vb = np.asarray(a.vector(), np.float64), np.asarray(b.vector(), np.float64)
+        if H is not None:
+            S = np.zeros((len(_PAIR_ROWS), len(va)))
+            S[np.arange(len(_PAIR_ROWS)), _PAIR_ROWS] = 1.0
+            H[0] = -S
+            H[1] = S
+        return np.asarray((vb - va)[_PAIR_ROWS] - gap, np.float64)
+
+    noise = gtsam.noiseModel.Diagonal.Sigmas(np.asarray(sigmas, np.float64))
+    return gtsam.CustomFactor(noise, [k0, k1], error)
+
+
 #: the stamp of a keyframe marginalised out of turn: older than any lag
 DROPPED = -1e9
 #: the stated extrinsic's prior when only the intrinsics are refined online (held, not refined)
@@ -431,6 +463,7 @@ class SlidingWindow:
             self.graph.insert(Kc(n), self.K_fix[n], 0.0)
             k_sig = np.array([f, f, HELD_SIGMA, c, c])  # (no skew)
             self.graph.add(gtsam.PriorFactorCal3_S2(Kc(n), self.K_fix[n], diag(k_sig)))
+        self._tie_pair_intrinsics()
         self.graph.insert(C(0), self.T_B_C, 0.0)
         self.graph.add(gtsam.PriorFactorPose3(C(0), self.T_B_C, diag(sig)))
         if self.T_B_R is not None and self._T_L_R is not None:
@@ -440,6 +473,34 @@ class SlidingWindow:
             )
             self.graph.insert(C(1), self.T_B_C.compose(self._T_L_R), 0.0)
             self.graph.add(gtsam.BetweenFactorPose3(C(0), C(1), self._T_L_R, diag(pair)))
+
+    def _tie_pair_intrinsics(self) -> None:
+        """A stereo pair refining its intrinsics: the two tied by their stated difference
+        (:func:`pair_intrinsics_factor`, ``stereo_intrinsics_*_sigma``)."""
+        cfg = self.config
+        if not (self._intrinsics and len(self._cameras_used()) == 2 and cfg.stereo_tie_intrinsics):
+            return
+        if self._lens and self._cams[0].model != self._cams[1].model:
+            return  # (two lens models: two calibration types the tie cannot difference)
+        assert self.graph is not None
+        f, c = cfg.stereo_intrinsics_focal_sigma, cfg.stereo_intrinsics_principal_sigma_px
+        stated: list[Any]
+        get: Callable[..., Any]
+        if self._lens:
+            stated = [k for cam in self._cams[:2] if (k := _lens_calibration(cam)) is not None]
+            scale = 1.0
+            get = (
+                gtsam.Values.atCal3DS2 if self._cams[0].model == "radtan"
+                else gtsam.Values.atCal3Fisheye
+            )  # fmt: skip
+        else:  # corrections of the normalised coordinates: both stated as identity (not
+            # K_fix, the last window's estimate: a restart would tie the pair to it)
+            identity = gtsam.Cal3_S2(1.0, 1.0, 0.0, 0.0, 0.0)
+            stated, scale, get = [identity, identity], 1.0 / self.focal_px, gtsam.Values.atCal3_S2
+        v0, v1 = (np.asarray(k.vector(), np.float64)[_PAIR_ROWS] for k in stated)
+        focal = np.array([v0[0], v0[1]]) if self._lens else np.ones(2)
+        sig = np.r_[f * focal, [c * scale] * 2]
+        self.graph.add(pair_intrinsics_factor(Kc(0), Kc(1), v1 - v0, sig, get))
 
     def seed_landmarks(self, points_W: dict[int, FloatArray]) -> None:
         """Points (an initialisation's) to start tracks from instead of triangulating them."""
