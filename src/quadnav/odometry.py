@@ -324,6 +324,11 @@ class LoopRefinedTrajectory(Protocol):
         self, loops: Sequence[LoopConstraint], keyframe_poses: Mapping[int, Pose]
     ) -> Trajectory: ...
 
+    def final_keyframe_poses(self) -> Mapping[int, Pose]:
+        """The keyframes' poses the last :meth:`final_trajectory_with` smoothed (by keyframe
+        number; none when it smooths nothing), for a map to keep."""
+        ...
+
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class CameraCalibration:

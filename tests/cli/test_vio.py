@@ -165,8 +165,7 @@ def test_a_blackout_withholds_the_images_and_starts_a_segment(
         (["room_easy", "--blackout", "20"], "--blackout '20': give START:SECONDS"),
         (["room_easy", "--blackout", "20:-3"], "--blackout's length"),
         (["room_easy", "--loop-set", "nope=1"], "--loop-set nope: unknown key"),
-        (["room_easy", "--save-map", "m", "--final-ba"], "--final-ba: not with --save-map"),
-        (["room_easy", "--load-map", ".", "--final-ba"], "--final-ba: not with --save-map"),
+        (["room_easy", "--load-map", ".", "--final-ba"], "--final-ba: not with --load-map"),
     ],
 )
 def test_bad_input_is_one_line_naming_the_option(

@@ -65,6 +65,11 @@ def test_the_vio_settings_reach_the_estimator() -> None:
         ("indoor_vio", "vio.save_map=true", "vio.save_map saves loop closure's map: set vio.loop"),
         ("indoor_vio", "vio.load_map=/nonexistent/map", "vio.load_map /nonexistent/map: no such"),
         ("indoor_vio", "vio.loop=maybe", "vio.loop: Input should be a valid boolean"),
+        (
+            "indoor_vio",
+            ["vio.final_smoothing=true", "vio.load_map=."],
+            "vio.final_smoothing: not with vio.load_map",
+        ),
         # the SLAM as the odometry (issue 24, item 7): a stereo rig, none of the VIO's settings
         ("indoor_slam", "vio.rig=thesis003_sim", "vio.odometry=slam needs a stereo rig"),
         ("indoor_slam", "vio.window_keyframes=12", "vio.window_keyframes is a setting of the VIO"),

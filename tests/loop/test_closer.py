@@ -268,11 +268,16 @@ class _Refining(DriftingOdometry):
     what it was given."""
 
     given: tuple[Sequence[LoopConstraint], Mapping[int, Pose]] | None = None
+    smoothed: Mapping[int, Pose] = {}
+
+    def final_keyframe_poses(self) -> Mapping[int, Pose]:
+        return self.smoothed
 
     def final_trajectory_with(
         self, loops: Sequence[LoopConstraint], keyframe_poses: Mapping[int, Pose]
     ) -> Trajectory:
         self.given = (loops, keyframe_poses)
+        self.smoothed = {k: self.truth[k] for k in keyframe_poses}  # (a perfect smoothing)
         return Trajectory(t_ns=np.zeros(0, np.int64), p_W_B=np.zeros((0, 3)),
                           q_W_B_xyzw=np.zeros((0, 4)), name="final")  # fmt: skip
 
@@ -323,3 +328,22 @@ def test_a_loops_position_covariance_is_turned_into_the_new_keyframes_frame() ->
     c = loop_constraint(3, 9, T, np.diag([1e-4, 4e-4, 9e-4, 2e-5]))
     assert (c.old, c.new) == (3, 9)
     assert np.allclose(np.diag(c.cov), [2e-5, 2e-5, 2e-5, 4e-4, 1e-4, 9e-4])
+
+
+def test_a_saved_map_takes_the_keyframes_where_the_final_smoothing_put_them() -> None:
+    """An odometry that smooths its run at the end (here perfectly: the truth): the map
+    exported holds each keyframe at its smoothed pose, its landmarks moved with it (onto the
+    truth's points), without a call to the final trajectory first."""
+    odo = _Refining(1)
+    loop = LoopClosure(odo, CAMERA, config=LOOP)
+    try:
+        _fly_laps(loop, odo)
+        the_map = loop.export_map()
+    finally:
+        loop.close()
+    assert odo.given is not None and len(the_map.keyframes) == len(odo.truth)
+    for kf in the_map.keyframes:
+        rec = kf.record
+        assert np.allclose(rec.T_W_B.p_A_B, odo.truth[rec.index].p_A_B, atol=1e-9)
+        seen = odo.X[rec.landmark_ids] + (odo.shift if rec.index >= PER_LAP else 0.0)
+        assert np.allclose(rec.landmarks_W, seen, atol=1e-6)

@@ -148,10 +148,10 @@ def resolve_request(
         video_every=video_every, blackout_s=parse_blackout(blackout), save_map=save_map,
     )  # fmt: skip
     looping = loop or save_map is not None or load_map is not None or bool(loop_set)
-    if final_ba and (save_map is not None or load_map is not None):
+    if final_ba and load_map is not None:
         raise ConfigError(
-            "--final-ba: not with --save-map or --load-map (a map holds the pose graph's "
-            "keyframes, in its frame); --loop --final-ba smooths the run with its loops"
+            "--final-ba: not with --load-map (the run reports in the map's frame, which the "
+            "smoothing does not hold); --save-map --final-ba saves the smoothed keyframes"
         )
     rig_name = rig or ("euroc" if stereo else "euroc_mono")
     overrides = (

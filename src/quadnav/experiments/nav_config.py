@@ -536,6 +536,11 @@ class NavScenario(ConfigModel):
             return slam
         if v.save_map and not v.loop_closure:
             return "vio.save_map saves loop closure's map: set vio.loop=true too"
+        if v.final_smoothing and v.load_map is not None:
+            return (
+                "vio.final_smoothing: not with vio.load_map (the flight reports in the map's "
+                "frame, which the smoothing does not hold); it refines a map vio.save_map saves"
+            )
         drift = [k for k in changed if k in RELATIVE_ONLY_VIO_KEYS]
         if v.odometry_mode == "absolute" and drift:
             return (

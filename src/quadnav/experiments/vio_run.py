@@ -175,10 +175,10 @@ def run_vio_source(
         VioConfig, request.config, request.overrides, dataset.rig, camera=opt.camera
     )
     check_vio_rig(rig, source)
-    if cfg.final_smoothing and (request.load_map is not None or opt.save_map is not None):
+    if cfg.final_smoothing and request.load_map is not None:
         raise ConfigError(
-            "final_smoothing: not with --save-map or --load-map (a map holds the pose graph's "
-            "keyframes, in its frame); --loop --final-ba smooths the run with its loops"
+            "final_smoothing: not with --load-map (the run reports in the map's frame, which "
+            "the smoothing does not hold); --save-map --final-ba saves the smoothed keyframes"
         )
     text = f"# dataset: {dataset.root}\n# rig: {rig.name}\n{dump_config(cfg)}"
     name = Path(source).name if Path(source).exists() else f"{source}_s{seed}"

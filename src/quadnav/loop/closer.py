@@ -356,6 +356,7 @@ class LoopClosure:
         self._jumps = 0  # output jumps at relocalization
         self._last_output: Pose | None = None  # the last corrected pose given out
         self._own_loops: list[LoopConstraint] = []  # this run's loops, for a final smoothing
+        self._refined: dict[int, Pose] | None = None  # graph index -> its smoothed pose
         self.map_camera = MapCamera.of(camera)
         if loop_map is not None:
             self._load(loop_map)
@@ -462,7 +463,9 @@ class LoopClosure:
             k - self._offset: p for k, p in self.graph.keyframe_poses().items()
             if self._segment_of.get(k, MAP_FRAME) != MAP_FRAME
         }  # fmt: skip
-        return inner.final_trajectory_with(tuple(self._own_loops), poses)
+        final = inner.final_trajectory_with(tuple(self._own_loops), poses)
+        self._refined = {k + self._offset: p for k, p in inner.final_keyframe_poses().items()}
+        return final
 
     def step_variances(self) -> dict[int, float] | None:
         """Each of this run's keyframes' step variance, by its time, as the graph's last solve
@@ -510,9 +513,13 @@ class LoopClosure:
     def export_map(self) -> LoopMap:
         """The map to save: every keyframe joined to the map (a loaded map's and this run's), at
         its pose in the latest pose graph, its landmarks moved with it, and the loops between
-        them. Call after the last keyframes (``keyframes(final=True)``)."""
+        them. Call after the last keyframes (``keyframes(final=True)``). When the odometry
+        smooths its run at the end (``--final-ba``), this run's keyframes are where that
+        smoothing, with the loops as factors, put them."""
         self.graph.wait(timeout_s=FINAL_WAIT_S)
-        poses = self.graph.keyframe_poses()
+        if self._refined is None and isinstance(self.odometry, LoopRefinedTrajectory):
+            self.final_trajectory()  # (the smoothing, once: the odometry keeps its result)
+        poses = {**self.graph.keyframe_poses(), **(self._refined or {})}
         joined = {s.id for s in self.segments.items if s.joined} | {MAP_FRAME}
         keep = [k for k in sorted(self._by_index) if self._segment_of.get(k) in joined]
         out = []

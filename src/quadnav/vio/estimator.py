@@ -198,6 +198,7 @@ class VioEstimator:
             self._imu_log.use_params(0, self._params)
         #: the last smoothing's trajectory, by the frames and loops it was made from
         self._final: tuple[tuple[int, tuple[tuple[int, int], ...]], Trajectory] | None = None
+        self._final_keyframes: dict[int, Pose] = {}  # (the last smoothing's keyframes)
         #: the final smoothing's outcome (None: not run)
         self.smoothing: SmoothingReport | None = None
 
@@ -294,7 +295,13 @@ class VioEstimator:
             )
         final = self._trail.trajectory(poses)
         self._final = (key, final)
+        self._final_keyframes = {k: to_pose(p) for k, p in poses.items()}
         return final
+
+    def final_keyframe_poses(self) -> dict[int, Pose]:
+        """The keyframes' poses the last final smoothing gave (by keyframe number; none
+        without ``final_smoothing`` or before it ran)."""
+        return dict(self._final_keyframes)
 
     def calibration(self) -> tuple[CameraCalibration, ...]:
         """Each camera used as the window has it now: the extrinsic and intrinsics refined
