@@ -9,11 +9,13 @@ import os
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 from typer.testing import CliRunner
 
 from quadnav.cli.main import app
 from quadnav.io.run_folder import read_run_status
+from quadnav.io.trajectory_io import read_tum
 from tests.shared_data import SHARED, needs
 
 runner = CliRunner()
@@ -103,6 +105,18 @@ def test_loop_closure_without_a_revisit_leaves_the_estimate_and_reports(
     assert m["loop_keyframes_ape_rmse_before_m"] == m["loop_keyframes_ape_rmse_after_m"] < 0.05
     assert (run_dir / "plots" / "loop_graph.png").is_file()
     assert "Loop closure" in (run_dir / "report.html").read_text()
+    # the final trajectory through the pose graph's keyframes: with no loop, the window's
+    final, plain_final = (read_tum(d / "estimate_final.tum") for d in (run_dir, plain))
+    assert final.t_ns.tolist() == plain_final.t_ns.tolist()
+    assert np.allclose(final.p_W_B, plain_final.p_W_B, atol=1e-6)
+    # with --final-ba the loop closer's run is smoothed whole, through it
+    result = runner.invoke(app, ["vio", "room_easy", "--duration", "4", "--no-video", "--loop",
+                                 "--final-ba", "--out", str(out)])  # fmt: skip
+    assert result.exit_code == 0, result.output
+    fin = json.loads((Path(result.stdout.strip().splitlines()[-1]) / "metrics.json").read_text())
+    sm = fin["final"]["smoothing"]
+    assert sm["segments"] == 1 and sm["failed"] == 0 and sm["loops"] == 0
+    assert sm["error_after"] < sm["error_before"] and fin["final"]["ape_se3"]["rmse_m"] < 0.05
 
 
 def test_a_map_saved_by_one_run_is_where_the_next_reports(
