@@ -62,7 +62,13 @@ from quadnav.vio.imu_noise import ImuNoiseMonitor, MeasuredNoise
 from quadnav.vio.initialization import InitFailure, try_visual_inertial_init
 from quadnav.vio.preintegration import imu_params, zero_bias
 from quadnav.vio.propagator import ImuPropagator
-from quadnav.vio.static_init import StaticStart, imu_stillness, is_still, static_start
+from quadnav.vio.static_init import (
+    StaticStart,
+    heading_of,
+    imu_stillness,
+    is_still,
+    static_start,
+)
 from quadnav.vio.stereo import PendingFrame, StereoFrontend
 from quadnav.vio.time_offset import TimeOffsetEstimator
 from quadnav.vio.types import InitResult, InitWindow
@@ -129,6 +135,12 @@ class VioEstimator:
         self.camera_spec = spec
         self.camera = camera
         self._R_BC = spec.T_B_C.R_A_B.as_matrix()  # the camera's mount (stated: it is fixed)
+        #: the vehicle's forward axis in the body frame, when the rig's body is mounted turned
+        #: on it (``Rig.T_V_B``): a static start puts the world's heading on it
+        R_V_B = rig.T_V_B.R_A_B
+        self._forward_B = (
+            None if np.allclose(R_V_B.as_matrix(), np.eye(3)) else R_V_B.inv().apply([1.0, 0, 0])
+        )
         n, a, w = rig.imu.noise, cfg.imu_noise_scale, cfg.imu_walk_scale
         noise = dataclasses.replace(
             n, gyro_noise_density=a * n.gyro_noise_density, accel_noise_density=a * n.accel_noise_density,
@@ -502,6 +514,8 @@ class VioEstimator:
         if tracking_failure(len(frame.ids), cfg) is not None:
             return None
         start = static_start(self.imu.samples, frame.t_ns, cfg)
+        if start is not None and self._forward_B is not None:
+            start = dataclasses.replace(start, R_W_B=heading_of(start.R_W_B, self._forward_B))
         if start is not None and self._image_still(frame, frame.t_ns - span_ns // 2):
             return self._start_static(frame, start)
         return self._try_visual_init(frame)

@@ -106,6 +106,17 @@ def gravity_rotation(accel_mean_B: FloatArray) -> Rotation:
     return Rotation.from_rotvec(axis / s * np.arctan2(s, c))
 
 
+def heading_of(R_W_B: Rotation, forward_B: FloatArray) -> Rotation:
+    """``R_W_B`` turned about the vertical so that ``forward_B`` (a vehicle's forward axis in
+    the body frame) points along the world's +x: the world's heading is the vehicle's, not that
+    of a body mounted on its side (EuRoC's IMU, x up: the smallest rotation from its "up" put
+    the vehicle's nose at 180 degrees). A forward axis along the vertical leaves it as it is."""
+    f = R_W_B.apply(np.asarray(forward_B, dtype=np.float64))
+    if math.hypot(float(f[0]), float(f[1])) < 1e-6:
+        return R_W_B
+    return Rotation.from_euler("z", -math.atan2(float(f[1]), float(f[0]))) * R_W_B
+
+
 def static_start(
     samples: Sequence[ImuSample], t_ns: int, config: VioConfig, g_tolerance: float | None = None
 ) -> StaticStart | None:
