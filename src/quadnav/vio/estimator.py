@@ -141,6 +141,9 @@ class VioEstimator:
         self._forward_B = (
             None if np.allclose(R_V_B.as_matrix(), np.eye(3)) else R_V_B.inv().apply([1.0, 0, 0])
         )
+        #: the body's origin from the vehicle's, in the body's axes: the first static start
+        #: puts the world's origin on the vehicle's, as it puts its heading on the vehicle's nose
+        self._p_V_B_in_B = R_V_B.inv().apply(np.asarray(rig.T_V_B.p_A_B, np.float64))
         n, a, w = rig.imu.noise, cfg.imu_noise_scale, cfg.imu_walk_scale
         noise = dataclasses.replace(
             n, gyro_noise_density=a * n.gyro_noise_density, accel_noise_density=a * n.accel_noise_density,
@@ -524,6 +527,8 @@ class VioEstimator:
         cfg = self.config
         frame = self._with_stereo(frame)
         k = self._new_kf_index()
+        if k == 0:  # (the first start: later ones go on from the last position)
+            self._last_p = start.R_W_B.apply(self._p_V_B_in_B)
         pose = gtsam.Pose3(gtsam.Rot3(start.R_W_B.as_matrix()), self._last_p)
         bias = gtsam.imuBias.ConstantBias(np.zeros(3), start.gyro_bias)
         kf = Keyframe(index=k, t_ns=frame.t_ns, pose=pose, velocity=np.zeros(3), bias=bias)
