@@ -124,6 +124,17 @@ def _time_offset_estimator(R_B_C: Rotation, cfg: VioConfig) -> TimeOffsetEstimat
     )
 
 
+def _vehicle_in_body(T_V_B: Pose) -> tuple[FloatArray | None, FloatArray]:
+    """The vehicle's forward axis in the body frame, when the rig's body is mounted turned on
+    it (None otherwise: a static start puts the world's heading on it), and the body's origin
+    from the vehicle's in the body's axes (the first static start puts the world's origin on
+    the vehicle's, as it puts its heading on the vehicle's nose)."""
+    R_V_B = T_V_B.R_A_B
+    turned = not np.allclose(R_V_B.as_matrix(), np.eye(3))
+    forward = np.asarray(R_V_B.inv().apply([1.0, 0.0, 0.0]), np.float64) if turned else None
+    return forward, np.asarray(R_V_B.inv().apply(np.asarray(T_V_B.p_A_B, np.float64)), np.float64)
+
+
 class VioEstimator:
     """Monocular VIO on a rig's camera (``cam0``) and IMU; see the module."""
 
@@ -131,19 +142,10 @@ class VioEstimator:
         if rig.imu is None:
             raise VioError(f"rig {rig.name!r} has no IMU: visual-inertial odometry needs one")
         self.config = cfg = config or VioConfig()
-        spec = rig.camera(camera)
-        self.camera_spec = spec
+        spec = self.camera_spec = rig.camera(camera)
         self.camera = camera
         self._R_BC = spec.T_B_C.R_A_B.as_matrix()  # the camera's mount (stated: it is fixed)
-        #: the vehicle's forward axis in the body frame, when the rig's body is mounted turned
-        #: on it (``Rig.T_V_B``): a static start puts the world's heading on it
-        R_V_B = rig.T_V_B.R_A_B
-        self._forward_B = (
-            None if np.allclose(R_V_B.as_matrix(), np.eye(3)) else R_V_B.inv().apply([1.0, 0, 0])
-        )
-        #: the body's origin from the vehicle's, in the body's axes: the first static start
-        #: puts the world's origin on the vehicle's, as it puts its heading on the vehicle's nose
-        self._p_V_B_in_B = R_V_B.inv().apply(np.asarray(rig.T_V_B.p_A_B, np.float64))
+        self._forward_B, self._p_V_B_in_B = _vehicle_in_body(rig.T_V_B)
         n, a, w = rig.imu.noise, cfg.imu_noise_scale, cfg.imu_walk_scale
         noise = dataclasses.replace(
             n, gyro_noise_density=a * n.gyro_noise_density, accel_noise_density=a * n.accel_noise_density,
