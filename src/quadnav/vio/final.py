@@ -141,7 +141,7 @@ def smooth_segments(
         shared = sorted(set(mine) & set(poses))
         common = sorted(set(mine) & set(anchor))
         if shared:  # a restart in place: moved onto the earlier segment where they meet
-            fix = _yaw_and_position(poses[shared[0]], mine[shared[0]])
+            fix = _fit_yaw_and_position([poses[shared[0]]], [mine[shared[0]]])
             mine = {j: fix.compose(p) for j, p in mine.items()}
         elif poses and common:  # a new start the pose graph joined: onto its poses
             fix = _fit_yaw_and_position([anchor[k] for k in common], [mine[k] for k in common])
@@ -162,7 +162,8 @@ def _fit_yaw_and_position(
     targets: Sequence[gtsam.Pose3], poses: Sequence[gtsam.Pose3]
 ) -> gtsam.Pose3:
     """The turn about the vertical (the mean of the headings' differences) and the shift (the
-    mean of the positions' after the turn) that put ``poses`` onto ``targets``."""
+    mean of the positions' after the turn) that put ``poses`` onto ``targets`` (roll and pitch
+    are left alone: gravity fixes them in both)."""
     d = np.array(
         [t.rotation().yaw() - p.rotation().yaw() for t, p in zip(targets, poses, strict=True)]
     )
@@ -171,15 +172,6 @@ def _fit_yaw_and_position(
     q = np.array([np.asarray(t.translation()) for t in targets])
     p = np.array([R.matrix() @ np.asarray(x.translation()) for x in poses])
     return gtsam.Pose3(R, (q - p).mean(axis=0))
-
-
-def _yaw_and_position(target: gtsam.Pose3, pose: gtsam.Pose3) -> gtsam.Pose3:
-    """The turn about the vertical and the shift that put ``pose`` at ``target``'s position
-    and heading (roll and pitch are left alone: gravity fixes them in both segments)."""
-    yaw = target.rotation().yaw() - pose.rotation().yaw()
-    R = gtsam.Rot3.Yaw(yaw)
-    t = np.asarray(target.translation()) - R.matrix() @ np.asarray(pose.translation())
-    return gtsam.Pose3(R, t)
 
 
 def _smooth(seg: GraphHistory, iterations: int) -> tuple[gtsam.Values, float, float]:
