@@ -92,3 +92,51 @@ def test_orientation_points_to_the_bright_side(theta_deg: float) -> None:
     got = orientations(img, np.array([[60.0, 50.0], [10.0, 50.0], [60.0, 90.0]]))
     assert abs((got[0] - theta_deg + 180.0) % 360.0 - 180.0) < 1.5, got[0]
     assert got[1] == -1.0 and got[2] == -1.0
+
+
+def _every_corner_then_spread(ex: OrbExtractor, img: np.ndarray, want: int) -> np.ndarray:
+    """The reference for the extractor's candidates: FAST at ``min_fast`` over the whole level
+    (inside ORB's border), then :func:`spread` (what the extractor did before it looked for weak
+    corners only where a cell lacks a strong one)."""
+    fast = cv2.FastFeatureDetector.create(ex.config.min_fast, nonmaxSuppression=True)
+    h, w = img.shape
+    found = fast.detect(img)
+    uv = np.array([k.pt for k in found], np.float64).reshape(-1, 2)
+    score = np.array([k.response for k in found], np.float64)
+    e = 19
+    ok = (uv[:, 0] >= e) & (uv[:, 0] < w - e) & (uv[:, 1] >= e) & (uv[:, 1] < h - e)
+    uv, score = uv[ok], score[ok]
+    return uv[spread(uv, score, want, (w, h), ex.config.ini_fast)]
+
+
+def _half_blank(photo: np.ndarray) -> np.ndarray:
+    img = photo.copy()
+    img[:, 300:] = cv2.GaussianBlur(img[:, 300:], (0, 0), 6)  # weak texture: weak corners
+    img[300:, :200] = 90  # no texture at all
+    return img
+
+
+@pytest.mark.parametrize("case", ["photo", "half_blank", "astronaut", "noise"])
+def test_weak_corners_looked_for_only_where_needed_choose_the_same_features(
+    photo: np.ndarray, case: str
+) -> None:
+    """The extractor runs FAST at ``min_fast`` only in the grid cells with no corner at
+    ``ini_fast``; the features it keeps must be exactly those the whole level's corners give."""
+    img = {
+        "photo": photo,
+        "half_blank": _half_blank(photo),
+        "astronaut": cv2.cvtColor(data.astronaut(), cv2.COLOR_RGB2GRAY)[::2, ::2],
+        "noise": np.random.default_rng(3).integers(0, 40, (240, 376)).astype(np.uint8),
+    }[case]
+    ex = OrbExtractor()
+    levels = ex.pyramid(img)
+    n_weak_cells = 0
+    for k, level in enumerate(levels):
+        want = int(level_shares(ex.config)[k])
+        expected = _every_corner_then_spread(ex, level, want)
+        uv, score = ex._candidates(level, want)
+        picked = uv[spread(uv, score, want, (level.shape[1], level.shape[0]), ex.config.ini_fast)]
+        np.testing.assert_array_equal(picked, expected)
+        n_weak_cells += int((score < ex.config.ini_fast).sum())
+    if case == "half_blank":
+        assert n_weak_cells > 0  # (the case exercises the weak cells' search)

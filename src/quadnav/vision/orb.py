@@ -3,10 +3,10 @@ features of the stereo and RGB-D SLAM.
 
 The image is scaled down ``n_levels`` times by ``scale_factor``; each level gets a share of the
 ``n_features`` in proportion to its area (ORB-SLAM2: ``n (1 - 1/s^2) / (1 - 1/s^(2 L))`` at level
-0, each next level 1/s^2 of the one before). FAST corners are found at ``min_fast`` and a corner
-counts at ``ini_fast`` when its FAST score reaches it: in each cell of the level's grid (about one
-cell per feature wanted) the corners at ``ini_fast`` are taken first, the weaker ones only where a
-cell has none (ORB-SLAM2 lowers the threshold per cell so). Each cell keeps its best, then the
+0, each next level 1/s^2 of the one before). FAST corners are found at ``ini_fast`` over the
+level, and at ``min_fast`` only in the cells of the level's grid (about one cell per feature
+wanted) that have none: in each cell the corners at ``ini_fast`` are taken, the weaker ones only
+where a cell has none (ORB-SLAM2 lowers the threshold per cell so). Each cell keeps its best, then the
 level is filled by score: the features spread over the picture, not bunched on its strongest
 texture. Each keypoint gets its orientation (intensity centroid) and rotated BRIEF from OpenCV
 on its level's image; positions are given at level 0.
@@ -14,7 +14,9 @@ on its level's image; positions are given at level 0.
 
 from __future__ import annotations
 
+import operator
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -93,6 +95,7 @@ class OrbExtractor:
 
         self.config = config or OrbConfig()
         self._fast = cv2.FastFeatureDetector.create(self.config.min_fast, nonmaxSuppression=True)
+        self._strong = cv2.FastFeatureDetector.create(self.config.ini_fast, nonmaxSuppression=True)
         self._orb = cv2.ORB.create(edgeThreshold=EDGE_PX, patchSize=PATCH_PX)
         self._shares = level_shares(self.config)
 
@@ -139,18 +142,12 @@ class OrbExtractor:
         descriptors (n, 32)."""
         import cv2
 
-        h, w = img.shape
-        # FAST inside the border only (4 px wider than it: a kept corner's circle and the
-        # neighbours its non-maximum suppression compares it with are all seen)
-        m = EDGE_PX - 4
-        found = self._fast.detect(img[m : h - m, m : w - m]) if want > 0 else ()
-        uv = np.asarray(cv2.KeyPoint.convert(found), np.float64).reshape(-1, 2) + m
-        score = np.fromiter((k.response for k in found), np.float64, len(found))
-        inside = (uv[:, 0] >= EDGE_PX) & (uv[:, 0] < w - EDGE_PX)
-        inside &= (uv[:, 1] >= EDGE_PX) & (uv[:, 1] < h - EDGE_PX)
-        uv, score = uv[inside], score[inside]
+        if want <= 0:
+            return np.zeros((0, 2)), np.zeros(0), np.zeros(0), np.zeros((0, 32), np.uint8)
+        uv, score = self._candidates(img, want)
         if len(uv) == 0:
             return np.zeros((0, 2)), np.zeros(0), np.zeros(0), np.zeros((0, 32), np.uint8)
+        h, w = img.shape
         keep = spread(uv, score, want, (w, h), self.config.ini_fast)
         uv, score = uv[keep], score[keep]
         angle = orientations(img, uv).astype(np.float32).astype(np.float64)
@@ -168,6 +165,97 @@ class OrbExtractor:
             score = np.array([k.response for k in got], np.float64)
         return uv, angle, score, np.asarray(desc, np.uint8)
 
+    def _candidates(self, img: NDArray[np.uint8], want: int) -> tuple[FloatArray, FloatArray]:
+        """The corners :func:`spread` chooses from, in FAST's raster order: those scoring
+        ``ini_fast`` anywhere, and those scoring ``min_fast`` in the grid cells that have none
+        (the rest could not be chosen; with too few, every corner at ``min_fast``, as
+        :func:`spread` then fills in with them). FAST at ``min_fast`` over the whole level finds
+        about three times the corners and took most of the extractor's time."""
+        h, w = img.shape
+        grid = _Grid((w, h), want)
+        uv, score = self._fast_in(self._strong, img, [(0, 0, w, h)])
+        weak_cells = np.ones(grid.n_cells, bool)
+        weak_cells[grid.cell_of(uv)] = False
+        if weak_cells.any():
+            wuv, wscore = self._fast_in(self._fast, img, grid.runs(weak_cells))
+            mine = weak_cells[grid.cell_of(wuv)]
+            uv, score = np.concatenate([uv, wuv[mine]]), np.concatenate([score, wscore[mine]])
+        if len(uv) < want:  # (spread would fill in with the strong cells' weaker corners)
+            return self._fast_in(self._fast, img, [(0, 0, w, h)])
+        order = np.argsort(uv[:, 1].astype(np.int64) * w + uv[:, 0].astype(np.int64))
+        return uv[order], score[order]
+
+    @staticmethod
+    def _fast_in(
+        fast: object, img: NDArray[np.uint8], boxes: list[tuple[int, int, int, int]]
+    ) -> tuple[FloatArray, FloatArray]:
+        """The corners ``fast`` finds at least ``EDGE_PX`` from the level's border and inside
+        one of ``boxes`` (x0, y0, x1, y1; not overlapping): positions (n, 2) in the level's
+        pixels, FAST scores. FAST runs on each box and 4 px around it, so that a corner's
+        circle and the neighbours its non-maximum suppression compares it with are all seen:
+        the same corners as over the whole image."""
+        import cv2
+
+        h, w = img.shape
+        m = 4
+        found: list[Any] = []
+        spans = []
+        for x0, y0, x1, y1 in boxes:
+            x0, y0, x1, y1 = max(x0, EDGE_PX), max(y0, EDGE_PX), min(x1, w - EDGE_PX), min(
+                y1, h - EDGE_PX)  # fmt: skip
+            if x1 > x0 and y1 > y0:
+                got = fast.detect(img[y0 - m : y1 + m, x0 - m : x1 + m])  # type: ignore[attr-defined]
+                found.extend(got)
+                spans.append((x0, y0, x1, y1, len(got)))
+        if not found:
+            return np.zeros((0, 2)), np.zeros(0)
+        box = np.repeat(np.asarray(spans, np.int64)[:, :4], [s[4] for s in spans], axis=0)
+        uv = np.asarray(cv2.KeyPoint.convert(found), np.float64).reshape(-1, 2) + box[:, :2] - m
+        score = np.fromiter(map(_RESPONSE, found), np.float64, len(found))
+        inside = (uv[:, 0] >= box[:, 0]) & (uv[:, 0] < box[:, 2])
+        inside &= (uv[:, 1] >= box[:, 1]) & (uv[:, 1] < box[:, 3])
+        return uv[inside], score[inside]
+
+
+_RESPONSE = operator.attrgetter("response")
+
+
+class _Grid:
+    """The grid :func:`spread` spreads over: about ``want`` square cells over an image of
+    ``size`` (w, h), the last row and column taking what is left."""
+
+    def __init__(self, size: tuple[int, int], want: int) -> None:
+        w, h = size
+        self.size = size
+        self.cell = max(np.sqrt(w * h / max(want, 1)), 8.0)
+        self.nx = max(int(np.ceil(w / self.cell)), 1)
+        self.ny = max(int(np.ceil(h / self.cell)), 1)
+        self.n_cells = self.nx * self.ny
+
+    def cell_of(self, uv: FloatArray) -> NDArray[np.int64]:
+        """Each point's cell (row-major)."""
+        row = np.minimum((uv[:, 1] // self.cell).astype(np.int64), self.ny - 1)
+        col = np.minimum((uv[:, 0] // self.cell).astype(np.int64), self.nx - 1)
+        return np.asarray(row * self.nx + col, np.int64)
+
+    def runs(self, cells: NDArray[np.bool_]) -> list[tuple[int, int, int, int]]:
+        """The boxes (x0, y0, x1, y1) of the runs of marked cells along each row of the grid:
+        the whole pixels in them, the boxes not overlapping."""
+        w, h = self.size
+        marked = cells.reshape(self.ny, self.nx)
+        boxes = []
+        for r in np.flatnonzero(marked.any(axis=1)).tolist():
+            y0 = int(np.ceil(r * self.cell))
+            y1 = h if r == self.ny - 1 else int(np.ceil((r + 1) * self.cell))
+            cols = np.flatnonzero(marked[r]).tolist()
+            start = cols[0]
+            for prev, col in zip(cols, cols[1:] + [-1], strict=True):
+                if col != prev + 1:  # (a run ends at prev)
+                    x1 = w if prev == self.nx - 1 else int(np.ceil((prev + 1) * self.cell))
+                    boxes.append((int(np.ceil(start * self.cell)), y0, x1, y1))
+                    start = col
+        return boxes
+
 
 def spread(
     uv: FloatArray, score: FloatArray, want: int, size: tuple[int, int], strong: float
@@ -179,12 +267,7 @@ def spread(
     n = len(uv)
     if n <= want:
         return np.arange(n, dtype=np.int64)
-    w, h = size
-    cell = max(np.sqrt(w * h / max(want, 1)), 8.0)
-    nx = max(int(np.ceil(w / cell)), 1)
-    cid = np.minimum((uv[:, 1] // cell).astype(np.int64), int(np.ceil(h / cell)) - 1) * nx + (
-        np.minimum((uv[:, 0] // cell).astype(np.int64), nx - 1)
-    )
+    cid = _Grid(size, want).cell_of(uv)
     has_strong = np.zeros(cid.max() + 1, bool)
     has_strong[cid[score >= strong]] = True
     usable = (score >= strong) | ~has_strong[cid]
