@@ -98,6 +98,8 @@ class OrbExtractor:
         self._strong = cv2.FastFeatureDetector.create(self.config.ini_fast, nonmaxSuppression=True)
         self._orb = cv2.ORB.create(edgeThreshold=EDGE_PX, patchSize=PATCH_PX)
         self._shares = level_shares(self.config)
+        #: each level's share of grid cells without a corner at ini_fast in the last image
+        self._weak_share: dict[int, float] = {}
 
     def pyramid(self, image: object) -> list[NDArray[np.uint8]]:
         """The grey image at each level (level 0: itself)."""
@@ -120,7 +122,7 @@ class OrbExtractor:
         """The image's features and its pyramid."""
         levels = self.pyramid(image)
         scales = self.config.scales()
-        parts = [self._level(img, int(self._shares[k])) for k, img in enumerate(levels)]
+        parts = [self._level(img, int(self._shares[k]), k) for k, img in enumerate(levels)]
         octave = np.concatenate([np.full(len(p[0]), k, np.int64) for k, p in enumerate(parts)])
         if len(octave) == 0:
             return _empty(scales), levels
@@ -135,7 +137,7 @@ class OrbExtractor:
         )  # fmt: skip
 
     def _level(
-        self, img: NDArray[np.uint8], want: int
+        self, img: NDArray[np.uint8], want: int, level: int = 0
     ) -> tuple[FloatArray, FloatArray, FloatArray, NDArray[np.uint8]]:
         """One level's keypoints (in its pixels) spread over its grid, oriented, described:
         positions (n, 2), angles, FAST scores (as OpenCV's keypoints hold them, in float32) and
@@ -144,7 +146,7 @@ class OrbExtractor:
 
         if want <= 0:
             return np.zeros((0, 2)), np.zeros(0), np.zeros(0), np.zeros((0, 32), np.uint8)
-        uv, score = self._candidates(img, want)
+        uv, score = self._candidates(img, want, level)
         if len(uv) == 0:
             return np.zeros((0, 2)), np.zeros(0), np.zeros(0), np.zeros((0, 32), np.uint8)
         h, w = img.shape
@@ -165,17 +167,30 @@ class OrbExtractor:
             score = np.array([k.response for k in got], np.float64)
         return uv, angle, score, np.asarray(desc, np.uint8)
 
-    def _candidates(self, img: NDArray[np.uint8], want: int) -> tuple[FloatArray, FloatArray]:
-        """The corners :func:`spread` chooses from, in FAST's raster order: those scoring
-        ``ini_fast`` anywhere, and those scoring ``min_fast`` in the grid cells that have none
-        (the rest could not be chosen; with too few, every corner at ``min_fast``, as
-        :func:`spread` then fills in with them). FAST at ``min_fast`` over the whole level finds
-        about three times the corners and took most of the extractor's time."""
+    def _candidates(
+        self, img: NDArray[np.uint8], want: int, level: int = 0
+    ) -> tuple[FloatArray, FloatArray]:
+        """The corners :func:`spread` chooses from, in FAST's raster order. Where 70 % of the
+        cells of the level's grid or more had a corner at ``ini_fast`` in the last image: those
+        corners, and
+        those at ``min_fast`` only in the cells that have none (the rest could not be chosen;
+        with too few, every corner at ``min_fast``, as :func:`spread` then fills in with them).
+        Else, as in a weakly textured image, every corner at ``min_fast``: one pass costs as
+        little there. Either way :func:`spread` keeps the same features; FAST at ``min_fast`` over a
+        well-textured level finds about three times the corners and took most of the time."""
         h, w = img.shape
+        if self._weak_share.get(level, 0.0) >= 0.3:
+            uv, score = self._fast_in(self._fast, img, [(0, 0, w, h)])
+            grid = _Grid((w, h), want)
+            strong = np.zeros(grid.n_cells, bool)
+            strong[grid.cell_of(uv[score >= self.config.ini_fast])] = True
+            self._weak_share[level] = 1.0 - float(strong.mean())
+            return uv, score
         grid = _Grid((w, h), want)
         uv, score = self._fast_in(self._strong, img, [(0, 0, w, h)])
         weak_cells = np.ones(grid.n_cells, bool)
         weak_cells[grid.cell_of(uv)] = False
+        self._weak_share[level] = float(weak_cells.mean())
         if weak_cells.any():
             wuv, wscore = self._fast_in(self._fast, img, grid.runs(weak_cells))
             mine = weak_cells[grid.cell_of(wuv)]
