@@ -4,6 +4,7 @@ tracks read any dataset; bad requests are one-line errors that leave no folder b
 from __future__ import annotations
 
 import errno
+import math
 import json
 import os
 from pathlib import Path
@@ -135,3 +136,29 @@ def test_info_counts_bad_imu_rows_instead_of_refusing_the_dataset(tmp_path: Path
     assert res.exit_code == 0, res.output
     assert "49 samples at 200 Hz" in res.stdout
     assert "rejected 1 IMU rows out of order" in " ".join(res.stdout.split())
+
+
+def test_a_motion_file_is_made_whole_unless_a_duration_is_given(tmp_path: Path) -> None:
+    """A motion file longer than the built-in flights' 60 s is made to its end by default (it
+    was cut at 60 s without a word); ``--duration`` and ``--set duration_s=`` still cut it."""
+    from quadnav.cli.dataset import resolve_make
+    from quadnav.experiments.datasets import _motion, _span
+
+    walk = tmp_path / "walk.txt"  # 75 s at 20 Hz: a slow walk along x, turning
+    walk.write_text(
+        "".join(
+            f"{10 + k * 0.05:.3f} {0.02 * k * 0.05:.5f} 0 1.5 0 0 "
+            f"{math.sin(0.005 * k):.6f} {math.cos(0.005 * k):.6f}\n"
+            for k in range(1501)
+        )
+    )
+
+    def span_s(duration_s: float | None, sets: list[str], motion: str = str(walk)) -> float:
+        spec = resolve_make("room", motion, None, 0, duration_s, sets)
+        t0, t1 = _span(spec, _motion(spec))
+        return (t1 - t0) * 1e-9
+
+    assert 74.0 < span_s(None, []) <= 75.0  # (the spline gives up a few tenths at its ends)
+    assert span_s(10.0, []) == pytest.approx(10.0, abs=1e-6)
+    assert span_s(None, ["duration_s=20"]) == pytest.approx(20.0, abs=1e-6)
+    assert resolve_make("room", "flight_path", None, 0, None, []).duration_s == 60.0

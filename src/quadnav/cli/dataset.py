@@ -53,7 +53,14 @@ def resolve_make(
     set_: list[str],
     sensors: str | None = None,
 ) -> SequenceSpec:
-    """The validated sequence ``dataset make`` would write (no work, no folder)."""
+    """The validated sequence ``dataset make`` would write (no work, no folder). A motion file or
+    scenario without ``--duration`` is made whole (up to the longest sequence, 1800 s); the
+    built-in flights keep their own lengths."""
+    from quadnav.experiments.datasets import BUILT_IN_PATHS, MAX_DURATION_S
+
+    whole = motion is not None and motion not in BUILT_IN_PATHS
+    if duration_s is None and whole and not any(s.startswith("duration_s=") for s in set_):
+        duration_s = MAX_DURATION_S
     options = {
         "motion": motion,
         "rig": rig,
@@ -104,7 +111,12 @@ def make_command(
     rig: Annotated[str | None, typer.Option("--rig", help="a built-in rig")] = None,
     seed: Annotated[int | None, typer.Option("--seed", help="seed of every stream")] = None,
     duration_s: Annotated[
-        float | None, typer.Option("--duration", help="seconds of sequence (from its start)")
+        float | None,
+        typer.Option(
+            "--duration",
+            help="seconds of sequence (from its start) [default: a --motion file's or "
+            "scenario's whole length, up to 1800 s; a built-in sequence's own]",
+        ),
     ] = None,
     set_: Annotated[
         list[str] | None, typer.Option("--set", help="override a field: key=value")

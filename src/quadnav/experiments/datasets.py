@@ -74,6 +74,10 @@ Vec3 = tuple[float, float, float]
 Progress = Callable[[int, int, str], None]
 
 
+#: The longest sequence ``dataset make`` writes (s): 30 minutes.
+MAX_DURATION_S = 1800.0
+
+
 class SequenceSpec(ConfigModel):
     """What a sequence is made of: the world, the rig, the motion and the image conditions.
 
@@ -111,7 +115,7 @@ class SequenceSpec(ConfigModel):
     world: str
     rig: str = "euroc"
     motion: str = "flight_path"
-    duration_s: float = Field(default=60.0, gt=0.0, le=1800.0)
+    duration_s: float = Field(default=60.0, gt=0.0, le=MAX_DURATION_S)
     mean_speed_m_s: float = Field(default=0.5, gt=0.0, le=10.0)
     yaw_sway_deg: float = Field(default=20.0, ge=0.0, le=180.0)
     yaw_sway_period_s: float = Field(default=6.0, gt=0.5, le=600.0)
