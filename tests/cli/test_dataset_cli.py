@@ -4,8 +4,8 @@ tracks read any dataset; bad requests are one-line errors that leave no folder b
 from __future__ import annotations
 
 import errno
-import math
 import json
+import math
 import os
 from pathlib import Path
 from typing import Any
