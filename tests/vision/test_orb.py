@@ -9,7 +9,7 @@ import pytest
 from skimage import data
 
 from quadnav.errors import VisionError
-from quadnav.vision.orb import OrbConfig, OrbExtractor, level_shares, spread
+from quadnav.vision.orb import OrbConfig, OrbExtractor, _Grid, level_shares, spread
 
 
 @pytest.fixture(scope="module")
@@ -143,3 +143,37 @@ def test_weak_corners_looked_for_only_where_needed_choose_the_same_features(
     assert set(ex._weak_share) == set(range(len(levels)))
     if case == "half_blank":
         assert n_weak_cells > 0  # (the case exercises the weak cells' search)
+
+
+@pytest.mark.parametrize(
+    ("w", "h", "want"), [(640, 480, 108), (752, 480, 388), (1280, 720, 250), (101, 57, 7)]
+)
+def test_a_cells_box_holds_exactly_the_pixels_the_grid_puts_in_it(
+    w: int, h: int, want: int
+) -> None:
+    """The weak corners are looked for in boxes of whole pixels; each cell's box must hold the
+    pixels :func:`spread`'s grid places in that cell and no other, also where the cell's size is
+    a fraction whose multiple falls a hair short of a whole number (640x480 for 108 features:
+    3 x 53.33... is 160.0, yet pixel 160 is in cell 2)."""
+    grid = _Grid((w, h), want)
+    xs, ys = np.meshgrid(np.arange(w), np.arange(h))
+    cell = grid.cell_of(np.column_stack([xs.ravel(), ys.ravel()]).astype(float)).reshape(h, w)
+    for c in range(grid.n_cells):
+        one = np.zeros(grid.n_cells, bool)
+        one[c] = True
+        ((x0, y0, x1, y1),) = grid.runs(one)
+        box = (xs >= x0) & (xs < x1) & (ys >= y0) & (ys < y1)
+        assert ((cell == c) == box).all(), c
+
+
+def test_a_weak_corner_on_a_cells_first_column_is_found() -> None:
+    """A weak corner alone in its cell on the column where the cell begins (the case a box edge
+    one pixel off missed: 333 features at 640x480, level 0's cells 53.33... wide)."""
+    ex = OrbExtractor(OrbConfig(n_features=333))
+    img = np.full((480, 640), 100, np.uint8)
+    img[:, 175:] = np.random.default_rng(1).integers(0, 255, (480, 465))  # strong, to the right
+    img[200, 160] = 110  # one weak corner in the third column of cells
+    want = int(level_shares(ex.config)[0])
+    assert any((_every_corner_then_spread(ex, img, want) == [160, 200]).all(axis=1))
+    features, _ = ex.extract(img)
+    assert (np.abs(features.uv_px - [160, 200]).sum(axis=1) < 1e-9).any()

@@ -246,6 +246,15 @@ class _Grid:
         self.nx = max(int(np.ceil(w / self.cell)), 1)
         self.ny = max(int(np.ceil(h / self.cell)), 1)
         self.n_cells = self.nx * self.ny
+        # each cell's first whole pixel (column, row) as cell_of places pixels: k * cell in
+        # floating point can fall a hair short of a whole number its division does not reach
+        # (cell 53.33...: 3 * cell == 160.0, yet 160 // cell == 2)
+        self.x_edges = self._edges(w, self.nx)
+        self.y_edges = self._edges(h, self.ny)
+
+    def _edges(self, size: int, n: int) -> list[int]:
+        at = np.minimum(np.arange(size + 1) // self.cell, n - 1)
+        return np.searchsorted(at, np.arange(n + 1), side="left").tolist()  # type: ignore[no-any-return]
 
     def cell_of(self, uv: FloatArray) -> NDArray[np.int64]:
         """Each point's cell (row-major)."""
@@ -257,17 +266,16 @@ class _Grid:
         """The boxes (x0, y0, x1, y1) of the runs of marked cells along each row of the grid:
         the whole pixels in them, the boxes not overlapping."""
         w, h = self.size
+        xe, ye = self.x_edges, self.y_edges
         marked = cells.reshape(self.ny, self.nx)
         boxes = []
         for r in np.flatnonzero(marked.any(axis=1)).tolist():
-            y0 = int(np.ceil(r * self.cell))
-            y1 = h if r == self.ny - 1 else int(np.ceil((r + 1) * self.cell))
+            y0, y1 = ye[r], h if r == self.ny - 1 else ye[r + 1]
             cols = np.flatnonzero(marked[r]).tolist()
             start = cols[0]
             for prev, col in zip(cols, cols[1:] + [-1], strict=True):
                 if col != prev + 1:  # (a run ends at prev)
-                    x1 = w if prev == self.nx - 1 else int(np.ceil((prev + 1) * self.cell))
-                    boxes.append((int(np.ceil(start * self.cell)), y0, x1, y1))
+                    boxes.append((xe[start], y0, w if prev == self.nx - 1 else xe[prev + 1], y1))
                     start = col
         return boxes
 
