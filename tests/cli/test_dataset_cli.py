@@ -161,4 +161,5 @@ def test_a_motion_file_is_made_whole_unless_a_duration_is_given(tmp_path: Path) 
     assert 74.0 < span_s(None, []) <= 75.0  # (the spline gives up a few tenths at its ends)
     assert span_s(10.0, []) == pytest.approx(10.0, abs=1e-6)
     assert span_s(None, ["duration_s=20"]) == pytest.approx(20.0, abs=1e-6)
+    assert 74.0 < span_s(None, [f"motion={walk}"], motion="flight_path") <= 75.0
     assert resolve_make("room", "flight_path", None, 0, None, []).duration_s == 60.0

@@ -58,7 +58,9 @@ def resolve_make(
     built-in flights keep their own lengths."""
     from quadnav.experiments.datasets import BUILT_IN_PATHS, MAX_DURATION_S
 
-    whole = motion is not None and motion not in BUILT_IN_PATHS
+    motion_set = [s.partition("=")[2] for s in set_ if s.startswith("motion=")]
+    chosen = motion_set[-1] if motion_set else motion
+    whole = chosen is not None and chosen not in BUILT_IN_PATHS
     if duration_s is None and whole and not any(s.startswith("duration_s=") for s in set_):
         duration_s = MAX_DURATION_S
     options = {
