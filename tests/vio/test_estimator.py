@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
+from pathlib import Path
 
 import cv2
 import gtsam
@@ -341,3 +342,46 @@ def test_a_rig_mounted_turned_on_the_vehicle_starts_with_the_vehicle_at_the_orig
     assert np.linalg.norm(T_W_V.p_A_B) < 0.01
     nose = T_W_V.R_A_B.apply([1.0, 0.0, 0.0])
     assert abs(np.degrees(np.arctan2(nose[1], nose[0]))) < 1.0 and nose[2] < 0.03
+
+
+def _move_rest_move(path: Path) -> Path:
+    """A TUM motion in the room: still 2 s, a 3.5 s sweep (0.45 m/s, turning), 6 s at rest, a
+    second sweep; the speed eased in and out so that the rest is a rest."""
+    t = np.arange(0.0, 13.0, 0.01)
+
+    def progress(a: float, b: float) -> np.ndarray:  # 0 -> 1 over [a, b], smooth
+        x = np.clip((t - a) / (b - a), 0.0, 1.0)
+        return x**3 * (10 - 15 * x + 6 * x**2)
+
+    s = 1.6 * progress(2.0, 5.5) + 0.8 * progress(11.5, 13.0)
+    p = np.column_stack([-1.2 + s, 0.6 * np.sin(1.5 * s), 1.4 + 0.2 * np.sin(2.0 * s)])
+    q = Rotation.from_euler("z", 0.4 * np.sin(1.2 * s)[:, None]).as_quat()
+    rows = np.column_stack([100.0 + t, p, q])
+    path.write_text("".join(" ".join(f"{v:.6f}" for v in r) + "\n" for r in rows))
+    return path
+
+
+def test_at_rest_the_window_keeps_the_keyframes_of_the_motion_before(
+    tmp_path_factory: pytest.TempPathFactory,
+) -> None:
+    """``drop_at_rest``: a keyframe made by time at rest replaces the previous one at rest, so a
+    rest longer than the window (10 keyframes, one each 0.5 s) keeps the keyframes, and with
+    them the landmarks and the scale, of the motion before (a monocular VIO lost its scale over
+    EuRoC MH_01's 20 s on the ground: 0.62 m); off, the rest's keyframes push them out."""
+    from tests.vio.rendered import rendered
+
+    motion = _move_rest_move(tmp_path_factory.mktemp("motion") / "move_rest_move.txt")
+    ds = rendered(tmp_path_factory, "room", motion=str(motion), duration_s=12.5, rig="euroc_mono")
+    t0 = ds.groundtruth.trajectory.t_ns[0] if ds.groundtruth is not None else 0
+    rest_ends = t0 + int(11.4e9)  # (the second sweep begins at 11.5 s)
+    oldest: dict[bool, float] = {}
+    for drop in (True, False):
+        vio = VioEstimator(ds.rig, VioConfig(drop_at_rest=drop))
+        for item in ds.stream():
+            if item.t_ns > rest_ends:
+                break
+            vio.push(item)
+        assert vio.initialized
+        oldest[drop] = (vio.window.keyframes[0].t_ns - t0) * 1e-9
+    assert oldest[True] < 5.5, oldest  # a keyframe of the sweep is still in the window
+    assert oldest[False] > 6.0, oldest  # only the rest's

@@ -74,6 +74,14 @@ class VioConfig(ConfigModel):
         "MARGIN_SECOND_NEW); off: the landmarks anchored in it leave too, and in indoor_vio's "
         "hover the VIO lost more than it kept (0.089 m against 0.038 m)",
     )
+    drop_at_rest: bool = Field(
+        True,
+        description="at rest (the IMU and the images still), a keyframe made by time alone has "
+        "the previous newest leave rather than the oldest when that one was at rest too: the "
+        "window keeps the keyframes and landmarks of the motion before the rest, and with them "
+        "the scale (a monocular VIO lost it over EuRoC MH_01's 20 s on the ground: 0.62 m), "
+        "the rest's zero-velocity constraints chained across the dropped ones",
+    )
     # VINS-Mono's EuRoC value (1.5 px at focal 460). The KLT residuals after a solve are 0.36 px
     # (rendered room_medium), but a track's errors are not independent from keyframe to
     # keyframe: with 1 px the pose NEES / 6 on corridor1's motion was 2.2 (3 seeds), 1.6 now

@@ -887,8 +887,9 @@ class VioEstimator:
         if not dec.keyframe:
             return self._predicted_state(frame.t_ns, pim, "tracking", tracked=len(frame.ids))
         return self._add_keyframe(
-            frame, kf, pim, drop_previous=dec.by_time and cfg.drop_second_newest
-        )
+            frame, kf, pim, drop_previous=dec.by_time and cfg.drop_second_newest,
+            drop_if_still=dec.by_time and cfg.drop_at_rest,
+        )  # fmt: skip
 
     def _add_keyframe(
         self,
@@ -897,12 +898,19 @@ class VioEstimator:
         pim: gtsam.PreintegratedCombinedMeasurements,
         *,
         drop_previous: bool = False,
+        drop_if_still: bool = False,
     ) -> OdometryState | None:
+        """``drop_if_still``: the previous newest keyframe leaves instead of the oldest when it
+        and this one are both at rest and the window holds motion before them
+        (``VioConfig.drop_at_rest``)."""
         cfg = self.config
         frame = self._with_stereo(frame)
         nav = pim.predict(gtsam.NavState(prev.pose, prev.velocity), prev.bias)
         bias0 = prev.bias
         still = self._still_since(prev, frame)
+        # (only once the window holds motion: at a start at rest it keeps the rest's keyframes)
+        moved = any(not k.still for k in self.window.keyframes[1:])
+        drop_previous = drop_previous or (drop_if_still and still and prev.still and moved)
         k = self._new_kf_index()
         kf = Keyframe(
             index=k, t_ns=frame.t_ns, pose=nav.pose(), velocity=np.asarray(nav.velocity()),
