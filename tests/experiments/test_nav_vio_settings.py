@@ -185,3 +185,22 @@ def test_realistic_sensors_give_the_flight_imu_and_a_calibration_off_as_real_one
     assert 0.05 < float(np.median(biases["realistic"])) < 0.3
     with pytest.raises(ConfigError, match=r"vio\.sensors is a setting of the VIO"):
         nav_builtin("outdoor_vio_gps_odometry", ["vio.sensors=realistic"])
+
+
+@pytest.mark.parametrize(
+    "scenario", ["outdoor_vio_gps", "outdoor_vio_gps_realistic", "indoor_slam", "indoor_vio"]
+)
+def test_a_built_in_turned_to_the_absolute_mode_drops_its_own_relative_settings(
+    scenario: str,
+) -> None:
+    """A scenario that sets its VIO frame's drift rates (a setting of the relative mode) can be
+    flown in the absolute mode with one --set: its own rates are left out, the mode's defaults
+    taken. The caller's own relative settings with the absolute mode are still refused."""
+    sc = nav_builtin(scenario, ["vio.odometry_mode=absolute"])
+    default = NavScenario().vio
+    assert sc.vio.odometry_mode == "absolute"
+    assert sc.vio.frame_drift_m_sqrt_s == default.frame_drift_m_sqrt_s
+    assert sc.vio.frame_drift_from_covariance == default.frame_drift_from_covariance
+    assert nav_builtin(scenario).vio.odometry_mode == "relative"  # (as built, untouched)
+    with pytest.raises(ConfigError, match=r"vio\.frame_drift_yaw_rad_sqrt_s is a setting of"):
+        nav_builtin(scenario, ["vio.odometry_mode=absolute", "vio.frame_drift_yaw_rad_sqrt_s=0.01"])

@@ -267,5 +267,16 @@ def nav_builtin_overrides(name: str) -> list[str]:
 
 
 def nav_builtin(name: str, extra: Iterable[str] = ()) -> NavScenario:
-    """A built-in scenario validated, with ``extra`` overrides on top."""
-    return load_config(NavScenario, None, [*nav_builtin_overrides(name), *extra])
+    """A built-in scenario validated, with ``extra`` overrides on top. When ``extra`` turns the
+    odometry to the absolute mode, the scenario's own settings of the relative mode (its
+    frame's drift rates) are left out: they are its choices for a mode no longer used, not the
+    caller's, and validation refuses such settings where the caller gives them."""
+    from quadnav.experiments.nav_config import RELATIVE_ONLY_VIO_KEYS
+
+    extra = list(extra)
+    builtin = nav_builtin_overrides(name)
+    modes = [e.partition("=")[2].strip() for e in extra if e.startswith("vio.odometry_mode=")]
+    if modes and modes[-1] == "absolute":
+        relative_only = tuple(f"vio.{k}=" for k in RELATIVE_ONLY_VIO_KEYS)
+        builtin = [o for o in builtin if not o.startswith(relative_only)]
+    return load_config(NavScenario, None, [*builtin, *extra])
