@@ -141,8 +141,7 @@ def test_info_counts_bad_imu_rows_instead_of_refusing_the_dataset(tmp_path: Path
 def test_a_motion_file_is_made_whole_unless_a_duration_is_given(tmp_path: Path) -> None:
     """A motion file longer than the built-in flights' 60 s is made to its end by default (it
     was cut at 60 s without a word); ``--duration`` and ``--set duration_s=`` still cut it."""
-    from quadnav.cli.dataset import resolve_make
-    from quadnav.experiments.datasets import _motion, _span
+    from quadnav.experiments.datasets import _motion, _span, sequence_spec
 
     walk = tmp_path / "walk.txt"  # 75 s at 20 Hz: a slow walk along x, turning
     walk.write_text(
@@ -153,13 +152,14 @@ def test_a_motion_file_is_made_whole_unless_a_duration_is_given(tmp_path: Path) 
         )
     )
 
-    def span_s(duration_s: float | None, sets: list[str], motion: str = str(walk)) -> float:
-        spec = resolve_make("room", motion, None, 0, duration_s, sets)
+    def span_s(fields: dict[str, object], sets: list[str]) -> float:
+        spec = sequence_spec("room", fields, sets)
         t0, t1 = _span(spec, _motion(spec))
         return (t1 - t0) * 1e-9
 
-    assert 74.0 < span_s(None, []) <= 75.0  # (the spline gives up a few tenths at its ends)
-    assert span_s(10.0, []) == pytest.approx(10.0, abs=1e-6)
-    assert span_s(None, ["duration_s=20"]) == pytest.approx(20.0, abs=1e-6)
-    assert 74.0 < span_s(None, [f"motion={walk}"], motion="flight_path") <= 75.0
-    assert resolve_make("room", "flight_path", None, 0, None, []).duration_s == 60.0
+    assert 74.0 < span_s({"motion": str(walk)}, []) <= 75.0  # (the spline gives up a few tenths)
+    assert span_s({"motion": str(walk), "duration_s": 10.0}, []) == pytest.approx(10.0, abs=1e-6)
+    assert span_s({"motion": str(walk)}, ["duration_s=20"]) == pytest.approx(20.0, abs=1e-6)
+    assert 74.0 < span_s({}, [f"motion={walk}"]) <= 75.0
+    assert sequence_spec("room", {"motion": "flight_path"}).duration_s == 60.0
+    assert sequence_spec("hall_laps").duration_s == 75.0  # (a built-in keeps its own)

@@ -197,6 +197,8 @@ def test_a_built_in_turned_to_the_absolute_mode_drops_its_own_relative_settings(
     flown in the absolute mode with one --set: its own rates are left out, the mode's defaults
     taken. The caller's own relative settings with the absolute mode are still refused."""
     sc = nav_builtin(scenario, ["vio.odometry_mode=absolute"])
+    for spelt in ('vio.odometry_mode="absolute"', "vio.odometry_mode = absolute"):  # (a sweep's)
+        assert nav_builtin(scenario, [spelt]).vio == sc.vio
     default = NavScenario().vio
     assert sc.vio.odometry_mode == "absolute"
     assert sc.vio.frame_drift_m_sqrt_s == default.frame_drift_m_sqrt_s

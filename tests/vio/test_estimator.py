@@ -375,13 +375,27 @@ def test_at_rest_the_window_keeps_the_keyframes_of_the_motion_before(
     t0 = ds.groundtruth.trajectory.t_ns[0] if ds.groundtruth is not None else 0
     rest_ends = t0 + int(11.4e9)  # (the second sweep begins at 11.5 s)
     oldest: dict[bool, float] = {}
+    published: list[int] = []
     for drop in (True, False):
         vio = VioEstimator(ds.rig, VioConfig(drop_at_rest=drop))
         for item in ds.stream():
             if item.t_ns > rest_ends:
                 break
             vio.push(item)
+            if drop:
+                published += [r.index for r in vio.keyframes()]
         assert vio.initialized
         oldest[drop] = (vio.window.keyframes[0].t_ns - t0) * 1e-9
+        if drop:
+            published += [r.index for r in vio.keyframes(final=True)]
     assert oldest[True] < 5.5, oldest  # a keyframe of the sweep is still in the window
     assert oldest[False] > 6.0, oldest  # only the rest's
+    # the keyframes dropped at rest are not handed out; the others are, in order (a loop
+    # closer's pose graph takes them only so)
+    assert published == sorted(set(published)) and len(published) >= 10
+    kept = VioEstimator(ds.rig, VioConfig(drop_at_rest=True, drop_at_rest_max_s=3.0))
+    for item in ds.stream():
+        if item.t_ns > rest_ends:
+            break
+        kept.push(item)
+    assert (kept.window.keyframes[0].t_ns - t0) * 1e-9 > 6.0  # (bounded: the window slid on)

@@ -53,16 +53,8 @@ def resolve_make(
     set_: list[str],
     sensors: str | None = None,
 ) -> SequenceSpec:
-    """The validated sequence ``dataset make`` would write (no work, no folder). A motion file or
-    scenario without ``--duration`` is made whole (up to the longest sequence, 1800 s); the
-    built-in flights keep their own lengths."""
-    from quadnav.experiments.datasets import BUILT_IN_PATHS, MAX_DURATION_S
-
-    motion_set = [s.partition("=")[2] for s in set_ if s.startswith("motion=")]
-    chosen = motion_set[-1] if motion_set else motion
-    whole = chosen is not None and chosen not in BUILT_IN_PATHS
-    if duration_s is None and whole and not any(s.startswith("duration_s=") for s in set_):
-        duration_s = MAX_DURATION_S
+    """The validated sequence ``dataset make`` would write (no work, no folder): a motion file
+    or scenario without ``--duration`` is made whole (:func:`sequence_spec`)."""
     options = {
         "motion": motion,
         "rig": rig,

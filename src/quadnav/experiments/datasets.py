@@ -22,7 +22,7 @@ from __future__ import annotations
 import json
 import math
 import time
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Literal
@@ -228,6 +228,9 @@ def sequence_spec(
             f"worlds: {', '.join(WORLDS)}"
         )
     base.update(fields or {})
+    overrides = list(overrides)
+    if "duration_s" not in (fields or {}) and _whole_motion(base, overrides):
+        base["duration_s"] = MAX_DURATION_S  # (the span stops at the motion's end)
     spec = with_profile(load_config(SequenceSpec, None, overrides, base=base))
     if spec.world not in WORLDS:
         raise ConfigError(f"world must be one of {', '.join(WORLDS)}, got {spec.world!r}")
@@ -236,6 +239,20 @@ def sequence_spec(
     except GeometryError as exc:
         raise ConfigError(f"--rig: {exc}") from None
     return spec
+
+
+def _whole_motion(base: Mapping[str, object], overrides: Sequence[str]) -> bool:
+    """Whether a sequence is made to its motion's end: a motion file or scenario (not a
+    built-in flight) with no duration given, by ``--duration`` or ``--set duration_s=``; a
+    motion file used to be cut at the built-in flights' 60 s without a word."""
+    from quadnav.io.config import apply_override
+
+    asked: dict[str, object] = {}
+    for o in overrides:
+        if o.partition("=")[0].strip() in ("motion", "duration_s"):
+            apply_override(asked, o)
+    motion = asked.get("motion", base.get("motion"))
+    return "duration_s" not in asked and isinstance(motion, str) and motion not in BUILT_IN_PATHS
 
 
 #: The image conditions a sequence without its own takes, by sensor profile: the realistic

@@ -272,11 +272,15 @@ def nav_builtin(name: str, extra: Iterable[str] = ()) -> NavScenario:
     frame's drift rates) are left out: they are its choices for a mode no longer used, not the
     caller's, and validation refuses such settings where the caller gives them."""
     from quadnav.experiments.nav_config import RELATIVE_ONLY_VIO_KEYS
+    from quadnav.io.config import apply_override
 
     extra = list(extra)
     builtin = nav_builtin_overrides(name)
-    modes = [e.partition("=")[2].strip() for e in extra if e.startswith("vio.odometry_mode=")]
-    if modes and modes[-1] == "absolute":
+    asked: dict[str, object] = {}
+    for e in extra:  # (read as load_config reads them: spaces, quotes, a sweep's JSON)
+        if e.partition("=")[0].strip() == "vio.odometry_mode":
+            apply_override(asked, e)
+    if asked and asked["vio"] == {"odometry_mode": "absolute"}:
         relative_only = tuple(f"vio.{k}=" for k in RELATIVE_ONLY_VIO_KEYS)
         builtin = [o for o in builtin if not o.startswith(relative_only)]
     return load_config(NavScenario, None, [*builtin, *extra])

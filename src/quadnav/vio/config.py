@@ -82,6 +82,13 @@ class VioConfig(ConfigModel):
         "the scale (a monocular VIO lost it over EuRoC MH_01's 20 s on the ground: 0.62 m), "
         "the rest's zero-velocity constraints chained across the dropped ones",
     )
+    drop_at_rest_max_s: float = Field(
+        60.0,
+        gt=0.0,
+        le=3600.0,
+        description="drop_at_rest while the window's oldest keyframe is at most this old: the "
+        "IMU is kept back to it (a vehicle parked for an hour would hold an hour of it)",
+    )
     # VINS-Mono's EuRoC value (1.5 px at focal 460). The KLT residuals after a solve are 0.36 px
     # (rendered room_medium), but a track's errors are not independent from keyframe to
     # keyframe: with 1 px the pose NEES / 6 on corridor1's motion was 2.2 (3 seeds), 1.6 now

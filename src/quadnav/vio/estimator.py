@@ -908,15 +908,23 @@ class VioEstimator:
         nav = pim.predict(gtsam.NavState(prev.pose, prev.velocity), prev.bias)
         bias0 = prev.bias
         still = self._still_since(prev, frame)
-        # (only once the window holds motion: at a start at rest it keeps the rest's keyframes)
+        # (only once the window holds motion: at a start at rest it keeps the rest's keyframes;
+        # and for drop_at_rest_max_s at most: the IMU is kept back to the oldest keyframe)
         moved = any(not k.still for k in self.window.keyframes[1:])
-        drop_previous = drop_previous or (drop_if_still and still and prev.still and moved)
+        young = frame.t_ns - self.window.keyframes[0].t_ns <= s_to_ns(cfg.drop_at_rest_max_s)
+        drop_previous = drop_previous or (
+            drop_if_still and still and prev.still and moved and young
+        )
         k = self._new_kf_index()
         kf = Keyframe(
             index=k, t_ns=frame.t_ns, pose=nav.pose(), velocity=np.asarray(nav.velocity()),
             bias=prev.bias, pim=pim, still=still,
         )  # fmt: skip
         self.window.push(kf, drop_previous=drop_previous)
+        if self.window.dropping == prev.index:
+            # not published: the loop closer takes keyframes in order, as they leave as the
+            # oldest (VINS-Mono's pose graph likewise gets MARGIN_OLD's keyframes only)
+            self._kf_info.pop(prev.index, None)
         self._add_features(kf, frame)
         self.frontend.mark_keyframe(frame)
         with self._stage("optimize"):

@@ -522,6 +522,11 @@ class SlidingWindow:
         for hook in self._hooks:
             self.graph.add_all(hook(kf))
 
+    @property
+    def dropping(self) -> int | None:
+        """The keyframe the next solve drops (``push``'s ``drop_previous``), if any."""
+        return self._dropping
+
     def push(self, kf: Keyframe, *, drop_previous: bool = False) -> None:
         """The next keyframe, joined to the newest by its preintegrated IMU (and, at rest, by
         zero-velocity and no-motion constraints). ``drop_previous``: the newest keyframe so far
