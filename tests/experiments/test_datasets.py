@@ -269,3 +269,31 @@ def test_a_second_flight_in_the_world_of_another_is_in_the_same_world() -> None:
     first = scene(2, None)
     assert scene(7, 2) == first
     assert scene(7, None) != first
+
+
+def test_an_exposure_past_the_motion_s_end_holds_the_end_pose(tmp_path: Path) -> None:
+    """A sequence made to a motion file's end (the default since 2026-12-05): the last frame's
+    5 ms exposure, blurred over a fast motion, reached past the spline and the whole-motion
+    MH_01 failed after 2,700 frames ("lies outside its span"). The exposure's poses past
+    either end are the end's; within the motion they are as before."""
+    from dataclasses import replace
+
+    from quadnav.experiments.datasets import _blur_poses
+    from quadnav.experiments.motions import motion_from_file
+    from quadnav.rig import rig_named
+
+    path = tmp_path / "dash.txt"  # 4 s along x at 2 m/s, 10 Hz
+    path.write_text("".join(f"{k * 0.1:.1f} {0.2 * k:.2f} 0 1.5 0 0 0 1\n" for k in range(41)))
+    motion = motion_from_file(path)
+    cam = replace(rig_named("euroc").cameras[0], exposure_s=0.005)
+    T_C_B = cam.T_B_C.inverse()
+    for t_mid, end in ((motion.t_end_ns, motion.t_end_ns), (motion.t_start_ns, motion.t_start_ns)):
+        poses = _blur_poses(motion, cam, int(t_mid), 1.0)
+        assert len(poses) > 2  # (blurred: 2 m/s seen at 1 m)
+        p_end = motion.pose(np.array([end], np.int64))[0][0]
+        x = [float((T @ T_C_B).p_A_B[0]) for T in poses]
+        assert min(abs(v - p_end[0]) for v in x) < 1e-9  # the end's pose holds
+        assert all(abs(v - p_end[0]) <= 0.0051 for v in x)  # nothing past 2.5 ms at 2 m/s
+    mid = (motion.t_start_ns + motion.t_end_ns) // 2
+    x = [float((T @ T_C_B).p_A_B[0]) for T in _blur_poses(motion, cam, int(mid), 1.0)]
+    assert max(x) - min(x) == pytest.approx(0.01, rel=0.05)  # 5 ms at 2 m/s, as before

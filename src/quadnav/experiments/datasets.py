@@ -369,7 +369,9 @@ class _Shot:
 
 def _blur_poses(motion: SplineMotion, cam: CameraSpec, t_mid_ns: int, depth_m: float) -> list[Pose]:
     """Camera poses over the exposure centred on ``t_mid_ns``: one per ~1.5 px of image motion
-    (from the rotation rate and the speed over the scene's depth), at most 9."""
+    (from the rotation rate and the speed over the scene's depth), at most 9. Where the
+    exposure reaches past either end of the motion (a sequence made to a motion file's end),
+    the pose at that end holds."""
     T_B_C = cam.T_B_C
     if cam.exposure_s <= 0.0:
         return [pose @ T_B_C for pose in _body_poses(motion, np.array([t_mid_ns]))]
@@ -380,7 +382,8 @@ def _blur_poses(motion: SplineMotion, cam: CameraSpec, t_mid_ns: int, depth_m: f
     n = int(min(max(math.ceil(blur_px / 1.5), 1), 9))
     half = 0.5 * cam.exposure_s * NS_PER_S
     ts = np.round(t_mid_ns + np.linspace(-half, half, n) if n > 1 else np.array([t_mid_ns]))
-    return [pose @ T_B_C for pose in _body_poses(motion, ts.astype(np.int64))]
+    ts = np.clip(ts.astype(np.int64), int(motion.t_start_ns), int(motion.t_end_ns))
+    return [pose @ T_B_C for pose in _body_poses(motion, ts)]
 
 
 def _motion(spec: SequenceSpec) -> SplineMotion:
