@@ -63,6 +63,35 @@ def test_fast_motion_does_not_read_as_noise() -> None:
     assert np.all(mo.gyro < 0.1 * 2.8e-3) and np.all(mo.accel < 0.1 * 0.062)
 
 
+def test_a_touchdown_shock_is_not_read_as_noise() -> None:
+    """A touchdown at 2 m/s (one accelerometer reading of 290 m/s^2 and a gyro kick, as
+    ``outdoor_vio_gps_realistic``'s simulated vehicle reads it) in a 2 s window of EuRoC's
+    in-flight noise, 20 seeds: every estimate within 25 % of the noise, the mean within 10 %
+    (the mean of the squares made it about 300 times); and the noise tripled over the last
+    quarter of the window (a take-off) still reads within 10 % of its RMS, in the mean."""
+    gyro_d, accel_d = 2.8e-3, 0.062
+    shock, step = [], []
+    for seed in range(20):
+        g, a = _white(np.random.default_rng(seed), 800, gyro_d, accel_d)
+        g2, a2 = g.copy(), a.copy()
+        a[700, 2] += 290.0
+        a[701, 2] -= 20.0
+        g[700] += 2.0
+        g2[600:] *= 3.0
+        a2[600:] *= 3.0
+        for out, (gg, aa) in ((shock, (g, a)), (step, (g2, a2))):
+            m = ImuNoiseMonitor(window_s=2.0, rate_hz=RATE)
+            _feed(m, gg, aa)
+            n = m.noise()
+            assert n is not None
+            out.append(np.concatenate([n.gyro / gyro_d, n.accel / accel_d]))
+    r = np.array(shock)
+    assert np.all(np.abs(r - 1.0) < 0.25), r.max(axis=0)
+    assert np.all(np.abs(r.mean(axis=0) - 1.0) < 0.1), r.mean(axis=0)
+    rms = np.sqrt((1.0 + 9.0) / 2.0)
+    assert np.all(np.abs(np.array(step).mean(axis=0) / rms - 1.0) < 0.1)
+
+
 def test_gaps_bad_samples_and_too_few_readings() -> None:
     """A jump across a 1 s gap, a NaN and a repeated stamp do not enter the differences; fewer
     than the minimum readings give no estimate."""
