@@ -44,3 +44,48 @@ def test_a_widened_velocity_is_as_uncertain_as_the_drift_implied() -> None:
     sigma_vx = float(np.sqrt(ekf.P[3, 3]))
     # 6 m of innovation after 2 s refused: about 2 to 3 m/s per second of refusal
     assert 1.5 < sigma_vx < 4.0
+
+
+def _landed_after(
+    v0: np.ndarray, p_sigma_m: float = 0.3, force_g: float = 1.0
+) -> tuple[NavEkf, list[bool]]:
+    """A filter sure of its velocity ``v0`` (1 cm/s) with its position and velocity
+    correlated as after a flight (2 s of prediction), then 1 s of zero-velocity updates
+    ("landed", 25 Hz, 2 cm/s) while the IMU reads ``force_g`` (1: a body at rest; 0: falling)
+    for the last second."""
+    from quadnav.messages import VelocitySample
+
+    P0 = np.diag([p_sigma_m**2] * 3 + [1e-4] * 3 + [1e-4] * 3 + [1e-8] * 3 + [1e-6] * 3)
+    ekf = NavEkf(NavEkfConfig(), p0=np.zeros(3), v0=v0, q0_xyzw=[0, 0, 0, 1.0], P0=P0)
+    g = ekf.config.gravity_m_s2
+    accepted = []
+    for k in range(1, 301):
+        t_ns = round(k * DT_S * 1e9)
+        f = g if k <= 200 else force_g * g
+        ekf.predict(ImuSample(t_ns=t_ns, gyro_rad_s=np.zeros(3), accel_m_s2=[0, 0, f]), DT_S)
+        if k > 200 and k % 4 == 0:
+            zvu = VelocitySample(t_ns=t_ns, v_W_B=np.zeros(3), sigma_m_s=0.02)
+            accepted.append(ekf.fuse(zvu).accepted)
+    return ekf, accepted
+
+
+def test_a_velocity_far_off_at_touchdown_is_reset_by_the_zero_velocity_update() -> None:
+    """A hard touchdown leaves the velocity 2 m/s off while the filter is sure of it. Refused
+    by the gate (as every update was until 2026-12-05), the velocity stayed off and the
+    landed estimate ran away; fused past the gate, it dragged the position metres through
+    their correlation. Reset: the velocity is zero, the position stays where the prediction
+    had it, and the next updates are fused."""
+    v0 = np.array([2.0, -1.0, 0.5])
+    ekf, accepted = _landed_after(v0)
+    resets = [msg for _, msg in ekf.events if msg.startswith("landed: velocity")]
+    assert len(resets) == 1 and "2.29 m/s off" in resets[0]
+    assert not accepted[0] and all(accepted[1:])
+    assert np.linalg.norm(ekf.v) < 0.02
+    # where 2.04 s at v0 put it (the reset comes at the first update, at 2.04 s)
+    assert np.allclose(ekf.p, v0 * 2.04, atol=0.02)
+    # a velocity a little off is fused as any measurement: no reset
+    ekf, accepted = _landed_after(np.array([0.01, 0.0, 0.0]))
+    assert all(accepted) and not any("landed" in m for _, m in ekf.events)
+    # a body the accelerometer says is falling (motors cut above the ground) is not reset
+    ekf, accepted = _landed_after(v0, force_g=0.0)
+    assert not all(accepted) and not any("landed" in m for _, m in ekf.events)

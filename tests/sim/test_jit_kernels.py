@@ -202,8 +202,8 @@ def test_the_navigation_prediction_kernel_is_the_textbook_one() -> None:
 
 def test_the_rigid_body_step_kernel_is_rk4_the_ground_and_the_acceleration() -> None:
     """``_step`` against its parts in numpy: the RK4 step, the ground plane (a state below it
-    put on it, and stopped when sinking), the acceleration over the step; a command or a state
-    that is not finite refused, and said which."""
+    put on it, and stopped when sinking, its attitude kept), the acceleration over the step; a
+    command or a state that is not finite refused, and said which."""
     p = RigidBodyParams()
     consts = rigid_body._model_constants(p)
     rng = np.random.default_rng(12)
@@ -217,6 +217,7 @@ def test_the_rigid_body_step_kernel_is_rk4_the_ground_and_the_acceleration() -> 
             want[2] = 0.0
             if want[5] < 0.0:
                 want[[3, 4, 5, 10, 11, 12]] = 0.0
+                want[6:10] = s[6:10]
         out, accel = np.full(17, np.nan), np.full(3, np.nan)
         assert rigid_body._step(s, cmd, wind, consts, 0.002, out, accel) == rigid_body._OK
         np.testing.assert_array_equal(out, want)

@@ -88,6 +88,21 @@ def test_ground_plane_take_off_and_landing() -> None:
     assert min(heights) == 0.0 and s[2] == 0.0 and s[5] == 0.0  # landed and stays, never below
 
 
+def test_on_the_ground_nothing_turns_that_the_gyro_does_not_see() -> None:
+    """Rotors spinning down unevenly on the ground (a torque, no lift): the body stands still,
+    its attitude kept while its rates read zero. Each step zeroed the rates but kept the turn
+    the step had integrated: after a touchdown the vehicle tilted 4 degrees in 1.5 s that no
+    gyro saw, and the landed estimate ran off (``outdoor_vio_gps_realistic``, 2026-12-05)."""
+    sim = RigidBodyQuadrotor(P)
+    cmd = np.full(4, 0.5 * P.hover_omega_rad_s)
+    cmd[0] *= 1.6  # one rotor faster: a torque about a horizontal axis and about z
+    q0 = sim.step(cmd)[6:10].copy()
+    for _ in range(2000):
+        s = sim.step(cmd)
+        assert s[2] == 0.0 and np.all(s[10:13] == 0.0)
+    assert np.allclose(s[6:10], q0, atol=1e-12)
+
+
 def test_gusts_have_the_configured_spread() -> None:
     wind = Wind(
         mean_m_s=(1.0, 0.0, 0.0), gust_sigma_m_s=2.0, gust_tau_s=0.5, rng=np.random.default_rng(3)

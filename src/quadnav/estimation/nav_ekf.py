@@ -642,6 +642,7 @@ class NavEkf:
         # the observation models by sample type (quadnav.estimation.nav_observations)
         self.observations = builtin_observations(gate_thresholds(config.flow_gate_sigma, (2,))[2])
         self._w_B = np.zeros(3)  # the body rate (bias removed) of the last prediction
+        self._f_B = np.zeros(3)  # the specific force (bias removed) of the last prediction
         # GNSS fixes in the world frame (ENU): about the datum given, or the first fix put
         # where the filter is then
         self._navsat: NavSatTransform | None = (
@@ -759,7 +760,7 @@ class NavEkf:
             self.R, self.v, self.p, imu.gyro_rad_s, imu.accel_m_s2, self.bg, self.ba, dt_s,
             self._g_W, self._F, self._G, q, self._P, not self._relative, (w, f, R, v, p, P),
         )  # fmt: skip
-        self._w_B, self.R, self.v, self.p = w, R, v, p
+        self._w_B, self._f_B, self.R, self.v, self.p = w, f, R, v, p
         if self._relative:
             P = self._predict_with_drift(self._F, self._G, q, dt_s)
         if self.bias_gate is not None:
@@ -843,6 +844,11 @@ class NavEkf:
         """The body rate, biases removed, of the last prediction."""
         return self._w_B
 
+    @property
+    def specific_force_m_s2(self) -> FloatArray:
+        """The specific force, bias removed, of the last prediction (body frame)."""
+        return self._f_B
+
     def update(
         self, r: FloatArray, H: FloatArray, Rn: FloatArray, *, gate: float | None = None
     ) -> FusionResult:
@@ -850,6 +856,16 @@ class NavEkf:
         odometry drift's after them), noise ``Rn``; refused beyond the chi-square gate of its
         size (or ``gate``)."""
         return self._update(r, H, Rn, gate=gate)
+
+    def reset_velocity(self, t_ns: int, v: FloatArray, var: FloatArray, source: str) -> None:
+        """Set the velocity to ``v`` with variances ``var``, its correlations forgotten, and
+        say so: what a zero-velocity update does when the velocity is too far off to fuse (a
+        hard touchdown), so that the position is not dragged along through them."""
+        off = float(np.linalg.norm(self.v - v))
+        self.v = np.asarray(v, dtype=np.float64).copy()
+        self._reset_entries(_VEL, np.asarray(var, dtype=np.float64))
+        self._last_accepted_ns[source] = t_ns
+        self.events.append((t_ns, f"{source}: velocity {off:.2f} m/s off, reset to it"))
 
     def gated_update(
         self,

@@ -256,6 +256,8 @@ def _step(
             for i in range(3):
                 out[3 + i] = 0.0
                 out[10 + i] = 0.0
+            for i in range(6, 10):  # the turn the step integrated, undone with its rate
+                out[i] = s[i]
     if not _all_finite(out):
         return _DIVERGED
     for i in range(3):
