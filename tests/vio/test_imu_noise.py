@@ -66,30 +66,61 @@ def test_fast_motion_does_not_read_as_noise() -> None:
 def test_a_touchdown_shock_is_not_read_as_noise() -> None:
     """A touchdown at 2 m/s (one accelerometer reading of 290 m/s^2 and a gyro kick, as
     ``outdoor_vio_gps_realistic``'s simulated vehicle reads it) in a 2 s window of EuRoC's
-    in-flight noise, 20 seeds: every estimate within 25 % of the noise, the mean within 10 %
-    (the mean of the squares made it about 300 times); and the noise tripled over the last
-    quarter of the window (a take-off) still reads within 10 % of its RMS, in the mean."""
+    in-flight noise, 20 seeds: every estimate within 25 % of the noise, the mean within 15 %
+    (the shock touches three differences, each capped at 16 times the typical: about +6 % in
+    density on 400; the mean of the squares made it about 300 times)."""
     gyro_d, accel_d = 2.8e-3, 0.062
-    shock, step = [], []
+    shock = []
     for seed in range(20):
         g, a = _white(np.random.default_rng(seed), 800, gyro_d, accel_d)
-        g2, a2 = g.copy(), a.copy()
         a[700, 2] += 290.0
         a[701, 2] -= 20.0
         g[700] += 2.0
-        g2[600:] *= 3.0
-        a2[600:] *= 3.0
-        for out, (gg, aa) in ((shock, (g, a)), (step, (g2, a2))):
-            m = ImuNoiseMonitor(window_s=2.0, rate_hz=RATE)
-            _feed(m, gg, aa)
-            n = m.noise()
-            assert n is not None
-            out.append(np.concatenate([n.gyro / gyro_d, n.accel / accel_d]))
+        m = ImuNoiseMonitor(window_s=2.0, rate_hz=RATE)
+        _feed(m, g, a)
+        n = m.noise()
+        assert n is not None
+        shock.append(np.concatenate([n.gyro / gyro_d, n.accel / accel_d]))
     r = np.array(shock)
     assert np.all(np.abs(r - 1.0) < 0.25), r.max(axis=0)
-    assert np.all(np.abs(r.mean(axis=0) - 1.0) < 0.1), r.mean(axis=0)
-    rms = np.sqrt((1.0 + 9.0) / 2.0)
-    assert np.all(np.abs(np.array(step).mean(axis=0) / rms - 1.0) < 0.1)
+    assert np.all(np.abs(r.mean(axis=0) - 1.0) < 0.15), r.mean(axis=0)
+
+
+@pytest.mark.parametrize("flying_s", [0.2, 0.5, 1.0])
+def test_the_noise_s_rise_at_take_off_is_not_capped(flying_s: float) -> None:
+    """A take-off: the datasheet's noise on the ground, then EuRoC's rotors (16x the gyro's,
+    31x the accelerometer's) over the window's last ``flying_s``, 20 seeds: the mean estimate
+    within 10 % of the window's RMS noise. A cap that followed the whole window's median alone
+    read 2.6x and 2.8x (a quarter of the window in flight) for about a second."""
+    gyro_d, accel_d = 1.8e-4, 2.0e-3  # EuRoC's ADIS16448 datasheet
+    k = 800 - round(flying_s * RATE)
+    share = flying_s / 2.0
+    truth = np.array([gyro_d * np.sqrt(1 - share + share * 16**2)] * 3
+                     + [accel_d * np.sqrt(1 - share + share * 31**2)] * 3)  # fmt: skip
+    est = []
+    for seed in range(20):
+        g, a = _white(np.random.default_rng(seed), 800, gyro_d, accel_d)
+        g[k:] *= 16.0
+        a[k:] *= 31.0
+        m = ImuNoiseMonitor(window_s=2.0, rate_hz=RATE)
+        _feed(m, g, a)
+        n = m.noise()
+        assert n is not None
+        est.append(np.concatenate([n.gyro, n.accel]) / truth)
+    assert np.all(np.abs(np.mean(est, axis=0) - 1.0) < 0.1), np.mean(est, axis=0)
+
+
+def test_readings_quantised_to_one_value_are_not_capped_to_nothing() -> None:
+    """An axis whose readings mostly repeat (a quantised, quiet sensor: most second
+    differences exactly zero) is read from the rest, not capped to zero."""
+    rng = np.random.default_rng(4)
+    g = np.zeros((800, 3))
+    a = np.zeros((800, 3))
+    a[rng.random(800) < 0.1, 0] = 0.01  # a one-LSB flicker on x, a tenth of the time
+    m = ImuNoiseMonitor(window_s=2.0, rate_hz=RATE)
+    _feed(m, g, a)
+    n = m.noise()
+    assert n is not None and n.accel[0] > 0.0 and n.accel[1] == 0.0
 
 
 def test_gaps_bad_samples_and_too_few_readings() -> None:

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from dataclasses import replace
 from typing import Protocol, TypeVar
 
 import numpy as np
@@ -45,7 +46,6 @@ from quadnav.messages import (
     RangeSample,
     VelocitySample,
 )
-from quadnav.units import GRAVITY_M_S2
 
 __all__ = [
     "NavUpdater",
@@ -122,6 +122,9 @@ class NavUpdater(Protocol):
 
 class _ObservationConfig(Protocol):
     """The settings the built-in models read (of :class:`~quadnav.estimation.nav_ekf.NavEkfConfig`)."""
+
+    @property
+    def gravity_m_s2(self) -> float: ...
 
     @property
     def mag_declination_rad(self) -> float: ...
@@ -321,11 +324,12 @@ class VelocityModel(_Always):
         r = obs.v_W_B - ekf.v
         var = np.full(3, obs.sigma_m_s**2)
         res = ekf.update(r, H, np.diag(var))
-        force = float(np.linalg.norm(ekf.specific_force_m_s2))
-        standing = abs(force - GRAVITY_M_S2) < REST_FORCE_FRACTION * GRAVITY_M_S2
-        if not res.accepted and standing:  # (as sure of it as the old one was off)
-            ekf.reset_velocity(obs.t_ns, obs.v_W_B, np.maximum(var, r**2), obs.source)
-        return res
+        g = ekf.config.gravity_m_s2
+        standing = abs(float(np.linalg.norm(ekf.specific_force_m_s2)) - g) < REST_FORCE_FRACTION * g
+        if res.accepted or not standing:
+            return res
+        ekf.reset_velocity(obs.t_ns, obs.v_W_B, np.maximum(var, r**2), obs.source)
+        return replace(res, accepted=True)  # (taken, as a reset: as sure of it as it was off)
 
 
 class FlowModel:

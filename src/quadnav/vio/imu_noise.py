@@ -18,9 +18,12 @@ A shock is not noise: a touchdown at 2 m/s reads 290 m/s^2 for one sample, and i
 made the accelerometer's noise 650 times the stated one for the window's two seconds, in which
 the VIO, its IMU weighed at almost nothing, drifted off and the flight's estimate with it
 (``outdoor_vio_gps_realistic``, 2026-12-05). Each squared difference is capped at
-:data:`SHOCK_CAP` times the window's typical one (its median, over the chi-square's median
-0.455): Gaussian noise loses 6e-5 of its samples to the cap and keeps its mean; a vibration's
-sinusoid none.
+:data:`SHOCK_CAP` times the typical one (a median, over the chi-square's median 0.455): Gaussian
+noise loses 6e-5 of its samples to the cap and keeps its mean; a vibration's sinusoid none. The
+typical one is the larger of the window's median and the last :data:`RECENT_S`'s, so that the
+noise's rise at a take-off (16x and 31x within a sample) is not capped at the ground's level
+until it fills half the window; a touchdown's few samples move neither median. An axis whose
+median is zero (readings quantised to the same value) is not capped.
 """
 
 from __future__ import annotations
@@ -39,6 +42,8 @@ FloatArray = NDArray[np.float64]
 
 #: a squared second difference is capped at this many times the window's typical one (4 sigma)
 SHOCK_CAP = 16.0
+#: the span of the recent readings whose median the cap also follows (s)
+RECENT_S = 0.25
 #: the median of a chi-square variable of one degree of freedom: a squared Gaussian's median
 #: over its mean
 CHI2_1_MEDIAN = 0.4549364
@@ -63,6 +68,7 @@ class ImuNoiseMonitor:
         if not (math.isfinite(rate_hz) and rate_hz > 0.0):
             raise ValueError(f"rate_hz must be positive, got {rate_hz}")
         self._n = max(round(window_s * rate_hz), 8)
+        self._recent = min(max(round(RECENT_S * rate_hz), 8), self._n)
         self._sq = np.zeros((self._n, 6))  # squared second differences, a ring
         self._dt = np.zeros(self._n)
         self._count = 0
@@ -101,7 +107,9 @@ class ImuNoiseMonitor:
             return None
         sq = self._sq[: self._count] if self._count < self._n else self._sq
         dt = self._dt[: self._count] if self._count < self._n else self._dt
-        typical = np.median(sq, axis=0) / CHI2_1_MEDIAN
-        capped = np.minimum(sq, SHOCK_CAP * typical)
+        m = min(self._recent, self._count)
+        recent = self._sq[(self._head - 1 - np.arange(m)) % self._n]
+        typical = np.maximum(np.median(sq, axis=0), np.median(recent, axis=0)) / CHI2_1_MEDIAN
+        capped = np.minimum(sq, np.where(typical > 0.0, SHOCK_CAP * typical, np.inf))
         density = np.sqrt(capped.mean(axis=0) / 6.0 * float(dt.mean()))
         return MeasuredNoise(gyro=density[:3], accel=density[3:], samples=self._count)
