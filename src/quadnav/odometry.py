@@ -299,12 +299,18 @@ class RefinedTrajectory(Protocol):
 class LoopConstraint:
     """A verified loop between two keyframes of one odometry (its keyframe numbers): the
     ``new`` one's body pose in the ``old`` one's, ``T_old_new``, and its 6x6 covariance
-    ``cov`` in the module's convention (rx, ry, rz, x, y, z at ``new``, in its body frame)."""
+    ``cov`` in the module's convention (rx, ry, rz, x, y, z at ``new``, in its body frame).
+    What it was measured from, where known: the old side's landmarks (``landmark_ids``, track ids
+    as in :class:`KeyframeRecord`) and where the ``new`` keyframe's first camera saw each
+    (``xy``, undistorted normalised coordinates): an odometry that keeps those landmarks can
+    take the loop as their observations rather than as a relative pose."""
 
     old: int
     new: int
     T_old_new: Pose
     cov: FloatArray
+    landmark_ids: IntArray = field(default_factory=lambda: np.zeros(0, np.int64))
+    xy: FloatArray = field(default_factory=lambda: np.zeros((0, 2)))
 
     def __post_init__(self) -> None:
         c = np.asarray(self.cov, dtype=np.float64)
@@ -312,6 +318,15 @@ class LoopConstraint:
             raise SampleError(f"LoopConstraint: cov must be a finite 6x6 matrix, got {c.shape}")
         if np.any(np.linalg.eigvalsh(0.5 * (c + c.T)) <= 0.0):
             raise SampleError("LoopConstraint: cov must be positive definite")
+        ids = np.asarray(self.landmark_ids, np.int64).reshape(-1)
+        xy = np.asarray(self.xy, np.float64)
+        if xy.shape != (len(ids), 2) or not np.all(np.isfinite(xy)):
+            raise SampleError(
+                f"LoopConstraint: xy must be finite, one row of 2 per landmark id ({len(ids)}), "
+                f"got {xy.shape}"
+            )
+        object.__setattr__(self, "landmark_ids", ids)
+        object.__setattr__(self, "xy", xy)
 
 
 @runtime_checkable

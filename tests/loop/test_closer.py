@@ -15,7 +15,7 @@ from quadnav.loop import LoopClosure, LoopConfig
 from quadnav.messages import ImageFrame
 from quadnav.odometry import KeyframeStep, LoopConstraint
 from quadnav.posegraph import PoseGraphConfig
-from tests.loop.drifting import CAMERA, PER_LAP, T_B_C, DriftingOdometry
+from tests.loop.drifting import CAMERA, FOCAL_PX, PER_LAP, T_B_C, DriftingOdometry
 
 #: the graph told the simulated odometry's own drift per keyframe
 LOOP = LoopConfig(
@@ -299,6 +299,12 @@ def test_the_final_trajectory_is_refined_with_the_runs_loops_and_its_pose_graph(
         for c in loops:
             true = odo.truth[c.old].inverse() @ odo.truth[c.new]
             assert np.linalg.norm(c.T_old_new.p_A_B - true.p_A_B) < 0.1
+            # what it was measured from: old landmarks (ids of the room's points) and where
+            # the new keyframe saw them (the truth's projection, within the 0.7 px noise)
+            assert len(c.landmark_ids) >= LOOP.verification.min_inliers
+            X = odo.X[c.landmark_ids] + (odo.shift if c.new >= PER_LAP else 0.0)
+            Xc = (odo.truth[c.new] @ T_B_C).inverse() @ X
+            assert np.abs(Xc[:, :2] / Xc[:, 2:] - c.xy).max() < 4.0 / FOCAL_PX
             assert np.all(np.diag(c.cov)[3:] >= LOOP.loop_floor_m**2 * 0.999)
             assert np.all(np.diag(c.cov)[:3] >= LOOP.loop_floor_yaw_rad**2 * 0.999)
         graph = loop.graph.keyframe_poses()

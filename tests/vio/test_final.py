@@ -362,3 +362,89 @@ def test_a_new_start_the_pose_graph_joined_is_moved_onto_its_poses() -> None:
     assert all(_position_error(apart, k) > 1.0 for k in range(20, 28))
     only_first = smooth_segments(segs[:1], 30, anchor={0: own})[0]
     assert _position_error(only_first, 0) < 1e-6  # (the first segment keeps its frame)
+
+
+def test_a_loop_taken_as_observations_replaces_its_relative_pose() -> None:
+    """With an observer (``VioConfig.loops_as_observations``), a loop whose observations the
+    segment can hold enters as them instead of as its relative pose: here the observer's
+    factor (the truth's pose of the new keyframe, standing in for its projections of the old
+    landmarks) brings the end to the truth even though the loop's relative pose is wrong by
+    a metre; the observer sees the keys the segment's factors hold. An observer that finds
+    too few (returns none) leaves the loop as its relative pose."""
+    from quadnav.geometry.gtsam_bridge import to_pose
+    from quadnav.odometry import LoopConstraint
+
+    n = 24
+    seg = _drifting_chain(n)
+    wrong = _truth(n - 1).compose(gtsam.Pose3(gtsam.Rot3(), np.array([1.0, 0.0, 0.0])))
+    cov = np.diag([1e-6] * 3 + [1e-4] * 3)
+    loop = LoopConstraint(old=0, new=n - 1, T_old_new=to_pose(wrong), cov=cov,
+                          landmark_ids=np.arange(3), xy=np.zeros((3, 2)))  # fmt: skip
+    seen: list[set[int]] = []
+
+    def observe(lp: LoopConstraint, held: set[int]) -> list[gtsam.NonlinearFactor]:
+        seen.append(held)
+        return [gtsam.PriorFactorPose3(X(lp.new), _truth(lp.new), _noise(1e-3))]
+
+    poses, rep = smooth_segments([seg], 30, [loop], observe=observe)
+    assert rep.loops == 1 and rep.loops_observed == 1
+    assert seen == [{X(k) for k in range(n)}]
+    assert _position_error(poses, n - 1) < 0.01
+    as_pose, rep2 = smooth_segments([seg], 30, [loop], observe=lambda lp, held: [])
+    assert rep2.loops == 1 and rep2.loops_observed == 0
+    assert _position_error(as_pose, n - 1) > 0.5  # the wrong relative pose, taken
+
+
+def test_a_loop_s_matches_must_be_one_row_per_landmark() -> None:
+    from quadnav.errors import SampleError
+    from quadnav.geometry.rotations import Pose
+    from quadnav.odometry import LoopConstraint
+
+    cov = np.diag([1e-6] * 3 + [1e-4] * 3)
+    with pytest.raises(SampleError, match="one row of 2 per landmark id"):
+        LoopConstraint(old=0, new=3, T_old_new=Pose.identity(), cov=cov,
+                       landmark_ids=np.arange(4), xy=np.zeros((3, 2)))  # fmt: skip
+    with pytest.raises(SampleError, match="finite"):
+        LoopConstraint(old=0, new=3, T_old_new=Pose.identity(), cov=cov,
+                       landmark_ids=np.arange(1), xy=np.full((1, 2), np.nan))  # fmt: skip
+
+
+def test_a_loop_s_matches_become_projections_of_the_window_s_own_landmarks(
+    tmp_path_factory: pytest.TempPathFactory,
+) -> None:
+    """``loops_as_observations``: a loop between two keyframes of a run, made from the old
+    one's landmarks that the new one saw (their track ids and its normalised points), enters
+    the final smoothing as projections of the landmarks the window kept for those tracks. The
+    same observations again (the new keyframe already has them) barely move the trajectory;
+    a loop whose tracks the window never held falls back to its relative pose."""
+    from dataclasses import replace
+
+    from quadnav.odometry import LoopConstraint
+
+    ds = rendered(
+        tmp_path_factory, "room_medium", duration_s=6.0, still_s=0.0, rig="euroc", seed=3,
+        sensors="realistic",
+    )  # fmt: skip
+    cfg = VioConfig(stereo=True, final_smoothing=True, loops_as_observations=True)
+    vio = VioEstimator(ds.rig, cfg)
+    recs = []
+    for s in ds.stream():
+        vio.push(s)
+        recs.extend(vio.keyframes())
+    recs.extend(vio.keyframes(final=True))
+    a, b = recs[5], recs[8]
+    shared = np.intersect1d(a.landmark_ids, b.ids)
+    assert len(shared) >= 12
+    row = {int(i): k for k, i in enumerate(b.ids.tolist())}
+    xy = b.xy[[row[int(j)] for j in shared]]
+    loop = LoopConstraint(old=a.index, new=b.index, T_old_new=a.T_W_B.inverse() @ b.T_W_B,
+                          cov=np.diag([1e-4] * 6), landmark_ids=shared, xy=xy)  # fmt: skip
+    base = vio.final_trajectory_with([], {})
+    unknown = vio.final_trajectory_with([replace(loop, landmark_ids=shared + 10**9)], {})
+    rep = vio.smoothing
+    assert rep is not None and rep.loops == 1 and rep.loops_observed == 0
+    observed = vio.final_trajectory_with([loop], {})
+    rep = vio.smoothing
+    assert rep is not None and rep.loops == 1 and rep.loops_observed == 1
+    assert np.abs(observed.p_W_B - base.p_W_B).max() < 0.01
+    assert len(unknown) == len(base)

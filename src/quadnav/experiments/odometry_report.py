@@ -190,9 +190,10 @@ def _final_rows(final: Mapping[str, object] | None) -> list[list[object]]:
                          fmt_metric(float(ape["rmse_m"]), ".4g")])  # fmt: skip
     sm = final.get("smoothing")
     if isinstance(sm, Mapping):
-        rows.append(["final smoothing: segments, failed, loops as factors (unused)",
+        rows.append(["final smoothing: segments, failed, loops as factors (of them as "
+                     "observations; unused)",
                      f"{sm.get('segments')}, {sm.get('failed')}, {sm.get('loops', 0)} "
-                     f"({sm.get('loops_unused', 0)})"])  # fmt: skip
+                     f"({sm.get('loops_observed', 0)}; {sm.get('loops_unused', 0)})"])  # fmt: skip
     return rows
 
 

@@ -66,6 +66,7 @@ from quadnav.rig import CameraSpec
 from quadnav.units import NS_PER_S, s_to_ns
 
 FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
 
 #: The longest the last keyframes wait for the pose graph's solve (s): a run never hangs on it.
 FINAL_WAIT_S = 60.0
@@ -268,16 +269,22 @@ class LoopStats:
         }  # fmt: skip
 
 
-def loop_constraint(old: int, new: int, T_old_new: Pose, cov_4dof: FloatArray) -> LoopConstraint:
+def loop_constraint(
+    old: int, new: int, T_old_new: Pose, cov_4dof: FloatArray,
+    matches: tuple[IntArray, FloatArray] | None = None,
+) -> LoopConstraint:  # fmt: skip
     """A verified loop as a 6-DoF constraint (:class:`~quadnav.odometry.LoopConstraint`): the
     position's covariance (in the old keyframe's body frame) turned into the new one's, and
-    the yaw's variance for all three turns (PnP fixes roll and pitch as well as yaw)."""
+    the yaw's variance for all three turns (PnP fixes roll and pitch as well as yaw).
+    ``matches``: the PnP's inliers, the old side's landmark ids and the new keyframe's
+    normalised coordinates of them."""
     c = np.asarray(cov_4dof, dtype=np.float64)
     R = T_old_new.R_A_B.as_matrix()
     cov = np.zeros((6, 6))
     cov[:3, :3] = np.eye(3) * c[3, 3]
     cov[3:, 3:] = R.T @ c[:3, :3] @ R
-    return LoopConstraint(old=old, new=new, T_old_new=T_old_new, cov=cov)
+    ids, xy = matches if matches is not None else (np.zeros(0, np.int64), np.zeros((0, 2)))
+    return LoopConstraint(old=old, new=new, T_old_new=T_old_new, cov=cov, landmark_ids=ids, xy=xy)
 
 
 def local_map(old: KeyframeRecord, near: Sequence[KeyframeRecord], T_B_C: Pose) -> KeyframeRecord:
@@ -719,9 +726,10 @@ class LoopClosure:
         self.stats.recognised += 1
         k = self.config.local_map_keyframes
         near = [r for i in range(old.index - k, old.index + k + 1) if (r := self._by_index.get(i))]
+        local = local_map(old, near, self._T_B_C)
         v = verify_place(
-            query, local_map(old, near, self._T_B_C), focal_px=self._focal_px,
-            T_B_C=self._T_B_C, config=self.config.verification,
+            query, local, focal_px=self._focal_px, T_B_C=self._T_B_C,
+            config=self.config.verification,
         )  # fmt: skip
         place = PlaceEvent(old=old.index, new=rec.index, t_old_ns=old.t_ns, t_new_ns=rec.t_ns,
                            stage=v.stage, n_matches=v.n_matches, n_fundamental=v.n_fundamental,
@@ -742,7 +750,8 @@ class LoopClosure:
             sigma_4dof=tuple(sigma.tolist()),
         ))  # fmt: skip
         self._last_loop = rec.index
-        self._add_loop(old.index, rec.index, T, v.loop.cov_4dof)
+        matches = (local.ids[v.loop.old_rows], query.xy[v.loop.query_rows])
+        self._add_loop(old.index, rec.index, T, v.loop.cov_4dof, matches)
         seg = self.segments.items[self._segment_of[rec.index]]
         if not seg.joined and self._in_map(old.index):  # (a loop inside it joins nothing)
             seg.joined = True
@@ -757,7 +766,10 @@ class LoopClosure:
         seg = self._segment_of.get(index)
         return seg == MAP_FRAME or (seg is not None and self.segments.items[seg].joined)
 
-    def _add_loop(self, old: int, new: int, T_old_new: Pose, cov_4dof: FloatArray) -> None:
+    def _add_loop(
+        self, old: int, new: int, T_old_new: Pose, cov_4dof: FloatArray,
+        matches: tuple[IntArray, FloatArray] | None = None,
+    ) -> None:  # fmt: skip
         c = self.config
         floor = np.diag([c.loop_floor_m**2] * 3 + [c.loop_floor_yaw_rad**2])
         cov = cov_4dof + floor if c.graph.kind == "4dof" else None
@@ -766,7 +778,7 @@ class LoopClosure:
         if taken and MAP_FRAME not in (self._segment_of.get(old), self._segment_of.get(new)):
             try:
                 self._own_loops.append(loop_constraint(
-                    old - self._offset, new - self._offset, T_old_new, cov_4dof + floor
+                    old - self._offset, new - self._offset, T_old_new, cov_4dof + floor, matches
                 ))  # fmt: skip
             except QuadnavError:  # (a covariance that is none: the pose graph has the loop)
                 self.stats.unsmoothable += 1

@@ -354,6 +354,13 @@ class VioConfig(ConfigModel):
     final_smoothing_iterations: int = Field(
         30, ge=1, le=1000, description="Levenberg-Marquardt steps of the final smoothing"
     )
+    loops_as_observations: bool = Field(
+        False,
+        description="with loop closure, the final smoothing takes each loop as the new "
+        "keyframe's observations of the old side's landmarks where it holds them, not as the "
+        "relative pose the loop measured at its covariance (measured worse on realistic "
+        "MH_01: see the 2026-12-05 session 32 results)",
+    )
     describe_keyframes: bool = Field(
         True, description="ORB descriptors at each keyframe's corners, for place recognition"
     )

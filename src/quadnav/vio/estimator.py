@@ -33,6 +33,7 @@ from dataclasses import dataclass
 
 import gtsam
 import numpy as np
+from gtsam.symbol_shorthand import L
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
@@ -88,6 +89,9 @@ GAUGE_POSITION_SIGMA_M = 1e-3
 FREE_TILT_SIGMA_RAD = 0.5
 #: how often an estimator that cannot start (or re-start) says so, and why (s)
 WAITING_REPORT_S = 5.0
+#: the fewest of a loop's matches whose landmarks the final smoothing must hold to take the
+#: loop as observations (fewer: as a relative pose; verification asks 25 PnP inliers)
+LOOP_MIN_OBSERVATIONS = 12
 
 
 @dataclass(slots=True)
@@ -214,7 +218,7 @@ class VioEstimator:
         if self._imu_log is not None:
             self._imu_log.use_params(0, self._params)
         #: the last smoothing's trajectory, by the frames and loops it was made from
-        self._final: tuple[tuple[int, tuple[tuple[int, int], ...]], Trajectory] | None = None
+        self._final: tuple[tuple[int, tuple[tuple[int, int, bytes], ...]], Trajectory] | None = None
         self._final_keyframes: dict[int, Pose] = {}  # (the last smoothing's keyframes)
         #: the final smoothing's outcome (None: not run)
         self.smoothing: SmoothingReport | None = None
@@ -292,7 +296,7 @@ class VioEstimator:
         (a keyframe it has not, through its last pose)."""
         if not self.config.final_smoothing:
             return self._trail.trajectory({k: pose3(p) for k, p in keyframe_poses.items()})
-        key = (len(self._trail), tuple((lp.old, lp.new) for lp in loops))
+        key = (len(self._trail), tuple((lp.old, lp.new, lp.landmark_ids.tobytes()) for lp in loops))
         if self._final is not None and self._final[0] == key:
             return self._final[1]  # (nothing new since: the smoothing is not redone)
         segments = list(self.window.segments)
@@ -308,12 +312,36 @@ class VioEstimator:
                 segments = [reweighed(g, times, log, a, hold_ns=hold)[0] for g in segments]
             anchor = {k: pose3(p) for k, p in keyframe_poses.items()}
             poses, self.smoothing = smooth_segments(
-                segments, cfg.final_smoothing_iterations, loops, anchor
-            )
+                segments, cfg.final_smoothing_iterations, loops, anchor,
+                self._loop_observations if cfg.loops_as_observations else None,
+            )  # fmt: skip
         final = self._trail.trajectory(poses)
         self._final = (key, final)
         self._final_keyframes = {k: to_pose(p) for k, p in poses.items()}
         return final
+
+    def _loop_observations(
+        self, loop: LoopConstraint, held: set[int]
+    ) -> list[gtsam.NonlinearFactor]:
+        """A loop's matches as the new keyframe's observations of the old landmarks (see
+        :mod:`quadnav.vio.final`): each match's track to the key of its landmark anchored last
+        at or before the old keyframe (a track whose landmark left the window and came back
+        has several), where the segment's factors hold it; none if fewer than
+        ``LOOP_MIN_OBSERVATIONS`` are."""
+        keys: list[int] = []
+        at: list[int] = []
+        for n, j in enumerate(loop.landmark_ids.tolist()):
+            cands = self.window.track_keys.get(j)
+            if not cands:
+                continue
+            before = [k for a, k in cands if a <= loop.old]
+            key = before[-1] if before else cands[0][1]
+            if L(key) in held:
+                keys.append(key)
+                at.append(n)
+        if len(keys) < LOOP_MIN_OBSERVATIONS:
+            return []
+        return self.window.loop_observations(loop.xy[at], loop.new, keys)
 
     def final_keyframe_poses(self) -> dict[int, Pose]:
         """The keyframes' poses the last final smoothing gave (by keyframe number; none

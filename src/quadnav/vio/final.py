@@ -24,14 +24,19 @@ With loop closure (``quadnav vio --loop --final-ba``), each verified loop betwee
 keyframes of one segment is a factor of that segment's smoothing too: the new keyframe's pose
 relative to the old one's, at the loop's covariance, behind a Huber kernel
 (:data:`LOOP_HUBER_K`), so the IMU and the images spread the drift the loop measured over the
-keyframes between (ORB-SLAM3's global adjustment after a loop, here once at the end). A loop
-between two segments is not used, and is counted.
+keyframes between (ORB-SLAM3's global adjustment after a loop, here once at the end). Where
+the loop says what it was measured from (the old side's landmarks and where the new keyframe
+saw them) and the segment holds those landmarks, it enters as those observations instead: the
+new keyframe's projection factors of the old landmarks, as ORB-SLAM's loop fusion joins the
+two sides' map points before its global adjustment. The relative pose carries the old
+landmarks' error with a guessed covariance (``LoopConfig.loop_floor_m``); as observations the
+smoothing moves the landmarks too. A loop between two segments is not used, and is counted.
 """
 
 from __future__ import annotations
 
 import bisect
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import gtsam
@@ -51,6 +56,7 @@ __all__ = [
     "LOOP_HUBER_K",
     "FrameTrail",
     "ImuLog",
+    "LoopObserver",
     "SmoothingReport",
     "loop_factor",
     "reweighed",
@@ -77,6 +83,8 @@ class SmoothingReport:
     #: loops given as factors, and those that were not (their keyframes in two segments)
     loops: int = 0
     loops_unused: int = 0
+    #: of the loops given, those taken as observations of the segment's landmarks
+    loops_observed: int = 0
 
 
 def loop_factor(loop: LoopConstraint) -> gtsam.BetweenFactorPose3:
@@ -90,23 +98,37 @@ def loop_factor(loop: LoopConstraint) -> gtsam.BetweenFactorPose3:
     )
 
 
+#: what turns a loop into observations of the segment's own landmarks: the loop, and the keys
+#: the segment's factors hold; no factors when too few of its landmarks are in the segment
+LoopObserver = Callable[[LoopConstraint, set[int]], list[gtsam.NonlinearFactor]]
+
+
 def _with_loops(
-    seg: GraphHistory, loops: Sequence[LoopConstraint]
-) -> tuple[GraphHistory, set[tuple[int, int]]]:
+    seg: GraphHistory, loops: Sequence[LoopConstraint], observe: LoopObserver | None = None
+) -> tuple[GraphHistory, set[tuple[int, int]], int]:
     """``seg`` with the loops whose two keyframes it holds as factors (the segment's own
-    graph left as it is); which (old, new)."""
+    graph left as it is); which (old, new), and how many were taken as observations: each loop
+    as the new keyframe's observations of the old landmarks (``observe``) where it can be, as
+    a relative pose where it cannot."""
     mine = [
         lp for lp in loops
         if seg.values.exists(gtsam.symbol("x", lp.old))
         and seg.values.exists(gtsam.symbol("x", lp.new))
     ]  # fmt: skip
     if not mine:
-        return seg, set()
+        return seg, set(), 0
     graph = gtsam.NonlinearFactorGraph()
     graph.push_back(seg.factors)
+    held = set(seg.factors.keys()) if observe is not None else set()
+    observed = 0
     for lp in mine:
-        graph.add(loop_factor(lp))
-    return GraphHistory(graph, seg.values), {(lp.old, lp.new) for lp in mine}
+        factors = observe(lp, held) if observe is not None else []
+        for f in factors:
+            graph.add(f)
+        if not factors:
+            graph.add(loop_factor(lp))
+        observed += bool(factors)
+    return GraphHistory(graph, seg.values), {(lp.old, lp.new) for lp in mine}, observed
 
 
 def smooth_segments(
@@ -114,19 +136,21 @@ def smooth_segments(
     iterations: int,
     loops: Sequence[LoopConstraint] = (),
     anchor: Mapping[int, gtsam.Pose3] | None = None,
+    observe: LoopObserver | None = None,
 ) -> tuple[dict[int, gtsam.Pose3], SmoothingReport]:
     """Each segment's keyframe poses (by keyframe number) after smoothing it whole, with the
     ``loops`` inside it as factors (see the module); the report says how it went. ``anchor``:
     keyframe poses a loop closer's pose graph found, in its frame: a later segment that shares
     no keyframe with an earlier one (a re-initialisation, which only the pose graph joined) is
     turned about the vertical and shifted onto them, and a segment whose smoothing fails takes
-    them."""
+    them. ``observe``: see :func:`_with_loops`."""
     poses: dict[int, gtsam.Pose3] = {}
     anchor = anchor or {}
     failed, kfs, before, after, why = 0, 0, 0.0, 0.0, []
     used: set[tuple[int, int]] = set()
+    observed = 0
     for seg in segments:
-        seg, mine_loops = _with_loops(seg, loops)
+        seg, mine_loops, n_obs = _with_loops(seg, loops, observe)
         try:
             est, e0, e1 = _smooth(seg, iterations)
             if not np.isfinite(e1) or e1 > e0:
@@ -150,10 +174,12 @@ def smooth_segments(
         kfs += len(mine)
         before, after = before + e0, after + e1
         used.update(mine_loops)
+        observed += n_obs
     report = SmoothingReport(
         segments=len(segments) - failed, failed=failed, keyframes=kfs,
         error_before=before, error_after=after, failures=tuple(why),
         loops=len(used), loops_unused=len({(lp.old, lp.new) for lp in loops} - used),
+        loops_observed=observed,
     )  # fmt: skip
     return poses, report
 

@@ -289,6 +289,9 @@ class SlidingWindow:
         self.segments: list[GraphHistory] = []
         #: each keyframe's time (ns, the IMU's clock) by its number (``final_smoothing``)
         self.kf_times: dict[int, int] = {}
+        #: each track's landmark keys, with the keyframe each was anchored in, in order
+        #: (``final_smoothing``: a loop's observations of old landmarks go to these keys)
+        self.track_keys: dict[int, list[tuple[int, int]]] = {}
         self._clock = 0.0
         self._stamp_of: dict[int, float] = {}
         self._anchored: dict[int, list[int]] = {}  # keyframe -> its landmarks' key numbers
@@ -588,6 +591,8 @@ class SlidingWindow:
             key = L(new.key)
             self.graph.insert(key, new.point_W, self._stamp_of[new.anchor])  # leaves with it
             self._anchored.setdefault(new.anchor, []).append(new.key)
+            if self.config.final_smoothing:
+                self.track_keys.setdefault(new.track, []).append((new.anchor, new.key))
             T_W_B = poses[new.anchor]
             self.graph.add(
                 gtsam.BearingRangeFactor3D(
@@ -627,6 +632,22 @@ class SlidingWindow:
             self.graph.add(
                 factor(uv, self._pixel_noise, X(ob.keyframe), C(side), L(ob.key), Kc(side))
             )
+
+    def loop_observations(
+        self, xy: FloatArray, keyframe: int, keys: Sequence[int]
+    ) -> list[gtsam.NonlinearFactor]:
+        """Keyframe ``keyframe``'s first camera seeing landmarks ``keys`` again at normalised
+        ``xy`` (a loop's matches): projection factors as the window's own (the same noise,
+        lens and calibration variables), for the final smoothing."""
+        if self._lens:
+            factor = _LENS[self._cams[0].model][1]
+            px = self._pixels(xy, 0)
+            return [
+                factor(uv, self._pixel_noise, X(keyframe), C(0), L(k), Kc(0))
+                for uv, k in zip(px, keys, strict=True)
+            ]
+        project = self._projection(0)
+        return [project(p, X(keyframe), L(k)) for p, k in zip(xy, keys, strict=True)]
 
     def _projection(self, side: int) -> Callable[[FloatArray, int, int], gtsam.NonlinearFactor]:
         """The factor of an observation (normalised point, pose key, landmark key) in camera
