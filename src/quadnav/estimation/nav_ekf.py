@@ -641,8 +641,8 @@ class NavEkf:
         self._odometry_gates = gate_thresholds(config.odometry_gate_sigma, tuple(range(1, 8)))
         # the observation models by sample type (quadnav.estimation.nav_observations)
         self.observations = builtin_observations(gate_thresholds(config.flow_gate_sigma, (2,))[2])
-        self._w_B = np.zeros(3)  # the body rate (bias removed) of the last prediction
-        self._f_B = np.zeros(3)  # the specific force (bias removed) of the last prediction
+        # the body rate and the specific force (biases removed) of the last prediction
+        self._w_B, self._f_B = np.zeros(3), np.zeros(3)
         # GNSS fixes in the world frame (ENU): about the datum given, or the first fix put
         # where the filter is then
         self._navsat: NavSatTransform | None = (
@@ -651,8 +651,7 @@ class NavEkf:
         self._g_W = np.array([0.0, 0.0, -config.gravity_m_s2])
         self._jac_dt = math.nan
         self._n_predict = 0
-        self._F = np.eye(_N)
-        self._G = np.zeros((_N, NAV_NOISE.size))
+        self._F, self._G = np.eye(_N), np.zeros((_N, NAV_NOISE.size))
         self._q = np.zeros(NAV_NOISE.size)
         # External-pose frames: per source, the last reset counter and the transform
         # (yaw, offset) that maps its frame onto the filter's, re-anchored on each reset.

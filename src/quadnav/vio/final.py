@@ -26,11 +26,14 @@ relative to the old one's, at the loop's covariance, behind a Huber kernel
 (:data:`LOOP_HUBER_K`), so the IMU and the images spread the drift the loop measured over the
 keyframes between (ORB-SLAM3's global adjustment after a loop, here once at the end). Where
 the loop says what it was measured from (the old side's landmarks and where the new keyframe
-saw them) and the segment holds those landmarks, it enters as those observations instead: the
-new keyframe's projection factors of the old landmarks, as ORB-SLAM's loop fusion joins the
-two sides' map points before its global adjustment. The relative pose carries the old
-landmarks' error with a guessed covariance (``LoopConfig.loop_floor_m``); as observations the
-smoothing moves the landmarks too. A loop between two segments is not used, and is counted.
+saw them), the segment holds those landmarks and an observer is given
+(``VioConfig.loops_as_observations``), it enters as those observations instead: the new
+keyframe's projection factors of the old landmarks, as ORB-SLAM's loop fusion joins the two
+sides' map points before its global adjustment. The relative pose carries the old landmarks'
+error with a guessed covariance (``LoopConfig.loop_floor_m``) and 4 degrees of freedom, not
+a monocular run's scale; as observations the smoothing moves the landmarks too (on the whole
+realistic MH_01, mono: 0.38x of no loops against 0.53x as relative poses). A loop between two
+segments is not used, and is counted.
 """
 
 from __future__ import annotations
